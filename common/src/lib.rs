@@ -1,0 +1,15 @@
+//! Tessera's tracer core.
+//!
+//! Pure computation: scene bytes and an [`assets::AssetResolver`] in, linear float images out.
+//! No network, no async runtime, no database: the worker and the server bring those.
+//!
+//! Pipeline: [`scene::xml`] parses a file into [`scene::records`] (plain data with source
+//! locations), [`scene::build`] turns records into a render-ready [`scene::Scene`] (meshes, BVHs,
+//! instances, materials, lights), and [`render`] traces tiles of it.
+
+pub mod assets;
+pub mod error;
+pub mod ply;
+pub mod scene;
+
+pub use error::{Loc, SceneError, Warning};

@@ -1,0 +1,1 @@
+//! PLY reader. Being written.

@@ -1,0 +1,252 @@
+//! Plain scene records: what a scene file *says*, before anything is built from it.
+//!
+//! The XML front end (and later the 2025 JSON front end) produce exactly these types; everything
+//! after parsing (id resolution, PLY loading, BVH building) reads only these. They carry no XML
+//! and no render structures, and each record keeps the [`Loc`] of the element it came from so
+//! that the build step can report errors precisely.
+//!
+//! Defaults follow scene-format.md §16.1 and are applied by the front end, so a record always
+//! holds the value that will be rendered.
+
+use std::path::PathBuf;
+
+use crate::error::{Loc, Warning};
+
+pub type Vec3 = [f64; 3];
+
+/// A whole scene file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneRecords {
+    /// The scene file this came from; asset paths are relative to its directory.
+    pub source: PathBuf,
+    pub background_color: Vec3,
+    pub shadow_ray_epsilon: f64,
+    pub intersection_test_epsilon: f64,
+    pub max_recursion_depth: u32,
+    pub cameras: Vec<CameraRec>,
+    pub ambient_light: Vec3,
+    pub point_lights: Vec<PointLightRec>,
+    pub materials: Vec<MaterialRec>,
+    /// Global vertex list; vertex id `k` (1-based) is `vertices[k - 1]`.
+    pub vertices: Vec<Vec3>,
+    pub transformations: Vec<TransformRec>,
+    pub meshes: Vec<MeshRec>,
+    pub triangles: Vec<TriangleRec>,
+    pub spheres: Vec<SphereRec>,
+    pub instances: Vec<InstanceRec>,
+    /// Unknown or not-yet-supported elements, reported but not fatal.
+    pub warnings: Vec<Warning>,
+}
+
+impl SceneRecords {
+    /// An empty scene with the format's defaults (§16.1).
+    pub fn new(source: impl Into<PathBuf>) -> Self {
+        SceneRecords {
+            source: source.into(),
+            background_color: [0.0; 3],
+            shadow_ray_epsilon: 1e-3,
+            intersection_test_epsilon: 1e-6,
+            max_recursion_depth: 0,
+            cameras: Vec::new(),
+            ambient_light: [0.0; 3],
+            point_lights: Vec::new(),
+            materials: Vec::new(),
+            vertices: Vec::new(),
+            transformations: Vec::new(),
+            meshes: Vec::new(),
+            triangles: Vec::new(),
+            spheres: Vec::new(),
+            instances: Vec::new(),
+            warnings: Vec::new(),
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Handedness {
+    Right,
+    Left,
+}
+
+/// How the image plane is given.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Projection {
+    /// Plain camera: `NearPlane` l r b t.
+    NearPlane { left: f64, right: f64, bottom: f64, top: f64 },
+    /// `type="lookAt"`: full vertical field of view in degrees, symmetric frustum.
+    FovY(f64),
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraRec {
+    pub id: String,
+    pub loc: Loc,
+    pub position: Vec3,
+    /// Viewing direction (for lookAt cameras with GazePoint: `GazePoint - Position`). Not normalised.
+    pub gaze: Vec3,
+    pub up: Vec3,
+    pub projection: Projection,
+    pub near_distance: f64,
+    pub width: u32,
+    pub height: u32,
+    pub image_name: String,
+    pub handedness: Handedness,
+    /// `NumSamples`, default 1.
+    pub num_samples: u32,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct PointLightRec {
+    pub id: String,
+    pub loc: Loc,
+    pub position: Vec3,
+    pub intensity: Vec3,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MaterialKind {
+    /// No `type`: Blinn-Phong only (untyped MirrorReflectance is ignored in 2020+ files).
+    Plain,
+    Mirror,
+    Conductor,
+    Dielectric,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct MaterialRec {
+    pub id: String,
+    pub loc: Loc,
+    pub kind: MaterialKind,
+    pub ambient: Vec3,
+    pub diffuse: Vec3,
+    pub specular: Vec3,
+    pub mirror: Vec3,
+    pub phong_exponent: f64,
+    pub refraction_index: f64,
+    pub absorption_index: f64,
+    pub absorption_coefficient: Vec3,
+    pub roughness: f64,
+    /// `degamma="true"`: reflectances are display-referred (applied at build time).
+    pub degamma: bool,
+}
+
+impl MaterialRec {
+    /// A material with the format's defaults (§6.1).
+    pub fn new(id: impl Into<String>, loc: Loc) -> Self {
+        MaterialRec {
+            id: id.into(),
+            loc,
+            kind: MaterialKind::Plain,
+            ambient: [0.0; 3],
+            diffuse: [0.0; 3],
+            specular: [0.0; 3],
+            mirror: [0.0; 3],
+            phong_exponent: 1.0,
+            refraction_index: 1.0,
+            absorption_index: 0.0,
+            absorption_coefficient: [0.0; 3],
+            roughness: 0.0,
+            degamma: false,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum TransformOp {
+    Translation(Vec3),
+    Scaling(Vec3),
+    /// Angle in degrees about an axis through the origin (right-hand rule).
+    Rotation { degrees: f64, axis: Vec3 },
+    /// 16 numbers, row-major.
+    Composite([f64; 16]),
+}
+
+impl TransformOp {
+    /// The letter used in reference strings (`t1 s2 r1 c1`).
+    pub fn letter(&self) -> char {
+        match self {
+            TransformOp::Translation(_) => 't',
+            TransformOp::Scaling(_) => 's',
+            TransformOp::Rotation { .. } => 'r',
+            TransformOp::Composite(_) => 'c',
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct TransformRec {
+    pub id: String,
+    pub loc: Loc,
+    pub op: TransformOp,
+}
+
+/// A reference like `r1` inside a `Transformations` string: kind letter and id.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct TransformRef {
+    pub letter: char,
+    pub id: String,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ShadingMode {
+    Flat,
+    Smooth,
+}
+
+/// Where a mesh's triangles come from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum FacesRec {
+    /// Inline triples of vertex ids as written; the real id is `index + vertex_offset` (1-based
+    /// into [`SceneRecords::vertices`]).
+    Inline { indices: Vec<i64>, vertex_offset: i64 },
+    /// `plyFile="..."`, as written in the scene (resolved against the scene's directory at build time).
+    Ply { path: String },
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct MeshRec {
+    pub id: String,
+    pub loc: Loc,
+    pub material: String,
+    pub faces: FacesRec,
+    /// Location of the `<Faces>` element, for errors about indices or the PLY file.
+    pub faces_loc: Loc,
+    pub shading: ShadingMode,
+    /// Applied left to right: the first reference is applied first.
+    pub transforms: Vec<TransformRef>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct TriangleRec {
+    pub id: String,
+    pub loc: Loc,
+    pub material: String,
+    /// 1-based vertex ids.
+    pub indices: [i64; 3],
+    pub transforms: Vec<TransformRef>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct SphereRec {
+    pub id: String,
+    pub loc: Loc,
+    pub material: String,
+    /// 1-based vertex id of the centre.
+    pub center: i64,
+    pub radius: f64,
+    pub transforms: Vec<TransformRef>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct InstanceRec {
+    pub id: String,
+    pub loc: Loc,
+    pub base_mesh: String,
+    /// `resetTransform="true"`: only the instance's own transformations apply.
+    pub reset_transform: bool,
+    /// Overrides the base mesh's material when given.
+    pub material: Option<String>,
+    pub transforms: Vec<TransformRef>,
+    /// `shadingMode` on the instance (repeats the base mesh's in the course files).
+    pub shading: Option<ShadingMode>,
+}

@@ -1,0 +1,1 @@
+//! XML front end (2020/21 dialect). Being written.
