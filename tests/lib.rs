@@ -1,1 +1,21 @@
-//! Shared helpers for the end-to-end tests.
+//! Shared helpers for Tessera's end-to-end tests and the conformance runner.
+//!
+//! The course's scene corpus lives outside the repository in `../shared/scenes` (never copied
+//! in); [`shared_scenes`] finds it.
+
+pub mod conformance;
+
+use std::path::PathBuf;
+
+/// The repository root (the workspace directory).
+pub fn repo_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).parent().map(PathBuf::from).unwrap_or_default()
+}
+
+/// `../shared/scenes` next to the repository, or `$TESSERA_SCENES` when set.
+pub fn shared_scenes() -> PathBuf {
+    match std::env::var_os("TESSERA_SCENES") {
+        Some(p) => PathBuf::from(p),
+        None => repo_root().join("../shared/scenes"),
+    }
+}

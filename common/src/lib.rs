@@ -5,11 +5,19 @@
 //!
 //! Pipeline: [`scene::xml`] parses a file into [`scene::records`] (plain data with source
 //! locations), [`scene::build`] turns records into a render-ready [`scene::Scene`] (meshes, BVHs,
-//! instances, materials, lights), and [`render`] traces tiles of it.
+//! instances, materials, lights), and [`render`] traces tiles of it with [`integrator`].
 
 pub mod assets;
+pub mod camera;
 pub mod error;
+pub mod geometry;
+pub mod image;
+pub mod integrator;
+pub mod material;
+pub mod math;
 pub mod ply;
+pub mod render;
+pub mod sampler;
 pub mod scene;
 
 pub use error::{Loc, SceneError, Warning};

@@ -1,1 +1,154 @@
-fn main() {}
+//! `tessera-worker`: Tessera's CPU tracer as a command-line program.
+//!
+//! `render` renders a scene file on this machine, like the course's `./raytracer scene.xml`.
+//! (Pulling tiles from a farm server arrives with the farm.)
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use clap::{Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use tessera::render::{RenderSettings, render_camera};
+use tessera::scene::load_scene_file;
+
+#[derive(Parser)]
+#[command(name = "tessera-worker", version, about = "Tessera's CPU ray tracer for CENG795 scene files")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Render every camera of a scene file on this machine.
+    ///
+    /// Each camera's image is written to DIR under the camera's <ImageName> (PNG: clamped to
+    /// [0, 255] and rounded, as the course specifies). Assets (PLY files) are found relative to
+    /// the scene file. Warnings about the scene go to stderr; a summary line per camera goes to
+    /// stdout.
+    ///
+    /// Example: tessera-worker render scenes/cornell_box.xml --out out/
+    Render {
+        /// The scene file (CENG795 XML).
+        scene: PathBuf,
+        /// Directory for the output images (created if missing).
+        #[arg(long, short, default_value = ".", value_name = "DIR")]
+        out: PathBuf,
+        /// Render threads; default: every core.
+        #[arg(long, short = 'j', value_name = "N")]
+        threads: Option<usize>,
+        /// Render only camera K (1 = the first camera in the file).
+        #[arg(long, value_name = "K")]
+        camera: Option<usize>,
+        /// Tile edge in pixels (the unit of parallel work; does not change the image).
+        #[arg(long, default_value_t = 32, value_name = "PX")]
+        tile_size: u32,
+        /// Do not draw a progress bar.
+        #[arg(long, short)]
+        quiet: bool,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Render { scene, out, threads, camera, tile_size, quiet } => {
+            render(&scene, &out, threads, camera, tile_size, quiet)
+        }
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// The output file for an `ImageName`: its file name only (a scene cannot write outside DIR),
+/// and PNG until HDR output exists.
+fn output_path(out: &Path, image_name: &str) -> (PathBuf, Option<String>) {
+    let name = Path::new(image_name).file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "image.png".into());
+    let ext = Path::new(&name).extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
+    match ext.as_deref() {
+        Some("png") => (out.join(name), None),
+        _ => {
+            let png = Path::new(&name).with_extension("png");
+            let note = format!("ImageName \"{image_name}\": only PNG output is supported yet; writing {} instead", png.display());
+            (out.join(png), Some(note))
+        }
+    }
+}
+
+fn render(scene_path: &Path, out: &Path, threads: Option<usize>, camera: Option<usize>, tile_size: u32, quiet: bool) -> Result<()> {
+    if tile_size == 0 {
+        bail!("--tile-size must be at least 1");
+    }
+    let mut pool = rayon::ThreadPoolBuilder::new();
+    if let Some(n) = threads {
+        if n == 0 {
+            bail!("--threads must be at least 1");
+        }
+        pool = pool.num_threads(n);
+    }
+    let pool = pool.build().context("cannot start the render threads")?;
+    pool.install(|| -> Result<()> {
+        let t0 = Instant::now();
+        let scene = load_scene_file(scene_path)?;
+        for w in &scene.warnings {
+            eprintln!("{w}");
+        }
+        eprintln!(
+            "loaded {} in {:.2} s: {} triangles, {} objects, {} camera(s)",
+            scene_path.display(),
+            t0.elapsed().as_secs_f64(),
+            scene.stats.triangles,
+            scene.stats.instances,
+            scene.cameras.len()
+        );
+        let selected: Vec<usize> = match camera {
+            Some(k) if k >= 1 && k <= scene.cameras.len() => vec![k - 1],
+            Some(k) => bail!("--camera {k}: the scene has {} camera(s), numbered from 1", scene.cameras.len()),
+            None => (0..scene.cameras.len()).collect(),
+        };
+        std::fs::create_dir_all(out).with_context(|| format!("cannot create the output directory {}", out.display()))?;
+        let settings = RenderSettings::default();
+        for ci in selected {
+            let cam = &scene.cameras[ci];
+            let (path, note) = output_path(out, &cam.image_name);
+            if let Some(n) = note {
+                eprintln!("warning: {n}");
+            }
+            let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(1) };
+            bar.set_style(
+                ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} tiles, {elapsed} elapsed, ETA {eta}")
+                    .unwrap_or_else(|_| ProgressStyle::default_bar())
+                    .progress_chars("=> "),
+            );
+            bar.set_message(cam.image_name.clone());
+            let t = Instant::now();
+            let (img, stats) = render_camera(&scene, ci, tile_size, &settings, &|done, total| {
+                bar.set_length(total as u64);
+                bar.set_position(done as u64);
+            });
+            bar.finish_and_clear();
+            let secs = t.elapsed().as_secs_f64();
+            img.write_png(&path).with_context(|| format!("cannot write {}", path.display()))?;
+            println!(
+                "{}: {}x{}, {} spp, {:.3} s, {:.2} Mrays/s ({} primary, {} shadow, {} secondary)",
+                path.display(),
+                cam.width,
+                cam.height,
+                cam.num_samples,
+                secs,
+                stats.total() as f64 / secs / 1e6,
+                stats.primary,
+                stats.shadow,
+                stats.secondary
+            );
+        }
+        Ok(())
+    })
+}

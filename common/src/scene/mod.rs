@@ -1,4 +1,68 @@
-//! Scenes: parse into plain records first, then build the render scene.
+//! Scenes: parse into plain records first ([`records`], [`xml`]), then build the render scene
+//! ([`build`]).
 
+pub mod build;
 pub mod records;
 pub mod xml;
+
+use std::path::{Path, PathBuf};
+
+use glam::DVec3;
+
+use crate::assets::{AssetResolver, FsResolver};
+use crate::camera::Camera;
+use crate::error::{SceneError, Warning};
+use crate::geometry::Accel;
+use crate::material::Material;
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct PointLight {
+    pub position: DVec3,
+    pub intensity: DVec3,
+}
+
+/// Size and cost of a built scene, for logs and summaries.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneStats {
+    /// Triangles over all instances (an instanced mesh counts once per instance).
+    pub triangles: usize,
+    pub instances: usize,
+    /// Wall time of the build step (PLY loading, normals, BVHs).
+    pub build_seconds: f64,
+}
+
+/// A render-ready scene. Immutable once built; shared by all render threads.
+pub struct Scene {
+    pub source: PathBuf,
+    pub background: DVec3,
+    pub shadow_ray_epsilon: f64,
+    pub intersection_test_epsilon: f64,
+    pub max_recursion_depth: u32,
+    pub ambient_light: DVec3,
+    pub point_lights: Vec<PointLight>,
+    pub materials: Vec<Material>,
+    pub cameras: Vec<Camera>,
+    pub accel: Accel,
+    /// Parser and builder warnings (unknown elements, skipped triangles, ...).
+    pub warnings: Vec<Warning>,
+    pub stats: SceneStats,
+}
+
+/// Parses scene text (chosen by content: XML now, JSON later) named `source` for messages.
+pub fn parse_scene(text: &str, source: &Path) -> Result<records::SceneRecords, SceneError> {
+    xml::parse_xml(text, source)
+}
+
+/// Parses and builds a scene from text, with assets from `resolver`.
+pub fn load_scene_str(text: &str, source: &Path, resolver: &dyn AssetResolver) -> Result<Scene, SceneError> {
+    let rec = parse_scene(text, source)?;
+    build::build_scene(&rec, resolver)
+}
+
+/// Reads, parses and builds the scene file at `path`; assets resolve relative to its directory.
+pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
+    let bytes = std::fs::read(path).map_err(|e| SceneError::file(path, format!("cannot read the scene file: {e}")))?;
+    let text = String::from_utf8(bytes)
+        .map_err(|e| SceneError::file(path, format!("the scene file is not UTF-8 text (byte {}); save it as UTF-8", e.utf8_error().valid_up_to())))?;
+    load_scene_str(&text, path, &FsResolver::for_scene(path))
+}

@@ -1,1 +1,1886 @@
-//! XML front end (2020/21 dialect). Being written.
+//! XML front end: the 2020/21 CENG795 dialect (homeworks 1-2), plus the 2019 legacy rules for
+//! materials (scene-format.md §6.1, §6.9).
+//!
+//! Parsing happens in two steps:
+//!
+//! 1. [`read_tree`] turns the text into a small element tree ([`Node`]) with line numbers, using
+//!    `quick-xml`. Everything about well-formedness is decided here.
+//! 2. [`Parser`] walks the tree and fills [`SceneRecords`]. Because it looks children up by
+//!    name, the order of elements inside `<Scene>` (and anywhere else) does not matter.
+//!
+//! Nothing is resolved here: ids stay strings, PLY files are not opened. Elements we do not know
+//! become warnings, elements of the format that are not implemented yet become "not supported
+//! yet" warnings, and everything a user can get wrong is a [`SceneError`] naming the file, the
+//! line and the element. No input makes this module panic.
+
+use std::borrow::Cow;
+use std::path::Path;
+
+use quick_xml::errors::{Error as XmlError, IllFormedError, SyntaxError};
+use quick_xml::escape::resolve_predefined_entity;
+use quick_xml::events::{BytesStart, Event};
+use quick_xml::{Reader, XmlVersion};
+
+use super::records::{
+    CameraRec, FacesRec, Handedness, InstanceRec, MaterialKind, MaterialRec, MeshRec, PointLightRec,
+    Projection, SceneRecords, ShadingMode, SphereRec, TransformOp, TransformRec, TransformRef, TriangleRec,
+    Vec3,
+};
+use crate::error::{Loc, SceneError, Warning};
+
+type Result<T> = std::result::Result<T, SceneError>;
+
+/// Parses a scene file of the XML dialect into plain records.
+///
+/// `source` is only used to name the file in errors and warnings and is stored in
+/// [`SceneRecords::source`]; nothing is read from disk. Unknown elements and elements that are
+/// not supported yet end up in [`SceneRecords::warnings`], in file order.
+///
+/// # Errors
+///
+/// A [`SceneError`] with line and element for malformed XML, a root other than `<Scene>`,
+/// malformed numbers, missing required children or attributes, and invalid attribute values.
+pub fn parse_xml(text: &str, source: &Path) -> Result<SceneRecords> {
+    let root = read_tree(text, source)?;
+    if root.name != "Scene" {
+        return Err(SceneError::new(
+            source,
+            root.loc(),
+            format!("the root element must be <Scene>, found <{}>; is this a scene file?", root.name),
+        ));
+    }
+    let mut parser = Parser { file: source, legacy: is_legacy_2019(&root), out: SceneRecords::new(source) };
+    parser.scene(&root)?;
+    // Report in file order (the walk visits blocks, not lines); the sort is stable.
+    parser.out.warnings.sort_by_key(|w| w.loc.line);
+    Ok(parser.out)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Step 1: text -> element tree
+// ---------------------------------------------------------------------------------------------
+
+/// Deeper nesting than this is certainly not a scene file; refusing it keeps the recursive
+/// walks (and dropping the tree) far away from stack overflows on hostile input.
+const MAX_DEPTH: usize = 64;
+
+/// One XML element with what the walk needs: name, attributes, text and where it was written.
+#[derive(Debug)]
+struct Node {
+    name: String,
+    /// How errors name this element: `Sphere id="2"`, or for an element inside a record its
+    /// path from the record, `Camera id="1"> / <Position` (displayed by [`SceneError`] as
+    /// `<Camera id="1"> / <Position>`).
+    label: String,
+    /// Nesting depth: `<Scene>` is 1, `<Cameras>` 2, `<Camera>` 3, `<Position>` 4.
+    depth: usize,
+    /// Line of the start tag.
+    line: u32,
+    /// Line on which the element's text starts (after the start tag's `>`).
+    content_line: u32,
+    attrs: Vec<(String, String)>,
+    /// The element's own character data, concatenated. Comments inside it are replaced by a
+    /// space plus their newlines, so tokens keep their line numbers and a comment separates
+    /// numbers (`1 2<!-- note -->3` reads as three numbers).
+    text: String,
+    children: Vec<Node>,
+}
+
+impl Node {
+    fn loc(&self) -> Loc {
+        Loc::new(self.line, self.label.clone())
+    }
+
+    fn attr(&self, key: &str) -> Option<&str> {
+        self.attrs.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str())
+    }
+
+    /// The first child with this name (later duplicates are reported by [`Parser::check`]).
+    fn child(&self, name: &str) -> Option<&Node> {
+        self.children.iter().find(|c| c.name == name)
+    }
+
+    fn children_named<'a>(&'a self, name: &'a str) -> impl Iterator<Item = &'a Node> + 'a {
+        self.children.iter().filter(move |c| c.name == name)
+    }
+}
+
+/// Turns byte offsets into 1-based line numbers. Offsets mostly grow, so it counts forwards
+/// from the last answer and only restarts from the top when asked about an earlier offset.
+struct Lines<'a> {
+    bytes: &'a [u8],
+    offset: usize,
+    line: u32,
+}
+
+impl<'a> Lines<'a> {
+    fn new(text: &'a str) -> Self {
+        Lines { bytes: text.as_bytes(), offset: 0, line: 1 }
+    }
+
+    fn line_at(&mut self, offset: u64) -> u32 {
+        let offset = usize::try_from(offset).unwrap_or(usize::MAX).min(self.bytes.len());
+        if offset < self.offset {
+            self.offset = 0;
+            self.line = 1;
+        }
+        let newlines = newline_count(&self.bytes[self.offset..offset]);
+        self.line = self.line.saturating_add(u32::try_from(newlines).unwrap_or(u32::MAX));
+        self.offset = offset;
+        self.line
+    }
+}
+
+fn newline_count(bytes: &[u8]) -> usize {
+    bytes.iter().filter(|&&b| b == b'\n').count()
+}
+
+/// Reads the whole document into a tree and returns its root element.
+fn read_tree(text: &str, file: &Path) -> Result<Node> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let mut reader = Reader::from_str(text);
+    let mut lines = Lines::new(text);
+    let mut stack: Vec<Node> = Vec::new();
+    let mut root: Option<Node> = None;
+    let file_err = |line: u32, message: String| SceneError::new(file, line_loc(line), message);
+
+    loop {
+        // Text is not trimmed, so the next event starts exactly here: for tags, at the `<`.
+        let start = reader.buffer_position();
+        let event = match reader.read_event() {
+            Ok(event) => event,
+            Err(e) => {
+                let line = lines.line_at(reader.error_position());
+                return Err(file_err(line, format!("malformed XML: {e}. Hint: {}", xml_hint(&e))));
+            }
+        };
+        match event {
+            Event::Start(tag) => {
+                let line = lines.line_at(start);
+                let content_line = lines.line_at(reader.buffer_position());
+                let node = new_node(&tag, stack.last(), line, content_line, file)?;
+                if stack.len() >= MAX_DEPTH {
+                    return Err(SceneError::new(
+                        file,
+                        node.loc(),
+                        format!(
+                            "elements are nested more than {MAX_DEPTH} levels deep; this is not a scene file"
+                        ),
+                    ));
+                }
+                stack.push(node);
+            }
+            Event::Empty(tag) => {
+                let line = lines.line_at(start);
+                let node = new_node(&tag, stack.last(), line, line, file)?;
+                attach(node, &mut stack, &mut root, file)?;
+            }
+            Event::End(_) => {
+                // quick-xml has already checked that the name matches the open element.
+                if let Some(node) = stack.pop() {
+                    attach(node, &mut stack, &mut root, file)?;
+                }
+            }
+            Event::Text(t) => push_text(&mut stack, &t, lines.line_at(start), file)?,
+            Event::CData(t) => push_text(&mut stack, &t, lines.line_at(start), file)?,
+            Event::GeneralRef(r) => {
+                let line = lines.line_at(start);
+                let resolved = match r.resolve_char_ref() {
+                    Ok(Some(c)) => Cow::Owned(c.to_string()),
+                    Ok(None) => match resolve_predefined_entity(&r) {
+                        Some(s) => Cow::Borrowed(s),
+                        None => {
+                            return Err(file_err(
+                                line,
+                                format!("unknown entity &{};. Hint: write a literal & as &amp;", &*r),
+                            ));
+                        }
+                    },
+                    Err(e) => return Err(file_err(line, format!("bad character reference &{};: {e}", &*r))),
+                };
+                push_text(&mut stack, &resolved, line, file)?;
+            }
+            Event::Comment(c) => {
+                if let Some(top) = stack.last_mut() {
+                    top.text.push(' ');
+                    top.text.extend(std::iter::repeat_n('\n', newline_count(c.as_bytes())));
+                }
+            }
+            Event::Decl(_) | Event::PI(_) | Event::DocType(_) => {}
+            Event::Eof => break,
+        }
+    }
+
+    if let Some(open) = stack.last() {
+        return Err(SceneError::new(
+            file,
+            open.loc(),
+            format!("<{}> is never closed: the file ends first (is it truncated?)", open.name),
+        ));
+    }
+    root.ok_or_else(|| {
+        SceneError::file(file, "no XML element found: the file is empty or is not an XML scene")
+    })
+}
+
+fn line_loc(line: u32) -> Loc {
+    Loc { line: Some(line), element: None }
+}
+
+/// A short, practical hint for each kind of XML error.
+fn xml_hint(e: &XmlError) -> &'static str {
+    match e {
+        XmlError::Syntax(
+            SyntaxError::UnclosedTag
+            | SyntaxError::UnclosedComment
+            | SyntaxError::UnclosedCData
+            | SyntaxError::UnclosedPI
+            | SyntaxError::UnclosedXmlDecl
+            | SyntaxError::UnclosedDoctype
+            | SyntaxError::UnclosedSingleQuotedAttributeValue
+            | SyntaxError::UnclosedDoubleQuotedAttributeValue,
+        ) => {
+            "the file ends inside a tag, comment or quoted value; is it truncated, or is a `>`, `-->` or quote missing?"
+        }
+        XmlError::IllFormed(IllFormedError::MismatchedEndTag { .. }) => {
+            "every <Element> must be closed by its own </Element>, innermost first"
+        }
+        XmlError::IllFormed(IllFormedError::UnmatchedEndTag(_)) => {
+            "this closing tag has no opening tag; is an opening tag misspelt or missing?"
+        }
+        XmlError::IllFormed(IllFormedError::UnclosedReference) | XmlError::Escape(_) => {
+            "write a literal & as &amp; and < as &lt;"
+        }
+        XmlError::InvalidAttr(_) => r#"attributes are written name="value", with the value quoted"#,
+        _ => {
+            "check that the file is well-formed XML: tags closed and properly nested, attribute values quoted"
+        }
+    }
+}
+
+fn new_node(
+    tag: &BytesStart,
+    parent: Option<&Node>,
+    line: u32,
+    content_line: u32,
+    file: &Path,
+) -> Result<Node> {
+    let name = tag.name().as_ref().to_string();
+    let mut attrs = Vec::new();
+    for attr in tag.attributes() {
+        let attr = attr.map_err(|e| {
+            SceneError::new(
+                file,
+                Loc::new(line, name.clone()),
+                format!("malformed attribute: {e}. Hint: attributes are written name=\"value\""),
+            )
+        })?;
+        let value = attr.normalized_value(XmlVersion::Implicit1_0).map_err(|e| {
+            SceneError::new(file, Loc::new(line, name.clone()), format!("malformed attribute value: {e}"))
+        })?;
+        attrs.push((attr.key.as_ref().to_string(), value.into_owned()));
+    }
+    let own = match attrs.iter().find(|(k, _)| k == "id") {
+        Some((_, id)) => format!(r#"{name} id="{id}""#),
+        None => name.clone(),
+    };
+    let depth = parent.map_or(1, |p| p.depth + 1);
+    // Records (Camera, Material, Sphere, ...) sit at depth 3; inside them, name the path from
+    // the record so that `<Position>` says which camera it belongs to.
+    let label = match parent {
+        Some(p) if p.depth >= 3 => format!("{}> / <{own}", p.label),
+        _ => own,
+    };
+    Ok(Node { name, label, depth, line, content_line, attrs, text: String::new(), children: Vec::new() })
+}
+
+fn attach(node: Node, stack: &mut [Node], root: &mut Option<Node>, file: &Path) -> Result<()> {
+    if let Some(parent) = stack.last_mut() {
+        parent.children.push(node);
+    } else if root.is_none() {
+        *root = Some(node);
+    } else {
+        return Err(SceneError::new(
+            file,
+            node.loc(),
+            format!("a second top-level element <{}>; a scene file has exactly one <Scene>", node.name),
+        ));
+    }
+    Ok(())
+}
+
+fn push_text(stack: &mut [Node], text: &str, line: u32, file: &Path) -> Result<()> {
+    match stack.last_mut() {
+        Some(top) => top.text.push_str(text),
+        None if text.trim().is_empty() => {}
+        None => {
+            return Err(SceneError::new(
+                file,
+                line_loc(line),
+                format!("text \"{}\" outside of any element; is this an XML scene file?", excerpt(text)),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The 2019 dialect has no `type` on materials and no `TextureMap`s (scene-format.md §1.2, §6.1).
+fn is_legacy_2019(root: &Node) -> bool {
+    fn has_texture_map(node: &Node) -> bool {
+        node.name == "TextureMap" || node.children.iter().any(has_texture_map)
+    }
+    let typed_material = root
+        .children_named("Materials")
+        .flat_map(|ms| ms.children_named("Material"))
+        .any(|m| m.attr("type").is_some());
+    !typed_material && !has_texture_map(root)
+}
+
+/// Up to about 60 characters of `text`, whitespace runs collapsed, for quoting in messages.
+fn excerpt(text: &str) -> String {
+    const MAX: usize = 60;
+    let mut out = String::new();
+    for token in text.split_ascii_whitespace() {
+        if !out.is_empty() {
+            out.push(' ');
+        }
+        if out.len() + token.len() > MAX {
+            out.extend(token.chars().take(MAX.saturating_sub(out.len())));
+            out.push_str("...");
+            break;
+        }
+        out.push_str(token);
+    }
+    out
+}
+
+/// `text` quoted for a message (see [`excerpt`]), or `nothing` when it is blank.
+fn quoted(text: &str) -> String {
+    match excerpt(text) {
+        e if e.is_empty() => "nothing".to_string(),
+        e => format!("\"{e}\""),
+    }
+}
+
+/// Whitespace-separated tokens of `text` with the 0-based line (relative to the text start)
+/// each one is on. Any ASCII whitespace separates (spaces, tabs, LF, CRLF).
+fn tokens(text: &str) -> impl Iterator<Item = (usize, &str)> {
+    text.split_inclusive('\n')
+        .enumerate()
+        .flat_map(|(i, line)| line.split_ascii_whitespace().map(move |t| (i, t)))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Numbers
+// ---------------------------------------------------------------------------------------------
+
+/// A value that appears as a whitespace-separated token in element text.
+trait Token: Copy + Default {
+    /// "a number", "an integer"...
+    const ONE: &'static str;
+    /// "numbers", "integers"...
+    const MANY: &'static str;
+    fn parse(token: &str) -> Option<Self>;
+}
+
+impl Token for f64 {
+    const ONE: &'static str = "a number";
+    const MANY: &'static str = "numbers";
+    fn parse(token: &str) -> Option<Self> {
+        // Rust also accepts "inf" and "NaN"; no scene means those.
+        token.parse::<f64>().ok().filter(|x| x.is_finite())
+    }
+}
+
+impl Token for i64 {
+    const ONE: &'static str = "an integer";
+    const MANY: &'static str = "integers";
+    fn parse(token: &str) -> Option<Self> {
+        token.parse().ok()
+    }
+}
+
+impl Token for u32 {
+    const ONE: &'static str = "a non-negative integer";
+    const MANY: &'static str = "non-negative integers";
+    fn parse(token: &str) -> Option<Self> {
+        token.parse().ok()
+    }
+}
+
+fn expected<T: Token>(n: usize) -> String {
+    if n == 1 { T::ONE.to_string() } else { format!("{n} {}", T::MANY) }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Step 2: tree -> records
+// ---------------------------------------------------------------------------------------------
+
+/// What an element may contain, for the unknown / not-supported-yet warnings.
+struct Schema {
+    /// Children read by the parser, at most one of each (later copies are warned about).
+    single: &'static [&'static str],
+    /// Children read by the parser that may repeat (list entries and containers).
+    many: &'static [&'static str],
+    /// Children that belong to the format but are not implemented yet.
+    unsupported: &'static [&'static str],
+    attrs: &'static [&'static str],
+    unsupported_attrs: &'static [&'static str],
+}
+
+impl Schema {
+    const EMPTY: Schema =
+        Schema { single: &[], many: &[], unsupported: &[], attrs: &[], unsupported_attrs: &[] };
+}
+
+const SCENE: Schema = Schema {
+    single: &[
+        "BackgroundColor",
+        "ShadowRayEpsilon",
+        "IntersectionTestEpsilon",
+        "MaxRecursionDepth",
+        "VertexData",
+    ],
+    many: &["Cameras", "Lights", "Materials", "Transformations", "Objects"],
+    // BackgroundTexture, BackfaceCulling and ZeroBasedIndexing are 2019 elements.
+    unsupported: &[
+        "Textures",
+        "TexCoordData",
+        "BRDFs",
+        "BackgroundTexture",
+        "BackfaceCulling",
+        "ZeroBasedIndexing",
+    ],
+    ..Schema::EMPTY
+};
+const CAMERAS: Schema = Schema { many: &["Camera"], ..Schema::EMPTY };
+const CAMERA: Schema = Schema {
+    single: &[
+        "Position",
+        "Gaze",
+        "GazePoint",
+        "Up",
+        "NearPlane",
+        "FovY",
+        "NearDistance",
+        "ImageResolution",
+        "ImageName",
+        "NumSamples",
+    ],
+    unsupported: &[
+        "FocusDistance",
+        "ApertureSize",
+        "Tonemap",
+        "Renderer",
+        "RendererParams",
+        "Transformations",
+        "ClampSamples",
+    ],
+    attrs: &["id", "type", "handedness"],
+    ..Schema::EMPTY
+};
+const LIGHTS: Schema = Schema {
+    single: &["AmbientLight"],
+    many: &["PointLight"],
+    unsupported: &["AreaLight", "DirectionalLight", "SpotLight", "SphericalDirectionalLight"],
+    ..Schema::EMPTY
+};
+const POINT_LIGHT: Schema = Schema { single: &["Position", "Intensity"], attrs: &["id"], ..Schema::EMPTY };
+const MATERIALS: Schema = Schema { many: &["Material"], ..Schema::EMPTY };
+const MATERIAL: Schema = Schema {
+    single: &[
+        "AmbientReflectance",
+        "DiffuseReflectance",
+        "SpecularReflectance",
+        "MirrorReflectance",
+        "PhongExponent",
+        "RefractionIndex",
+        "AbsorptionIndex",
+        "AbsorptionCoefficient",
+        "Roughness",
+        "Transparency",
+    ],
+    attrs: &["id", "type", "degamma"],
+    unsupported_attrs: &["BRDF"],
+    ..Schema::EMPTY
+};
+const TRANSFORMATIONS: Schema =
+    Schema { many: &["Translation", "Scaling", "Rotation", "Composite"], ..Schema::EMPTY };
+const TRANSFORMATION: Schema = Schema { attrs: &["id"], ..Schema::EMPTY };
+const OBJECTS: Schema = Schema {
+    many: &["Mesh", "Triangle", "Sphere", "MeshInstance"],
+    // Plane only exists in the 2025 JSON dialect so far.
+    unsupported: &["LightMesh", "LightSphere", "Plane"],
+    ..Schema::EMPTY
+};
+// `Texture` is the 2019 spelling of an object's `Textures`.
+const MESH: Schema = Schema {
+    single: &["Material", "Faces", "Transformations"],
+    unsupported: &["Textures", "Texture", "MotionBlur"],
+    attrs: &["id", "shadingMode"],
+    ..Schema::EMPTY
+};
+const TRIANGLE: Schema = Schema {
+    single: &["Material", "Indices", "Transformations"],
+    unsupported: &["Textures", "Texture", "MotionBlur"],
+    attrs: &["id"],
+    ..Schema::EMPTY
+};
+const SPHERE: Schema = Schema {
+    single: &["Material", "Center", "Radius", "Transformations"],
+    unsupported: &["Textures", "Texture", "MotionBlur"],
+    attrs: &["id"],
+    ..Schema::EMPTY
+};
+const MESH_INSTANCE: Schema = Schema {
+    single: &["Material", "Transformations"],
+    unsupported: &["Textures", "Texture", "MotionBlur"],
+    attrs: &["id", "baseMeshId", "resetTransform", "shadingMode"],
+    ..Schema::EMPTY
+};
+const VERTEX_DATA_ATTRS: &[&str] = &[];
+const VERTEX_DATA_UNSUPPORTED_ATTRS: &[&str] = &["binaryFile"];
+// `binaryFile` is known here but handled by `Parser::mesh` (the mesh is skipped).
+const FACES_ATTRS: &[&str] = &["vertexOffset", "plyFile", "binaryFile"];
+const FACES_UNSUPPORTED_ATTRS: &[&str] = &["textureOffset"];
+
+struct Parser<'a> {
+    file: &'a Path,
+    /// 2019 dialect: untyped MirrorReflectance / Transparency make mirrors / dielectrics.
+    legacy: bool,
+    out: SceneRecords,
+}
+
+impl Parser<'_> {
+    // --- reporting ---
+
+    fn err(&self, node: &Node, message: impl Into<String>) -> SceneError {
+        SceneError::new(self.file, node.loc(), message)
+    }
+
+    fn warn(&mut self, node: &Node, message: impl Into<String>) {
+        self.out.warnings.push(Warning {
+            file: self.file.to_path_buf(),
+            loc: node.loc(),
+            message: message.into(),
+        });
+    }
+
+    /// Warns about every child or attribute of `node` that `schema` does not read, and about
+    /// repeated single children. Children of the single children (which hold plain values)
+    /// are warned about here too; list entries and containers are checked by their own parsers.
+    fn check(&mut self, node: &Node, schema: &Schema) {
+        self.check_attrs(node, schema.attrs, schema.unsupported_attrs);
+        for (i, child) in node.children.iter().enumerate() {
+            let name = child.name.as_str();
+            if schema.single.contains(&name) {
+                if node.children[..i].iter().any(|c| c.name == name) {
+                    self.warn(child, format!("<{name}> is given more than once; only the first one is used"));
+                }
+                for grandchild in &child.children {
+                    self.warn(grandchild, format!("unknown element <{}>; it is ignored", grandchild.name));
+                }
+            } else if schema.unsupported.contains(&name) {
+                self.warn(child, format!("<{name}> is not supported yet; it is ignored"));
+            } else if !schema.many.contains(&name) {
+                self.warn(child, format!("unknown element <{name}>; it is ignored"));
+            }
+        }
+    }
+
+    fn check_attrs(&mut self, node: &Node, known: &[&str], unsupported: &[&str]) {
+        for (key, _) in &node.attrs {
+            if unsupported.contains(&key.as_str()) {
+                self.warn(node, format!("attribute {key} is not supported yet; it is ignored"));
+            } else if !known.contains(&key.as_str()) {
+                self.warn(node, format!("unknown attribute {key}; it is ignored"));
+            }
+        }
+    }
+
+    // --- values ---
+
+    fn required<'n>(&self, parent: &'n Node, name: &str) -> Result<&'n Node> {
+        parent.child(name).ok_or_else(|| self.err(parent, format!("missing <{name}>")))
+    }
+
+    /// The first `N` tokens of `node`'s text; extra tokens are ignored (scene-format.md §2).
+    fn numbers<T: Token, const N: usize>(&self, node: &Node) -> Result<[T; N]> {
+        let mut out = [T::default(); N];
+        let mut toks = node.text.split_ascii_whitespace();
+        for slot in &mut out {
+            *slot = toks.next().and_then(T::parse).ok_or_else(|| {
+                self.err(node, format!("expected {}, found {}", expected::<T>(N), quoted(&node.text)))
+            })?;
+        }
+        Ok(out)
+    }
+
+    fn number<T: Token>(&self, node: &Node) -> Result<T> {
+        let [x] = self.numbers::<T, 1>(node)?;
+        Ok(x)
+    }
+
+    fn required_numbers<T: Token, const N: usize>(&self, parent: &Node, name: &str) -> Result<[T; N]> {
+        self.numbers(self.required(parent, name)?)
+    }
+
+    fn optional_numbers<T: Token, const N: usize>(
+        &self,
+        parent: &Node,
+        name: &str,
+    ) -> Result<Option<[T; N]>> {
+        parent.child(name).map(|c| self.numbers(c)).transpose()
+    }
+
+    fn required_number<T: Token>(&self, parent: &Node, name: &str) -> Result<T> {
+        self.number(self.required(parent, name)?)
+    }
+
+    fn optional_number<T: Token>(&self, parent: &Node, name: &str) -> Result<Option<T>> {
+        parent.child(name).map(|c| self.number(c)).transpose()
+    }
+
+    /// All tokens of `node`'s text, whose count must be a multiple of `group` (`per` says what
+    /// a group is, for the message). An error points at the line of the offending token.
+    fn number_list<T: Token>(&self, node: &Node, group: usize, per: &str) -> Result<Vec<T>> {
+        let mut out = Vec::new();
+        for (line, token) in tokens(&node.text) {
+            let value = T::parse(token).ok_or_else(|| {
+                let line = node.content_line.saturating_add(u32::try_from(line).unwrap_or(u32::MAX));
+                SceneError::new(
+                    self.file,
+                    Loc::new(line, node.label.clone()),
+                    format!("expected {}, found \"{}\"", T::MANY, excerpt(token)),
+                )
+            })?;
+            out.push(value);
+        }
+        if out.len() % group != 0 {
+            return Err(self.err(
+                node,
+                format!("the number of values must be a multiple of {group} ({per}), found {}", out.len()),
+            ));
+        }
+        Ok(out)
+    }
+
+    /// Trimmed text that must not be empty; `what` names it for the message.
+    fn text<'n>(&self, node: &'n Node, what: &str) -> Result<&'n str> {
+        match node.text.trim() {
+            "" => Err(self.err(node, format!("expected {what}, found nothing"))),
+            text => Ok(text),
+        }
+    }
+
+    /// A reference to another element by id: one token.
+    fn id_ref(&self, node: &Node, what: &str) -> Result<String> {
+        let text = self.text(node, what)?;
+        if text.split_ascii_whitespace().nth(1).is_some() {
+            return Err(self.err(node, format!("expected {what}, found {}", quoted(text))));
+        }
+        Ok(text.to_string())
+    }
+
+    /// The `id` attribute; elements that others refer to (materials, transformations, meshes)
+    /// must have one, for the rest it is only used in messages.
+    fn id(&self, node: &Node, required: bool) -> Result<String> {
+        match node.attr("id") {
+            Some(id) => Ok(id.trim().to_string()),
+            None if required => {
+                Err(self.err(node, "missing attribute id (other elements refer to it by id)"))
+            }
+            None => Ok(String::new()),
+        }
+    }
+
+    fn bool_attr(&self, node: &Node, key: &str) -> Result<Option<bool>> {
+        match node.attr(key).map(str::trim) {
+            None => Ok(None),
+            Some("true") => Ok(Some(true)),
+            Some("false") => Ok(Some(false)),
+            Some(other) => {
+                Err(self.err(node, format!("attribute {key} must be true or false, found \"{other}\"")))
+            }
+        }
+    }
+
+    fn shading_attr(&self, node: &Node) -> Result<Option<ShadingMode>> {
+        match node.attr("shadingMode").map(str::trim) {
+            None => Ok(None),
+            Some("smooth") => Ok(Some(ShadingMode::Smooth)),
+            Some("flat") => Ok(Some(ShadingMode::Flat)),
+            Some(other) => {
+                Err(self
+                    .err(node, format!("attribute shadingMode must be smooth or flat, found \"{other}\"")))
+            }
+        }
+    }
+
+    /// The first of two alternative children (e.g. `GazePoint` / `Gaze`), warning when both
+    /// are given and the second is ignored.
+    fn either<'n>(&mut self, parent: &'n Node, first: &str, second: &str) -> Option<&'n Node> {
+        match (parent.child(first), parent.child(second)) {
+            (Some(a), Some(b)) => {
+                self.warn(b, format!("<{second}> is ignored because <{first}> is given"));
+                Some(a)
+            }
+            (a, b) => a.or(b),
+        }
+    }
+
+    // --- elements ---
+
+    fn scene(&mut self, scene: &Node) -> Result<()> {
+        self.check(scene, &SCENE);
+        if let Some(c) = self.optional_numbers(scene, "BackgroundColor")? {
+            self.out.background_color = c;
+        }
+        if let Some(e) = self.optional_number(scene, "ShadowRayEpsilon")? {
+            self.out.shadow_ray_epsilon = e;
+        }
+        if let Some(e) = self.optional_number(scene, "IntersectionTestEpsilon")? {
+            self.out.intersection_test_epsilon = e;
+        }
+        if let Some(d) = self.optional_number(scene, "MaxRecursionDepth")? {
+            self.out.max_recursion_depth = d;
+        }
+        if let Some(v) = scene.child("VertexData") {
+            self.vertex_data(v)?;
+        }
+        for block in &scene.children {
+            match block.name.as_str() {
+                "Cameras" => {
+                    self.check(block, &CAMERAS);
+                    for camera in block.children_named("Camera") {
+                        let camera = self.camera(camera)?;
+                        self.out.cameras.push(camera);
+                    }
+                }
+                "Lights" => self.lights(block)?,
+                "Materials" => {
+                    self.check(block, &MATERIALS);
+                    for material in block.children_named("Material") {
+                        let material = self.material(material)?;
+                        self.out.materials.push(material);
+                    }
+                }
+                "Transformations" => {
+                    self.check(block, &TRANSFORMATIONS);
+                    for t in &block.children {
+                        if let Some(t) = self.transformation(t)? {
+                            self.out.transformations.push(t);
+                        }
+                    }
+                }
+                "Objects" => self.objects(block)?,
+                _ => {}
+            }
+        }
+        Ok(())
+    }
+
+    fn camera(&mut self, n: &Node) -> Result<CameraRec> {
+        self.check(n, &CAMERA);
+        let look_at = match n.attr("type").map(str::trim) {
+            None => false,
+            Some("lookAt") => true,
+            Some(other) => {
+                return Err(
+                    self.err(n, format!("unknown camera type \"{other}\" (expected lookAt, or no type)"))
+                );
+            }
+        };
+        let handedness = match n.attr("handedness").map(str::trim) {
+            None | Some("right") => Handedness::Right,
+            Some("left") => Handedness::Left,
+            Some(other) => {
+                return Err(
+                    self.err(n, format!("attribute handedness must be left or right, found \"{other}\""))
+                );
+            }
+        };
+        let position: Vec3 = self.required_numbers(n, "Position")?;
+
+        // Each camera type has its own way of giving the view direction and the image plane;
+        // the other way is accepted as a fallback.
+        let (gaze_first, gaze_second) = if look_at { ("GazePoint", "Gaze") } else { ("Gaze", "GazePoint") };
+        let gaze = match self.either(n, gaze_first, gaze_second) {
+            Some(g) if g.name == "GazePoint" => {
+                let [x, y, z]: Vec3 = self.numbers(g)?;
+                [x - position[0], y - position[1], z - position[2]]
+            }
+            Some(g) => self.numbers(g)?,
+            None => return Err(self.err(n, format!("missing <{gaze_first}> (or <{gaze_second}>)"))),
+        };
+        let (plane_first, plane_second) = if look_at { ("FovY", "NearPlane") } else { ("NearPlane", "FovY") };
+        let projection = match self.either(n, plane_first, plane_second) {
+            Some(p) if p.name == "FovY" => {
+                let fov = self.number::<f64>(p)?;
+                if !(fov > 0.0 && fov < 180.0) {
+                    return Err(self.err(p, format!("FovY must be between 0 and 180 degrees, found {fov}")));
+                }
+                Projection::FovY(fov)
+            }
+            Some(p) => {
+                let [left, right, bottom, top] = self.numbers(p)?;
+                Projection::NearPlane { left, right, bottom, top }
+            }
+            None => return Err(self.err(n, format!("missing <{plane_first}> (or <{plane_second}>)"))),
+        };
+
+        let up = self.required_numbers(n, "Up")?;
+        let near_distance = self.required_number(n, "NearDistance")?;
+        let resolution = self.required(n, "ImageResolution")?;
+        let [width, height] = self.numbers::<u32, 2>(resolution)?;
+        if width == 0 || height == 0 {
+            return Err(self.err(
+                resolution,
+                format!("the image must be at least 1 x 1 pixels, found {width} x {height}"),
+            ));
+        }
+        let image_name = self.text(self.required(n, "ImageName")?, "an image file name")?.to_string();
+        let num_samples = match n.child("NumSamples") {
+            None => 1,
+            Some(s) => match self.number::<u32>(s)? {
+                0 => return Err(self.err(s, "NumSamples must be at least 1")),
+                k => k,
+            },
+        };
+        Ok(CameraRec {
+            id: self.id(n, false)?,
+            loc: n.loc(),
+            position,
+            gaze,
+            up,
+            projection,
+            near_distance,
+            width,
+            height,
+            image_name,
+            handedness,
+            num_samples,
+        })
+    }
+
+    fn lights(&mut self, lights: &Node) -> Result<()> {
+        self.check(lights, &LIGHTS);
+        if let Some(ambient) = self.optional_numbers(lights, "AmbientLight")? {
+            self.out.ambient_light = ambient;
+        }
+        for n in lights.children_named("PointLight") {
+            self.check(n, &POINT_LIGHT);
+            let light = PointLightRec {
+                id: self.id(n, false)?,
+                loc: n.loc(),
+                position: self.required_numbers(n, "Position")?,
+                intensity: self.required_numbers(n, "Intensity")?,
+            };
+            self.out.point_lights.push(light);
+        }
+        Ok(())
+    }
+
+    fn material(&mut self, n: &Node) -> Result<MaterialRec> {
+        self.check(n, &MATERIAL);
+        let mut m = MaterialRec::new(self.id(n, true)?, n.loc());
+        m.kind = match n.attr("type").map(str::trim) {
+            None => MaterialKind::Plain,
+            Some("mirror") => MaterialKind::Mirror,
+            Some("conductor") => MaterialKind::Conductor,
+            Some("dielectric") => MaterialKind::Dielectric,
+            Some(other) => {
+                return Err(self.err(
+                    n,
+                    format!("unknown material type \"{other}\" (expected mirror, conductor or dielectric, or no type)"),
+                ));
+            }
+        };
+        m.degamma = self.bool_attr(n, "degamma")?.unwrap_or(false);
+
+        let colours: [(&str, &mut Vec3); 5] = [
+            ("AmbientReflectance", &mut m.ambient),
+            ("DiffuseReflectance", &mut m.diffuse),
+            ("SpecularReflectance", &mut m.specular),
+            ("MirrorReflectance", &mut m.mirror),
+            ("AbsorptionCoefficient", &mut m.absorption_coefficient),
+        ];
+        for (name, field) in colours {
+            if let Some(v) = self.optional_numbers(n, name)? {
+                *field = v;
+            }
+        }
+        let scalars: [(&str, &mut f64); 4] = [
+            ("PhongExponent", &mut m.phong_exponent),
+            ("RefractionIndex", &mut m.refraction_index),
+            ("AbsorptionIndex", &mut m.absorption_index),
+            ("Roughness", &mut m.roughness),
+        ];
+        for (name, field) in scalars {
+            if let Some(v) = self.optional_number(n, name)? {
+                *field = v;
+            }
+        }
+
+        let transparency: Option<Vec3> = self.optional_numbers(n, "Transparency")?;
+        let nonzero = |v: &Vec3| v.iter().any(|&x| x != 0.0);
+        if self.legacy {
+            // 2019: no `type` attribute exists; a non-zero Transparency makes a dielectric
+            // (§6.9) and a non-zero MirrorReflectance a mirror (§6.1).
+            if transparency.as_ref().is_some_and(nonzero) {
+                m.kind = MaterialKind::Dielectric;
+            } else if nonzero(&m.mirror) {
+                m.kind = MaterialKind::Mirror;
+            }
+        } else if let Some(t) = n.child("Transparency") {
+            self.warn(t, "<Transparency> only has a meaning in 2019 scene files (materials without type); it is ignored");
+        }
+        // In 2020+ files an untyped MirrorReflectance is deliberately ignored (§6.1): kind stays Plain.
+        Ok(m)
+    }
+
+    /// One child of `<Transformations>`; `None` for elements that are not transformations
+    /// (already warned about by [`Parser::check`]).
+    fn transformation(&mut self, n: &Node) -> Result<Option<TransformRec>> {
+        let op = match n.name.as_str() {
+            "Translation" => TransformOp::Translation(self.numbers(n)?),
+            "Scaling" => TransformOp::Scaling(self.numbers(n)?),
+            "Rotation" => {
+                let [degrees, x, y, z] = self.numbers(n)?;
+                TransformOp::Rotation { degrees, axis: [x, y, z] }
+            }
+            "Composite" => TransformOp::Composite(self.numbers(n)?),
+            _ => return Ok(None),
+        };
+        self.check(n, &TRANSFORMATION);
+        Ok(Some(TransformRec { id: self.id(n, true)?, loc: n.loc(), op }))
+    }
+
+    fn vertex_data(&mut self, n: &Node) -> Result<()> {
+        self.check_attrs(n, VERTEX_DATA_ATTRS, VERTEX_DATA_UNSUPPORTED_ATTRS);
+        let values = self.number_list::<f64>(n, 3, "x y z per vertex")?;
+        self.out.vertices = values.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        Ok(())
+    }
+
+    fn objects(&mut self, objects: &Node) -> Result<()> {
+        self.check(objects, &OBJECTS);
+        for n in &objects.children {
+            match n.name.as_str() {
+                "Mesh" => {
+                    if let Some(mesh) = self.mesh(n)? {
+                        self.out.meshes.push(mesh);
+                    }
+                }
+                "Triangle" => {
+                    let triangle = self.triangle(n)?;
+                    self.out.triangles.push(triangle);
+                }
+                "Sphere" => {
+                    let sphere = self.sphere(n)?;
+                    self.out.spheres.push(sphere);
+                }
+                "MeshInstance" => {
+                    let instance = self.instance(n)?;
+                    self.out.instances.push(instance);
+                }
+                _ => {}
+            }
+        }
+        Ok(())
+    }
+
+    fn material_ref(&self, n: &Node) -> Result<String> {
+        self.id_ref(self.required(n, "Material")?, "a material id")
+    }
+
+    /// The optional `<Transformations>` reference string, e.g. `t1 r2 s3 c1`, in written order.
+    fn transform_refs(&self, n: &Node) -> Result<Vec<TransformRef>> {
+        let Some(t) = n.child("Transformations") else { return Ok(Vec::new()) };
+        t.text
+            .split_ascii_whitespace()
+            .map(|token| {
+                let mut chars = token.chars();
+                match (chars.next(), chars.as_str()) {
+                    (Some(letter @ ('t' | 's' | 'r' | 'c')), id)
+                        if !id.is_empty() && id.chars().all(|c| c.is_ascii_alphanumeric()) =>
+                    {
+                        Ok(TransformRef { letter, id: id.to_string() })
+                    }
+                    _ => Err(self.err(
+                        t,
+                        format!(
+                            "bad transformation reference \"{}\": expected t, s, r or c followed by an id, e.g. \"t1\"",
+                            excerpt(token)
+                        ),
+                    )),
+                }
+            })
+            .collect()
+    }
+
+    /// `None` when the mesh cannot be read yet (2019 binary faces); a warning says so.
+    fn mesh(&mut self, n: &Node) -> Result<Option<MeshRec>> {
+        self.check(n, &MESH);
+        let id = self.id(n, true)?;
+        let faces = self.required(n, "Faces")?;
+        self.check_attrs(faces, FACES_ATTRS, FACES_UNSUPPORTED_ATTRS);
+        let faces_rec = if let Some(path) = faces.attr("plyFile") {
+            match path.trim() {
+                "" => return Err(self.err(faces, "attribute plyFile is empty; expected a PLY file path")),
+                path => FacesRec::Ply { path: path.to_string() },
+            }
+        } else if faces.attr("binaryFile").is_some() {
+            self.warn(
+                faces,
+                "<Faces binaryFile> (2019 binary faces) is not supported yet; the mesh is ignored",
+            );
+            return Ok(None);
+        } else {
+            let vertex_offset = match faces.attr("vertexOffset") {
+                None => 0,
+                Some(v) => <i64 as Token>::parse(v.trim()).ok_or_else(|| {
+                    self.err(
+                        faces,
+                        format!("attribute vertexOffset must be an integer, found \"{}\"", excerpt(v)),
+                    )
+                })?,
+            };
+            FacesRec::Inline {
+                indices: self.number_list(faces, 3, "three vertex ids per triangle")?,
+                vertex_offset,
+            }
+        };
+        Ok(Some(MeshRec {
+            id,
+            loc: n.loc(),
+            material: self.material_ref(n)?,
+            faces: faces_rec,
+            faces_loc: faces.loc(),
+            shading: self.shading_attr(n)?.unwrap_or(ShadingMode::Flat),
+            transforms: self.transform_refs(n)?,
+        }))
+    }
+
+    fn triangle(&mut self, n: &Node) -> Result<TriangleRec> {
+        self.check(n, &TRIANGLE);
+        Ok(TriangleRec {
+            id: self.id(n, false)?,
+            loc: n.loc(),
+            material: self.material_ref(n)?,
+            indices: self.required_numbers(n, "Indices")?,
+            transforms: self.transform_refs(n)?,
+        })
+    }
+
+    fn sphere(&mut self, n: &Node) -> Result<SphereRec> {
+        self.check(n, &SPHERE);
+        Ok(SphereRec {
+            id: self.id(n, false)?,
+            loc: n.loc(),
+            material: self.material_ref(n)?,
+            center: self.required_number(n, "Center")?,
+            radius: self.required_number(n, "Radius")?,
+            transforms: self.transform_refs(n)?,
+        })
+    }
+
+    fn instance(&mut self, n: &Node) -> Result<InstanceRec> {
+        self.check(n, &MESH_INSTANCE);
+        let base_mesh = match n.attr("baseMeshId").map(str::trim) {
+            None | Some("") => {
+                return Err(self.err(n, "missing attribute baseMeshId (the id of the Mesh to reuse)"));
+            }
+            Some(id) => id.to_string(),
+        };
+        Ok(InstanceRec {
+            id: self.id(n, false)?,
+            loc: n.loc(),
+            base_mesh,
+            reset_transform: self.bool_attr(n, "resetTransform")?.unwrap_or(false),
+            material: n.child("Material").map(|m| self.id_ref(m, "a material id")).transpose()?,
+            transforms: self.transform_refs(n)?,
+            shading: self.shading_attr(n)?,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const FILE: &str = "scene.xml";
+
+    fn parse(xml: &str) -> SceneRecords {
+        match parse_xml(xml, Path::new(FILE)) {
+            Ok(records) => records,
+            Err(e) => panic!("unexpected error: {e}\nin:\n{xml}"),
+        }
+    }
+
+    fn warnings(xml: &str) -> Vec<String> {
+        parse(xml).warnings.iter().map(ToString::to_string).collect()
+    }
+
+    /// `<Scene>` on line 1, `body` from line 2.
+    fn scene(body: &str) -> String {
+        format!("<Scene>\n{body}\n</Scene>\n")
+    }
+
+    /// 1-based line of the first occurrence of `needle` in `text`.
+    fn line_of(text: &str, needle: &str) -> u32 {
+        let at = text.find(needle).unwrap_or_else(|| panic!("{needle:?} not in the test scene"));
+        1 + text[..at].matches('\n').count() as u32
+    }
+
+    /// Checks that each input fails with exactly the expected message (as displayed).
+    fn check_errors(cases: &[(&str, &str)]) {
+        for (xml, expected) in cases {
+            match parse_xml(xml, Path::new(FILE)) {
+                Ok(_) => panic!("expected the error {expected:?}, but parsing succeeded:\n{xml}"),
+                Err(e) => assert_eq!(e.to_string(), *expected, "input:\n{xml}"),
+            }
+        }
+    }
+
+    /// Checks that each input parses, with exactly the expected warnings (as displayed).
+    fn check_warnings(cases: &[(&str, &[&str])]) {
+        for (xml, expected) in cases {
+            assert_eq!(warnings(xml), *expected, "input:\n{xml}");
+        }
+    }
+
+    /// The first camera of a scene made of one camera element.
+    fn camera(camera_xml: &str) -> CameraRec {
+        let records = parse(&scene(&format!("<Cameras>\n{camera_xml}\n</Cameras>")));
+        assert!(records.warnings.is_empty(), "{:?}", records.warnings);
+        records.cameras[0].clone()
+    }
+
+    /// The records of a scene made of one `<Objects>` block (plus whatever `extra` holds).
+    fn objects(objects_xml: &str, extra: &str) -> SceneRecords {
+        parse(&scene(&format!("{extra}\n<Objects>\n{objects_xml}\n</Objects>")))
+    }
+
+    fn refs(list: &[(char, &str)]) -> Vec<TransformRef> {
+        list.iter().map(|&(letter, id)| TransformRef { letter, id: id.to_string() }).collect()
+    }
+
+    /// A scene like the course's simple.xml, with its blocks deliberately out of the usual
+    /// order, comments and odd whitespace.
+    const SIMPLE: &str = "<?xml version=\"1.0\"?>
+<Scene>
+    <Objects>
+        <Mesh id=\"1\">
+            <Material>1</Material>
+            <Faces>
+                3 1 2
+                1 3 4
+            </Faces>
+        </Mesh>
+        <Triangle id=\"1\">
+            <Material> 1 </Material>
+            <Indices>1 2 3</Indices>
+        </Triangle>
+        <Sphere id=\"1\"> <!-- the ball -->
+            <Material>1</Material>
+            <Center>1</Center>
+            <Radius>3.73896e-4</Radius>
+        </Sphere>
+    </Objects>
+    <VertexData>
+        -0.5 0.5 -2
+        -0.5\t-0.5 -2\r
+        0.5 -0.5 -2 0.5 0.5 -2
+    </VertexData>
+    <BackgroundColor>10 20 30</BackgroundColor>
+    <ShadowRayEpsilon>1e-3</ShadowRayEpsilon>
+    <IntersectionTestEpsilon>1e-5</IntersectionTestEpsilon>
+    <Cameras>
+        <Camera id=\"1\">
+            <Position>0 0 0</Position>
+            <Gaze>0 0 -1</Gaze>
+            <Up>0 1 0</Up>
+            <NearPlane>-1 1 -1 1</NearPlane>
+            <NearDistance>1</NearDistance>
+            <ImageResolution>800 600</ImageResolution>
+            <ImageName>simple.png</ImageName>
+        </Camera>
+    </Cameras>
+    <Lights>
+        <AmbientLight>25 25 25</AmbientLight>
+        <PointLight id=\"1\">
+            <Position> 0 0 0  </Position>
+            <Intensity>1000 1000 1e+05</Intensity>
+        </PointLight>
+    </Lights>
+    <Materials>
+        <Material id=\"1\"> <!-- For the light -->
+            <AmbientReflectance>1 1 1</AmbientReflectance>
+            <DiffuseReflectance>1 0.5 0.25</DiffuseReflectance>
+            <SpecularReflectance>1 1 1</SpecularReflectance>
+            <PhongExponent>10</PhongExponent>
+        </Material>
+    </Materials>
+    <MaxRecursionDepth>6</MaxRecursionDepth>
+</Scene>
+";
+
+    #[test]
+    fn simple_scene_gives_the_expected_records() {
+        let at = |needle: &str, element: &str| Loc::new(line_of(SIMPLE, needle), element);
+        let mut expected = SceneRecords::new(FILE);
+        expected.background_color = [10.0, 20.0, 30.0];
+        expected.shadow_ray_epsilon = 1e-3;
+        expected.intersection_test_epsilon = 1e-5;
+        expected.max_recursion_depth = 6;
+        expected.cameras.push(CameraRec {
+            id: "1".into(),
+            loc: at("<Camera id", r#"Camera id="1""#),
+            position: [0.0, 0.0, 0.0],
+            gaze: [0.0, 0.0, -1.0],
+            up: [0.0, 1.0, 0.0],
+            projection: Projection::NearPlane { left: -1.0, right: 1.0, bottom: -1.0, top: 1.0 },
+            near_distance: 1.0,
+            width: 800,
+            height: 600,
+            image_name: "simple.png".into(),
+            handedness: Handedness::Right,
+            num_samples: 1,
+        });
+        expected.ambient_light = [25.0; 3];
+        expected.point_lights.push(PointLightRec {
+            id: "1".into(),
+            loc: at("<PointLight", r#"PointLight id="1""#),
+            position: [0.0; 3],
+            intensity: [1000.0, 1000.0, 1e5],
+        });
+        let mut material = MaterialRec::new("1", at("<Material id", r#"Material id="1""#));
+        material.ambient = [1.0; 3];
+        material.diffuse = [1.0, 0.5, 0.25];
+        material.specular = [1.0; 3];
+        material.phong_exponent = 10.0;
+        expected.materials.push(material);
+        expected.vertices = vec![[-0.5, 0.5, -2.0], [-0.5, -0.5, -2.0], [0.5, -0.5, -2.0], [0.5, 0.5, -2.0]];
+        expected.meshes.push(MeshRec {
+            id: "1".into(),
+            loc: at("<Mesh", r#"Mesh id="1""#),
+            material: "1".into(),
+            faces: FacesRec::Inline { indices: vec![3, 1, 2, 1, 3, 4], vertex_offset: 0 },
+            faces_loc: at("<Faces", r#"Mesh id="1"> / <Faces"#),
+            shading: ShadingMode::Flat,
+            transforms: vec![],
+        });
+        expected.triangles.push(TriangleRec {
+            id: "1".into(),
+            loc: at("<Triangle", r#"Triangle id="1""#),
+            material: "1".into(),
+            indices: [1, 2, 3],
+            transforms: vec![],
+        });
+        expected.spheres.push(SphereRec {
+            id: "1".into(),
+            loc: at("<Sphere", r#"Sphere id="1""#),
+            material: "1".into(),
+            center: 1,
+            radius: 3.73896e-4,
+            transforms: vec![],
+        });
+        assert_eq!(parse(SIMPLE), expected);
+    }
+
+    #[test]
+    fn look_at_cameras() {
+        let with_gaze_point = camera(
+            r#"<Camera id="2" type="lookAt" handedness="left">
+                <Position>1 2 3</Position> <GazePoint>1 2 -7</GazePoint> <Up>0 1 0</Up>
+                <FovY>45</FovY> <NearDistance>0.5</NearDistance>
+                <ImageResolution>640 480</ImageResolution> <ImageName>a.exr</ImageName>
+                <NumSamples>16</NumSamples>
+            </Camera>"#,
+        );
+        assert_eq!(with_gaze_point.gaze, [0.0, 0.0, -10.0]);
+        assert_eq!(with_gaze_point.projection, Projection::FovY(45.0));
+        assert_eq!(with_gaze_point.handedness, Handedness::Left);
+        assert_eq!(with_gaze_point.num_samples, 16);
+        assert_eq!((with_gaze_point.width, with_gaze_point.height), (640, 480));
+        assert_eq!(with_gaze_point.near_distance, 0.5);
+
+        // All cornellbox_jaroslav scenes: lookAt with Gaze and no GazePoint.
+        let with_gaze = camera(
+            r#"<Camera id="1" type="lookAt" handedness="right">
+                <Position>1 2 3</Position> <Gaze>0 0 -1</Gaze> <Up>0 1 0</Up>
+                <FovY>39.3</FovY> <NearDistance>0.1</NearDistance>
+                <ImageResolution>8 8</ImageResolution> <ImageName>b.png</ImageName>
+            </Camera>"#,
+        );
+        assert_eq!(with_gaze.gaze, [0.0, 0.0, -1.0]);
+        assert_eq!(with_gaze.projection, Projection::FovY(39.3));
+        assert_eq!(with_gaze.handedness, Handedness::Right);
+    }
+
+    #[test]
+    fn near_plane_extra_numbers_are_ignored() {
+        // spheres.xml writes a fifth value.
+        let c = camera(
+            "<Camera id=\"1\"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+             <NearPlane> -1 1\t-0.5 0.5 10</NearPlane><NearDistance>1</NearDistance>
+             <ImageResolution>2 1</ImageResolution><ImageName>s.png</ImageName></Camera>",
+        );
+        assert_eq!(c.projection, Projection::NearPlane { left: -1.0, right: 1.0, bottom: -0.5, top: 0.5 });
+    }
+
+    #[test]
+    fn transformations_and_reference_strings() {
+        let records = objects(
+            r#"<Sphere id="1"><Material>1</Material><Center>1</Center><Radius>1</Radius>
+                   <Transformations> t1 r2
+                      s3 c1 </Transformations></Sphere>
+               <Triangle id="1"><Material>1</Material><Indices>1 2 3</Indices>
+                   <Transformations></Transformations></Triangle>"#,
+            r#"<Transformations>
+                   <Translation id="1">1 2 3</Translation>
+                   <Scaling id="3">2 2 -1</Scaling>
+                   <Rotation id="2">90 0 1 0</Rotation>
+                   <Composite id="1">1 0 0 7.7898e-009
+                       0 1 0 0 0 0 1 0 0 0 0 1</Composite>
+                   <Translation id="1">4 5 6</Translation>
+               </Transformations>"#,
+        );
+        let ops: Vec<(String, TransformOp)> =
+            records.transformations.iter().map(|t| (t.id.clone(), t.op)).collect();
+        let mut composite = [0.0; 16];
+        for i in 0..4 {
+            composite[i * 5] = 1.0;
+        }
+        composite[3] = 7.7898e-9;
+        assert_eq!(
+            ops,
+            vec![
+                ("1".into(), TransformOp::Translation([1.0, 2.0, 3.0])),
+                ("3".into(), TransformOp::Scaling([2.0, 2.0, -1.0])),
+                ("2".into(), TransformOp::Rotation { degrees: 90.0, axis: [0.0, 1.0, 0.0] }),
+                ("1".into(), TransformOp::Composite(composite)),
+                // Duplicate ids are kept; resolving them is the build step's business.
+                ("1".into(), TransformOp::Translation([4.0, 5.0, 6.0])),
+            ]
+        );
+        assert_eq!(records.spheres[0].transforms, refs(&[('t', "1"), ('r', "2"), ('s', "3"), ('c', "1")]));
+        assert_eq!(records.triangles[0].transforms, vec![]);
+    }
+
+    #[test]
+    fn mesh_instances() {
+        let records = objects(
+            r#"<Mesh id="1" shadingMode="smooth"><Material>1</Material><Faces plyFile="ply/dragon.ply"/>
+                   <Transformations>s1</Transformations></Mesh>
+               <MeshInstance id="1" baseMeshId="1" resetTransform="true">
+                   <Material>2</Material><Transformations>t1 r1</Transformations></MeshInstance>
+               <MeshInstance id="2" baseMeshId="1" shadingMode="smooth"/>
+               <MeshInstance id="3" baseMeshId="1" resetTransform="false" shadingMode="flat"></MeshInstance>"#,
+            "",
+        );
+        let summary: Vec<_> = records
+            .instances
+            .iter()
+            .map(|i| {
+                (
+                    i.id.as_str(),
+                    i.base_mesh.as_str(),
+                    i.reset_transform,
+                    i.material.clone(),
+                    i.transforms.clone(),
+                    i.shading,
+                )
+            })
+            .collect();
+        assert_eq!(
+            summary,
+            vec![
+                ("1", "1", true, Some("2".to_string()), refs(&[('t', "1"), ('r', "1")]), None),
+                ("2", "1", false, None, vec![], Some(ShadingMode::Smooth)),
+                ("3", "1", false, None, vec![], Some(ShadingMode::Flat)),
+            ]
+        );
+        assert!(records.warnings.is_empty(), "{:?}", records.warnings);
+    }
+
+    #[test]
+    fn ply_faces_and_vertex_offsets() {
+        let xml = scene(
+            r#"<Objects>
+<Mesh id="1" shadingMode="smooth"><Material>1</Material>
+  <Faces plyFile=" ply/head.ply "/></Mesh>
+<Mesh id="2"><Material>1</Material>
+  <Faces vertexOffset="1">0 1 2
+    0 2 3</Faces></Mesh>
+<Mesh id="3" shadingMode="flat"><Material>1</Material><Faces vertexOffset="-2"></Faces></Mesh>
+</Objects>"#,
+        );
+        let records = parse(&xml);
+        let meshes: Vec<_> =
+            records.meshes.iter().map(|m| (m.faces.clone(), m.shading, m.faces_loc.clone())).collect();
+        assert_eq!(
+            meshes,
+            vec![
+                (
+                    FacesRec::Ply { path: "ply/head.ply".into() },
+                    ShadingMode::Smooth,
+                    Loc::new(4, r#"Mesh id="1"> / <Faces"#)
+                ),
+                (
+                    FacesRec::Inline { indices: vec![0, 1, 2, 0, 2, 3], vertex_offset: 1 },
+                    ShadingMode::Flat,
+                    Loc::new(6, r#"Mesh id="2"> / <Faces"#)
+                ),
+                (
+                    FacesRec::Inline { indices: vec![], vertex_offset: -2 },
+                    ShadingMode::Flat,
+                    Loc::new(8, r#"Mesh id="3"> / <Faces"#)
+                ),
+            ]
+        );
+    }
+
+    #[test]
+    fn materials() {
+        let records = parse(&scene(
+            r#"<Materials>
+<Material id="1" type="conductor" degamma="true">
+  <MirrorReflectance>1 0.86 0.57</MirrorReflectance><RefractionIndex>0.370</RefractionIndex>
+  <AbsorptionIndex>2.820</AbsorptionIndex><Roughness>0.05</Roughness>
+</Material>
+<Material id="2" type="dielectric"><AbsorptionCoefficient>0.1 0 0.1</AbsorptionCoefficient>
+  <RefractionIndex>1.5</RefractionIndex></Material>
+<Material id="3" type="mirror"><MirrorReflectance>1 1 1</MirrorReflectance></Material>
+<Material id="4"><MirrorReflectance>1 1 1</MirrorReflectance></Material>
+</Materials>"#,
+        ));
+        let m = &records.materials;
+        assert_eq!(m[0].kind, MaterialKind::Conductor);
+        assert!(m[0].degamma);
+        assert_eq!(
+            (m[0].mirror, m[0].refraction_index, m[0].absorption_index),
+            ([1.0, 0.86, 0.57], 0.37, 2.82)
+        );
+        assert_eq!(m[0].roughness, 0.05);
+        assert_eq!(m[1].kind, MaterialKind::Dielectric);
+        assert_eq!((m[1].absorption_coefficient, m[1].refraction_index), ([0.1, 0.0, 0.1], 1.5));
+        assert_eq!(m[2].kind, MaterialKind::Mirror);
+        // A 2020+ file (it has typed materials): untyped MirrorReflectance does not make a mirror.
+        assert_eq!(m[3].kind, MaterialKind::Plain);
+        assert!(!m[3].degamma);
+        assert_eq!(m[3].phong_exponent, 1.0, "default from MaterialRec::new");
+    }
+
+    #[test]
+    fn legacy_2019_material_rule() {
+        let mirror = "<Material id=\"1\"><MirrorReflectance>0.5 0.5 0.5</MirrorReflectance></Material>";
+        let zero_mirror = "<Material id=\"2\"><MirrorReflectance>0 0 0</MirrorReflectance></Material>";
+        let glass = "<Material id=\"3\"><MirrorReflectance>0.1 0.1 0.1</MirrorReflectance>\
+                     <Transparency>1 1 1</Transparency><RefractionIndex>1.5</RefractionIndex></Material>";
+        let typed = "<Material id=\"4\" type=\"conductor\"></Material>";
+        let texture_map = "<Textures><TextureMap id=\"1\" type=\"perlin\"/></Textures>";
+        use MaterialKind::*;
+        let cases: &[(&str, &str, &[MaterialKind])] = &[
+            // 2019 file: no type attributes, no TextureMap.
+            ("", "", &[Mirror, Plain, Dielectric]),
+            // Any typed material makes it a 2020+ file.
+            (typed, "", &[Plain, Plain, Plain, Conductor]),
+            // So does a TextureMap.
+            ("", texture_map, &[Plain, Plain, Plain]),
+        ];
+        for (extra_material, extra, kinds) in cases {
+            let xml =
+                scene(&format!("{extra}<Materials>{mirror}{zero_mirror}{glass}{extra_material}</Materials>"));
+            let got: Vec<MaterialKind> = parse(&xml).materials.iter().map(|m| m.kind).collect();
+            assert_eq!(got, *kinds, "input:\n{xml}");
+        }
+    }
+
+    #[test]
+    fn errors_name_file_line_and_element() {
+        let cam =
+            |inner: &str| scene(&format!("<Cameras>\n<Camera id=\"1\">\n{inner}\n</Camera>\n</Cameras>"));
+        let complete_camera = |skip: &str| {
+            let children = [
+                "<Position>0 0 0</Position>",
+                "<Gaze>0 0 -1</Gaze>",
+                "<Up>0 1 0</Up>",
+                "<NearPlane>-1 1 -1 1</NearPlane>",
+                "<NearDistance>1</NearDistance>",
+                "<ImageResolution>4 4</ImageResolution>",
+                "<ImageName>x.png</ImageName>",
+            ];
+            cam(&children.iter().filter(|c| !c.starts_with(skip)).copied().collect::<Vec<_>>().join("\n"))
+        };
+        let sphere =
+            |inner: &str| scene(&format!("<Objects>\n<Sphere id=\"2\">\n{inner}\n</Sphere>\n</Objects>"));
+        let cases: &[(&str, &str)] = &[
+            (
+                &cam("<Position>0 zero 0</Position>"),
+                r#"scene.xml:4: <Camera id="1"> / <Position>: expected 3 numbers, found "0 zero 0""#,
+            ),
+            (
+                &scene("<BackgroundColor>1 2</BackgroundColor>"),
+                r#"scene.xml:2: <BackgroundColor>: expected 3 numbers, found "1 2""#,
+            ),
+            (
+                &scene("<BackgroundColor> <!-- none --> </BackgroundColor>"),
+                "scene.xml:2: <BackgroundColor>: expected 3 numbers, found nothing",
+            ),
+            (
+                &scene("<MaxRecursionDepth>-1</MaxRecursionDepth>"),
+                r#"scene.xml:2: <MaxRecursionDepth>: expected a non-negative integer, found "-1""#,
+            ),
+            (
+                &scene("<ShadowRayEpsilon>nan</ShadowRayEpsilon>"),
+                r#"scene.xml:2: <ShadowRayEpsilon>: expected a number, found "nan""#,
+            ),
+            (
+                &complete_camera("<ImageResolution"),
+                r#"scene.xml:3: <Camera id="1">: missing <ImageResolution>"#,
+            ),
+            (
+                &complete_camera("<NearPlane"),
+                r#"scene.xml:3: <Camera id="1">: missing <NearPlane> (or <FovY>)"#,
+            ),
+            (&complete_camera("<Gaze"), r#"scene.xml:3: <Camera id="1">: missing <Gaze> (or <GazePoint>)"#),
+            (
+                &cam("<Position>0 0 0</Position><Up>0 1 0</Up><FovY>45</FovY>")
+                    .replace("id=\"1\"", "id=\"1\" type=\"lookAt\""),
+                r#"scene.xml:3: <Camera id="1">: missing <GazePoint> (or <Gaze>)"#,
+            ),
+            (
+                &cam("").replace("id=\"1\"", "id=\"1\" type=\"ortho\""),
+                r#"scene.xml:3: <Camera id="1">: unknown camera type "ortho" (expected lookAt, or no type)"#,
+            ),
+            (
+                &complete_camera("<ImageResolution")
+                    .replace("<ImageName>", "<ImageResolution>640 0</ImageResolution><ImageName>"),
+                r#"scene.xml:9: <Camera id="1"> / <ImageResolution>: the image must be at least 1 x 1 pixels, found 640 x 0"#,
+            ),
+            (
+                &scene("<Materials>\n<Material id=\"1\" type=\"glass\"/>\n</Materials>"),
+                r#"scene.xml:3: <Material id="1">: unknown material type "glass" (expected mirror, conductor or dielectric, or no type)"#,
+            ),
+            (
+                &scene("<Materials>\n<Material/>\n</Materials>"),
+                "scene.xml:3: <Material>: missing attribute id (other elements refer to it by id)",
+            ),
+            (
+                &sphere("<Material>1</Material><Center>1</Center>"),
+                r#"scene.xml:3: <Sphere id="2">: missing <Radius>"#,
+            ),
+            (
+                &sphere("<Center>1</Center><Radius>1</Radius>"),
+                r#"scene.xml:3: <Sphere id="2">: missing <Material>"#,
+            ),
+            (
+                &sphere("<Material></Material><Center>1</Center><Radius>1</Radius>"),
+                r#"scene.xml:4: <Sphere id="2"> / <Material>: expected a material id, found nothing"#,
+            ),
+            (
+                &sphere("<Material>1</Material><Center>1.5</Center><Radius>1</Radius>"),
+                r#"scene.xml:4: <Sphere id="2"> / <Center>: expected an integer, found "1.5""#,
+            ),
+            (
+                &sphere(
+                    "<Material>1</Material><Center>1</Center><Radius>1</Radius>\n<Transformations>t1 x2</Transformations>",
+                ),
+                r#"scene.xml:5: <Sphere id="2"> / <Transformations>: bad transformation reference "x2": expected t, s, r or c followed by an id, e.g. "t1""#,
+            ),
+            (
+                &sphere(
+                    "<Material>1</Material><Center>1</Center><Radius>1</Radius>\n<Transformations>t</Transformations>",
+                ),
+                r#"scene.xml:5: <Sphere id="2"> / <Transformations>: bad transformation reference "t": expected t, s, r or c followed by an id, e.g. "t1""#,
+            ),
+            (
+                &scene("<Objects>\n<Mesh id=\"7\">\n<Material>1</Material>\n</Mesh>\n</Objects>"),
+                r#"scene.xml:3: <Mesh id="7">: missing <Faces>"#,
+            ),
+            (
+                &scene(
+                    "<Objects>\n<Mesh id=\"7\"><Material>1</Material>\n<Faces>1 2 3\n4 5 six\n</Faces></Mesh>\n</Objects>",
+                ),
+                r#"scene.xml:5: <Mesh id="7"> / <Faces>: expected integers, found "six""#,
+            ),
+            (
+                &scene(
+                    "<Objects>\n<Mesh id=\"7\"><Material>1</Material>\n<Faces>1 2 3 4</Faces></Mesh>\n</Objects>",
+                ),
+                r#"scene.xml:4: <Mesh id="7"> / <Faces>: the number of values must be a multiple of 3 (three vertex ids per triangle), found 4"#,
+            ),
+            (
+                &scene(
+                    "<Objects>\n<Mesh id=\"7\" shadingMode=\"phong\"><Material>1</Material><Faces>1 2 3</Faces></Mesh>\n</Objects>",
+                ),
+                r#"scene.xml:3: <Mesh id="7">: attribute shadingMode must be smooth or flat, found "phong""#,
+            ),
+            (
+                &scene("<VertexData>\n1 2 3\n4 5 6 # 7\n</VertexData>"),
+                r##"scene.xml:4: <VertexData>: expected numbers, found "#""##,
+            ),
+            (
+                &scene("<VertexData>1 2 3 4</VertexData>"),
+                "scene.xml:2: <VertexData>: the number of values must be a multiple of 3 (x y z per vertex), found 4",
+            ),
+            (
+                &scene(
+                    "<Objects>\n<MeshInstance id=\"1\" baseMeshId=\"1\" resetTransform=\"yes\"/>\n</Objects>",
+                ),
+                r#"scene.xml:3: <MeshInstance id="1">: attribute resetTransform must be true or false, found "yes""#,
+            ),
+            (
+                &scene("<Objects>\n<MeshInstance id=\"1\"/>\n</Objects>"),
+                r#"scene.xml:3: <MeshInstance id="1">: missing attribute baseMeshId (the id of the Mesh to reuse)"#,
+            ),
+            (
+                &scene("<Transformations>\n<Rotation id=\"1\">90 0 1</Rotation>\n</Transformations>"),
+                r#"scene.xml:3: <Rotation id="1">: expected 4 numbers, found "90 0 1""#,
+            ),
+            (
+                "<Root>\n</Root>",
+                "scene.xml:1: <Root>: the root element must be <Scene>, found <Root>; is this a scene file?",
+            ),
+            ("", "scene.xml: no XML element found: the file is empty or is not an XML scene"),
+        ];
+        check_errors(cases);
+    }
+
+    #[test]
+    fn malformed_xml_errors_have_lines_and_hints() {
+        let cases: &[(&str, &str)] = &[
+            (
+                "<Scene>\n<Cameras>\n<Camera id=\"1\">\n</Cameras>\n</Scene>",
+                "scene.xml:4: malformed XML: ill-formed document: expected `</Camera>`, but `</Cameras>` was found. \
+                 Hint: every <Element> must be closed by its own </Element>, innermost first",
+            ),
+            (
+                "<Scene>\n<Cameras>\n<Camera id=\"1\">\n",
+                r#"scene.xml:3: <Camera id="1">: <Camera> is never closed: the file ends first (is it truncated?)"#,
+            ),
+            (
+                "<Scene>\n\n<Lights",
+                "scene.xml:3: malformed XML: syntax error: tag not closed: `>` not found before end of input. Hint: the file ends inside a tag, comment or quoted value; is it truncated, or is a `>`, `-->` or quote missing?",
+            ),
+            (
+                "<Scene>\n<Material id=1/>\n</Scene>",
+                "scene.xml:2: <Material>: malformed attribute: position 12: attribute value must be enclosed in `\"` or `'`. Hint: attributes are written name=\"value\"",
+            ),
+            (
+                "<Scene>\n<ImageName>a &b; c</ImageName>\n</Scene>",
+                "scene.xml:2: unknown entity &b;. Hint: write a literal & as &amp;",
+            ),
+            (
+                "<Scene>\n</Scene>\n<Scene/>",
+                "scene.xml:3: <Scene>: a second top-level element <Scene>; a scene file has exactly one <Scene>",
+            ),
+            ("junk", "scene.xml:1: text \"junk\" outside of any element; is this an XML scene file?"),
+        ];
+        check_errors(cases);
+    }
+
+    #[test]
+    fn entities_and_cdata_are_text() {
+        let c = camera(
+            "<Camera id=\"1\"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+             <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance>
+             <ImageResolution>2&#32;1</ImageResolution><ImageName>a&amp;<![CDATA[b]]>.png</ImageName></Camera>",
+        );
+        assert_eq!((c.width, c.height, c.image_name.as_str()), (2, 1, "a&b.png"));
+    }
+
+    #[test]
+    fn unknown_and_unsupported_elements_are_warnings() {
+        let w = |line: u32, element: &str, message: &str| {
+            format!("warning: scene.xml:{line}: <{element}>: {message}")
+        };
+        let sphere = "<Sphere id=\"1\"><Material>1</Material><Center>1</Center><Radius>1</Radius>";
+        let cases: &[(&str, &[&str])] = &[
+            (&scene("<Foo>1</Foo>"), &[&w(2, "Foo", "unknown element <Foo>; it is ignored")]),
+            (
+                &scene(&format!(
+                    "<Objects>\n{sphere}\n<Radiuss>2</Radiuss><Textures>1</Textures>\n</Sphere>\n</Objects>"
+                )),
+                &[
+                    &w(4, r#"Sphere id="1"> / <Radiuss"#, "unknown element <Radiuss>; it is ignored"),
+                    &w(4, r#"Sphere id="1"> / <Textures"#, "<Textures> is not supported yet; it is ignored"),
+                ],
+            ),
+            (
+                &scene(&format!("<Objects>\n{sphere}<Radius>2</Radius></Sphere>\n</Objects>")),
+                &[&w(
+                    3,
+                    r#"Sphere id="1"> / <Radius"#,
+                    "<Radius> is given more than once; only the first one is used",
+                )],
+            ),
+            (
+                &scene(
+                    "<Lights>\n<AreaLight id=\"1\"><Size>3</Size></AreaLight>\n<SphericalDirectionalLight id=\"1\"/>\n</Lights>",
+                ),
+                &[
+                    &w(3, r#"AreaLight id="1""#, "<AreaLight> is not supported yet; it is ignored"),
+                    &w(
+                        4,
+                        r#"SphericalDirectionalLight id="1""#,
+                        "<SphericalDirectionalLight> is not supported yet; it is ignored",
+                    ),
+                ],
+            ),
+            (
+                &scene(
+                    "<Materials>\n<Material id=\"1\" BRDF=\"2\" colour=\"red\"><Position>1</Position></Material>\n</Materials>",
+                ),
+                &[
+                    &w(3, r#"Material id="1""#, "attribute BRDF is not supported yet; it is ignored"),
+                    &w(3, r#"Material id="1""#, "unknown attribute colour; it is ignored"),
+                    &w(3, r#"Material id="1"> / <Position"#, "unknown element <Position>; it is ignored"),
+                ],
+            ),
+            (
+                &scene(
+                    "<VertexData binaryFile=\"geometry/vertices.bin\"/>\n<TexCoordData>0 0</TexCoordData>",
+                ),
+                &[
+                    &w(2, "VertexData", "attribute binaryFile is not supported yet; it is ignored"),
+                    &w(3, "TexCoordData", "<TexCoordData> is not supported yet; it is ignored"),
+                ],
+            ),
+            (
+                &scene(
+                    "<Objects>\n<Mesh id=\"1\"><Material>1</Material><Faces binaryFile=\"0_face.bin\"/></Mesh>\n</Objects>",
+                ),
+                &[&w(
+                    3,
+                    r#"Mesh id="1"> / <Faces"#,
+                    "<Faces binaryFile> (2019 binary faces) is not supported yet; the mesh is ignored",
+                )],
+            ),
+            (
+                &scene(
+                    "<Materials>\n<Material id=\"1\" type=\"mirror\"><Transparency>1 1 1</Transparency></Material>\n</Materials>",
+                ),
+                &[&w(
+                    3,
+                    r#"Material id="1"> / <Transparency"#,
+                    "<Transparency> only has a meaning in 2019 scene files (materials without type); it is ignored",
+                )],
+            ),
+            (
+                &scene(
+                    "<Cameras>\n<Camera id=\"1\" type=\"lookAt\"><Position>0 0 0</Position><GazePoint>0 0 -1</GazePoint>\n<Gaze>0 0 1</Gaze>\
+                        <Up>0 1 0</Up><FovY>45</FovY><NearDistance>1</NearDistance><ImageResolution>1 1</ImageResolution>\
+                        <ImageName>a.png</ImageName>\n<Tonemap><TMO>Photographic</TMO></Tonemap></Camera>\n</Cameras>",
+                ),
+                &[
+                    &w(4, r#"Camera id="1"> / <Gaze"#, "<Gaze> is ignored because <GazePoint> is given"),
+                    &w(5, r#"Camera id="1"> / <Tonemap"#, "<Tonemap> is not supported yet; it is ignored"),
+                ],
+            ),
+        ];
+        check_warnings(cases);
+        // The mesh with binary faces is skipped, not half-recorded.
+        assert!(parse(cases[6].0).meshes.is_empty());
+    }
+
+    /// Truncated and garbage inputs must give errors, never panics.
+    #[test]
+    fn truncated_and_garbage_inputs_are_errors() {
+        let end = SIMPLE.find("</Scene>").expect("SIMPLE ends with </Scene>") + "</Scene>".len();
+        for (cut, _) in SIMPLE.char_indices().filter(|&(i, _)| i < end) {
+            assert!(parse_xml(&SIMPLE[..cut], Path::new(FILE)).is_err(), "truncated at byte {cut} parsed");
+        }
+        let deep = "<Scene>".to_string() + &"<a>".repeat(100_000);
+        let garbage = [
+            "<",
+            "<<>>",
+            "</Scene>",
+            "<Scene",
+            "<Scene><!-- </Scene>",
+            "<Scene><![CDATA[</Scene>",
+            "<Scene><Cameras><Camera id=\"1\"><Position>1 2",
+            "<Scene>&#0;</Scene>",
+            "<Scene>&#xFFFFFFFF;</Scene>",
+            "<Scene a='1' a='2'></Scene>",
+            "<?xml version=\"1.0\"?>",
+            "\u{0}\u{1}\u{2}",
+            "\u{feff}",
+            &deep,
+        ];
+        for input in garbage {
+            assert!(parse_xml(input, Path::new(FILE)).is_err(), "{:?} parsed", excerpt(input));
+        }
+        // Random byte mutations of a valid scene: any result is fine, a panic is not.
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        for _ in 0..2000 {
+            let mut bytes = SIMPLE.as_bytes().to_vec();
+            for _ in 0..3 {
+                let at = (next() % bytes.len() as u64) as usize;
+                bytes[at] = b"<>/=\"' 0x!-&;\n"[(next() % 14) as usize];
+            }
+            let _ = parse_xml(&String::from_utf8_lossy(&bytes), Path::new(FILE));
+        }
+    }
+
+    /// Every scene of the course set parses (2019 files may warn about legacy elements).
+    #[test]
+    fn all_course_scenes_parse() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes/xml");
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            println!("skipped: {} does not exist", dir.display());
+            return;
+        };
+        let mut paths: Vec<_> = entries
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|x| x == "xml"))
+            .collect();
+        paths.sort();
+        assert!(!paths.is_empty(), "no scenes in {}", dir.display());
+        let mut failures = Vec::new();
+        for path in &paths {
+            let text = std::fs::read_to_string(path).expect("scene file is readable UTF-8");
+            match parse_xml(&text, path) {
+                Ok(records) => {
+                    assert!(!records.cameras.is_empty(), "{}: no cameras", path.display());
+                    let mut kinds: Vec<&str> = records.warnings.iter().map(|w| w.message.as_str()).collect();
+                    kinds.sort();
+                    kinds.dedup();
+                    if !kinds.is_empty() {
+                        println!(
+                            "{}: {} warnings: {}",
+                            path.display(),
+                            records.warnings.len(),
+                            kinds.join(" | ")
+                        );
+                    }
+                }
+                Err(e) => failures.push(e.to_string()),
+            }
+        }
+        assert!(failures.is_empty(), "{} scenes failed:\n{}", failures.len(), failures.join("\n"));
+    }
+}
+#[cfg(test)]
+mod scratch {
+    #[test]
+    fn dump() {
+        for f in ["spheres.xml", "VeachAjar.xml", "cornellbox_jaroslav_path_glass.xml", "car.xml", "head_env_light.xml", "metal_glass_plates.xml"] {
+            let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes/xml").join(f);
+            let r = super::parse_xml(&std::fs::read_to_string(&p).unwrap(), &p).unwrap();
+            println!("== {f}: cams {:?}", r.cameras.iter().map(|c| (&c.projection, c.gaze, c.handedness, c.num_samples)).collect::<Vec<_>>());
+            println!("   mats {:?}", r.materials.iter().map(|m| (m.id.as_str(), m.kind, m.mirror)).collect::<Vec<_>>());
+            println!("   verts {} meshes {:?}", r.vertices.len(), r.meshes.iter().take(3).map(|m| (&m.id, &m.faces_loc, m.shading, &m.transforms, match &m.faces { super::FacesRec::Ply{path} => path.clone(), super::FacesRec::Inline{indices, vertex_offset} => format!("{} idx off {}", indices.len(), vertex_offset)})).collect::<Vec<_>>());
+            println!("   inst {:?}", r.instances.iter().take(3).collect::<Vec<_>>());
+            println!("   tr {:?}", r.transformations.iter().take(2).collect::<Vec<_>>());
+        }
+    }
+}

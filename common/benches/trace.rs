@@ -1,0 +1,161 @@
+//! Ray throughput and BVH build benchmark (single thread unless stated).
+//!
+//! cargo bench -p tessera-common --bench trace [-- --quick]
+//!
+//! On ../shared/scenes/xml/ply/head.ply (17,674 triangles) and on the same head subdivided
+//! 1-to-4 three times (1.13M triangles) it prints:
+//! - BVH build time (1 thread, and all threads),
+//! - primary rays: 1920x1080 pinhole camera framing the mesh, closest hit,
+//! - shadow rays: segments between random points of the bounding box, any hit,
+//! - diffuse bounce: cosine-distributed rays from the primary hits, closest hit,
+//!
+//! one ray at a time, through the same top-level + mesh BVH path the renderer uses.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+use glam::DVec3;
+use tessera::geometry::{Accel, Instance, MeshGeom, Shape};
+use tessera::math::{Ray, orthonormal_pair};
+use tessera::sampler::SampleRng;
+
+fn load_head() -> (Vec<DVec3>, Vec<[u32; 3]>) {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes/xml/ply/head.ply");
+    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
+    let ply = tessera::ply::parse_ply(&bytes).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let pos = ply.positions.iter().map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)).collect();
+    (pos, ply.triangles)
+}
+
+/// 1-to-4 midpoint subdivision, `levels` times (vertices not shared; fine for tracing).
+fn subdivide(pos: &[DVec3], tris: &[[u32; 3]], levels: u32) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+    let mut cur: Vec<[DVec3; 3]> = tris.iter().map(|t| [pos[t[0] as usize], pos[t[1] as usize], pos[t[2] as usize]]).collect();
+    for _ in 0..levels {
+        let mut next = Vec::with_capacity(cur.len() * 4);
+        for [a, b, c] in cur {
+            let (ab, bc, ca) = ((a + b) * 0.5, (b + c) * 0.5, (c + a) * 0.5);
+            next.extend([[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
+        }
+        cur = next;
+    }
+    let mut p = Vec::with_capacity(cur.len() * 3);
+    let mut t = Vec::with_capacity(cur.len());
+    for tri in cur {
+        let base = p.len() as u32;
+        p.extend(tri);
+        t.push([base, base + 1, base + 2]);
+    }
+    (p, t)
+}
+
+fn build(pos: &[DVec3], tris: &[[u32; 3]], threads: usize) -> (Accel, f64) {
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("thread pool");
+    pool.install(|| {
+        let t = Instant::now();
+        let mesh = Arc::new(MeshGeom::new(pos.to_vec(), tris.to_vec(), None));
+        let accel = Accel::new(vec![mesh], vec![Instance { shape: Shape::Mesh { mesh: 0, smooth: false }, material: 0, transform: None }]);
+        (accel, t.elapsed().as_secs_f64())
+    })
+}
+
+struct Figures {
+    primary: f64,
+    shadow: f64,
+    bounce: f64,
+    hit_share: f64,
+}
+
+fn throughput(accel: &Accel, pos: &[DVec3], w: u32, h: u32) -> Figures {
+    let (mut lo, mut hi) = (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN));
+    for p in pos {
+        lo = lo.min(*p);
+        hi = hi.max(*p);
+    }
+    let center = (lo + hi) * 0.5;
+    let radius = (hi - lo).length() * 0.5;
+    // Camera on +z framing the bounding sphere with a 40° vertical field of view.
+    let fov = 40f64.to_radians();
+    let eye = center + DVec3::Z * (radius / (fov / 2.0).sin());
+    let (top, right) = ((fov / 2.0).tan(), (fov / 2.0).tan() * w as f64 / h as f64);
+    let eps = 1e-6;
+
+    let t = Instant::now();
+    let mut hits = Vec::with_capacity((w * h) as usize);
+    for y in 0..h {
+        for x in 0..w {
+            let sx = ((x as f64 + 0.5) / w as f64 * 2.0 - 1.0) * right;
+            let sy = (1.0 - (y as f64 + 0.5) / h as f64 * 2.0) * top;
+            let ray = Ray::new(eye, DVec3::new(sx, sy, -1.0).normalize());
+            if let Some(hit) = accel.intersect(&ray, eps, f64::INFINITY) {
+                hits.push((hit.point, if hit.geo_normal.dot(ray.dir) < 0.0 { hit.geo_normal } else { -hit.geo_normal }));
+            }
+        }
+    }
+    let primary = (w * h) as f64 / t.elapsed().as_secs_f64() / 1e6;
+    let hit_share = hits.len() as f64 / (w * h) as f64;
+
+    let n_shadow = (w * h) as usize;
+    let mut segs = Vec::with_capacity(n_shadow);
+    for i in 0..n_shadow {
+        let mut r = SampleRng::new(1, i as u32, 0, 0);
+        let mut pt = || lo + (hi - lo) * DVec3::new(r.next_f64(), r.next_f64(), r.next_f64());
+        let (a, b) = (pt(), pt());
+        segs.push((a, b));
+    }
+    let t = Instant::now();
+    let mut blocked = 0usize;
+    for (a, b) in &segs {
+        let d = *b - *a;
+        let len = d.length();
+        if accel.occluded(&Ray::new(*a, d / len), eps, len) {
+            blocked += 1;
+        }
+    }
+    let shadow = n_shadow as f64 / t.elapsed().as_secs_f64() / 1e6;
+    std::hint::black_box(blocked);
+
+    let mut dirs = Vec::with_capacity(hits.len());
+    for (i, (p, n)) in hits.iter().enumerate() {
+        let mut r = SampleRng::new(2, i as u32, 0, 0);
+        let (u, v) = orthonormal_pair(*n);
+        let (r1, r2) = (r.next_f64(), r.next_f64());
+        let (s, phi) = (r1.sqrt(), 2.0 * std::f64::consts::PI * r2);
+        let dir = (u * (s * phi.cos()) + v * (s * phi.sin()) + *n * (1.0 - r1).sqrt()).normalize();
+        dirs.push(Ray::new(*p + *n * 1e-4 * radius, dir));
+    }
+    let t = Instant::now();
+    let mut found = 0usize;
+    for ray in &dirs {
+        if accel.intersect(ray, eps, f64::INFINITY).is_some() {
+            found += 1;
+        }
+    }
+    let bounce = dirs.len() as f64 / t.elapsed().as_secs_f64() / 1e6;
+    std::hint::black_box(found);
+    Figures { primary, shadow, bounce, hit_share }
+}
+
+fn main() {
+    let quick = std::env::args().any(|a| a == "--quick");
+    let (w, h) = if quick { (480, 270) } else { (1920, 1080) };
+    let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+    let (pos, tris) = load_head();
+    let (pos1m, tris1m) = subdivide(&pos, &tris, 3);
+    println!("tessera trace benchmark: {w}x{h} primary rays, one ray at a time, 1 thread");
+    println!("| mesh | triangles | build 1 thr s | build {threads} thr s | primary Mrays/s | shadow Mrays/s | diffuse bounce Mrays/s | primary hit % |");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|");
+    for (name, p, t) in [("head.ply", &pos, &tris), ("head.ply subdivided x3", &pos1m, &tris1m)] {
+        let (_, build1) = build(p, t, 1);
+        let (accel, build_n) = build(p, t, threads);
+        let f = throughput(&accel, p, w, h);
+        println!(
+            "| {name} | {} | {build1:.3} | {build_n:.3} | {:.2} | {:.2} | {:.2} | {:.1} |",
+            t.len(),
+            f.primary,
+            f.shadow,
+            f.bounce,
+            f.hit_share * 100.0
+        );
+    }
+}

@@ -1,0 +1,131 @@
+//! Cameras: the course's image-plane construction (scene-format.md §4.2-4.3).
+
+use glam::DVec3;
+
+use crate::math::{Ray, v3};
+use crate::scene::records::{CameraRec, Handedness, Projection};
+
+/// A camera ready to generate primary rays.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Camera {
+    pub id: String,
+    pub position: DVec3,
+    /// Right, up, backward (w = -gaze).
+    pub u: DVec3,
+    pub v: DVec3,
+    pub w: DVec3,
+    /// Top-left corner of the image plane.
+    pub corner: DVec3,
+    /// Image-plane extent per pixel along u and v.
+    pub pixel_w: f64,
+    pub pixel_h: f64,
+    pub width: u32,
+    pub height: u32,
+    pub image_name: String,
+    pub num_samples: u32,
+}
+
+impl Camera {
+    /// `None` when the gaze and up vectors do not define a frame (zero or parallel).
+    pub fn from_record(c: &CameraRec) -> Option<Camera> {
+        let gaze = v3(c.gaze);
+        let up = v3(c.up);
+        if gaze.length_squared() == 0.0 || up.length_squared() == 0.0 {
+            return None;
+        }
+        let w = -gaze.normalize();
+        let mut u = up.normalize().cross(w);
+        if u.length_squared() < 1e-24 {
+            return None;
+        }
+        u = u.normalize();
+        let v = w.cross(u);
+        if c.handedness == Handedness::Left {
+            u = -u;
+        }
+        let d = c.near_distance;
+        let (l, r, b, t) = match c.projection {
+            Projection::NearPlane { left, right, bottom, top } => (left, right, bottom, top),
+            Projection::FovY(deg) => {
+                let t = d * (deg.to_radians() / 2.0).tan();
+                let r = t * c.width as f64 / c.height as f64;
+                (-r, r, -t, t)
+            }
+        };
+        let position = v3(c.position);
+        let m = position - d * w;
+        let corner = m + l * u + t * v;
+        Some(Camera {
+            id: c.id.clone(),
+            position,
+            u,
+            v,
+            w,
+            corner,
+            pixel_w: (r - l) / c.width as f64,
+            pixel_h: (t - b) / c.height as f64,
+            width: c.width,
+            height: c.height,
+            image_name: c.image_name.clone(),
+            num_samples: c.num_samples.max(1),
+        })
+    }
+
+    /// Primary ray through image position (x + dx, y + dy), pixel (x, y) counted from the top left,
+    /// `dx, dy` in [0, 1) (0.5 = pixel centre).
+    #[inline]
+    pub fn ray(&self, x: u32, y: u32, dx: f64, dy: f64) -> Ray {
+        let s = self.corner + ((x as f64 + dx) * self.pixel_w) * self.u - ((y as f64 + dy) * self.pixel_h) * self.v;
+        Ray::new(self.position, (s - self.position).normalize())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Loc;
+
+    fn rec(projection: Projection, handedness: Handedness) -> CameraRec {
+        CameraRec {
+            id: "1".into(),
+            loc: Loc::default(),
+            position: [0.0, 0.0, 0.0],
+            gaze: [0.0, 0.0, -1.0],
+            up: [0.0, 1.0, 0.0],
+            projection,
+            near_distance: 1.0,
+            width: 100,
+            height: 50,
+            image_name: "x.png".into(),
+            handedness,
+            num_samples: 1,
+        }
+    }
+
+    #[test]
+    fn centre_pixel_looks_along_gaze_and_corners_follow_nearplane() {
+        let c = Camera::from_record(&rec(Projection::NearPlane { left: -2.0, right: 2.0, bottom: -1.0, top: 1.0 }, Handedness::Right)).unwrap();
+        let r = c.ray(50, 25, 0.0, 0.0);
+        assert!((r.dir - DVec3::NEG_Z).length() < 1e-12);
+        // Top-left pixel's corner is at (l, t, -d).
+        let r = c.ray(0, 0, 0.0, 0.0);
+        assert!((r.dir - DVec3::new(-2.0, 1.0, -1.0).normalize()).length() < 1e-12);
+        let left = Camera::from_record(&rec(Projection::NearPlane { left: -2.0, right: 2.0, bottom: -1.0, top: 1.0 }, Handedness::Left)).unwrap();
+        assert!((left.ray(0, 0, 0.0, 0.0).dir - DVec3::new(2.0, 1.0, -1.0).normalize()).length() < 1e-12);
+    }
+
+    #[test]
+    fn fovy_gives_symmetric_frustum_with_aspect() {
+        let c = Camera::from_record(&rec(Projection::FovY(90.0), Handedness::Right)).unwrap();
+        // t = tan(45°) = 1, r = 2 (aspect 2:1).
+        let r = c.ray(0, 0, 0.0, 0.0);
+        assert!((r.dir - DVec3::new(-2.0, 1.0, -1.0).normalize()).length() < 1e-12);
+    }
+
+    #[test]
+    fn degenerate_frame_is_rejected() {
+        let mut r = rec(Projection::FovY(60.0), Handedness::Right);
+        r.up = [0.0, 0.0, 2.0];
+        assert!(Camera::from_record(&r).is_none());
+    }
+}

@@ -1,0 +1,234 @@
+//! Triangle meshes in object space, each with its own CWBVH (obvhs).
+//!
+//! Triangles are stored twice on purpose: an `f32` copy in BVH order for the traversal's hot
+//! loop (one cache line per few triangles, no indirection), and the indexed vertex arrays for the
+//! exact `f64` re-intersection of the closest hit and for smooth normals.
+
+use std::time::Duration;
+
+use glam::{DVec3, Vec3A};
+use obvhs::{BvhBuildParams, aabb::Aabb, cwbvh::CwBvh, cwbvh::builder::build_cwbvh, ray::RayHit};
+
+/// A triangle prepared for the `f32` Möller–Trumbore test.
+#[derive(Clone, Copy, Debug)]
+pub struct TriAccel {
+    pub v0: Vec3A,
+    pub e1: Vec3A,
+    pub e2: Vec3A,
+}
+
+impl TriAccel {
+    fn new(p0: Vec3A, p1: Vec3A, p2: Vec3A) -> Self {
+        TriAccel { v0: p0, e1: p1 - p0, e2: p2 - p0 }
+    }
+
+    /// Distance along the ray, or +inf for a miss. Two-sided (no culling).
+    #[inline(always)]
+    pub fn intersect(&self, ray: &obvhs::ray::Ray) -> f32 {
+        let p = ray.direction.cross(self.e2);
+        let det = self.e1.dot(p);
+        if det.abs() < 1e-20 {
+            return f32::INFINITY;
+        }
+        let inv = 1.0 / det;
+        let s = ray.origin - self.v0;
+        let u = s.dot(p) * inv;
+        if !(0.0..=1.0).contains(&u) {
+            return f32::INFINITY;
+        }
+        let q = s.cross(self.e1);
+        let v = ray.direction.dot(q) * inv;
+        if v < 0.0 || u + v > 1.0 {
+            return f32::INFINITY;
+        }
+        let t = self.e2.dot(q) * inv;
+        if t > ray.tmin && t < ray.tmax { t } else { f32::INFINITY }
+    }
+}
+
+/// A mesh ready for tracing.
+pub struct MeshGeom {
+    /// Object-space vertex positions.
+    pub positions: Vec<DVec3>,
+    /// Triangles as indices into `positions` (degenerate ones already removed).
+    pub indices: Vec<[u32; 3]>,
+    /// Unit per-vertex normals (object space) when some user of the mesh shades it smooth.
+    pub vertex_normals: Option<Vec<DVec3>>,
+    /// `accel[i]` is triangle `accel_tri[i]`, in the BVH's primitive order.
+    accel: Vec<TriAccel>,
+    accel_tri: Vec<u32>,
+    pub bvh: CwBvh,
+    pub bounds: Aabb,
+}
+
+/// Closest-hit data within a mesh, in object space.
+#[derive(Clone, Copy, Debug)]
+pub struct TriHit {
+    pub t: f64,
+    pub tri: u32,
+    pub u: f64,
+    pub v: f64,
+}
+
+impl MeshGeom {
+    /// Builds the BVH. `positions` and `indices` must already be validated (indices in range,
+    /// degenerate triangles removed).
+    pub fn new(positions: Vec<DVec3>, indices: Vec<[u32; 3]>, vertex_normals: Option<Vec<DVec3>>) -> Self {
+        let tris: Vec<TriAccel> = indices
+            .iter()
+            .map(|&[a, b, c]| {
+                let p = |i: u32| positions[i as usize].as_vec3a();
+                TriAccel::new(p(a), p(b), p(c))
+            })
+            .collect();
+        let aabbs: Vec<Aabb> = tris
+            .iter()
+            .map(|t| Aabb::from_points(&[t.v0, t.v0 + t.e1, t.v0 + t.e2]))
+            .collect();
+        let bvh = build_cwbvh(&aabbs, BvhBuildParams::medium_build(), &mut Duration::default());
+        let accel_tri = bvh.primitive_indices.clone();
+        let accel = accel_tri.iter().map(|&i| tris[i as usize]).collect();
+        let bounds = bvh.total_aabb;
+        MeshGeom { positions, indices, vertex_normals, accel, accel_tri, bvh, bounds }
+    }
+
+    pub fn triangle_count(&self) -> usize {
+        self.indices.len()
+    }
+
+    /// Closest hit of an object-space `f32` ray; returns (t, triangle) with `f32` precision.
+    #[inline]
+    pub fn intersect_f32(&self, ray: obvhs::ray::Ray) -> Option<(f32, u32)> {
+        let mut hit = RayHit::none();
+        if self.bvh.ray_traverse(ray, &mut hit, |r, i| self.accel[i].intersect(r)) {
+            Some((hit.t, self.accel_tri[hit.primitive_id as usize]))
+        } else {
+            None
+        }
+    }
+
+    /// True if anything is hit in (tmin, tmax).
+    #[inline]
+    pub fn occluded_f32(&self, ray: obvhs::ray::Ray) -> bool {
+        !self.bvh.ray_traverse_miss(ray, |r, i| self.accel[i].intersect(r))
+    }
+
+    /// Exact `f64` intersection of a triangle already known to be hit: distance and barycentrics
+    /// (clamped into the triangle, since the `f32` test accepted it).
+    pub fn refine(&self, tri: u32, origin: DVec3, dir: DVec3) -> TriHit {
+        let [a, b, c] = self.indices[tri as usize];
+        let (p0, p1, p2) = (self.positions[a as usize], self.positions[b as usize], self.positions[c as usize]);
+        let e1 = p1 - p0;
+        let e2 = p2 - p0;
+        let p = dir.cross(e2);
+        let det = e1.dot(p);
+        let inv = 1.0 / det;
+        let s = origin - p0;
+        let mut u = s.dot(p) * inv;
+        let q = s.cross(e1);
+        let mut v = dir.dot(q) * inv;
+        let t = e2.dot(q) * inv;
+        u = u.clamp(0.0, 1.0);
+        v = v.clamp(0.0, 1.0 - u);
+        TriHit { t, tri, u, v }
+    }
+
+    /// Object-space geometric normal (unit, counter-clockwise winding).
+    pub fn face_normal(&self, tri: u32) -> DVec3 {
+        let [a, b, c] = self.indices[tri as usize];
+        let (p0, p1, p2) = (self.positions[a as usize], self.positions[b as usize], self.positions[c as usize]);
+        (p1 - p0).cross(p2 - p0).normalize()
+    }
+
+    /// Object-space interpolated vertex normal at barycentrics (u, v); the face normal when the
+    /// mesh has no vertex normals.
+    pub fn smooth_normal(&self, tri: u32, u: f64, v: f64) -> DVec3 {
+        match &self.vertex_normals {
+            Some(ns) => {
+                let [a, b, c] = self.indices[tri as usize];
+                let n = (1.0 - u - v) * ns[a as usize] + u * ns[b as usize] + v * ns[c as usize];
+                let len = n.length();
+                if len > 1e-12 { n / len } else { self.face_normal(tri) }
+            }
+            None => self.face_normal(tri),
+        }
+    }
+}
+
+/// Area-weighted vertex normals: each triangle adds its un-normalised cross product to its three
+/// vertices (scene-format.md §9.2, the 2025 text's rule).
+pub fn area_weighted_normals(positions: &[DVec3], indices: &[[u32; 3]]) -> Vec<DVec3> {
+    let mut acc = vec![DVec3::ZERO; positions.len()];
+    for &[a, b, c] in indices {
+        let (p0, p1, p2) = (positions[a as usize], positions[b as usize], positions[c as usize]);
+        let n = (p1 - p0).cross(p2 - p0);
+        acc[a as usize] += n;
+        acc[b as usize] += n;
+        acc[c as usize] += n;
+    }
+    acc.into_iter().map(|n| n.normalize_or_zero()).collect()
+}
+
+/// Removes triangles with a repeated index or zero area; returns how many were removed.
+pub fn drop_degenerate(positions: &[DVec3], indices: &mut Vec<[u32; 3]>) -> usize {
+    let before = indices.len();
+    indices.retain(|&[a, b, c]| {
+        if a == b || b == c || a == c {
+            return false;
+        }
+        let (p0, p1, p2) = (positions[a as usize], positions[b as usize], positions[c as usize]);
+        let n = (p1 - p0).cross(p2 - p0);
+        n.length_squared() > 0.0 && n.is_finite()
+    });
+    before - indices.len()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn quad() -> MeshGeom {
+        let positions = vec![
+            DVec3::new(-1.0, -1.0, 0.0),
+            DVec3::new(1.0, -1.0, 0.0),
+            DVec3::new(1.0, 1.0, 0.0),
+            DVec3::new(-1.0, 1.0, 0.0),
+        ];
+        MeshGeom::new(positions, vec![[0, 1, 2], [0, 2, 3]], None)
+    }
+
+    fn fray(o: DVec3, d: DVec3) -> obvhs::ray::Ray {
+        obvhs::ray::Ray::new(o.as_vec3a(), d.as_vec3a(), 0.0, f32::INFINITY)
+    }
+
+    #[test]
+    fn hits_and_misses_a_quad() {
+        let m = quad();
+        let (t, tri) = m.intersect_f32(fray(DVec3::new(0.5, -0.5, 3.0), DVec3::NEG_Z)).unwrap();
+        assert!((t - 3.0).abs() < 1e-6);
+        assert_eq!(tri, 0);
+        let h = m.refine(tri, DVec3::new(0.5, -0.5, 3.0), DVec3::NEG_Z);
+        assert!((h.t - 3.0).abs() < 1e-12);
+        assert!(m.intersect_f32(fray(DVec3::new(1.5, 0.0, 3.0), DVec3::NEG_Z)).is_none());
+        // From behind: two-sided.
+        assert!(m.intersect_f32(fray(DVec3::new(0.0, 0.2, -3.0), DVec3::Z)).is_some());
+        assert!(m.occluded_f32(fray(DVec3::new(0.0, 0.2, -3.0), DVec3::Z)));
+        assert_eq!(m.face_normal(0), DVec3::Z);
+    }
+
+    #[test]
+    fn degenerate_triangles_are_dropped() {
+        let p = vec![DVec3::ZERO, DVec3::X, DVec3::Y, DVec3::X * 2.0];
+        let mut idx = vec![[0, 1, 2], [0, 0, 1], [0, 1, 3]];
+        assert_eq!(drop_degenerate(&p, &mut idx), 2);
+        assert_eq!(idx, vec![[0, 1, 2]]);
+    }
+
+    #[test]
+    fn area_weighting_favours_large_faces() {
+        // Vertex 0 is shared by a large face in the xy plane and a small one in the xz plane.
+        let p = vec![DVec3::ZERO, DVec3::X * 10.0, DVec3::Y * 10.0, DVec3::NEG_Z * 0.1];
+        let n = area_weighted_normals(&p, &[[0, 1, 2], [0, 3, 1]]);
+        assert!(n[0].z > 0.99, "{:?}", n[0]);
+    }
+}

@@ -1,0 +1,296 @@
+//! Geometry and acceleration: meshes with their own BVHs, analytic spheres, instances with
+//! transforms, and a top-level BVH over all instances.
+//!
+//! obvhs has no instancing, so the two levels are ours: the top-level CWBVH is built over the
+//! world-space bounds of [`Instance`]s; its leaf test transforms the ray into the instance's
+//! object space (direction not renormalised, so `t` carries over) and traverses the mesh's BVH.
+//! A plain (untransformed) mesh is simply an instance with no transform.
+
+pub mod mesh;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use glam::{DVec3, Vec3A};
+use obvhs::{BvhBuildParams, aabb::Aabb, cwbvh::CwBvh, cwbvh::builder::build_cwbvh, ray::RayHit};
+
+use crate::math::{Ray, Transform};
+pub use mesh::MeshGeom;
+
+/// What an instance is made of.
+#[derive(Clone, Debug)]
+pub enum Shape {
+    /// Index into [`Accel::meshes`].
+    Mesh { mesh: u32, smooth: bool },
+    /// Object-space sphere (an ellipsoid once transformed).
+    Sphere { center: DVec3, radius: f64 },
+}
+
+/// One placed object of the scene.
+#[derive(Clone, Debug)]
+pub struct Instance {
+    pub shape: Shape,
+    pub material: u32,
+    /// `None` means object space is world space (saves two matrix products per ray).
+    pub transform: Option<Transform>,
+}
+
+/// A surface point found by a ray, everything in world space.
+#[derive(Clone, Copy, Debug)]
+pub struct SurfaceHit {
+    pub t: f64,
+    pub point: DVec3,
+    /// Unit geometric normal as the geometry defines it (CCW winding, sphere outward); not
+    /// flipped towards the ray, so dielectrics can tell entering from leaving.
+    pub geo_normal: DVec3,
+    /// Unit shading normal (interpolated for smooth meshes), on the same side as `geo_normal`.
+    pub shading_normal: DVec3,
+    pub material: u32,
+    pub instance: u32,
+}
+
+/// The whole scene's geometry, ready for ray queries.
+pub struct Accel {
+    pub meshes: Vec<Arc<MeshGeom>>,
+    pub instances: Vec<Instance>,
+    tlas: CwBvh,
+    /// TLAS primitive order -> instance index.
+    tlas_order: Vec<u32>,
+}
+
+/// The closest candidate found during traversal.
+#[derive(Clone, Copy)]
+struct Candidate {
+    t: f64,
+    instance: u32,
+    tri: u32,
+}
+
+#[inline]
+fn to_f32_ray(r: &Ray, tmin: f64, tmax: f64) -> obvhs::ray::Ray {
+    obvhs::ray::Ray::new(r.origin.as_vec3a(), r.dir.as_vec3a(), tmin as f32, tmax as f32)
+}
+
+/// Smallest root in (tmin, tmax) of the sphere test, in the ray's own space.
+#[inline]
+fn sphere_t(center: DVec3, radius: f64, r: &Ray, tmin: f64, tmax: f64) -> Option<f64> {
+    let oc = r.origin - center;
+    let a = r.dir.length_squared();
+    let half_b = oc.dot(r.dir);
+    let c = oc.length_squared() - radius * radius;
+    let disc = half_b * half_b - a * c;
+    if disc < 0.0 {
+        return None;
+    }
+    let sq = disc.sqrt();
+    // Numerically stable pair of roots.
+    let q = -half_b - half_b.signum() * sq;
+    let (mut t0, mut t1) = if q != 0.0 { (q / a, c / q) } else { (-half_b / a, -half_b / a) };
+    if t0 > t1 {
+        std::mem::swap(&mut t0, &mut t1);
+    }
+    if t0 > tmin && t0 < tmax {
+        Some(t0)
+    } else if t1 > tmin && t1 < tmax {
+        Some(t1)
+    } else {
+        None
+    }
+}
+
+fn instance_bounds(inst: &Instance, meshes: &[Arc<MeshGeom>]) -> Aabb {
+    let local = match &inst.shape {
+        Shape::Mesh { mesh, .. } => meshes[*mesh as usize].bounds,
+        Shape::Sphere { center, radius } => {
+            let r = DVec3::splat(*radius);
+            Aabb::new((*center - r).as_vec3a(), (*center + r).as_vec3a())
+        }
+    };
+    let Some(xf) = &inst.transform else { return pad(local) };
+    let mut out = Aabb::empty();
+    for i in 0..8 {
+        let c = DVec3::new(
+            if i & 1 == 0 { local.min.x } else { local.max.x } as f64,
+            if i & 2 == 0 { local.min.y } else { local.max.y } as f64,
+            if i & 4 == 0 { local.min.z } else { local.max.z } as f64,
+        );
+        out.extend(xf.to_world.transform_point3(c).as_vec3a());
+    }
+    pad(out)
+}
+
+/// Grows a box by a relative epsilon so `f32` rounding never culls a surface lying on it.
+fn pad(b: Aabb) -> Aabb {
+    let e = (b.max - b.min).abs().max(b.min.abs()).max(b.max.abs()) * 1e-5 + Vec3A::splat(1e-6);
+    Aabb::new(b.min - e, b.max + e)
+}
+
+impl Accel {
+    pub fn new(meshes: Vec<Arc<MeshGeom>>, instances: Vec<Instance>) -> Self {
+        let bounds: Vec<Aabb> = instances.iter().map(|i| instance_bounds(i, &meshes)).collect();
+        let tlas = if bounds.is_empty() {
+            CwBvh::default()
+        } else {
+            build_cwbvh(&bounds, BvhBuildParams::medium_build(), &mut Duration::default())
+        };
+        let tlas_order = tlas.primitive_indices.clone();
+        Accel { meshes, instances, tlas, tlas_order }
+    }
+
+    /// Total triangles over all instances (instanced triangles counted once per instance).
+    pub fn instanced_triangle_count(&self) -> usize {
+        self.instances
+            .iter()
+            .map(|i| match i.shape {
+                Shape::Mesh { mesh, .. } => self.meshes[mesh as usize].triangle_count(),
+                Shape::Sphere { .. } => 0,
+            })
+            .sum()
+    }
+
+    /// Closest surface hit with `t` in (tmin, tmax).
+    pub fn intersect(&self, ray: &Ray, tmin: f64, tmax: f64) -> Option<SurfaceHit> {
+        if self.instances.is_empty() {
+            return None;
+        }
+        let mut best = Candidate { t: tmax, instance: u32::MAX, tri: 0 };
+        let mut hit = RayHit::none();
+        self.tlas.ray_traverse(to_f32_ray(ray, tmin, tmax), &mut hit, |fr, id| {
+            let idx = self.tlas_order[id];
+            let inst = &self.instances[idx as usize];
+            let local = match &inst.transform {
+                Some(xf) => xf.ray_to_object(ray),
+                None => *ray,
+            };
+            match &inst.shape {
+                Shape::Sphere { center, radius } => match sphere_t(*center, *radius, &local, tmin, best.t) {
+                    Some(t) => {
+                        best = Candidate { t, instance: idx, tri: 0 };
+                        t as f32
+                    }
+                    None => f32::INFINITY,
+                },
+                Shape::Mesh { mesh, .. } => {
+                    let m = &self.meshes[*mesh as usize];
+                    let lr = to_f32_ray(&local, tmin, fr.tmax as f64);
+                    match m.intersect_f32(lr) {
+                        Some((t, tri)) => {
+                            best = Candidate { t: t as f64, instance: idx, tri };
+                            t
+                        }
+                        None => f32::INFINITY,
+                    }
+                }
+            }
+        });
+        if best.instance == u32::MAX {
+            return None;
+        }
+        Some(self.surface(ray, best))
+    }
+
+    /// True if anything blocks the ray within (tmin, tmax).
+    pub fn occluded(&self, ray: &Ray, tmin: f64, tmax: f64) -> bool {
+        if self.instances.is_empty() {
+            return false;
+        }
+        !self.tlas.ray_traverse_miss(to_f32_ray(ray, tmin, tmax), |fr, id| {
+            let inst = &self.instances[self.tlas_order[id] as usize];
+            let local = match &inst.transform {
+                Some(xf) => xf.ray_to_object(ray),
+                None => *ray,
+            };
+            let blocked = match &inst.shape {
+                Shape::Sphere { center, radius } => sphere_t(*center, *radius, &local, tmin, tmax).is_some(),
+                Shape::Mesh { mesh, .. } => {
+                    self.meshes[*mesh as usize].occluded_f32(to_f32_ray(&local, tmin, fr.tmax as f64))
+                }
+            };
+            if blocked { fr.tmin } else { f32::INFINITY }
+        })
+    }
+
+    /// Completes a candidate into world-space hit data, re-intersecting triangles in `f64`.
+    fn surface(&self, ray: &Ray, c: Candidate) -> SurfaceHit {
+        let inst = &self.instances[c.instance as usize];
+        let local = match &inst.transform {
+            Some(xf) => xf.ray_to_object(ray),
+            None => *ray,
+        };
+        let (t, n_geo, n_shade) = match &inst.shape {
+            Shape::Sphere { center, radius } => {
+                let p = local.at(c.t);
+                let n = (p - *center) / *radius;
+                (c.t, n, n)
+            }
+            Shape::Mesh { mesh, smooth } => {
+                let m = &self.meshes[*mesh as usize];
+                let h = m.refine(c.tri, local.origin, local.dir);
+                // Keep the f32 distance if the f64 re-intersection degenerated (grazing rays).
+                let t = if h.t.is_finite() && h.t > 0.0 { h.t } else { c.t };
+                let ng = m.face_normal(c.tri);
+                let ns = if *smooth { m.smooth_normal(c.tri, h.u, h.v) } else { ng };
+                (t, ng, ns)
+            }
+        };
+        let (geo_normal, shading_normal) = match &inst.transform {
+            Some(xf) => (xf.normal_to_world(n_geo), xf.normal_to_world(n_shade)),
+            None => (n_geo, n_shade),
+        };
+        // A smooth normal may lean past the face; keep it on the face's side.
+        let shading_normal = if shading_normal.dot(geo_normal) < 0.0 { -shading_normal } else { shading_normal };
+        SurfaceHit {
+            t,
+            point: ray.at(t),
+            geo_normal,
+            shading_normal,
+            material: inst.material,
+            instance: c.instance,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DAffine3;
+
+    fn unit_quad() -> Arc<MeshGeom> {
+        Arc::new(MeshGeom::new(
+            vec![DVec3::new(-1.0, -1.0, 0.0), DVec3::new(1.0, -1.0, 0.0), DVec3::new(1.0, 1.0, 0.0), DVec3::new(-1.0, 1.0, 0.0)],
+            vec![[0, 1, 2], [0, 2, 3]],
+            None,
+        ))
+    }
+
+    #[test]
+    fn instances_share_a_mesh_and_transform_rays() {
+        let moved = Transform::new(DAffine3::from_translation(DVec3::new(0.0, 0.0, -5.0))).unwrap();
+        let scaled = Transform::new(DAffine3::from_scale(DVec3::splat(2.0))).unwrap();
+        let accel = Accel::new(
+            vec![unit_quad()],
+            vec![
+                Instance { shape: Shape::Mesh { mesh: 0, smooth: false }, material: 0, transform: Some(moved) },
+                Instance { shape: Shape::Sphere { center: DVec3::new(5.0, 0.0, 0.0), radius: 1.0 }, material: 1, transform: Some(scaled) },
+            ],
+        );
+        let r = Ray::new(DVec3::new(0.5, 0.5, 10.0), DVec3::NEG_Z);
+        let h = accel.intersect(&r, 1e-6, f64::INFINITY).unwrap();
+        assert!((h.t - 15.0).abs() < 1e-9, "{}", h.t);
+        assert_eq!(h.material, 0);
+        // The sphere is scaled about the origin: centre (10,0,0), radius 2.
+        let r = Ray::new(DVec3::new(10.0, 0.0, 10.0), DVec3::NEG_Z);
+        let h = accel.intersect(&r, 1e-6, f64::INFINITY).unwrap();
+        assert!((h.t - 8.0).abs() < 1e-9, "{}", h.t);
+        assert!((h.geo_normal - DVec3::Z).length() < 1e-9);
+        assert!(accel.occluded(&r, 1e-6, 9.0));
+        assert!(!accel.occluded(&r, 1e-6, 7.0));
+    }
+
+    #[test]
+    fn sphere_from_inside_hits_far_side() {
+        let r = Ray::new(DVec3::ZERO, DVec3::X);
+        assert_eq!(sphere_t(DVec3::ZERO, 2.0, &r, 1e-6, f64::INFINITY), Some(2.0));
+        assert_eq!(sphere_t(DVec3::new(0.0, 5.0, 0.0), 1.0, &r, 1e-6, f64::INFINITY), None);
+    }
+}

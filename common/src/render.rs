@@ -1,0 +1,140 @@
+//! Tile rendering: the unit of work for the CLI (rayon over tiles) and, later, for farm workers.
+//!
+//! Invariant: a pixel's value depends only on (scene, camera, pixel, seed). Tiles share nothing
+//! mutable, samples draw from [`SampleRng`] keyed by pixel and sample index, and samples are
+//! summed in a fixed order, so any tile size and any thread count give identical bits.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use rayon::prelude::*;
+
+use crate::image::Image;
+use crate::integrator::{RayStats, Tracer};
+use crate::sampler::{SampleRng, frame_seed};
+use crate::scene::Scene;
+
+/// A rectangle of pixels, `x0, y0` from the top-left corner of the frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct TileRect {
+    pub x0: u32,
+    pub y0: u32,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// Knobs that change what is rendered (not how fast).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RenderSettings {
+    /// Base seed; the frame seed of each camera derives from it.
+    pub seed: u64,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        RenderSettings { seed: 0x7e55_e7a0 }
+    }
+}
+
+/// Cuts a `width` x `height` frame into tiles of at most `tile` x `tile` pixels, row by row.
+pub fn tiles(width: u32, height: u32, tile: u32) -> Vec<TileRect> {
+    let tile = tile.max(1);
+    let mut out = Vec::new();
+    let mut y0 = 0;
+    while y0 < height {
+        let h = tile.min(height - y0);
+        let mut x0 = 0;
+        while x0 < width {
+            let w = tile.min(width - x0);
+            out.push(TileRect { x0, y0, width: w, height: h });
+            x0 += w;
+        }
+        y0 += h;
+    }
+    out
+}
+
+/// Renders one tile of camera `camera`: linear float RGB, row-major within the tile.
+///
+/// Panics only if `camera` or `rect` is out of range for the scene (a caller bug, not input).
+pub fn render_tile(scene: &Scene, camera: usize, rect: TileRect, settings: &RenderSettings) -> (Vec<[f32; 3]>, RayStats) {
+    let cam = &scene.cameras[camera];
+    assert!(rect.x0 + rect.width <= cam.width && rect.y0 + rect.height <= cam.height, "tile outside the frame");
+    let seed = frame_seed(settings.seed, camera);
+    let n = cam.num_samples.max(1);
+    let strata = (n as f64).sqrt() as u32;
+    let stratified = strata * strata == n;
+    let mut tracer = Tracer::new(scene);
+    let mut out = Vec::with_capacity((rect.width * rect.height) as usize);
+    for y in rect.y0..rect.y0 + rect.height {
+        for x in rect.x0..rect.x0 + rect.width {
+            let mut sum = glam::DVec3::ZERO;
+            for s in 0..n {
+                let mut rng = SampleRng::new(seed, x, y, s);
+                let (dx, dy) = if n == 1 {
+                    (0.5, 0.5)
+                } else if stratified {
+                    (((s % strata) as f64 + rng.next_f64()) / strata as f64, ((s / strata) as f64 + rng.next_f64()) / strata as f64)
+                } else {
+                    (rng.next_f64(), rng.next_f64())
+                };
+                let ray = cam.ray(x, y, dx, dy);
+                sum += tracer.trace_primary(&ray, &mut rng);
+            }
+            let c = sum / n as f64;
+            out.push([c.x as f32, c.y as f32, c.z as f32]);
+        }
+    }
+    (out, tracer.stats)
+}
+
+/// Renders a whole camera with rayon over tiles. `progress(done, total)` is called after every
+/// finished tile (from worker threads).
+pub fn render_camera(
+    scene: &Scene,
+    camera: usize,
+    tile_size: u32,
+    settings: &RenderSettings,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> (Image, RayStats) {
+    let cam = &scene.cameras[camera];
+    let rects = tiles(cam.width, cam.height, tile_size);
+    let done = AtomicUsize::new(0);
+    let total = rects.len();
+    let results: Vec<(TileRect, Vec<[f32; 3]>, RayStats)> = rects
+        .par_iter()
+        .map(|&r| {
+            let (px, st) = render_tile(scene, camera, r, settings);
+            progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
+            (r, px, st)
+        })
+        .collect();
+    let mut img = Image::new(cam.width, cam.height);
+    let mut stats = RayStats::default();
+    for (r, px, st) in &results {
+        img.put_tile(*r, px);
+        stats.add(st);
+    }
+    (img, stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tiles_cover_frame_exactly_once() {
+        for (w, h, t) in [(800, 600, 64), (17, 5, 4), (1, 1, 16), (64, 64, 64)] {
+            let ts = tiles(w, h, t);
+            let mut seen = vec![0u8; (w * h) as usize];
+            for r in &ts {
+                assert!(r.width <= t && r.height <= t);
+                for y in r.y0..r.y0 + r.height {
+                    for x in r.x0..r.x0 + r.width {
+                        seen[(y * w + x) as usize] += 1;
+                    }
+                }
+            }
+            assert!(seen.iter().all(|&c| c == 1));
+        }
+    }
+}

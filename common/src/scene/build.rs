@@ -1,0 +1,379 @@
+//! Records -> render scene: resolve ids, load PLY files, compose transformations, build BVHs.
+//!
+//! Every failure here is a [`SceneError`] that points at the element whose reference or data is
+//! wrong (the records carry their source line), so the user can fix the scene file.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::time::Instant;
+
+use glam::{DAffine3, DMat3, DMat4, DVec3};
+use rayon::prelude::*;
+
+use super::records::*;
+use super::{PointLight, Scene, SceneStats};
+use crate::assets::AssetResolver;
+use crate::camera::Camera;
+use crate::error::{Loc, SceneError, Warning};
+use crate::geometry::mesh::{MeshGeom, area_weighted_normals, drop_degenerate};
+use crate::geometry::{Accel, Instance, Shape};
+use crate::material::Material;
+use crate::math::{Transform, v3};
+
+/// Gamma used to linearise `degamma` materials until tone-mapping blocks are parsed (§6.6).
+const DEGAMMA: f64 = 2.2;
+
+struct Ctx<'a> {
+    rec: &'a SceneRecords,
+    resolver: &'a dyn AssetResolver,
+}
+
+impl Ctx<'_> {
+    fn err(&self, loc: &Loc, msg: impl Into<String>) -> SceneError {
+        SceneError::new(&self.rec.source, loc.clone(), msg)
+    }
+
+    fn material(&self, ids: &HashMap<&str, u32>, id: &str, loc: &Loc) -> Result<u32, SceneError> {
+        ids.get(id).copied().ok_or_else(|| {
+            self.err(loc, format!("material \"{id}\" is not defined; add <Material id=\"{id}\"> under <Materials> or use an existing id"))
+        })
+    }
+
+    fn vertex(&self, id: i64, loc: &Loc, what: &str) -> Result<u32, SceneError> {
+        let n = self.rec.vertices.len();
+        if id >= 1 && (id as u64) <= n as u64 {
+            Ok((id - 1) as u32)
+        } else {
+            Err(self.err(loc, format!("{what} refers to vertex {id}, but <VertexData> has {n} vertices (ids start at 1)")))
+        }
+    }
+
+    fn transform(&self, table: &HashMap<(char, &str), TransformOp>, refs: &[TransformRef], loc: &Loc) -> Result<DAffine3, SceneError> {
+        let mut m = DAffine3::IDENTITY;
+        for r in refs {
+            let op = table.get(&(r.letter, r.id.as_str())).ok_or_else(|| {
+                let kind = match r.letter {
+                    't' => "Translation",
+                    's' => "Scaling",
+                    'r' => "Rotation",
+                    _ => "Composite",
+                };
+                self.err(loc, format!("transformation \"{}{}\" is not defined; add <{kind} id=\"{}\"> under <Transformations>", r.letter, r.id, r.id))
+            })?;
+            // Tokens apply left to right: M = Xn ··· X2 · X1.
+            m = op_matrix(op) * m;
+        }
+        Ok(m)
+    }
+
+    fn make_transform(&self, m: DAffine3, loc: &Loc) -> Result<Option<Transform>, SceneError> {
+        if m == DAffine3::IDENTITY {
+            return Ok(None);
+        }
+        Transform::new(m)
+            .map(Some)
+            .ok_or_else(|| self.err(loc, "the transformation is singular (a zero scale?); the object would be flat"))
+    }
+}
+
+/// The matrix of one transformation element (§10.1).
+pub fn op_matrix(op: &TransformOp) -> DAffine3 {
+    match *op {
+        TransformOp::Translation(t) => DAffine3::from_translation(v3(t)),
+        TransformOp::Scaling(s) => DAffine3::from_scale(v3(s)),
+        TransformOp::Rotation { degrees, axis } => {
+            let a = v3(axis);
+            if a.length_squared() == 0.0 {
+                DAffine3::IDENTITY
+            } else {
+                DAffine3::from_axis_angle(a.normalize(), degrees.to_radians())
+            }
+        }
+        TransformOp::Composite(m) => {
+            // Row-major in the file; glam reads column-major.
+            let mat = DMat4::from_cols_array(&m).transpose();
+            DAffine3 { matrix3: DMat3::from_mat4(mat), translation: mat.w_axis.truncate() }
+        }
+    }
+}
+
+/// Raw triangle data of one Mesh record before the BVH is built.
+struct MeshData {
+    positions: Vec<DVec3>,
+    indices: Vec<[u32; 3]>,
+    file_normals: Option<Vec<DVec3>>,
+}
+
+fn load_mesh_data(
+    ctx: &Ctx,
+    mesh: &MeshRec,
+    ply_cache: &HashMap<String, Result<Arc<MeshData>, SceneError>>,
+) -> Result<Arc<MeshData>, SceneError> {
+    match &mesh.faces {
+        FacesRec::Ply { path } => ply_cache.get(path).cloned().unwrap_or_else(|| Err(ctx.err(&mesh.faces_loc, "internal: PLY not loaded"))),
+        FacesRec::Inline { indices, vertex_offset } => {
+            if indices.len() % 3 != 0 {
+                return Err(ctx.err(&mesh.faces_loc, format!("has {} vertex ids, not a multiple of 3", indices.len())));
+            }
+            // Keep only the vertices this mesh uses, so a BVH never carries the whole scene's list.
+            let mut remap: HashMap<u32, u32> = HashMap::new();
+            let mut positions = Vec::new();
+            let mut tris = Vec::with_capacity(indices.len() / 3);
+            for tri in indices.chunks_exact(3) {
+                let mut out = [0u32; 3];
+                for (k, &i) in tri.iter().enumerate() {
+                    let g = ctx.vertex(i + vertex_offset, &mesh.faces_loc, &format!("face {}", tris.len() + 1))?;
+                    out[k] = *remap.entry(g).or_insert_with(|| {
+                        positions.push(v3(ctx.rec.vertices[g as usize]));
+                        (positions.len() - 1) as u32
+                    });
+                }
+                tris.push(out);
+            }
+            Ok(Arc::new(MeshData { positions, indices: tris, file_normals: None }))
+        }
+    }
+}
+
+fn load_ply(ctx: &Ctx, path: &str, loc: &Loc) -> Result<Arc<MeshData>, SceneError> {
+    let (bytes, found) = ctx.resolver.read(path).map_err(|e| {
+        SceneError::new(
+            &ctx.rec.source,
+            loc.clone(),
+            format!("cannot read PLY file {}: {e}; check the plyFile path (it is relative to the scene file)", ctx.resolver.display_path(path).display()),
+        )
+    })?;
+    let ply = crate::ply::parse_ply(&bytes).map_err(|e| {
+        let mut err = SceneError::file(&found, format!("{e} (referenced from {}", ctx.rec.source.display()));
+        if let Some(l) = loc.line {
+            err.message.push_str(&format!(" line {l}"));
+        }
+        err.message.push(')');
+        if let Some(l) = e.line {
+            err.loc.line = Some(l);
+        }
+        err
+    })?;
+    let positions: Vec<DVec3> = ply.positions.iter().map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)).collect();
+    let file_normals = ply.normals.map(|ns| ns.iter().map(|n| DVec3::new(n[0] as f64, n[1] as f64, n[2] as f64).normalize_or_zero()).collect());
+    Ok(Arc::new(MeshData { positions, indices: ply.triangles, file_normals }))
+}
+
+/// Builds the render scene. `resolver` supplies PLY files named by the scene.
+pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<Scene, SceneError> {
+    let started = Instant::now();
+    let ctx = Ctx { rec, resolver };
+    let mut warnings: Vec<Warning> = rec.warnings.clone();
+
+    // Materials.
+    let mut mat_ids: HashMap<&str, u32> = HashMap::new();
+    let mut materials = Vec::with_capacity(rec.materials.len());
+    for m in &rec.materials {
+        mat_ids.entry(m.id.as_str()).or_insert(materials.len() as u32);
+        let lin = |c: Vec3| -> DVec3 {
+            let c = v3(c);
+            if m.degamma { c.max(DVec3::ZERO).powf(DEGAMMA) } else { c }
+        };
+        materials.push(Material {
+            kind: m.kind,
+            ambient: lin(m.ambient),
+            diffuse: lin(m.diffuse),
+            specular: lin(m.specular),
+            mirror: lin(m.mirror),
+            phong_exponent: m.phong_exponent,
+            refraction_index: m.refraction_index,
+            absorption_index: m.absorption_index,
+            absorption: v3(m.absorption_coefficient),
+            roughness: m.roughness,
+        });
+    }
+
+    let transforms: HashMap<(char, &str), TransformOp> =
+        rec.transformations.iter().map(|t| ((t.op.letter(), t.id.as_str()), t.op)).collect();
+
+    // Cameras.
+    let mut cameras = Vec::with_capacity(rec.cameras.len());
+    for c in &rec.cameras {
+        if c.width == 0 || c.height == 0 {
+            return Err(ctx.err(&c.loc, format!("<ImageResolution> {} {} has a zero size", c.width, c.height)));
+        }
+        let cam = Camera::from_record(c)
+            .ok_or_else(|| ctx.err(&c.loc, "Gaze and Up are zero or parallel, so they do not define a camera frame"))?;
+        cameras.push(cam);
+    }
+    if cameras.is_empty() {
+        warnings.push(Warning { file: rec.source.clone(), loc: Loc::default(), message: "the scene has no <Camera>; nothing will be rendered".into() });
+    }
+
+    // PLY files, each read and parsed once even when several meshes name it; in parallel.
+    let mut ply_paths: Vec<(&str, &Loc)> = Vec::new();
+    for m in &rec.meshes {
+        if let FacesRec::Ply { path } = &m.faces
+            && !ply_paths.iter().any(|(p, _)| p == path)
+        {
+            ply_paths.push((path.as_str(), &m.faces_loc));
+        }
+    }
+    let ply_cache: HashMap<String, Result<Arc<MeshData>, SceneError>> =
+        ply_paths.par_iter().map(|(p, loc)| (p.to_string(), load_ply(&ctx, p, loc))).collect();
+
+    // Which meshes need vertex normals: smooth themselves or smooth through an instance.
+    let mesh_index: HashMap<&str, usize> = rec.meshes.iter().enumerate().map(|(i, m)| (m.id.as_str(), i)).rev().collect();
+    let mut needs_smooth: Vec<bool> = rec.meshes.iter().map(|m| m.shading == ShadingMode::Smooth).collect();
+    for inst in &rec.instances {
+        let base = *mesh_index.get(inst.base_mesh.as_str()).ok_or_else(|| {
+            ctx.err(&inst.loc, format!("baseMeshId=\"{}\" names no <Mesh>; use the id of a Mesh under <Objects>", inst.base_mesh))
+        })?;
+        if inst.shading == Some(ShadingMode::Smooth) {
+            needs_smooth[base] = true;
+        }
+    }
+
+    // Mesh geometry + BVHs, built in parallel (and obvhs parallelises each build).
+    let geoms: Vec<Result<(Arc<MeshGeom>, usize), SceneError>> = rec
+        .meshes
+        .par_iter()
+        .enumerate()
+        .map(|(i, m)| {
+            let data = load_mesh_data(&ctx, m, &ply_cache)?;
+            let mut indices = data.indices.clone();
+            let dropped = drop_degenerate(&data.positions, &mut indices);
+            let normals = if needs_smooth[i] {
+                match &data.file_normals {
+                    Some(n) => Some(n.clone()),
+                    None => Some(area_weighted_normals(&data.positions, &indices)),
+                }
+            } else {
+                None
+            };
+            Ok((Arc::new(MeshGeom::new(data.positions.clone(), indices, normals)), dropped))
+        })
+        .collect();
+    let mut meshes: Vec<Arc<MeshGeom>> = Vec::with_capacity(geoms.len());
+    for (g, m) in geoms.into_iter().zip(&rec.meshes) {
+        let (geom, dropped) = g?;
+        if dropped > 0 {
+            warnings.push(Warning { file: rec.source.clone(), loc: m.faces_loc.clone(), message: format!("skipped {dropped} degenerate triangle(s)") });
+        }
+        if geom.triangle_count() == 0 {
+            warnings.push(Warning { file: rec.source.clone(), loc: m.loc.clone(), message: "mesh has no triangles".into() });
+        }
+        meshes.push(geom);
+    }
+
+    // Instances: meshes themselves, mesh instances, single triangles, spheres.
+    let mut instances = Vec::new();
+    let mut mesh_world: Vec<DAffine3> = Vec::with_capacity(rec.meshes.len());
+    for (i, m) in rec.meshes.iter().enumerate() {
+        let material = ctx.material(&mat_ids, &m.material, &m.loc)?;
+        let world = ctx.transform(&transforms, &m.transforms, &m.loc)?;
+        mesh_world.push(world);
+        instances.push(Instance {
+            shape: Shape::Mesh { mesh: i as u32, smooth: m.shading == ShadingMode::Smooth },
+            material,
+            transform: ctx.make_transform(world, &m.loc)?,
+        });
+    }
+    for inst in &rec.instances {
+        let base = mesh_index[inst.base_mesh.as_str()];
+        let base_rec = &rec.meshes[base];
+        let material = match &inst.material {
+            Some(id) => ctx.material(&mat_ids, id, &inst.loc)?,
+            None => ctx.material(&mat_ids, &base_rec.material, &base_rec.loc)?,
+        };
+        let own = ctx.transform(&transforms, &inst.transforms, &inst.loc)?;
+        let world = if inst.reset_transform { own } else { own * mesh_world[base] };
+        let smooth = base_rec.shading == ShadingMode::Smooth || inst.shading == Some(ShadingMode::Smooth);
+        instances.push(Instance {
+            shape: Shape::Mesh { mesh: base as u32, smooth },
+            material,
+            transform: ctx.make_transform(world, &inst.loc)?,
+        });
+    }
+    for t in &rec.triangles {
+        let material = ctx.material(&mat_ids, &t.material, &t.loc)?;
+        let mut ids = [0u32; 3];
+        for k in 0..3 {
+            ids[k] = ctx.vertex(t.indices[k], &t.loc, "<Indices>")?;
+        }
+        let positions: Vec<DVec3> = ids.iter().map(|&g| v3(rec.vertices[g as usize])).collect();
+        let mut indices = vec![[0, 1, 2]];
+        if drop_degenerate(&positions, &mut indices) > 0 {
+            warnings.push(Warning { file: rec.source.clone(), loc: t.loc.clone(), message: "degenerate triangle skipped".into() });
+            continue;
+        }
+        let world = ctx.transform(&transforms, &t.transforms, &t.loc)?;
+        meshes.push(Arc::new(MeshGeom::new(positions, indices, None)));
+        instances.push(Instance {
+            shape: Shape::Mesh { mesh: (meshes.len() - 1) as u32, smooth: false },
+            material,
+            transform: ctx.make_transform(world, &t.loc)?,
+        });
+    }
+    for s in &rec.spheres {
+        let material = ctx.material(&mat_ids, &s.material, &s.loc)?;
+        let c = ctx.vertex(s.center, &s.loc, "<Center>")?;
+        if !(s.radius > 0.0 && s.radius.is_finite()) {
+            return Err(ctx.err(&s.loc, format!("<Radius> must be a positive number, found {}", s.radius)));
+        }
+        let world = ctx.transform(&transforms, &s.transforms, &s.loc)?;
+        instances.push(Instance {
+            shape: Shape::Sphere { center: v3(rec.vertices[c as usize]), radius: s.radius },
+            material,
+            transform: ctx.make_transform(world, &s.loc)?,
+        });
+    }
+
+    let accel = Accel::new(meshes, instances);
+    let stats = SceneStats {
+        triangles: accel.instanced_triangle_count(),
+        instances: accel.instances.len(),
+        build_seconds: started.elapsed().as_secs_f64(),
+    };
+    Ok(Scene {
+        source: rec.source.clone(),
+        background: v3(rec.background_color),
+        shadow_ray_epsilon: rec.shadow_ray_epsilon,
+        intersection_test_epsilon: rec.intersection_test_epsilon,
+        max_recursion_depth: rec.max_recursion_depth,
+        ambient_light: v3(rec.ambient_light),
+        point_lights: rec.point_lights.iter().map(|l| PointLight { position: v3(l.position), intensity: v3(l.intensity) }).collect(),
+        materials,
+        cameras,
+        accel,
+        warnings,
+        stats,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn transformation_tokens_apply_left_to_right() {
+        // "t1 s1" with t1 = (-0.5, 0, -0.5) and s1 = 1000 centres a unit square before scaling (§10.2).
+        let ops = [TransformOp::Translation([-0.5, 0.0, -0.5]), TransformOp::Scaling([1000.0; 3])];
+        let m = op_matrix(&ops[1]) * op_matrix(&ops[0]);
+        let p = m.transform_point3(DVec3::new(1.0, 0.0, 1.0));
+        assert!((p - DVec3::new(500.0, 0.0, 500.0)).length() < 1e-9);
+    }
+
+    #[test]
+    fn rotation_is_right_handed_in_degrees() {
+        let m = op_matrix(&TransformOp::Rotation { degrees: 90.0, axis: [0.0, 0.0, 2.0] });
+        assert!((m.transform_vector3(DVec3::X) - DVec3::Y).length() < 1e-12);
+    }
+
+    #[test]
+    fn composite_is_row_major() {
+        let mut a = [0.0; 16];
+        a[0] = 1.0;
+        a[5] = 1.0;
+        a[10] = 1.0;
+        a[15] = 1.0;
+        a[3] = 7.0; // row 0, column 3 = x translation
+        let m = op_matrix(&TransformOp::Composite(a));
+        assert_eq!(m.transform_point3(DVec3::ZERO), DVec3::new(7.0, 0.0, 0.0));
+    }
+}

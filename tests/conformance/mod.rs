@@ -1,0 +1,201 @@
+//! Conformance against the course's official reference images.
+//!
+//! One table (`thresholds.tsv` beside this file) lists every image we compare and the
+//! thresholds it must meet; the `conformance` binary renders all of them and writes a Markdown
+//! report, and the `conformance` integration test runs the rows marked `ci`.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use tessera::image::{Comparison, Rgb8, compare};
+use tessera::render::{RenderSettings, render_camera};
+use tessera::scene::load_scene_file;
+
+/// One row of the table.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Row {
+    pub scene: String,
+    pub image: String,
+    pub min_psnr_box4: f64,
+    pub max_off3_pct: f64,
+    pub ci: bool,
+    pub note: String,
+}
+
+impl Row {
+    pub fn scene_path(&self) -> PathBuf {
+        crate::shared_scenes().join("xml").join(format!("{}.xml", self.scene))
+    }
+
+    /// `reference/<scene>.png`, or `reference/<scene>__<image>` for multi-camera scenes.
+    pub fn reference_path(&self) -> PathBuf {
+        let dir = crate::shared_scenes().join("reference");
+        let single = dir.join(format!("{}.png", self.scene));
+        let multi = dir.join(format!("{}__{}", self.scene, self.image));
+        if multi.exists() { multi } else { single }
+    }
+}
+
+pub fn table_path() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("conformance/thresholds.tsv")
+}
+
+/// Parses the thresholds table.
+pub fn parse_table(text: &str) -> Result<Vec<Row>> {
+    let mut rows = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim_end();
+        if line.trim().is_empty() || line.trim_start().starts_with('#') {
+            continue;
+        }
+        let f: Vec<&str> = line.split('\t').collect();
+        if f.len() < 5 {
+            bail!("thresholds.tsv line {}: expected at least 5 tab-separated columns, found {}", i + 1, f.len());
+        }
+        let num = |s: &str, what: &str| -> Result<f64> {
+            s.trim().parse::<f64>().with_context(|| format!("thresholds.tsv line {}: {what} \"{s}\" is not a number", i + 1))
+        };
+        rows.push(Row {
+            scene: f[0].trim().to_string(),
+            image: f[1].trim().to_string(),
+            min_psnr_box4: num(f[2], "psnr_box4")?,
+            max_off3_pct: num(f[3], "off3_pct")?,
+            ci: f[4].trim() == "ci",
+            note: f.get(5).map(|s| s.trim().to_string()).unwrap_or_default(),
+        });
+    }
+    Ok(rows)
+}
+
+pub fn load_table() -> Result<Vec<Row>> {
+    let p = table_path();
+    let text = std::fs::read_to_string(&p).with_context(|| format!("cannot read {}", p.display()))?;
+    parse_table(&text)
+}
+
+/// The outcome of one row.
+#[derive(Clone, Debug)]
+pub struct RowResult {
+    pub row: Row,
+    pub seconds: f64,
+    /// The comparison, or why there is none (render error, missing reference, size mismatch).
+    pub outcome: Result<Comparison, String>,
+}
+
+impl RowResult {
+    pub fn passed(&self) -> bool {
+        match &self.outcome {
+            Ok(c) => c.psnr_box4 >= self.row.min_psnr_box4 && c.off_by_more_than_3 * 100.0 <= self.row.max_off3_pct,
+            Err(_) => false,
+        }
+    }
+}
+
+fn render_one(row: &Row, out_dir: &Path) -> Result<Comparison> {
+    let scene = load_scene_file(&row.scene_path()).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let cam = scene
+        .cameras
+        .iter()
+        .position(|c| c.image_name == row.image)
+        .with_context(|| format!("{} has no camera with ImageName {}", row.scene, row.image))?;
+    let (img, _) = render_camera(&scene, cam, 32, &RenderSettings::default(), &|_, _| {});
+    let ours = Rgb8::from_image(&img);
+    let out = out_dir.join(format!("{}__{}", row.scene, Path::new(&row.image).with_extension("png").display()));
+    if std::fs::create_dir_all(out_dir).is_ok() {
+        let _ = img.write_png(&out);
+    }
+    let reference = Rgb8::read_png(&row.reference_path()).with_context(|| format!("cannot read reference {}", row.reference_path().display()))?;
+    compare(&ours, &reference).with_context(|| {
+        format!("size {}x{} differs from the reference's {}x{}", ours.width, ours.height, reference.width, reference.height)
+    })
+}
+
+/// Renders and compares every row; `log` receives one line per row as it finishes.
+pub fn render_rows(rows: &[Row], out_dir: &Path, log: &dyn Fn(String)) -> Vec<RowResult> {
+    rows.iter()
+        .map(|row| {
+            let t = Instant::now();
+            let outcome = render_one(row, out_dir).map_err(|e| format!("{e:#}"));
+            let r = RowResult { row: row.clone(), seconds: t.elapsed().as_secs_f64(), outcome };
+            log(summary_line(&r));
+            r
+        })
+        .collect()
+}
+
+fn fmt_db(x: f64) -> String {
+    if x.is_infinite() { "inf".into() } else { format!("{x:.2}") }
+}
+
+pub fn summary_line(r: &RowResult) -> String {
+    let verdict = if r.passed() { "ok  " } else { "FAIL" };
+    match &r.outcome {
+        Ok(c) => format!(
+            "{verdict} {}/{}: PSNR {} dB, box4 {} dB (min {}), off>3 {:.3}% (max {}%), {:.2} s",
+            r.row.scene,
+            r.row.image,
+            fmt_db(c.psnr),
+            fmt_db(c.psnr_box4),
+            r.row.min_psnr_box4,
+            c.off_by_more_than_3 * 100.0,
+            r.row.max_off3_pct,
+            r.seconds
+        ),
+        Err(e) => format!("{verdict} {}/{}: {e}", r.row.scene, r.row.image),
+    }
+}
+
+/// The Markdown report: one table row per image.
+pub fn report_markdown(results: &[RowResult]) -> String {
+    let mut s = String::from("# Tessera conformance report\n\n");
+    let passed = results.iter().filter(|r| r.passed()).count();
+    s += &format!("{passed} of {} images meet their thresholds.\n\n", results.len());
+    s += "| scene | image | PSNR dB | PSNR 4x4 dB (min) | off >3 % (max) | time s | result | note |\n";
+    s += "|---|---|---:|---:|---:|---:|---|---|\n";
+    for r in results {
+        let (psnr, box4, off) = match &r.outcome {
+            Ok(c) => (fmt_db(c.psnr), fmt_db(c.psnr_box4), format!("{:.3}", c.off_by_more_than_3 * 100.0)),
+            Err(e) => ("-".into(), "-".into(), format!("error: {}", e.replace('|', "/"))),
+        };
+        s += &format!(
+            "| {} | {} | {} | {} ({}) | {} ({}) | {:.2} | {} | {} |\n",
+            r.row.scene,
+            r.row.image,
+            psnr,
+            box4,
+            r.row.min_psnr_box4,
+            off,
+            r.row.max_off3_pct,
+            r.seconds,
+            if r.passed() { "pass" } else { "FAIL" },
+            r.row.note
+        );
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn table_parses_and_rejects_bad_numbers() {
+        let t = "# c\nsimple\tsimple.png\t35\t0.5\tci\n\nbunny\tbunny.png\t30\t2\t-\tnoisy\n";
+        let rows = parse_table(t).unwrap();
+        assert_eq!(rows.len(), 2);
+        assert!(rows[0].ci && !rows[1].ci);
+        assert_eq!(rows[1].note, "noisy");
+        let err = parse_table("x\ty\tabc\t1\tci\n").unwrap_err().to_string();
+        assert!(err.contains("line 1") && err.contains("abc"), "{err}");
+    }
+
+    #[test]
+    fn the_repository_table_is_valid() {
+        let rows = load_table().unwrap();
+        assert!(!rows.is_empty());
+        for r in &rows {
+            assert!(r.min_psnr_box4 > 0.0 && r.max_off3_pct >= 0.0, "{r:?}");
+        }
+    }
+}
