@@ -30,7 +30,8 @@ fn load_head() -> (Vec<DVec3>, Vec<[u32; 3]>) {
 
 /// 1-to-4 midpoint subdivision, `levels` times (vertices not shared; fine for tracing).
 fn subdivide(pos: &[DVec3], tris: &[[u32; 3]], levels: u32) -> (Vec<DVec3>, Vec<[u32; 3]>) {
-    let mut cur: Vec<[DVec3; 3]> = tris.iter().map(|t| [pos[t[0] as usize], pos[t[1] as usize], pos[t[2] as usize]]).collect();
+    let mut cur: Vec<[DVec3; 3]> =
+        tris.iter().map(|t| [pos[t[0] as usize], pos[t[1] as usize], pos[t[2] as usize]]).collect();
     for _ in 0..levels {
         let mut next = Vec::with_capacity(cur.len() * 4);
         for [a, b, c] in cur {
@@ -54,7 +55,10 @@ fn build(pos: &[DVec3], tris: &[[u32; 3]], threads: usize) -> (Accel, f64) {
     pool.install(|| {
         let t = Instant::now();
         let mesh = Arc::new(MeshGeom::new(pos.to_vec(), tris.to_vec(), None));
-        let accel = Accel::new(vec![mesh], vec![Instance { shape: Shape::Mesh { mesh: 0, smooth: false }, material: 0, transform: None }]);
+        let accel = Accel::new(
+            vec![mesh],
+            vec![Instance { shape: Shape::Mesh { mesh: 0, smooth: false }, material: 0, transform: None }],
+        );
         (accel, t.elapsed().as_secs_f64())
     })
 }
@@ -88,7 +92,10 @@ fn throughput(accel: &Accel, pos: &[DVec3], w: u32, h: u32) -> Figures {
             let sy = (1.0 - (y as f64 + 0.5) / h as f64 * 2.0) * top;
             let ray = Ray::new(eye, DVec3::new(sx, sy, -1.0).normalize());
             if let Some(hit) = accel.intersect(&ray, eps, f64::INFINITY) {
-                hits.push((hit.point, if hit.geo_normal.dot(ray.dir) < 0.0 { hit.geo_normal } else { -hit.geo_normal }));
+                hits.push((
+                    hit.point,
+                    if hit.geo_normal.dot(ray.dir) < 0.0 { hit.geo_normal } else { -hit.geo_normal },
+                ));
             }
         }
     }
@@ -143,7 +150,9 @@ fn main() {
     let (pos, tris) = load_head();
     let (pos1m, tris1m) = subdivide(&pos, &tris, 3);
     println!("tessera trace benchmark: {w}x{h} primary rays, one ray at a time, 1 thread");
-    println!("| mesh | triangles | build 1 thr s | build {threads} thr s | primary Mrays/s | shadow Mrays/s | diffuse bounce Mrays/s | primary hit % |");
+    println!(
+        "| mesh | triangles | build 1 thr s | build {threads} thr s | primary Mrays/s | shadow Mrays/s | diffuse bounce Mrays/s | primary hit % |"
+    );
     println!("|---|---:|---:|---:|---:|---:|---:|---:|");
     for (name, p, t) in [("head.ply", &pos, &tris), ("head.ply subdivided x3", &pos1m, &tris1m)] {
         let (_, build1) = build(p, t, 1);

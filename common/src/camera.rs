@@ -75,7 +75,8 @@ impl Camera {
     /// `dx, dy` in [0, 1) (0.5 = pixel centre).
     #[inline]
     pub fn ray(&self, x: u32, y: u32, dx: f64, dy: f64) -> Ray {
-        let s = self.corner + ((x as f64 + dx) * self.pixel_w) * self.u - ((y as f64 + dy) * self.pixel_h) * self.v;
+        let s = self.corner + ((x as f64 + dx) * self.pixel_w) * self.u
+            - ((y as f64 + dy) * self.pixel_h) * self.v;
         Ray::new(self.position, (s - self.position).normalize())
     }
 }
@@ -104,13 +105,21 @@ mod tests {
 
     #[test]
     fn centre_pixel_looks_along_gaze_and_corners_follow_nearplane() {
-        let c = Camera::from_record(&rec(Projection::NearPlane { left: -2.0, right: 2.0, bottom: -1.0, top: 1.0 }, Handedness::Right)).unwrap();
+        let c = Camera::from_record(&rec(
+            Projection::NearPlane { left: -2.0, right: 2.0, bottom: -1.0, top: 1.0 },
+            Handedness::Right,
+        ))
+        .unwrap();
         let r = c.ray(50, 25, 0.0, 0.0);
         assert!((r.dir - DVec3::NEG_Z).length() < 1e-12);
         // Top-left pixel's corner is at (l, t, -d).
         let r = c.ray(0, 0, 0.0, 0.0);
         assert!((r.dir - DVec3::new(-2.0, 1.0, -1.0).normalize()).length() < 1e-12);
-        let left = Camera::from_record(&rec(Projection::NearPlane { left: -2.0, right: 2.0, bottom: -1.0, top: 1.0 }, Handedness::Left)).unwrap();
+        let left = Camera::from_record(&rec(
+            Projection::NearPlane { left: -2.0, right: 2.0, bottom: -1.0, top: 1.0 },
+            Handedness::Left,
+        ))
+        .unwrap();
         assert!((left.ray(0, 0, 0.0, 0.0).dir - DVec3::new(2.0, 1.0, -1.0).normalize()).length() < 1e-12);
     }
 

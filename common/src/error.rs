@@ -74,7 +74,8 @@ pub struct Warning {
 impl fmt::Display for Warning {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         // Same shape as SceneError.
-        let as_err = SceneError { file: self.file.clone(), loc: self.loc.clone(), message: self.message.clone() };
+        let as_err =
+            SceneError { file: self.file.clone(), loc: self.loc.clone(), message: self.message.clone() };
         write!(f, "warning: {as_err}")
     }
 }

@@ -117,7 +117,11 @@ pub fn compare(a: &Rgb8, b: &Rgb8) -> Option<Comparison> {
     let bse: f64 = ba.iter().zip(&bb).map(|(x, y)| (x - y) * (x - y)).sum();
     Some(Comparison {
         psnr: psnr_from_mse(se / (n * 3) as f64),
-        psnr_box4: if ba.is_empty() { psnr_from_mse(se / (n * 3) as f64) } else { psnr_from_mse(bse / ba.len() as f64) },
+        psnr_box4: if ba.is_empty() {
+            psnr_from_mse(se / (n * 3) as f64)
+        } else {
+            psnr_from_mse(bse / ba.len() as f64)
+        },
         off_by_more_than_3: off as f64 / n as f64,
     })
 }

@@ -72,7 +72,11 @@ impl<'a> Tracer<'a> {
         let can_recurse = depth < scene.max_recursion_depth;
 
         // Local shading; skipped for hits seen from inside a dielectric (§6.4, §15 #20).
-        let mut l = if mat.kind == MaterialKind::Dielectric && inside { DVec3::ZERO } else { self.direct(hit.point, n, -d, mat) };
+        let mut l = if mat.kind == MaterialKind::Dielectric && inside {
+            DVec3::ZERO
+        } else {
+            self.direct(hit.point, n, -d, mat)
+        };
 
         match mat.kind {
             MaterialKind::Plain => {}
@@ -92,7 +96,8 @@ impl<'a> Tracer<'a> {
                 let eta = mat.refraction_index;
                 let (n1, n2) = if entering { (1.0, eta) } else { (eta, 1.0) };
                 // The reflected ray stays on the incoming side; the refracted one crosses.
-                let (refl_medium, refr_medium) = if entering { (None, Some(mat.absorption)) } else { (Some(mat.absorption), None) };
+                let (refl_medium, refr_medium) =
+                    if entering { (None, Some(mat.absorption)) } else { (Some(mat.absorption), None) };
                 let reflected = Ray::new(hit.point + eps * n, reflect(d, n));
                 match refract(d, n, n1, n2) {
                     Refraction::Total => {
@@ -102,7 +107,8 @@ impl<'a> Tracer<'a> {
                     Refraction::Split { fr, dir } => {
                         self.stats.secondary += 2;
                         l += fr * self.trace(&reflected, depth + 1, refl_medium, rng);
-                        l += (1.0 - fr) * self.trace(&Ray::new(hit.point - eps * n, dir), depth + 1, refr_medium, rng);
+                        l += (1.0 - fr)
+                            * self.trace(&Ray::new(hit.point - eps * n, dir), depth + 1, refr_medium, rng);
                     }
                 }
             }

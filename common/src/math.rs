@@ -100,7 +100,13 @@ mod tests {
 
     #[test]
     fn orthonormal_pair_is_orthonormal() {
-        for n in [DVec3::X, DVec3::Y, DVec3::Z, DVec3::new(1.0, 2.0, -3.0).normalize(), DVec3::new(-0.3, 0.0, 0.9).normalize()] {
+        for n in [
+            DVec3::X,
+            DVec3::Y,
+            DVec3::Z,
+            DVec3::new(1.0, 2.0, -3.0).normalize(),
+            DVec3::new(-0.3, 0.0, 0.9).normalize(),
+        ] {
             let (u, v) = orthonormal_pair(n);
             assert!((u.length() - 1.0).abs() < 1e-12 && (v.length() - 1.0).abs() < 1e-12);
             assert!(u.dot(n).abs() < 1e-12 && v.dot(n).abs() < 1e-12 && u.dot(v).abs() < 1e-12);

@@ -56,9 +56,17 @@ pub fn tiles(width: u32, height: u32, tile: u32) -> Vec<TileRect> {
 /// Renders one tile of camera `camera`: linear float RGB, row-major within the tile.
 ///
 /// Panics only if `camera` or `rect` is out of range for the scene (a caller bug, not input).
-pub fn render_tile(scene: &Scene, camera: usize, rect: TileRect, settings: &RenderSettings) -> (Vec<[f32; 3]>, RayStats) {
+pub fn render_tile(
+    scene: &Scene,
+    camera: usize,
+    rect: TileRect,
+    settings: &RenderSettings,
+) -> (Vec<[f32; 3]>, RayStats) {
     let cam = &scene.cameras[camera];
-    assert!(rect.x0 + rect.width <= cam.width && rect.y0 + rect.height <= cam.height, "tile outside the frame");
+    assert!(
+        rect.x0 + rect.width <= cam.width && rect.y0 + rect.height <= cam.height,
+        "tile outside the frame"
+    );
     let seed = frame_seed(settings.seed, camera);
     let n = cam.num_samples.max(1);
     let strata = (n as f64).sqrt() as u32;
@@ -73,7 +81,10 @@ pub fn render_tile(scene: &Scene, camera: usize, rect: TileRect, settings: &Rend
                 let (dx, dy) = if n == 1 {
                     (0.5, 0.5)
                 } else if stratified {
-                    (((s % strata) as f64 + rng.next_f64()) / strata as f64, ((s / strata) as f64 + rng.next_f64()) / strata as f64)
+                    (
+                        ((s % strata) as f64 + rng.next_f64()) / strata as f64,
+                        ((s / strata) as f64 + rng.next_f64()) / strata as f64,
+                    )
                 } else {
                     (rng.next_f64(), rng.next_f64())
                 };

@@ -53,9 +53,18 @@ mod tests {
 
     #[test]
     fn same_key_same_stream_different_keys_differ() {
-        let a: Vec<f64> = { let mut r = SampleRng::new(7, 3, 4, 5); (0..8).map(|_| r.next_f64()).collect() };
-        let b: Vec<f64> = { let mut r = SampleRng::new(7, 3, 4, 5); (0..8).map(|_| r.next_f64()).collect() };
-        let c: Vec<f64> = { let mut r = SampleRng::new(7, 4, 3, 5); (0..8).map(|_| r.next_f64()).collect() };
+        let a: Vec<f64> = {
+            let mut r = SampleRng::new(7, 3, 4, 5);
+            (0..8).map(|_| r.next_f64()).collect()
+        };
+        let b: Vec<f64> = {
+            let mut r = SampleRng::new(7, 3, 4, 5);
+            (0..8).map(|_| r.next_f64()).collect()
+        };
+        let c: Vec<f64> = {
+            let mut r = SampleRng::new(7, 4, 3, 5);
+            (0..8).map(|_| r.next_f64()).collect()
+        };
         assert_eq!(a, b);
         assert_ne!(a, c);
     }

@@ -23,7 +23,9 @@ fn main() -> ExitCode {
             "--report" => report = args.next().map(PathBuf::from).unwrap_or(report),
             "-h" | "--help" => {
                 println!("usage: conformance [--ci] [--scene NAME]... [--report FILE]");
-                println!("Renders the scenes of tests/conformance/thresholds.tsv and compares them with ../shared/scenes/reference.");
+                println!(
+                    "Renders the scenes of tests/conformance/thresholds.tsv and compares them with ../shared/scenes/reference."
+                );
                 return ExitCode::SUCCESS;
             }
             other => {
@@ -39,7 +41,10 @@ fn main() -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    let rows: Vec<Row> = table.into_iter().filter(|r| (!ci_only || r.ci) && (only.is_empty() || only.contains(&r.scene))).collect();
+    let rows: Vec<Row> = table
+        .into_iter()
+        .filter(|r| (!ci_only || r.ci) && (only.is_empty() || only.contains(&r.scene)))
+        .collect();
     let out_dir = report.parent().map(PathBuf::from).unwrap_or_default();
     let results = render_rows(&rows, &out_dir, &|line| eprintln!("{line}"));
     let md = report_markdown(&results);

@@ -51,10 +51,16 @@ pub fn parse_table(text: &str) -> Result<Vec<Row>> {
         }
         let f: Vec<&str> = line.split('\t').collect();
         if f.len() < 5 {
-            bail!("thresholds.tsv line {}: expected at least 5 tab-separated columns, found {}", i + 1, f.len());
+            bail!(
+                "thresholds.tsv line {}: expected at least 5 tab-separated columns, found {}",
+                i + 1,
+                f.len()
+            );
         }
         let num = |s: &str, what: &str| -> Result<f64> {
-            s.trim().parse::<f64>().with_context(|| format!("thresholds.tsv line {}: {what} \"{s}\" is not a number", i + 1))
+            s.trim()
+                .parse::<f64>()
+                .with_context(|| format!("thresholds.tsv line {}: {what} \"{s}\" is not a number", i + 1))
         };
         rows.push(Row {
             scene: f[0].trim().to_string(),
@@ -86,7 +92,9 @@ pub struct RowResult {
 impl RowResult {
     pub fn passed(&self) -> bool {
         match &self.outcome {
-            Ok(c) => c.psnr_box4 >= self.row.min_psnr_box4 && c.off_by_more_than_3 * 100.0 <= self.row.max_off3_pct,
+            Ok(c) => {
+                c.psnr_box4 >= self.row.min_psnr_box4 && c.off_by_more_than_3 * 100.0 <= self.row.max_off3_pct
+            }
             Err(_) => false,
         }
     }
@@ -101,13 +109,18 @@ fn render_one(row: &Row, out_dir: &Path) -> Result<Comparison> {
         .with_context(|| format!("{} has no camera with ImageName {}", row.scene, row.image))?;
     let (img, _) = render_camera(&scene, cam, 32, &RenderSettings::default(), &|_, _| {});
     let ours = Rgb8::from_image(&img);
-    let out = out_dir.join(format!("{}__{}", row.scene, Path::new(&row.image).with_extension("png").display()));
+    let out =
+        out_dir.join(format!("{}__{}", row.scene, Path::new(&row.image).with_extension("png").display()));
     if std::fs::create_dir_all(out_dir).is_ok() {
         let _ = img.write_png(&out);
     }
-    let reference = Rgb8::read_png(&row.reference_path()).with_context(|| format!("cannot read reference {}", row.reference_path().display()))?;
+    let reference = Rgb8::read_png(&row.reference_path())
+        .with_context(|| format!("cannot read reference {}", row.reference_path().display()))?;
     compare(&ours, &reference).with_context(|| {
-        format!("size {}x{} differs from the reference's {}x{}", ours.width, ours.height, reference.width, reference.height)
+        format!(
+            "size {}x{} differs from the reference's {}x{}",
+            ours.width, ours.height, reference.width, reference.height
+        )
     })
 }
 

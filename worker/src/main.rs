@@ -70,19 +70,32 @@ fn main() -> ExitCode {
 /// The output file for an `ImageName`: its file name only (a scene cannot write outside DIR),
 /// and PNG until HDR output exists.
 fn output_path(out: &Path, image_name: &str) -> (PathBuf, Option<String>) {
-    let name = Path::new(image_name).file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "image.png".into());
+    let name = Path::new(image_name)
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "image.png".into());
     let ext = Path::new(&name).extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
     match ext.as_deref() {
         Some("png") => (out.join(name), None),
         _ => {
             let png = Path::new(&name).with_extension("png");
-            let note = format!("ImageName \"{image_name}\": only PNG output is supported yet; writing {} instead", png.display());
+            let note = format!(
+                "ImageName \"{image_name}\": only PNG output is supported yet; writing {} instead",
+                png.display()
+            );
             (out.join(png), Some(note))
         }
     }
 }
 
-fn render(scene_path: &Path, out: &Path, threads: Option<usize>, camera: Option<usize>, tile_size: u32, quiet: bool) -> Result<()> {
+fn render(
+    scene_path: &Path,
+    out: &Path,
+    threads: Option<usize>,
+    camera: Option<usize>,
+    tile_size: u32,
+    quiet: bool,
+) -> Result<()> {
     if tile_size == 0 {
         bail!("--tile-size must be at least 1");
     }
@@ -110,10 +123,13 @@ fn render(scene_path: &Path, out: &Path, threads: Option<usize>, camera: Option<
         );
         let selected: Vec<usize> = match camera {
             Some(k) if k >= 1 && k <= scene.cameras.len() => vec![k - 1],
-            Some(k) => bail!("--camera {k}: the scene has {} camera(s), numbered from 1", scene.cameras.len()),
+            Some(k) => {
+                bail!("--camera {k}: the scene has {} camera(s), numbered from 1", scene.cameras.len())
+            }
             None => (0..scene.cameras.len()).collect(),
         };
-        std::fs::create_dir_all(out).with_context(|| format!("cannot create the output directory {}", out.display()))?;
+        std::fs::create_dir_all(out)
+            .with_context(|| format!("cannot create the output directory {}", out.display()))?;
         let settings = RenderSettings::default();
         for ci in selected {
             let cam = &scene.cameras[ci];
@@ -123,9 +139,11 @@ fn render(scene_path: &Path, out: &Path, threads: Option<usize>, camera: Option<
             }
             let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(1) };
             bar.set_style(
-                ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} tiles, {elapsed} elapsed, ETA {eta}")
-                    .unwrap_or_else(|_| ProgressStyle::default_bar())
-                    .progress_chars("=> "),
+                ProgressStyle::with_template(
+                    "{msg} [{bar:40}] {pos}/{len} tiles, {elapsed} elapsed, ETA {eta}",
+                )
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> "),
             );
             bar.set_message(cam.image_name.clone());
             let t = Instant::now();

@@ -81,11 +81,11 @@ impl MeshGeom {
                 TriAccel::new(p(a), p(b), p(c))
             })
             .collect();
-        let aabbs: Vec<Aabb> = tris
-            .iter()
-            .map(|t| Aabb::from_points(&[t.v0, t.v0 + t.e1, t.v0 + t.e2]))
-            .collect();
-        let bvh = build_cwbvh(&aabbs, BvhBuildParams::medium_build(), &mut Duration::default());
+        let aabbs: Vec<Aabb> =
+            tris.iter().map(|t| Aabb::from_points(&[t.v0, t.v0 + t.e1, t.v0 + t.e2])).collect();
+        // `fast_build` traces as fast as the slower presets on the course meshes (measured with
+        // the trace bench) and builds a 1M-triangle mesh about twice as fast as `medium_build`.
+        let bvh = build_cwbvh(&aabbs, BvhBuildParams::fast_build(), &mut Duration::default());
         let accel_tri = bvh.primitive_indices.clone();
         let accel = accel_tri.iter().map(|&i| tris[i as usize]).collect();
         let bounds = bvh.total_aabb;
@@ -117,7 +117,8 @@ impl MeshGeom {
     /// (clamped into the triangle, since the `f32` test accepted it).
     pub fn refine(&self, tri: u32, origin: DVec3, dir: DVec3) -> TriHit {
         let [a, b, c] = self.indices[tri as usize];
-        let (p0, p1, p2) = (self.positions[a as usize], self.positions[b as usize], self.positions[c as usize]);
+        let (p0, p1, p2) =
+            (self.positions[a as usize], self.positions[b as usize], self.positions[c as usize]);
         let e1 = p1 - p0;
         let e2 = p2 - p0;
         let p = dir.cross(e2);
@@ -136,7 +137,8 @@ impl MeshGeom {
     /// Object-space geometric normal (unit, counter-clockwise winding).
     pub fn face_normal(&self, tri: u32) -> DVec3 {
         let [a, b, c] = self.indices[tri as usize];
-        let (p0, p1, p2) = (self.positions[a as usize], self.positions[b as usize], self.positions[c as usize]);
+        let (p0, p1, p2) =
+            (self.positions[a as usize], self.positions[b as usize], self.positions[c as usize]);
         (p1 - p0).cross(p2 - p0).normalize()
     }
 

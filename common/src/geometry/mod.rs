@@ -238,7 +238,8 @@ impl Accel {
             None => (n_geo, n_shade),
         };
         // A smooth normal may lean past the face; keep it on the face's side.
-        let shading_normal = if shading_normal.dot(geo_normal) < 0.0 { -shading_normal } else { shading_normal };
+        let shading_normal =
+            if shading_normal.dot(geo_normal) < 0.0 { -shading_normal } else { shading_normal };
         SurfaceHit {
             t,
             point: ray.at(t),
@@ -257,7 +258,12 @@ mod tests {
 
     fn unit_quad() -> Arc<MeshGeom> {
         Arc::new(MeshGeom::new(
-            vec![DVec3::new(-1.0, -1.0, 0.0), DVec3::new(1.0, -1.0, 0.0), DVec3::new(1.0, 1.0, 0.0), DVec3::new(-1.0, 1.0, 0.0)],
+            vec![
+                DVec3::new(-1.0, -1.0, 0.0),
+                DVec3::new(1.0, -1.0, 0.0),
+                DVec3::new(1.0, 1.0, 0.0),
+                DVec3::new(-1.0, 1.0, 0.0),
+            ],
             vec![[0, 1, 2], [0, 2, 3]],
             None,
         ))
@@ -270,8 +276,16 @@ mod tests {
         let accel = Accel::new(
             vec![unit_quad()],
             vec![
-                Instance { shape: Shape::Mesh { mesh: 0, smooth: false }, material: 0, transform: Some(moved) },
-                Instance { shape: Shape::Sphere { center: DVec3::new(5.0, 0.0, 0.0), radius: 1.0 }, material: 1, transform: Some(scaled) },
+                Instance {
+                    shape: Shape::Mesh { mesh: 0, smooth: false },
+                    material: 0,
+                    transform: Some(moved),
+                },
+                Instance {
+                    shape: Shape::Sphere { center: DVec3::new(5.0, 0.0, 0.0), radius: 1.0 },
+                    material: 1,
+                    transform: Some(scaled),
+                },
             ],
         );
         let r = Ray::new(DVec3::new(0.5, 0.5, 10.0), DVec3::NEG_Z);

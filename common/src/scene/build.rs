@@ -44,11 +44,19 @@ impl Ctx<'_> {
         if id >= 1 && (id as u64) <= n as u64 {
             Ok((id - 1) as u32)
         } else {
-            Err(self.err(loc, format!("{what} refers to vertex {id}, but <VertexData> has {n} vertices (ids start at 1)")))
+            Err(self.err(
+                loc,
+                format!("{what} refers to vertex {id}, but <VertexData> has {n} vertices (ids start at 1)"),
+            ))
         }
     }
 
-    fn transform(&self, table: &HashMap<(char, &str), TransformOp>, refs: &[TransformRef], loc: &Loc) -> Result<DAffine3, SceneError> {
+    fn transform(
+        &self,
+        table: &HashMap<(char, &str), TransformOp>,
+        refs: &[TransformRef],
+        loc: &Loc,
+    ) -> Result<DAffine3, SceneError> {
         let mut m = DAffine3::IDENTITY;
         for r in refs {
             let op = table.get(&(r.letter, r.id.as_str())).ok_or_else(|| {
@@ -70,9 +78,9 @@ impl Ctx<'_> {
         if m == DAffine3::IDENTITY {
             return Ok(None);
         }
-        Transform::new(m)
-            .map(Some)
-            .ok_or_else(|| self.err(loc, "the transformation is singular (a zero scale?); the object would be flat"))
+        Transform::new(m).map(Some).ok_or_else(|| {
+            self.err(loc, "the transformation is singular (a zero scale?); the object would be flat")
+        })
     }
 }
 
@@ -110,10 +118,14 @@ fn load_mesh_data(
     ply_cache: &HashMap<String, Result<Arc<MeshData>, SceneError>>,
 ) -> Result<Arc<MeshData>, SceneError> {
     match &mesh.faces {
-        FacesRec::Ply { path } => ply_cache.get(path).cloned().unwrap_or_else(|| Err(ctx.err(&mesh.faces_loc, "internal: PLY not loaded"))),
+        FacesRec::Ply { path } => ply_cache
+            .get(path)
+            .cloned()
+            .unwrap_or_else(|| Err(ctx.err(&mesh.faces_loc, "internal: PLY not loaded"))),
         FacesRec::Inline { indices, vertex_offset } => {
             if indices.len() % 3 != 0 {
-                return Err(ctx.err(&mesh.faces_loc, format!("has {} vertex ids, not a multiple of 3", indices.len())));
+                return Err(ctx
+                    .err(&mesh.faces_loc, format!("has {} vertex ids, not a multiple of 3", indices.len())));
             }
             // Keep only the vertices this mesh uses, so a BVH never carries the whole scene's list.
             let mut remap: HashMap<u32, u32> = HashMap::new();
@@ -122,7 +134,8 @@ fn load_mesh_data(
             for tri in indices.chunks_exact(3) {
                 let mut out = [0u32; 3];
                 for (k, &i) in tri.iter().enumerate() {
-                    let g = ctx.vertex(i + vertex_offset, &mesh.faces_loc, &format!("face {}", tris.len() + 1))?;
+                    let g =
+                        ctx.vertex(i + vertex_offset, &mesh.faces_loc, &format!("face {}", tris.len() + 1))?;
                     out[k] = *remap.entry(g).or_insert_with(|| {
                         positions.push(v3(ctx.rec.vertices[g as usize]));
                         (positions.len() - 1) as u32
@@ -140,7 +153,10 @@ fn load_ply(ctx: &Ctx, path: &str, loc: &Loc) -> Result<Arc<MeshData>, SceneErro
         SceneError::new(
             &ctx.rec.source,
             loc.clone(),
-            format!("cannot read PLY file {}: {e}; check the plyFile path (it is relative to the scene file)", ctx.resolver.display_path(path).display()),
+            format!(
+                "cannot read PLY file {}: {e}; check the plyFile path (it is relative to the scene file)",
+                ctx.resolver.display_path(path).display()
+            ),
         )
     })?;
     let ply = crate::ply::parse_ply(&bytes).map_err(|e| {
@@ -154,8 +170,11 @@ fn load_ply(ctx: &Ctx, path: &str, loc: &Loc) -> Result<Arc<MeshData>, SceneErro
         }
         err
     })?;
-    let positions: Vec<DVec3> = ply.positions.iter().map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)).collect();
-    let file_normals = ply.normals.map(|ns| ns.iter().map(|n| DVec3::new(n[0] as f64, n[1] as f64, n[2] as f64).normalize_or_zero()).collect());
+    let positions: Vec<DVec3> =
+        ply.positions.iter().map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)).collect();
+    let file_normals = ply.normals.map(|ns| {
+        ns.iter().map(|n| DVec3::new(n[0] as f64, n[1] as f64, n[2] as f64).normalize_or_zero()).collect()
+    });
     Ok(Arc::new(MeshData { positions, indices: ply.triangles, file_normals }))
 }
 
@@ -195,14 +214,21 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
     let mut cameras = Vec::with_capacity(rec.cameras.len());
     for c in &rec.cameras {
         if c.width == 0 || c.height == 0 {
-            return Err(ctx.err(&c.loc, format!("<ImageResolution> {} {} has a zero size", c.width, c.height)));
+            return Err(
+                ctx.err(&c.loc, format!("<ImageResolution> {} {} has a zero size", c.width, c.height))
+            );
         }
-        let cam = Camera::from_record(c)
-            .ok_or_else(|| ctx.err(&c.loc, "Gaze and Up are zero or parallel, so they do not define a camera frame"))?;
+        let cam = Camera::from_record(c).ok_or_else(|| {
+            ctx.err(&c.loc, "Gaze and Up are zero or parallel, so they do not define a camera frame")
+        })?;
         cameras.push(cam);
     }
     if cameras.is_empty() {
-        warnings.push(Warning { file: rec.source.clone(), loc: Loc::default(), message: "the scene has no <Camera>; nothing will be rendered".into() });
+        warnings.push(Warning {
+            file: rec.source.clone(),
+            loc: Loc::default(),
+            message: "the scene has no <Camera>; nothing will be rendered".into(),
+        });
     }
 
     // PLY files, each read and parsed once even when several meshes name it; in parallel.
@@ -218,11 +244,18 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         ply_paths.par_iter().map(|(p, loc)| (p.to_string(), load_ply(&ctx, p, loc))).collect();
 
     // Which meshes need vertex normals: smooth themselves or smooth through an instance.
-    let mesh_index: HashMap<&str, usize> = rec.meshes.iter().enumerate().map(|(i, m)| (m.id.as_str(), i)).rev().collect();
+    let mesh_index: HashMap<&str, usize> =
+        rec.meshes.iter().enumerate().map(|(i, m)| (m.id.as_str(), i)).rev().collect();
     let mut needs_smooth: Vec<bool> = rec.meshes.iter().map(|m| m.shading == ShadingMode::Smooth).collect();
     for inst in &rec.instances {
         let base = *mesh_index.get(inst.base_mesh.as_str()).ok_or_else(|| {
-            ctx.err(&inst.loc, format!("baseMeshId=\"{}\" names no <Mesh>; use the id of a Mesh under <Objects>", inst.base_mesh))
+            ctx.err(
+                &inst.loc,
+                format!(
+                    "baseMeshId=\"{}\" names no <Mesh>; use the id of a Mesh under <Objects>",
+                    inst.base_mesh
+                ),
+            )
         })?;
         if inst.shading == Some(ShadingMode::Smooth) {
             needs_smooth[base] = true;
@@ -253,10 +286,18 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
     for (g, m) in geoms.into_iter().zip(&rec.meshes) {
         let (geom, dropped) = g?;
         if dropped > 0 {
-            warnings.push(Warning { file: rec.source.clone(), loc: m.faces_loc.clone(), message: format!("skipped {dropped} degenerate triangle(s)") });
+            warnings.push(Warning {
+                file: rec.source.clone(),
+                loc: m.faces_loc.clone(),
+                message: format!("skipped {dropped} degenerate triangle(s)"),
+            });
         }
         if geom.triangle_count() == 0 {
-            warnings.push(Warning { file: rec.source.clone(), loc: m.loc.clone(), message: "mesh has no triangles".into() });
+            warnings.push(Warning {
+                file: rec.source.clone(),
+                loc: m.loc.clone(),
+                message: "mesh has no triangles".into(),
+            });
         }
         meshes.push(geom);
     }
@@ -293,13 +334,17 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
     for t in &rec.triangles {
         let material = ctx.material(&mat_ids, &t.material, &t.loc)?;
         let mut ids = [0u32; 3];
-        for k in 0..3 {
-            ids[k] = ctx.vertex(t.indices[k], &t.loc, "<Indices>")?;
+        for (id, &index) in ids.iter_mut().zip(&t.indices) {
+            *id = ctx.vertex(index, &t.loc, "<Indices>")?;
         }
         let positions: Vec<DVec3> = ids.iter().map(|&g| v3(rec.vertices[g as usize])).collect();
         let mut indices = vec![[0, 1, 2]];
         if drop_degenerate(&positions, &mut indices) > 0 {
-            warnings.push(Warning { file: rec.source.clone(), loc: t.loc.clone(), message: "degenerate triangle skipped".into() });
+            warnings.push(Warning {
+                file: rec.source.clone(),
+                loc: t.loc.clone(),
+                message: "degenerate triangle skipped".into(),
+            });
             continue;
         }
         let world = ctx.transform(&transforms, &t.transforms, &t.loc)?;
@@ -337,7 +382,11 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         intersection_test_epsilon: rec.intersection_test_epsilon,
         max_recursion_depth: rec.max_recursion_depth,
         ambient_light: v3(rec.ambient_light),
-        point_lights: rec.point_lights.iter().map(|l| PointLight { position: v3(l.position), intensity: v3(l.intensity) }).collect(),
+        point_lights: rec
+            .point_lights
+            .iter()
+            .map(|l| PointLight { position: v3(l.position), intensity: v3(l.intensity) })
+            .collect(),
         materials,
         cameras,
         accel,

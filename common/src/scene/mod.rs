@@ -61,8 +61,16 @@ pub fn load_scene_str(text: &str, source: &Path, resolver: &dyn AssetResolver) -
 
 /// Reads, parses and builds the scene file at `path`; assets resolve relative to its directory.
 pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
-    let bytes = std::fs::read(path).map_err(|e| SceneError::file(path, format!("cannot read the scene file: {e}")))?;
-    let text = String::from_utf8(bytes)
-        .map_err(|e| SceneError::file(path, format!("the scene file is not UTF-8 text (byte {}); save it as UTF-8", e.utf8_error().valid_up_to())))?;
+    let bytes = std::fs::read(path)
+        .map_err(|e| SceneError::file(path, format!("cannot read the scene file: {e}")))?;
+    let text = String::from_utf8(bytes).map_err(|e| {
+        SceneError::file(
+            path,
+            format!(
+                "the scene file is not UTF-8 text (byte {}); save it as UTF-8",
+                e.utf8_error().valid_up_to()
+            ),
+        )
+    })?;
     load_scene_str(&text, path, &FsResolver::for_scene(path))
 }

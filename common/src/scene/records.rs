@@ -156,7 +156,10 @@ pub enum TransformOp {
     Translation(Vec3),
     Scaling(Vec3),
     /// Angle in degrees about an axis through the origin (right-hand rule).
-    Rotation { degrees: f64, axis: Vec3 },
+    Rotation {
+        degrees: f64,
+        axis: Vec3,
+    },
     /// 16 numbers, row-major.
     Composite([f64; 16]),
 }

@@ -1869,18 +1869,3 @@ mod tests {
         assert!(failures.is_empty(), "{} scenes failed:\n{}", failures.len(), failures.join("\n"));
     }
 }
-#[cfg(test)]
-mod scratch {
-    #[test]
-    fn dump() {
-        for f in ["spheres.xml", "VeachAjar.xml", "cornellbox_jaroslav_path_glass.xml", "car.xml", "head_env_light.xml", "metal_glass_plates.xml"] {
-            let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes/xml").join(f);
-            let r = super::parse_xml(&std::fs::read_to_string(&p).unwrap(), &p).unwrap();
-            println!("== {f}: cams {:?}", r.cameras.iter().map(|c| (&c.projection, c.gaze, c.handedness, c.num_samples)).collect::<Vec<_>>());
-            println!("   mats {:?}", r.materials.iter().map(|m| (m.id.as_str(), m.kind, m.mirror)).collect::<Vec<_>>());
-            println!("   verts {} meshes {:?}", r.vertices.len(), r.meshes.iter().take(3).map(|m| (&m.id, &m.faces_loc, m.shading, &m.transforms, match &m.faces { super::FacesRec::Ply{path} => path.clone(), super::FacesRec::Inline{indices, vertex_offset} => format!("{} idx off {}", indices.len(), vertex_offset)})).collect::<Vec<_>>());
-            println!("   inst {:?}", r.instances.iter().take(3).collect::<Vec<_>>());
-            println!("   tr {:?}", r.transformations.iter().take(2).collect::<Vec<_>>());
-        }
-    }
-}

@@ -1,0 +1,145 @@
+//! Determinism of the tracer (render.rs invariant): a pixel depends only on (scene, camera,
+//! pixel, seed), never on the thread count, the tile size or the order tiles finish in, and a
+//! scene built twice (BVHs included) renders the same bits.
+
+use std::path::{Path, PathBuf};
+
+use tessera::assets::FsResolver;
+use tessera::image::Image;
+use tessera::render::{RenderSettings, TileRect, render_camera, render_tile};
+use tessera::scene::{Scene, load_scene_file, load_scene_str};
+
+const SCENES: [&str; 2] = ["cornell_box.xml", "tori.xml"];
+
+fn scenes_dir() -> PathBuf {
+    tessera_tests::repo_root().join("scenes")
+}
+
+fn pool(threads: usize) -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("thread pool")
+}
+
+fn load(path: &Path) -> Scene {
+    load_scene_file(path).unwrap_or_else(|e| panic!("cannot load {}: {e}", path.display()))
+}
+
+fn render_in(threads: usize, scene: &Scene, camera: usize, tile: u32) -> Image {
+    pool(threads).install(|| render_camera(scene, camera, tile, &RenderSettings::default(), &|_, _| {}).0)
+}
+
+/// Panics with the first differing pixel unless `a` and `b` are bitwise identical.
+fn assert_same_bits(a: &Image, b: &Image, what: &str) {
+    assert_eq!((a.width, a.height), (b.width, b.height), "{what}: sizes differ");
+    assert_eq!(a.pixels.len(), (a.width * a.height) as usize, "{what}: pixel count");
+    let mut differing = 0usize;
+    let mut first = None;
+    for (i, (pa, pb)) in a.pixels.iter().zip(&b.pixels).enumerate() {
+        if pa.map(f32::to_bits) != pb.map(f32::to_bits) {
+            differing += 1;
+            first.get_or_insert((i as u32 % a.width, i as u32 / a.width, *pa, *pb));
+        }
+    }
+    if let Some((x, y, pa, pb)) = first {
+        panic!("{what}: {differing} pixel(s) differ; first at ({x}, {y}): {pa:?} vs {pb:?}");
+    }
+}
+
+fn assert_not_blank(img: &Image, what: &str) {
+    let lit = img.pixels.iter().filter(|p| p.iter().any(|&c| c > 1.0)).count();
+    assert!(lit > img.pixels.len() / 10, "{what}: only {lit} of {} pixels are lit", img.pixels.len());
+    assert!(img.pixels.iter().flatten().all(|c| c.is_finite()), "{what}: non-finite pixel values");
+}
+
+#[test]
+fn thread_count_and_tile_size_do_not_change_the_image() {
+    for name in SCENES {
+        let scene = load(&scenes_dir().join(name));
+        for cam in 0..scene.cameras.len() {
+            let a = render_in(1, &scene, cam, 16);
+            let b = render_in(2, &scene, cam, 64);
+            assert_not_blank(&a, name);
+            assert_same_bits(&a, &b, &format!("{name} camera {cam}: 1 thread/tile 16 vs 2 threads/tile 64"));
+            // An odd tile size whose tiles do not divide the frame.
+            let c = render_in(2, &scene, cam, 23);
+            assert_same_bits(&a, &c, &format!("{name} camera {cam}: tile 16 vs tile 23"));
+        }
+    }
+}
+
+#[test]
+fn a_single_tile_equals_its_region_of_the_full_frame() {
+    for name in SCENES {
+        let scene = load(&scenes_dir().join(name));
+        let full = render_in(2, &scene, 0, 32);
+        let (w, h) = (full.width, full.height);
+        // Unaligned rectangles: interior, touching the right/bottom edges, one pixel, one row.
+        let rects = [
+            TileRect { x0: 37, y0: 101, width: 45, height: 29 },
+            TileRect { x0: w - 19, y0: h - 7, width: 19, height: 7 },
+            TileRect { x0: w / 2, y0: h / 2, width: 1, height: 1 },
+            TileRect { x0: 0, y0: h / 3, width: w, height: 1 },
+        ];
+        for rect in rects {
+            let (px, stats) = render_tile(&scene, 0, rect, &RenderSettings::default());
+            assert_eq!(px.len(), (rect.width * rect.height) as usize, "{name} {rect:?}: pixel count");
+            assert_eq!(stats.primary, (rect.width * rect.height) as u64, "{name} {rect:?}: one primary ray per pixel at 1 spp");
+            for ty in 0..rect.height {
+                for tx in 0..rect.width {
+                    let tile_px = px[(ty * rect.width + tx) as usize];
+                    let (x, y) = (rect.x0 + tx, rect.y0 + ty);
+                    let frame_px = full.pixels[(y * w + x) as usize];
+                    assert_eq!(
+                        tile_px.map(f32::to_bits),
+                        frame_px.map(f32::to_bits),
+                        "{name} {rect:?}: pixel ({x}, {y}) is {tile_px:?} in the tile but {frame_px:?} in the frame"
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn building_a_scene_twice_gives_identical_images() {
+    for name in SCENES {
+        let path = scenes_dir().join(name);
+        let one = pool(1).install(|| load(&path));
+        let two = pool(2).install(|| load(&path));
+        assert_eq!(one.stats.triangles, two.stats.triangles, "{name}: triangle count");
+        assert_eq!(one.stats.instances, two.stats.instances, "{name}: instance count");
+        for cam in 0..one.cameras.len() {
+            let a = render_in(2, &one, cam, 32);
+            let b = render_in(2, &two, cam, 32);
+            assert_same_bits(&a, &b, &format!("{name} camera {cam}: built in a 1-thread pool vs a 2-thread pool"));
+        }
+    }
+}
+
+#[test]
+fn multisampled_render_is_deterministic() {
+    let dir = scenes_dir();
+    let text = std::fs::read_to_string(dir.join("cornell_box.xml")).expect("read cornell_box.xml");
+    assert_eq!(text.matches("<ImageName>").count(), 1, "cornell_box.xml is expected to have one camera");
+    let ns4 = text.replacen("<ImageName>", "<NumSamples>4</NumSamples>\n            <ImageName>", 1);
+    let resolver = FsResolver { base_dir: dir.clone() };
+    let source = dir.join("cornell_box_ns4.xml");
+    let scene = load_scene_str(&ns4, &source, &resolver).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(scene.cameras[0].num_samples, 4, "NumSamples was not picked up");
+
+    let a = render_in(1, &scene, 0, 16);
+    let b = render_in(2, &scene, 0, 64);
+    let c = render_in(2, &scene, 0, 23);
+    assert_not_blank(&a, "cornell_box NumSamples 4");
+    assert_same_bits(&a, &b, "cornell_box NumSamples 4: 1 thread/tile 16 vs 2 threads/tile 64");
+    assert_same_bits(&a, &c, "cornell_box NumSamples 4: tile 16 vs tile 23");
+
+    // A second build of the same text renders the same bits.
+    let again = pool(1).install(|| load_scene_str(&ns4, &source, &resolver).unwrap_or_else(|e| panic!("{e}")));
+    assert_same_bits(&a, &render_in(2, &again, 0, 32), "cornell_box NumSamples 4: second build");
+
+    // The jittered samples really are used: some pixels (edges) differ from the 1-spp render.
+    let one_spp = load(&dir.join("cornell_box.xml"));
+    let single = render_in(2, &one_spp, 0, 32);
+    let differing = a.pixels.iter().zip(&single.pixels).filter(|(p, q)| p.map(f32::to_bits) != q.map(f32::to_bits)).count();
+    assert!(differing > 0, "NumSamples 4 renders exactly like 1 spp");
+}
