@@ -11,7 +11,9 @@ use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use tessera::render::{RenderSettings, render_camera};
-use tessera::scene::load_scene_file;
+use tessera::assets::FsResolver;
+use tessera::scene::build::build_scene;
+use tessera::scene::parse_scene;
 
 #[derive(Parser)]
 #[command(name = "tessera-worker", version, about = "Tessera's CPU ray tracer for CENG795 scene files")]
@@ -109,8 +111,15 @@ fn render(
     let pool = pool.build().context("cannot start the render threads")?;
     pool.install(|| -> Result<()> {
         let t0 = Instant::now();
-        let scene = load_scene_file(scene_path)?;
-        for w in &scene.warnings {
+        // Parse first and show the parser's warnings even if building then fails.
+        let text = std::fs::read_to_string(scene_path)
+            .map_err(|e| anyhow::anyhow!("{}: cannot read the scene file: {e}", scene_path.display()))?;
+        let records = parse_scene(&text, scene_path)?;
+        for w in &records.warnings {
+            eprintln!("{w}");
+        }
+        let scene = build_scene(&records, &FsResolver::for_scene(scene_path))?;
+        for w in &scene.warnings[records.warnings.len()..] {
             eprintln!("{w}");
         }
         eprintln!(
