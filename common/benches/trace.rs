@@ -10,6 +10,9 @@
 //! - diffuse bounce: cosine-distributed rays from the primary hits, closest hit,
 //!
 //! one ray at a time, through the same top-level + mesh BVH path the renderer uses.
+//!
+//! Then whole-scene times with every core (load + build, render) for course scenes and for a
+//! generated scene around the 1.13M-triangle head (written as a binary PLY to a temp dir).
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -143,6 +146,46 @@ fn throughput(accel: &Accel, pos: &[DVec3], w: u32, h: u32) -> Figures {
     Figures { primary, shadow, bounce, hit_share }
 }
 
+/// Load + build and render time of every camera of a scene file, with all threads.
+fn whole_scene(path: &std::path::Path) -> Result<(usize, f64, f64), String> {
+    let t = Instant::now();
+    let scene = tessera::scene::load_scene_file(path).map_err(|e| e.to_string())?;
+    let load = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    for cam in 0..scene.cameras.len() {
+        let settings = tessera::render::RenderSettings::default();
+        std::hint::black_box(tessera::render::render_camera(&scene, cam, 32, &settings, &|_, _| {}));
+    }
+    Ok((scene.stats.triangles, load, t.elapsed().as_secs_f64()))
+}
+
+/// A scene file around `tris`: the mesh, a floor-less view from +z, two point lights.
+fn big_head_scene(pos: &[DVec3], tris: &[[u32; 3]]) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("tessera-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let mesh = tessera::ply::PlyMesh {
+        positions: pos.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect(),
+        triangles: tris.to_vec(),
+        ..Default::default()
+    };
+    std::fs::write(dir.join("head_1m.ply"), tessera::ply::write_ply_binary_le(&mesh)).expect("write ply");
+    let xml = r#"<Scene>
+  <MaxRecursionDepth>2</MaxRecursionDepth>
+  <Cameras><Camera id="1" type="lookAt"><Position>0 -0.1 1.2</Position><GazePoint>0 -0.1 0</GazePoint>
+    <Up>0 1 0</Up><FovY>30</FovY><NearDistance>1</NearDistance><ImageResolution>800 800</ImageResolution>
+    <ImageName>head_1m.png</ImageName></Camera></Cameras>
+  <Lights><AmbientLight>20 20 20</AmbientLight>
+    <PointLight id="1"><Position>1 1 2</Position><Intensity>600 600 600</Intensity></PointLight>
+    <PointLight id="2"><Position>-1 0 1</Position><Intensity>200 200 250</Intensity></PointLight></Lights>
+  <Materials><Material id="1"><AmbientReflectance>1 1 1</AmbientReflectance><DiffuseReflectance>0.8 0.7 0.6</DiffuseReflectance>
+    <SpecularReflectance>0.5 0.5 0.5</SpecularReflectance><PhongExponent>40</PhongExponent></Material></Materials>
+  <Objects><Mesh id="1" shadingMode="smooth"><Material>1</Material><Faces plyFile="head_1m.ply"/></Mesh></Objects>
+</Scene>"#;
+    let path = dir.join("head_1m.xml");
+    std::fs::write(&path, xml).expect("write xml");
+    path
+}
+
 fn main() {
     let quick = std::env::args().any(|a| a == "--quick");
     let (w, h) = if quick { (480, 270) } else { (1920, 1080) };
@@ -166,5 +209,29 @@ fn main() {
             f.bounce,
             f.hit_share * 100.0
         );
+    }
+
+    println!();
+    println!("whole scenes, {threads} threads (load+build includes reading PLY files and building BVHs)");
+    println!("| scene | triangles | load+build s | render s | total s |");
+    println!("|---|---:|---:|---:|---:|");
+    let xml = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes/xml");
+    let big = big_head_scene(&pos1m, &tris1m);
+    let mut scenes: Vec<(String, PathBuf)> =
+        ["bunny", "scienceTree", "cornellbox", "metal_glass_plates_hw2", "ton_Roosendaal_smooth"]
+            .iter()
+            .map(|s| (s.to_string(), xml.join(format!("{s}.xml"))))
+            .collect();
+    scenes.push(("head 1.13M triangles (generated)".into(), big.clone()));
+    for (name, path) in scenes {
+        match whole_scene(&path) {
+            Ok((tris, load, render)) => {
+                println!("| {name} | {tris} | {load:.3} | {render:.3} | {:.3} |", load + render)
+            }
+            Err(e) => println!("| {name} | error: {e} | | | |"),
+        }
+    }
+    if let Some(dir) = big.parent() {
+        let _ = std::fs::remove_dir_all(dir);
     }
 }

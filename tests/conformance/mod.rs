@@ -116,6 +116,20 @@ fn render_one(row: &Row, out_dir: &Path) -> Result<Comparison> {
     }
     let reference = Rgb8::read_png(&row.reference_path())
         .with_context(|| format!("cannot read reference {}", row.reference_path().display()))?;
+    // A difference picture beside the render: |ours - reference| x 8, to see where they differ.
+    if ours.width == reference.width && ours.height == reference.height {
+        let diff = tessera::image::Image {
+            width: ours.width,
+            height: ours.height,
+            pixels: ours
+                .data
+                .chunks_exact(3)
+                .zip(reference.data.chunks_exact(3))
+                .map(|(a, b)| std::array::from_fn(|c| (a[c] as f32 - b[c] as f32).abs() * 8.0))
+                .collect(),
+        };
+        let _ = diff.write_png(&out.with_extension("diff.png"));
+    }
     compare(&ours, &reference).with_context(|| {
         format!(
             "size {}x{} differs from the reference's {}x{}",

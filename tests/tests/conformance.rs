@@ -40,5 +40,11 @@ fn ci_rows_meet_their_thresholds() {
     let results = render_rows(&rows, &out.0, &|line| println!("{line}"));
     assert_eq!(results.len(), rows.len());
     let failing: Vec<String> = results.iter().filter(|r| !r.passed()).map(summary_line).collect();
-    assert!(failing.is_empty(), "{} of {} ci rows fail:\n{}", failing.len(), results.len(), failing.join("\n"));
+    assert!(
+        failing.is_empty(),
+        "{} of {} ci rows fail:\n{}",
+        failing.len(),
+        results.len(),
+        failing.join("\n")
+    );
 }

@@ -82,7 +82,11 @@ fn a_single_tile_equals_its_region_of_the_full_frame() {
         for rect in rects {
             let (px, stats) = render_tile(&scene, 0, rect, &RenderSettings::default());
             assert_eq!(px.len(), (rect.width * rect.height) as usize, "{name} {rect:?}: pixel count");
-            assert_eq!(stats.primary, (rect.width * rect.height) as u64, "{name} {rect:?}: one primary ray per pixel at 1 spp");
+            assert_eq!(
+                stats.primary,
+                (rect.width * rect.height) as u64,
+                "{name} {rect:?}: one primary ray per pixel at 1 spp"
+            );
             for ty in 0..rect.height {
                 for tx in 0..rect.width {
                     let tile_px = px[(ty * rect.width + tx) as usize];
@@ -110,7 +114,11 @@ fn building_a_scene_twice_gives_identical_images() {
         for cam in 0..one.cameras.len() {
             let a = render_in(2, &one, cam, 32);
             let b = render_in(2, &two, cam, 32);
-            assert_same_bits(&a, &b, &format!("{name} camera {cam}: built in a 1-thread pool vs a 2-thread pool"));
+            assert_same_bits(
+                &a,
+                &b,
+                &format!("{name} camera {cam}: built in a 1-thread pool vs a 2-thread pool"),
+            );
         }
     }
 }
@@ -134,12 +142,18 @@ fn multisampled_render_is_deterministic() {
     assert_same_bits(&a, &c, "cornell_box NumSamples 4: tile 16 vs tile 23");
 
     // A second build of the same text renders the same bits.
-    let again = pool(1).install(|| load_scene_str(&ns4, &source, &resolver).unwrap_or_else(|e| panic!("{e}")));
+    let again =
+        pool(1).install(|| load_scene_str(&ns4, &source, &resolver).unwrap_or_else(|e| panic!("{e}")));
     assert_same_bits(&a, &render_in(2, &again, 0, 32), "cornell_box NumSamples 4: second build");
 
     // The jittered samples really are used: some pixels (edges) differ from the 1-spp render.
     let one_spp = load(&dir.join("cornell_box.xml"));
     let single = render_in(2, &one_spp, 0, 32);
-    let differing = a.pixels.iter().zip(&single.pixels).filter(|(p, q)| p.map(f32::to_bits) != q.map(f32::to_bits)).count();
+    let differing = a
+        .pixels
+        .iter()
+        .zip(&single.pixels)
+        .filter(|(p, q)| p.map(f32::to_bits) != q.map(f32::to_bits))
+        .count();
     assert!(differing > 0, "NumSamples 4 renders exactly like 1 spp");
 }

@@ -10,8 +10,8 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
-use tessera::render::{RenderSettings, render_camera};
 use tessera::assets::FsResolver;
+use tessera::render::{RenderSettings, render_camera};
 use tessera::scene::build::build_scene;
 use tessera::scene::parse_scene;
 

@@ -318,7 +318,10 @@ fn error_cases() -> Vec<ErrorCase> {
         },
         ErrorCase {
             name: "negative_radius",
-            scene: Some(small_scene(r#"<Sphere id="3"><Material>1</Material><Center>1</Center><Radius>-1</Radius></Sphere>"#, "")),
+            scene: Some(small_scene(
+                r#"<Sphere id="3"><Material>1</Material><Center>1</Center><Radius>-1</Radius></Sphere>"#,
+                "",
+            )),
             extra_args: &[],
             expect: &["negative_radius.xml:9", r#"Sphere id="3""#, "Radius"],
         },
