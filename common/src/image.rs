@@ -19,10 +19,11 @@ impl Image {
 
     /// Copies a rendered tile into place.
     pub fn put_tile(&mut self, r: TileRect, px: &[[f32; 3]]) {
-        for row in 0..r.height {
-            let src = &px[(row * r.width) as usize..((row + 1) * r.width) as usize];
-            let start = ((r.y0 + row) * self.width + r.x0) as usize;
-            self.pixels[start..start + r.width as usize].copy_from_slice(src);
+        let w = r.width as usize;
+        for row in 0..r.height as usize {
+            let src = &px[row * w..(row + 1) * w];
+            let start = (r.y0 as usize + row) * self.width as usize + r.x0 as usize;
+            self.pixels[start..start + w].copy_from_slice(src);
         }
     }
 

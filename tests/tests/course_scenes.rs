@@ -51,28 +51,6 @@ const MISSING_ASSET: &[(&str, &str)] = &[
     ("lobster", "lobster.ply"),
 ];
 
-/// Known product bugs: (scene, a substring of the wrong error it fails with today, the bug).
-///
-/// Such a scene still gets every check; only a failure carrying exactly this error is reported
-/// as "KNOWN BUG" instead of failing the test. Any other outcome is judged normally, so once the
-/// bug is fixed the row simply passes (and the entry should be removed).
-const KNOWN_BUGS: &[(&str, &str, &str)] = &[
-    (
-        "grass_desert",
-        "names no <Mesh>",
-        "a MeshInstance whose baseMeshId names another MeshInstance (chained instances) is rejected",
-    ),
-    (
-        "marching_dragons",
-        "names no <Mesh>",
-        "chained MeshInstances are rejected before the missing PLY is reported",
-    ),
-];
-
-fn known_bug(scene: &str, error: &str) -> Option<&'static str> {
-    KNOWN_BUGS.iter().find(|(s, needle, _)| *s == scene && error.contains(needle)).map(|(_, _, what)| *what)
-}
-
 /// `../shared/scenes/xml`, or `None` (after saying so) when the corpus is absent.
 fn corpus_xml() -> Option<PathBuf> {
     let dir = tessera_tests::shared_scenes().join("xml");
@@ -116,10 +94,7 @@ fn hw1_hw2_scenes_load_and_render_a_centre_tile() {
         let scene = match load_scene_file(&path) {
             Ok(s) => s,
             Err(e) => {
-                match known_bug(name, &e.to_string()) {
-                    Some(bug) => eprintln!("KNOWN BUG, not counted: {name}: {bug}: {e}"),
-                    None => failures.push(format!("{name}: load failed: {e}")),
-                }
+                failures.push(format!("{name}: load failed: {e}"));
                 continue;
             }
         };
@@ -185,12 +160,6 @@ fn scenes_with_a_missing_asset_fail_naming_it() {
             Ok(_) => failures.push(format!("{name}: loaded although {asset} is missing")),
             Err(e) if asset_path.exists() => {
                 failures.push(format!("{name}: {asset} is present now but loading fails: {e}"))
-            }
-            Err(e) if known_bug(name, &e.to_string()).is_some() => {
-                eprintln!(
-                    "KNOWN BUG, not counted: {name}: {}: {e}",
-                    known_bug(name, &e.to_string()).unwrap_or_default()
-                );
             }
             Err(e) => {
                 let msg = e.to_string();

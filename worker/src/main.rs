@@ -16,7 +16,12 @@ use tessera::scene::build::build_scene;
 use tessera::scene::parse_scene;
 
 #[derive(Parser)]
-#[command(name = "tessera-worker", version, about = "Tessera's CPU ray tracer for CENG795 scene files")]
+#[command(
+    name = "tessera-worker",
+    version,
+    about = "Tessera's CPU ray tracer for CENG795 scene files",
+    after_help = "Examples:\n  tessera-worker render scenes/cornell_box.xml --out out/\n  tessera-worker render scene.xml --threads 4 --camera 2 --out renders/\n\nSee 'tessera-worker render --help' for every option (--out, --threads, --camera, --tile-size, --quiet)."
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

@@ -239,10 +239,19 @@ fn usage_errors_exit_non_zero_without_panicking() {
 // Errors: non-zero exit, a message on stderr naming the problem, no panic, no image
 // ---------------------------------------------------------------------------------------------
 
+/// An ASCII PLY triangle whose face names vertex 5 of 3.
+const PLY_BAD_INDEX: &str = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
+element face 1\nproperty list uchar int vertex_indices\nend_header\n-1 -1 0\n1 -1 0\n0 1 0\n3 0 1 5\n";
+/// An ASCII PLY that ends after 2 of its 3 vertices.
+const PLY_TRUNCATED: &str = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
+element face 1\nproperty list uchar int vertex_indices\nend_header\n-1 -1 0\n1 -1 0\n";
+
 struct ErrorCase {
     name: &'static str,
     /// The scene text written to `<name>.xml` in the temp dir; `None` to pass a nonexistent path.
     scene: Option<String>,
+    /// Other files written next to the scene: (name, contents).
+    files: &'static [(&'static str, &'static str)],
     extra_args: &'static [&'static str],
     /// Every one of these must appear in stderr.
     expect: &'static [&'static str],
@@ -256,12 +265,34 @@ fn error_cases() -> Vec<ErrorCase> {
                 r#"<Mesh id="1"><Material>1</Material><Faces plyFile="nope/missing.ply"/></Mesh>"#,
                 "",
             )),
+            files: &[],
             extra_args: &[],
             expect: &["missing.ply", "missing_ply.xml:9", "Mesh"],
         },
         ErrorCase {
+            name: "ply_face_index_out_of_range",
+            scene: Some(small_scene(
+                r#"<Mesh id="1"><Material>1</Material><Faces plyFile="bad_index.ply"/></Mesh>"#,
+                "",
+            )),
+            files: &[("bad_index.ply", PLY_BAD_INDEX)],
+            extra_args: &[],
+            expect: &["bad_index.ply", "vertex 5", "3 vertices", "ply_face_index_out_of_range.xml"],
+        },
+        ErrorCase {
+            name: "ply_truncated",
+            scene: Some(small_scene(
+                r#"<Mesh id="1"><Material>1</Material><Faces plyFile="truncated.ply"/></Mesh>"#,
+                "",
+            )),
+            files: &[("truncated.ply", PLY_TRUNCATED)],
+            extra_args: &[],
+            expect: &["truncated.ply", "ply_truncated.xml"],
+        },
+        ErrorCase {
             name: "malformed_unterminated_tag",
             scene: Some(small_scene(r#"<Mesh id="1"><Material>1</Material><Faces>1 2 3</Faces></Mesh"#, "")),
+            files: &[],
             extra_args: &[],
             expect: &["malformed_unterminated_tag.xml:9"],
         },
@@ -271,6 +302,7 @@ fn error_cases() -> Vec<ErrorCase> {
                 r#"<Sphere id="1"><Material>1</Material><Center>1</Center><Radius>1</Radiuss></Sphere>"#,
                 "",
             )),
+            files: &[],
             extra_args: &[],
             expect: &["malformed_mismatched_close.xml:9", "Radius"],
         },
@@ -280,6 +312,7 @@ fn error_cases() -> Vec<ErrorCase> {
                 r#"<Mesh id="7"><Material>42</Material><Faces>1 2 3</Faces></Mesh>"#,
                 "",
             )),
+            files: &[],
             extra_args: &[],
             expect: &["undefined_material_mesh.xml:9", r#"Mesh id="7""#, "42"],
         },
@@ -289,6 +322,7 @@ fn error_cases() -> Vec<ErrorCase> {
                 r#"<Sphere id="4"><Material>42</Material><Center>1</Center><Radius>1</Radius></Sphere>"#,
                 "",
             )),
+            files: &[],
             extra_args: &[],
             expect: &["undefined_material_sphere.xml:9", r#"Sphere id="4""#, "42"],
         },
@@ -298,12 +332,14 @@ fn error_cases() -> Vec<ErrorCase> {
                 r#"<Mesh id="1"><Material>1</Material><Faces>1 2 3  1 2 17</Faces></Mesh>"#,
                 "",
             )),
+            files: &[],
             extra_args: &[],
             expect: &["vertex_index_out_of_range.xml:9", "Faces", "17", "3 vertices"],
         },
         ErrorCase {
             name: "vertex_index_zero",
             scene: Some(small_scene(r#"<Mesh id="1"><Material>1</Material><Faces>0 1 2</Faces></Mesh>"#, "")),
+            files: &[],
             extra_args: &[],
             expect: &["vertex_index_zero.xml:9", "Faces", "vertex 0"],
         },
@@ -313,6 +349,7 @@ fn error_cases() -> Vec<ErrorCase> {
                 r#"<Sphere id="2"><Material>1</Material><Center>9</Center><Radius>1</Radius></Sphere>"#,
                 "",
             )),
+            files: &[],
             extra_args: &[],
             expect: &["sphere_center_out_of_range.xml", r#"Sphere id="2""#, "9"],
         },
@@ -322,6 +359,7 @@ fn error_cases() -> Vec<ErrorCase> {
                 r#"<Sphere id="3"><Material>1</Material><Center>1</Center><Radius>-1</Radius></Sphere>"#,
                 "",
             )),
+            files: &[],
             extra_args: &[],
             expect: &["negative_radius.xml:9", r#"Sphere id="3""#, "Radius"],
         },
@@ -331,54 +369,63 @@ fn error_cases() -> Vec<ErrorCase> {
                 small_scene(TRIANGLE, "")
                     .replace("<Position>0 0 5</Position>", "<Position>0 abc 5</Position>"),
             ),
+            files: &[],
             extra_args: &[],
             expect: &["non_number_position.xml:3", "Position", "abc"],
         },
         ErrorCase {
             name: "non_number_vertex_data",
             scene: Some(small_scene(TRIANGLE, "").replace("1 -1 0  0 1 0", "1 -1 0  0 one 0")),
+            files: &[],
             extra_args: &[],
             expect: &["non_number_vertex_data.xml:7", "VertexData", "one"],
         },
         ErrorCase {
             name: "root_is_not_scene",
             scene: Some("<Sceen>\n</Sceen>\n".to_string()),
+            files: &[],
             extra_args: &[],
             expect: &["root_is_not_scene.xml:1", "Sceen"],
         },
         ErrorCase {
             name: "empty_file",
             scene: Some(String::new()),
+            files: &[],
             extra_args: &[],
             expect: &["empty_file.xml"],
         },
         ErrorCase {
             name: "nonexistent_scene",
             scene: None,
+            files: &[],
             extra_args: &[],
             expect: &["nonexistent_scene.xml"],
         },
         ErrorCase {
             name: "camera_out_of_range",
             scene: Some(small_scene(TRIANGLE, "")),
+            files: &[],
             extra_args: &["--camera", "5"],
             expect: &["--camera 5", "1 camera"],
         },
         ErrorCase {
             name: "camera_zero",
             scene: Some(small_scene(TRIANGLE, "")),
+            files: &[],
             extra_args: &["--camera", "0"],
             expect: &["--camera 0"],
         },
         ErrorCase {
             name: "zero_threads",
             scene: Some(small_scene(TRIANGLE, "")),
+            files: &[],
             extra_args: &["--threads", "0"],
             expect: &["--threads"],
         },
         ErrorCase {
             name: "zero_tile_size",
             scene: Some(small_scene(TRIANGLE, "")),
+            files: &[],
             extra_args: &["--tile-size", "0"],
             expect: &["--tile-size"],
         },
@@ -395,6 +442,9 @@ fn errors_are_reported_without_panicking() {
             Some(text) => tmp.write(&file, text),
             None => tmp.path().join(&file),
         };
+        for (name, text) in case.files {
+            tmp.write(name, text);
+        }
         let out = tmp.path().join("out");
         let mut args = vec![
             "render".into(),

@@ -20,6 +20,10 @@ use crate::geometry::{Accel, Instance, Shape};
 use crate::material::Material;
 use crate::math::{Transform, v3};
 
+/// Largest image we agree to render (a float frame of this size is 3 GiB).
+const MAX_IMAGE_SIDE: u32 = 65_536;
+const MAX_IMAGE_PIXELS: u64 = 1 << 28;
+
 /// Gamma used to linearise `degamma` materials until tone-mapping blocks are parsed (§6.6).
 const DEGAMMA: f64 = 2.2;
 
@@ -105,6 +109,92 @@ pub fn op_matrix(op: &TransformOp) -> DAffine3 {
     }
 }
 
+/// A MeshInstance with its chain of bases followed down to a Mesh.
+#[derive(Clone, Copy)]
+struct ResolvedInstance {
+    /// Index of the Mesh record whose geometry it shows.
+    mesh: usize,
+    world: DAffine3,
+    material: u32,
+    smooth: bool,
+}
+
+/// Resolves every MeshInstance: `baseMeshId` names a Mesh, or else another MeshInstance (the
+/// course files use one id space for both). Without `resetTransform` the instance's own
+/// transformations apply on top of its base's world transform; the material and smooth shading
+/// are inherited unless the instance sets them. Cycles are errors.
+fn resolve_instances(
+    ctx: &Ctx,
+    mat_ids: &HashMap<&str, u32>,
+    transforms: &HashMap<(char, &str), TransformOp>,
+    mesh_world: &[DAffine3],
+) -> Result<Vec<ResolvedInstance>, SceneError> {
+    let rec = ctx.rec;
+    let mesh_index: HashMap<&str, usize> =
+        rec.meshes.iter().enumerate().map(|(i, m)| (m.id.as_str(), i)).rev().collect();
+    let inst_index: HashMap<&str, usize> =
+        rec.instances.iter().enumerate().map(|(i, m)| (m.id.as_str(), i)).rev().collect();
+    let mut done: Vec<Option<ResolvedInstance>> = vec![None; rec.instances.len()];
+    for start in 0..rec.instances.len() {
+        // Walk down the chain to something resolved (or a Mesh), then unwind.
+        let mut chain: Vec<usize> = Vec::new();
+        let mut cur = start;
+        let mut base: ResolvedInstance = loop {
+            if let Some(r) = done[cur] {
+                break r;
+            }
+            if chain.contains(&cur) {
+                let inst = &rec.instances[start];
+                return Err(ctx.err(
+                    &inst.loc,
+                    format!(
+                        "baseMeshId=\"{}\" leads back to this instance (a cycle of MeshInstances)",
+                        inst.base_mesh
+                    ),
+                ));
+            }
+            chain.push(cur);
+            let inst = &rec.instances[cur];
+            if let Some(&m) = mesh_index.get(inst.base_mesh.as_str()) {
+                let mesh = &rec.meshes[m];
+                break ResolvedInstance {
+                    mesh: m,
+                    world: mesh_world[m],
+                    material: ctx.material(mat_ids, &mesh.material, &mesh.loc)?,
+                    smooth: mesh.shading == ShadingMode::Smooth,
+                };
+            }
+            match inst_index.get(inst.base_mesh.as_str()) {
+                Some(&i) if i != cur => cur = i,
+                _ => {
+                    return Err(ctx.err(
+                        &inst.loc,
+                        format!("baseMeshId=\"{}\" names no <Mesh> or other <MeshInstance>; use the id of a Mesh under <Objects>", inst.base_mesh),
+                    ));
+                }
+            }
+        };
+        for &i in chain.iter().rev() {
+            if done[i].is_none() {
+                let inst = &rec.instances[i];
+                let own = ctx.transform(transforms, &inst.transforms, &inst.loc)?;
+                let r = ResolvedInstance {
+                    mesh: base.mesh,
+                    world: if inst.reset_transform { own } else { own * base.world },
+                    material: match &inst.material {
+                        Some(id) => ctx.material(mat_ids, id, &inst.loc)?,
+                        None => base.material,
+                    },
+                    smooth: base.smooth || inst.shading == Some(ShadingMode::Smooth),
+                };
+                done[i] = Some(r);
+            }
+            base = done[i].unwrap_or(base);
+        }
+    }
+    Ok(done.into_iter().flatten().collect())
+}
+
 /// Raw triangle data of one Mesh record before the BVH is built.
 struct MeshData {
     positions: Vec<DVec3>,
@@ -188,6 +278,16 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
     let mut mat_ids: HashMap<&str, u32> = HashMap::new();
     let mut materials = Vec::with_capacity(rec.materials.len());
     for m in &rec.materials {
+        if mat_ids.contains_key(m.id.as_str()) {
+            warnings.push(Warning {
+                file: rec.source.clone(),
+                loc: m.loc.clone(),
+                message: format!(
+                    "material id \"{}\" is defined again; references use the first definition",
+                    m.id
+                ),
+            });
+        }
         mat_ids.entry(m.id.as_str()).or_insert(materials.len() as u32);
         let lin = |c: Vec3| -> DVec3 {
             let c = v3(c);
@@ -218,6 +318,18 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
                 ctx.err(&c.loc, format!("<ImageResolution> {} {} has a zero size", c.width, c.height))
             );
         }
+        if c.width > MAX_IMAGE_SIDE
+            || c.height > MAX_IMAGE_SIDE
+            || c.width as u64 * c.height as u64 > MAX_IMAGE_PIXELS
+        {
+            return Err(ctx.err(
+                &c.loc,
+                format!(
+                    "<ImageResolution> {} {} is too large: at most {MAX_IMAGE_SIDE} pixels a side and {MAX_IMAGE_PIXELS} in all",
+                    c.width, c.height
+                ),
+            ));
+        }
         let cam = Camera::from_record(c).ok_or_else(|| {
             ctx.err(&c.loc, "Gaze and Up are zero or parallel, so they do not define a camera frame")
         })?;
@@ -243,23 +355,18 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
     let ply_cache: HashMap<String, Result<Arc<MeshData>, SceneError>> =
         ply_paths.par_iter().map(|(p, loc)| (p.to_string(), load_ply(&ctx, p, loc))).collect();
 
+    // Mesh instances, resolved through chains (a MeshInstance may name another MeshInstance as
+    // its base, as grass_desert and marching_dragons do), before any geometry is built.
+    let mesh_world: Vec<DAffine3> = rec
+        .meshes
+        .iter()
+        .map(|m| ctx.transform(&transforms, &m.transforms, &m.loc))
+        .collect::<Result<_, _>>()?;
+    let resolved = resolve_instances(&ctx, &mat_ids, &transforms, &mesh_world)?;
     // Which meshes need vertex normals: smooth themselves or smooth through an instance.
-    let mesh_index: HashMap<&str, usize> =
-        rec.meshes.iter().enumerate().map(|(i, m)| (m.id.as_str(), i)).rev().collect();
     let mut needs_smooth: Vec<bool> = rec.meshes.iter().map(|m| m.shading == ShadingMode::Smooth).collect();
-    for inst in &rec.instances {
-        let base = *mesh_index.get(inst.base_mesh.as_str()).ok_or_else(|| {
-            ctx.err(
-                &inst.loc,
-                format!(
-                    "baseMeshId=\"{}\" names no <Mesh>; use the id of a Mesh under <Objects>",
-                    inst.base_mesh
-                ),
-            )
-        })?;
-        if inst.shading == Some(ShadingMode::Smooth) {
-            needs_smooth[base] = true;
-        }
+    for r in &resolved {
+        needs_smooth[r.mesh] |= r.smooth;
     }
 
     // Mesh geometry + BVHs, built in parallel (and obvhs parallelises each build).
@@ -304,31 +411,19 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
 
     // Instances: meshes themselves, mesh instances, single triangles, spheres.
     let mut instances = Vec::new();
-    let mut mesh_world: Vec<DAffine3> = Vec::with_capacity(rec.meshes.len());
     for (i, m) in rec.meshes.iter().enumerate() {
         let material = ctx.material(&mat_ids, &m.material, &m.loc)?;
-        let world = ctx.transform(&transforms, &m.transforms, &m.loc)?;
-        mesh_world.push(world);
         instances.push(Instance {
             shape: Shape::Mesh { mesh: i as u32, smooth: m.shading == ShadingMode::Smooth },
             material,
-            transform: ctx.make_transform(world, &m.loc)?,
+            transform: ctx.make_transform(mesh_world[i], &m.loc)?,
         });
     }
-    for inst in &rec.instances {
-        let base = mesh_index[inst.base_mesh.as_str()];
-        let base_rec = &rec.meshes[base];
-        let material = match &inst.material {
-            Some(id) => ctx.material(&mat_ids, id, &inst.loc)?,
-            None => ctx.material(&mat_ids, &base_rec.material, &base_rec.loc)?,
-        };
-        let own = ctx.transform(&transforms, &inst.transforms, &inst.loc)?;
-        let world = if inst.reset_transform { own } else { own * mesh_world[base] };
-        let smooth = base_rec.shading == ShadingMode::Smooth || inst.shading == Some(ShadingMode::Smooth);
+    for (r, inst) in resolved.iter().zip(&rec.instances) {
         instances.push(Instance {
-            shape: Shape::Mesh { mesh: base as u32, smooth },
-            material,
-            transform: ctx.make_transform(world, &inst.loc)?,
+            shape: Shape::Mesh { mesh: r.mesh as u32, smooth: r.smooth },
+            material: r.material,
+            transform: ctx.make_transform(r.world, &inst.loc)?,
         });
     }
     for t in &rec.triangles {
@@ -398,6 +493,61 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    use crate::assets::FsResolver;
+    use crate::math::Ray;
+
+    fn build(xml: &str) -> Result<Scene, SceneError> {
+        let rec = crate::scene::xml::parse_xml(xml, std::path::Path::new("t.xml"))?;
+        build_scene(&rec, &FsResolver { base_dir: ".".into() })
+    }
+
+    const CHAIN: &str = r#"<Scene>
+      <Materials><Material id="1"/><Material id="2"/></Materials>
+      <Transformations><Translation id="1">0 0 -10</Translation><Translation id="2">100 0 0</Translation></Transformations>
+      <VertexData>-1 -1 0  1 -1 0  0 1 0</VertexData>
+      <Objects>
+        <Mesh id="1"><Material>1</Material><Faces>1 2 3</Faces></Mesh>
+        <MeshInstance id="2" baseMeshId="1"><Transformations>t1</Transformations></MeshInstance>
+        <MeshInstance id="3" baseMeshId="2"><Material>2</Material><Transformations>t1</Transformations></MeshInstance>
+        <MeshInstance id="4" baseMeshId="3" resetTransform="true"><Transformations>t2</Transformations></MeshInstance>
+      </Objects></Scene>"#;
+
+    #[test]
+    fn instances_chain_through_other_instances() {
+        let scene = build(CHAIN).unwrap();
+        let hit = |x: f64, z0: f64| {
+            scene.accel.intersect(&Ray::new(DVec3::new(x, 0.0, z0), DVec3::NEG_Z), 1e-9, 1e9)
+        };
+        // The mesh at z=0, instance 2 at z=-10, instance 3 (t1 on top of instance 2) at z=-20.
+        let h = hit(0.0, -15.0).unwrap();
+        assert!((h.point.z + 20.0).abs() < 1e-9 && h.material == 1, "{h:?}");
+        let h = hit(0.0, -5.0).unwrap();
+        assert!((h.point.z + 10.0).abs() < 1e-9 && h.material == 0, "{h:?}");
+        // Instance 4 resets to its own t2 and inherits instance 3's material.
+        let h = hit(100.0, 5.0).unwrap();
+        assert!(h.point.z.abs() < 1e-9 && h.material == 1, "{h:?}");
+    }
+
+    #[test]
+    fn instance_cycles_and_unknown_bases_are_errors() {
+        let cyc = CHAIN
+            .replace(r#"<MeshInstance id="2" baseMeshId="1">"#, r#"<MeshInstance id="2" baseMeshId="4">"#);
+        let e = build(&cyc).err().expect("a cycle must fail").to_string();
+        assert!(e.contains("cycle") && e.contains("MeshInstance"), "{e}");
+        let unknown = CHAIN.replace(r#"baseMeshId="3""#, r#"baseMeshId="9""#);
+        let e = build(&unknown).err().expect("an unknown base must fail").to_string();
+        assert!(e.contains(r#"baseMeshId="9""#) && e.contains("t.xml:"), "{e}");
+    }
+
+    #[test]
+    fn oversized_images_are_refused() {
+        let xml = r#"<Scene><Cameras><Camera id="1"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+            <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>100000 100000</ImageResolution>
+            <ImageName>a.png</ImageName></Camera></Cameras></Scene>"#;
+        let e = build(xml).err().expect("must fail").to_string();
+        assert!(e.contains("too large") && e.contains("Camera"), "{e}");
+    }
 
     #[test]
     fn transformation_tokens_apply_left_to_right() {
