@@ -3,7 +3,7 @@
 use glam::DVec3;
 
 use crate::math::{Ray, v3};
-use crate::scene::records::{CameraRec, Handedness, Projection};
+use crate::scene::records::{CameraRec, Handedness, LensRec, Projection};
 
 /// A camera ready to generate primary rays.
 #[derive(Clone, Debug, PartialEq)]
@@ -23,6 +23,8 @@ pub struct Camera {
     pub height: u32,
     pub image_name: String,
     pub num_samples: u32,
+    /// Thin lens (depth of field); `None` for a pinhole.
+    pub lens: Option<LensRec>,
 }
 
 impl Camera {
@@ -68,6 +70,7 @@ impl Camera {
             height: c.height,
             image_name: c.image_name.clone(),
             num_samples: c.num_samples.max(1),
+            lens: c.lens,
         })
     }
 
@@ -78,6 +81,20 @@ impl Camera {
         let s = self.corner + ((x as f64 + dx) * self.pixel_w) * self.u
             - ((y as f64 + dy) * self.pixel_h) * self.v;
         Ray::new(self.position, (s - self.position).normalize())
+    }
+
+    /// Like [`Camera::ray`], through the lens point (ξ1, ξ2) ∈ [0, 1)² of a thin-lens camera
+    /// (scene-format.md §4.6: a square aperture of side ApertureSize, focus plane at
+    /// FocusDistance along the gaze). A pinhole camera ignores the lens point.
+    #[inline]
+    pub fn lens_ray(&self, x: u32, y: u32, dx: f64, dy: f64, xi1: f64, xi2: f64) -> Ray {
+        let pinhole = self.ray(x, y, dx, dy);
+        let Some(lens) = self.lens else { return pinhole };
+        let t_focus = lens.focus_distance / pinhole.dir.dot(-self.w);
+        let focus = self.position + t_focus * pinhole.dir;
+        let a = lens.aperture_size;
+        let origin = self.position + a * (xi1 - 0.5) * self.u + a * (xi2 - 0.5) * self.v;
+        Ray::new(origin, (focus - origin).normalize())
     }
 }
 
@@ -100,6 +117,24 @@ mod tests {
             image_name: "x.png".into(),
             handedness,
             num_samples: 1,
+            lens: None,
+        }
+    }
+
+    #[test]
+    fn lens_rays_meet_on_the_focus_plane() {
+        let mut r =
+            rec(Projection::NearPlane { left: -1.0, right: 1.0, bottom: -1.0, top: 1.0 }, Handedness::Right);
+        r.lens = Some(LensRec { focus_distance: 7.0, aperture_size: 2.0 });
+        let c = Camera::from_record(&r).unwrap();
+        // Every lens point's ray through pixel (30, 10) reaches the same point at z = -7.
+        let target = c.ray(30, 10, 0.5, 0.5);
+        let focus = target.at(7.0 / target.dir.dot(DVec3::NEG_Z));
+        for (a, b) in [(0.0, 0.0), (0.99, 0.2), (0.5, 0.5), (0.1, 0.9)] {
+            let ray = c.lens_ray(30, 10, 0.5, 0.5, a, b);
+            let t = (focus.z - ray.origin.z) / ray.dir.z;
+            assert!((ray.at(t) - focus).length() < 1e-9);
+            assert!(ray.origin.z == 0.0 && ray.origin.x.abs() <= 1.0 && ray.origin.y.abs() <= 1.0);
         }
     }
 

@@ -13,6 +13,8 @@ pub struct Material {
     pub specular: DVec3,
     pub mirror: DVec3,
     pub phong_exponent: f64,
+    /// `phong_exponent` when it is a whole number in [0, 4096] (evaluated with `powi`).
+    pub phong_exponent_int: Option<i32>,
     pub refraction_index: f64,
     pub absorption_index: f64,
     pub absorption: DVec3,

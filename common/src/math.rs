@@ -12,12 +12,22 @@ use glam::{DAffine3, DMat3, DVec3};
 pub struct Ray {
     pub origin: DVec3,
     pub dir: DVec3,
+    /// Time within the exposure, in [0, 1): where moving objects are (motion blur). Every ray
+    /// spawned from a camera sample carries that sample's time.
+    pub time: f64,
 }
 
 impl Ray {
+    /// A ray at time 0.
     #[inline]
     pub fn new(origin: DVec3, dir: DVec3) -> Self {
-        Ray { origin, dir }
+        Ray { origin, dir, time: 0.0 }
+    }
+
+    /// A secondary ray (shadow, reflection, refraction) at the same time as `self`.
+    #[inline]
+    pub fn spawn(&self, origin: DVec3, dir: DVec3) -> Self {
+        Ray { origin, dir, time: self.time }
     }
 
     #[inline]
@@ -52,6 +62,7 @@ impl Transform {
         Ray {
             origin: self.to_object.transform_point3(ray.origin),
             dir: self.to_object.transform_vector3(ray.dir),
+            time: ray.time,
         }
     }
 

@@ -27,11 +27,13 @@ pub struct TileRect {
 pub struct RenderSettings {
     /// Base seed; the frame seed of each camera derives from it.
     pub seed: u64,
+    /// Samples per pixel instead of each camera's `NumSamples` (quick previews, CI subsets).
+    pub samples: Option<u32>,
 }
 
 impl Default for RenderSettings {
     fn default() -> Self {
-        RenderSettings { seed: 0x7e55_e7a0 }
+        RenderSettings { seed: 0x7e55_e7a0, samples: None }
     }
 }
 
@@ -68,9 +70,10 @@ pub fn render_tile(
         "tile outside the frame"
     );
     let seed = frame_seed(settings.seed, camera);
-    let n = cam.num_samples.max(1);
+    let n = settings.samples.unwrap_or(cam.num_samples).max(1);
     let strata = (n as f64).sqrt() as u32;
     let stratified = strata * strata == n;
+    let moving = scene.accel.instances.iter().any(|i| i.motion.is_some());
     let mut tracer = Tracer::new(scene);
     let mut out = Vec::with_capacity((rect.width * rect.height) as usize);
     for y in rect.y0..rect.y0 + rect.height {
@@ -88,7 +91,16 @@ pub fn render_tile(
                 } else {
                     (rng.next_f64(), rng.next_f64())
                 };
-                let ray = cam.ray(x, y, dx, dy);
+                // Random dimensions in a fixed order: pixel jitter, lens, time, then shading.
+                let mut ray = if cam.lens.is_some() {
+                    let (l1, l2) = (rng.next_f64(), rng.next_f64());
+                    cam.lens_ray(x, y, dx, dy, l1, l2)
+                } else {
+                    cam.ray(x, y, dx, dy)
+                };
+                if moving {
+                    ray.time = rng.next_f64();
+                }
                 sum += tracer.trace_primary(&ray, &mut rng);
             }
             let c = sum / n as f64;

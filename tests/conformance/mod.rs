@@ -20,6 +20,8 @@ pub struct Row {
     pub min_psnr_box4: f64,
     pub max_off3_pct: f64,
     pub ci: bool,
+    /// Samples per pixel override (`None`: the camera's NumSamples).
+    pub spp: Option<u32>,
     pub note: String,
 }
 
@@ -68,7 +70,13 @@ pub fn parse_table(text: &str) -> Result<Vec<Row>> {
             min_psnr_box4: num(f[2], "psnr_box4")?,
             max_off3_pct: num(f[3], "off3_pct")?,
             ci: f[4].trim() == "ci",
-            note: f.get(5).map(|s| s.trim().to_string()).unwrap_or_default(),
+            spp: match f.get(5).map(|s| s.trim()) {
+                None | Some("-") | Some("") => None,
+                Some(n) => Some(n.parse::<u32>().ok().filter(|&n| n > 0).with_context(|| {
+                    format!("thresholds.tsv line {}: spp \"{n}\" is not a positive integer or -", i + 1)
+                })?),
+            },
+            note: f.get(6).map(|s| s.trim().to_string()).unwrap_or_default(),
         });
     }
     Ok(rows)
@@ -107,10 +115,12 @@ fn render_one(row: &Row, out_dir: &Path) -> Result<Comparison> {
         .iter()
         .position(|c| c.image_name == row.image)
         .with_context(|| format!("{} has no camera with ImageName {}", row.scene, row.image))?;
-    let (img, _) = render_camera(&scene, cam, 32, &RenderSettings::default(), &|_, _| {});
+    let settings = RenderSettings { samples: row.spp, ..RenderSettings::default() };
+    let (img, _) = render_camera(&scene, cam, 32, &settings, &|_, _| {});
     let ours = Rgb8::from_image(&img);
-    let out =
-        out_dir.join(format!("{}__{}", row.scene, Path::new(&row.image).with_extension("png").display()));
+    let spp = row.spp.map_or(String::new(), |n| format!("__{n}spp"));
+    let stem = Path::new(&row.image).with_extension("");
+    let out = out_dir.join(format!("{}__{}{spp}.png", row.scene, stem.display()));
     if std::fs::create_dir_all(out_dir).is_ok() {
         let _ = img.write_png(&out);
     }
@@ -178,17 +188,18 @@ pub fn report_markdown(results: &[RowResult]) -> String {
     let mut s = String::from("# Tessera conformance report\n\n");
     let passed = results.iter().filter(|r| r.passed()).count();
     s += &format!("{passed} of {} images meet their thresholds.\n\n", results.len());
-    s += "| scene | image | PSNR dB | PSNR 4x4 dB (min) | off >3 % (max) | time s | result | note |\n";
-    s += "|---|---|---:|---:|---:|---:|---|---|\n";
+    s += "| scene | image | spp | PSNR dB | PSNR 4x4 dB (min) | off >3 % (max) | time s | result | note |\n";
+    s += "|---|---|---:|---:|---:|---:|---:|---|---|\n";
     for r in results {
         let (psnr, box4, off) = match &r.outcome {
             Ok(c) => (fmt_db(c.psnr), fmt_db(c.psnr_box4), format!("{:.3}", c.off_by_more_than_3 * 100.0)),
             Err(e) => ("-".into(), "-".into(), format!("error: {}", e.replace('|', "/"))),
         };
         s += &format!(
-            "| {} | {} | {} | {} ({}) | {} ({}) | {:.2} | {} | {} |\n",
+            "| {} | {} | {} | {} | {} ({}) | {} ({}) | {:.2} | {} | {} |\n",
             r.row.scene,
             r.row.image,
+            r.row.spp.map_or("scene".to_string(), |n| n.to_string()),
             psnr,
             box4,
             r.row.min_psnr_box4,
@@ -208,11 +219,13 @@ mod tests {
 
     #[test]
     fn table_parses_and_rejects_bad_numbers() {
-        let t = "# c\nsimple\tsimple.png\t35\t0.5\tci\n\nbunny\tbunny.png\t30\t2\t-\tnoisy\n";
+        let t = "# c\nsimple\tsimple.png\t35\t0.5\tci\n\nbunny\tbunny.png\t30\t2\t-\t16\tnoisy\n";
         let rows = parse_table(t).unwrap();
         assert_eq!(rows.len(), 2);
         assert!(rows[0].ci && !rows[1].ci);
+        assert_eq!((rows[0].spp, rows[1].spp), (None, Some(16)));
         assert_eq!(rows[1].note, "noisy");
+        assert!(parse_table("x\ty\t1\t1\tci\t0\n").is_err());
         let err = parse_table("x\ty\tabc\t1\tci\n").unwrap_err().to_string();
         assert!(err.contains("line 1") && err.contains("abc"), "{err}");
     }

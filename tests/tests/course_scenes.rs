@@ -40,11 +40,20 @@ const LOADABLE: &[&str] = &[
     "horse_and_mug",
     "simple_shading",
     "cornellbox_glass",
+    // Homework 3: distribution ray tracing.
+    "cornellbox_area",
+    "cornellbox_boxes_dynamic",
+    "cornellbox_brushed_metal",
+    "cornellbox_dynamic",
+    "metal_glass_plates",
+    "spheres_dof",
 ];
 
 /// Scenes that name an asset the corpus lacks: (scene, the missing file relative to xml/).
 const MISSING_ASSET: &[(&str, &str)] = &[
     ("trex_smooth", "trex_smooth_ply/mesh_3.ply"),
+    ("dragon_dynamic", "ply/dragon_remeshed_fixed.ply"),
+    ("focusing_dragons", "ply/chinese_dragon.ply"),
     ("other_dragon", "ply/dragon_remeshed_fixed.ply"),
     ("dragon_metal", "ply/dragon_remeshed_fixed.ply"),
     ("marching_dragons", "ply/chinese_dragon.ply"),

@@ -9,7 +9,9 @@ use tessera::image::Image;
 use tessera::render::{RenderSettings, TileRect, render_camera, render_tile};
 use tessera::scene::{Scene, load_scene_file, load_scene_str};
 
-const SCENES: [&str; 2] = ["cornell_box.xml", "tori.xml"];
+/// distribution.xml has every homework-3 effect: jittered multisampling, an area light, glossy
+/// reflection, a thin lens and motion blur (checked by `the_distribution_scene_exercises_every_effect`).
+const SCENES: [&str; 3] = ["cornell_box.xml", "tori.xml", "distribution.xml"];
 
 fn scenes_dir() -> PathBuf {
     tessera_tests::repo_root().join("scenes")
@@ -82,10 +84,11 @@ fn a_single_tile_equals_its_region_of_the_full_frame() {
         for rect in rects {
             let (px, stats) = render_tile(&scene, 0, rect, &RenderSettings::default());
             assert_eq!(px.len(), (rect.width * rect.height) as usize, "{name} {rect:?}: pixel count");
+            let spp = scene.cameras[0].num_samples as u64;
             assert_eq!(
                 stats.primary,
-                (rect.width * rect.height) as u64,
-                "{name} {rect:?}: one primary ray per pixel at 1 spp"
+                (rect.width * rect.height) as u64 * spp,
+                "{name} {rect:?}: NumSamples primary rays per pixel"
             );
             for ty in 0..rect.height {
                 for tx in 0..rect.width {
@@ -156,4 +159,23 @@ fn multisampled_render_is_deterministic() {
         .filter(|(p, q)| p.map(f32::to_bits) != q.map(f32::to_bits))
         .count();
     assert!(differing > 0, "NumSamples 4 renders exactly like 1 spp");
+}
+
+#[test]
+fn the_distribution_scene_exercises_every_effect() {
+    let scene = load(&scenes_dir().join("distribution.xml"));
+    let cam = &scene.cameras[0];
+    assert!(cam.num_samples > 1, "multisampling");
+    assert!(cam.lens.is_some(), "depth of field");
+    assert!(!scene.area_lights.is_empty(), "area light");
+    assert!(scene.materials.iter().any(|m| m.roughness > 0.0), "glossy reflection");
+    assert!(scene.accel.instances.iter().filter(|i| i.motion.is_some()).count() >= 2, "motion blur");
+    // And the effects change the picture: without them (one centred sample, pinhole, time 0,
+    // no area light) the render differs.
+    let full = render_in(2, &scene, 0, 32);
+    let one = {
+        let settings = RenderSettings { samples: Some(1), ..RenderSettings::default() };
+        pool(1).install(|| render_camera(&scene, 0, 32, &settings, &|_, _| {}).0)
+    };
+    assert_ne!(full.pixels, one.pixels);
 }

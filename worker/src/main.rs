@@ -52,6 +52,10 @@ enum Command {
         /// Tile edge in pixels (the unit of parallel work; does not change the image).
         #[arg(long, default_value_t = 32, value_name = "PX")]
         tile_size: u32,
+        /// Samples per pixel for every camera instead of its <NumSamples> (e.g. 4 for a quick,
+        /// noisy preview of a 900-sample scene).
+        #[arg(long, value_name = "N")]
+        samples: Option<u32>,
         /// Do not draw a progress bar.
         #[arg(long, short)]
         quiet: bool,
@@ -61,8 +65,8 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Render { scene, out, threads, camera, tile_size, quiet } => {
-            render(&scene, &out, threads, camera, tile_size, quiet)
+        Command::Render { scene, out, threads, camera, tile_size, samples, quiet } => {
+            render(&scene, &out, &Options { threads, camera, tile_size, samples, quiet })
         }
     };
     match result {
@@ -95,14 +99,20 @@ fn output_path(out: &Path, image_name: &str) -> (PathBuf, Option<String>) {
     }
 }
 
-fn render(
-    scene_path: &Path,
-    out: &Path,
+/// What `render` was asked to do besides which scene and where.
+struct Options {
     threads: Option<usize>,
     camera: Option<usize>,
     tile_size: u32,
+    samples: Option<u32>,
     quiet: bool,
-) -> Result<()> {
+}
+
+fn render(scene_path: &Path, out: &Path, opts: &Options) -> Result<()> {
+    let &Options { threads, camera, tile_size, samples, quiet } = opts;
+    if samples == Some(0) {
+        bail!("--samples must be at least 1");
+    }
     if tile_size == 0 {
         bail!("--tile-size must be at least 1");
     }
@@ -144,7 +154,7 @@ fn render(
         };
         std::fs::create_dir_all(out)
             .with_context(|| format!("cannot create the output directory {}", out.display()))?;
-        let settings = RenderSettings::default();
+        let settings = RenderSettings { samples, ..RenderSettings::default() };
         for ci in selected {
             let cam = &scene.cameras[ci];
             let (path, note) = output_path(out, &cam.image_name);
@@ -173,7 +183,7 @@ fn render(
                 path.display(),
                 cam.width,
                 cam.height,
-                cam.num_samples,
+                samples.unwrap_or(cam.num_samples),
                 secs,
                 stats.total() as f64 / secs / 1e6,
                 stats.primary,

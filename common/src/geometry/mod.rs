@@ -33,6 +33,34 @@ pub struct Instance {
     pub material: u32,
     /// `None` means object space is world space (saves two matrix products per ray).
     pub transform: Option<Transform>,
+    /// Motion blur: the object is translated by `time * motion` in world space after its
+    /// transform (scene-format.md §10.5).
+    pub motion: Option<DVec3>,
+}
+
+impl Instance {
+    /// Object space is world space at every time (no transform, no motion).
+    #[inline]
+    fn is_world_space(&self) -> bool {
+        self.transform.is_none() && self.motion.is_none()
+    }
+
+    /// The ray in this instance's object space at the ray's time.
+    #[inline]
+    fn local_ray(&self, ray: &Ray) -> Ray {
+        let moved;
+        let r = match self.motion {
+            Some(v) => {
+                moved = Ray { origin: ray.origin - ray.time * v, ..*ray };
+                &moved
+            }
+            None => ray,
+        };
+        match &self.transform {
+            Some(xf) => xf.ray_to_object(r),
+            None => *r,
+        }
+    }
 }
 
 /// A surface point found by a ray, everything in world space.
@@ -106,17 +134,29 @@ fn instance_bounds(inst: &Instance, meshes: &[Arc<MeshGeom>]) -> Aabb {
             Aabb::new((*center - r).as_vec3a(), (*center + r).as_vec3a())
         }
     };
-    let Some(xf) = &inst.transform else { return pad(local) };
-    let mut out = Aabb::empty();
-    for i in 0..8 {
-        let c = DVec3::new(
-            if i & 1 == 0 { local.min.x } else { local.max.x } as f64,
-            if i & 2 == 0 { local.min.y } else { local.max.y } as f64,
-            if i & 4 == 0 { local.min.z } else { local.max.z } as f64,
-        );
-        out.extend(xf.to_world.transform_point3(c).as_vec3a());
+    let world = match &inst.transform {
+        None => local,
+        Some(xf) => {
+            let mut out = Aabb::empty();
+            for i in 0..8 {
+                let c = DVec3::new(
+                    if i & 1 == 0 { local.min.x } else { local.max.x } as f64,
+                    if i & 2 == 0 { local.min.y } else { local.max.y } as f64,
+                    if i & 4 == 0 { local.min.z } else { local.max.z } as f64,
+                );
+                out.extend(xf.to_world.transform_point3(c).as_vec3a());
+            }
+            out
+        }
+    };
+    // A moving object's box covers the whole exposure: its boxes at time 0 and 1.
+    match inst.motion {
+        Some(v) => {
+            let v = v.as_vec3a();
+            pad(world.union(&Aabb::new(world.min + v, world.max + v)))
+        }
+        None => pad(world),
     }
-    pad(out)
 }
 
 /// Grows a box by a relative epsilon so `f32` rounding never culls a surface lying on it.
@@ -158,10 +198,7 @@ impl Accel {
         self.tlas.ray_traverse(to_f32_ray(ray, tmin, tmax), &mut hit, |fr, id| {
             let idx = self.tlas_order[id];
             let inst = &self.instances[idx as usize];
-            let local = match &inst.transform {
-                Some(xf) => xf.ray_to_object(ray),
-                None => *ray,
-            };
+            let local = inst.local_ray(ray);
             match &inst.shape {
                 Shape::Sphere { center, radius } => match sphere_t(*center, *radius, &local, tmin, best.t) {
                     Some(t) => {
@@ -172,7 +209,9 @@ impl Accel {
                 },
                 Shape::Mesh { mesh, .. } => {
                     let m = &self.meshes[*mesh as usize];
-                    let lr = to_f32_ray(&local, tmin, fr.tmax as f64);
+                    // A static untransformed mesh sees the top-level ray itself (no new inverse).
+                    let lr =
+                        if inst.is_world_space() { *fr } else { to_f32_ray(&local, tmin, fr.tmax as f64) };
                     match m.intersect_f32(lr) {
                         Some((t, tri)) => {
                             best = Candidate { t: t as f64, instance: idx, tri };
@@ -196,14 +235,13 @@ impl Accel {
         }
         !self.tlas.ray_traverse_miss(to_f32_ray(ray, tmin, tmax), |fr, id| {
             let inst = &self.instances[self.tlas_order[id] as usize];
-            let local = match &inst.transform {
-                Some(xf) => xf.ray_to_object(ray),
-                None => *ray,
-            };
+            let local = inst.local_ray(ray);
             let blocked = match &inst.shape {
                 Shape::Sphere { center, radius } => sphere_t(*center, *radius, &local, tmin, tmax).is_some(),
                 Shape::Mesh { mesh, .. } => {
-                    self.meshes[*mesh as usize].occluded_f32(to_f32_ray(&local, tmin, fr.tmax as f64))
+                    let lr =
+                        if inst.is_world_space() { *fr } else { to_f32_ray(&local, tmin, fr.tmax as f64) };
+                    self.meshes[*mesh as usize].occluded_f32(lr)
                 }
             };
             if blocked { fr.tmin } else { f32::INFINITY }
@@ -213,10 +251,7 @@ impl Accel {
     /// Completes a candidate into world-space hit data, re-intersecting triangles in `f64`.
     fn surface(&self, ray: &Ray, c: Candidate) -> SurfaceHit {
         let inst = &self.instances[c.instance as usize];
-        let local = match &inst.transform {
-            Some(xf) => xf.ray_to_object(ray),
-            None => *ray,
-        };
+        let local = inst.local_ray(ray);
         let (t, n_geo, n_shade) = match &inst.shape {
             Shape::Sphere { center, radius } => {
                 let p = local.at(c.t);
@@ -280,11 +315,13 @@ mod tests {
                     shape: Shape::Mesh { mesh: 0, smooth: false },
                     material: 0,
                     transform: Some(moved),
+                    motion: None,
                 },
                 Instance {
                     shape: Shape::Sphere { center: DVec3::new(5.0, 0.0, 0.0), radius: 1.0 },
                     material: 1,
                     transform: Some(scaled),
+                    motion: None,
                 },
             ],
         );
@@ -299,6 +336,45 @@ mod tests {
         assert!((h.geo_normal - DVec3::Z).length() < 1e-9);
         assert!(accel.occluded(&r, 1e-6, 9.0));
         assert!(!accel.occluded(&r, 1e-6, 7.0));
+    }
+
+    #[test]
+    fn moving_objects_are_where_the_ray_time_puts_them() {
+        let accel = Accel::new(
+            vec![unit_quad()],
+            vec![
+                Instance {
+                    shape: Shape::Sphere { center: DVec3::ZERO, radius: 1.0 },
+                    material: 0,
+                    transform: None,
+                    motion: Some(DVec3::new(10.0, 0.0, 0.0)),
+                },
+                Instance {
+                    shape: Shape::Mesh { mesh: 0, smooth: false },
+                    material: 1,
+                    transform: Some(
+                        Transform::new(DAffine3::from_translation(DVec3::new(0.0, 0.0, -5.0))).unwrap(),
+                    ),
+                    motion: Some(DVec3::new(0.0, 0.0, 4.0)),
+                },
+            ],
+        );
+        let at = |x: f64, time: f64| {
+            let r = Ray { origin: DVec3::new(x, 0.5, 10.0), dir: DVec3::NEG_Z, time };
+            accel.intersect(&r, 1e-6, f64::INFINITY).map(|h| (h.material, h.t))
+        };
+        // The sphere moves from x = 0 to x = 10; the quad from z = -5 to z = -1.
+        assert_eq!(at(0.0, 0.0).map(|h| h.0), Some(0));
+        assert_eq!(at(5.0, 0.5).map(|h| h.0), Some(0));
+        assert_eq!(at(10.0, 0.0), None);
+        assert_eq!(at(10.0, 0.99).map(|h| h.0), Some(0));
+        let (m, t) = at(-0.5 + 20.0 * 0.0, 0.75).map(|(m, t)| (m, t)).unwrap_or((9, 0.0));
+        // At time 0.75 the sphere is at x = 7.5: the ray at x = -0.5 reaches the quad at z = -2.
+        assert_eq!(m, 1);
+        assert!((t - 12.0).abs() < 1e-9, "{t}");
+        let shadow = Ray { origin: DVec3::new(7.5, 0.0, 10.0), dir: DVec3::NEG_Z, time: 0.75 };
+        assert!(accel.occluded(&shadow, 1e-6, 20.0));
+        assert!(!accel.occluded(&Ray { time: 0.0, ..shadow }, 1e-6, 11.5));
     }
 
     #[test]

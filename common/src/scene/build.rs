@@ -11,7 +11,7 @@ use glam::{DAffine3, DMat3, DMat4, DVec3};
 use rayon::prelude::*;
 
 use super::records::*;
-use super::{PointLight, Scene, SceneStats};
+use super::{AreaLight, PointLight, Scene, SceneStats};
 use crate::assets::AssetResolver;
 use crate::camera::Camera;
 use crate::error::{Loc, SceneError, Warning};
@@ -300,6 +300,9 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
             specular: lin(m.specular),
             mirror: lin(m.mirror),
             phong_exponent: m.phong_exponent,
+            phong_exponent_int: (m.phong_exponent.fract() == 0.0
+                && (0.0..=4096.0).contains(&m.phong_exponent))
+            .then_some(m.phong_exponent as i32),
             refraction_index: m.refraction_index,
             absorption_index: m.absorption_index,
             absorption: v3(m.absorption_coefficient),
@@ -417,6 +420,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
             shape: Shape::Mesh { mesh: i as u32, smooth: m.shading == ShadingMode::Smooth },
             material,
             transform: ctx.make_transform(mesh_world[i], &m.loc)?,
+            motion: m.motion_blur.map(v3).filter(|v| *v != DVec3::ZERO),
         });
     }
     for (r, inst) in resolved.iter().zip(&rec.instances) {
@@ -424,6 +428,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
             shape: Shape::Mesh { mesh: r.mesh as u32, smooth: r.smooth },
             material: r.material,
             transform: ctx.make_transform(r.world, &inst.loc)?,
+            motion: inst.motion_blur.map(v3).filter(|v| *v != DVec3::ZERO),
         });
     }
     for t in &rec.triangles {
@@ -448,6 +453,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
             shape: Shape::Mesh { mesh: (meshes.len() - 1) as u32, smooth: false },
             material,
             transform: ctx.make_transform(world, &t.loc)?,
+            motion: None,
         });
     }
     for s in &rec.spheres {
@@ -461,6 +467,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
             shape: Shape::Sphere { center: v3(rec.vertices[c as usize]), radius: s.radius },
             material,
             transform: ctx.make_transform(world, &s.loc)?,
+            motion: s.motion_blur.map(v3).filter(|v| *v != DVec3::ZERO),
         });
     }
 
@@ -477,6 +484,11 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         intersection_test_epsilon: rec.intersection_test_epsilon,
         max_recursion_depth: rec.max_recursion_depth,
         ambient_light: v3(rec.ambient_light),
+        area_lights: rec
+            .area_lights
+            .iter()
+            .map(|l| AreaLight::new(v3(l.position), v3(l.normal), l.size, v3(l.radiance)))
+            .collect(),
         point_lights: rec
             .point_lights
             .iter()

@@ -26,6 +26,7 @@ pub struct SceneRecords {
     pub cameras: Vec<CameraRec>,
     pub ambient_light: Vec3,
     pub point_lights: Vec<PointLightRec>,
+    pub area_lights: Vec<AreaLightRec>,
     pub materials: Vec<MaterialRec>,
     /// Global vertex list; vertex id `k` (1-based) is `vertices[k - 1]`.
     pub vertices: Vec<Vec3>,
@@ -50,6 +51,7 @@ impl SceneRecords {
             cameras: Vec::new(),
             ambient_light: [0.0; 3],
             point_lights: Vec::new(),
+            area_lights: Vec::new(),
             materials: Vec::new(),
             vertices: Vec::new(),
             transformations: Vec::new(),
@@ -93,6 +95,15 @@ pub struct CameraRec {
     pub handedness: Handedness,
     /// `NumSamples`, default 1.
     pub num_samples: u32,
+    /// Thin-lens depth of field: `FocusDistance` and `ApertureSize` (side of the square lens).
+    /// Both present and the aperture positive, or the camera is a pinhole.
+    pub lens: Option<LensRec>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LensRec {
+    pub focus_distance: f64,
+    pub aperture_size: f64,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -101,6 +112,17 @@ pub struct PointLightRec {
     pub loc: Loc,
     pub position: Vec3,
     pub intensity: Vec3,
+}
+
+/// A square emitter of side `size` centred at `position`, perpendicular to `normal` (HW3).
+#[derive(Clone, Debug, PartialEq)]
+pub struct AreaLightRec {
+    pub id: String,
+    pub loc: Loc,
+    pub position: Vec3,
+    pub normal: Vec3,
+    pub size: f64,
+    pub radiance: Vec3,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -217,6 +239,8 @@ pub struct MeshRec {
     pub shading: ShadingMode,
     /// Applied left to right: the first reference is applied first.
     pub transforms: Vec<TransformRef>,
+    /// `MotionBlur`: world-space translation over the exposure (time 0 to 1).
+    pub motion_blur: Option<Vec3>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -238,6 +262,8 @@ pub struct SphereRec {
     pub center: i64,
     pub radius: f64,
     pub transforms: Vec<TransformRef>,
+    /// `MotionBlur` (2019 dialect on spheres).
+    pub motion_blur: Option<Vec3>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -252,4 +278,6 @@ pub struct InstanceRec {
     pub transforms: Vec<TransformRef>,
     /// `shadingMode` on the instance (repeats the base mesh's in the course files).
     pub shading: Option<ShadingMode>,
+    /// The instance's own `MotionBlur`; it does not inherit its base's (§9.4).
+    pub motion_blur: Option<Vec3>,
 }

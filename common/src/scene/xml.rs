@@ -22,9 +22,9 @@ use quick_xml::events::{BytesStart, Event};
 use quick_xml::{Reader, XmlVersion};
 
 use super::records::{
-    CameraRec, FacesRec, Handedness, InstanceRec, MaterialKind, MaterialRec, MeshRec, PointLightRec,
-    Projection, SceneRecords, ShadingMode, SphereRec, TransformOp, TransformRec, TransformRef, TriangleRec,
-    Vec3,
+    AreaLightRec, CameraRec, FacesRec, Handedness, InstanceRec, LensRec, MaterialKind, MaterialRec, MeshRec,
+    PointLightRec, Projection, SceneRecords, ShadingMode, SphereRec, TransformOp, TransformRec, TransformRef,
+    TriangleRec, Vec3,
 };
 use crate::error::{Loc, SceneError, Warning};
 
@@ -466,26 +466,22 @@ const CAMERA: Schema = Schema {
         "ImageResolution",
         "ImageName",
         "NumSamples",
-    ],
-    unsupported: &[
         "FocusDistance",
         "ApertureSize",
-        "Tonemap",
-        "Renderer",
-        "RendererParams",
-        "Transformations",
-        "ClampSamples",
     ],
+    unsupported: &["Tonemap", "Renderer", "RendererParams", "Transformations", "ClampSamples"],
     attrs: &["id", "type", "handedness"],
     ..Schema::EMPTY
 };
 const LIGHTS: Schema = Schema {
     single: &["AmbientLight"],
-    many: &["PointLight"],
-    unsupported: &["AreaLight", "DirectionalLight", "SpotLight", "SphericalDirectionalLight"],
+    many: &["PointLight", "AreaLight"],
+    unsupported: &["DirectionalLight", "SpotLight", "SphericalDirectionalLight"],
     ..Schema::EMPTY
 };
 const POINT_LIGHT: Schema = Schema { single: &["Position", "Intensity"], attrs: &["id"], ..Schema::EMPTY };
+const AREA_LIGHT: Schema =
+    Schema { single: &["Position", "Normal", "Size", "Radiance"], attrs: &["id"], ..Schema::EMPTY };
 const MATERIALS: Schema = Schema { many: &["Material"], ..Schema::EMPTY };
 const MATERIAL: Schema = Schema {
     single: &[
@@ -515,8 +511,8 @@ const OBJECTS: Schema = Schema {
 };
 // `Texture` is the 2019 spelling of an object's `Textures`.
 const MESH: Schema = Schema {
-    single: &["Material", "Faces", "Transformations"],
-    unsupported: &["Textures", "Texture", "MotionBlur"],
+    single: &["Material", "Faces", "Transformations", "MotionBlur"],
+    unsupported: &["Textures", "Texture"],
     attrs: &["id", "shadingMode"],
     ..Schema::EMPTY
 };
@@ -527,14 +523,14 @@ const TRIANGLE: Schema = Schema {
     ..Schema::EMPTY
 };
 const SPHERE: Schema = Schema {
-    single: &["Material", "Center", "Radius", "Transformations"],
-    unsupported: &["Textures", "Texture", "MotionBlur"],
+    single: &["Material", "Center", "Radius", "Transformations", "MotionBlur"],
+    unsupported: &["Textures", "Texture"],
     attrs: &["id"],
     ..Schema::EMPTY
 };
 const MESH_INSTANCE: Schema = Schema {
-    single: &["Material", "Transformations"],
-    unsupported: &["Textures", "Texture", "MotionBlur"],
+    single: &["Material", "Transformations", "MotionBlur"],
+    unsupported: &["Textures", "Texture"],
     attrs: &["id", "baseMeshId", "resetTransform", "shadingMode"],
     ..Schema::EMPTY
 };
@@ -847,6 +843,24 @@ impl Parser<'_> {
                 k => k,
             },
         };
+        let focus: Option<f64> = self.optional_number(n, "FocusDistance")?;
+        let aperture: Option<f64> = self.optional_number(n, "ApertureSize")?;
+        let lens = match (focus, aperture) {
+            (Some(focus_distance), Some(aperture_size)) if aperture_size > 0.0 => {
+                if !(focus_distance > 0.0) {
+                    let node = n.child("FocusDistance").unwrap_or(n);
+                    return Err(
+                        self.err(node, format!("FocusDistance must be positive, found {focus_distance}"))
+                    );
+                }
+                Some(LensRec { focus_distance, aperture_size })
+            }
+            (Some(_), None) | (None, Some(_)) => {
+                self.warn(n, "depth of field needs both <FocusDistance> and <ApertureSize>; rendering as a pinhole camera");
+                None
+            }
+            _ => None,
+        };
         Ok(CameraRec {
             id: self.id(n, false)?,
             loc: n.loc(),
@@ -860,6 +874,7 @@ impl Parser<'_> {
             image_name,
             handedness,
             num_samples,
+            lens,
         })
     }
 
@@ -877,6 +892,24 @@ impl Parser<'_> {
                 intensity: self.required_numbers(n, "Intensity")?,
             };
             self.out.point_lights.push(light);
+        }
+        for n in lights.children_named("AreaLight") {
+            self.check(n, &AREA_LIGHT);
+            let light = AreaLightRec {
+                id: self.id(n, false)?,
+                loc: n.loc(),
+                position: self.required_numbers(n, "Position")?,
+                normal: self.required_numbers(n, "Normal")?,
+                size: self.required_number(n, "Size")?,
+                radiance: self.required_numbers(n, "Radiance")?,
+            };
+            if light.normal == [0.0; 3] {
+                return Err(self.err(n, "<Normal> is the zero vector; give the direction the light faces"));
+            }
+            if !(light.size > 0.0) {
+                return Err(self.err(n, format!("<Size> must be positive, found {}", light.size)));
+            }
+            self.out.area_lights.push(light);
         }
         Ok(())
     }
@@ -1059,6 +1092,7 @@ impl Parser<'_> {
             faces_loc: faces.loc(),
             shading: self.shading_attr(n)?.unwrap_or(ShadingMode::Flat),
             transforms: self.transform_refs(n)?,
+            motion_blur: self.optional_numbers(n, "MotionBlur")?,
         }))
     }
 
@@ -1082,6 +1116,7 @@ impl Parser<'_> {
             center: self.required_number(n, "Center")?,
             radius: self.required_number(n, "Radius")?,
             transforms: self.transform_refs(n)?,
+            motion_blur: self.optional_numbers(n, "MotionBlur")?,
         })
     }
 
@@ -1101,6 +1136,7 @@ impl Parser<'_> {
             material: n.child("Material").map(|m| self.id_ref(m, "a material id")).transpose()?,
             transforms: self.transform_refs(n)?,
             shading: self.shading_attr(n)?,
+            motion_blur: self.optional_numbers(n, "MotionBlur")?,
         })
     }
 }
@@ -1247,6 +1283,7 @@ mod tests {
             image_name: "simple.png".into(),
             handedness: Handedness::Right,
             num_samples: 1,
+            lens: None,
         });
         expected.ambient_light = [25.0; 3];
         expected.point_lights.push(PointLightRec {
@@ -1270,6 +1307,7 @@ mod tests {
             faces_loc: at("<Faces", r#"Mesh id="1"> / <Faces"#),
             shading: ShadingMode::Flat,
             transforms: vec![],
+            motion_blur: None,
         });
         expected.triangles.push(TriangleRec {
             id: "1".into(),
@@ -1285,8 +1323,45 @@ mod tests {
             center: 1,
             radius: 3.73896e-4,
             transforms: vec![],
+            motion_blur: None,
         });
         assert_eq!(parse(SIMPLE), expected);
+    }
+
+    #[test]
+    fn distribution_elements() {
+        let rec = parse(
+            r#"<Scene>
+<Cameras><Camera id="1"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+  <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>4 4</ImageResolution>
+  <ImageName>a.png</ImageName><NumSamples>9</NumSamples><FocusDistance>21</FocusDistance><ApertureSize>1.5</ApertureSize>
+</Camera></Cameras>
+<Lights><AreaLight id="1"><Position>0 9 0</Position><Normal>0 -2 0</Normal><Size>3</Size><Radiance>5 6 7</Radiance></AreaLight></Lights>
+<VertexData>0 0 0</VertexData>
+<Objects>
+  <Mesh id="1"><Material>1</Material><Faces>1 1 1</Faces><MotionBlur>0 0 4</MotionBlur></Mesh>
+  <MeshInstance id="2" baseMeshId="1"><MotionBlur>1 2 3</MotionBlur></MeshInstance>
+  <Sphere id="1"><Material>1</Material><Center>1</Center><Radius>1</Radius><MotionBlur>3 0 0</MotionBlur></Sphere>
+</Objects></Scene>"#,
+        );
+        assert!(rec.warnings.is_empty(), "{:?}", rec.warnings);
+        let cam = &rec.cameras[0];
+        assert_eq!(cam.num_samples, 9);
+        assert_eq!(cam.lens, Some(LensRec { focus_distance: 21.0, aperture_size: 1.5 }));
+        let l = &rec.area_lights[0];
+        assert_eq!(
+            (l.position, l.normal, l.size, l.radiance),
+            ([0.0, 9.0, 0.0], [0.0, -2.0, 0.0], 3.0, [5.0, 6.0, 7.0])
+        );
+        assert_eq!(rec.meshes[0].motion_blur, Some([0.0, 0.0, 4.0]));
+        assert_eq!(rec.instances[0].motion_blur, Some([1.0, 2.0, 3.0]));
+        assert_eq!(rec.spheres[0].motion_blur, Some([3.0, 0.0, 0.0]));
+        // Aperture 0 is a pinhole; a zero area-light normal or size is an error.
+        let pinhole = parse(&SIMPLE.replace(
+            "<ImageName>",
+            "<FocusDistance>5</FocusDistance><ApertureSize>0</ApertureSize><ImageName>",
+        ));
+        assert_eq!(pinhole.cameras[0].lens, None);
     }
 
     #[test]
@@ -1719,10 +1794,10 @@ mod tests {
             ),
             (
                 &scene(
-                    "<Lights>\n<AreaLight id=\"1\"><Size>3</Size></AreaLight>\n<SphericalDirectionalLight id=\"1\"/>\n</Lights>",
+                    "<Lights>\n<SpotLight id=\"1\"><Position>0 0 0</Position></SpotLight>\n<SphericalDirectionalLight id=\"1\"/>\n</Lights>",
                 ),
                 &[
-                    &w(3, r#"AreaLight id="1""#, "<AreaLight> is not supported yet; it is ignored"),
+                    &w(3, r#"SpotLight id="1""#, "<SpotLight> is not supported yet; it is ignored"),
                     &w(
                         4,
                         r#"SphericalDirectionalLight id="1""#,
