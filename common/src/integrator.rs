@@ -149,7 +149,9 @@ impl<'a> Tracer<'a> {
     /// object blocks the segment from the offset `origin` to `p`.
     fn visible(&mut self, ray: &Ray, x: DVec3, n: DVec3, origin: DVec3, p: DVec3) -> Option<DVec3> {
         let wi = (p - x).normalize();
-        if !(n.dot(wi) > 0.0) {
+        let cos = n.dot(wi);
+        // NaN when the light point is the shaded point itself.
+        if cos.is_nan() || cos <= 0.0 {
             return None;
         }
         self.stats.shadow += 1;

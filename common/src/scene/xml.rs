@@ -847,7 +847,8 @@ impl Parser<'_> {
         let aperture: Option<f64> = self.optional_number(n, "ApertureSize")?;
         let lens = match (focus, aperture) {
             (Some(focus_distance), Some(aperture_size)) if aperture_size > 0.0 => {
-                if !(focus_distance > 0.0) {
+                // The parser rejects NaN, so this is the only way to be non-positive.
+                if focus_distance <= 0.0 {
                     let node = n.child("FocusDistance").unwrap_or(n);
                     return Err(
                         self.err(node, format!("FocusDistance must be positive, found {focus_distance}"))
@@ -906,7 +907,7 @@ impl Parser<'_> {
             if light.normal == [0.0; 3] {
                 return Err(self.err(n, "<Normal> is the zero vector; give the direction the light faces"));
             }
-            if !(light.size > 0.0) {
+            if light.size <= 0.0 {
                 return Err(self.err(n, format!("<Size> must be positive, found {}", light.size)));
             }
             self.out.area_lights.push(light);
