@@ -60,7 +60,12 @@ fn build(pos: &[DVec3], tris: &[[u32; 3]], threads: usize) -> (Accel, f64) {
         let mesh = Arc::new(MeshGeom::new(pos.to_vec(), tris.to_vec(), None));
         let accel = Accel::new(
             vec![mesh],
-            vec![Instance { shape: Shape::Mesh { mesh: 0, smooth: false }, material: 0, transform: None }],
+            vec![Instance {
+                shape: Shape::Mesh { mesh: 0, smooth: false },
+                material: 0,
+                transform: None,
+                motion: None,
+            }],
         );
         (accel, t.elapsed().as_secs_f64())
     })
@@ -146,17 +151,35 @@ fn throughput(accel: &Accel, pos: &[DVec3], w: u32, h: u32) -> Figures {
     Figures { primary, shadow, bounce, hit_share }
 }
 
+struct SceneTimes {
+    triangles: usize,
+    load: f64,
+    render: f64,
+    /// Camera samples (pixels x samples per pixel) over all cameras.
+    samples: u64,
+    rays: u64,
+}
+
 /// Load + build and render time of every camera of a scene file, with all threads.
-fn whole_scene(path: &std::path::Path) -> Result<(usize, f64, f64), String> {
+fn whole_scene(path: &std::path::Path) -> Result<SceneTimes, String> {
     let t = Instant::now();
     let scene = tessera::scene::load_scene_file(path).map_err(|e| e.to_string())?;
     let load = t.elapsed().as_secs_f64();
     let t = Instant::now();
-    for cam in 0..scene.cameras.len() {
+    let (mut samples, mut rays) = (0u64, 0u64);
+    for (i, cam) in scene.cameras.iter().enumerate() {
         let settings = tessera::render::RenderSettings::default();
-        std::hint::black_box(tessera::render::render_camera(&scene, cam, 32, &settings, &|_, _| {}));
+        let (_, stats) = tessera::render::render_camera(&scene, i, 32, &settings, &|_, _| {});
+        samples += cam.width as u64 * cam.height as u64 * cam.num_samples as u64;
+        rays += stats.total();
     }
-    Ok((scene.stats.triangles, load, t.elapsed().as_secs_f64()))
+    Ok(SceneTimes {
+        triangles: scene.stats.triangles,
+        load,
+        render: t.elapsed().as_secs_f64(),
+        samples,
+        rays,
+    })
 }
 
 /// A scene file around `tris`: the mesh, a floor-less view from +z, two point lights.
@@ -213,21 +236,31 @@ fn main() {
 
     println!();
     println!("whole scenes, {threads} threads (load+build includes reading PLY files and building BVHs)");
-    println!("| scene | triangles | load+build s | render s | total s |");
-    println!("|---|---:|---:|---:|---:|");
+    println!("| scene | triangles | load+build s | render s | total s | Msamples/s | Mrays/s |");
+    println!("|---|---:|---:|---:|---:|---:|---:|");
     let xml = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes/xml");
     let big = big_head_scene(&pos1m, &tris1m);
+    let mut names =
+        vec!["bunny", "scienceTree", "cornellbox", "metal_glass_plates_hw2", "ton_Roosendaal_smooth"];
+    // Homework 3 (distribution ray tracing): many samples per pixel.
+    names.extend(["cornellbox_area", "spheres_dof", "metal_glass_plates"]);
+    if !quick {
+        names.push("cornellbox_boxes_dynamic"); // 900 spp, about a minute
+    }
     let mut scenes: Vec<(String, PathBuf)> =
-        ["bunny", "scienceTree", "cornellbox", "metal_glass_plates_hw2", "ton_Roosendaal_smooth"]
-            .iter()
-            .map(|s| (s.to_string(), xml.join(format!("{s}.xml"))))
-            .collect();
+        names.iter().map(|s| (s.to_string(), xml.join(format!("{s}.xml")))).collect();
     scenes.push(("head 1.13M triangles (generated)".into(), big.clone()));
     for (name, path) in scenes {
         match whole_scene(&path) {
-            Ok((tris, load, render)) => {
-                println!("| {name} | {tris} | {load:.3} | {render:.3} | {:.3} |", load + render)
-            }
+            Ok(t) => println!(
+                "| {name} | {} | {:.3} | {:.3} | {:.3} | {:.2} | {:.2} |",
+                t.triangles,
+                t.load,
+                t.render,
+                t.load + t.render,
+                t.samples as f64 / t.render / 1e6,
+                t.rays as f64 / t.render / 1e6
+            ),
             Err(e) => println!("| {name} | error: {e} | | | |"),
         }
     }

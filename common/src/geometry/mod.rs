@@ -368,7 +368,7 @@ mod tests {
         assert_eq!(at(5.0, 0.5).map(|h| h.0), Some(0));
         assert_eq!(at(10.0, 0.0), None);
         assert_eq!(at(10.0, 0.99).map(|h| h.0), Some(0));
-        let (m, t) = at(-0.5 + 20.0 * 0.0, 0.75).map(|(m, t)| (m, t)).unwrap_or((9, 0.0));
+        let (m, t) = at(-0.5, 0.75).unwrap_or((9, 0.0));
         // At time 0.75 the sphere is at x = 7.5: the ray at x = -0.5 reaches the quad at z = -2.
         assert_eq!(m, 1);
         assert!((t - 12.0).abs() < 1e-9, "{t}");
