@@ -46,6 +46,10 @@ impl TriAccel {
     }
 }
 
+/// Meshes with at most this many triangles (walls, boxes, single triangles) are tested one by
+/// one: cheaper than setting up a traversal.
+const LINEAR_MAX: usize = 12;
+
 /// A mesh ready for tracing.
 pub struct MeshGeom {
     /// Object-space vertex positions.
@@ -98,7 +102,18 @@ impl MeshGeom {
 
     /// Closest hit of an object-space `f32` ray; returns (t, triangle) with `f32` precision.
     #[inline]
-    pub fn intersect_f32(&self, ray: obvhs::ray::Ray) -> Option<(f32, u32)> {
+    pub fn intersect_f32(&self, mut ray: obvhs::ray::Ray) -> Option<(f32, u32)> {
+        if self.accel.len() <= LINEAR_MAX {
+            let mut found = None;
+            for (i, tri) in self.accel.iter().enumerate() {
+                let t = tri.intersect(&ray);
+                if t < ray.tmax {
+                    ray.tmax = t;
+                    found = Some((t, self.accel_tri[i]));
+                }
+            }
+            return found;
+        }
         let mut hit = RayHit::none();
         if self.bvh.ray_traverse(ray, &mut hit, |r, i| self.accel[i].intersect(r)) {
             Some((hit.t, self.accel_tri[hit.primitive_id as usize]))
@@ -110,6 +125,9 @@ impl MeshGeom {
     /// True if anything is hit in (tmin, tmax).
     #[inline]
     pub fn occluded_f32(&self, ray: obvhs::ray::Ray) -> bool {
+        if self.accel.len() <= LINEAR_MAX {
+            return self.accel.iter().any(|tri| tri.intersect(&ray) < ray.tmax);
+        }
         !self.bvh.ray_traverse_miss(ray, |r, i| self.accel[i].intersect(r))
     }
 

@@ -84,7 +84,13 @@ pub struct Accel {
     tlas: CwBvh,
     /// TLAS primitive order -> instance index.
     tlas_order: Vec<u32>,
+    /// World bounds of each instance (over the whole exposure), for scenes small enough to test
+    /// every instance directly.
+    bounds: Vec<Aabb>,
 }
+
+/// Up to this many instances a linear loop over their boxes beats traversing the top level.
+const LINEAR_MAX: usize = 8;
 
 /// The closest candidate found during traversal.
 #[derive(Clone, Copy)]
@@ -174,7 +180,7 @@ impl Accel {
             build_cwbvh(&bounds, BvhBuildParams::medium_build(), &mut Duration::default())
         };
         let tlas_order = tlas.primitive_indices.clone();
-        Accel { meshes, instances, tlas, tlas_order }
+        Accel { meshes, instances, tlas, tlas_order, bounds }
     }
 
     /// Total triangles over all instances (instanced triangles counted once per instance).
@@ -190,38 +196,21 @@ impl Accel {
 
     /// Closest surface hit with `t` in (tmin, tmax).
     pub fn intersect(&self, ray: &Ray, tmin: f64, tmax: f64) -> Option<SurfaceHit> {
-        if self.instances.is_empty() {
-            return None;
-        }
         let mut best = Candidate { t: tmax, instance: u32::MAX, tri: 0 };
-        let mut hit = RayHit::none();
-        self.tlas.ray_traverse(to_f32_ray(ray, tmin, tmax), &mut hit, |fr, id| {
-            let idx = self.tlas_order[id];
-            let inst = &self.instances[idx as usize];
-            let local = inst.local_ray(ray);
-            match &inst.shape {
-                Shape::Sphere { center, radius } => match sphere_t(*center, *radius, &local, tmin, best.t) {
-                    Some(t) => {
-                        best = Candidate { t, instance: idx, tri: 0 };
-                        t as f32
-                    }
-                    None => f32::INFINITY,
-                },
-                Shape::Mesh { mesh, .. } => {
-                    let m = &self.meshes[*mesh as usize];
-                    // A static untransformed mesh sees the top-level ray itself (no new inverse).
-                    let lr =
-                        if inst.is_world_space() { *fr } else { to_f32_ray(&local, tmin, fr.tmax as f64) };
-                    match m.intersect_f32(lr) {
-                        Some((t, tri)) => {
-                            best = Candidate { t: t as f64, instance: idx, tri };
-                            t
-                        }
-                        None => f32::INFINITY,
-                    }
+        let mut fr = to_f32_ray(ray, tmin, tmax);
+        if self.instances.len() <= LINEAR_MAX {
+            for (idx, b) in self.bounds.iter().enumerate() {
+                if b.intersect_ray(&fr) <= fr.tmax {
+                    let t = self.hit_instance(idx as u32, ray, &fr, tmin, &mut best);
+                    fr.tmax = fr.tmax.min(t);
                 }
             }
-        });
+        } else {
+            let mut hit = RayHit::none();
+            self.tlas.ray_traverse(fr, &mut hit, |fr, id| {
+                self.hit_instance(self.tlas_order[id], ray, fr, tmin, &mut best)
+            });
+        }
         if best.instance == u32::MAX {
             return None;
         }
@@ -230,22 +219,65 @@ impl Accel {
 
     /// True if anything blocks the ray within (tmin, tmax).
     pub fn occluded(&self, ray: &Ray, tmin: f64, tmax: f64) -> bool {
-        if self.instances.is_empty() {
-            return false;
+        let fr = to_f32_ray(ray, tmin, tmax);
+        if self.instances.len() <= LINEAR_MAX {
+            return self.bounds.iter().enumerate().any(|(idx, b)| {
+                b.intersect_ray(&fr) <= fr.tmax && self.blocks(idx as u32, ray, &fr, tmin, tmax)
+            });
         }
-        !self.tlas.ray_traverse_miss(to_f32_ray(ray, tmin, tmax), |fr, id| {
-            let inst = &self.instances[self.tlas_order[id] as usize];
-            let local = inst.local_ray(ray);
-            let blocked = match &inst.shape {
-                Shape::Sphere { center, radius } => sphere_t(*center, *radius, &local, tmin, tmax).is_some(),
-                Shape::Mesh { mesh, .. } => {
-                    let lr =
-                        if inst.is_world_space() { *fr } else { to_f32_ray(&local, tmin, fr.tmax as f64) };
-                    self.meshes[*mesh as usize].occluded_f32(lr)
-                }
-            };
-            if blocked { fr.tmin } else { f32::INFINITY }
+        !self.tlas.ray_traverse_miss(fr, |fr, id| {
+            if self.blocks(self.tlas_order[id], ray, fr, tmin, tmax) { fr.tmin } else { f32::INFINITY }
         })
+    }
+
+    /// Tests instance `idx` for a hit closer than `best` (`fr` is the world ray in `f32`, its
+    /// `tmax` the closest hit so far); updates `best` and returns the hit distance or +inf.
+    #[inline]
+    fn hit_instance(
+        &self,
+        idx: u32,
+        ray: &Ray,
+        fr: &obvhs::ray::Ray,
+        tmin: f64,
+        best: &mut Candidate,
+    ) -> f32 {
+        let inst = &self.instances[idx as usize];
+        let local = inst.local_ray(ray);
+        match &inst.shape {
+            Shape::Sphere { center, radius } => match sphere_t(*center, *radius, &local, tmin, best.t) {
+                Some(t) => {
+                    *best = Candidate { t, instance: idx, tri: 0 };
+                    t as f32
+                }
+                None => f32::INFINITY,
+            },
+            Shape::Mesh { mesh, .. } => {
+                let m = &self.meshes[*mesh as usize];
+                // A static untransformed mesh sees the world ray itself (no new inverse).
+                let lr = if inst.is_world_space() { *fr } else { to_f32_ray(&local, tmin, fr.tmax as f64) };
+                match m.intersect_f32(lr) {
+                    Some((t, tri)) => {
+                        *best = Candidate { t: t as f64, instance: idx, tri };
+                        t
+                    }
+                    None => f32::INFINITY,
+                }
+            }
+        }
+    }
+
+    /// Whether instance `idx` blocks the ray within (tmin, tmax).
+    #[inline]
+    fn blocks(&self, idx: u32, ray: &Ray, fr: &obvhs::ray::Ray, tmin: f64, tmax: f64) -> bool {
+        let inst = &self.instances[idx as usize];
+        let local = inst.local_ray(ray);
+        match &inst.shape {
+            Shape::Sphere { center, radius } => sphere_t(*center, *radius, &local, tmin, tmax).is_some(),
+            Shape::Mesh { mesh, .. } => {
+                let lr = if inst.is_world_space() { *fr } else { to_f32_ray(&local, tmin, fr.tmax as f64) };
+                self.meshes[*mesh as usize].occluded_f32(lr)
+            }
+        }
     }
 
     /// Completes a candidate into world-space hit data, re-intersecting triangles in `f64`.
@@ -375,6 +407,60 @@ mod tests {
         let shadow = Ray { origin: DVec3::new(7.5, 0.0, 10.0), dir: DVec3::NEG_Z, time: 0.75 };
         assert!(accel.occluded(&shadow, 1e-6, 20.0));
         assert!(!accel.occluded(&Ray { time: 0.0, ..shadow }, 1e-6, 11.5));
+    }
+
+    /// The top-level BVH (used above LINEAR_MAX instances) finds the same closest hits and
+    /// occlusions as testing every instance on its own.
+    #[test]
+    fn top_level_bvh_agrees_with_brute_force() {
+        let mut rng = crate::sampler::SampleRng::new(3, 1, 2, 3);
+        let mut r = move || rng.next_f64();
+        let mut instances = Vec::new();
+        for i in 0..40 {
+            let at = DVec3::new(r() * 20.0 - 10.0, r() * 20.0 - 10.0, r() * 20.0 - 10.0);
+            let inst = if i % 2 == 0 {
+                Instance {
+                    shape: Shape::Sphere { center: at, radius: 0.3 + r() },
+                    material: i,
+                    transform: None,
+                    motion: None,
+                }
+            } else {
+                let xf = DAffine3::from_translation(at)
+                    * DAffine3::from_axis_angle(DVec3::new(r(), r(), r()).normalize(), r() * 6.0);
+                Instance {
+                    shape: Shape::Mesh { mesh: 0, smooth: false },
+                    material: i,
+                    transform: Transform::new(xf),
+                    motion: if i % 3 == 0 { Some(DVec3::new(r(), 0.0, r())) } else { None },
+                }
+            };
+            instances.push(inst);
+        }
+        let accel = Accel::new(vec![unit_quad()], instances.clone());
+        assert!(accel.instances.len() > LINEAR_MAX);
+        let singles: Vec<Accel> =
+            instances.iter().map(|i| Accel::new(vec![unit_quad()], vec![i.clone()])).collect();
+        for _ in 0..3000 {
+            let o = DVec3::new(r() * 30.0 - 15.0, r() * 30.0 - 15.0, r() * 30.0 - 15.0);
+            let d = DVec3::new(r() - 0.5, r() - 0.5, r() - 0.5).normalize();
+            let ray = Ray { origin: o, dir: d, time: r() };
+            let expect = singles
+                .iter()
+                .enumerate()
+                .filter_map(|(i, a)| a.intersect(&ray, 1e-6, f64::INFINITY).map(|h| (h.t, i as u32)))
+                .min_by(|a, b| a.0.total_cmp(&b.0));
+            let got = accel.intersect(&ray, 1e-6, f64::INFINITY).map(|h| (h.t, h.material));
+            match (expect, got) {
+                (None, None) => {}
+                (Some((te, ie)), Some((tg, ig))) => {
+                    assert!((te - tg).abs() < 1e-6 && ie == ig, "{expect:?} vs {got:?}");
+                }
+                _ => panic!("{expect:?} vs {got:?}"),
+            }
+            let blocked = singles.iter().any(|a| a.occluded(&ray, 1e-6, 12.0));
+            assert_eq!(accel.occluded(&ray, 1e-6, 12.0), blocked);
+        }
     }
 
     #[test]
