@@ -212,7 +212,7 @@ fn load_mesh_data(
             .get(path)
             .cloned()
             .unwrap_or_else(|| Err(ctx.err(&mesh.faces_loc, "internal: PLY not loaded"))),
-        FacesRec::Inline { indices, vertex_offset } => {
+        FacesRec::Inline { indices, vertex_offset, .. } => {
             if indices.len() % 3 != 0 {
                 return Err(ctx
                     .err(&mesh.faces_loc, format!("has {} vertex ids, not a multiple of 3", indices.len())));

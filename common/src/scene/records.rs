@@ -30,6 +30,13 @@ pub struct SceneRecords {
     pub materials: Vec<MaterialRec>,
     /// Global vertex list; vertex id `k` (1-based) is `vertices[k - 1]`.
     pub vertices: Vec<Vec3>,
+    /// Global texture coordinates (`TexCoordData`), parallel to `vertices`: id `k` is
+    /// `tex_coords[k - 1]`.
+    pub tex_coords: Vec<[f64; 2]>,
+    /// `Textures/Images/Image`: image files by id (HW4).
+    pub images: Vec<ImageRec>,
+    /// `Textures/TextureMap` (and 2019 `<Texture>` elements, translated).
+    pub texture_maps: Vec<TextureMapRec>,
     pub transformations: Vec<TransformRec>,
     pub meshes: Vec<MeshRec>,
     pub triangles: Vec<TriangleRec>,
@@ -54,6 +61,9 @@ impl SceneRecords {
             area_lights: Vec::new(),
             materials: Vec::new(),
             vertices: Vec::new(),
+            tex_coords: Vec::new(),
+            images: Vec::new(),
+            texture_maps: Vec::new(),
             transformations: Vec::new(),
             meshes: Vec::new(),
             triangles: Vec::new(),
@@ -173,6 +183,65 @@ impl MaterialRec {
     }
 }
 
+/// An image file named by `<Image id="k">path</Image>` (or by a 2019 `<Texture>`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ImageRec {
+    pub id: String,
+    pub loc: Loc,
+    /// As written in the scene, relative to the scene file's directory.
+    pub path: String,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Interpolation {
+    Nearest,
+    Bilinear,
+    /// 2025 scenes; rendered as bilinear until mip-mapping exists.
+    Trilinear,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NoiseConversion {
+    /// `(n + 1) / 2`
+    Linear,
+    /// `|n|`
+    AbsVal,
+}
+
+/// How a texture map changes the surface it is on (scene-format.md §11.6).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DecalMode {
+    ReplaceKd,
+    BlendKd,
+    ReplaceKs,
+    ReplaceAll,
+    ReplaceNormal,
+    BumpNormal,
+    ReplaceBackground,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum TextureSource {
+    /// `type="image"`: `ImageId`, `Interpolation` (default bilinear), `Normalizer` (default 255).
+    Image { image: String, interpolation: Interpolation, normalizer: f64 },
+    /// `type="perlin"`: `NoiseConversion` (default linear), `NoiseScale` (default 1).
+    Perlin { conversion: NoiseConversion, scale: f64 },
+    /// `type="checkerboard"`: colours used as they are, `Scale`, `Offset`.
+    Checkerboard { black: Vec3, white: Vec3, scale: f64, offset: f64 },
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct TextureMapRec {
+    pub id: String,
+    pub loc: Loc,
+    pub source: TextureSource,
+    pub decal: DecalMode,
+    /// `BumpFactor`, default 1.
+    pub bump_factor: f64,
+    /// `degamma="true"`: texel values are linearised after normalisation.
+    pub degamma: bool,
+}
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum TransformOp {
     Translation(Vec3),
@@ -222,8 +291,9 @@ pub enum ShadingMode {
 #[derive(Clone, Debug, PartialEq)]
 pub enum FacesRec {
     /// Inline triples of vertex ids as written; the real id is `index + vertex_offset` (1-based
-    /// into [`SceneRecords::vertices`]).
-    Inline { indices: Vec<i64>, vertex_offset: i64 },
+    /// into [`SceneRecords::vertices`]). The texture-coordinate id is `index + texture_offset`,
+    /// or the vertex id when `texture_offset` is absent (§8.4).
+    Inline { indices: Vec<i64>, vertex_offset: i64, texture_offset: Option<i64> },
     /// `plyFile="..."`, as written in the scene (resolved against the scene's directory at build time).
     Ply { path: String },
 }
@@ -241,6 +311,8 @@ pub struct MeshRec {
     pub transforms: Vec<TransformRef>,
     /// `MotionBlur`: world-space translation over the exposure (time 0 to 1).
     pub motion_blur: Option<Vec3>,
+    /// `Textures`: ids of texture maps, as written (at most one colour map and one normal map).
+    pub textures: Vec<String>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -251,6 +323,7 @@ pub struct TriangleRec {
     /// 1-based vertex ids.
     pub indices: [i64; 3],
     pub transforms: Vec<TransformRef>,
+    pub textures: Vec<String>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -264,6 +337,7 @@ pub struct SphereRec {
     pub transforms: Vec<TransformRef>,
     /// `MotionBlur` (2019 dialect on spheres).
     pub motion_blur: Option<Vec3>,
+    pub textures: Vec<String>,
 }
 
 #[derive(Clone, Debug, PartialEq)]

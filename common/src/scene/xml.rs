@@ -1083,6 +1083,7 @@ impl Parser<'_> {
             FacesRec::Inline {
                 indices: self.number_list(faces, 3, "three vertex ids per triangle")?,
                 vertex_offset,
+                texture_offset: None,
             }
         };
         Ok(Some(MeshRec {
@@ -1094,6 +1095,7 @@ impl Parser<'_> {
             shading: self.shading_attr(n)?.unwrap_or(ShadingMode::Flat),
             transforms: self.transform_refs(n)?,
             motion_blur: self.optional_numbers(n, "MotionBlur")?,
+            textures: Vec::new(),
         }))
     }
 
@@ -1105,6 +1107,7 @@ impl Parser<'_> {
             material: self.material_ref(n)?,
             indices: self.required_numbers(n, "Indices")?,
             transforms: self.transform_refs(n)?,
+            textures: Vec::new(),
         })
     }
 
@@ -1118,6 +1121,7 @@ impl Parser<'_> {
             radius: self.required_number(n, "Radius")?,
             transforms: self.transform_refs(n)?,
             motion_blur: self.optional_numbers(n, "MotionBlur")?,
+            textures: Vec::new(),
         })
     }
 
@@ -1304,11 +1308,16 @@ mod tests {
             id: "1".into(),
             loc: at("<Mesh", r#"Mesh id="1""#),
             material: "1".into(),
-            faces: FacesRec::Inline { indices: vec![3, 1, 2, 1, 3, 4], vertex_offset: 0 },
+            faces: FacesRec::Inline {
+                indices: vec![3, 1, 2, 1, 3, 4],
+                vertex_offset: 0,
+                texture_offset: None,
+            },
             faces_loc: at("<Faces", r#"Mesh id="1"> / <Faces"#),
             shading: ShadingMode::Flat,
             transforms: vec![],
             motion_blur: None,
+            textures: vec![],
         });
         expected.triangles.push(TriangleRec {
             id: "1".into(),
@@ -1316,6 +1325,7 @@ mod tests {
             material: "1".into(),
             indices: [1, 2, 3],
             transforms: vec![],
+            textures: vec![],
         });
         expected.spheres.push(SphereRec {
             id: "1".into(),
@@ -1325,6 +1335,7 @@ mod tests {
             radius: 3.73896e-4,
             transforms: vec![],
             motion_blur: None,
+            textures: vec![],
         });
         assert_eq!(parse(SIMPLE), expected);
     }
@@ -1505,12 +1516,16 @@ mod tests {
                     Loc::new(4, r#"Mesh id="1"> / <Faces"#)
                 ),
                 (
-                    FacesRec::Inline { indices: vec![0, 1, 2, 0, 2, 3], vertex_offset: 1 },
+                    FacesRec::Inline {
+                        indices: vec![0, 1, 2, 0, 2, 3],
+                        vertex_offset: 1,
+                        texture_offset: None
+                    },
                     ShadingMode::Flat,
                     Loc::new(6, r#"Mesh id="2"> / <Faces"#)
                 ),
                 (
-                    FacesRec::Inline { indices: vec![], vertex_offset: -2 },
+                    FacesRec::Inline { indices: vec![], vertex_offset: -2, texture_offset: None },
                     ShadingMode::Flat,
                     Loc::new(8, r#"Mesh id="3"> / <Faces"#)
                 ),
