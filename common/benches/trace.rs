@@ -65,6 +65,7 @@ fn build(pos: &[DVec3], tris: &[[u32; 3]], threads: usize) -> (Accel, f64) {
                 material: 0,
                 transform: None,
                 motion: None,
+                textures: Default::default(),
             }],
         );
         (accel, t.elapsed().as_secs_f64())

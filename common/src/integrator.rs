@@ -9,6 +9,8 @@ use crate::material::{Material, MaterialKind, Refraction, fresnel_conductor, ref
 use crate::math::{Ray, orthonormal_pair, reflect};
 use crate::sampler::SampleRng;
 use crate::scene::Scene;
+use crate::scene::records::DecalMode;
+use crate::texture::maps::{Source, TextureMap, TexturePoint, image_height, perlin_bump};
 
 /// Rays traced, by kind, for throughput figures.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -34,11 +36,14 @@ impl RayStats {
 pub struct Tracer<'a> {
     pub scene: &'a Scene,
     pub stats: RayStats,
+    /// What rays that miss everything return for the current pixel: BackgroundColor, or the
+    /// pixel's texel of a `replace_background` map (used for secondary misses too, §11.8).
+    pub background: DVec3,
 }
 
 impl<'a> Tracer<'a> {
     pub fn new(scene: &'a Scene) -> Self {
-        Tracer { scene, stats: RayStats::default() }
+        Tracer { scene, stats: RayStats::default(), background: scene.background }
     }
 
     /// Radiance along a camera ray.
@@ -52,7 +57,7 @@ impl<'a> Tracer<'a> {
     fn trace(&mut self, ray: &Ray, depth: u32, medium: Option<DVec3>, rng: &mut SampleRng) -> DVec3 {
         let scene = self.scene;
         let Some(hit) = scene.accel.intersect(ray, scene.intersection_test_epsilon, f64::INFINITY) else {
-            return scene.background;
+            return self.background;
         };
         let l = self.shade(ray, &hit, depth, medium.is_some(), rng);
         match medium {
@@ -63,11 +68,37 @@ impl<'a> Tracer<'a> {
 
     fn shade(&mut self, ray: &Ray, hit: &SurfaceHit, depth: u32, inside: bool, rng: &mut SampleRng) -> DVec3 {
         let scene = self.scene;
-        let mat = &scene.materials[hit.material as usize];
+        let mut mat = &scene.materials[hit.material as usize];
         let d = ray.dir;
         let entering = d.dot(hit.geo_normal) < 0.0;
+
+        // Textures (§11.6): the normal map first, then the colour map on a copy of the material.
+        let textures = scene.accel.instances[hit.instance as usize].textures;
+        let mut shading_normal = hit.shading_normal;
+        if let Some(k) = textures.normal {
+            shading_normal = perturbed_normal(&scene.textures[k as usize], hit, shading_normal);
+        }
+        let textured;
+        if textures.colour[0].is_some() {
+            let p = TexturePoint { uv: hit.uv, world: hit.point };
+            let mut m = mat.clone();
+            for k in textures.colour.into_iter().flatten() {
+                let map = &scene.textures[k as usize];
+                let t = map.value(&p);
+                match map.decal {
+                    // The texture is the surface's radiance: no lights, no recursion.
+                    DecalMode::ReplaceAll => return t,
+                    DecalMode::ReplaceKd => m.diffuse = t,
+                    DecalMode::BlendKd => m.diffuse = (m.diffuse + t) / 2.0,
+                    DecalMode::ReplaceKs => m.specular = t,
+                    _ => {}
+                }
+            }
+            textured = m;
+            mat = &textured;
+        }
         // Shading normal facing the incoming ray.
-        let n = if entering { hit.shading_normal } else { -hit.shading_normal };
+        let n = if entering { shading_normal } else { -shading_normal };
         let eps = scene.shadow_ray_epsilon;
         let can_recurse = depth < scene.max_recursion_depth;
 
@@ -164,6 +195,47 @@ impl<'a> Tracer<'a> {
             Some(wi)
         }
     }
+}
+
+/// The shading normal after a normal map or bump map (§11.6a, §11.7); `n` is the unperturbed
+/// unit shading normal, on the geometric normal's side.
+fn perturbed_normal(map: &TextureMap, hit: &SurfaceHit, n: DVec3) -> DVec3 {
+    let bent = match (map.decal, &map.source) {
+        (DecalMode::ReplaceNormal, _) => {
+            let Some(nt) = map.tangent_normal(hit.uv) else { return n };
+            let Some((t, b)) = tangent_basis(n, hit.dpdu, hit.dpdv) else { return n };
+            nt.x * t + nt.y * b + nt.z * n
+        }
+        (DecalMode::BumpNormal, Source::Image { image, normalizer, .. }) => {
+            if hit.dpdu == DVec3::ZERO || hit.dpdv == DVec3::ZERO {
+                return n;
+            }
+            // Blinn's bump mapping with true derivatives: one-texel differences of the height
+            // scaled to per-unit-uv slopes, added along the normal to the unnormalised ∂p/∂u, ∂p/∂v.
+            let (w, h) = (image.width as f64, image.height as f64);
+            let h0 = image_height(image, *normalizer, hit.uv, 0.0, 0.0);
+            let dhdu = (image_height(image, *normalizer, hit.uv, 1.0 / w, 0.0) - h0) * w;
+            let dhdv = (image_height(image, *normalizer, hit.uv, 0.0, 1.0 / h) - h0) * h;
+            let qu = hit.dpdu + map.bump_factor * dhdu * n;
+            let qv = hit.dpdv + map.bump_factor * dhdv * n;
+            let c = qv.cross(qu);
+            if c.dot(n) < 0.0 { -c } else { c }
+        }
+        (DecalMode::BumpNormal, Source::Perlin { conversion, scale }) => {
+            perlin_bump(n, hit.point, *scale, *conversion, map.bump_factor)
+        }
+        _ => return n,
+    };
+    let len = bent.length();
+    if len > 1e-12 && len.is_finite() { bent / len } else { n }
+}
+
+/// Unit tangent and bitangent of a surface point from ∂p/∂u and ∂p/∂v, made perpendicular to
+/// `n` (Gram-Schmidt); `None` where the surface has no texture parametrisation.
+fn tangent_basis(n: DVec3, dpdu: DVec3, dpdv: DVec3) -> Option<(DVec3, DVec3)> {
+    let t = (dpdu - n * n.dot(dpdu)).try_normalize()?;
+    let b = (dpdv - n * n.dot(dpdv) - t * t.dot(dpdv)).try_normalize()?;
+    Some((t, b))
 }
 
 /// The bracket of §6.2: diffuse cosine plus the Blinn-Phong lobe, for unit `n`, `wi`, `wo`.

@@ -19,5 +19,6 @@ pub mod ply;
 pub mod render;
 pub mod sampler;
 pub mod scene;
+pub mod texture;
 
 pub use error::{Loc, SceneError, Warning};

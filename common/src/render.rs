@@ -78,6 +78,14 @@ pub fn render_tile(
     let mut out = Vec::with_capacity((rect.width * rect.height) as usize);
     for y in rect.y0..rect.y0 + rect.height {
         for x in rect.x0..rect.x0 + rect.width {
+            if let Some(k) = scene.background_texture {
+                // The background image is stretched over the frame, sampled at pixel centres.
+                let uv = glam::DVec2::new(
+                    (x as f64 + 0.5) / cam.width as f64,
+                    (y as f64 + 0.5) / cam.height as f64,
+                );
+                tracer.background = scene.textures[k as usize].background(uv);
+            }
             let mut sum = glam::DVec3::ZERO;
             for s in 0..n {
                 let mut rng = SampleRng::new(seed, x, y, s);

@@ -6,7 +6,7 @@
 
 use std::time::Duration;
 
-use glam::{DVec3, Vec3A};
+use glam::{DVec2, DVec3, Vec3A};
 use obvhs::{BvhBuildParams, aabb::Aabb, cwbvh::CwBvh, cwbvh::builder::build_cwbvh, ray::RayHit};
 
 /// A triangle prepared for the `f32` Möller–Trumbore test.
@@ -58,6 +58,8 @@ pub struct MeshGeom {
     pub indices: Vec<[u32; 3]>,
     /// Unit per-vertex normals (object space) when some user of the mesh shades it smooth.
     pub vertex_normals: Option<Vec<DVec3>>,
+    /// Per-vertex texture coordinates, when the mesh has them (TexCoordData or PLY u v).
+    pub uvs: Option<Vec<DVec2>>,
     /// `accel[i]` is triangle `accel_tri[i]`, in the BVH's primitive order.
     accel: Vec<TriAccel>,
     accel_tri: Vec<u32>,
@@ -78,6 +80,16 @@ impl MeshGeom {
     /// Builds the BVH. `positions` and `indices` must already be validated (indices in range,
     /// degenerate triangles removed).
     pub fn new(positions: Vec<DVec3>, indices: Vec<[u32; 3]>, vertex_normals: Option<Vec<DVec3>>) -> Self {
+        Self::with_uvs(positions, indices, vertex_normals, None)
+    }
+
+    /// Like [`MeshGeom::new`], with per-vertex texture coordinates.
+    pub fn with_uvs(
+        positions: Vec<DVec3>,
+        indices: Vec<[u32; 3]>,
+        vertex_normals: Option<Vec<DVec3>>,
+        uvs: Option<Vec<DVec2>>,
+    ) -> Self {
         let tris: Vec<TriAccel> = indices
             .iter()
             .map(|&[a, b, c]| {
@@ -93,7 +105,7 @@ impl MeshGeom {
         let accel_tri = bvh.primitive_indices.clone();
         let accel = accel_tri.iter().map(|&i| tris[i as usize]).collect();
         let bounds = bvh.total_aabb;
-        MeshGeom { positions, indices, vertex_normals, accel, accel_tri, bvh, bounds }
+        MeshGeom { positions, indices, vertex_normals, uvs, accel, accel_tri, bvh, bounds }
     }
 
     pub fn triangle_count(&self) -> usize {
@@ -152,6 +164,27 @@ impl MeshGeom {
         TriHit { t, tri, u, v }
     }
 
+    /// Texture coordinates at barycentrics (u, v) and the surface derivatives ∂p/∂u, ∂p/∂v
+    /// (object space, §11.6a), or `None` when the mesh has no texture coordinates or the
+    /// triangle's are degenerate.
+    pub fn uv_frame(&self, tri: u32, u: f64, v: f64) -> Option<(DVec2, DVec3, DVec3)> {
+        let uvs = self.uvs.as_ref()?;
+        let [a, b, c] = self.indices[tri as usize];
+        let (t0, t1, t2) = (uvs[a as usize], uvs[b as usize], uvs[c as usize]);
+        let uv = (1.0 - u - v) * t0 + u * t1 + v * t2;
+        let (p0, p1, p2) =
+            (self.positions[a as usize], self.positions[b as usize], self.positions[c as usize]);
+        let (e1, e2) = (p1 - p0, p2 - p0);
+        let (d1, d2) = (t1 - t0, t2 - t0);
+        let det = d1.x * d2.y - d2.x * d1.y;
+        if det.abs() < 1e-300 {
+            return Some((uv, DVec3::ZERO, DVec3::ZERO));
+        }
+        let dpdu = (d2.y * e1 - d1.y * e2) / det;
+        let dpdv = (d1.x * e2 - d2.x * e1) / det;
+        Some((uv, dpdu, dpdv))
+    }
+
     /// Object-space geometric normal (unit, counter-clockwise winding).
     pub fn face_normal(&self, tri: u32) -> DVec3 {
         let [a, b, c] = self.indices[tri as usize];
@@ -178,15 +211,23 @@ impl MeshGeom {
 /// Area-weighted vertex normals: each triangle adds its un-normalised cross product to its three
 /// vertices (scene-format.md §9.2, the 2025 text's rule).
 pub fn area_weighted_normals(positions: &[DVec3], indices: &[[u32; 3]]) -> Vec<DVec3> {
-    let mut acc = vec![DVec3::ZERO; positions.len()];
+    let groups: Vec<u32> = (0..positions.len() as u32).collect();
+    grouped_normals(positions, indices, &groups)
+}
+
+/// Area-weighted normals where vertices of the same `group` (the scene's vertex id, when a
+/// vertex was split because its corners have different texture coordinates) share one normal.
+pub fn grouped_normals(positions: &[DVec3], indices: &[[u32; 3]], groups: &[u32]) -> Vec<DVec3> {
+    let n_groups = groups.iter().map(|&g| g as usize + 1).max().unwrap_or(0);
+    let mut acc = vec![DVec3::ZERO; n_groups];
     for &[a, b, c] in indices {
         let (p0, p1, p2) = (positions[a as usize], positions[b as usize], positions[c as usize]);
         let n = (p1 - p0).cross(p2 - p0);
-        acc[a as usize] += n;
-        acc[b as usize] += n;
-        acc[c as usize] += n;
+        for v in [a, b, c] {
+            acc[groups[v as usize] as usize] += n;
+        }
     }
-    acc.into_iter().map(|n| n.normalize_or_zero()).collect()
+    groups.iter().map(|&g| acc[g as usize].normalize_or_zero()).collect()
 }
 
 /// Removes triangles with a repeated index or zero area; returns how many were removed.

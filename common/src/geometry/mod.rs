@@ -11,7 +11,7 @@ pub mod mesh;
 use std::sync::Arc;
 use std::time::Duration;
 
-use glam::{DVec3, Vec3A};
+use glam::{DVec2, DVec3, Vec3A};
 use obvhs::{BvhBuildParams, aabb::Aabb, cwbvh::CwBvh, cwbvh::builder::build_cwbvh, ray::RayHit};
 
 use crate::math::{Ray, Transform};
@@ -36,6 +36,17 @@ pub struct Instance {
     /// Motion blur: the object is translated by `time * motion` in world space after its
     /// transform (scene-format.md §10.5).
     pub motion: Option<DVec3>,
+    /// Texture maps applied to this object (indices into the scene's texture maps).
+    pub textures: ObjectTextures,
+}
+
+/// The texture maps of an object (§11.1): up to two that change its coefficients (wood_box
+/// pairs a replace_kd map with a replace_ks map), applied in order, and one that changes its
+/// normal.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ObjectTextures {
+    pub colour: [Option<u32>; 2],
+    pub normal: Option<u32>,
 }
 
 impl Instance {
@@ -75,6 +86,11 @@ pub struct SurfaceHit {
     pub shading_normal: DVec3,
     pub material: u32,
     pub instance: u32,
+    /// Texture coordinates (barycentrics when the mesh has none).
+    pub uv: DVec2,
+    /// World-space surface derivatives ∂p/∂u and ∂p/∂v (zero when the surface has no uvs).
+    pub dpdu: DVec3,
+    pub dpdv: DVec3,
 }
 
 /// The whole scene's geometry, ready for ray queries.
@@ -284,11 +300,11 @@ impl Accel {
     fn surface(&self, ray: &Ray, c: Candidate) -> SurfaceHit {
         let inst = &self.instances[c.instance as usize];
         let local = inst.local_ray(ray);
-        let (t, n_geo, n_shade) = match &inst.shape {
+        let (t, n_geo, n_shade, (uv, dpdu, dpdv)) = match &inst.shape {
             Shape::Sphere { center, radius } => {
                 let p = local.at(c.t);
                 let n = (p - *center) / *radius;
-                (c.t, n, n)
+                (c.t, n, n, sphere_uv_frame(p - *center, *radius))
             }
             Shape::Mesh { mesh, smooth } => {
                 let m = &self.meshes[*mesh as usize];
@@ -297,12 +313,19 @@ impl Accel {
                 let t = if h.t.is_finite() && h.t > 0.0 { h.t } else { c.t };
                 let ng = m.face_normal(c.tri);
                 let ns = if *smooth { m.smooth_normal(c.tri, h.u, h.v) } else { ng };
-                (t, ng, ns)
+                let frame =
+                    m.uv_frame(c.tri, h.u, h.v).unwrap_or((DVec2::new(h.u, h.v), DVec3::ZERO, DVec3::ZERO));
+                (t, ng, ns, frame)
             }
         };
-        let (geo_normal, shading_normal) = match &inst.transform {
-            Some(xf) => (xf.normal_to_world(n_geo), xf.normal_to_world(n_shade)),
-            None => (n_geo, n_shade),
+        let (geo_normal, shading_normal, dpdu, dpdv) = match &inst.transform {
+            Some(xf) => (
+                xf.normal_to_world(n_geo),
+                xf.normal_to_world(n_shade),
+                xf.to_world.transform_vector3(dpdu),
+                xf.to_world.transform_vector3(dpdv),
+            ),
+            None => (n_geo, n_shade, dpdu, dpdv),
         };
         // A smooth normal may lean past the face; keep it on the face's side.
         let shading_normal =
@@ -314,8 +337,24 @@ impl Accel {
             shading_normal,
             material: inst.material,
             instance: c.instance,
+            uv,
+            dpdu,
+            dpdv,
         }
     }
+}
+
+/// Texture coordinates and ∂p/∂u, ∂p/∂v of a sphere at object-space offset `d` from its centre
+/// (§11.4, §11.6a): θ from +Y, φ = atan2(z, x), u = (π - φ)/2π, v = θ/π.
+fn sphere_uv_frame(d: DVec3, r: f64) -> (DVec2, DVec3, DVec3) {
+    let theta = (d.y / r).clamp(-1.0, 1.0).acos();
+    let phi = d.z.atan2(d.x);
+    let uv =
+        DVec2::new((std::f64::consts::PI - phi) / (2.0 * std::f64::consts::PI), theta / std::f64::consts::PI);
+    let pi = std::f64::consts::PI;
+    let dpdu = DVec3::new(2.0 * pi * d.z, 0.0, -2.0 * pi * d.x);
+    let dpdv = DVec3::new(pi * d.y * phi.cos(), -pi * r * theta.sin(), pi * d.y * phi.sin());
+    (uv, dpdu, dpdv)
 }
 
 #[cfg(test)]
@@ -348,12 +387,14 @@ mod tests {
                     material: 0,
                     transform: Some(moved),
                     motion: None,
+                    textures: ObjectTextures::default(),
                 },
                 Instance {
                     shape: Shape::Sphere { center: DVec3::new(5.0, 0.0, 0.0), radius: 1.0 },
                     material: 1,
                     transform: Some(scaled),
                     motion: None,
+                    textures: ObjectTextures::default(),
                 },
             ],
         );
@@ -380,6 +421,7 @@ mod tests {
                     material: 0,
                     transform: None,
                     motion: Some(DVec3::new(10.0, 0.0, 0.0)),
+                    textures: ObjectTextures::default(),
                 },
                 Instance {
                     shape: Shape::Mesh { mesh: 0, smooth: false },
@@ -388,6 +430,7 @@ mod tests {
                         Transform::new(DAffine3::from_translation(DVec3::new(0.0, 0.0, -5.0))).unwrap(),
                     ),
                     motion: Some(DVec3::new(0.0, 0.0, 4.0)),
+                    textures: ObjectTextures::default(),
                 },
             ],
         );
@@ -424,6 +467,7 @@ mod tests {
                     material: i,
                     transform: None,
                     motion: None,
+                    textures: ObjectTextures::default(),
                 }
             } else {
                 let xf = DAffine3::from_translation(at)
@@ -433,6 +477,7 @@ mod tests {
                     material: i,
                     transform: Transform::new(xf),
                     motion: if i % 3 == 0 { Some(DVec3::new(r(), 0.0, r())) } else { None },
+                    textures: ObjectTextures::default(),
                 }
             };
             instances.push(inst);

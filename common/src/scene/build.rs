@@ -7,7 +7,7 @@ use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Instant;
 
-use glam::{DAffine3, DMat3, DMat4, DVec3};
+use glam::{DAffine3, DMat3, DMat4, DVec2, DVec3};
 use rayon::prelude::*;
 
 use super::records::*;
@@ -15,10 +15,12 @@ use super::{AreaLight, PointLight, Scene, SceneStats};
 use crate::assets::AssetResolver;
 use crate::camera::Camera;
 use crate::error::{Loc, SceneError, Warning};
-use crate::geometry::mesh::{MeshGeom, area_weighted_normals, drop_degenerate};
-use crate::geometry::{Accel, Instance, Shape};
+use crate::geometry::mesh::{MeshGeom, area_weighted_normals, drop_degenerate, grouped_normals};
+use crate::geometry::{Accel, Instance, ObjectTextures, Shape};
 use crate::material::Material;
 use crate::math::{Transform, v3};
+use crate::texture::image::TextureImage;
+use crate::texture::maps::{Source, TextureMap};
 
 /// Largest image we agree to render (a float frame of this size is 3 GiB).
 const MAX_IMAGE_SIDE: u32 = 65_536;
@@ -200,6 +202,10 @@ struct MeshData {
     positions: Vec<DVec3>,
     indices: Vec<[u32; 3]>,
     file_normals: Option<Vec<DVec3>>,
+    uvs: Option<Vec<DVec2>>,
+    /// For inline meshes: the scene vertex each of our vertices came from (a vertex is split
+    /// when its corners use different texture coordinates; smooth normals are shared by group).
+    groups: Option<Vec<u32>>,
 }
 
 fn load_mesh_data(
@@ -218,22 +224,40 @@ fn load_mesh_data(
                     .err(&mesh.faces_loc, format!("has {} vertex ids, not a multiple of 3", indices.len())));
             }
             // Keep only the vertices this mesh uses, so a BVH never carries the whole scene's list.
-            let mut remap: HashMap<u32, u32> = HashMap::new();
+            // With texture coordinates a vertex is keyed by (vertex id, uv id): the uv id is
+            // index + textureOffset, or the vertex id itself (§8.4).
+            let texture_offset = match &mesh.faces {
+                FacesRec::Inline { texture_offset, .. } => *texture_offset,
+                FacesRec::Ply { .. } => None,
+            };
+            let tex = &ctx.rec.tex_coords;
+            let mut with_uvs = !tex.is_empty();
+            let mut remap: HashMap<(u32, i64), u32> = HashMap::new();
             let mut positions = Vec::new();
+            let mut groups = Vec::new();
+            let mut uv_ids: Vec<i64> = Vec::new();
             let mut tris = Vec::with_capacity(indices.len() / 3);
             for tri in indices.chunks_exact(3) {
                 let mut out = [0u32; 3];
                 for (k, &i) in tri.iter().enumerate() {
                     let g =
                         ctx.vertex(i + vertex_offset, &mesh.faces_loc, &format!("face {}", tris.len() + 1))?;
-                    out[k] = *remap.entry(g).or_insert_with(|| {
+                    let uv_id = if with_uvs { texture_offset.map_or(g as i64 + 1, |o| i + o) } else { 0 };
+                    out[k] = *remap.entry((g, uv_id)).or_insert_with(|| {
                         positions.push(v3(ctx.rec.vertices[g as usize]));
+                        groups.push(g);
+                        uv_ids.push(uv_id);
                         (positions.len() - 1) as u32
                     });
                 }
                 tris.push(out);
             }
-            Ok(Arc::new(MeshData { positions, indices: tris, file_normals: None }))
+            // Texture coordinates only when every id is in range; a mesh that then carries an
+            // image texture is reported by the texture step.
+            with_uvs &= uv_ids.iter().all(|&k| k >= 1 && (k as usize) <= tex.len());
+            let uvs = with_uvs
+                .then(|| uv_ids.iter().map(|&k| DVec2::from_array(tex[k as usize - 1])).collect::<Vec<_>>());
+            Ok(Arc::new(MeshData { positions, indices: tris, file_normals: None, uvs, groups: Some(groups) }))
         }
     }
 }
@@ -265,7 +289,157 @@ fn load_ply(ctx: &Ctx, path: &str, loc: &Loc) -> Result<Arc<MeshData>, SceneErro
     let file_normals = ply.normals.map(|ns| {
         ns.iter().map(|n| DVec3::new(n[0] as f64, n[1] as f64, n[2] as f64).normalize_or_zero()).collect()
     });
-    Ok(Arc::new(MeshData { positions, indices: ply.triangles, file_normals }))
+    let uvs = ply.uvs.map(|t| t.iter().map(|uv| DVec2::new(uv[0] as f64, uv[1] as f64)).collect());
+    Ok(Arc::new(MeshData { positions, indices: ply.triangles, file_normals, uvs, groups: None }))
+}
+
+/// Whether an object's maps include an image (which needs texture coordinates).
+fn uses_image(maps: &[TextureMap], t: &ObjectTextures) -> bool {
+    [t.colour[0], t.colour[1], t.normal]
+        .into_iter()
+        .flatten()
+        .any(|k| matches!(maps[k as usize].source, Source::Image { .. }))
+}
+
+/// Texture maps ready for shading, by position, and how the scene's ids find them.
+struct BuiltTextures<'a> {
+    maps: Vec<TextureMap>,
+    ids: HashMap<&'a str, u32>,
+    background: Option<u32>,
+}
+
+/// Decodes every image a texture map uses (each file once, in parallel) and builds the maps.
+fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<BuiltTextures<'a>, SceneError> {
+    let rec = ctx.rec;
+    let image_recs: HashMap<&str, &ImageRec> = rec.images.iter().rev().map(|i| (i.id.as_str(), i)).collect();
+    // The images the maps need, each file once.
+    let mut wanted: Vec<&ImageRec> = Vec::new();
+    for m in &rec.texture_maps {
+        if let TextureSource::Image { image, .. } = &m.source {
+            let img = image_recs.get(image.as_str()).ok_or_else(|| {
+                ctx.err(&m.loc, format!("ImageId {image} names no <Image>; add <Image id=\"{image}\"> under <Textures><Images>"))
+            })?;
+            if !wanted.iter().any(|w| w.path == img.path) {
+                wanted.push(img);
+            }
+        }
+    }
+    let decoded: Vec<Result<(String, Arc<TextureImage>), SceneError>> = wanted
+        .par_iter()
+        .map(|img| {
+            let (bytes, found) = ctx.resolver.read(&img.path).map_err(|e| {
+                ctx.err(
+                    &img.loc,
+                    format!(
+                        "cannot read image {} (image id {}): {e}; check the path (it is relative to the scene file)",
+                        ctx.resolver.display_path(&img.path).display(),
+                        img.id
+                    ),
+                )
+            })?;
+            let decoded = TextureImage::decode(&bytes).map_err(|e| {
+                ctx.err(&img.loc, format!("cannot decode image {} (image id {}): {e}", found.display(), img.id))
+            })?;
+            Ok((img.path.clone(), Arc::new(decoded)))
+        })
+        .collect();
+    let mut by_path: HashMap<String, Arc<TextureImage>> = HashMap::new();
+    for d in decoded {
+        let (path, img) = d?;
+        by_path.insert(path, img);
+    }
+    let mut out = BuiltTextures { maps: Vec::new(), ids: HashMap::new(), background: None };
+    for m in &rec.texture_maps {
+        let source = match &m.source {
+            TextureSource::Image { image, interpolation, normalizer } => {
+                let path = &image_recs[image.as_str()].path;
+                if *normalizer == 0.0 {
+                    return Err(ctx.err(&m.loc, "Normalizer must not be 0"));
+                }
+                Source::Image {
+                    image: by_path[path].clone(),
+                    interpolation: *interpolation,
+                    normalizer: *normalizer,
+                }
+            }
+            TextureSource::Perlin { conversion, scale } => {
+                Source::Perlin { conversion: *conversion, scale: *scale }
+            }
+            TextureSource::Checkerboard { black, white, scale, offset } => {
+                Source::Checkerboard { black: v3(*black), white: v3(*white), scale: *scale, offset: *offset }
+            }
+        };
+        if out.ids.contains_key(m.id.as_str()) {
+            warnings.push(Warning {
+                file: rec.source.clone(),
+                loc: m.loc.clone(),
+                message: format!(
+                    "texture map id \"{}\" is defined again; references use the first definition",
+                    m.id
+                ),
+            });
+        } else {
+            out.ids.insert(m.id.as_str(), out.maps.len() as u32);
+        }
+        if m.decal == DecalMode::ReplaceBackground && out.background.is_none() {
+            out.background = Some(out.maps.len() as u32);
+        }
+        out.maps.push(TextureMap {
+            source,
+            decal: m.decal,
+            bump_factor: m.bump_factor,
+            degamma: m.degamma.then_some(DEGAMMA),
+        });
+    }
+    Ok(out)
+}
+
+impl BuiltTextures<'_> {
+    /// Sorts an object's `<Textures>` ids into its colour map and its normal map (§11.1).
+    fn for_object(
+        &self,
+        ctx: &Ctx,
+        ids: &[String],
+        loc: &Loc,
+        warnings: &mut Vec<Warning>,
+    ) -> Result<ObjectTextures, SceneError> {
+        let mut t = ObjectTextures::default();
+        for id in ids {
+            let k = *self.ids.get(id.as_str()).ok_or_else(|| {
+                ctx.err(
+                    loc,
+                    format!("texture \"{id}\" is not defined; add <TextureMap id=\"{id}\"> under <Textures>"),
+                )
+            })?;
+            let slot = match self.maps[k as usize].decal {
+                DecalMode::ReplaceNormal | DecalMode::BumpNormal => {
+                    if t.normal.is_none() {
+                        Some(&mut t.normal)
+                    } else {
+                        None
+                    }
+                }
+                DecalMode::ReplaceBackground => {
+                    warnings.push(Warning {
+                        file: ctx.rec.source.clone(),
+                        loc: loc.clone(),
+                        message: format!("texture {id} is a replace_background map; it applies to the background, not to this object"),
+                    });
+                    continue;
+                }
+                _ => t.colour.iter_mut().find(|c| c.is_none()),
+            };
+            match slot {
+                Some(slot) => *slot = Some(k),
+                None => warnings.push(Warning {
+                    file: ctx.rec.source.clone(),
+                    loc: loc.clone(),
+                    message: format!("texture {id}: an object takes one normal map and two colour maps; this one is ignored"),
+                }),
+            }
+        }
+        Ok(t)
+    }
 }
 
 /// Builds the render scene. `resolver` supplies PLY files named by the scene.
@@ -346,6 +520,8 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         });
     }
 
+    let textures = build_textures(&ctx, &mut warnings)?;
+
     // PLY files, each read and parsed once even when several meshes name it; in parallel.
     let mut ply_paths: Vec<(&str, &Loc)> = Vec::new();
     for m in &rec.meshes {
@@ -382,14 +558,16 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
             let mut indices = data.indices.clone();
             let dropped = drop_degenerate(&data.positions, &mut indices);
             let normals = if needs_smooth[i] {
-                match &data.file_normals {
-                    Some(n) => Some(n.clone()),
-                    None => Some(area_weighted_normals(&data.positions, &indices)),
+                match (&data.file_normals, &data.groups) {
+                    (Some(n), _) => Some(n.clone()),
+                    (None, Some(groups)) => Some(grouped_normals(&data.positions, &indices, groups)),
+                    (None, None) => Some(area_weighted_normals(&data.positions, &indices)),
                 }
             } else {
                 None
             };
-            Ok((Arc::new(MeshGeom::new(data.positions.clone(), indices, normals)), dropped))
+            let geom = MeshGeom::with_uvs(data.positions.clone(), indices, normals, data.uvs.clone());
+            Ok((Arc::new(geom), dropped))
         })
         .collect();
     let mut meshes: Vec<Arc<MeshGeom>> = Vec::with_capacity(geoms.len());
@@ -414,13 +592,25 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
 
     // Instances: meshes themselves, mesh instances, single triangles, spheres.
     let mut instances = Vec::new();
+    let mut mesh_textures = Vec::with_capacity(rec.meshes.len());
+    for m in &rec.meshes {
+        mesh_textures.push(textures.for_object(&ctx, &m.textures, &m.loc, &mut warnings)?);
+    }
     for (i, m) in rec.meshes.iter().enumerate() {
         let material = ctx.material(&mat_ids, &m.material, &m.loc)?;
+        if uses_image(&textures.maps, &mesh_textures[i]) && meshes[i].uvs.is_none() {
+            warnings.push(Warning {
+                file: rec.source.clone(),
+                loc: m.loc.clone(),
+                message: "an image texture is applied but the mesh has no texture coordinates (TexCoordData or PLY u v); it is sampled at the barycentric coordinates".into(),
+            });
+        }
         instances.push(Instance {
             shape: Shape::Mesh { mesh: i as u32, smooth: m.shading == ShadingMode::Smooth },
             material,
             transform: ctx.make_transform(mesh_world[i], &m.loc)?,
             motion: m.motion_blur.map(v3).filter(|v| *v != DVec3::ZERO),
+            textures: mesh_textures[i],
         });
     }
     for (r, inst) in resolved.iter().zip(&rec.instances) {
@@ -429,6 +619,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
             material: r.material,
             transform: ctx.make_transform(r.world, &inst.loc)?,
             motion: inst.motion_blur.map(v3).filter(|v| *v != DVec3::ZERO),
+            textures: mesh_textures[r.mesh],
         });
     }
     for t in &rec.triangles {
@@ -448,12 +639,18 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
             continue;
         }
         let world = ctx.transform(&transforms, &t.transforms, &t.loc)?;
-        meshes.push(Arc::new(MeshGeom::new(positions, indices, None)));
+        // Texture coordinates are parallel to the vertex list (§8.2).
+        let uvs = ids
+            .iter()
+            .map(|&g| rec.tex_coords.get(g as usize).map(|t| DVec2::from_array(*t)))
+            .collect::<Option<Vec<_>>>();
+        meshes.push(Arc::new(MeshGeom::with_uvs(positions, indices, None, uvs)));
         instances.push(Instance {
             shape: Shape::Mesh { mesh: (meshes.len() - 1) as u32, smooth: false },
             material,
             transform: ctx.make_transform(world, &t.loc)?,
             motion: None,
+            textures: textures.for_object(&ctx, &t.textures, &t.loc, &mut warnings)?,
         });
     }
     for s in &rec.spheres {
@@ -468,6 +665,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
             material,
             transform: ctx.make_transform(world, &s.loc)?,
             motion: s.motion_blur.map(v3).filter(|v| *v != DVec3::ZERO),
+            textures: textures.for_object(&ctx, &s.textures, &s.loc, &mut warnings)?,
         });
     }
 
@@ -497,6 +695,8 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         materials,
         cameras,
         accel,
+        textures: textures.maps,
+        background_texture: textures.background,
         warnings,
         stats,
     })

@@ -70,6 +70,10 @@ pub struct Scene {
     pub materials: Vec<Material>,
     pub cameras: Vec<Camera>,
     pub accel: Accel,
+    /// Texture maps, indexed by [`crate::geometry::ObjectTextures`].
+    pub textures: Vec<crate::texture::maps::TextureMap>,
+    /// The `replace_background` map, if the scene has one (§11.8).
+    pub background_texture: Option<u32>,
     /// Parser and builder warnings (unknown elements, skipped triangles, ...).
     pub warnings: Vec<Warning>,
     pub stats: SceneStats,

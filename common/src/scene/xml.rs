@@ -1,5 +1,6 @@
-//! XML front end: the 2020/21 CENG795 dialect (homeworks 1-2), plus the 2019 legacy rules for
-//! materials (scene-format.md §6.1, §6.9).
+//! XML front end: the 2020/21 CENG795 dialect (homeworks 1-4), plus the 2019 legacy rules for
+//! materials (scene-format.md §6.1, §6.9) and the 2019 `<Texture>` / `<BackgroundTexture>`
+//! elements, translated into 2020 texture maps (§11.11).
 //!
 //! Parsing happens in two steps:
 //!
@@ -22,8 +23,9 @@ use quick_xml::events::{BytesStart, Event};
 use quick_xml::{Reader, XmlVersion};
 
 use super::records::{
-    AreaLightRec, CameraRec, FacesRec, Handedness, InstanceRec, LensRec, MaterialKind, MaterialRec, MeshRec,
-    PointLightRec, Projection, SceneRecords, ShadingMode, SphereRec, TransformOp, TransformRec, TransformRef,
+    AreaLightRec, CameraRec, DecalMode, FacesRec, Handedness, ImageRec, InstanceRec, Interpolation, LensRec,
+    MaterialKind, MaterialRec, MeshRec, NoiseConversion, PointLightRec, Projection, SceneRecords,
+    ShadingMode, SphereRec, TextureMapRec, TextureSource, TransformOp, TransformRec, TransformRef,
     TriangleRec, Vec3,
 };
 use crate::error::{Loc, SceneError, Warning};
@@ -49,7 +51,12 @@ pub fn parse_xml(text: &str, source: &Path) -> Result<SceneRecords> {
             format!("the root element must be <Scene>, found <{}>; is this a scene file?", root.name),
         ));
     }
-    let mut parser = Parser { file: source, legacy: is_legacy_2019(&root), out: SceneRecords::new(source) };
+    let mut parser = Parser {
+        file: source,
+        legacy: is_legacy_2019(&root),
+        legacy_bumps: Vec::new(),
+        out: SceneRecords::new(source),
+    };
     parser.scene(&root)?;
     // Report in file order (the walk visits blocks, not lines); the sort is stable.
     parser.out.warnings.sort_by_key(|w| w.loc.line);
@@ -426,31 +433,37 @@ struct Schema {
     unsupported: &'static [&'static str],
     attrs: &'static [&'static str],
     unsupported_attrs: &'static [&'static str],
+    /// Children that belong to a sibling variant (another kind of texture) and mean nothing
+    /// here; warned about with `inapplicable_why` ("does not apply to ...").
+    inapplicable: &'static [&'static str],
+    inapplicable_why: &'static str,
 }
 
 impl Schema {
-    const EMPTY: Schema =
-        Schema { single: &[], many: &[], unsupported: &[], attrs: &[], unsupported_attrs: &[] };
+    const EMPTY: Schema = Schema {
+        single: &[],
+        many: &[],
+        unsupported: &[],
+        attrs: &[],
+        unsupported_attrs: &[],
+        inapplicable: &[],
+        inapplicable_why: "",
+    };
 }
 
 const SCENE: Schema = Schema {
+    // BackgroundTexture, BackfaceCulling and ZeroBasedIndexing are 2019 elements.
     single: &[
         "BackgroundColor",
         "ShadowRayEpsilon",
         "IntersectionTestEpsilon",
         "MaxRecursionDepth",
         "VertexData",
-    ],
-    many: &["Cameras", "Lights", "Materials", "Transformations", "Objects"],
-    // BackgroundTexture, BackfaceCulling and ZeroBasedIndexing are 2019 elements.
-    unsupported: &[
-        "Textures",
         "TexCoordData",
-        "BRDFs",
         "BackgroundTexture",
-        "BackfaceCulling",
-        "ZeroBasedIndexing",
     ],
+    many: &["Cameras", "Lights", "Materials", "Transformations", "Objects", "Textures"],
+    unsupported: &["BRDFs", "BackfaceCulling", "ZeroBasedIndexing"],
     ..Schema::EMPTY
 };
 const CAMERAS: Schema = Schema { many: &["Camera"], ..Schema::EMPTY };
@@ -509,22 +522,24 @@ const OBJECTS: Schema = Schema {
     unsupported: &["LightMesh", "LightSphere", "Plane"],
     ..Schema::EMPTY
 };
-// `Texture` is the 2019 spelling of an object's `Textures`.
+// `Texture` is the 2019 spelling of an object's `Textures`. Both are read (and their repeats
+// checked) by `Parser::object_textures`.
 const MESH: Schema = Schema {
     single: &["Material", "Faces", "Transformations", "MotionBlur"],
-    unsupported: &["Textures", "Texture"],
+    many: &["Textures", "Texture"],
     attrs: &["id", "shadingMode"],
     ..Schema::EMPTY
 };
 const TRIANGLE: Schema = Schema {
     single: &["Material", "Indices", "Transformations"],
-    unsupported: &["Textures", "Texture", "MotionBlur"],
+    many: &["Textures", "Texture"],
+    unsupported: &["MotionBlur"],
     attrs: &["id"],
     ..Schema::EMPTY
 };
 const SPHERE: Schema = Schema {
     single: &["Material", "Center", "Radius", "Transformations", "MotionBlur"],
-    unsupported: &["Textures", "Texture"],
+    many: &["Textures", "Texture"],
     attrs: &["id"],
     ..Schema::EMPTY
 };
@@ -534,16 +549,145 @@ const MESH_INSTANCE: Schema = Schema {
     attrs: &["id", "baseMeshId", "resetTransform", "shadingMode"],
     ..Schema::EMPTY
 };
+// Also used for `TexCoordData`.
 const VERTEX_DATA_ATTRS: &[&str] = &[];
 const VERTEX_DATA_UNSUPPORTED_ATTRS: &[&str] = &["binaryFile"];
 // `binaryFile` is known here but handled by `Parser::mesh` (the mesh is skipped).
-const FACES_ATTRS: &[&str] = &["vertexOffset", "plyFile", "binaryFile"];
-const FACES_UNSUPPORTED_ATTRS: &[&str] = &["textureOffset"];
+const FACES_ATTRS: &[&str] = &["vertexOffset", "textureOffset", "plyFile", "binaryFile"];
+const FACES_UNSUPPORTED_ATTRS: &[&str] = &[];
+
+// --- textures (HW4, scene-format.md §11) ---
+
+const TEXTURES: Schema = Schema { many: &["Images", "TextureMap", "Texture"], ..Schema::EMPTY };
+const IMAGES: Schema = Schema { many: &["Image"], ..Schema::EMPTY };
+const IMAGE: Schema = Schema { attrs: &["id"], ..Schema::EMPTY };
+const TEXTURE_MAP_ATTRS: &[&str] = &["id", "type", "degamma"];
+const IMAGE_MAP: Schema = Schema {
+    single: &["DecalMode", "ImageId", "Interpolation", "Normalizer", "BumpFactor"],
+    attrs: TEXTURE_MAP_ATTRS,
+    inapplicable: &[
+        "NoiseConversion",
+        "NoiseScale",
+        "NumOctaves",
+        "BlackColor",
+        "WhiteColor",
+        "Scale",
+        "Offset",
+    ],
+    inapplicable_why: "does not apply to image texture maps",
+    ..Schema::EMPTY
+};
+const PERLIN_MAP: Schema = Schema {
+    single: &["DecalMode", "NoiseConversion", "NoiseScale", "BumpFactor"],
+    // 2025 scenes: fractal sum of octaves.
+    unsupported: &["NumOctaves"],
+    attrs: TEXTURE_MAP_ATTRS,
+    inapplicable: &["ImageId", "Interpolation", "Normalizer", "BlackColor", "WhiteColor", "Scale", "Offset"],
+    inapplicable_why: "does not apply to perlin texture maps",
+    ..Schema::EMPTY
+};
+const CHECKERBOARD_MAP: Schema = Schema {
+    single: &["DecalMode", "BlackColor", "WhiteColor", "Scale", "Offset", "BumpFactor"],
+    attrs: TEXTURE_MAP_ATTRS,
+    inapplicable: &["ImageId", "Interpolation", "Normalizer", "NoiseConversion", "NoiseScale", "NumOctaves"],
+    inapplicable_why: "does not apply to checkerboard texture maps",
+    ..Schema::EMPTY
+};
+/// 2019 `<Texture>` (§11.11); which children apply depends on `ImageName`.
+const LEGACY_TEXTURE_ATTRS: &[&str] = &["id", "bumpmap", "bumpmapMultiplier", "degamma"];
+const LEGACY_IMAGE_TEXTURE: Schema = Schema {
+    single: &["ImageName", "DecalMode", "Interpolation", "Normalizer", "Appearance"],
+    attrs: LEGACY_TEXTURE_ATTRS,
+    inapplicable: &["ScalingFactor", "Offset", "BlackColor", "WhiteColor", "Dimension3"],
+    inapplicable_why: "does not apply to image textures",
+    ..Schema::EMPTY
+};
+const LEGACY_PERLIN_TEXTURE: Schema = Schema {
+    single: &["ImageName", "DecalMode", "Normalizer", "Appearance", "ScalingFactor"],
+    attrs: LEGACY_TEXTURE_ATTRS,
+    inapplicable: &["Interpolation", "Offset", "BlackColor", "WhiteColor", "Dimension3"],
+    inapplicable_why: "does not apply to perlin textures",
+    ..Schema::EMPTY
+};
+// `Dimension3` is accepted and ignored: the 2020 checkerboard is always 3-D.
+const LEGACY_CHECKERBOARD_TEXTURE: Schema = Schema {
+    single: &[
+        "ImageName",
+        "DecalMode",
+        "Normalizer",
+        "ScalingFactor",
+        "Offset",
+        "BlackColor",
+        "WhiteColor",
+        "Dimension3",
+    ],
+    attrs: LEGACY_TEXTURE_ATTRS,
+    inapplicable: &["Interpolation", "Appearance"],
+    inapplicable_why: "does not apply to checkerboard textures",
+    ..Schema::EMPTY
+};
+
+const DECAL_MODES: &[(&str, DecalMode)] = &[
+    ("replace_kd", DecalMode::ReplaceKd),
+    ("blend_kd", DecalMode::BlendKd),
+    ("replace_ks", DecalMode::ReplaceKs),
+    ("replace_all", DecalMode::ReplaceAll),
+    ("replace_normal", DecalMode::ReplaceNormal),
+    ("bump_normal", DecalMode::BumpNormal),
+    ("replace_background", DecalMode::ReplaceBackground),
+];
+/// 2019 files: the 2020 names plus the short spellings of the 2019 assignment text.
+const LEGACY_DECAL_MODES: &[(&str, DecalMode)] = &[
+    ("replace_kd", DecalMode::ReplaceKd),
+    ("blend_kd", DecalMode::BlendKd),
+    ("replace_ks", DecalMode::ReplaceKs),
+    ("replace_all", DecalMode::ReplaceAll),
+    ("replace_normal", DecalMode::ReplaceNormal),
+    ("bump_normal", DecalMode::BumpNormal),
+    ("replace_background", DecalMode::ReplaceBackground),
+    ("replace", DecalMode::ReplaceKd),
+    ("blend", DecalMode::BlendKd),
+];
+const INTERPOLATIONS: &[(&str, Interpolation)] = &[
+    ("nearest", Interpolation::Nearest),
+    ("bilinear", Interpolation::Bilinear),
+    ("trilinear", Interpolation::Trilinear),
+];
+const NOISE_CONVERSIONS: &[(&str, NoiseConversion)] =
+    &[("linear", NoiseConversion::Linear), ("absval", NoiseConversion::AbsVal)];
+/// 2019 `<Appearance>` of perlin textures.
+const LEGACY_PERLIN_APPEARANCES: &[(&str, NoiseConversion)] =
+    &[("patch", NoiseConversion::Linear), ("vein", NoiseConversion::AbsVal)];
+/// 2019 `<Appearance>` of image textures: is it `clamp`?
+const LEGACY_IMAGE_APPEARANCES: &[(&str, bool)] = &[("repeat", false), ("clamp", true)];
+
+/// Image and texture-map id of a 2019 `<BackgroundTexture>`.
+const BACKGROUND_TEXTURE_ID: &str = "2019:background";
+
+#[derive(Clone, Copy)]
+enum MapKind {
+    Image,
+    Perlin,
+    Checkerboard,
+}
+
+/// "a", "a or b", "a, b or c".
+fn one_of<T>(options: &[(&str, T)]) -> String {
+    let names: Vec<&str> = options.iter().map(|(name, _)| *name).collect();
+    match names.split_last() {
+        None => String::new(),
+        Some((last, [])) => (*last).to_string(),
+        Some((last, rest)) => format!("{} or {last}", rest.join(", ")),
+    }
+}
 
 struct Parser<'a> {
     file: &'a Path,
     /// 2019 dialect: untyped MirrorReflectance / Transparency make mirrors / dielectrics.
     legacy: bool,
+    /// 2019 `<Texture bumpmap="true">` ids with the id of the extra bump map made for each,
+    /// so that an object's `<Texture>k</Texture>` can refer to both maps.
+    legacy_bumps: Vec<(String, String)>,
     out: SceneRecords,
 }
 
@@ -578,6 +722,8 @@ impl Parser<'_> {
                 }
             } else if schema.unsupported.contains(&name) {
                 self.warn(child, format!("<{name}> is not supported yet; it is ignored"));
+            } else if schema.inapplicable.contains(&name) {
+                self.warn(child, format!("<{name}> {}; it is ignored", schema.inapplicable_why));
             } else if !schema.many.contains(&name) {
                 self.warn(child, format!("unknown element <{name}>; it is ignored"));
             }
@@ -701,6 +847,61 @@ impl Parser<'_> {
         }
     }
 
+    /// An integer attribute such as `vertexOffset`.
+    fn int_attr(&self, node: &Node, key: &str) -> Result<Option<i64>> {
+        node.attr(key)
+            .map(|v| {
+                <i64 as Token>::parse(v.trim()).ok_or_else(|| {
+                    self.err(node, format!("attribute {key} must be an integer, found \"{}\"", excerpt(v)))
+                })
+            })
+            .transpose()
+    }
+
+    /// A number attribute such as `bumpmapMultiplier`.
+    fn number_attr(&self, node: &Node, key: &str) -> Result<Option<f64>> {
+        node.attr(key)
+            .map(|v| {
+                <f64 as Token>::parse(v.trim()).ok_or_else(|| {
+                    self.err(node, format!("attribute {key} must be a number, found \"{}\"", excerpt(v)))
+                })
+            })
+            .transpose()
+    }
+
+    /// The text of `node`, which must be one of the `options` (e.g. a DecalMode).
+    fn keyword<T: Copy>(&self, node: &Node, options: &[(&str, T)]) -> Result<T> {
+        let value = node.text.trim();
+        match options.iter().find(|(name, _)| *name == value) {
+            Some(&(_, v)) => Ok(v),
+            None => Err(self.err(
+                node,
+                format!("{} must be {}, found {}", node.name, one_of(options), quoted(&node.text)),
+            )),
+        }
+    }
+
+    fn optional_keyword<T: Copy>(
+        &self,
+        parent: &Node,
+        name: &str,
+        options: &[(&str, T)],
+    ) -> Result<Option<T>> {
+        parent.child(name).map(|c| self.keyword(c, options)).transpose()
+    }
+
+    /// `<Normalizer>`, which divides texel values and so must be positive.
+    fn normalizer(&self, parent: &Node) -> Result<Option<f64>> {
+        let Some(n) = parent.child("Normalizer") else { return Ok(None) };
+        match self.number::<f64>(n)? {
+            v if v > 0.0 => Ok(Some(v)),
+            v => Err(self.err(
+                n,
+                format!("Normalizer must be positive, found {v} (texel values are divided by it; 255 for 8-bit images)"),
+            )),
+        }
+    }
+
     fn shading_attr(&self, node: &Node) -> Result<Option<ShadingMode>> {
         match node.attr("shadingMode").map(str::trim) {
             None => Ok(None),
@@ -743,6 +944,17 @@ impl Parser<'_> {
         }
         if let Some(v) = scene.child("VertexData") {
             self.vertex_data(v)?;
+        }
+        if let Some(t) = scene.child("TexCoordData") {
+            self.tex_coord_data(t)?;
+        }
+        // Textures before objects: a 2019 object's `<Texture>` needs to know which textures
+        // also bump (see `legacy_bumps`).
+        for block in scene.children_named("Textures") {
+            self.textures(block)?;
+        }
+        if let Some(b) = scene.child("BackgroundTexture") {
+            self.background_texture(b)?;
         }
         for block in &scene.children {
             match block.name.as_str() {
@@ -997,6 +1209,275 @@ impl Parser<'_> {
         Ok(())
     }
 
+    fn tex_coord_data(&mut self, n: &Node) -> Result<()> {
+        self.check_attrs(n, VERTEX_DATA_ATTRS, VERTEX_DATA_UNSUPPORTED_ATTRS);
+        let values = self.number_list::<f64>(n, 2, "u v per texture coordinate")?;
+        self.out.tex_coords = values.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+        Ok(())
+    }
+
+    /// A scene-level `<Textures>` block: 2020 `Images` and `TextureMap`s, 2019 `Texture`s.
+    fn textures(&mut self, block: &Node) -> Result<()> {
+        self.check(block, &TEXTURES);
+        for child in &block.children {
+            match child.name.as_str() {
+                "Images" => {
+                    self.check(child, &IMAGES);
+                    for image in child.children_named("Image") {
+                        self.check(image, &IMAGE);
+                        let rec = ImageRec {
+                            id: self.id(image, true)?,
+                            loc: image.loc(),
+                            path: self.text(image, "an image file path")?.to_string(),
+                        };
+                        self.out.images.push(rec);
+                    }
+                }
+                "TextureMap" => {
+                    let map = self.texture_map(child)?;
+                    self.out.texture_maps.push(map);
+                }
+                "Texture" => self.legacy_texture(child)?,
+                _ => {}
+            }
+        }
+        Ok(())
+    }
+
+    /// The required `<DecalMode>` of a 2020 texture map.
+    fn decal_mode(&self, n: &Node) -> Result<DecalMode> {
+        match n.child("DecalMode") {
+            Some(d) => self.keyword(d, DECAL_MODES),
+            None => Err(self.err(
+                n,
+                format!("missing <DecalMode> (how the texture changes the surface: {})", one_of(DECAL_MODES)),
+            )),
+        }
+    }
+
+    /// A 2020 `<TextureMap>` (scene-format.md §11).
+    fn texture_map(&mut self, n: &Node) -> Result<TextureMapRec> {
+        const TYPES: &[(&str, MapKind)] = &[
+            ("image", MapKind::Image),
+            ("perlin", MapKind::Perlin),
+            ("checkerboard", MapKind::Checkerboard),
+        ];
+        let kind = match n.attr("type").map(str::trim) {
+            None => {
+                return Err(self.err(n, format!("missing attribute type ({})", one_of(TYPES))));
+            }
+            Some(t) => match TYPES.iter().find(|(name, _)| *name == t) {
+                Some(&(_, kind)) => kind,
+                None => {
+                    return Err(self.err(
+                        n,
+                        format!("attribute type must be {}, found \"{}\"", one_of(TYPES), excerpt(t)),
+                    ));
+                }
+            },
+        };
+        self.check(
+            n,
+            match kind {
+                MapKind::Image => &IMAGE_MAP,
+                MapKind::Perlin => &PERLIN_MAP,
+                MapKind::Checkerboard => &CHECKERBOARD_MAP,
+            },
+        );
+        let id = self.id(n, true)?;
+        let decal = self.decal_mode(n)?;
+        let source = match kind {
+            MapKind::Image => {
+                let image = n.child("ImageId").ok_or_else(|| {
+                    self.err(n, "missing <ImageId> (the id of an <Image> in <Textures> / <Images>)")
+                })?;
+                TextureSource::Image {
+                    image: self.id_ref(image, "an image id")?,
+                    interpolation: self
+                        .optional_keyword(n, "Interpolation", INTERPOLATIONS)?
+                        .unwrap_or(Interpolation::Bilinear),
+                    normalizer: self.normalizer(n)?.unwrap_or(255.0),
+                }
+            }
+            MapKind::Perlin => TextureSource::Perlin {
+                conversion: self
+                    .optional_keyword(n, "NoiseConversion", NOISE_CONVERSIONS)?
+                    .unwrap_or(NoiseConversion::Linear),
+                scale: self.optional_number(n, "NoiseScale")?.unwrap_or(1.0),
+            },
+            MapKind::Checkerboard => TextureSource::Checkerboard {
+                black: self.optional_numbers(n, "BlackColor")?.unwrap_or([0.0; 3]),
+                white: self.optional_numbers(n, "WhiteColor")?.unwrap_or([1.0; 3]),
+                scale: self.optional_number(n, "Scale")?.unwrap_or(1.0),
+                offset: self.optional_number(n, "Offset")?.unwrap_or(0.0),
+            },
+        };
+        Ok(TextureMapRec {
+            id,
+            loc: n.loc(),
+            source,
+            decal,
+            bump_factor: self.optional_number(n, "BumpFactor")?.unwrap_or(1.0),
+            degamma: self.bool_attr(n, "degamma")?.unwrap_or(false),
+        })
+    }
+
+    /// A 2019 `<Texture>` (scene-format.md §11.11), translated into one texture map, or two
+    /// with `bumpmap="true"`: in 2019 such a texture colours the surface *and* bumps it, so a
+    /// `bump_normal` map with id `<id>:bump` and `BumpFactor = bumpmapMultiplier` is added and
+    /// remembered in `legacy_bumps`. An image file becomes an [`ImageRec`] with id `2019:<id>`.
+    fn legacy_texture(&mut self, n: &Node) -> Result<()> {
+        let id = self.id(n, true)?;
+        let name_node = n.child("ImageName").ok_or_else(|| {
+            self.err(n, "missing <ImageName> (an image file, or the word perlin or checkerboard)")
+        })?;
+        let name = self.text(name_node, "an image file, or the word perlin or checkerboard")?;
+        let (kind, schema) = match name {
+            "perlin" => (MapKind::Perlin, &LEGACY_PERLIN_TEXTURE),
+            "checkerboard" => (MapKind::Checkerboard, &LEGACY_CHECKERBOARD_TEXTURE),
+            _ => (MapKind::Image, &LEGACY_IMAGE_TEXTURE),
+        };
+        self.check(n, schema);
+        let decal =
+            self.optional_keyword(n, "DecalMode", LEGACY_DECAL_MODES)?.unwrap_or(DecalMode::ReplaceKd);
+        let bumpmap = self.bool_attr(n, "bumpmap")?.unwrap_or(false);
+        // Read (and checked) even with bumpmap="false", where the 2019 files also write it.
+        let multiplier = self.number_attr(n, "bumpmapMultiplier")?.unwrap_or(1.0);
+        let degamma = self.bool_attr(n, "degamma")?.unwrap_or(false);
+        let source = match kind {
+            MapKind::Image => {
+                if let Some(a) = n.child("Appearance")
+                    && self.keyword(a, LEGACY_IMAGE_APPEARANCES)?
+                {
+                    self.warn(
+                        a,
+                        "<Appearance>clamp</Appearance> is not supported yet; the texture is repeated instead",
+                    );
+                }
+                let image = format!("2019:{id}");
+                let path = name.to_string();
+                self.out.images.push(ImageRec { id: image.clone(), loc: n.loc(), path });
+                TextureSource::Image {
+                    image,
+                    interpolation: self
+                        .optional_keyword(n, "Interpolation", INTERPOLATIONS)?
+                        .unwrap_or(Interpolation::Bilinear),
+                    normalizer: self.normalizer(n)?.unwrap_or(255.0),
+                }
+            }
+            MapKind::Perlin => {
+                self.legacy_unused_normalizer(n, "perlin")?;
+                TextureSource::Perlin {
+                    conversion: self
+                        .optional_keyword(n, "Appearance", LEGACY_PERLIN_APPEARANCES)?
+                        .unwrap_or(NoiseConversion::Linear),
+                    scale: self.optional_number(n, "ScalingFactor")?.unwrap_or(1.0),
+                }
+            }
+            MapKind::Checkerboard => {
+                self.legacy_unused_normalizer(n, "checkerboard")?;
+                TextureSource::Checkerboard {
+                    black: self.optional_numbers(n, "BlackColor")?.unwrap_or([0.0; 3]),
+                    white: self.optional_numbers(n, "WhiteColor")?.unwrap_or([1.0; 3]),
+                    scale: self.optional_number(n, "ScalingFactor")?.unwrap_or(1.0),
+                    offset: self.optional_number(n, "Offset")?.unwrap_or(0.0),
+                }
+            }
+        };
+        let colour = TextureMapRec { id: id.clone(), loc: n.loc(), source, decal, bump_factor: 1.0, degamma };
+        let bump = bumpmap.then(|| TextureMapRec {
+            id: format!("{id}:bump"),
+            decal: DecalMode::BumpNormal,
+            bump_factor: multiplier,
+            ..colour.clone()
+        });
+        self.out.texture_maps.push(colour);
+        if let Some(bump) = bump {
+            self.legacy_bumps.push((id, bump.id.clone()));
+            self.out.texture_maps.push(bump);
+        }
+        Ok(())
+    }
+
+    /// The 2019 perlin and checkerboard textures write `<Normalizer>1</Normalizer>`; their
+    /// values are used as they are, so anything else is warned about.
+    fn legacy_unused_normalizer(&mut self, n: &Node, kind: &str) -> Result<()> {
+        if let Some(norm) = n.child("Normalizer") {
+            let v = self.number::<f64>(norm)?;
+            if v != 1.0 {
+                self.warn(
+                    norm,
+                    format!("<Normalizer> has no effect on {kind} textures (their values are used as they are); it is ignored"),
+                );
+            }
+        }
+        Ok(())
+    }
+
+    /// 2019 `<BackgroundTexture>path</BackgroundTexture>`: a `replace_background` image map
+    /// whose texels are used raw (normalizer 1, scene-format.md §11.8).
+    fn background_texture(&mut self, n: &Node) -> Result<()> {
+        self.check_attrs(n, &[], &[]);
+        let path = self.text(n, "an image file path")?.to_string();
+        let id = BACKGROUND_TEXTURE_ID.to_string();
+        self.out.images.push(ImageRec { id: id.clone(), loc: n.loc(), path });
+        self.out.texture_maps.push(TextureMapRec {
+            id: id.clone(),
+            loc: n.loc(),
+            source: TextureSource::Image {
+                image: id,
+                interpolation: Interpolation::Bilinear,
+                normalizer: 1.0,
+            },
+            decal: DecalMode::ReplaceBackground,
+            bump_factor: 1.0,
+            degamma: false,
+        });
+        Ok(())
+    }
+
+    /// An object's texture-map ids: `<Textures>1 2</Textures>`, or the 2019 `<Texture>1</Texture>`.
+    /// A reference to a 2019 `bumpmap="true"` texture also names the bump map made for it. A
+    /// repeat with the same ids (the cube_* scenes) is accepted silently; one with other ids is
+    /// warned about and the first is used.
+    fn object_textures(&mut self, n: &Node) -> Result<Vec<String>> {
+        let name = match (n.child("Textures"), n.child("Texture")) {
+            (None, None) => return Ok(Vec::new()),
+            (Some(_), Some(t)) => {
+                self.warn(t, "<Texture> (the 2019 spelling) is ignored because <Textures> is given");
+                "Textures"
+            }
+            (Some(_), None) => "Textures",
+            (None, Some(_)) => "Texture",
+        };
+        let mut first: Option<&Node> = None;
+        for list in n.children_named(name) {
+            for grandchild in &list.children {
+                self.warn(grandchild, format!("unknown element <{}>; it is ignored", grandchild.name));
+            }
+            match first {
+                None => first = Some(list),
+                Some(f) if f.text.split_ascii_whitespace().eq(list.text.split_ascii_whitespace()) => {}
+                Some(f) => self.warn(
+                    list,
+                    format!(
+                        "<{name}> is given more than once with different ids; only the first one ({}) is used",
+                        quoted(&f.text)
+                    ),
+                ),
+            }
+        }
+        let Some(list) = first else { return Ok(Vec::new()) };
+        let mut ids = Vec::new();
+        for id in list.text.split_ascii_whitespace() {
+            ids.push(id.to_string());
+            if let Some((_, bump)) = self.legacy_bumps.iter().find(|(t, _)| t == id) {
+                ids.push(bump.clone());
+            }
+        }
+        Ok(ids)
+    }
+
     fn objects(&mut self, objects: &Node) -> Result<()> {
         self.check(objects, &OBJECTS);
         for n in &objects.children {
@@ -1071,19 +1552,10 @@ impl Parser<'_> {
             );
             return Ok(None);
         } else {
-            let vertex_offset = match faces.attr("vertexOffset") {
-                None => 0,
-                Some(v) => <i64 as Token>::parse(v.trim()).ok_or_else(|| {
-                    self.err(
-                        faces,
-                        format!("attribute vertexOffset must be an integer, found \"{}\"", excerpt(v)),
-                    )
-                })?,
-            };
             FacesRec::Inline {
                 indices: self.number_list(faces, 3, "three vertex ids per triangle")?,
-                vertex_offset,
-                texture_offset: None,
+                vertex_offset: self.int_attr(faces, "vertexOffset")?.unwrap_or(0),
+                texture_offset: self.int_attr(faces, "textureOffset")?,
             }
         };
         Ok(Some(MeshRec {
@@ -1095,7 +1567,7 @@ impl Parser<'_> {
             shading: self.shading_attr(n)?.unwrap_or(ShadingMode::Flat),
             transforms: self.transform_refs(n)?,
             motion_blur: self.optional_numbers(n, "MotionBlur")?,
-            textures: Vec::new(),
+            textures: self.object_textures(n)?,
         }))
     }
 
@@ -1107,7 +1579,7 @@ impl Parser<'_> {
             material: self.material_ref(n)?,
             indices: self.required_numbers(n, "Indices")?,
             transforms: self.transform_refs(n)?,
-            textures: Vec::new(),
+            textures: self.object_textures(n)?,
         })
     }
 
@@ -1121,7 +1593,7 @@ impl Parser<'_> {
             radius: self.required_number(n, "Radius")?,
             transforms: self.transform_refs(n)?,
             motion_blur: self.optional_numbers(n, "MotionBlur")?,
-            textures: Vec::new(),
+            textures: self.object_textures(n)?,
         })
     }
 
@@ -1571,7 +2043,8 @@ mod tests {
         let glass = "<Material id=\"3\"><MirrorReflectance>0.1 0.1 0.1</MirrorReflectance>\
                      <Transparency>1 1 1</Transparency><RefractionIndex>1.5</RefractionIndex></Material>";
         let typed = "<Material id=\"4\" type=\"conductor\"></Material>";
-        let texture_map = "<Textures><TextureMap id=\"1\" type=\"perlin\"/></Textures>";
+        let texture_map = "<Textures><TextureMap id=\"1\" type=\"perlin\"><DecalMode>replace_kd</DecalMode>\
+                           </TextureMap></Textures>";
         use MaterialKind::*;
         let cases: &[(&str, &str, &[MaterialKind])] = &[
             // 2019 file: no type attributes, no TextureMap.
@@ -1793,11 +2266,16 @@ mod tests {
             (&scene("<Foo>1</Foo>"), &[&w(2, "Foo", "unknown element <Foo>; it is ignored")]),
             (
                 &scene(&format!(
-                    "<Objects>\n{sphere}\n<Radiuss>2</Radiuss><Textures>1</Textures>\n</Sphere>\n</Objects>"
+                    "<Objects>\n{sphere}\n<Radiuss>2</Radiuss><Textures>1</Textures>\n</Sphere>\n\
+                     <MeshInstance id=\"2\" baseMeshId=\"1\"><Textures>1</Textures></MeshInstance>\n</Objects>"
                 )),
                 &[
                     &w(4, r#"Sphere id="1"> / <Radiuss"#, "unknown element <Radiuss>; it is ignored"),
-                    &w(4, r#"Sphere id="1"> / <Textures"#, "<Textures> is not supported yet; it is ignored"),
+                    &w(
+                        6,
+                        r#"MeshInstance id="2"> / <Textures"#,
+                        "<Textures> is not supported yet; it is ignored",
+                    ),
                 ],
             ),
             (
@@ -1833,11 +2311,11 @@ mod tests {
             ),
             (
                 &scene(
-                    "<VertexData binaryFile=\"geometry/vertices.bin\"/>\n<TexCoordData>0 0</TexCoordData>",
+                    "<VertexData binaryFile=\"geometry/vertices.bin\"/>\n<TexCoordData binaryFile=\"geometry/uvs.bin\"/>",
                 ),
                 &[
                     &w(2, "VertexData", "attribute binaryFile is not supported yet; it is ignored"),
-                    &w(3, "TexCoordData", "<TexCoordData> is not supported yet; it is ignored"),
+                    &w(3, "TexCoordData", "attribute binaryFile is not supported yet; it is ignored"),
                 ],
             ),
             (
@@ -1877,6 +2355,687 @@ mod tests {
         assert!(parse(cases[6].0).meshes.is_empty());
     }
 
+    // ---------------------------------------------------------------------------------------
+    // Textures (HW4)
+    // ---------------------------------------------------------------------------------------
+
+    /// `Loc` of the element whose start tag is the first occurrence of `needle` in `xml`.
+    fn loc_of(xml: &str, needle: &str, element: &str) -> Loc {
+        Loc::new(line_of(xml, needle), element)
+    }
+
+    fn map(id: &str, loc: Loc, source: TextureSource, decal: DecalMode) -> TextureMapRec {
+        TextureMapRec { id: id.into(), loc, source, decal, bump_factor: 1.0, degamma: false }
+    }
+
+    fn image_source(image: &str, interpolation: Interpolation, normalizer: f64) -> TextureSource {
+        TextureSource::Image { image: image.into(), interpolation, normalizer }
+    }
+
+    const TEXTURE_MAPS: &str = r#"<Scene>
+<Textures>
+  <Images>
+    <Image id="1">textures/earth.jpg</Image>
+    <Image id="hdr"> textures/grace new.exr </Image>
+  </Images>
+  <TextureMap id="1" type="image">
+    <ImageId>1</ImageId>
+    <DecalMode>replace_kd</DecalMode>
+  </TextureMap>
+  <TextureMap id="2" type="image" degamma="true">
+    <ImageId> hdr </ImageId>
+    <DecalMode>bump_normal</DecalMode>
+    <Interpolation>nearest</Interpolation>
+    <Normalizer>1</Normalizer>
+    <BumpFactor>30</BumpFactor>
+  </TextureMap>
+  <TextureMap id="3" type="perlin">
+    <DecalMode>replace_kd</DecalMode>
+  </TextureMap>
+  <TextureMap id="4" type="perlin" degamma="false">
+    <DecalMode>bump_normal</DecalMode>
+    <NoiseConversion>absval</NoiseConversion>
+    <NoiseScale>0.5</NoiseScale>
+    <BumpFactor>0.08</BumpFactor>
+  </TextureMap>
+  <TextureMap id="5" type="checkerboard">
+    <DecalMode>blend_kd</DecalMode>
+  </TextureMap>
+  <TextureMap id="6" type="checkerboard">
+    <DecalMode>replace_kd</DecalMode>
+    <BlackColor>0.4 0.4 0.4</BlackColor>
+    <WhiteColor>10 10 10</WhiteColor>
+    <Scale>0.1</Scale>
+    <Offset>79</Offset>
+    <BumpFactor>2</BumpFactor>
+  </TextureMap>
+  <TextureMap id="7" type="image">
+    <ImageId>1</ImageId>
+    <DecalMode>replace_all</DecalMode>
+    <Interpolation>trilinear</Interpolation>
+  </TextureMap>
+  <TextureMap id="8" type="perlin">
+    <NoiseConversion>linear</NoiseConversion>
+    <DecalMode>replace_kd</DecalMode>
+  </TextureMap>
+</Textures>
+</Scene>
+"#;
+
+    #[test]
+    fn texture_maps_of_each_type_with_defaults_and_every_child() {
+        use DecalMode::*;
+        use Interpolation::*;
+        let xml = TEXTURE_MAPS;
+        let records = parse(xml);
+        assert!(records.warnings.is_empty(), "{:?}", records.warnings);
+        assert_eq!(
+            records.images,
+            vec![
+                ImageRec {
+                    id: "1".into(),
+                    loc: loc_of(xml, r#"<Image id="1""#, r#"Images> / <Image id="1""#),
+                    path: "textures/earth.jpg".into(),
+                },
+                ImageRec {
+                    id: "hdr".into(),
+                    loc: loc_of(xml, r#"<Image id="hdr""#, r#"Images> / <Image id="hdr""#),
+                    path: "textures/grace new.exr".into(),
+                },
+            ]
+        );
+        let at =
+            |id: &str| loc_of(xml, &format!(r#"<TextureMap id="{id}""#), &format!(r#"TextureMap id="{id}""#));
+        let expected = vec![
+            // Defaults: bilinear, Normalizer 255, BumpFactor 1, no degamma.
+            map("1", at("1"), image_source("1", Bilinear, 255.0), ReplaceKd),
+            TextureMapRec {
+                bump_factor: 30.0,
+                degamma: true,
+                ..map("2", at("2"), image_source("hdr", Nearest, 1.0), BumpNormal)
+            },
+            map(
+                "3",
+                at("3"),
+                TextureSource::Perlin { conversion: NoiseConversion::Linear, scale: 1.0 },
+                ReplaceKd,
+            ),
+            TextureMapRec {
+                bump_factor: 0.08,
+                ..map(
+                    "4",
+                    at("4"),
+                    TextureSource::Perlin { conversion: NoiseConversion::AbsVal, scale: 0.5 },
+                    BumpNormal,
+                )
+            },
+            map(
+                "5",
+                at("5"),
+                TextureSource::Checkerboard { black: [0.0; 3], white: [1.0; 3], scale: 1.0, offset: 0.0 },
+                BlendKd,
+            ),
+            TextureMapRec {
+                bump_factor: 2.0,
+                ..map(
+                    "6",
+                    at("6"),
+                    TextureSource::Checkerboard {
+                        black: [0.4; 3],
+                        white: [10.0; 3],
+                        scale: 0.1,
+                        offset: 79.0,
+                    },
+                    ReplaceKd,
+                )
+            },
+            map("7", at("7"), image_source("1", Trilinear, 255.0), ReplaceAll),
+            map(
+                "8",
+                at("8"),
+                TextureSource::Perlin { conversion: NoiseConversion::Linear, scale: 1.0 },
+                ReplaceKd,
+            ),
+        ];
+        assert_eq!(records.texture_maps, expected);
+    }
+
+    #[test]
+    fn every_decal_mode() {
+        use DecalMode::*;
+        let modes = [
+            ("replace_kd", ReplaceKd),
+            ("blend_kd", BlendKd),
+            ("replace_ks", ReplaceKs),
+            ("replace_all", ReplaceAll),
+            ("replace_normal", ReplaceNormal),
+            ("bump_normal", BumpNormal),
+            ("replace_background", ReplaceBackground),
+        ];
+        for (name, mode) in modes {
+            for map_type in ["image", "perlin", "checkerboard"] {
+                let image = if map_type == "image" { "<ImageId>1</ImageId>" } else { "" };
+                let xml = scene(&format!(
+                    "<Textures><TextureMap id=\"1\" type=\"{map_type}\">{image}\
+                     <DecalMode>\n {name}\n</DecalMode></TextureMap></Textures>"
+                ));
+                let records = parse(&xml);
+                assert!(records.warnings.is_empty(), "{:?}", records.warnings);
+                assert_eq!(records.texture_maps[0].decal, mode, "input:\n{xml}");
+            }
+        }
+    }
+
+    #[test]
+    fn texture_errors_name_file_line_and_element() {
+        let texture_map = |attrs: &str, children: &str| {
+            scene(&format!(
+                "<Textures>\n<TextureMap id=\"1\"{attrs}>\n{children}\n</TextureMap>\n</Textures>"
+            ))
+        };
+        let image_map =
+            |children: &str| texture_map(" type=\"image\"", &format!("<ImageId>1</ImageId>\n{children}"));
+        let legacy = |attrs: &str, children: &str| {
+            scene(&format!("<Textures>\n<Texture id=\"1\"{attrs}>\n{children}\n</Texture>\n</Textures>"))
+        };
+        let decals = "replace_kd, blend_kd, replace_ks, replace_all, replace_normal, bump_normal or replace_background";
+        let cases: &[(&str, &str)] = &[
+            (
+                &image_map("<DecalMode>replace</DecalMode>"),
+                &format!(
+                    r#"scene.xml:5: <TextureMap id="1"> / <DecalMode>: DecalMode must be {decals}, found "replace""#
+                ),
+            ),
+            (
+                &image_map("<DecalMode></DecalMode>"),
+                &format!(
+                    r#"scene.xml:5: <TextureMap id="1"> / <DecalMode>: DecalMode must be {decals}, found nothing"#
+                ),
+            ),
+            (
+                &image_map("<Interpolation>bilinear</Interpolation>"),
+                &format!(
+                    r#"scene.xml:3: <TextureMap id="1">: missing <DecalMode> (how the texture changes the surface: {decals})"#
+                ),
+            ),
+            (
+                &texture_map(" type=\"noise\"", "<DecalMode>replace_kd</DecalMode>"),
+                r#"scene.xml:3: <TextureMap id="1">: attribute type must be image, perlin or checkerboard, found "noise""#,
+            ),
+            (
+                &texture_map("", "<DecalMode>replace_kd</DecalMode>"),
+                r#"scene.xml:3: <TextureMap id="1">: missing attribute type (image, perlin or checkerboard)"#,
+            ),
+            (
+                &scene(
+                    "<Textures>\n<TextureMap type=\"perlin\"><DecalMode>replace_kd</DecalMode></TextureMap>\n</Textures>",
+                ),
+                "scene.xml:3: <TextureMap>: missing attribute id (other elements refer to it by id)",
+            ),
+            (
+                &image_map("<DecalMode>replace_kd</DecalMode>\n<Interpolation>cubic</Interpolation>"),
+                r#"scene.xml:6: <TextureMap id="1"> / <Interpolation>: Interpolation must be nearest, bilinear or trilinear, found "cubic""#,
+            ),
+            (
+                &image_map("<DecalMode>replace_kd</DecalMode>\n<Normalizer>0</Normalizer>"),
+                r#"scene.xml:6: <TextureMap id="1"> / <Normalizer>: Normalizer must be positive, found 0 (texel values are divided by it; 255 for 8-bit images)"#,
+            ),
+            (
+                &image_map("<DecalMode>replace_kd</DecalMode>\n<BumpFactor>big</BumpFactor>"),
+                r#"scene.xml:6: <TextureMap id="1"> / <BumpFactor>: expected a number, found "big""#,
+            ),
+            (
+                &texture_map(" type=\"image\"", "<DecalMode>replace_kd</DecalMode>"),
+                r#"scene.xml:3: <TextureMap id="1">: missing <ImageId> (the id of an <Image> in <Textures> / <Images>)"#,
+            ),
+            (
+                &texture_map(" type=\"image\"", "<ImageId>1 2</ImageId><DecalMode>replace_kd</DecalMode>"),
+                r#"scene.xml:4: <TextureMap id="1"> / <ImageId>: expected an image id, found "1 2""#,
+            ),
+            (
+                &texture_map(
+                    " type=\"perlin\"",
+                    "<DecalMode>replace_kd</DecalMode>\n<NoiseConversion>abs</NoiseConversion>",
+                ),
+                r#"scene.xml:5: <TextureMap id="1"> / <NoiseConversion>: NoiseConversion must be linear or absval, found "abs""#,
+            ),
+            (
+                &texture_map(
+                    " type=\"checkerboard\"",
+                    "<DecalMode>replace_kd</DecalMode>\n<BlackColor>0 0</BlackColor>",
+                ),
+                r#"scene.xml:5: <TextureMap id="1"> / <BlackColor>: expected 3 numbers, found "0 0""#,
+            ),
+            (
+                &texture_map(" type=\"perlin\" degamma=\"yes\"", "<DecalMode>replace_kd</DecalMode>"),
+                r#"scene.xml:3: <TextureMap id="1">: attribute degamma must be true or false, found "yes""#,
+            ),
+            (
+                &scene("<Textures><Images>\n<Image>a.png</Image>\n</Images></Textures>"),
+                "scene.xml:3: <Images> / <Image>: missing attribute id (other elements refer to it by id)",
+            ),
+            (
+                &scene("<Textures><Images>\n<Image id=\"1\"> </Image>\n</Images></Textures>"),
+                r#"scene.xml:3: <Images> / <Image id="1">: expected an image file path, found nothing"#,
+            ),
+            (
+                &scene("<TexCoordData>\n0 0\n1 one\n</TexCoordData>"),
+                r#"scene.xml:4: <TexCoordData>: expected numbers, found "one""#,
+            ),
+            (
+                &scene("<TexCoordData>0 0 1</TexCoordData>"),
+                "scene.xml:2: <TexCoordData>: the number of values must be a multiple of 2 (u v per texture coordinate), found 3",
+            ),
+            (
+                &scene(
+                    "<Objects>\n<Mesh id=\"1\"><Material>1</Material>\n<Faces vertexOffset=\"1\" textureOffset=\"1.5\">0 1 2</Faces></Mesh>\n</Objects>",
+                ),
+                r#"scene.xml:4: <Mesh id="1"> / <Faces>: attribute textureOffset must be an integer, found "1.5""#,
+            ),
+            (
+                &scene("<BackgroundTexture>\n</BackgroundTexture>"),
+                "scene.xml:2: <BackgroundTexture>: expected an image file path, found nothing",
+            ),
+            // 2019 <Texture>
+            (
+                &legacy("", "<Interpolation>bilinear</Interpolation>"),
+                r#"scene.xml:3: <Texture id="1">: missing <ImageName> (an image file, or the word perlin or checkerboard)"#,
+            ),
+            (
+                &scene("<Textures>\n<Texture><ImageName>perlin</ImageName></Texture>\n</Textures>"),
+                "scene.xml:3: <Texture>: missing attribute id (other elements refer to it by id)",
+            ),
+            (
+                &legacy("", "<ImageName>a.jpg</ImageName>\n<DecalMode>mix</DecalMode>"),
+                &format!(
+                    r#"scene.xml:5: <Texture id="1"> / <DecalMode>: DecalMode must be {}, replace or blend, found "mix""#,
+                    decals.replace(" or ", ", ")
+                ),
+            ),
+            (
+                &legacy("", "<ImageName>a.jpg</ImageName>\n<Appearance>vein</Appearance>"),
+                r#"scene.xml:5: <Texture id="1"> / <Appearance>: Appearance must be repeat or clamp, found "vein""#,
+            ),
+            (
+                &legacy("", "<ImageName>perlin</ImageName>\n<Appearance>repeat</Appearance>"),
+                r#"scene.xml:5: <Texture id="1"> / <Appearance>: Appearance must be patch or vein, found "repeat""#,
+            ),
+            (
+                &legacy("", "<ImageName>perlin</ImageName>\n<Normalizer>one</Normalizer>"),
+                r#"scene.xml:5: <Texture id="1"> / <Normalizer>: expected a number, found "one""#,
+            ),
+            (
+                &legacy("", "<ImageName>checkerboard</ImageName>\n<ScalingFactor></ScalingFactor>"),
+                r#"scene.xml:5: <Texture id="1"> / <ScalingFactor>: expected a number, found nothing"#,
+            ),
+            (
+                &legacy(" bumpmap=\"yes\"", "<ImageName>a.jpg</ImageName>"),
+                r#"scene.xml:3: <Texture id="1">: attribute bumpmap must be true or false, found "yes""#,
+            ),
+            (
+                &legacy(" bumpmap=\"true\" bumpmapMultiplier=\"3x\"", "<ImageName>a.jpg</ImageName>"),
+                r#"scene.xml:3: <Texture id="1">: attribute bumpmapMultiplier must be a number, found "3x""#,
+            ),
+        ];
+        check_errors(cases);
+    }
+
+    #[test]
+    fn tex_coords_and_texture_offset() {
+        let records = parse(&scene(
+            r#"<VertexData>0 0 0  1 0 0  0 1 0</VertexData>
+<TexCoordData>
+    0 0
+    1 0.5  0.25
+    1
+</TexCoordData>
+<Objects>
+  <Mesh id="1"><Material>1</Material><Faces vertexOffset="1" textureOffset="2">0 1 2</Faces></Mesh>
+  <Mesh id="2"><Material>1</Material><Faces textureOffset=" -1 ">1 2 3</Faces></Mesh>
+  <Mesh id="3"><Material>1</Material><Faces>1 2 3</Faces></Mesh>
+</Objects>"#,
+        ));
+        assert!(records.warnings.is_empty(), "{:?}", records.warnings);
+        assert_eq!(records.tex_coords, vec![[0.0, 0.0], [1.0, 0.5], [0.25, 1.0]]);
+        let faces: Vec<_> = records.meshes.iter().map(|m| m.faces.clone()).collect();
+        assert_eq!(
+            faces,
+            vec![
+                FacesRec::Inline { indices: vec![0, 1, 2], vertex_offset: 1, texture_offset: Some(2) },
+                FacesRec::Inline { indices: vec![1, 2, 3], vertex_offset: 0, texture_offset: Some(-1) },
+                FacesRec::Inline { indices: vec![1, 2, 3], vertex_offset: 0, texture_offset: None },
+            ]
+        );
+        // Empty or absent (the PLY scenes: ton_Roosendaal_smooth, tower, windmill).
+        for body in [
+            "<TexCoordData></TexCoordData>",
+            "<TexCoordData/>",
+            "<TexCoordData> <!-- none --> </TexCoordData>",
+            "",
+        ] {
+            let records = parse(&scene(body));
+            assert!(records.warnings.is_empty(), "{:?}", records.warnings);
+            assert!(records.tex_coords.is_empty());
+        }
+    }
+
+    #[test]
+    fn object_texture_lists() {
+        let records = objects(
+            r#"<Mesh id="1"><Material>1</Material><Textures>1 2</Textures><Faces>1 1 1</Faces></Mesh>
+               <Mesh id="2"><Material>1</Material><Textures>1</Textures>
+                   <Textures> 1 </Textures><Faces>1 1 1</Faces></Mesh>
+               <Mesh id="3"><Material>1</Material><Faces>1 1 1</Faces><Textures></Textures></Mesh>
+               <Triangle id="1"><Material>1</Material><Indices>1 1 1</Indices><Textures>
+                   a  b
+               </Textures></Triangle>
+               <Sphere id="1"><Material>1</Material><Center>1</Center><Radius>1</Radius><Textures>3</Textures></Sphere>
+               <Sphere id="2"><Material>1</Material><Center>1</Center><Radius>1</Radius></Sphere>"#,
+            "",
+        );
+        // The repeated identical <Textures> of the cube_* scenes is accepted without a warning.
+        assert!(records.warnings.is_empty(), "{:?}", records.warnings);
+        let ids = |t: &[String]| t.join(",");
+        let meshes: Vec<String> = records.meshes.iter().map(|m| ids(&m.textures)).collect();
+        assert_eq!(meshes, ["1,2", "1", ""]);
+        assert_eq!(ids(&records.triangles[0].textures), "a,b");
+        let spheres: Vec<String> = records.spheres.iter().map(|s| ids(&s.textures)).collect();
+        assert_eq!(spheres, ["3", ""]);
+    }
+
+    #[test]
+    fn object_texture_list_warnings() {
+        let w = |line: u32, element: &str, message: &str| {
+            format!("warning: scene.xml:{line}: <{element}>: {message}")
+        };
+        let objs = |inner: &str| scene(&format!("<Objects>\n{inner}\n</Objects>"));
+        let cases: &[(&str, &[&str], &[&str])] = &[
+            (
+                &objs(
+                    "<Mesh id=\"1\"><Material>1</Material><Faces>1 1 1</Faces>\n<Textures>1 2</Textures>\n<Textures>1</Textures></Mesh>",
+                ),
+                &[&w(
+                    5,
+                    r#"Mesh id="1"> / <Textures"#,
+                    r#"<Textures> is given more than once with different ids; only the first one ("1 2") is used"#,
+                )],
+                &["1", "2"],
+            ),
+            (
+                &objs(
+                    "<Sphere id=\"1\"><Material>1</Material><Center>1</Center><Radius>1</Radius>\n<Texture>1</Texture>\n<Textures>2</Textures></Sphere>",
+                ),
+                &[&w(
+                    4,
+                    r#"Sphere id="1"> / <Texture"#,
+                    "<Texture> (the 2019 spelling) is ignored because <Textures> is given",
+                )],
+                &["2"],
+            ),
+            (
+                &objs(
+                    "<Triangle id=\"1\"><Material>1</Material><Indices>1 1 1</Indices>\n<Textures>1<Id>2</Id></Textures></Triangle>",
+                ),
+                &[&w(4, r#"Triangle id="1"> / <Textures> / <Id"#, "unknown element <Id>; it is ignored")],
+                &["1"],
+            ),
+        ];
+        for (xml, expected_warnings, expected_ids) in cases {
+            let records = parse(xml);
+            let got: Vec<String> = records.warnings.iter().map(ToString::to_string).collect();
+            assert_eq!(got, *expected_warnings, "input:\n{xml}");
+            let textures = (records.meshes.iter().map(|m| &m.textures))
+                .chain(records.spheres.iter().map(|s| &s.textures))
+                .chain(records.triangles.iter().map(|t| &t.textures))
+                .next()
+                .cloned()
+                .unwrap_or_default();
+            assert_eq!(textures, *expected_ids, "input:\n{xml}");
+        }
+    }
+
+    /// The 2019 textures as the course scenes write them (bump_mapping_basic, spheres_perlin,
+    /// perlin_types_bump, VeachAjar_2019, skybox), translated into 2020 records.
+    const LEGACY_TEXTURES: &str = r#"<Scene>
+<Textures>
+    <Texture id="1">
+        <ImageName>textures/earth.jpg</ImageName>
+        <Interpolation>nearest</Interpolation>
+        <DecalMode>blend_kd</DecalMode>
+        <Normalizer>255</Normalizer>
+        <Appearance>repeat</Appearance>
+    </Texture>
+    <Texture id="2" bumpmap="true" bumpmapMultiplier="30" degamma="true">
+        <ImageName>textures/another_grid.jpg</ImageName>
+        <Interpolation>bilinear</Interpolation>
+        <DecalMode>replace_kd</DecalMode>
+        <Normalizer>255</Normalizer>
+    </Texture>
+    <Texture id="3" bumpmap="true">
+        <ImageName>perlin</ImageName>
+        <ScalingFactor>3</ScalingFactor>
+        <Appearance>vein</Appearance>
+        <DecalMode>replace_kd</DecalMode>
+        <Normalizer>1</Normalizer>
+    </Texture>
+    <Texture id="4">
+        <ImageName>perlin</ImageName>
+    </Texture>
+    <Texture id="5" bumpmap="false" bumpmapMultiplier="30">
+        <ImageName>checkerboard</ImageName>
+        <BlackColor>0.4 0.4 0.4</BlackColor>
+        <WhiteColor>10 10 10</WhiteColor>
+        <ScalingFactor>0.1</ScalingFactor>
+        <Offset>79</Offset>
+        <DecalMode>blend</DecalMode>
+        <Normalizer>1</Normalizer>
+        <Dimension3>true</Dimension3>
+    </Texture>
+    <Texture id="6">
+        <ImageName>checkerboard</ImageName>
+        <DecalMode>replace</DecalMode>
+    </Texture>
+    <Texture id="7">
+        <ImageName>textures/sky.jpg</ImageName>
+        <DecalMode>replace_all</DecalMode>
+        <Normalizer>1</Normalizer>
+    </Texture>
+    <Texture id="8">
+        <ImageName>textures/plain.png</ImageName>
+    </Texture>
+</Textures>
+<Objects>
+    <Mesh id="1"><Material>1</Material><Texture>2</Texture><Faces>1 1 1</Faces></Mesh>
+    <Sphere id="1"><Material>1</Material><Texture> 3 </Texture><Center>1</Center><Radius>1</Radius></Sphere>
+    <Sphere id="2"><Material>1</Material><Texture>5</Texture><Center>1</Center><Radius>1</Radius></Sphere>
+    <Sphere id="3"><Material>1</Material><Textures>2 1</Textures><Center>1</Center><Radius>1</Radius></Sphere>
+    <Triangle id="1"><Material>1</Material><Texture>1</Texture><Texture>1</Texture><Indices>1 1 1</Indices></Triangle>
+</Objects>
+</Scene>
+"#;
+
+    #[test]
+    fn legacy_2019_textures_become_texture_maps() {
+        use DecalMode::*;
+        use Interpolation::*;
+        let xml = LEGACY_TEXTURES;
+        let records = parse(xml);
+        assert!(records.warnings.is_empty(), "{:?}", records.warnings);
+        let at = |id: &str| loc_of(xml, &format!(r#"<Texture id="{id}""#), &format!(r#"Texture id="{id}""#));
+        let image =
+            |id: &str, path: &str| ImageRec { id: format!("2019:{id}"), loc: at(id), path: path.into() };
+        assert_eq!(
+            records.images,
+            vec![
+                image("1", "textures/earth.jpg"),
+                image("2", "textures/another_grid.jpg"),
+                image("7", "textures/sky.jpg"),
+                image("8", "textures/plain.png"),
+            ]
+        );
+        let vein = TextureSource::Perlin { conversion: NoiseConversion::AbsVal, scale: 3.0 };
+        let grid = image_source("2019:2", Bilinear, 255.0);
+        let expected = vec![
+            map("1", at("1"), image_source("2019:1", Nearest, 255.0), BlendKd),
+            // bumpmap="true": the colour map and a bump map over the same source.
+            TextureMapRec { degamma: true, ..map("2", at("2"), grid.clone(), ReplaceKd) },
+            TextureMapRec { bump_factor: 30.0, degamma: true, ..map("2:bump", at("2"), grid, BumpNormal) },
+            map("3", at("3"), vein.clone(), ReplaceKd),
+            map("3:bump", at("3"), vein, BumpNormal),
+            // Defaults: patch (linear), ScalingFactor 1, DecalMode replace_kd.
+            map(
+                "4",
+                at("4"),
+                TextureSource::Perlin { conversion: NoiseConversion::Linear, scale: 1.0 },
+                ReplaceKd,
+            ),
+            // bumpmap="false": the multiplier means nothing.
+            map(
+                "5",
+                at("5"),
+                TextureSource::Checkerboard { black: [0.4; 3], white: [10.0; 3], scale: 0.1, offset: 79.0 },
+                BlendKd,
+            ),
+            map(
+                "6",
+                at("6"),
+                TextureSource::Checkerboard { black: [0.0; 3], white: [1.0; 3], scale: 1.0, offset: 0.0 },
+                ReplaceKd,
+            ),
+            map("7", at("7"), image_source("2019:7", Bilinear, 1.0), ReplaceAll),
+            map("8", at("8"), image_source("2019:8", Bilinear, 255.0), ReplaceKd),
+        ];
+        assert_eq!(records.texture_maps, expected);
+        // An object's <Texture>k</Texture> names both maps of a bumpmap texture.
+        assert_eq!(records.meshes[0].textures, ["2", "2:bump"]);
+        assert_eq!(records.spheres[0].textures, ["3", "3:bump"]);
+        assert_eq!(records.spheres[1].textures, ["5"]);
+        assert_eq!(records.spheres[2].textures, ["2", "2:bump", "1"]);
+        assert_eq!(records.triangles[0].textures, ["1"]);
+    }
+
+    #[test]
+    fn texture_warnings() {
+        let w = |line: u32, element: &str, message: &str| {
+            format!("warning: scene.xml:{line}: <{element}>: {message}")
+        };
+        let textures = |inner: &str| scene(&format!("<Textures>\n{inner}\n</Textures>"));
+        let cases: &[(&str, &[&str])] = &[
+            (
+                &textures(
+                    "<TextureMap id=\"1\" type=\"perlin\" bumpmap=\"true\"><DecalMode>replace_kd</DecalMode>\n\
+                     <NumOctaves>4</NumOctaves>\n<Normalizer>1</Normalizer><Scale>2</Scale>\n<Foo/></TextureMap>",
+                ),
+                &[
+                    &w(3, r#"TextureMap id="1""#, "unknown attribute bumpmap; it is ignored"),
+                    &w(
+                        4,
+                        r#"TextureMap id="1"> / <NumOctaves"#,
+                        "<NumOctaves> is not supported yet; it is ignored",
+                    ),
+                    &w(
+                        5,
+                        r#"TextureMap id="1"> / <Normalizer"#,
+                        "<Normalizer> does not apply to perlin texture maps; it is ignored",
+                    ),
+                    &w(
+                        5,
+                        r#"TextureMap id="1"> / <Scale"#,
+                        "<Scale> does not apply to perlin texture maps; it is ignored",
+                    ),
+                    &w(6, r#"TextureMap id="1"> / <Foo"#, "unknown element <Foo>; it is ignored"),
+                ],
+            ),
+            (
+                &textures(
+                    "<TextureMap id=\"1\" type=\"checkerboard\"><DecalMode>replace_kd</DecalMode>\n<ImageId>1</ImageId></TextureMap>\n\
+                     <TextureMap id=\"2\" type=\"image\"><ImageId>1</ImageId><DecalMode>replace_kd</DecalMode>\n\
+                     <NoiseScale>2</NoiseScale><DecalMode>blend_kd</DecalMode></TextureMap>",
+                ),
+                &[
+                    &w(
+                        4,
+                        r#"TextureMap id="1"> / <ImageId"#,
+                        "<ImageId> does not apply to checkerboard texture maps; it is ignored",
+                    ),
+                    &w(
+                        6,
+                        r#"TextureMap id="2"> / <NoiseScale"#,
+                        "<NoiseScale> does not apply to image texture maps; it is ignored",
+                    ),
+                    &w(
+                        6,
+                        r#"TextureMap id="2"> / <DecalMode"#,
+                        "<DecalMode> is given more than once; only the first one is used",
+                    ),
+                ],
+            ),
+            (
+                &textures(
+                    "<Images><Image id=\"1\">a.png</Image>\n<Picture/></Images>\n<Texture id=\"1\">\n<ImageName>a.jpg</ImageName>\n\
+                     <Appearance> clamp </Appearance>\n<ScalingFactor>2</ScalingFactor></Texture>\n<Texture id=\"2\">\
+                     <ImageName>perlin</ImageName>\n<Normalizer>255</Normalizer><Interpolation>bilinear</Interpolation></Texture>\n\
+                     <Texture id=\"3\"><ImageName>checkerboard</ImageName>\n<Appearance>patch</Appearance></Texture>\n<Other/>",
+                ),
+                &[
+                    &w(4, "Images> / <Picture", "unknown element <Picture>; it is ignored"),
+                    &w(
+                        7,
+                        r#"Texture id="1"> / <Appearance"#,
+                        "<Appearance>clamp</Appearance> is not supported yet; the texture is repeated instead",
+                    ),
+                    &w(
+                        8,
+                        r#"Texture id="1"> / <ScalingFactor"#,
+                        "<ScalingFactor> does not apply to image textures; it is ignored",
+                    ),
+                    &w(
+                        10,
+                        r#"Texture id="2"> / <Interpolation"#,
+                        "<Interpolation> does not apply to perlin textures; it is ignored",
+                    ),
+                    &w(
+                        10,
+                        r#"Texture id="2"> / <Normalizer"#,
+                        "<Normalizer> has no effect on perlin textures (their values are used as they are); it is ignored",
+                    ),
+                    &w(
+                        12,
+                        r#"Texture id="3"> / <Appearance"#,
+                        "<Appearance> does not apply to checkerboard textures; it is ignored",
+                    ),
+                    &w(13, "Other", "unknown element <Other>; it is ignored"),
+                ],
+            ),
+        ];
+        check_warnings(cases);
+    }
+
+    #[test]
+    fn background_texture_is_a_raw_replace_background_map() {
+        let xml = scene("<BackgroundTexture> textures/galaxy.jpg </BackgroundTexture>");
+        let records = parse(&xml);
+        assert!(records.warnings.is_empty(), "{:?}", records.warnings);
+        let loc = Loc::new(2, "BackgroundTexture");
+        assert_eq!(
+            records.images,
+            vec![ImageRec {
+                id: "2019:background".into(),
+                loc: loc.clone(),
+                path: "textures/galaxy.jpg".into()
+            }]
+        );
+        assert_eq!(
+            records.texture_maps,
+            vec![map(
+                "2019:background",
+                loc,
+                image_source("2019:background", Interpolation::Bilinear, 1.0),
+                DecalMode::ReplaceBackground
+            )]
+        );
+    }
+
     /// Truncated and garbage inputs must give errors, never panics.
     #[test]
     fn truncated_and_garbage_inputs_are_errors() {
@@ -1904,7 +3063,7 @@ mod tests {
         for input in garbage {
             assert!(parse_xml(input, Path::new(FILE)).is_err(), "{:?} parsed", excerpt(input));
         }
-        // Random byte mutations of a valid scene: any result is fine, a panic is not.
+        // Random byte mutations of valid scenes: any result is fine, a panic is not.
         let mut state = 0x2545_f491_4f6c_dd1d_u64;
         let mut next = || {
             state ^= state << 13;
@@ -1912,13 +3071,15 @@ mod tests {
             state ^= state << 17;
             state
         };
-        for _ in 0..2000 {
-            let mut bytes = SIMPLE.as_bytes().to_vec();
-            for _ in 0..3 {
-                let at = (next() % bytes.len() as u64) as usize;
-                bytes[at] = b"<>/=\"' 0x!-&;\n"[(next() % 14) as usize];
+        for valid in [SIMPLE, TEXTURE_MAPS, LEGACY_TEXTURES] {
+            for _ in 0..2000 {
+                let mut bytes = valid.as_bytes().to_vec();
+                for _ in 0..3 {
+                    let at = (next() % bytes.len() as u64) as usize;
+                    bytes[at] = b"<>/=\"' 0x!-&;\n"[(next() % 14) as usize];
+                }
+                let _ = parse_xml(&String::from_utf8_lossy(&bytes), Path::new(FILE));
             }
-            let _ = parse_xml(&String::from_utf8_lossy(&bytes), Path::new(FILE));
         }
     }
 

@@ -1,0 +1,223 @@
+//! Texture maps at render time: image lookups, the course's Perlin noise, 3-D checkerboards,
+//! and how a map's value enters shading (scene-format.md §11).
+
+use std::sync::Arc;
+
+use glam::{DVec2, DVec3};
+
+use super::image::TextureImage;
+use crate::scene::records::{DecalMode, Interpolation, NoiseConversion};
+
+/// Where a map's values come from.
+#[derive(Clone, Debug)]
+pub enum Source {
+    Image { image: Arc<TextureImage>, interpolation: Interpolation, normalizer: f64 },
+    Perlin { conversion: NoiseConversion, scale: f64 },
+    Checkerboard { black: DVec3, white: DVec3, scale: f64, offset: f64 },
+}
+
+/// A texture map ready for shading.
+#[derive(Clone, Debug)]
+pub struct TextureMap {
+    pub source: Source,
+    pub decal: DecalMode,
+    pub bump_factor: f64,
+    /// `Some(gamma)` when `degamma="true"`: values are raised to `gamma` after normalising.
+    pub degamma: Option<f64>,
+}
+
+/// What a surface point offers a texture lookup.
+#[derive(Clone, Copy, Debug)]
+pub struct TexturePoint {
+    pub uv: DVec2,
+    /// World-space position (Perlin noise and checkerboards are solid textures, §11.9-11.10).
+    pub world: DVec3,
+}
+
+impl TextureMap {
+    /// Raw image texel value at `uv` through the map's interpolation, before normalising.
+    fn image_raw(image: &TextureImage, interpolation: Interpolation, uv: DVec2) -> DVec3 {
+        let t = match interpolation {
+            Interpolation::Nearest => image.nearest(uv.x, uv.y),
+            Interpolation::Bilinear | Interpolation::Trilinear => image.bilinear(uv.x, uv.y),
+        };
+        DVec3::from_array(t)
+    }
+
+    /// The map's colour value `T` at a point (§11.3): image texel / Normalizer, Perlin grey,
+    /// or checkerboard colour; degamma applied.
+    pub fn value(&self, p: &TexturePoint) -> DVec3 {
+        let v = match &self.source {
+            Source::Image { image, interpolation, normalizer } => {
+                Self::image_raw(image, *interpolation, p.uv) / *normalizer
+            }
+            Source::Perlin { conversion, scale } => DVec3::splat(perlin_value(p.world * *scale, *conversion)),
+            Source::Checkerboard { black, white, scale, offset } => {
+                checkerboard(p.world, *scale, *offset, *black, *white)
+            }
+        };
+        match self.degamma {
+            Some(g) => v.max(DVec3::ZERO).powf(g),
+            None => v,
+        }
+    }
+
+    /// Background value for screen position `uv` (§11.8): the raw texel, no normaliser.
+    pub fn background(&self, uv: DVec2) -> DVec3 {
+        match &self.source {
+            Source::Image { image, interpolation, .. } => Self::image_raw(image, *interpolation, uv),
+            _ => self.value(&TexturePoint { uv, world: DVec3::new(uv.x, uv.y, 0.0) }),
+        }
+    }
+
+    /// A tangent-space normal from a normal map (`replace_normal`, §11.6a): texel/255 mapped
+    /// to [-1, 1]. `None` for maps that are not images.
+    pub fn tangent_normal(&self, uv: DVec2) -> Option<DVec3> {
+        match &self.source {
+            Source::Image { image, interpolation, .. } => {
+                let t = Self::image_raw(image, *interpolation, uv) / 255.0;
+                Some(t * 2.0 - DVec3::ONE)
+            }
+            _ => None,
+        }
+    }
+}
+
+/// Height of an image bump map at texel resolution: mean of R, G, B over the Normalizer.
+pub fn image_height(image: &TextureImage, normalizer: f64, uv: DVec2, du: f64, dv: f64) -> f64 {
+    let t = DVec3::from_array(image.bilinear(uv.x + du, uv.y + dv));
+    (t.x + t.y + t.z) / 3.0 / normalizer
+}
+
+/// The course's checkerboard (§11.10): C-style truncation and remainder, world-space point.
+pub fn checkerboard(p: DVec3, scale: f64, offset: f64, black: DVec3, white: DVec3) -> DVec3 {
+    let cell = |c: f64| -> bool { (((c + offset) * scale) as i64) % 2 != 0 };
+    if (cell(p.x) != cell(p.y)) != cell(p.z) { black } else { white }
+}
+
+/// The 16 gradient directions of the course's Perlin noise (§11.9).
+const GRADIENTS: [[f64; 3]; 16] = [
+    [1.0, 1.0, 0.0],
+    [-1.0, 1.0, 0.0],
+    [1.0, -1.0, 0.0],
+    [-1.0, -1.0, 0.0],
+    [1.0, 0.0, 1.0],
+    [-1.0, 0.0, 1.0],
+    [1.0, 0.0, -1.0],
+    [-1.0, 0.0, -1.0],
+    [0.0, 1.0, 1.0],
+    [0.0, -1.0, 1.0],
+    [0.0, 1.0, -1.0],
+    [0.0, -1.0, -1.0],
+    [1.0, 1.0, 0.0],
+    [-1.0, 1.0, 0.0],
+    [0.0, -1.0, 1.0],
+    [0.0, -1.0, -1.0],
+];
+
+/// A fixed permutation of 0..15. The reference renderer's table is unknown (it is random per
+/// run), so Perlin scenes match the references in character, not pixel for pixel; a fixed
+/// table keeps our renders deterministic.
+const PERMUTATION: [usize; 16] = [9, 4, 13, 0, 7, 15, 2, 11, 5, 14, 1, 8, 12, 3, 10, 6];
+
+#[inline]
+fn phi(i: i64) -> usize {
+    PERMUTATION[(i.unsigned_abs() % 16) as usize]
+}
+
+/// The course's smooth weight: 1 - 6|t|^5 + 15|t|^4 - 10|t|^3 for |t| < 1.
+#[inline]
+fn weight(t: f64) -> f64 {
+    let a = t.abs();
+    if a >= 1.0 { 0.0 } else { 1.0 - a * a * a * (a * (a * 6.0 - 15.0) + 10.0) }
+}
+
+/// Course Perlin noise in [-1, 1] (§11.9).
+pub fn perlin(p: DVec3) -> f64 {
+    let base = p.floor();
+    let (bx, by, bz) = (base.x as i64, base.y as i64, base.z as i64);
+    let mut sum = 0.0;
+    for corner in 0..8 {
+        let (cx, cy, cz) = (bx + (corner & 1), by + ((corner >> 1) & 1), bz + ((corner >> 2) & 1));
+        let g = GRADIENTS[phi(cx + phi(cy + phi(cz) as i64) as i64)];
+        let d = p - DVec3::new(cx as f64, cy as f64, cz as f64);
+        sum += (g[0] * d.x + g[1] * d.y + g[2] * d.z) * weight(d.x) * weight(d.y) * weight(d.z);
+    }
+    sum
+}
+
+/// Noise converted to [0, 1] as `NoiseConversion` asks.
+pub fn perlin_value(p: DVec3, conversion: NoiseConversion) -> f64 {
+    let n = perlin(p);
+    match conversion {
+        NoiseConversion::Linear => (n + 1.0) / 2.0,
+        NoiseConversion::AbsVal => n.abs(),
+    }
+}
+
+/// Perturbs the unit normal `n` by the gradient of a solid (Perlin) height field (§11.7):
+/// finite differences of the height around `p`, the tangential part subtracted.
+pub fn perlin_bump(n: DVec3, p: DVec3, scale: f64, conversion: NoiseConversion, factor: f64) -> DVec3 {
+    const EPS: f64 = 1e-3;
+    let h = |q: DVec3| perlin_value(q * scale, conversion);
+    let h0 = h(p);
+    let grad =
+        DVec3::new(h(p + DVec3::X * EPS) - h0, h(p + DVec3::Y * EPS) - h0, h(p + DVec3::Z * EPS) - h0) / EPS;
+    let tangential = grad - grad.dot(n) * n;
+    let bent = n - factor * tangential;
+    if bent.length_squared() > 0.0 { bent.normalize() } else { n }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn perlin_is_zero_on_lattice_points_and_bounded() {
+        for p in [DVec3::ZERO, DVec3::new(3.0, -2.0, 7.0), DVec3::new(-5.0, 0.0, 1.0)] {
+            assert!(perlin(p).abs() < 1e-12);
+        }
+        let mut r = crate::sampler::SampleRng::new(1, 2, 3, 4);
+        for _ in 0..10_000 {
+            let p = DVec3::new(r.next_f64(), r.next_f64(), r.next_f64()) * 40.0 - DVec3::splat(20.0);
+            let n = perlin(p);
+            assert!((-1.0..=1.0).contains(&n), "{n} at {p}");
+            assert!((0.0..=1.0).contains(&perlin_value(p, NoiseConversion::Linear)));
+        }
+    }
+
+    #[test]
+    fn perlin_is_continuous() {
+        let p = DVec3::new(1.3, 2.7, -0.4);
+        let q = p + DVec3::splat(1e-7);
+        assert!((perlin(p) - perlin(q)).abs() < 1e-5);
+    }
+
+    #[test]
+    fn weight_matches_the_course_polynomial() {
+        assert_eq!(weight(0.0), 1.0);
+        assert_eq!(weight(1.0), 0.0);
+        assert!((weight(0.5) - (1.0 - 6.0 / 32.0 + 15.0 / 16.0 - 10.0 / 8.0)).abs() < 1e-15);
+        assert_eq!(weight(-0.5), weight(0.5));
+    }
+
+    #[test]
+    fn checkerboard_truncates_like_c() {
+        let (b, w) = (DVec3::ZERO, DVec3::ONE);
+        // Cells of size 1 with scale 1: (0.5, 0.5, 0.5) -> all 0 -> white; x in [1,2) -> black.
+        assert_eq!(checkerboard(DVec3::splat(0.5), 1.0, 0.0, b, w), w);
+        assert_eq!(checkerboard(DVec3::new(1.5, 0.5, 0.5), 1.0, 0.0, b, w), b);
+        // Truncation toward zero: -0.5 and 0.5 fall in the same cell.
+        assert_eq!(checkerboard(DVec3::new(-0.5, 0.5, 0.5), 1.0, 0.0, b, w), w);
+        // -1.5 -> -1 % 2 = -1, non-zero -> odd.
+        assert_eq!(checkerboard(DVec3::new(-1.5, 0.5, 0.5), 1.0, 0.0, b, w), b);
+    }
+
+    #[test]
+    fn perlin_bump_keeps_unit_length_and_flat_fields_unbent() {
+        let n = DVec3::Y;
+        let bent = perlin_bump(n, DVec3::new(0.3, 0.0, 0.7), 3.0, NoiseConversion::Linear, 1.0);
+        assert!((bent.length() - 1.0).abs() < 1e-12);
+        assert_eq!(perlin_bump(n, DVec3::new(0.3, 0.0, 0.7), 3.0, NoiseConversion::Linear, 0.0), n);
+    }
+}
