@@ -206,18 +206,22 @@ fn perturbed_normal(map: &TextureMap, hit: &SurfaceHit, n: DVec3) -> DVec3 {
             let Some((t, b)) = tangent_basis(n, hit.dpdu, hit.dpdv) else { return n };
             nt.x * t + nt.y * b + nt.z * n
         }
-        (DecalMode::BumpNormal, Source::Image { image, normalizer, .. }) => {
+        (DecalMode::BumpNormal, Source::Image { image, normalizer, interpolation }) => {
             if hit.dpdu == DVec3::ZERO || hit.dpdv == DVec3::ZERO {
                 return n;
             }
             // Blinn's bump mapping with true derivatives: one-texel differences of the height
             // scaled to per-unit-uv slopes, added along the normal to the unnormalised ∂p/∂u, ∂p/∂v.
             let (w, h) = (image.width as f64, image.height as f64);
-            let h0 = image_height(image, *normalizer, hit.uv, 0.0, 0.0);
-            let dhdu = (image_height(image, *normalizer, hit.uv, 1.0 / w, 0.0) - h0) * w;
-            let dhdv = (image_height(image, *normalizer, hit.uv, 0.0, 1.0 / h) - h0) * h;
-            let qu = hit.dpdu + map.bump_factor * dhdu * n;
-            let qv = hit.dpdv + map.bump_factor * dhdv * n;
+            let height = |du: f64, dv: f64| image_height(image, *interpolation, *normalizer, hit.uv, du, dv);
+            let h0 = height(0.0, 0.0);
+            let dhdu = (height(1.0 / w, 0.0) - h0) * w;
+            let dhdv = (height(0.0, 1.0 / h) - h0) * h;
+            // The height displaces along the object-space normal: in world space that is
+            // `bump_axis`, so the relief keeps its proportions under (non-uniform) scaling.
+            let axis = hit.bump_axis;
+            let qu = hit.dpdu + map.bump_factor * dhdu * axis;
+            let qv = hit.dpdv + map.bump_factor * dhdv * axis;
             let c = qv.cross(qu);
             if c.dot(n) < 0.0 { -c } else { c }
         }

@@ -91,6 +91,10 @@ pub struct SurfaceHit {
     /// World-space surface derivatives ∂p/∂u and ∂p/∂v (zero when the surface has no uvs).
     pub dpdu: DVec3,
     pub dpdv: DVec3,
+    /// The object-space unit shading normal carried to world space as a vector (not as a
+    /// normal): the direction and length a bump map's height displaces the surface by, so bumps
+    /// scale with their object like ∂p/∂u and ∂p/∂v do.
+    pub bump_axis: DVec3,
 }
 
 /// The whole scene's geometry, ready for ray queries.
@@ -318,14 +322,15 @@ impl Accel {
                 (t, ng, ns, frame)
             }
         };
-        let (geo_normal, shading_normal, dpdu, dpdv) = match &inst.transform {
+        let (geo_normal, shading_normal, dpdu, dpdv, bump_axis) = match &inst.transform {
             Some(xf) => (
                 xf.normal_to_world(n_geo),
                 xf.normal_to_world(n_shade),
                 xf.to_world.transform_vector3(dpdu),
                 xf.to_world.transform_vector3(dpdv),
+                xf.to_world.transform_vector3(n_shade),
             ),
-            None => (n_geo, n_shade, dpdu, dpdv),
+            None => (n_geo, n_shade, dpdu, dpdv, n_shade),
         };
         // A smooth normal may lean past the face; keep it on the face's side.
         let shading_normal =
@@ -340,6 +345,7 @@ impl Accel {
             uv,
             dpdu,
             dpdv,
+            bump_axis: if bump_axis.dot(shading_normal) < 0.0 { -bump_axis } else { bump_axis },
         }
     }
 }

@@ -1295,7 +1295,9 @@ impl Parser<'_> {
                     image: self.id_ref(image, "an image id")?,
                     interpolation: self
                         .optional_keyword(n, "Interpolation", INTERPOLATIONS)?
-                        .unwrap_or(Interpolation::Bilinear),
+                        // Absent means nearest: measured against the references (sphere_nearest_bilinear,
+                        // cube_waves, cube_cushion, sphere_normal match only this way).
+                        .unwrap_or(Interpolation::Nearest),
                     normalizer: self.normalizer(n)?.unwrap_or(255.0),
                 }
             }
@@ -1361,7 +1363,9 @@ impl Parser<'_> {
                     image,
                     interpolation: self
                         .optional_keyword(n, "Interpolation", INTERPOLATIONS)?
-                        .unwrap_or(Interpolation::Bilinear),
+                        // Absent means nearest: measured against the references (sphere_nearest_bilinear,
+                        // cube_waves, cube_cushion, sphere_normal match only this way).
+                        .unwrap_or(Interpolation::Nearest),
                     normalizer: self.normalizer(n)?.unwrap_or(255.0),
                 }
             }
@@ -2448,7 +2452,7 @@ mod tests {
             |id: &str| loc_of(xml, &format!(r#"<TextureMap id="{id}""#), &format!(r#"TextureMap id="{id}""#));
         let expected = vec![
             // Defaults: bilinear, Normalizer 255, BumpFactor 1, no degamma.
-            map("1", at("1"), image_source("1", Bilinear, 255.0), ReplaceKd),
+            map("1", at("1"), image_source("1", Nearest, 255.0), ReplaceKd),
             TextureMapRec {
                 bump_factor: 30.0,
                 degamma: true,
@@ -2902,8 +2906,8 @@ mod tests {
                 TextureSource::Checkerboard { black: [0.0; 3], white: [1.0; 3], scale: 1.0, offset: 0.0 },
                 ReplaceKd,
             ),
-            map("7", at("7"), image_source("2019:7", Bilinear, 1.0), ReplaceAll),
-            map("8", at("8"), image_source("2019:8", Bilinear, 255.0), ReplaceKd),
+            map("7", at("7"), image_source("2019:7", Nearest, 1.0), ReplaceAll),
+            map("8", at("8"), image_source("2019:8", Nearest, 255.0), ReplaceKd),
         ];
         assert_eq!(records.texture_maps, expected);
         // An object's <Texture>k</Texture> names both maps of a bumpmap texture.

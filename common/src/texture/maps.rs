@@ -83,9 +83,17 @@ impl TextureMap {
     }
 }
 
-/// Height of an image bump map at texel resolution: mean of R, G, B over the Normalizer.
-pub fn image_height(image: &TextureImage, normalizer: f64, uv: DVec2, du: f64, dv: f64) -> f64 {
-    let t = DVec3::from_array(image.bilinear(uv.x + du, uv.y + dv));
+/// Height of an image bump map: mean of R, G, B over the Normalizer, looked up with the map's
+/// interpolation at `uv` offset by (du, dv).
+pub fn image_height(
+    image: &TextureImage,
+    interpolation: Interpolation,
+    normalizer: f64,
+    uv: DVec2,
+    du: f64,
+    dv: f64,
+) -> f64 {
+    let t = TextureMap::image_raw(image, interpolation, uv + DVec2::new(du, dv));
     (t.x + t.y + t.z) / 3.0 / normalizer
 }
 
