@@ -11,7 +11,7 @@ use tessera::scene::{Scene, load_scene_file, load_scene_str};
 
 /// distribution.xml has every homework-3 effect: jittered multisampling, an area light, glossy
 /// reflection, a thin lens and motion blur (checked by `the_distribution_scene_exercises_every_effect`).
-const SCENES: [&str; 3] = ["cornell_box.xml", "tori.xml", "distribution.xml"];
+const SCENES: [&str; 4] = ["cornell_box.xml", "tori.xml", "distribution.xml", "textures.xml"];
 
 fn scenes_dir() -> PathBuf {
     tessera_tests::repo_root().join("scenes")

@@ -644,13 +644,21 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
             .iter()
             .map(|&g| rec.tex_coords.get(g as usize).map(|t| DVec2::from_array(*t)))
             .collect::<Option<Vec<_>>>();
+        let object_textures = textures.for_object(&ctx, &t.textures, &t.loc, &mut warnings)?;
+        if uvs.is_none() && uses_image(&textures.maps, &object_textures) {
+            warnings.push(Warning {
+                file: rec.source.clone(),
+                loc: t.loc.clone(),
+                message: "an image texture is applied but <TexCoordData> has no entry for its vertices; it is sampled at the barycentric coordinates".into(),
+            });
+        }
         meshes.push(Arc::new(MeshGeom::with_uvs(positions, indices, None, uvs)));
         instances.push(Instance {
             shape: Shape::Mesh { mesh: (meshes.len() - 1) as u32, smooth: false },
             material,
             transform: ctx.make_transform(world, &t.loc)?,
             motion: None,
-            textures: textures.for_object(&ctx, &t.textures, &t.loc, &mut warnings)?,
+            textures: object_textures,
         });
     }
     for s in &rec.spheres {

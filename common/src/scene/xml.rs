@@ -2451,7 +2451,7 @@ mod tests {
         let at =
             |id: &str| loc_of(xml, &format!(r#"<TextureMap id="{id}""#), &format!(r#"TextureMap id="{id}""#));
         let expected = vec![
-            // Defaults: bilinear, Normalizer 255, BumpFactor 1, no degamma.
+            // Defaults: nearest, Normalizer 255, BumpFactor 1, no degamma.
             map("1", at("1"), image_source("1", Nearest, 255.0), ReplaceKd),
             TextureMapRec {
                 bump_factor: 30.0,

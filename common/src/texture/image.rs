@@ -115,8 +115,8 @@ impl TextureImage {
     }
 
     /// Nearest lookup at texture coordinates (u, v): u, v wrapped into [0,1) by repeat
-    /// (u - floor(u)), then i = u·W, j = v·H, texel(round(i), round(j)) clamped
-    /// (§11.5: "nearest = round").
+    /// (u - floor(u)), then i = u·W, j = v·H, texel(⌊i⌋, ⌊j⌋) clamped. §11.5 suggests rounding;
+    /// the course references truncate (measured, see the body).
     #[inline]
     pub fn nearest(&self, u: f64, v: f64) -> [f64; 3] {
         let (i, j) = texel_space(wrap01(u), wrap01(v), self.width, self.height);
@@ -167,7 +167,7 @@ impl TextureImage {
 
 /// The sub-texel convention of §11.5 — the one place it lives: texture coordinates (u, v) in
 /// [0, 1) map to continuous texel coordinates `(i, j) = (u·W, v·H)`, with **no** half-texel shift;
-/// nearest rounds them and bilinear weights come from their floor. The spec marks this UNSURE
+/// nearest truncates them and bilinear weights come from their floor. The spec marks this UNSURE
 /// (students also used `u·(W−1)` or `u·W − 0.5`): it is the convention the reference images
 /// decide (calibrate with sphere_nearest_bilinear and cube_wall), so a different choice is a
 /// one-line change here. Both lookups clamp whatever this returns, so any shift stays safe.
