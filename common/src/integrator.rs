@@ -210,13 +210,18 @@ fn perturbed_normal(map: &TextureMap, hit: &SurfaceHit, n: DVec3) -> DVec3 {
             if hit.dpdu == DVec3::ZERO || hit.dpdv == DVec3::ZERO {
                 return n;
             }
-            // Blinn's bump mapping with true derivatives: one-texel differences of the height
-            // scaled to per-unit-uv slopes, added along the normal to the unnormalised ∂p/∂u, ∂p/∂v.
+            // Blinn's bump mapping: height slopes added along the normal to the unnormalised
+            // ∂p/∂u, ∂p/∂v.
             let (w, h) = (image.width as f64, image.height as f64);
             let height = |du: f64, dv: f64| image_height(image, *interpolation, *normalizer, hit.uv, du, dv);
             let h0 = height(0.0, 0.0);
-            let dhdu = (height(1.0 / w, 0.0) - h0) * w;
-            let dhdv = (height(0.0, 1.0 / h) - h0) * h;
+            // Measured against the references: the height slope is the difference of
+            // neighbouring texels on the 0-255 scale (h · Normalizer), per texel — not per unit
+            // of u — so it does not grow with the image's resolution. sphere_nobump_bump: 39.7 dB
+            // with true per-uv derivatives, 55.7 dB this way; bump_mapping_transformed 21.6 ->
+            // 40.6 dB (PSNR after the 4x4 box).
+            let dhdu = (height(1.0 / w, 0.0) - h0) * *normalizer;
+            let dhdv = (height(0.0, 1.0 / h) - h0) * *normalizer;
             // The height displaces along the object-space normal: in world space that is
             // `bump_axis`, so the relief keeps its proportions under (non-uniform) scaling.
             let axis = hit.bump_axis;

@@ -79,11 +79,10 @@ pub fn render_tile(
     for y in rect.y0..rect.y0 + rect.height {
         for x in rect.x0..rect.x0 + rect.width {
             if let Some(k) = scene.background_texture {
-                // The background image is stretched over the frame, sampled at pixel centres.
-                let uv = glam::DVec2::new(
-                    (x as f64 + 0.5) / cam.width as f64,
-                    (y as f64 + 0.5) / cam.height as f64,
-                );
+                // The background image is stretched over the frame with pixel (x, y) at
+                // u = x / width, v = y / height (its corner, not its centre): measured,
+                // galactica_static matches at 55.9 dB this way and 35.5 dB with centres.
+                let uv = glam::DVec2::new(x as f64 / cam.width as f64, y as f64 / cam.height as f64);
                 tracer.background = scene.textures[k as usize].background(uv);
             }
             let mut sum = glam::DVec3::ZERO;
