@@ -313,32 +313,36 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
     let rec = ctx.rec;
     let image_recs: HashMap<&str, &ImageRec> = rec.images.iter().rev().map(|i| (i.id.as_str(), i)).collect();
     // The images the maps need, each file once.
-    let mut wanted: Vec<&ImageRec> = Vec::new();
+    // Each wanted file with the id of the first texture map that uses it (for messages).
+    let mut wanted: Vec<(&ImageRec, &str)> = Vec::new();
     for m in &rec.texture_maps {
         if let TextureSource::Image { image, .. } = &m.source {
             let img = image_recs.get(image.as_str()).ok_or_else(|| {
                 ctx.err(&m.loc, format!("ImageId {image} names no <Image>; add <Image id=\"{image}\"> under <Textures><Images>"))
             })?;
-            if !wanted.iter().any(|w| w.path == img.path) {
-                wanted.push(img);
+            if !wanted.iter().any(|(w, _)| w.path == img.path) {
+                wanted.push((img, m.id.as_str()));
             }
         }
     }
     let decoded: Vec<Result<(String, Arc<TextureImage>), SceneError>> = wanted
         .par_iter()
-        .map(|img| {
+        .map(|&(img, map_id)| {
             let (bytes, found) = ctx.resolver.read(&img.path).map_err(|e| {
                 ctx.err(
                     &img.loc,
                     format!(
-                        "cannot read image {} (image id {}): {e}; check the path (it is relative to the scene file)",
+                        "cannot read image {} (image id {}, used by texture map {map_id}): {e}; check the path (it is relative to the scene file)",
                         ctx.resolver.display_path(&img.path).display(),
                         img.id
                     ),
                 )
             })?;
             let decoded = TextureImage::decode(&bytes).map_err(|e| {
-                ctx.err(&img.loc, format!("cannot decode image {} (image id {}): {e}", found.display(), img.id))
+                ctx.err(
+                    &img.loc,
+                    format!("cannot decode image {} (image id {}, used by texture map {map_id}): {e}", found.display(), img.id),
+                )
             })?;
             Ok((img.path.clone(), Arc::new(decoded)))
         })
@@ -758,6 +762,36 @@ mod tests {
         let unknown = CHAIN.replace(r#"baseMeshId="3""#, r#"baseMeshId="9""#);
         let e = build(&unknown).err().expect("an unknown base must fail").to_string();
         assert!(e.contains(r#"baseMeshId="9""#) && e.contains("t.xml:"), "{e}");
+    }
+
+    #[test]
+    fn an_image_used_by_several_maps_is_decoded_once() {
+        let dir = std::env::temp_dir().join(format!("tessera-build-img-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        // A 1x1 grey PNG from the image crate.
+        let png = dir.join("g.png");
+        image::save_buffer(&png, &[9, 9, 9], 1, 1, image::ExtendedColorType::Rgb8).unwrap();
+        let xml = r#"<Scene><Textures><Images><Image id="1">g.png</Image><Image id="2">./g.png</Image></Images>
+            <TextureMap id="1" type="image"><ImageId>1</ImageId><DecalMode>replace_kd</DecalMode></TextureMap>
+            <TextureMap id="2" type="image"><ImageId>1</ImageId><DecalMode>bump_normal</DecalMode></TextureMap>
+            <TextureMap id="3" type="image"><ImageId>2</ImageId><DecalMode>replace_ks</DecalMode></TextureMap>
+            </Textures></Scene>"#;
+        let rec = crate::scene::xml::parse_xml(xml, &dir.join("s.xml")).unwrap();
+        let scene = build_scene(&rec, &FsResolver { base_dir: dir.clone() }).unwrap();
+        let img = |k: usize| match &scene.textures[k].source {
+            Source::Image { image, .. } => image.clone(),
+            _ => panic!("not an image map"),
+        };
+        // Maps 1 and 2 share image 1: one decoded copy. Image 2 names the file differently.
+        assert!(Arc::ptr_eq(&img(0), &img(1)));
+        assert_eq!(img(2).texels, img(0).texels);
+        // A missing image names the file, the image id and the map that uses it.
+        let missing = xml.replace("<Image id=\"1\">g.png", "<Image id=\"1\">nope.png");
+        let rec = crate::scene::xml::parse_xml(&missing, &dir.join("s.xml")).unwrap();
+        let e =
+            build_scene(&rec, &FsResolver { base_dir: dir.clone() }).err().expect("must fail").to_string();
+        assert!(e.contains("nope.png") && e.contains("image id 1") && e.contains("texture map 1"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
