@@ -11,6 +11,7 @@ pub mod assets;
 pub mod camera;
 pub mod error;
 pub mod geometry;
+pub mod hdr_io;
 pub mod image;
 pub mod integrator;
 pub mod material;
@@ -20,5 +21,6 @@ pub mod render;
 pub mod sampler;
 pub mod scene;
 pub mod texture;
+pub mod tonemap;
 
 pub use error::{Loc, SceneError, Warning};

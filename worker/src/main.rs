@@ -1,7 +1,8 @@
 //! `tessera-worker`: Tessera's CPU tracer as a command-line program.
 //!
-//! `render` renders a scene file on this machine, like the course's `./raytracer scene.xml`.
-//! (Pulling tiles from a farm server arrives with the farm.)
+//! `render` renders a scene file on this machine, like the course's `./raytracer scene.xml`;
+//! `tonemap` turns an HDR image (OpenEXR or Radiance HDR) into a PNG with the course's
+//! photographic operator. (Pulling tiles from a farm server arrives with the farm.)
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -11,16 +12,18 @@ use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use tessera::assets::FsResolver;
+use tessera::hdr_io::{read_float_image, write_png_rgb8};
 use tessera::render::{RenderSettings, render_camera};
 use tessera::scene::build::build_scene;
 use tessera::scene::parse_scene;
+use tessera::tonemap::{Gamma, Photographic, tonemap};
 
 #[derive(Parser)]
 #[command(
     name = "tessera-worker",
     version,
     about = "Tessera's CPU ray tracer for CENG795 scene files",
-    after_help = "Examples:\n  tessera-worker render scenes/cornell_box.xml --out out/\n  tessera-worker render scene.xml --threads 4 --camera 2 --out renders/\n\nSee 'tessera-worker render --help' for every option (--out, --threads, --camera, --tile-size, --quiet)."
+    after_help = "Examples:\n  tessera-worker render scenes/cornell_box.xml --out out/\n  tessera-worker render scene.xml --threads 4 --camera 2 --out renders/\n  tessera-worker tonemap render.exr --key 0.18 --burn 1 -o render.png\n\nSee 'tessera-worker render --help' for every option (--out, --threads, --camera, --tile-size, --quiet)\nand 'tessera-worker tonemap --help' for the tone-mapping parameters."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -60,6 +63,43 @@ enum Command {
         #[arg(long, short)]
         quiet: bool,
     },
+    /// Tone-map an HDR image (OpenEXR or Radiance .hdr) to an 8-bit PNG.
+    ///
+    /// Uses the course's photographic operator (Reinhard et al. 2002, global; scene-format.md
+    /// §12.3), the one a scene's <Tonemap> asks for: luminance Y = 0.2126 R + 0.7152 G + 0.0722 B;
+    /// log average Ȳ = exp(mean(ln(1e-6 + Y))); L = key / Ȳ · Y; the white point L_white is the
+    /// luminance that --burn percent of the pixels exceed (0: no white point); display luminance
+    /// L (1 + L / L_white²) / (1 + L); colour by (C / Y)^saturation; clamp to [0, 1]; gamma;
+    /// 255 · value truncated. Pixels with NaN or infinite values are left out of the statistics
+    /// and reported.
+    ///
+    /// The input format is recognised by content; the output is always PNG. One summary line
+    /// (log average, white point, non-finite pixels) goes to stdout.
+    ///
+    /// Example: tessera-worker tonemap head_env_light.exr --key 0.18 --burn 1 -o head_env_light.png
+    #[command(allow_negative_numbers = true)]
+    Tonemap {
+        /// The HDR image to tone-map (.exr or .hdr).
+        input: PathBuf,
+        /// The PNG file to write.
+        #[arg(long, short, value_name = "OUT.png")]
+        out: PathBuf,
+        /// Key value a: the display luminance the log-average luminance maps to (<TMOOptions>'s
+        /// first number). Brighter with a larger key.
+        #[arg(long, default_value_t = 0.18, value_name = "K")]
+        key: f64,
+        /// Burn-out percentage b, 0 to 100: the share of pixels allowed to reach white
+        /// (<TMOOptions>'s second number); 0: no white point, plain L / (1 + L).
+        #[arg(long, default_value_t = 1.0, value_name = "P")]
+        burn: f64,
+        /// Saturation exponent s applied to each channel's ratio to the luminance (<Saturation>):
+        /// 1 keeps the colours, 0 gives grey, above 1 saturates.
+        #[arg(long, default_value_t = 1.0, value_name = "S")]
+        saturation: f64,
+        /// Display gamma (<Gamma>): a positive number, or "srgb" for the sRGB transfer curve.
+        #[arg(long, default_value = "2.2", value_name = "G|srgb")]
+        gamma: Gamma,
+    },
 }
 
 fn main() -> ExitCode {
@@ -67,6 +107,9 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Render { scene, out, threads, camera, tile_size, samples, quiet } => {
             render(&scene, &out, &Options { threads, camera, tile_size, samples, quiet })
+        }
+        Command::Tonemap { input, out, key, burn, saturation, gamma } => {
+            tonemap_file(&input, &out, &Photographic { key, burn_percent: burn, saturation, gamma })
         }
     };
     match result {
@@ -193,4 +236,39 @@ fn render(scene_path: &Path, out: &Path, opts: &Options) -> Result<()> {
         }
         Ok(())
     })
+}
+
+/// `tonemap`: reads an HDR image, tone-maps it, writes the PNG and prints one summary line.
+fn tonemap_file(input: &Path, out: &Path, params: &Photographic) -> Result<()> {
+    params.validate().map_err(|e| anyhow::anyhow!("{e}"))?;
+    let t = Instant::now();
+    let img = read_float_image(input)?;
+    let (rgb, stats) = tonemap(&img, params);
+    write_png_rgb8(out, img.width, img.height, &rgb)?;
+    let white = if stats.white.is_finite() {
+        format!("white point L_white {:.6} (burn {}%)", stats.white, params.burn_percent)
+    } else {
+        format!("no white point (burn {}%)", params.burn_percent)
+    };
+    println!(
+        "{}: {}x{} from {}, key {}, saturation {}, gamma {}: log-average luminance {:.6}, {white}, {} non-finite pixel(s), {:.3} s",
+        out.display(),
+        img.width,
+        img.height,
+        input.display(),
+        params.key,
+        params.saturation,
+        params.gamma,
+        stats.log_average,
+        stats.non_finite,
+        t.elapsed().as_secs_f64()
+    );
+    if stats.non_finite > 0 {
+        eprintln!(
+            "warning: {}: {} pixel(s) hold NaN or infinite values; they are left out of the statistics (NaN written black, +inf white)",
+            input.display(),
+            stats.non_finite
+        );
+    }
+    Ok(())
 }
