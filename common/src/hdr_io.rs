@@ -198,45 +198,45 @@ fn looks_like(bytes: &[u8]) -> String {
     format!("it starts with {}", head.join(" "))
 }
 
-/// Reads an OpenEXR file (half, float or uint channels; RGB, RGBA or luminance; scanline or
-/// tiled; any compression) into a linear float [`Image`], values as stored. A file that is not
-/// OpenEXR (by its magic bytes, whatever its name) is an error saying what it is instead.
-pub fn read_exr(path: &Path) -> Result<Image, HdrError> {
+/// Reads `path` and decodes it if its first bytes pass `accept`; otherwise an error naming the
+/// file, the `expected` format and what the bytes look like.
+fn read_checked(path: &Path, accept: fn(&[u8]) -> bool, expected: &str) -> Result<Image, HdrError> {
     let bytes = read_bytes(path)?;
-    if !bytes.starts_with(EXR_MAGIC) {
+    if !accept(&bytes) {
         return Err(HdrError::Format {
             path: path.to_owned(),
-            message: format!("not an OpenEXR file ({})", looks_like(&bytes)),
+            message: format!("not {expected} file ({})", looks_like(&bytes)),
         });
     }
     decode(path, &bytes)
 }
 
+fn is_exr(bytes: &[u8]) -> bool {
+    bytes.starts_with(EXR_MAGIC)
+}
+
+fn is_radiance(bytes: &[u8]) -> bool {
+    bytes.starts_with(b"#?")
+}
+
+/// Reads an OpenEXR file (half, float or uint channels; RGB, RGBA or luminance; scanline or
+/// tiled; any compression) into a linear float [`Image`], values as stored. A file that is not
+/// OpenEXR (by its magic bytes, whatever its name) is an error saying what it is instead.
+pub fn read_exr(path: &Path) -> Result<Image, HdrError> {
+    read_checked(path, is_exr, "an OpenEXR")
+}
+
 /// Reads a Radiance `.hdr` (RGBE) file into a linear float [`Image`]. A file that is not Radiance
 /// HDR (it must start with `#?`) is an error saying what it is instead.
 pub fn read_hdr(path: &Path) -> Result<Image, HdrError> {
-    let bytes = read_bytes(path)?;
-    if !bytes.starts_with(b"#?") {
-        return Err(HdrError::Format {
-            path: path.to_owned(),
-            message: format!("not a Radiance HDR file ({})", looks_like(&bytes)),
-        });
-    }
-    decode(path, &bytes)
+    read_checked(path, is_radiance, "a Radiance HDR")
 }
 
 /// Reads an HDR image, OpenEXR or Radiance HDR, chosen by the file's content (not its name).
 /// Anything else (PNG, JPEG, text, ...) is an error naming the file and what it looks like: an
 /// 8-bit image is not a radiance image.
 pub fn read_float_image(path: &Path) -> Result<Image, HdrError> {
-    let bytes = read_bytes(path)?;
-    if !(bytes.starts_with(EXR_MAGIC) || bytes.starts_with(b"#?")) {
-        return Err(HdrError::Format {
-            path: path.to_owned(),
-            message: format!("not an OpenEXR or Radiance HDR file ({})", looks_like(&bytes)),
-        });
-    }
-    decode(path, &bytes)
+    read_checked(path, |b| is_exr(b) || is_radiance(b), "an OpenEXR or Radiance HDR")
 }
 
 #[cfg(test)]

@@ -1,13 +1,13 @@
 //! End-to-end tests of the `tessera-worker` binary: real scene files in, PNG files and messages
 //! out. Every test writes only into its own directory under the system temp dir.
 
+mod support;
+use support::*;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use tessera::image::Rgb8;
-
-const BIN: &str = env!("CARGO_BIN_EXE_tessera-worker");
 
 /// A scratch directory under the system temp dir, removed on drop.
 struct TempDir(PathBuf);
@@ -47,28 +47,6 @@ fn shared_scenes() -> PathBuf {
     match std::env::var_os("TESSERA_SCENES") {
         Some(p) => PathBuf::from(p),
         None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes"),
-    }
-}
-
-struct Run {
-    code: Option<i32>,
-    stdout: String,
-    stderr: String,
-}
-
-impl Run {
-    fn describe(&self) -> String {
-        format!("exit {:?}\n--- stdout ---\n{}\n--- stderr ---\n{}", self.code, self.stdout, self.stderr)
-    }
-}
-
-fn run<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Run {
-    let Output { status, stdout, stderr } =
-        Command::new(BIN).args(args).output().expect("spawn tessera-worker");
-    Run {
-        code: status.code(),
-        stdout: String::from_utf8_lossy(&stdout).into_owned(),
-        stderr: String::from_utf8_lossy(&stderr).into_owned(),
     }
 }
 

@@ -2,15 +2,15 @@
 //! outputs (compared with the official tone-mapped PNGs) and on bad input. Every test writes only
 //! into its own directory under the system temp dir.
 
+mod support;
+use support::*;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use tessera::hdr_io::{read_hdr, write_hdr};
 use tessera::image::{Image, Rgb8};
 use tessera::tonemap::{Photographic, tonemap};
-
-const BIN: &str = env!("CARGO_BIN_EXE_tessera-worker");
 
 /// A scratch directory under the system temp dir, removed on drop.
 struct TempDir(PathBuf);
@@ -53,28 +53,6 @@ fn official(name: &str) -> Option<(PathBuf, PathBuf)> {
     } else {
         println!("skipping {name}: {} or its .png absent", exr.display());
         None
-    }
-}
-
-struct Run {
-    code: Option<i32>,
-    stdout: String,
-    stderr: String,
-}
-
-impl Run {
-    fn describe(&self) -> String {
-        format!("exit {:?}\n--- stdout ---\n{}\n--- stderr ---\n{}", self.code, self.stdout, self.stderr)
-    }
-}
-
-fn run<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Run {
-    let Output { status, stdout, stderr } =
-        Command::new(BIN).args(args).output().expect("spawn tessera-worker");
-    Run {
-        code: status.code(),
-        stdout: String::from_utf8_lossy(&stdout).into_owned(),
-        stderr: String::from_utf8_lossy(&stderr).into_owned(),
     }
 }
 

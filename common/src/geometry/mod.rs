@@ -86,7 +86,8 @@ pub struct SurfaceHit {
     pub shading_normal: DVec3,
     pub material: u32,
     pub instance: u32,
-    /// Texture coordinates (barycentrics when the mesh has none).
+    /// Texture coordinates (barycentrics when the mesh has none). This and the three fields
+    /// below are only computed for objects with texture maps; they are zero otherwise.
     pub uv: DVec2,
     /// World-space surface derivatives ∂p/∂u and ∂p/∂v (zero when the surface has no uvs).
     pub dpdu: DVec3,
@@ -304,11 +305,15 @@ impl Accel {
     fn surface(&self, ray: &Ray, c: Candidate) -> SurfaceHit {
         let inst = &self.instances[c.instance as usize];
         let local = inst.local_ray(ray);
+        // The texture frame (trigonometry for spheres, uv interpolation for meshes) is only
+        // needed by objects that have texture maps: skip it on every other hit.
+        let textured = inst.textures != ObjectTextures::default();
+        let no_frame = (DVec2::ZERO, DVec3::ZERO, DVec3::ZERO);
         let (t, n_geo, n_shade, (uv, dpdu, dpdv)) = match &inst.shape {
             Shape::Sphere { center, radius } => {
                 let p = local.at(c.t);
                 let n = (p - *center) / *radius;
-                (c.t, n, n, sphere_uv_frame(p - *center, *radius))
+                (c.t, n, n, if textured { sphere_uv_frame(p - *center, *radius) } else { no_frame })
             }
             Shape::Mesh { mesh, smooth } => {
                 let m = &self.meshes[*mesh as usize];
@@ -317,19 +322,23 @@ impl Accel {
                 let t = if h.t.is_finite() && h.t > 0.0 { h.t } else { c.t };
                 let ng = m.face_normal(c.tri);
                 let ns = if *smooth { m.smooth_normal(c.tri, h.u, h.v) } else { ng };
-                let frame =
-                    m.uv_frame(c.tri, h.u, h.v).unwrap_or((DVec2::new(h.u, h.v), DVec3::ZERO, DVec3::ZERO));
+                let frame = if textured {
+                    m.uv_frame(c.tri, h.u, h.v).unwrap_or((DVec2::new(h.u, h.v), DVec3::ZERO, DVec3::ZERO))
+                } else {
+                    no_frame
+                };
                 (t, ng, ns, frame)
             }
         };
         let (geo_normal, shading_normal, dpdu, dpdv, bump_axis) = match &inst.transform {
-            Some(xf) => (
+            Some(xf) if textured => (
                 xf.normal_to_world(n_geo),
                 xf.normal_to_world(n_shade),
                 xf.to_world.transform_vector3(dpdu),
                 xf.to_world.transform_vector3(dpdv),
                 xf.to_world.transform_vector3(n_shade),
             ),
+            Some(xf) => (xf.normal_to_world(n_geo), xf.normal_to_world(n_shade), dpdu, dpdv, DVec3::ZERO),
             None => (n_geo, n_shade, dpdu, dpdv, n_shade),
         };
         // A smooth normal may lean past the face; keep it on the face's side.

@@ -85,7 +85,7 @@ impl Ctx<'_> {
             return Ok(None);
         }
         Transform::new(m).map(Some).ok_or_else(|| {
-            self.err(loc, "the transformation is singular (a zero scale?); the object would be flat")
+            self.err(loc, "the transformation is singular (a zero scale?); the object would be flat: use non-zero Scaling factors")
         })
     }
 }
@@ -220,8 +220,13 @@ fn load_mesh_data(
             .unwrap_or_else(|| Err(ctx.err(&mesh.faces_loc, "internal: PLY not loaded"))),
         FacesRec::Inline { indices, vertex_offset, .. } => {
             if indices.len() % 3 != 0 {
-                return Err(ctx
-                    .err(&mesh.faces_loc, format!("has {} vertex ids, not a multiple of 3", indices.len())));
+                return Err(ctx.err(
+                    &mesh.faces_loc,
+                    format!(
+                        "has {} vertex ids, not a multiple of 3; give three vertex ids per triangle",
+                        indices.len()
+                    ),
+                ));
             }
             // Keep only the vertices this mesh uses, so a BVH never carries the whole scene's list.
             // With texture coordinates a vertex is keyed by (vertex id, uv id): the uv id is
@@ -512,7 +517,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
             ));
         }
         let cam = Camera::from_record(c).ok_or_else(|| {
-            ctx.err(&c.loc, "Gaze and Up are zero or parallel, so they do not define a camera frame")
+            ctx.err(&c.loc, "Gaze and Up are zero or parallel, so they do not define a camera frame; give an Up that is not parallel to the viewing direction")
         })?;
         cameras.push(cam);
     }
