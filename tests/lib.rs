@@ -4,6 +4,7 @@
 //! in); [`shared_scenes`] finds it.
 
 pub mod conformance;
+pub mod envmaps;
 
 use std::path::PathBuf;
 

@@ -3,7 +3,7 @@
 use glam::DVec3;
 
 use crate::math::{Ray, v3};
-use crate::scene::records::{CameraRec, Handedness, LensRec, Projection};
+use crate::scene::records::{CameraRec, Handedness, LensRec, Projection, TonemapRec};
 
 /// A camera ready to generate primary rays.
 #[derive(Clone, Debug, PartialEq)]
@@ -25,6 +25,8 @@ pub struct Camera {
     pub num_samples: u32,
     /// Thin lens (depth of field); `None` for a pinhole.
     pub lens: Option<LensRec>,
+    /// How an HDR output is also written as PNG (empty: the photographic defaults).
+    pub tonemaps: Vec<TonemapRec>,
 }
 
 impl Camera {
@@ -71,6 +73,7 @@ impl Camera {
             image_name: c.image_name.clone(),
             num_samples: c.num_samples.max(1),
             lens: c.lens,
+            tonemaps: c.tonemaps.clone(),
         })
     }
 
@@ -118,6 +121,7 @@ mod tests {
             handedness,
             num_samples: 1,
             lens: None,
+            tonemaps: Vec::new(),
         }
     }
 

@@ -9,7 +9,7 @@ use crate::material::{Material, MaterialKind, Refraction, fresnel_conductor, ref
 use crate::math::{Ray, orthonormal_pair, reflect};
 use crate::sampler::SampleRng;
 use crate::scene::Scene;
-use crate::scene::records::DecalMode;
+use crate::scene::records::{DecalMode, EnvSampler};
 use crate::texture::maps::{Source, TextureMap, TexturePoint, image_height, perlin_bump};
 
 /// Rays traced, by kind, for throughput figures.
@@ -39,11 +39,15 @@ pub struct Tracer<'a> {
     /// What rays that miss everything return for the current pixel: BackgroundColor, or the
     /// pixel's texel of a `replace_background` map (used for secondary misses too, §11.8).
     pub background: DVec3,
+    /// How the environment light (if any) is sampled: the scene's choice, else the course's
+    /// uniform estimator; the render settings may override it.
+    pub env_sampler: EnvSampler,
 }
 
 impl<'a> Tracer<'a> {
     pub fn new(scene: &'a Scene) -> Self {
-        Tracer { scene, stats: RayStats::default(), background: scene.background }
+        let env_sampler = scene.env_light.as_ref().and_then(|l| l.sampler).unwrap_or(EnvSampler::Uniform);
+        Tracer { scene, stats: RayStats::default(), background: scene.background, env_sampler }
     }
 
     /// Radiance along a camera ray.
@@ -57,7 +61,11 @@ impl<'a> Tracer<'a> {
     fn trace(&mut self, ray: &Ray, depth: u32, medium: Option<DVec3>, rng: &mut SampleRng) -> DVec3 {
         let scene = self.scene;
         let Some(hit) = scene.accel.intersect(ray, scene.intersection_test_epsilon, f64::INFINITY) else {
-            return self.background;
+            // Rays that miss see the environment (§5.6), else the background.
+            return match &scene.env_light {
+                Some(env) => env.radiance(ray.dir),
+                None => self.background,
+            };
         };
         let l = self.shade(ray, &hit, depth, medium.is_some(), rng);
         match medium {
@@ -148,8 +156,9 @@ impl<'a> Tracer<'a> {
         l
     }
 
-    /// Ambient plus Blinn-Phong from every point light and one sample of every area light, with
-    /// shadow rays (§5.2, §5.3, §6.2, §6.3). `n` faces the incoming `ray`.
+    /// Ambient plus Blinn-Phong from every light with shadow rays (§5, §6.2, §6.3): point,
+    /// directional and spot lights exactly, one sample of every area light and one direction of
+    /// the environment light. `n` faces the incoming `ray`.
     fn direct(&mut self, ray: &Ray, x: DVec3, n: DVec3, mat: &Material, rng: &mut SampleRng) -> DVec3 {
         let scene = self.scene;
         let mut l = mat.ambient * scene.ambient_light;
@@ -173,7 +182,39 @@ impl<'a> Tracer<'a> {
                 l += blinn_phong(mat, n, wi, wo) * e;
             }
         }
+        for light in &scene.directional_lights {
+            if self.unblocked(ray, n, origin, light.to_light) {
+                l += blinn_phong(mat, n, light.to_light, wo) * light.radiance;
+            }
+        }
+        for light in &scene.spot_lights {
+            let s = light.factor((x - light.position).normalize());
+            if s > 0.0
+                && let Some(wi) = self.visible(ray, x, n, origin, light.position)
+            {
+                let e = light.intensity * (s / (light.position - x).length_squared());
+                l += blinn_phong(mat, n, wi, wo) * e;
+            }
+        }
+        if let Some(env) = &scene.env_light
+            && let Some(s) = env.sample(n, self.env_sampler, rng)
+            && s.weight != DVec3::ZERO
+            && self.unblocked(ray, n, origin, s.wi)
+        {
+            l += blinn_phong(mat, n, s.wi, wo) * s.weight;
+        }
         l
+    }
+
+    /// Whether unit direction `wi` is above the surface and a ray from `origin` along it escapes
+    /// the scene (directional and environment lights are infinitely far).
+    fn unblocked(&mut self, ray: &Ray, n: DVec3, origin: DVec3, wi: DVec3) -> bool {
+        if n.dot(wi) <= 0.0 {
+            return false;
+        }
+        self.stats.shadow += 1;
+        let shadow = ray.spawn(origin, wi);
+        !self.scene.accel.occluded(&shadow, self.scene.intersection_test_epsilon, f64::INFINITY)
     }
 
     /// The unit direction from `x` to the light point `p` if it is above the surface and no
@@ -276,6 +317,7 @@ fn glossy(r: DVec3, roughness: f64, rng: &mut SampleRng) -> DVec3 {
 mod tests {
     use crate::assets::FsResolver;
     use crate::render::{RenderSettings, TileRect, render_tile};
+    use crate::scene::records::EnvSampler;
     use crate::scene::load_scene_str;
 
     /// A white diffuse floor at y = 0 seen straight from above, lit only by `lights`.
@@ -321,5 +363,101 @@ mod tests {
             "",
         );
         assert_eq!(p, q);
+    }
+
+    #[test]
+    fn directional_light_has_no_falloff_and_shadow_rays_reach_infinity() {
+        // E = radiance · cos: straight down 7, at 45° 7/√2.
+        let p = floor_pixel("<DirectionalLight id=\"1\"><Direction>0 -1 0</Direction><Radiance>7 7 7</Radiance></DirectionalLight>", "");
+        assert!((p[0] - 7.0).abs() < 1e-5, "{p:?}");
+        let p = floor_pixel("<DirectionalLight id=\"1\"><Direction>1 -1 0</Direction><Radiance>7 7 7</Radiance></DirectionalLight>", "");
+        assert!((p[0] - 7.0 / 2f32.sqrt()).abs() < 1e-5, "{p:?}");
+        // A sphere 20 units up blocks it: the shadow ray does not stop at any distance.
+        let p = floor_pixel(
+            "<DirectionalLight id=\"1\"><Direction>0 -1 0</Direction><Radiance>7 7 7</Radiance></DirectionalLight>",
+            "<Sphere id=\"9\"><Material>1</Material><Center>5</Center><Radius>1</Radius></Sphere>",
+        );
+        assert_eq!(p, [0.0; 3]);
+        // Light travelling upwards does not reach the floor's top side.
+        let p = floor_pixel("<DirectionalLight id=\"1\"><Direction>0 1 0</Direction><Radiance>7 7 7</Radiance></DirectionalLight>", "");
+        assert_eq!(p, [0.0; 3]);
+    }
+
+    #[test]
+    fn spot_light_on_axis_in_the_falloff_band_and_outside() {
+        // Spot 4 units above the lit point, intensity 400 (25 on the axis), coverage 60°,
+        // falloff 40° (half angles 30° and 20°), its axis tilted by `tilt` degrees.
+        let spot = |tilt: f64| {
+            let (s, c) = tilt.to_radians().sin_cos();
+            floor_pixel(
+                &format!("<SpotLight id=\"1\"><Position>0 4 0</Position><Direction>{s} {} 0</Direction><Intensity>400 400 400</Intensity><CoverageAngle>60</CoverageAngle><FalloffAngle>40</FalloffAngle></SpotLight>", -c),
+                "",
+            )[0] as f64
+        };
+        assert!((spot(0.0) - 25.0).abs() < 1e-4, "centre: {}", spot(0.0));
+        assert!((spot(15.0) - 25.0).abs() < 1e-4, "inside the falloff cone: {}", spot(15.0));
+        let (cc, cf) = (30f64.to_radians().cos(), 20f64.to_radians().cos());
+        let t = (25f64.to_radians().cos() - cc) / (cf - cc);
+        assert!((spot(25.0) - 25.0 * t.powi(4)).abs() < 1e-4, "between: {} vs {}", spot(25.0), 25.0 * t.powi(4));
+        assert!(spot(25.0) > 0.0 && spot(25.0) < 25.0);
+        assert_eq!(spot(35.0), 0.0, "outside the coverage cone");
+    }
+
+    /// A scene around a white diffuse unit sphere lit only by a constant environment map of
+    /// radiance `l`, seen through one pixel by a camera at z = 5 looking along `gaze_z` (−1: at
+    /// the sphere); `spp` samples with `sampler`.
+    fn furnace_pixel(l: f32, gaze_z: f64, material: &str, spp: u32, sampler: EnvSampler) -> [f32; 3] {
+        use crate::image::Image;
+        // One directory per process and radiance: tests run in parallel.
+        let dir = std::env::temp_dir().join(format!("tessera-furnace-{}-{}", std::process::id(), l.to_bits()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let map = Image { width: 8, height: 4, pixels: vec![[l; 3]; 32] };
+        crate::hdr_io::write_exr(&dir.join("const.exr"), &map).unwrap();
+        let xml = format!(
+            r#"<Scene><MaxRecursionDepth>2</MaxRecursionDepth>
+            <Cameras><Camera id="1"><Position>0 0 5</Position><Gaze>0 0 {gaze_z}</Gaze><Up>0 1 0</Up>
+              <NearPlane>-0.001 0.001 -0.001 0.001</NearPlane><NearDistance>1</NearDistance>
+              <ImageResolution>1 1</ImageResolution><ImageName>a.exr</ImageName><NumSamples>{spp}</NumSamples></Camera></Cameras>
+            <Textures><Images><Image id="1">const.exr</Image></Images></Textures>
+            <Lights><SphericalDirectionalLight id="1"><ImageId>1</ImageId></SphericalDirectionalLight></Lights>
+            <Materials>{material}</Materials>
+            <VertexData>0 0 0</VertexData>
+            <Objects><Sphere id="1"><Material>1</Material><Center>1</Center><Radius>1</Radius></Sphere></Objects>
+            </Scene>"#
+        );
+        let scene = load_scene_str(&xml, &dir.join("t.xml"), &FsResolver { base_dir: dir.clone() }).unwrap();
+        let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
+        let settings = RenderSettings { env_sampling: Some(sampler), ..RenderSettings::default() };
+        render_tile(&scene, 0, rect, &settings).0[0]
+    }
+
+    const WHITE: &str = r#"<Material id="1"><DiffuseReflectance>1 1 1</DiffuseReflectance></Material>"#;
+
+    /// The furnace test: a white diffuse sphere in a constant environment L reflects
+    /// kd · ∫ L cos θ dω = π · L (the course's shading formula has no 1/π), whichever estimator.
+    #[test]
+    fn furnace_white_sphere_in_constant_environment() {
+        let l = 0.5f32;
+        let expected = std::f64::consts::PI * l as f64;
+        // Cosine sampling: E·cos = L·π exactly for every sample.
+        let p = furnace_pixel(l, -1.0, WHITE, 16, EnvSampler::Cosine);
+        assert!((p[0] as f64 - expected).abs() < 1e-5, "cosine: {p:?}");
+        // Uniform (σ of one sample πL/√3) and importance (σ = πL·√(5/3)), both at 16384 samples:
+        // 4σ is 1.8 % and 4.0 %.
+        let p = furnace_pixel(l, -1.0, WHITE, 16384, EnvSampler::Uniform);
+        assert!((p[0] as f64 / expected - 1.0).abs() < 0.018, "uniform: {p:?} vs {expected}");
+        let p = furnace_pixel(l, -1.0, WHITE, 16384, EnvSampler::Importance);
+        assert!((p[0] as f64 / expected - 1.0).abs() < 0.04, "importance: {p:?} vs {expected}");
+    }
+
+    #[test]
+    fn missed_rays_and_mirrors_see_the_environment() {
+        // Looking away from the sphere: the map itself.
+        let p = furnace_pixel(0.25, 1.0, WHITE, 1, EnvSampler::Uniform);
+        assert_eq!(p, [0.25; 3]);
+        // A perfect mirror sphere reflects the map (and gets no diffuse light).
+        let mirror = r#"<Material id="1" type="mirror"><DiffuseReflectance>0 0 0</DiffuseReflectance><SpecularReflectance>0 0 0</SpecularReflectance><MirrorReflectance>0.5 0.5 0.5</MirrorReflectance></Material>"#;
+        let p = furnace_pixel(0.25, -1.0, mirror, 1, EnvSampler::Uniform);
+        assert!((p[0] - 0.125).abs() < 1e-7, "{p:?}");
     }
 }

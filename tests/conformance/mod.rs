@@ -117,12 +117,12 @@ fn render_one(row: &Row, out_dir: &Path) -> Result<Comparison> {
         .with_context(|| format!("{} has no camera with ImageName {}", row.scene, row.image))?;
     let settings = RenderSettings { samples: row.spp, ..RenderSettings::default() };
     let (img, _) = render_camera(&scene, cam, 32, &settings, &|_, _| {});
-    let ours = Rgb8::from_image(&img);
+    let ours = display_image(&scene.cameras[cam], &img);
     let spp = row.spp.map_or(String::new(), |n| format!("__{n}spp"));
     let stem = Path::new(&row.image).with_extension("");
     let out = out_dir.join(format!("{}__{}{spp}.png", row.scene, stem.display()));
     if std::fs::create_dir_all(out_dir).is_ok() {
-        let _ = img.write_png(&out);
+        let _ = tessera::hdr_io::write_png_rgb8(&out, ours.width, ours.height, &ours.data);
     }
     let reference = Rgb8::read_png(&row.reference_path())
         .with_context(|| format!("cannot read reference {}", row.reference_path().display()))?;
@@ -146,6 +146,22 @@ fn render_one(row: &Row, out_dir: &Path) -> Result<Comparison> {
             ours.width, ours.height, reference.width, reference.height
         )
     })
+}
+
+/// The 8-bit picture a camera's output is judged by: the clamped PNG of an LDR `ImageName`,
+/// the (first) tone-mapped PNG of an HDR one.
+pub fn display_image(cam: &tessera::camera::Camera, img: &tessera::image::Image) -> Rgb8 {
+    let (files, _) = tessera::output::plan(cam);
+    match files.iter().find_map(|f| match &f.kind {
+        tessera::output::OutputKind::Tonemapped(p) => Some(*p),
+        _ => None,
+    }) {
+        Some(params) => {
+            let (data, _) = tessera::tonemap::tonemap(img, &params);
+            Rgb8 { width: img.width, height: img.height, data }
+        }
+        None => Rgb8::from_image(img),
+    }
 }
 
 /// Renders and compares every row; `log` receives one line per row as it finishes.

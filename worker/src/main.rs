@@ -13,7 +13,9 @@ use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use tessera::assets::FsResolver;
 use tessera::hdr_io::{read_float_image, write_png_rgb8};
+use tessera::output;
 use tessera::render::{RenderSettings, render_camera};
+use tessera::scene::records::EnvSampler;
 use tessera::scene::build::build_scene;
 use tessera::scene::parse_scene;
 use tessera::tonemap::{Gamma, Photographic, tonemap};
@@ -34,10 +36,13 @@ struct Cli {
 enum Command {
     /// Render every camera of a scene file on this machine.
     ///
-    /// Each camera's image is written to DIR under the camera's <ImageName> (PNG: clamped to
-    /// [0, 255] and rounded, as the course specifies). Assets (PLY files) are found relative to
-    /// the scene file. Warnings about the scene go to stderr; a summary line per camera goes to
-    /// stdout.
+    /// Each camera's image is written to DIR under the file name of the camera's <ImageName>:
+    /// .png is clamped to [0, 255] and rounded, as the course specifies; .exr writes the linear
+    /// image as a lossless 32-bit float OpenEXR file and, beside it, a PNG of the same stem
+    /// tone-mapped with the camera's <Tonemap> (photographic, key 0.18, burn 1 %, gamma 2.2 when
+    /// it has none); .hdr the same with Radiance RGBE. Assets (PLY files, images) are found
+    /// relative to the scene file. Warnings about the scene go to stderr; a summary line per
+    /// camera goes to stdout.
     ///
     /// Example: tessera-worker render scenes/cornell_box.xml --out out/
     Render {
@@ -59,6 +64,13 @@ enum Command {
         /// noisy preview of a 900-sample scene).
         #[arg(long, value_name = "N")]
         samples: Option<u32>,
+        /// How environment lights pick their one direction per shading event, instead of the
+        /// light's <Sampler>: uniform (the course's estimator: the hemisphere around the normal,
+        /// radiance divided by the pdf 1/(2π)), cosine (pdf cos θ/π) or importance (by the map's
+        /// luminance; far less noise for maps with a small bright sun). All converge to the same
+        /// image.
+        #[arg(long, value_enum, value_name = "MODE")]
+        env_sampling: Option<EnvSampling>,
         /// Do not draw a progress bar.
         #[arg(long, short)]
         quiet: bool,
@@ -102,11 +114,30 @@ enum Command {
     },
 }
 
+/// `--env-sampling` values.
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum EnvSampling {
+    Uniform,
+    Cosine,
+    Importance,
+}
+
+impl From<EnvSampling> for EnvSampler {
+    fn from(s: EnvSampling) -> Self {
+        match s {
+            EnvSampling::Uniform => EnvSampler::Uniform,
+            EnvSampling::Cosine => EnvSampler::Cosine,
+            EnvSampling::Importance => EnvSampler::Importance,
+        }
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Render { scene, out, threads, camera, tile_size, samples, quiet } => {
-            render(&scene, &out, &Options { threads, camera, tile_size, samples, quiet })
+        Command::Render { scene, out, threads, camera, tile_size, samples, env_sampling, quiet } => {
+            let env_sampling = env_sampling.map(EnvSampling::into);
+            render(&scene, &out, &Options { threads, camera, tile_size, samples, env_sampling, quiet })
         }
         Command::Tonemap { input, out, key, burn, saturation, gamma } => {
             tonemap_file(&input, &out, &Photographic { key, burn_percent: burn, saturation, gamma })
@@ -121,38 +152,18 @@ fn main() -> ExitCode {
     }
 }
 
-/// The output file for an `ImageName`: its file name only (a scene cannot write outside DIR),
-/// and PNG until HDR output exists.
-fn output_path(out: &Path, image_name: &str) -> (PathBuf, Option<String>) {
-    let name = Path::new(image_name)
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "image.png".into());
-    let ext = Path::new(&name).extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
-    match ext.as_deref() {
-        Some("png") => (out.join(name), None),
-        _ => {
-            let png = Path::new(&name).with_extension("png");
-            let note = format!(
-                "ImageName \"{image_name}\": only PNG output is supported yet; writing {} instead",
-                png.display()
-            );
-            (out.join(png), Some(note))
-        }
-    }
-}
-
 /// What `render` was asked to do besides which scene and where.
 struct Options {
     threads: Option<usize>,
     camera: Option<usize>,
     tile_size: u32,
     samples: Option<u32>,
+    env_sampling: Option<EnvSampler>,
     quiet: bool,
 }
 
 fn render(scene_path: &Path, out: &Path, opts: &Options) -> Result<()> {
-    let &Options { threads, camera, tile_size, samples, quiet } = opts;
+    let &Options { threads, camera, tile_size, samples, env_sampling, quiet } = opts;
     if samples == Some(0) {
         bail!("--samples must be at least 1");
     }
@@ -197,11 +208,11 @@ fn render(scene_path: &Path, out: &Path, opts: &Options) -> Result<()> {
         };
         std::fs::create_dir_all(out)
             .with_context(|| format!("cannot create the output directory {}", out.display()))?;
-        let settings = RenderSettings { samples, ..RenderSettings::default() };
+        let settings = RenderSettings { samples, env_sampling, ..RenderSettings::default() };
         for ci in selected {
             let cam = &scene.cameras[ci];
-            let (path, note) = output_path(out, &cam.image_name);
-            if let Some(n) = note {
+            let (files, notes) = output::plan(cam);
+            for n in notes {
                 eprintln!("warning: {n}");
             }
             let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(1) };
@@ -220,10 +231,18 @@ fn render(scene_path: &Path, out: &Path, opts: &Options) -> Result<()> {
             });
             bar.finish_and_clear();
             let secs = t.elapsed().as_secs_f64();
-            img.write_png(&path).with_context(|| format!("cannot write {}", path.display()))?;
+            let written = output::write(out, &img, &files)?;
+            let non_finite = img.pixels.iter().filter(|p| p.iter().any(|c| !c.is_finite())).count();
+            if non_finite > 0 {
+                eprintln!(
+                    "warning: {}: {non_finite} pixel(s) came out NaN or infinite; they are kept in HDR files, left out of tone-mapping statistics and written black (NaN) or white (+inf) in PNGs",
+                    cam.image_name
+                );
+            }
+            let names: Vec<String> = written.iter().map(|w| w.path.display().to_string()).collect();
             println!(
                 "{}: {}x{}, {} spp, {:.3} s, {:.2} Mrays/s ({} primary, {} shadow, {} secondary)",
-                path.display(),
+                names.join(" + "),
                 cam.width,
                 cam.height,
                 samples.unwrap_or(cam.num_samples),

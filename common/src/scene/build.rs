@@ -11,7 +11,7 @@ use glam::{DAffine3, DMat3, DMat4, DVec2, DVec3};
 use rayon::prelude::*;
 
 use super::records::*;
-use super::{AreaLight, PointLight, Scene, SceneStats};
+use super::{AreaLight, DirectionalLight, EnvLight, PointLight, Scene, SceneStats, SpotLight};
 use crate::assets::AssetResolver;
 use crate::camera::Camera;
 use crate::error::{Loc, SceneError, Warning};
@@ -26,8 +26,19 @@ use crate::texture::maps::{Source, TextureMap};
 const MAX_IMAGE_SIDE: u32 = 65_536;
 const MAX_IMAGE_PIXELS: u64 = 1 << 28;
 
-/// Gamma used to linearise `degamma` materials until tone-mapping blocks are parsed (§6.6).
-const DEGAMMA: f64 = 2.2;
+/// The exponent that linearises `degamma="true"` materials and texture maps (§6.6): the `Gamma`
+/// of the first camera's first `<Tonemap>` when it is a number, else 2.2 (also for `sRGB`, whose
+/// curve 2.2 approximates).
+fn degamma_exponent(rec: &SceneRecords) -> f64 {
+    rec.cameras
+        .iter()
+        .find_map(|c| c.tonemaps.first())
+        .and_then(|t| match t.params.gamma {
+            crate::tonemap::Gamma::Power(g) => Some(g),
+            crate::tonemap::Gamma::Srgb => None,
+        })
+        .unwrap_or(2.2)
+}
 
 struct Ctx<'a> {
     rec: &'a SceneRecords,
@@ -311,33 +322,53 @@ struct BuiltTextures<'a> {
     maps: Vec<TextureMap>,
     ids: HashMap<&'a str, u32>,
     background: Option<u32>,
+    env_light: Option<EnvLight>,
 }
 
 /// Decodes every image a texture map uses (each file once, in parallel) and builds the maps.
 fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<BuiltTextures<'a>, SceneError> {
     let rec = ctx.rec;
     let image_recs: HashMap<&str, &ImageRec> = rec.images.iter().rev().map(|i| (i.id.as_str(), i)).collect();
-    // The images the maps need, each file once.
-    // Each wanted file with the id of the first texture map that uses it (for messages).
-    let mut wanted: Vec<(&ImageRec, &str)> = Vec::new();
+    // The images the maps and the environment light need, each file once, with the first user
+    // of each (for messages).
+    let mut wanted: Vec<(&ImageRec, String)> = Vec::new();
+    let mut want = |img: &'a ImageRec, user: String| {
+        if !wanted.iter().any(|(w, _)| w.path == img.path) {
+            wanted.push((img, user));
+        }
+    };
     for m in &rec.texture_maps {
         if let TextureSource::Image { image, .. } = &m.source {
             let img = image_recs.get(image.as_str()).ok_or_else(|| {
                 ctx.err(&m.loc, format!("ImageId {image} names no <Image>; add <Image id=\"{image}\"> under <Textures><Images>"))
             })?;
-            if !wanted.iter().any(|(w, _)| w.path == img.path) {
-                wanted.push((img, m.id.as_str()));
-            }
+            want(img, format!("texture map {}", m.id));
         }
+    }
+    if let Some(l) = rec.env_lights.first() {
+        let img = image_recs.get(l.image.as_str()).ok_or_else(|| {
+            ctx.err(
+                &l.loc,
+                format!("ImageId {} names no <Image>; add <Image id=\"{}\"> with the environment map's path under <Textures><Images>", l.image, l.image),
+            )
+        })?;
+        want(img, format!("environment light {}", l.id).trim_end().to_string());
+    }
+    for l in rec.env_lights.iter().skip(1) {
+        warnings.push(Warning {
+            file: rec.source.clone(),
+            loc: l.loc.clone(),
+            message: "only one environment light is supported; this one is ignored".into(),
+        });
     }
     let decoded: Vec<Result<(String, Arc<TextureImage>), SceneError>> = wanted
         .par_iter()
-        .map(|&(img, map_id)| {
+        .map(|(img, user)| {
             let (bytes, found) = ctx.resolver.read(&img.path).map_err(|e| {
                 ctx.err(
                     &img.loc,
                     format!(
-                        "cannot read image {} (image id {}, used by texture map {map_id}): {e}; check the path (it is relative to the scene file)",
+                        "cannot read image {} (image id {}, used by {user}): {e}; check the path (it is relative to the scene file)",
                         ctx.resolver.display_path(&img.path).display(),
                         img.id
                     ),
@@ -346,7 +377,7 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
             let decoded = TextureImage::decode(&bytes).map_err(|e| {
                 ctx.err(
                     &img.loc,
-                    format!("cannot decode image {} (image id {}, used by texture map {map_id}): {e}", found.display(), img.id),
+                    format!("cannot decode image {} (image id {}, used by {user}): {e}", found.display(), img.id),
                 )
             })?;
             Ok((img.path.clone(), Arc::new(decoded)))
@@ -357,7 +388,10 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
         let (path, img) = d?;
         by_path.insert(path, img);
     }
-    let mut out = BuiltTextures { maps: Vec::new(), ids: HashMap::new(), background: None };
+    let env_light = rec.env_lights.first().map(|l| {
+        EnvLight::new(by_path[&image_recs[l.image.as_str()].path].clone(), l.mapping, l.sampler)
+    });
+    let mut out = BuiltTextures { maps: Vec::new(), ids: HashMap::new(), background: None, env_light };
     for m in &rec.texture_maps {
         let source = match &m.source {
             TextureSource::Image { image, interpolation, normalizer } => {
@@ -397,7 +431,7 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
             source,
             decal: m.decal,
             bump_factor: m.bump_factor,
-            degamma: m.degamma.then_some(DEGAMMA),
+            degamma: m.degamma.then_some(degamma_exponent(rec)),
         });
     }
     Ok(out)
@@ -460,6 +494,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
     // Materials.
     let mut mat_ids: HashMap<&str, u32> = HashMap::new();
     let mut materials = Vec::with_capacity(rec.materials.len());
+    let degamma = degamma_exponent(rec);
     for m in &rec.materials {
         if mat_ids.contains_key(m.id.as_str()) {
             warnings.push(Warning {
@@ -474,7 +509,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         mat_ids.entry(m.id.as_str()).or_insert(materials.len() as u32);
         let lin = |c: Vec3| -> DVec3 {
             let c = v3(c);
-            if m.degamma { c.max(DVec3::ZERO).powf(DEGAMMA) } else { c }
+            if m.degamma { c.max(DVec3::ZERO).powf(degamma) } else { c }
         };
         materials.push(Material {
             kind: m.kind,
@@ -709,6 +744,19 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
             .iter()
             .map(|l| PointLight { position: v3(l.position), intensity: v3(l.intensity) })
             .collect(),
+        directional_lights: rec
+            .directional_lights
+            .iter()
+            .map(|l| DirectionalLight::new(v3(l.direction), v3(l.radiance)))
+            .collect(),
+        spot_lights: rec
+            .spot_lights
+            .iter()
+            .map(|l| {
+                SpotLight::new(v3(l.position), v3(l.direction), v3(l.intensity), l.coverage_angle, l.falloff_angle)
+            })
+            .collect(),
+        env_light: textures.env_light,
         materials,
         cameras,
         accel,

@@ -15,37 +15,7 @@ use crate::error::{SceneError, Warning};
 use crate::geometry::Accel;
 use crate::material::Material;
 
-#[derive(Clone, Debug, PartialEq)]
-pub struct PointLight {
-    pub position: DVec3,
-    pub intensity: DVec3,
-}
-
-/// A square area light (HW3): side `size`, centred at `center`, facing `normal`; `u`, `v` span
-/// its plane (scene-format.md §5.3).
-#[derive(Clone, Debug, PartialEq)]
-pub struct AreaLight {
-    pub center: DVec3,
-    pub normal: DVec3,
-    pub u: DVec3,
-    pub v: DVec3,
-    pub size: f64,
-    pub radiance: DVec3,
-}
-
-impl AreaLight {
-    /// `normal` need not be unit length but must not be zero (the parser checks).
-    pub fn new(center: DVec3, normal: DVec3, size: f64, radiance: DVec3) -> Self {
-        let normal = normal.normalize();
-        let (u, v) = crate::math::orthonormal_pair(normal);
-        AreaLight { center, normal, u, v, size, radiance }
-    }
-
-    /// The point of the square at (ξ1, ξ2) ∈ [0, 1)².
-    pub fn point(&self, xi1: f64, xi2: f64) -> DVec3 {
-        self.center + self.size * (xi1 - 0.5) * self.u + self.size * (xi2 - 0.5) * self.v
-    }
-}
+pub use crate::lights::{AreaLight, DirectionalLight, EnvLight, PointLight, SpotLight};
 
 /// Size and cost of a built scene, for logs and summaries.
 #[derive(Clone, Debug, PartialEq)]
@@ -67,6 +37,11 @@ pub struct Scene {
     pub ambient_light: DVec3,
     pub point_lights: Vec<PointLight>,
     pub area_lights: Vec<AreaLight>,
+    pub directional_lights: Vec<DirectionalLight>,
+    pub spot_lights: Vec<SpotLight>,
+    /// The environment light (HW5), if any: lights the scene and is what rays that miss see.
+    /// (A second `SphericalDirectionalLight` is warned about and ignored.)
+    pub env_light: Option<EnvLight>,
     pub materials: Vec<Material>,
     pub cameras: Vec<Camera>,
     pub accel: Accel,

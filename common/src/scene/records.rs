@@ -27,6 +27,10 @@ pub struct SceneRecords {
     pub ambient_light: Vec3,
     pub point_lights: Vec<PointLightRec>,
     pub area_lights: Vec<AreaLightRec>,
+    pub directional_lights: Vec<DirectionalLightRec>,
+    pub spot_lights: Vec<SpotLightRec>,
+    /// `SphericalDirectionalLight`s (HW5 environment lights).
+    pub env_lights: Vec<EnvLightRec>,
     pub materials: Vec<MaterialRec>,
     /// Global vertex list; vertex id `k` (1-based) is `vertices[k - 1]`.
     pub vertices: Vec<Vec3>,
@@ -59,6 +63,9 @@ impl SceneRecords {
             ambient_light: [0.0; 3],
             point_lights: Vec::new(),
             area_lights: Vec::new(),
+            directional_lights: Vec::new(),
+            spot_lights: Vec::new(),
+            env_lights: Vec::new(),
             materials: Vec::new(),
             vertices: Vec::new(),
             tex_coords: Vec::new(),
@@ -108,6 +115,18 @@ pub struct CameraRec {
     /// Thin-lens depth of field: `FocusDistance` and `ApertureSize` (side of the square lens).
     /// Both present and the aperture positive, or the camera is a pinhole.
     pub lens: Option<LensRec>,
+    /// `<Tonemap>` blocks (HW5): how an HDR `ImageName` (`.exr`, `.hdr`) is also written as PNG.
+    /// Empty: the photographic defaults of §12.2.
+    pub tonemaps: Vec<TonemapRec>,
+}
+
+/// One `<Tonemap>` of a camera (§12.2).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TonemapRec {
+    pub loc: Loc,
+    pub params: crate::tonemap::Photographic,
+    /// [JSON 2025] the PNG's name suffix replacing `.exr` (e.g. `_phot.png`); `None`: `.png`.
+    pub extension: Option<String>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -133,6 +152,64 @@ pub struct AreaLightRec {
     pub normal: Vec3,
     pub size: f64,
     pub radiance: Vec3,
+}
+
+/// Light arriving from one direction everywhere (HW5, §5.4): no falloff, shadow rays to infinity.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DirectionalLightRec {
+    pub id: String,
+    pub loc: Loc,
+    /// The direction the light travels in (not normalised; never zero).
+    pub direction: Vec3,
+    pub radiance: Vec3,
+}
+
+/// A point light limited to a cone with a smooth edge (HW5, §5.5).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SpotLightRec {
+    pub id: String,
+    pub loc: Loc,
+    pub position: Vec3,
+    /// The cone's axis (not normalised; never zero).
+    pub direction: Vec3,
+    pub intensity: Vec3,
+    /// Full apex angles in degrees (the cone is symmetric, so half of each is used):
+    /// `0 <= falloff_angle <= coverage_angle`, `0 < coverage_angle < 360` (the parser checks).
+    pub coverage_angle: f64,
+    pub falloff_angle: f64,
+}
+
+/// How an environment map's image is laid out (§5.6).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum EnvMapping {
+    /// Latitude-longitude (equirectangular) panorama, `v = 0` at +Y.
+    #[default]
+    LatLong,
+    /// Debevec's angular light probe.
+    Probe,
+}
+
+/// How the environment light picks its one direction per shading event.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EnvSampler {
+    /// The course's estimator: uniform on the hemisphere around the normal, pdf 1/(2π).
+    Uniform,
+    /// Cosine-weighted on the hemisphere, pdf cos θ/π (a 2025 option).
+    Cosine,
+    /// By the map's luminance over the whole sphere (Tessera's option).
+    Importance,
+}
+
+/// An environment light (`SphericalDirectionalLight`, HW5, §5.6).
+#[derive(Clone, Debug, PartialEq)]
+pub struct EnvLightRec {
+    pub id: String,
+    pub loc: Loc,
+    /// The `<Image>` id holding the HDR map (2019 `EnvMapName` files get a generated image).
+    pub image: String,
+    pub mapping: EnvMapping,
+    /// `None`: the renderer's default (uniform, unless the command line says otherwise).
+    pub sampler: Option<EnvSampler>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -23,11 +23,12 @@ use quick_xml::events::{BytesStart, Event};
 use quick_xml::{Reader, XmlVersion};
 
 use super::records::{
-    AreaLightRec, CameraRec, DecalMode, FacesRec, Handedness, ImageRec, InstanceRec, Interpolation, LensRec,
-    MaterialKind, MaterialRec, MeshRec, NoiseConversion, PointLightRec, Projection, SceneRecords,
-    ShadingMode, SphereRec, TextureMapRec, TextureSource, TransformOp, TransformRec, TransformRef,
-    TriangleRec, Vec3,
+    AreaLightRec, CameraRec, DecalMode, DirectionalLightRec, EnvLightRec, EnvMapping, EnvSampler, FacesRec,
+    Handedness, ImageRec, InstanceRec, Interpolation, LensRec, MaterialKind, MaterialRec, MeshRec,
+    NoiseConversion, PointLightRec, Projection, SceneRecords, ShadingMode, SphereRec, SpotLightRec,
+    TextureMapRec, TextureSource, TonemapRec, TransformOp, TransformRec, TransformRef, TriangleRec, Vec3,
 };
+use crate::tonemap::Photographic;
 use crate::error::{Loc, SceneError, Warning};
 
 type Result<T> = std::result::Result<T, SceneError>;
@@ -482,16 +483,32 @@ const CAMERA: Schema = Schema {
         "FocusDistance",
         "ApertureSize",
     ],
-    unsupported: &["Tonemap", "Renderer", "RendererParams", "Transformations", "ClampSamples"],
+    many: &["Tonemap"],
+    unsupported: &["Renderer", "RendererParams", "Transformations", "ClampSamples"],
     attrs: &["id", "type", "handedness"],
     ..Schema::EMPTY
 };
 const LIGHTS: Schema = Schema {
     single: &["AmbientLight"],
-    many: &["PointLight", "AreaLight"],
-    unsupported: &["DirectionalLight", "SpotLight", "SphericalDirectionalLight"],
+    many: &["PointLight", "AreaLight", "DirectionalLight", "SpotLight", "SphericalDirectionalLight"],
     ..Schema::EMPTY
 };
+const DIRECTIONAL_LIGHT: Schema =
+    Schema { single: &["Direction", "Radiance"], attrs: &["id"], ..Schema::EMPTY };
+const SPOT_LIGHT: Schema = Schema {
+    single: &["Position", "Direction", "Intensity", "CoverageAngle", "FalloffAngle"],
+    attrs: &["id"],
+    ..Schema::EMPTY
+};
+/// `EnvMapName` is the 2019 form of `ImageId`; `Sampler` and `type` are 2025 additions (Tessera
+/// also reads `Sampler importance`).
+const ENV_LIGHT: Schema =
+    Schema { single: &["ImageId", "EnvMapName", "Sampler"], attrs: &["id", "type"], ..Schema::EMPTY };
+const TONEMAP: Schema =
+    Schema { single: &["TMO", "TMOOptions", "Saturation", "Gamma", "Extension"], ..Schema::EMPTY };
+const ENV_MAPPINGS: &[(&str, EnvMapping)] = &[("latlong", EnvMapping::LatLong), ("probe", EnvMapping::Probe)];
+const ENV_SAMPLERS: &[(&str, EnvSampler)] =
+    &[("uniform", EnvSampler::Uniform), ("cosine", EnvSampler::Cosine), ("importance", EnvSampler::Importance)];
 const POINT_LIGHT: Schema = Schema { single: &["Position", "Intensity"], attrs: &["id"], ..Schema::EMPTY };
 const AREA_LIGHT: Schema =
     Schema { single: &["Position", "Normal", "Size", "Radiance"], attrs: &["id"], ..Schema::EMPTY };
@@ -663,6 +680,8 @@ const LEGACY_IMAGE_APPEARANCES: &[(&str, bool)] = &[("repeat", false), ("clamp",
 
 /// Image and texture-map id of a 2019 `<BackgroundTexture>`.
 const BACKGROUND_TEXTURE_ID: &str = "2019:background";
+/// Prefix of the image ids made for 2019 `<EnvMapName>` paths (followed by the light's number).
+const ENV_MAP_IMAGE_ID: &str = "2019:envmap";
 
 #[derive(Clone, Copy)]
 enum MapKind {
@@ -1074,6 +1093,10 @@ impl Parser<'_> {
             }
             _ => None,
         };
+        let mut tonemaps = Vec::new();
+        for t in n.children_named("Tonemap") {
+            tonemaps.push(self.tonemap(t)?);
+        }
         Ok(CameraRec {
             id: self.id(n, false)?,
             loc: n.loc(),
@@ -1088,7 +1111,42 @@ impl Parser<'_> {
             handedness,
             num_samples,
             lens,
+            tonemaps,
         })
+    }
+
+    /// A camera's `<Tonemap>` (§12.2); absent children take the student-parser defaults.
+    fn tonemap(&mut self, n: &Node) -> Result<TonemapRec> {
+        self.check(n, &TONEMAP);
+        let mut params = Photographic::default();
+        if let Some(t) = n.child("TMO") {
+            match t.text.trim() {
+                "Photographic" => {}
+                other => self.warn(
+                    t,
+                    format!("tone-mapping operator {} is not supported yet; the photographic operator is used", quoted(other)),
+                ),
+            }
+        }
+        if let Some(o) = n.child("TMOOptions") {
+            let [key, burn] = self.numbers::<f64, 2>(o)?;
+            params.key = key;
+            params.burn_percent = burn;
+        }
+        if let Some(s) = self.optional_number::<f64>(n, "Saturation")? {
+            params.saturation = s;
+        }
+        if let Some(g) = n.child("Gamma") {
+            params.gamma = g.text.parse().map_err(|e: String| self.err(g, e))?;
+        }
+        if let Err(e) = params.validate() {
+            return Err(self.err(n, format!("{e}; fix <TMOOptions> (key, burn percent), <Saturation> or <Gamma>")));
+        }
+        let extension = match n.child("Extension") {
+            Some(e) => Some(self.text(e, "a file name ending such as _phot.png")?.to_string()),
+            None => None,
+        };
+        Ok(TonemapRec { loc: n.loc(), params, extension })
     }
 
     fn lights(&mut self, lights: &Node) -> Result<()> {
@@ -1123,6 +1181,79 @@ impl Parser<'_> {
                 return Err(self.err(n, format!("<Size> must be positive, found {}", light.size)));
             }
             self.out.area_lights.push(light);
+        }
+        for n in lights.children_named("DirectionalLight") {
+            self.check(n, &DIRECTIONAL_LIGHT);
+            let light = DirectionalLightRec {
+                id: self.id(n, false)?,
+                loc: n.loc(),
+                direction: self.required_numbers(n, "Direction")?,
+                radiance: self.required_numbers(n, "Radiance")?,
+            };
+            if light.direction == [0.0; 3] {
+                return Err(self.err(n, "<Direction> is the zero vector; give the direction the light travels in"));
+            }
+            self.out.directional_lights.push(light);
+        }
+        for n in lights.children_named("SpotLight") {
+            self.check(n, &SPOT_LIGHT);
+            let light = SpotLightRec {
+                id: self.id(n, false)?,
+                loc: n.loc(),
+                position: self.required_numbers(n, "Position")?,
+                direction: self.required_numbers(n, "Direction")?,
+                intensity: self.required_numbers(n, "Intensity")?,
+                coverage_angle: self.required_number(n, "CoverageAngle")?,
+                falloff_angle: self.required_number(n, "FalloffAngle")?,
+            };
+            if light.direction == [0.0; 3] {
+                return Err(self.err(n, "<Direction> is the zero vector; give the axis the spot light points along"));
+            }
+            let (c, f) = (light.coverage_angle, light.falloff_angle);
+            if !(c > 0.0 && c < 360.0) {
+                return Err(self.err(
+                    n,
+                    format!("<CoverageAngle> must be between 0 and 360 degrees (the full apex angle of the cone), found {c}"),
+                ));
+            }
+            if !(0.0..=c).contains(&f) {
+                return Err(self.err(
+                    n,
+                    format!("<FalloffAngle> must be between 0 and <CoverageAngle> ({c}) degrees, found {f}: the full-power cone lies inside the covered cone"),
+                ));
+            }
+            self.out.spot_lights.push(light);
+        }
+        for n in lights.children_named("SphericalDirectionalLight") {
+            self.check(n, &ENV_LIGHT);
+            let id = self.id(n, false)?;
+            let image = match (n.child("ImageId"), n.child("EnvMapName")) {
+                (Some(i), _) => self.id_ref(i, "an image id")?,
+                (None, Some(legacy)) => {
+                    // 2019: the map's path inline; give it an image record of its own.
+                    let path = self.text(legacy, "an image file path")?.to_string();
+                    let image_id = format!("{ENV_MAP_IMAGE_ID}{}", self.out.env_lights.len() + 1);
+                    self.out.images.push(ImageRec { id: image_id.clone(), loc: legacy.loc(), path });
+                    image_id
+                }
+                (None, None) => {
+                    return Err(self.err(n, "missing <ImageId>: name the <Image> that holds the environment map"));
+                }
+            };
+            let mapping = match n.attr("type").map(str::trim) {
+                None => EnvMapping::LatLong,
+                Some(t) => match ENV_MAPPINGS.iter().find(|(name, _)| *name == t) {
+                    Some(&(_, m)) => m,
+                    None => {
+                        return Err(self.err(
+                            n,
+                            format!("attribute type must be {}, found \"{}\"", one_of(ENV_MAPPINGS), excerpt(t)),
+                        ));
+                    }
+                },
+            };
+            let sampler = self.optional_keyword(n, "Sampler", ENV_SAMPLERS)?;
+            self.out.env_lights.push(EnvLightRec { id, loc: n.loc(), image, mapping, sampler });
         }
         Ok(())
     }
@@ -1765,6 +1896,7 @@ mod tests {
             handedness: Handedness::Right,
             num_samples: 1,
             lens: None,
+            tonemaps: Vec::new(),
         });
         expected.ambient_light = [25.0; 3];
         expected.point_lights.push(PointLightRec {
@@ -2292,15 +2424,13 @@ mod tests {
             ),
             (
                 &scene(
-                    "<Lights>\n<SpotLight id=\"1\"><Position>0 0 0</Position></SpotLight>\n<SphericalDirectionalLight id=\"1\"/>\n</Lights>",
+                    "<Lights>\n<SpotLight id=\"1\"><Position>0 0 0</Position><Direction>0 -1 0</Direction><Intensity>1 1 1</Intensity>\
+                     <CoverageAngle>30</CoverageAngle><FalloffAngle>20</FalloffAngle><Exponent>2</Exponent></SpotLight>\n\
+                     <SphericalDirectionalLight id=\"1\" scale=\"2\"><ImageId>1</ImageId></SphericalDirectionalLight>\n</Lights>",
                 ),
                 &[
-                    &w(3, r#"SpotLight id="1""#, "<SpotLight> is not supported yet; it is ignored"),
-                    &w(
-                        4,
-                        r#"SphericalDirectionalLight id="1""#,
-                        "<SphericalDirectionalLight> is not supported yet; it is ignored",
-                    ),
+                    &w(3, r#"SpotLight id="1"> / <Exponent"#, "unknown element <Exponent>; it is ignored"),
+                    &w(4, r#"SphericalDirectionalLight id="1""#, "unknown attribute scale; it is ignored"),
                 ],
             ),
             (
@@ -2346,11 +2476,15 @@ mod tests {
                 &scene(
                     "<Cameras>\n<Camera id=\"1\" type=\"lookAt\"><Position>0 0 0</Position><GazePoint>0 0 -1</GazePoint>\n<Gaze>0 0 1</Gaze>\
                         <Up>0 1 0</Up><FovY>45</FovY><NearDistance>1</NearDistance><ImageResolution>1 1</ImageResolution>\
-                        <ImageName>a.png</ImageName>\n<Tonemap><TMO>Photographic</TMO></Tonemap></Camera>\n</Cameras>",
+                        <ImageName>a.exr</ImageName>\n<Tonemap><TMO>Filmic</TMO></Tonemap></Camera>\n</Cameras>",
                 ),
                 &[
                     &w(4, r#"Camera id="1"> / <Gaze"#, "<Gaze> is ignored because <GazePoint> is given"),
-                    &w(5, r#"Camera id="1"> / <Tonemap"#, "<Tonemap> is not supported yet; it is ignored"),
+                    &w(
+                        5,
+                        r#"Camera id="1"> / <Tonemap> / <TMO"#,
+                        "tone-mapping operator \"Filmic\" is not supported yet; the photographic operator is used",
+                    ),
                 ],
             ),
         ];

@@ -1,0 +1,488 @@
+//! Light sources (scene-format.md §5): point, square area, directional, spot and environment
+//! lights, each ready for the integrator's one-sample-per-shading-event direct lighting.
+//!
+//! Every light answers the same question for a shaded point `x` with normal `n`: a direction
+//! `wi` towards it, how far a shadow ray must travel, and the irradiance-like term `E` that the
+//! shading formula multiplies (§5). Random choices take their numbers from the sample's
+//! [`SampleRng`], so lighting is as deterministic as everything else.
+
+use std::f64::consts::{PI, TAU};
+use std::sync::Arc;
+
+use glam::DVec3;
+
+use crate::math::orthonormal_pair;
+use crate::sampler::SampleRng;
+use crate::scene::records::{EnvMapping, EnvSampler};
+use crate::texture::image::TextureImage;
+use crate::tonemap::luminance;
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct PointLight {
+    pub position: DVec3,
+    pub intensity: DVec3,
+}
+
+/// A square area light (HW3): side `size`, centred at `center`, facing `normal`; `u`, `v` span
+/// its plane (§5.3).
+#[derive(Clone, Debug, PartialEq)]
+pub struct AreaLight {
+    pub center: DVec3,
+    pub normal: DVec3,
+    pub u: DVec3,
+    pub v: DVec3,
+    pub size: f64,
+    pub radiance: DVec3,
+}
+
+impl AreaLight {
+    /// `normal` need not be unit length but must not be zero (the parser checks).
+    pub fn new(center: DVec3, normal: DVec3, size: f64, radiance: DVec3) -> Self {
+        let normal = normal.normalize();
+        let (u, v) = orthonormal_pair(normal);
+        AreaLight { center, normal, u, v, size, radiance }
+    }
+
+    /// The point of the square at (ξ1, ξ2) ∈ [0, 1)².
+    pub fn point(&self, xi1: f64, xi2: f64) -> DVec3 {
+        self.center + self.size * (xi1 - 0.5) * self.u + self.size * (xi2 - 0.5) * self.v
+    }
+}
+
+/// Light from one direction everywhere (§5.4): `E = radiance` towards `to_light`, no falloff.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DirectionalLight {
+    /// Unit vector from any point towards the light (minus the direction the light travels).
+    pub to_light: DVec3,
+    pub radiance: DVec3,
+}
+
+impl DirectionalLight {
+    /// `direction` (the way the light travels) must not be zero; the parser checks.
+    pub fn new(direction: DVec3, radiance: DVec3) -> Self {
+        DirectionalLight { to_light: -direction.normalize(), radiance }
+    }
+}
+
+/// A point light limited to a cone (§5.5): full power within half the falloff angle of the
+/// axis, nothing beyond half the coverage angle, and a smooth edge between.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SpotLight {
+    pub position: DVec3,
+    /// Unit axis of the cone, pointing away from the light.
+    pub axis: DVec3,
+    pub intensity: DVec3,
+    /// cos(coverage/2) and cos(falloff/2); `cos_coverage <= cos_falloff`.
+    pub cos_coverage: f64,
+    pub cos_falloff: f64,
+}
+
+impl SpotLight {
+    /// Angles are the scene's full apex angles in degrees.
+    pub fn new(position: DVec3, direction: DVec3, intensity: DVec3, coverage_deg: f64, falloff_deg: f64) -> Self {
+        SpotLight {
+            position,
+            axis: direction.normalize(),
+            intensity,
+            cos_coverage: (coverage_deg.to_radians() / 2.0).cos(),
+            cos_falloff: (falloff_deg.to_radians() / 2.0).cos(),
+        }
+    }
+
+    /// The share of the intensity sent along unit direction `d` (from the light outwards).
+    pub fn factor(&self, d: DVec3) -> f64 {
+        spot_falloff(d.dot(self.axis), self.cos_coverage, self.cos_falloff)
+    }
+}
+
+/// The spot light's falloff s(α) of §5.5 for `cos_alpha` = cos of the angle between the axis
+/// and the direction: 1 inside the falloff cone, 0 outside the coverage cone, and
+/// `((cos α − cos_c) / (cos_f − cos_c))⁴` between, which is 1 at the falloff edge and 0 at the
+/// coverage edge.
+#[inline]
+pub fn spot_falloff(cos_alpha: f64, cos_coverage: f64, cos_falloff: f64) -> f64 {
+    if cos_alpha >= cos_falloff {
+        1.0
+    } else if cos_alpha <= cos_coverage {
+        0.0
+    } else {
+        // cos_falloff > cos_alpha > cos_coverage here, so the divisor is positive.
+        let t = (cos_alpha - cos_coverage) / (cos_falloff - cos_coverage);
+        let t2 = t * t;
+        t2 * t2
+    }
+}
+
+/// Where an environment map's `u` starts (§5.6): `u = 1/2 + atan2(d_x, ENV_U_Z_SIGN · d_z)/(2π)`.
+/// −1 is the 2025 homework's convention, reported to reproduce the 2025 references (the 2022
+/// handout writes +1, which turns the panorama by half a turn); the maps that would settle it for
+/// the 2022 references are missing from every public copy. With −1, the looking direction −Z
+/// sees the middle of the map.
+pub const ENV_U_Z_SIGN: f64 = -1.0;
+
+/// The image coordinates (u, v) ∈ [0, 1]² of world direction `d` (unit) in a map of `mapping`.
+#[inline]
+pub fn env_uv(mapping: EnvMapping, d: DVec3) -> (f64, f64) {
+    match mapping {
+        EnvMapping::LatLong => {
+            let u = 0.5 + d.x.atan2(ENV_U_Z_SIGN * d.z) / TAU;
+            let v = d.y.clamp(-1.0, 1.0).acos() / PI;
+            (u, v)
+        }
+        EnvMapping::Probe => {
+            // Debevec's angular map: the distance from the centre is proportional to the angle
+            // from −Z.
+            let s = (d.x * d.x + d.y * d.y).sqrt();
+            let r = if s > 1e-12 { (-d.z).clamp(-1.0, 1.0).acos() / (PI * s) } else { 0.0 };
+            ((r * d.x + 1.0) / 2.0, (-r * d.y + 1.0) / 2.0)
+        }
+    }
+}
+
+/// The unit direction of lat-long coordinates (u, v): the inverse of [`env_uv`].
+#[inline]
+pub fn latlong_direction(u: f64, v: f64) -> DVec3 {
+    let theta = v * PI;
+    let phi = (u - 0.5) * TAU;
+    let (st, ct) = theta.sin_cos();
+    let (sp, cp) = phi.sin_cos();
+    DVec3::new(st * sp, ct, ENV_U_Z_SIGN * st * cp)
+}
+
+/// An environment light (§5.6): an HDR map around the scene at infinity. Rays that miss all
+/// geometry see it; each shading event samples one direction of it.
+#[derive(Clone, Debug)]
+pub struct EnvLight {
+    pub image: Arc<TextureImage>,
+    pub mapping: EnvMapping,
+    /// The scene's choice; the render settings may override it.
+    pub sampler: Option<EnvSampler>,
+    /// For [`EnvSampler::Importance`]: the map's luminance over a lat-long grid.
+    pub distribution: EnvDistribution,
+}
+
+/// One sampled direction of an environment light.
+#[derive(Clone, Copy, Debug)]
+pub struct EnvSample {
+    /// Unit direction towards the environment.
+    pub wi: DVec3,
+    /// The radiance arriving from `wi` divided by the pdf of choosing it (solid angle): `E` of §5.
+    pub weight: DVec3,
+}
+
+impl EnvLight {
+    pub fn new(image: Arc<TextureImage>, mapping: EnvMapping, sampler: Option<EnvSampler>) -> Self {
+        let distribution = EnvDistribution::new(&image, mapping);
+        EnvLight { image, mapping, sampler, distribution }
+    }
+
+    /// Radiance arriving from unit direction `d`: a bilinear lookup (wrapping around in u),
+    /// values used as stored; negative values (which some EXR tools write) count as 0.
+    pub fn radiance(&self, d: DVec3) -> DVec3 {
+        let (u, v) = env_uv(self.mapping, d);
+        let img = &*self.image;
+        let (w, h) = (img.width as f64, img.height as f64);
+        let i = u * w;
+        let j = v * h;
+        let (p, q) = (i.floor(), j.floor());
+        let (dx, dy) = (i - p, j - q);
+        let wrap = |x: f64| -> i64 { (x as i64).rem_euclid(i64::from(img.width.max(1))) };
+        let (x0, x1) = (wrap(p), wrap(p + 1.0));
+        let (y0, y1) = (q as i64, q as i64 + 1);
+        let t = |x, y| DVec3::from(img.texel(x, y).map(f64::from));
+        let c = t(x0, y0) * ((1.0 - dx) * (1.0 - dy))
+            + t(x1, y0) * (dx * (1.0 - dy))
+            + t(x0, y1) * ((1.0 - dx) * dy)
+            + t(x1, y1) * (dx * dy);
+        // NaN (from a broken map) also ends up 0 here.
+        DVec3::new(c.x.max(0.0), c.y.max(0.0), c.z.max(0.0))
+    }
+
+    /// One direction for a point with unit normal `n` (on the side the light can arrive from),
+    /// chosen by `sampler`; `None` when the direction is below the surface (importance sampling
+    /// covers the whole sphere) or its pdf is zero.
+    pub fn sample(&self, n: DVec3, sampler: EnvSampler, rng: &mut SampleRng) -> Option<EnvSample> {
+        let (xi1, xi2) = (rng.next_f64(), rng.next_f64());
+        match sampler {
+            EnvSampler::Uniform => {
+                // cos θ uniform in [0, 1) gives uniform directions on the hemisphere.
+                let wi = hemisphere_direction(n, 1.0 - xi1, xi2);
+                Some(EnvSample { wi, weight: self.radiance(wi) * TAU })
+            }
+            EnvSampler::Cosine => {
+                let cos = (1.0 - xi1).sqrt();
+                let wi = hemisphere_direction(n, cos, xi2);
+                Some(EnvSample { wi, weight: self.radiance(wi) * (PI / cos) })
+            }
+            EnvSampler::Importance => {
+                let (wi, pdf) = self.distribution.sample(xi1, xi2)?;
+                if wi.dot(n) <= 0.0 {
+                    return None;
+                }
+                Some(EnvSample { wi, weight: self.radiance(wi) / pdf })
+            }
+        }
+    }
+}
+
+/// The unit direction with cosine `cos` to `n` and azimuth 2π·`xi` around it.
+#[inline]
+fn hemisphere_direction(n: DVec3, cos: f64, xi: f64) -> DVec3 {
+    let sin = (1.0 - cos * cos).max(0.0).sqrt();
+    let (a, b) = orthonormal_pair(n);
+    let (sp, cp) = (TAU * xi).sin_cos();
+    (a * (sin * cp) + b * (sin * sp) + n * cos).normalize()
+}
+
+/// A piecewise-constant distribution over a lat-long grid of the map, proportional to each
+/// cell's luminance times sin θ (the cell's solid angle), for importance sampling (§5.6 option).
+///
+/// Cells get a small floor (1e-3 of the mean weight) so that every direction keeps a positive
+/// pdf: the bilinear lookup can return light where a cell's own texel is black, and the
+/// estimator stays unbiased only if such directions can be chosen.
+#[derive(Clone, Debug)]
+pub struct EnvDistribution {
+    width: usize,
+    height: usize,
+    /// Cumulative row weights, normalised: `rows[j]` = P(row < j + 1).
+    rows: Vec<f64>,
+    /// Per row, cumulative cell weights within the row, normalised.
+    cells: Vec<f64>,
+    /// Each cell's probability (not cumulative), for the pdf.
+    prob: Vec<f64>,
+}
+
+impl EnvDistribution {
+    /// Grid: the map's own texels for lat-long maps, a 2:1 grid as wide as the map for probes.
+    pub fn new(image: &TextureImage, mapping: EnvMapping) -> Self {
+        let (width, height) = match mapping {
+            EnvMapping::LatLong => (image.width.max(1) as usize, image.height.max(1) as usize),
+            EnvMapping::Probe => {
+                let w = (image.width.max(2) as usize).next_multiple_of(2);
+                (w, w / 2)
+            }
+        };
+        let mut weight = vec![0.0; width * height];
+        for y in 0..height {
+            let v = (y as f64 + 0.5) / height as f64;
+            let sin = (v * PI).sin();
+            for x in 0..width {
+                let lum = match mapping {
+                    EnvMapping::LatLong => luminance(image.texel(x as i64, y as i64).map(f64::from)),
+                    EnvMapping::Probe => {
+                        let d = latlong_direction((x as f64 + 0.5) / width as f64, v);
+                        let (pu, pv) = env_uv(mapping, d);
+                        luminance(image.bilinear(pu, pv))
+                    }
+                };
+                weight[y * width + x] = if lum.is_finite() && lum > 0.0 { lum * sin } else { 0.0 };
+            }
+        }
+        let total: f64 = weight.iter().sum();
+        let floor = if total > 0.0 { 1e-3 * total / weight.len() as f64 } else { 1.0 };
+        for w in &mut weight {
+            *w += floor;
+        }
+        let total: f64 = weight.iter().sum();
+        let prob: Vec<f64> = weight.iter().map(|w| w / total).collect();
+        let mut rows = Vec::with_capacity(height);
+        let mut cells = Vec::with_capacity(width * height);
+        let mut acc = 0.0;
+        for row in prob.chunks(width) {
+            let row_sum: f64 = row.iter().sum();
+            acc += row_sum;
+            rows.push(acc);
+            let mut c = 0.0;
+            for p in row {
+                c += p / row_sum;
+                cells.push(c);
+            }
+            // Exactly 1 at the end of every CDF, whatever the rounding.
+            if let Some(last) = cells.last_mut() {
+                *last = 1.0;
+            }
+        }
+        if let Some(last) = rows.last_mut() {
+            *last = 1.0;
+        }
+        EnvDistribution { width, height, rows, cells, prob }
+    }
+
+    /// A direction and its pdf with respect to solid angle, from two uniform numbers.
+    pub fn sample(&self, xi1: f64, xi2: f64) -> Option<(DVec3, f64)> {
+        let y = self.rows.partition_point(|&c| c <= xi1).min(self.height - 1);
+        let row_lo = if y == 0 { 0.0 } else { self.rows[y - 1] };
+        let row_p = self.rows[y] - row_lo;
+        // Reuse xi1 inside the row: its position within the row's interval is uniform.
+        let fy = if row_p > 0.0 { ((xi1 - row_lo) / row_p).clamp(0.0, 1.0 - 1e-12) } else { 0.5 };
+        let cdf = &self.cells[y * self.width..(y + 1) * self.width];
+        let x = cdf.partition_point(|&c| c <= xi2).min(self.width - 1);
+        let lo = if x == 0 { 0.0 } else { cdf[x - 1] };
+        let cell_p = cdf[x] - lo;
+        let fx = if cell_p > 0.0 { ((xi2 - lo) / cell_p).clamp(0.0, 1.0 - 1e-12) } else { 0.5 };
+        let u = (x as f64 + fx) / self.width as f64;
+        let v = (y as f64 + fy) / self.height as f64;
+        let d = latlong_direction(u, v);
+        let pdf = self.pdf_cell(x, y, v);
+        (pdf > 0.0 && pdf.is_finite()).then_some((d, pdf))
+    }
+
+    /// The solid-angle pdf of unit direction `d` (for tests and for combining estimators).
+    pub fn pdf(&self, d: DVec3) -> f64 {
+        let (u, v) = env_uv(EnvMapping::LatLong, d);
+        let x = ((u * self.width as f64) as usize).min(self.width - 1);
+        let y = ((v * self.height as f64) as usize).min(self.height - 1);
+        self.pdf_cell(x, y, v)
+    }
+
+    /// A cell of probability p covers (2π/W)·(π/H) in (φ, θ), and solid angle dω = sin θ dθ dφ.
+    fn pdf_cell(&self, x: usize, y: usize, v: f64) -> f64 {
+        let sin = (v * PI).sin();
+        if sin <= 0.0 {
+            return 0.0;
+        }
+        self.prob[y * self.width + x] * (self.width * self.height) as f64 / (2.0 * PI * PI * sin)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn image(width: u32, height: u32, f: impl Fn(u32, u32) -> [f32; 3]) -> Arc<TextureImage> {
+        let mut texels = Vec::new();
+        for y in 0..height {
+            for x in 0..width {
+                texels.push(f(x, y));
+            }
+        }
+        Arc::new(TextureImage { width, height, texels })
+    }
+
+    #[test]
+    fn spot_falloff_centre_edges_between_and_outside() {
+        // Coverage 60°, falloff 40°: half angles 30° and 20°.
+        let (c, f) = ((30f64).to_radians().cos(), (20f64).to_radians().cos());
+        assert_eq!(spot_falloff(1.0, c, f), 1.0, "on the axis");
+        assert_eq!(spot_falloff(f, c, f), 1.0, "at the falloff edge");
+        assert_eq!(spot_falloff(c, c, f), 0.0, "at the coverage edge");
+        assert_eq!(spot_falloff((40f64).to_radians().cos(), c, f), 0.0, "outside the cone");
+        assert_eq!(spot_falloff(-1.0, c, f), 0.0, "behind the light");
+        // Half-way in cosine: (1/2)^4.
+        let mid = (c + f) / 2.0;
+        assert!((spot_falloff(mid, c, f) - 1.0 / 16.0).abs() < 1e-12);
+        // Monotone between the edges.
+        let mut last = 0.0;
+        for k in 0..=100 {
+            let cos = c + (f - c) * k as f64 / 100.0;
+            let s = spot_falloff(cos, c, f);
+            assert!(s >= last, "{s} < {last} at {cos}");
+            last = s;
+        }
+        // Equal angles: a hard edge, no division by zero.
+        assert_eq!(spot_falloff(f, f, f), 1.0);
+        assert_eq!(spot_falloff(f - 1e-9, f, f), 0.0);
+    }
+
+    #[test]
+    fn latlong_convention_is_pinned() {
+        // −Z (the course cameras' usual view) is the middle of the map; +Y the top row.
+        let (u, v) = env_uv(EnvMapping::LatLong, DVec3::NEG_Z);
+        assert!((u - 0.5).abs() < 1e-12 && (v - 0.5).abs() < 1e-12, "{u} {v}");
+        let (_, v) = env_uv(EnvMapping::LatLong, DVec3::Y);
+        assert!(v.abs() < 1e-12);
+        // +X a quarter turn to the right of the middle, +Z at the seam.
+        let (u, _) = env_uv(EnvMapping::LatLong, DVec3::X);
+        assert!((u - 0.75).abs() < 1e-12, "{u}");
+        let (u, _) = env_uv(EnvMapping::LatLong, DVec3::Z);
+        assert!(u.abs() < 1e-12 || (u - 1.0).abs() < 1e-12, "{u}");
+        // The inverse.
+        for &(u, v) in &[(0.1, 0.2), (0.5, 0.5), (0.9, 0.7), (0.3, 0.95)] {
+            let (u2, v2) = env_uv(EnvMapping::LatLong, latlong_direction(u, v));
+            assert!((u - u2).abs() < 1e-9 && (v - v2).abs() < 1e-9, "{u} {v} -> {u2} {v2}");
+        }
+    }
+
+    #[test]
+    fn probe_mapping_puts_minus_z_in_the_centre_and_plus_z_on_the_rim() {
+        let (u, v) = env_uv(EnvMapping::Probe, DVec3::NEG_Z);
+        assert!((u - 0.5).abs() < 1e-12 && (v - 0.5).abs() < 1e-12);
+        // +X at 90° from −Z: half-way to the rim, to the right.
+        let (u, v) = env_uv(EnvMapping::Probe, DVec3::X);
+        assert!((u - 0.75).abs() < 1e-12 && (v - 0.5).abs() < 1e-12, "{u} {v}");
+        // +Y: up (smaller v).
+        let (_, v) = env_uv(EnvMapping::Probe, DVec3::Y);
+        assert!((v - 0.25).abs() < 1e-12, "{v}");
+        // Almost +Z: near the rim.
+        let (u, v) = env_uv(EnvMapping::Probe, DVec3::new(1e-6, 0.0, 1.0).normalize());
+        assert!((u - 1.0).abs() < 1e-6 && (v - 0.5).abs() < 1e-6, "{u} {v}");
+    }
+
+    #[test]
+    fn radiance_wraps_around_the_seam_and_clamps_negative_values() {
+        // Two columns: left 1, right 3; bilinear across the seam mixes them.
+        let img = image(2, 1, |x, _| if x == 0 { [1.0; 3] } else { [3.0; 3] });
+        let env = EnvLight::new(img, EnvMapping::LatLong, None);
+        // u = 0 (the seam at +Z): i = 0 -> texel 0 exactly.
+        assert!((env.radiance(latlong_direction(0.0, 0.5)).x - 1.0).abs() < 1e-9);
+        // u = 0.75: i = 1.5, between texel 1 and texel 0 (wrapped).
+        assert!((env.radiance(latlong_direction(0.75, 0.5)).x - 2.0).abs() < 1e-9);
+        let neg = image(1, 1, |_, _| [-5.0, 2.0, f32::NAN]);
+        let env = EnvLight::new(neg, EnvMapping::LatLong, None);
+        assert_eq!(env.radiance(DVec3::Y), DVec3::new(0.0, 2.0, 0.0));
+    }
+
+    /// The distribution's pdf integrates to 1 over the sphere and follows the map.
+    #[test]
+    fn importance_pdf_is_normalised_and_follows_the_map() {
+        let img = image(16, 8, |x, y| if (x, y) == (5, 3) { [1000.0; 3] } else { [1.0; 3] });
+        let dist = EnvDistribution::new(&img, EnvMapping::LatLong);
+        // Midpoint rule over a fine (θ, φ) grid.
+        let (nt, np) = (400, 800);
+        let mut integral = 0.0;
+        for i in 0..nt {
+            let v = (i as f64 + 0.5) / nt as f64;
+            for j in 0..np {
+                let u = (j as f64 + 0.5) / np as f64;
+                let d = latlong_direction(u, v);
+                integral += dist.pdf(d) * (v * PI).sin() * (PI / nt as f64) * (TAU / np as f64);
+            }
+        }
+        assert!((integral - 1.0).abs() < 1e-3, "{integral}");
+        // The bright texel's direction is far more likely than others.
+        let bright = latlong_direction(5.5 / 16.0, 3.5 / 8.0);
+        let dim = latlong_direction(10.5 / 16.0, 3.5 / 8.0);
+        assert!(dist.pdf(bright) > 500.0 * dist.pdf(dim));
+        // Samples land where the pdf says: most in the bright cell.
+        let mut in_bright = 0;
+        for k in 0..1000 {
+            let mut rng = SampleRng::new(7, k, 0, 0);
+            let (d, pdf) = dist.sample(rng.next_f64(), rng.next_f64()).unwrap();
+            assert!((pdf - dist.pdf(d)).abs() <= 1e-9 * pdf, "{pdf} vs {}", dist.pdf(d));
+            let (u, v) = env_uv(EnvMapping::LatLong, d);
+            if (u * 16.0) as u32 == 5 && (v * 8.0) as u32 == 3 {
+                in_bright += 1;
+            }
+        }
+        assert!(in_bright > 800, "{in_bright}");
+    }
+
+    /// Each estimator's mean of `cos θ · L(wi)` over many samples is ∫ L cos dω: π·L for a constant map.
+    #[test]
+    fn estimators_agree_on_a_constant_map() {
+        let env = EnvLight::new(image(8, 4, |_, _| [2.0; 3]), EnvMapping::LatLong, None);
+        let n = DVec3::new(0.3, 0.8, -0.2).normalize();
+        for sampler in [EnvSampler::Uniform, EnvSampler::Cosine, EnvSampler::Importance] {
+            let count = 200_000;
+            let mut sum = 0.0;
+            for k in 0..count {
+                let mut rng = SampleRng::new(1, k, 0, 0);
+                if let Some(s) = env.sample(n, sampler, &mut rng) {
+                    sum += s.weight.x * n.dot(s.wi);
+                }
+            }
+            let mean = sum / count as f64;
+            assert!((mean - 2.0 * PI).abs() < 0.03 * 2.0 * PI, "{sampler:?}: {mean}");
+        }
+    }
+}

@@ -1,0 +1,199 @@
+//! Output files of a rendered camera (scene-format.md §12.1): what an `ImageName` asks for and
+//! writing it.
+//!
+//! - `name.png`: the course's LDR output, each channel clamped to [0, 255] and rounded.
+//! - `name.exr`: the linear float image as a lossless 32-bit float OpenEXR file, and beside it
+//!   `name.png` tone-mapped with the camera's `<Tonemap>` (the photographic defaults of §12.2
+//!   when it has none). 2025 scenes may give several `<Tonemap>`s, each with its own
+//!   `Extension` replacing `.exr` (`name_phot.png`, ...).
+//! - `name.hdr`: the same with a Radiance RGBE file instead of the EXR.
+//!
+//! Only the file name of `ImageName` is used: a scene cannot write outside the output directory.
+
+use std::path::{Path, PathBuf};
+
+use crate::camera::Camera;
+use crate::hdr_io::{HdrError, write_exr, write_hdr, write_png_rgb8};
+use crate::image::Image;
+use crate::tonemap::{Photographic, TonemapStats, tonemap};
+
+/// One file to write for a camera.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OutputFile {
+    /// File name (no directories).
+    pub name: String,
+    pub kind: OutputKind,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum OutputKind {
+    /// Clamped and rounded 8-bit PNG (§12.1).
+    LdrPng,
+    /// Lossless float OpenEXR of the linear image.
+    Exr,
+    /// Radiance RGBE of the linear image.
+    Hdr,
+    /// 8-bit PNG through the photographic operator.
+    Tonemapped(Photographic),
+}
+
+/// The files a camera's `ImageName` asks for, and notes about anything changed on the way
+/// (an unknown extension, a duplicate name).
+pub fn plan(cam: &Camera) -> (Vec<OutputFile>, Vec<String>) {
+    let mut notes = Vec::new();
+    let name = Path::new(&cam.image_name)
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .filter(|n| !n.is_empty())
+        .unwrap_or_else(|| {
+            notes.push(format!("ImageName \"{}\" has no file name; writing image.png", cam.image_name));
+            "image.png".into()
+        });
+    let path = Path::new(&name);
+    let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| name.clone());
+    let ext = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
+    let hdr_kind = match ext.as_deref() {
+        Some("png") => return (vec![OutputFile { name, kind: OutputKind::LdrPng }], notes),
+        Some("exr") => OutputKind::Exr,
+        Some("hdr") => OutputKind::Hdr,
+        other => {
+            let png = format!("{stem}.png");
+            notes.push(match other {
+                Some(e) => format!(
+                    "ImageName \"{}\": .{e} is not an output format (png, exr, hdr); writing {png}",
+                    cam.image_name
+                ),
+                None => format!("ImageName \"{}\" has no extension; writing {png}", cam.image_name),
+            });
+            return (vec![OutputFile { name: png, kind: OutputKind::LdrPng }], notes);
+        }
+    };
+    let mut files = vec![OutputFile { name: name.clone(), kind: hdr_kind }];
+    let defaults = [(Photographic::default(), None)];
+    let tonemaps: Vec<(Photographic, Option<&str>)> = if cam.tonemaps.is_empty() {
+        defaults.to_vec()
+    } else {
+        cam.tonemaps.iter().map(|t| (t.params, t.extension.as_deref())).collect()
+    };
+    for (params, extension) in tonemaps {
+        let png = format!("{stem}{}", extension.unwrap_or(".png"));
+        let png = match Path::new(&png).file_name() {
+            Some(n) if !n.is_empty() => n.to_string_lossy().into_owned(),
+            _ => format!("{stem}.png"),
+        };
+        if files.iter().any(|f| f.name == png) {
+            notes.push(format!("two <Tonemap>s of camera {} both write {png}; only the first is written", cam.id));
+            continue;
+        }
+        files.push(OutputFile { name: png, kind: OutputKind::Tonemapped(params) });
+    }
+    (files, notes)
+}
+
+/// A file that was written.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Written {
+    pub path: PathBuf,
+    pub kind: OutputKind,
+    /// For tone-mapped PNGs: what the operator measured (non-finite pixels included).
+    pub stats: Option<TonemapStats>,
+}
+
+/// Writes every planned file of `img` into `dir`, in order.
+pub fn write(dir: &Path, img: &Image, files: &[OutputFile]) -> Result<Vec<Written>, HdrError> {
+    let mut out = Vec::with_capacity(files.len());
+    for f in files {
+        let path = dir.join(&f.name);
+        let stats = match &f.kind {
+            OutputKind::LdrPng => {
+                write_png_rgb8(&path, img.width, img.height, &img.to_ldr())?;
+                None
+            }
+            OutputKind::Exr => {
+                write_exr(&path, img)?;
+                None
+            }
+            OutputKind::Hdr => {
+                write_hdr(&path, img)?;
+                None
+            }
+            OutputKind::Tonemapped(params) => {
+                let (rgb, stats) = tonemap(img, params);
+                write_png_rgb8(&path, img.width, img.height, &rgb)?;
+                Some(stats)
+            }
+        };
+        out.push(Written { path, kind: f.kind.clone(), stats });
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::records::TonemapRec;
+
+    fn camera(image_name: &str, tonemaps: Vec<TonemapRec>) -> Camera {
+        let rec = crate::scene::records::CameraRec {
+            id: "1".into(),
+            loc: crate::Loc::default(),
+            position: [0.0; 3],
+            gaze: [0.0, 0.0, -1.0],
+            up: [0.0, 1.0, 0.0],
+            projection: crate::scene::records::Projection::FovY(45.0),
+            near_distance: 1.0,
+            width: 2,
+            height: 1,
+            image_name: image_name.into(),
+            handedness: crate::scene::records::Handedness::Right,
+            num_samples: 1,
+            lens: None,
+            tonemaps,
+        };
+        Camera::from_record(&rec).unwrap()
+    }
+
+    fn names(files: &[OutputFile]) -> Vec<&str> {
+        files.iter().map(|f| f.name.as_str()).collect()
+    }
+
+    #[test]
+    fn image_names_choose_the_files() {
+        let (f, notes) = plan(&camera("out/a.png", vec![]));
+        assert_eq!(f, vec![OutputFile { name: "a.png".into(), kind: OutputKind::LdrPng }]);
+        assert!(notes.is_empty());
+
+        let (f, _) = plan(&camera("../../etc/cube.exr", vec![]));
+        assert_eq!(names(&f), ["cube.exr", "cube.png"]);
+        assert_eq!(f[0].kind, OutputKind::Exr);
+        assert_eq!(f[1].kind, OutputKind::Tonemapped(Photographic::default()));
+
+        let (f, _) = plan(&camera("c.HDR", vec![]));
+        assert_eq!(names(&f), ["c.HDR", "c.png"]);
+        assert_eq!(f[0].kind, OutputKind::Hdr);
+
+        let (f, notes) = plan(&camera("old.ppm", vec![]));
+        assert_eq!(names(&f), ["old.png"]);
+        assert_eq!(notes.len(), 1, "{notes:?}");
+    }
+
+    #[test]
+    fn each_tonemap_writes_its_own_png() {
+        let t = |key: f64, ext: Option<&str>| TonemapRec {
+            loc: crate::Loc::default(),
+            params: Photographic { key, ..Photographic::default() },
+            extension: ext.map(Into::into),
+        };
+        let (f, notes) = plan(&camera("s.exr", vec![t(0.36, None)]));
+        assert_eq!(names(&f), ["s.exr", "s.png"]);
+        assert_eq!(f[1].kind, OutputKind::Tonemapped(Photographic { key: 0.36, ..Photographic::default() }));
+        assert!(notes.is_empty());
+
+        let (f, notes) = plan(&camera("s.exr", vec![t(0.18, Some("_phot.png")), t(0.5, Some("_b.png")), t(1.0, Some("_phot.png"))]));
+        assert_eq!(names(&f), ["s.exr", "s_phot.png", "s_b.png"]);
+        assert_eq!(notes.len(), 1, "{notes:?}");
+        // An Extension cannot leave the directory either.
+        let (f, _) = plan(&camera("s.exr", vec![t(0.18, Some("/../../x.png"))]));
+        assert_eq!(names(&f), ["s.exr", "x.png"]);
+    }
+}
