@@ -317,8 +317,8 @@ fn glossy(r: DVec3, roughness: f64, rng: &mut SampleRng) -> DVec3 {
 mod tests {
     use crate::assets::FsResolver;
     use crate::render::{RenderSettings, TileRect, render_tile};
-    use crate::scene::records::EnvSampler;
     use crate::scene::load_scene_str;
+    use crate::scene::records::EnvSampler;
 
     /// A white diffuse floor at y = 0 seen straight from above, lit only by `lights`.
     fn floor_pixel(lights: &str, extra_objects: &str) -> [f32; 3] {
@@ -368,9 +368,15 @@ mod tests {
     #[test]
     fn directional_light_has_no_falloff_and_shadow_rays_reach_infinity() {
         // E = radiance · cos: straight down 7, at 45° 7/√2.
-        let p = floor_pixel("<DirectionalLight id=\"1\"><Direction>0 -1 0</Direction><Radiance>7 7 7</Radiance></DirectionalLight>", "");
+        let p = floor_pixel(
+            "<DirectionalLight id=\"1\"><Direction>0 -1 0</Direction><Radiance>7 7 7</Radiance></DirectionalLight>",
+            "",
+        );
         assert!((p[0] - 7.0).abs() < 1e-5, "{p:?}");
-        let p = floor_pixel("<DirectionalLight id=\"1\"><Direction>1 -1 0</Direction><Radiance>7 7 7</Radiance></DirectionalLight>", "");
+        let p = floor_pixel(
+            "<DirectionalLight id=\"1\"><Direction>1 -1 0</Direction><Radiance>7 7 7</Radiance></DirectionalLight>",
+            "",
+        );
         assert!((p[0] - 7.0 / 2f32.sqrt()).abs() < 1e-5, "{p:?}");
         // A sphere 20 units up blocks it: the shadow ray does not stop at any distance.
         let p = floor_pixel(
@@ -379,7 +385,10 @@ mod tests {
         );
         assert_eq!(p, [0.0; 3]);
         // Light travelling upwards does not reach the floor's top side.
-        let p = floor_pixel("<DirectionalLight id=\"1\"><Direction>0 1 0</Direction><Radiance>7 7 7</Radiance></DirectionalLight>", "");
+        let p = floor_pixel(
+            "<DirectionalLight id=\"1\"><Direction>0 1 0</Direction><Radiance>7 7 7</Radiance></DirectionalLight>",
+            "",
+        );
         assert_eq!(p, [0.0; 3]);
     }
 
@@ -390,7 +399,10 @@ mod tests {
         let spot = |tilt: f64| {
             let (s, c) = tilt.to_radians().sin_cos();
             floor_pixel(
-                &format!("<SpotLight id=\"1\"><Position>0 4 0</Position><Direction>{s} {} 0</Direction><Intensity>400 400 400</Intensity><CoverageAngle>60</CoverageAngle><FalloffAngle>40</FalloffAngle></SpotLight>", -c),
+                &format!(
+                    "<SpotLight id=\"1\"><Position>0 4 0</Position><Direction>{s} {} 0</Direction><Intensity>400 400 400</Intensity><CoverageAngle>60</CoverageAngle><FalloffAngle>40</FalloffAngle></SpotLight>",
+                    -c
+                ),
                 "",
             )[0] as f64
         };
@@ -398,7 +410,12 @@ mod tests {
         assert!((spot(15.0) - 25.0).abs() < 1e-4, "inside the falloff cone: {}", spot(15.0));
         let (cc, cf) = (30f64.to_radians().cos(), 20f64.to_radians().cos());
         let t = (25f64.to_radians().cos() - cc) / (cf - cc);
-        assert!((spot(25.0) - 25.0 * t.powi(4)).abs() < 1e-4, "between: {} vs {}", spot(25.0), 25.0 * t.powi(4));
+        assert!(
+            (spot(25.0) - 25.0 * t.powi(4)).abs() < 1e-4,
+            "between: {} vs {}",
+            spot(25.0),
+            25.0 * t.powi(4)
+        );
         assert!(spot(25.0) > 0.0 && spot(25.0) < 25.0);
         assert_eq!(spot(35.0), 0.0, "outside the coverage cone");
     }
@@ -409,7 +426,8 @@ mod tests {
     fn furnace_pixel(l: f32, gaze_z: f64, material: &str, spp: u32, sampler: EnvSampler) -> [f32; 3] {
         use crate::image::Image;
         // One directory per process and radiance: tests run in parallel.
-        let dir = std::env::temp_dir().join(format!("tessera-furnace-{}-{}", std::process::id(), l.to_bits()));
+        let dir =
+            std::env::temp_dir().join(format!("tessera-furnace-{}-{}", std::process::id(), l.to_bits()));
         std::fs::create_dir_all(&dir).unwrap();
         let map = Image { width: 8, height: 4, pixels: vec![[l; 3]; 32] };
         crate::hdr_io::write_exr(&dir.join("const.exr"), &map).unwrap();

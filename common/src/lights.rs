@@ -79,7 +79,13 @@ pub struct SpotLight {
 
 impl SpotLight {
     /// Angles are the scene's full apex angles in degrees.
-    pub fn new(position: DVec3, direction: DVec3, intensity: DVec3, coverage_deg: f64, falloff_deg: f64) -> Self {
+    pub fn new(
+        position: DVec3,
+        direction: DVec3,
+        intensity: DVec3,
+        coverage_deg: f64,
+        falloff_deg: f64,
+    ) -> Self {
         SpotLight {
             position,
             axis: direction.normalize(),
@@ -171,13 +177,25 @@ pub struct EnvSample {
 }
 
 impl EnvLight {
+    /// Negative and NaN texels (EXR files resampled with sharpening filters have negative
+    /// lobes around a bright sun) are set to 0 here, before any interpolation: radiance cannot be
+    /// negative.
     pub fn new(image: Arc<TextureImage>, mapping: EnvMapping, sampler: Option<EnvSampler>) -> Self {
+        let image = if image.texels.iter().flatten().all(|c| *c >= 0.0) {
+            image
+        } else {
+            let mut clean = (*image).clone();
+            for t in &mut clean.texels {
+                *t = t.map(|c| if c > 0.0 { c } else { 0.0 });
+            }
+            Arc::new(clean)
+        };
         let distribution = EnvDistribution::new(&image, mapping);
         EnvLight { image, mapping, sampler, distribution }
     }
 
-    /// Radiance arriving from unit direction `d`: a bilinear lookup (wrapping around in u),
-    /// values used as stored; negative values (which some EXR tools write) count as 0.
+    /// Radiance arriving from unit direction `d`: a bilinear lookup (wrapping around in u) of
+    /// the texels as stored (negative ones were set to 0).
     pub fn radiance(&self, d: DVec3) -> DVec3 {
         let (u, v) = env_uv(self.mapping, d);
         let img = &*self.image;
@@ -190,12 +208,10 @@ impl EnvLight {
         let (x0, x1) = (wrap(p), wrap(p + 1.0));
         let (y0, y1) = (q as i64, q as i64 + 1);
         let t = |x, y| DVec3::from(img.texel(x, y).map(f64::from));
-        let c = t(x0, y0) * ((1.0 - dx) * (1.0 - dy))
+        t(x0, y0) * ((1.0 - dx) * (1.0 - dy))
             + t(x1, y0) * (dx * (1.0 - dy))
             + t(x0, y1) * ((1.0 - dx) * dy)
-            + t(x1, y1) * (dx * dy);
-        // NaN (from a broken map) also ends up 0 here.
-        DVec3::new(c.x.max(0.0), c.y.max(0.0), c.z.max(0.0))
+            + t(x1, y1) * (dx * dy)
     }
 
     /// One direction for a point with unit normal `n` (on the side the light can arrive from),
@@ -215,11 +231,22 @@ impl EnvLight {
                 Some(EnvSample { wi, weight: self.radiance(wi) * (PI / cos) })
             }
             EnvSampler::Importance => {
-                let (wi, pdf) = self.distribution.sample(xi1, xi2)?;
-                if wi.dot(n) <= 0.0 {
+                // One-sample multiple importance sampling: half the samples follow the map's
+                // luminance, half the cosine lobe, and every sample is divided by the mixture's
+                // pdf (the balance heuristic). The map finds a small sun; the lobe keeps points
+                // that face away from it from wasting their samples below the horizon.
+                let xi3 = rng.next_f64();
+                let wi = if xi3 < 0.5 {
+                    self.distribution.sample(xi1, xi2)?.0
+                } else {
+                    hemisphere_direction(n, (1.0 - xi1).sqrt(), xi2)
+                };
+                let cos = wi.dot(n);
+                if cos <= 0.0 {
                     return None;
                 }
-                Some(EnvSample { wi, weight: self.radiance(wi) / pdf })
+                let pdf = 0.5 * self.distribution.pdf(wi) + 0.5 * cos / PI;
+                (pdf > 0.0 && pdf.is_finite()).then(|| EnvSample { wi, weight: self.radiance(wi) / pdf })
             }
         }
     }
@@ -419,7 +446,7 @@ mod tests {
     }
 
     #[test]
-    fn radiance_wraps_around_the_seam_and_clamps_negative_values() {
+    fn radiance_wraps_around_the_seam_and_zeroes_negative_texels() {
         // Two columns: left 1, right 3; bilinear across the seam mixes them.
         let img = image(2, 1, |x, _| if x == 0 { [1.0; 3] } else { [3.0; 3] });
         let env = EnvLight::new(img, EnvMapping::LatLong, None);
@@ -430,6 +457,10 @@ mod tests {
         let neg = image(1, 1, |_, _| [-5.0, 2.0, f32::NAN]);
         let env = EnvLight::new(neg, EnvMapping::LatLong, None);
         assert_eq!(env.radiance(DVec3::Y), DVec3::new(0.0, 2.0, 0.0));
+        // Zeroed before interpolation: a negative lobe next to a bright texel does not darken it.
+        let ring = image(2, 1, |x, _| if x == 0 { [-4.0; 3] } else { [8.0; 3] });
+        let env = EnvLight::new(ring, EnvMapping::LatLong, None);
+        assert!((env.radiance(latlong_direction(0.75, 0.5)).x - 4.0).abs() < 1e-9);
     }
 
     /// The distribution's pdf integrates to 1 over the sphere and follows the map.

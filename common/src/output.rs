@@ -82,7 +82,10 @@ pub fn plan(cam: &Camera) -> (Vec<OutputFile>, Vec<String>) {
             _ => format!("{stem}.png"),
         };
         if files.iter().any(|f| f.name == png) {
-            notes.push(format!("two <Tonemap>s of camera {} both write {png}; only the first is written", cam.id));
+            notes.push(format!(
+                "two <Tonemap>s of camera {} both write {png}; only the first is written",
+                cam.id
+            ));
             continue;
         }
         files.push(OutputFile { name: png, kind: OutputKind::Tonemapped(params) });
@@ -189,7 +192,10 @@ mod tests {
         assert_eq!(f[1].kind, OutputKind::Tonemapped(Photographic { key: 0.36, ..Photographic::default() }));
         assert!(notes.is_empty());
 
-        let (f, notes) = plan(&camera("s.exr", vec![t(0.18, Some("_phot.png")), t(0.5, Some("_b.png")), t(1.0, Some("_phot.png"))]));
+        let (f, notes) = plan(&camera(
+            "s.exr",
+            vec![t(0.18, Some("_phot.png")), t(0.5, Some("_b.png")), t(1.0, Some("_phot.png"))],
+        ));
         assert_eq!(names(&f), ["s.exr", "s_phot.png", "s_b.png"]);
         assert_eq!(notes.len(), 1, "{notes:?}");
         // An Extension cannot leave the directory either.

@@ -15,9 +15,9 @@ use tessera::assets::FsResolver;
 use tessera::hdr_io::{read_float_image, write_png_rgb8};
 use tessera::output;
 use tessera::render::{RenderSettings, render_camera};
-use tessera::scene::records::EnvSampler;
 use tessera::scene::build::build_scene;
 use tessera::scene::parse_scene;
+use tessera::scene::records::EnvSampler;
 use tessera::tonemap::{Gamma, Photographic, tonemap};
 
 #[derive(Parser)]

@@ -388,9 +388,10 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
         let (path, img) = d?;
         by_path.insert(path, img);
     }
-    let env_light = rec.env_lights.first().map(|l| {
-        EnvLight::new(by_path[&image_recs[l.image.as_str()].path].clone(), l.mapping, l.sampler)
-    });
+    let env_light = rec
+        .env_lights
+        .first()
+        .map(|l| EnvLight::new(by_path[&image_recs[l.image.as_str()].path].clone(), l.mapping, l.sampler));
     let mut out = BuiltTextures { maps: Vec::new(), ids: HashMap::new(), background: None, env_light };
     for m in &rec.texture_maps {
         let source = match &m.source {
@@ -753,7 +754,13 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
             .spot_lights
             .iter()
             .map(|l| {
-                SpotLight::new(v3(l.position), v3(l.direction), v3(l.intensity), l.coverage_angle, l.falloff_angle)
+                SpotLight::new(
+                    v3(l.position),
+                    v3(l.direction),
+                    v3(l.intensity),
+                    l.coverage_angle,
+                    l.falloff_angle,
+                )
             })
             .collect(),
         env_light: textures.env_light,

@@ -28,8 +28,8 @@ use super::records::{
     NoiseConversion, PointLightRec, Projection, SceneRecords, ShadingMode, SphereRec, SpotLightRec,
     TextureMapRec, TextureSource, TonemapRec, TransformOp, TransformRec, TransformRef, TriangleRec, Vec3,
 };
-use crate::tonemap::Photographic;
 use crate::error::{Loc, SceneError, Warning};
+use crate::tonemap::Photographic;
 
 type Result<T> = std::result::Result<T, SceneError>;
 
@@ -507,8 +507,11 @@ const ENV_LIGHT: Schema =
 const TONEMAP: Schema =
     Schema { single: &["TMO", "TMOOptions", "Saturation", "Gamma", "Extension"], ..Schema::EMPTY };
 const ENV_MAPPINGS: &[(&str, EnvMapping)] = &[("latlong", EnvMapping::LatLong), ("probe", EnvMapping::Probe)];
-const ENV_SAMPLERS: &[(&str, EnvSampler)] =
-    &[("uniform", EnvSampler::Uniform), ("cosine", EnvSampler::Cosine), ("importance", EnvSampler::Importance)];
+const ENV_SAMPLERS: &[(&str, EnvSampler)] = &[
+    ("uniform", EnvSampler::Uniform),
+    ("cosine", EnvSampler::Cosine),
+    ("importance", EnvSampler::Importance),
+];
 const POINT_LIGHT: Schema = Schema { single: &["Position", "Intensity"], attrs: &["id"], ..Schema::EMPTY };
 const AREA_LIGHT: Schema =
     Schema { single: &["Position", "Normal", "Size", "Radiance"], attrs: &["id"], ..Schema::EMPTY };
@@ -1124,7 +1127,10 @@ impl Parser<'_> {
                 "Photographic" => {}
                 other => self.warn(
                     t,
-                    format!("tone-mapping operator {} is not supported yet; the photographic operator is used", quoted(other)),
+                    format!(
+                        "tone-mapping operator {} is not supported yet; the photographic operator is used",
+                        quoted(other)
+                    ),
                 ),
             }
         }
@@ -1140,7 +1146,9 @@ impl Parser<'_> {
             params.gamma = g.text.parse().map_err(|e: String| self.err(g, e))?;
         }
         if let Err(e) = params.validate() {
-            return Err(self.err(n, format!("{e}; fix <TMOOptions> (key, burn percent), <Saturation> or <Gamma>")));
+            return Err(
+                self.err(n, format!("{e}; fix <TMOOptions> (key, burn percent), <Saturation> or <Gamma>"))
+            );
         }
         let extension = match n.child("Extension") {
             Some(e) => Some(self.text(e, "a file name ending such as _phot.png")?.to_string()),
@@ -1191,7 +1199,9 @@ impl Parser<'_> {
                 radiance: self.required_numbers(n, "Radiance")?,
             };
             if light.direction == [0.0; 3] {
-                return Err(self.err(n, "<Direction> is the zero vector; give the direction the light travels in"));
+                return Err(
+                    self.err(n, "<Direction> is the zero vector; give the direction the light travels in")
+                );
             }
             self.out.directional_lights.push(light);
         }
@@ -1207,7 +1217,9 @@ impl Parser<'_> {
                 falloff_angle: self.required_number(n, "FalloffAngle")?,
             };
             if light.direction == [0.0; 3] {
-                return Err(self.err(n, "<Direction> is the zero vector; give the axis the spot light points along"));
+                return Err(
+                    self.err(n, "<Direction> is the zero vector; give the axis the spot light points along")
+                );
             }
             let (c, f) = (light.coverage_angle, light.falloff_angle);
             if !(c > 0.0 && c < 360.0) {
@@ -1237,7 +1249,9 @@ impl Parser<'_> {
                     image_id
                 }
                 (None, None) => {
-                    return Err(self.err(n, "missing <ImageId>: name the <Image> that holds the environment map"));
+                    return Err(
+                        self.err(n, "missing <ImageId>: name the <Image> that holds the environment map")
+                    );
                 }
             };
             let mapping = match n.attr("type").map(str::trim) {
@@ -1247,7 +1261,11 @@ impl Parser<'_> {
                     None => {
                         return Err(self.err(
                             n,
-                            format!("attribute type must be {}, found \"{}\"", one_of(ENV_MAPPINGS), excerpt(t)),
+                            format!(
+                                "attribute type must be {}, found \"{}\"",
+                                one_of(ENV_MAPPINGS),
+                                excerpt(t)
+                            ),
                         ));
                     }
                 },
@@ -1982,6 +2000,126 @@ mod tests {
             "<FocusDistance>5</FocusDistance><ApertureSize>0</ApertureSize><ImageName>",
         ));
         assert_eq!(pinhole.cameras[0].lens, None);
+    }
+
+    #[test]
+    fn hdr_lighting_elements() {
+        let rec = parse(
+            r#"<Scene>
+<Cameras><Camera id="1"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+  <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>4 4</ImageResolution>
+  <ImageName>a.exr</ImageName>
+  <Tonemap><TMO>Photographic</TMO><TMOOptions>0.36 0</TMOOptions><Saturation>0.8</Saturation><Gamma>sRGB</Gamma></Tonemap>
+  <Tonemap><Extension>_two.png</Extension></Tonemap>
+</Camera></Cameras>
+<Textures><Images><Image id="7">textures/sky.exr</Image></Images></Textures>
+<Lights>
+  <DirectionalLight id="1"><Direction>1 -0.8 -1</Direction><Radiance>200 200 200</Radiance></DirectionalLight>
+  <SpotLight id="2"><Position>1 2 3</Position><Direction>0 -1 0</Direction><Intensity>5 5 5</Intensity><CoverageAngle>10</CoverageAngle><FalloffAngle>8</FalloffAngle></SpotLight>
+  <SphericalDirectionalLight id="3" type="probe"><ImageId>7</ImageId><Sampler>importance</Sampler></SphericalDirectionalLight>
+</Lights>
+</Scene>"#,
+        );
+        assert!(rec.warnings.is_empty(), "{:?}", rec.warnings);
+        let t = &rec.cameras[0].tonemaps;
+        assert_eq!(t.len(), 2);
+        assert_eq!(
+            t[0].params,
+            Photographic {
+                key: 0.36,
+                burn_percent: 0.0,
+                saturation: 0.8,
+                gamma: crate::tonemap::Gamma::Srgb
+            }
+        );
+        assert_eq!(t[0].extension, None);
+        assert_eq!((t[1].params, t[1].extension.as_deref()), (Photographic::default(), Some("_two.png")));
+        let d = &rec.directional_lights[0];
+        assert_eq!((d.direction, d.radiance), ([1.0, -0.8, -1.0], [200.0; 3]));
+        let s = &rec.spot_lights[0];
+        assert_eq!(
+            (s.position, s.direction, s.intensity, s.coverage_angle, s.falloff_angle),
+            ([1.0, 2.0, 3.0], [0.0, -1.0, 0.0], [5.0; 3], 10.0, 8.0)
+        );
+        let e = &rec.env_lights[0];
+        assert_eq!(
+            (e.id.as_str(), e.image.as_str(), e.mapping, e.sampler),
+            ("3", "7", EnvMapping::Probe, Some(EnvSampler::Importance))
+        );
+        // Defaults: lat-long, the renderer's sampler. The 2019 EnvMapName gets an image record.
+        let legacy = parse(&scene(
+            "<Lights><SphericalDirectionalLight id=\"1\"><EnvMapName>maps/pisa.exr</EnvMapName></SphericalDirectionalLight></Lights>",
+        ));
+        let e = &legacy.env_lights[0];
+        assert_eq!((e.mapping, e.sampler), (EnvMapping::LatLong, None));
+        assert_eq!(legacy.images.len(), 1);
+        assert_eq!(
+            (legacy.images[0].id.as_str(), legacy.images[0].path.as_str()),
+            (e.image.as_str(), "maps/pisa.exr")
+        );
+    }
+
+    #[test]
+    fn hdr_lighting_errors() {
+        let lights = |body: &str| scene(&format!("<Lights>\n{body}\n</Lights>"));
+        let spot = |cov: &str, fall: &str| {
+            lights(&format!(
+                "<SpotLight id=\"1\"><Position>0 0 0</Position><Direction>0 -1 0</Direction><Intensity>1 1 1</Intensity><CoverageAngle>{cov}</CoverageAngle><FalloffAngle>{fall}</FalloffAngle></SpotLight>"
+            ))
+        };
+        let camera = |tonemap: &str| {
+            scene(&format!(
+                "<Cameras><Camera id=\"1\"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up><NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>4 4</ImageResolution><ImageName>a.exr</ImageName>\n<Tonemap>{tonemap}</Tonemap></Camera></Cameras>"
+            ))
+        };
+        check_errors(&[
+            (
+                &lights(
+                    "<DirectionalLight id=\"4\"><Direction>0 0 0</Direction><Radiance>1 1 1</Radiance></DirectionalLight>",
+                ),
+                r#"scene.xml:3: <DirectionalLight id="4">: <Direction> is the zero vector; give the direction the light travels in"#,
+            ),
+            (
+                &lights("<DirectionalLight id=\"4\"><Direction>0 -1 0</Direction></DirectionalLight>"),
+                r#"scene.xml:3: <DirectionalLight id="4">: missing <Radiance>"#,
+            ),
+            (
+                &spot("0", "0"),
+                r#"scene.xml:3: <SpotLight id="1">: <CoverageAngle> must be between 0 and 360 degrees (the full apex angle of the cone), found 0"#,
+            ),
+            (
+                &spot("20", "30"),
+                r#"scene.xml:3: <SpotLight id="1">: <FalloffAngle> must be between 0 and <CoverageAngle> (20) degrees, found 30: the full-power cone lies inside the covered cone"#,
+            ),
+            (
+                &lights("<SphericalDirectionalLight id=\"5\"/>"),
+                r#"scene.xml:3: <SphericalDirectionalLight id="5">: missing <ImageId>: name the <Image> that holds the environment map"#,
+            ),
+            (
+                &lights(
+                    "<SphericalDirectionalLight id=\"5\" type=\"cube\"><ImageId>1</ImageId></SphericalDirectionalLight>",
+                ),
+                r#"scene.xml:3: <SphericalDirectionalLight id="5">: attribute type must be latlong or probe, found "cube""#,
+            ),
+            (
+                &lights(
+                    "<SphericalDirectionalLight id=\"5\"><ImageId>1</ImageId><Sampler>stratified</Sampler></SphericalDirectionalLight>",
+                ),
+                r#"scene.xml:3: <SphericalDirectionalLight id="5"> / <Sampler>: Sampler must be uniform, cosine or importance, found "stratified""#,
+            ),
+            (
+                &camera("<TMOOptions>0 1</TMOOptions>"),
+                r#"scene.xml:3: <Camera id="1"> / <Tonemap>: key 0: must be a positive number (the scenes use 0.18); fix <TMOOptions> (key, burn percent), <Saturation> or <Gamma>"#,
+            ),
+            (
+                &camera("<TMOOptions>0.18</TMOOptions>"),
+                r#"scene.xml:3: <Camera id="1"> / <Tonemap> / <TMOOptions>: expected 2 numbers, found "0.18""#,
+            ),
+            (
+                &camera("<Gamma>-2</Gamma>"),
+                r#"scene.xml:3: <Camera id="1"> / <Tonemap> / <Gamma>: gamma "-2": expected a positive number (e.g. 2.2) or sRGB"#,
+            ),
+        ]);
     }
 
     #[test]

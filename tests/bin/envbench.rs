@@ -1,0 +1,209 @@
+//! Environment-light figures: render times of the course's environment scenes with substituted
+//! maps, and the noise of importance vs uniform sampling at equal time.
+//!
+//! ```text
+//! cargo run --release -p tessera-tests --bin envbench -- [--samples N] [--width W] [--only SCENE]
+//!     [--noise-only] [--scenes-only] [--threads N]
+//! ```
+//! Pictures go to `target/envbench/`. `--samples` and `--width` shrink the work (the figures say
+//! so); without them every scene renders at its own resolution and NumSamples.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use tessera::image::Image;
+use tessera::render::{RenderSettings, render_camera};
+use tessera::scene::Scene;
+use tessera::scene::records::{EnvSampler, SceneRecords};
+use tessera_tests::conformance::display_image;
+use tessera_tests::envmaps::{ENV_SCENES, load_substituted};
+
+struct Args {
+    samples: Option<u32>,
+    width: Option<u32>,
+    only: Option<String>,
+    noise: bool,
+    scenes: bool,
+    threads: Option<usize>,
+}
+
+fn parse_args() -> Result<Args> {
+    let mut a = Args { samples: None, width: None, only: None, noise: true, scenes: true, threads: None };
+    let mut it = std::env::args().skip(1);
+    while let Some(arg) = it.next() {
+        let mut value = |name: &str| it.next().with_context(|| format!("{name} needs a value"));
+        match arg.as_str() {
+            "--samples" => a.samples = Some(value("--samples")?.parse().context("--samples: a number")?),
+            "--width" => a.width = Some(value("--width")?.parse().context("--width: a number")?),
+            "--only" => a.only = Some(value("--only")?),
+            "--threads" => a.threads = Some(value("--threads")?.parse().context("--threads: a number")?),
+            "--noise-only" => a.scenes = false,
+            "--scenes-only" => a.noise = false,
+            "-h" | "--help" => {
+                println!(
+                    "envbench: environment-light timings and importance-vs-uniform noise\n\n\
+                     options: --samples N  --width W  --only SCENE  --noise-only  --scenes-only  --threads N"
+                );
+                std::process::exit(0);
+            }
+            other => bail!("unknown argument {other} (try --help)"),
+        }
+    }
+    Ok(a)
+}
+
+fn shrink(rec: &mut SceneRecords, width: Option<u32>) {
+    if let Some(w) = width {
+        for c in &mut rec.cameras {
+            c.height = (c.height * w / c.width).max(1);
+            c.width = w;
+        }
+    }
+}
+
+fn render(scene: &Scene, settings: &RenderSettings) -> (Image, f64, u64) {
+    let t = Instant::now();
+    let (img, stats) = render_camera(scene, 0, 32, settings, &|_, _| {});
+    (img, t.elapsed().as_secs_f64(), stats.total())
+}
+
+fn main() -> Result<()> {
+    let args = parse_args()?;
+    if let Some(n) = args.threads {
+        rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
+    }
+    let out = tessera_tests::repo_root().join("target/envbench");
+    std::fs::create_dir_all(&out)?;
+    println!("threads: {}", rayon::current_num_threads());
+    if args.scenes {
+        for &(name, map) in ENV_SCENES {
+            if args.only.as_deref().is_some_and(|o| o != name) {
+                continue;
+            }
+            scene_figures(name, map, &args, &out)?;
+        }
+    }
+    if args.noise {
+        noise_figures(&out)?;
+    }
+    Ok(())
+}
+
+fn scene_figures(name: &str, map: &str, args: &Args, out: &std::path::Path) -> Result<()> {
+    let t = Instant::now();
+    let (scene, subs) = load_substituted(name, map, |r| shrink(r, args.width))?;
+    let load = t.elapsed().as_secs_f64();
+    let cam = &scene.cameras[0];
+    let spp = args.samples.unwrap_or(cam.num_samples);
+    let (img, secs, rays) =
+        render(&scene, &RenderSettings { samples: args.samples, ..RenderSettings::default() });
+    let samples = cam.width as f64 * cam.height as f64 * spp as f64;
+    let png: PathBuf = out.join(format!("{name}.png"));
+    let ldr = display_image(cam, &img);
+    tessera::hdr_io::write_png_rgb8(&png, ldr.width, ldr.height, &ldr.data)?;
+    let dropped = if subs.dropped_maps.is_empty() {
+        String::new()
+    } else {
+        format!(", dropped texture maps {:?}", subs.dropped_maps)
+    };
+    println!(
+        "{name} (map {map}.exr{dropped}): {}x{} at {spp} spp, {} triangles; load {load:.2} s, render {secs:.2} s, {:.2} M samples/s, {:.2} Mrays/s -> {}",
+        cam.width,
+        cam.height,
+        scene.stats.triangles,
+        samples / secs / 1e6,
+        rays as f64 / secs / 1e6,
+        png.display()
+    );
+    Ok(())
+}
+
+/// RMS error over the pixels where `mask` is set, relative to the reference's mean there.
+fn rel_rmse(img: &Image, reference: &Image, mask: &[bool]) -> f64 {
+    let (mut se, mut sum, mut n) = (0.0, 0.0, 0usize);
+    for ((p, r), m) in img.pixels.iter().zip(&reference.pixels).zip(mask) {
+        if *m {
+            for c in 0..3 {
+                let d = p[c] as f64 - r[c] as f64;
+                se += d * d;
+                sum += r[c] as f64;
+            }
+            n += 3;
+        }
+    }
+    (se / n as f64).sqrt() / (sum / n as f64)
+}
+
+/// Importance vs uniform on sphere_env_light lit by maps with a small sun: relative RMSE
+/// against a converged image, and the ratio at equal render time (RMSE ∝ 1/√time).
+fn noise_figures(out: &std::path::Path) -> Result<()> {
+    for map in ["sky", "sunrise"] {
+        let (scene, _) = load_substituted("sphere_env_light", map, |r| shrink(r, Some(200)))?;
+        let settings = |s, spp, seed| RenderSettings { samples: Some(spp), env_sampling: Some(s), seed };
+        let (reference, ref_secs, _) = render(&scene, &settings(EnvSampler::Importance, 8192, 99));
+        println!(
+            "noise, sphere_env_light with {map}.exr at 200x100, sphere pixels only, against importance at 8192 spp ({ref_secs:.1} s); mean of 3 seeds:"
+        );
+        // The sphere: pixels where two estimators differ at the same seed (same camera rays).
+        let (a, _, _) = render(&scene, &settings(EnvSampler::Uniform, 4, 1));
+        let (b, _, _) = render(&scene, &settings(EnvSampler::Importance, 4, 1));
+        let mask: Vec<bool> = a.pixels.iter().zip(&b.pixels).map(|(p, q)| p != q).collect();
+        println!("  {} sphere pixels", mask.iter().filter(|m| **m).count());
+        let mut figures = Vec::new();
+        for (label, sampler) in [
+            ("uniform", EnvSampler::Uniform),
+            ("cosine", EnvSampler::Cosine),
+            ("importance", EnvSampler::Importance),
+        ] {
+            let spp = 256;
+            let (mut err, mut secs) = (0.0, 0.0);
+            for seed in 1..=3u64 {
+                let (img, t, _) = render(&scene, &settings(sampler, spp, seed));
+                err += rel_rmse(&img, &reference, &mask) / 3.0;
+                secs += t / 3.0;
+            }
+            println!("  {label:<10} {spp} spp: {secs:.2} s, relative RMSE {err:.4}");
+            figures.push((err, secs));
+        }
+        let (eu, tu) = figures[0];
+        let (ei, ti) = figures[2];
+        let equal_time = (eu / ei) * (tu / ti).sqrt();
+        println!(
+            "  importance vs uniform: {:.1}x less RMSE at equal samples, {equal_time:.1}x at equal time (uniform needs {:.0}x the time for the same noise)",
+            eu / ei,
+            equal_time * equal_time
+        );
+    }
+    // Spread of the sphere's mean radiance over seeds at the CI convergence test's size (100 px
+    // wide): uniform and cosine at 1024 spp, importance at 256.
+    for map in ["sky", "sunrise", "park", "studio"] {
+        let (small, _) = load_substituted("sphere_env_light", map, |r| shrink(r, Some(100)))?;
+        let settings = |s, spp, seed| RenderSettings { samples: Some(spp), env_sampling: Some(s), seed };
+        let mut line = format!("  {map}: sphere mean (green) over 6 seeds, relative sd:");
+        for (label, sampler, spp) in [
+            ("uniform", EnvSampler::Uniform, 1024),
+            ("cosine", EnvSampler::Cosine, 1024),
+            ("importance", EnvSampler::Importance, 256),
+        ] {
+            let mut means = Vec::new();
+            for seed in 1..=6u64 {
+                let (img, _, _) = render(&small, &settings(sampler, spp, seed));
+                let other =
+                    if sampler == EnvSampler::Uniform { EnvSampler::Cosine } else { EnvSampler::Uniform };
+                let (twin, _, _) = render(&small, &settings(other, spp, seed));
+                let m: Vec<bool> = img.pixels.iter().zip(&twin.pixels).map(|(a, b)| a != b).collect();
+                let n = m.iter().filter(|x| **x).count() as f64;
+                let s: f64 = img.pixels.iter().zip(&m).filter(|(_, k)| **k).map(|(p, _)| p[1] as f64).sum();
+                means.push(s / n);
+            }
+            let avg = means.iter().sum::<f64>() / means.len() as f64;
+            let sd =
+                (means.iter().map(|m| (m - avg) * (m - avg)).sum::<f64>() / (means.len() - 1) as f64).sqrt();
+            line += &format!(" {label} {:.4} (mean {avg:.3})", sd / avg);
+        }
+        println!("{line}");
+        let _ = out;
+    }
+    Ok(())
+}
