@@ -89,6 +89,7 @@ enum Command {
     /// (log average, white point, non-finite pixels) goes to stdout.
     ///
     /// Example: tessera-worker tonemap head_env_light.exr --key 0.18 --burn 1 -o head_env_light.png
+    ///          tessera-worker tonemap render.exr --scene scene.xml --burn 0 -o render.png
     #[command(allow_negative_numbers = true)]
     Tonemap {
         /// The HDR image to tone-map (.exr or .hdr).
@@ -96,21 +97,30 @@ enum Command {
         /// The PNG file to write.
         #[arg(long, short, value_name = "OUT.png")]
         out: PathBuf,
+        /// Take the defaults from this scene file's <Tonemap> (of --camera, else the first camera
+        /// with one) instead of the course defaults; the options below still override them.
+        #[arg(long, value_name = "SCENE.xml")]
+        scene: Option<PathBuf>,
+        /// With --scene: the camera whose <Tonemap> to use (1 = the first camera in the file).
+        #[arg(long, value_name = "K", requires = "scene")]
+        camera: Option<usize>,
         /// Key value a: the display luminance the log-average luminance maps to (<TMOOptions>'s
-        /// first number). Brighter with a larger key.
-        #[arg(long, default_value_t = 0.18, value_name = "K")]
-        key: f64,
+        /// first number). Brighter with a larger key. [default: 0.18, or the scene's]
+        #[arg(long, value_name = "K")]
+        key: Option<f64>,
         /// Burn-out percentage b, 0 to 100: the share of pixels allowed to reach white
         /// (<TMOOptions>'s second number); 0: no white point, plain L / (1 + L).
-        #[arg(long, default_value_t = 1.0, value_name = "P")]
-        burn: f64,
+        /// [default: 1, or the scene's]
+        #[arg(long, value_name = "P")]
+        burn: Option<f64>,
         /// Saturation exponent s applied to each channel's ratio to the luminance (<Saturation>):
-        /// 1 keeps the colours, 0 gives grey, above 1 saturates.
-        #[arg(long, default_value_t = 1.0, value_name = "S")]
-        saturation: f64,
+        /// 1 keeps the colours, 0 gives grey, above 1 saturates. [default: 1, or the scene's]
+        #[arg(long, value_name = "S")]
+        saturation: Option<f64>,
         /// Display gamma (<Gamma>): a positive number, or "srgb" for the sRGB transfer curve.
-        #[arg(long, default_value = "2.2", value_name = "G|srgb")]
-        gamma: Gamma,
+        /// [default: 2.2, or the scene's]
+        #[arg(long, value_name = "G|srgb")]
+        gamma: Option<Gamma>,
     },
 }
 
@@ -139,8 +149,16 @@ fn main() -> ExitCode {
             let env_sampling = env_sampling.map(EnvSampling::into);
             render(&scene, &out, &Options { threads, camera, tile_size, samples, env_sampling, quiet })
         }
-        Command::Tonemap { input, out, key, burn, saturation, gamma } => {
-            tonemap_file(&input, &out, &Photographic { key, burn_percent: burn, saturation, gamma })
+        Command::Tonemap { input, out, scene, camera, key, burn, saturation, gamma } => {
+            tonemap_params(scene.as_deref(), camera).and_then(|base| {
+                let params = Photographic {
+                    key: key.unwrap_or(base.key),
+                    burn_percent: burn.unwrap_or(base.burn_percent),
+                    saturation: saturation.unwrap_or(base.saturation),
+                    gamma: gamma.unwrap_or(base.gamma),
+                };
+                tonemap_file(&input, &out, &params)
+            })
         }
     };
     match result {
@@ -255,6 +273,37 @@ fn render(scene_path: &Path, out: &Path, opts: &Options) -> Result<()> {
         }
         Ok(())
     })
+}
+
+/// The tone-mapping defaults: the course's, or a scene camera's `<Tonemap>`.
+fn tonemap_params(scene: Option<&Path>, camera: Option<usize>) -> Result<Photographic> {
+    let Some(path) = scene else { return Ok(Photographic::default()) };
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| anyhow::anyhow!("{}: cannot read the scene file: {e}", path.display()))?;
+    let records = parse_scene(&text, path)?;
+    let cams = &records.cameras;
+    let cam = match camera {
+        Some(k) if k >= 1 && k <= cams.len() => &cams[k - 1],
+        Some(k) => bail!("--camera {k}: {} has {} camera(s), numbered from 1", path.display(), cams.len()),
+        None => match cams.iter().find(|c| !c.tonemaps.is_empty()) {
+            Some(c) => c,
+            None => {
+                eprintln!("warning: {} has no <Tonemap>; using the course defaults", path.display());
+                return Ok(Photographic::default());
+            }
+        },
+    };
+    match cam.tonemaps.first() {
+        Some(t) => Ok(t.params),
+        None => {
+            eprintln!(
+                "warning: camera {} of {} has no <Tonemap>; using the course defaults",
+                cam.id,
+                path.display()
+            );
+            Ok(Photographic::default())
+        }
+    }
 }
 
 /// `tonemap`: reads an HDR image, tone-maps it, writes the PNG and prints one summary line.

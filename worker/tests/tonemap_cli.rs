@@ -99,6 +99,53 @@ fn tonemap_reproduces_official_pngs() {
 }
 
 #[test]
+fn tonemap_takes_its_defaults_from_a_scene() {
+    // sphere_point_hdr_texture's <Tonemap> says 0.01 2: with --scene alone the official PNG comes out.
+    let scene = reference_dir().join("../xml/sphere_point_hdr_texture.xml");
+    let s = scene.to_str().unwrap();
+    check_reference("sphere_point_hdr_texture", &["--scene", s]);
+    // An explicit option still wins over the scene's.
+    let Some((exr, _)) = official("sphere_point_hdr_texture") else { return };
+    let dir = TempDir::new("scene");
+    let out = dir.path().join("o.png");
+    let r = run(&[
+        OsArg::from("tonemap"),
+        exr.clone().into(),
+        "--scene".into(),
+        s.into(),
+        "--key".into(),
+        "0.5".into(),
+        "-o".into(),
+        out.into(),
+    ]);
+    assert_eq!(r.code, Some(0), "{}", r.describe());
+    assert!(r.stdout.contains("key 0.5") && r.stdout.contains("burn 2%"), "{}", r.describe());
+    // A camera number the scene does not have, and a scene that cannot be read.
+    let r = run(&[
+        OsArg::from("tonemap"),
+        exr.clone().into(),
+        "--scene".into(),
+        s.into(),
+        "--camera".into(),
+        "3".into(),
+        "-o".into(),
+        dir.path().join("p.png").into(),
+    ]);
+    assert_eq!(r.code, Some(1), "{}", r.describe());
+    assert!(r.stderr.contains("--camera 3") && r.stderr.contains("1 camera(s)"), "{}", r.describe());
+    let r = run(&[
+        OsArg::from("tonemap"),
+        exr.into(),
+        "--scene".into(),
+        "nope.xml".into(),
+        "-o".into(),
+        dir.path().join("q.png").into(),
+    ]);
+    assert_eq!(r.code, Some(1), "{}", r.describe());
+    assert!(r.stderr.contains("nope.xml: cannot read the scene file"), "{}", r.describe());
+}
+
+#[test]
 fn tonemap_defaults_are_the_course_defaults() {
     let Some((exr, _)) = official("sphere_env_light") else { return };
     let dir = TempDir::new("defaults");
