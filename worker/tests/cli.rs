@@ -90,7 +90,13 @@ const TRIANGLE: &str = r#"<Mesh id="1"><Material>1</Material><Faces>1 2 3</Faces
 #[test]
 fn renders_the_repository_scenes() {
     // (scene file, output image, width, height)
-    let cases = [("cornell_box.xml", "cornell_box.png", 512, 512), ("tori.xml", "tori.png", 640, 400)];
+    let cases = [
+        ("cornell_box.xml", "cornell_box.png", 512, 512),
+        ("tori.xml", "tori.png", 640, 400),
+        ("spotlights.xml", "spotlights.png", 480, 300),
+        // HDR: environment.exr and its tone-mapped environment.png.
+        ("environment.xml", "environment.png", 480, 270),
+    ];
     for (scene, image, w, h) in cases {
         let tmp = TempDir::new("render");
         let out = tmp.path().join("out");
