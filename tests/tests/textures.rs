@@ -7,7 +7,8 @@
 //! * T = texel / Normalizer (default 255), then `degamma="true"` raises it to 2.2;
 //! * (u, v) = (0, 0) is the top-left texel; `replace_background` uses the raw texel at the pixel
 //!   centre u = (x + 0.5)/width, v = (y + 0.5)/height;
-//! * checkerboard and Perlin noise use the world-space hit point.
+//! * checkerboard and Perlin noise use the world-space hit point;
+//! * image bump maps on transformed spheres displace along the unit world normal.
 //!
 //! Each test writes its own tiny PNGs (a minimal stored-deflate encoder below) into a temporary
 //! directory and loads the scene text with an `FsResolver` pointing there.
@@ -687,6 +688,90 @@ fn normal_maps_bend_the_shading_normal_in_tangent_space() {
     );
     assert!((lit_below - predicted(below, Some(down_tilt))).abs() < 1e-3, "below: {lit_below}");
     assert!((lit_above - predicted(above, Some(down_tilt))).abs() < 1e-3, "above: {lit_above}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Bump mapping.
+
+/// A unit sphere at the origin under `transformations` (empty: none), seen by a 1x1 camera at
+/// `eye` looking along `gaze`, lit by one light at `light`; diffuse white, optionally bump-mapped
+/// (BumpFactor 0.05) by `ramp.png`. Returns the pixel's red channel.
+fn bumped_sphere(stage: &Stage, transformations: &str, eye: V3, gaze: V3, light: V3, bump: bool) -> f64 {
+    let (scaling, refs) = match transformations {
+        "" => (String::new(), String::new()),
+        s => (
+            format!("<Transformations><Scaling id=\"1\">{s}</Scaling></Transformations>"),
+            "<Transformations>s1</Transformations>".to_string(),
+        ),
+    };
+    let xml = format!(
+        r#"<Scene>
+  <MaxRecursionDepth>0</MaxRecursionDepth>
+  <Cameras><Camera id="1"><Position>{} {} {}</Position><Gaze>{} {} {}</Gaze><Up>0 1 0</Up>
+    <NearPlane>-0.01 0.01 -0.01 0.01</NearPlane><NearDistance>1</NearDistance>
+    <ImageResolution>1 1</ImageResolution><ImageName>t.png</ImageName></Camera></Cameras>
+  <Lights><PointLight id="1"><Position>{} {} {}</Position><Intensity>900 900 900</Intensity></PointLight></Lights>
+  <Materials><Material id="1"><DiffuseReflectance>1 1 1</DiffuseReflectance></Material></Materials>
+  <Textures>{}</Textures>
+  {scaling}
+  <VertexData>0 0 0</VertexData>
+  <Objects><Sphere id="1"><Material>1</Material>{}{refs}<Center>1</Center><Radius>1</Radius></Sphere></Objects>
+</Scene>"#,
+        eye.x,
+        eye.y,
+        eye.z,
+        gaze.x,
+        gaze.y,
+        gaze.z,
+        light.x,
+        light.y,
+        light.z,
+        image_map("ramp.png", "bump_normal", "<BumpFactor>0.05</BumpFactor>"),
+        if bump { "<Textures>1</Textures>" } else { "" },
+    );
+    render(&stage.scene(&xml))[0].x
+}
+
+#[test]
+fn bump_maps_on_mirrored_ellipsoids_displace_along_the_unit_world_normal() {
+    // bump_mapping_transformed (a sphere scaled by (-2, 1, 1)) settles this: the references bump
+    // a transformed sphere with ∂p/∂u, ∂p/∂v carried by the transformation but the height along
+    // the *unit* world normal, not along the object normal carried as a vector (length 2 where
+    // the x scale of 2 stretches it).
+    //
+    // The unit sphere's point (1, 0, 0) (u = v = 0.5) has T = ∂p/∂u = (0, 0, −2π),
+    // B = ∂p/∂v = (0, −π, 0), n = +x. Scaled by (−2, 1, 1) that object point lands at world
+    // (−2, 0, 0) with the same T and B (no x component) and normal −x. So the ellipsoid seen
+    // from −x with a light mirrored in x must shade like the plain sphere seen from +x: n·l is
+    // unchanged by the mirror as long as the tilt (slope / |T|, slope / |B|) is the same, which
+    // holds only if the height is not stretched by the x scale along the normal.
+    let stage = Stage::new("bump_mirrored");
+    // Grey ramp: height grows by 20 per texel along u and 10 per texel along v; (u, v) = (0.5,
+    // 0.5) is texel (2, 2) (or (1, 1) by rounding), whose +1 neighbours are inside the image.
+    let ramp: Vec<[u8; 3]> = (0..16)
+        .map(|k| {
+            let (x, y) = (k % 4, k / 4);
+            [(60 + 20 * x + 10 * y) as u8; 3]
+        })
+        .collect();
+    stage.png("ramp.png", 4, 4, &ramp);
+    let plain_eye = V3::new(5.0, 0.0, 0.0);
+    let plain_light = V3::new(3.0, 1.0, 0.5);
+    let mirrored_eye = V3::new(-6.0, 0.0, 0.0);
+    let mirrored_light = V3::new(-4.0, 1.0, 0.5);
+    let neg_x = V3::new(-1.0, 0.0, 0.0);
+    let plain = bumped_sphere(&stage, "", plain_eye, neg_x, plain_light, true);
+    let mirrored = bumped_sphere(&stage, "-2 1 1", mirrored_eye, V3::X, mirrored_light, true);
+    let unbumped = bumped_sphere(&stage, "", plain_eye, neg_x, plain_light, false);
+    let unbumped_mirrored = bumped_sphere(&stage, "-2 1 1", mirrored_eye, V3::X, mirrored_light, false);
+    // The geometry is mirrored exactly: without the bump map both shade alike.
+    assert!((unbumped - unbumped_mirrored).abs() < 1e-6 * unbumped, "{unbumped} vs {unbumped_mirrored}");
+    // The ramp bends the normal noticeably (149.6 -> 163.4; the test would tell nothing
+    // otherwise)...
+    assert!((plain - unbumped).abs() > 0.05 * unbumped, "bumped {plain} vs plain {unbumped}");
+    // ...and by the same amount on the mirrored ellipsoid. Displacing along the object normal
+    // carried as a vector (length 2 here) doubles the tilt and gives 169.0 instead.
+    assert!((mirrored - plain).abs() < 1e-6 * plain, "mirrored ellipsoid {mirrored} vs sphere {plain}");
 }
 
 // ---------------------------------------------------------------------------------------------
