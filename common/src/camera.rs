@@ -19,6 +19,10 @@ pub struct Camera {
     /// Image-plane extent per pixel along u and v.
     pub pixel_w: f64,
     pub pixel_h: f64,
+    /// Angle (radians, small-angle) one pixel subtends at the image centre: the larger of
+    /// pixel_w, pixel_h over the near distance. Trilinear texture lookups grow a ray cone of this
+    /// spread from the camera (§11.5); 0 if the frame is degenerate.
+    pub pixel_spread: f64,
     pub width: u32,
     pub height: u32,
     pub image_name: String,
@@ -68,6 +72,10 @@ impl Camera {
             corner,
             pixel_w: (r - l) / c.width as f64,
             pixel_h: (t - b) / c.height as f64,
+            pixel_spread: {
+                let s = ((r - l) / c.width as f64).abs().max(((t - b) / c.height as f64).abs()) / d.abs();
+                if s.is_finite() { s } else { 0.0 }
+            },
             width: c.width,
             height: c.height,
             image_name: c.image_name.clone(),

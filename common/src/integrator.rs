@@ -2,7 +2,7 @@
 //! point lights with shadow rays, then mirror, conductor and dielectric recursion bounded by
 //! `MaxRecursionDepth`, with Beer's law inside dielectrics.
 
-use glam::DVec3;
+use glam::{DVec2, DVec3};
 
 use crate::geometry::SurfaceHit;
 use crate::material::{Material, MaterialKind, Refraction, fresnel_conductor, refract};
@@ -42,23 +42,36 @@ pub struct Tracer<'a> {
     /// How the environment light (if any) is sampled: the scene's choice, else the course's
     /// uniform estimator; the render settings may override it.
     pub env_sampler: EnvSampler,
+    /// Spread angle (radians) of the ray cone of one camera pixel, for the mip level of
+    /// trilinear texture maps ([`Camera::pixel_spread`](crate::camera::Camera)); 0 reads
+    /// level 0 everywhere.
+    pub spread: f64,
 }
 
 impl<'a> Tracer<'a> {
     pub fn new(scene: &'a Scene) -> Self {
         let env_sampler = scene.env_light.as_ref().and_then(|l| l.sampler).unwrap_or(EnvSampler::Uniform);
-        Tracer { scene, stats: RayStats::default(), background: scene.background, env_sampler }
+        Tracer { scene, stats: RayStats::default(), background: scene.background, env_sampler, spread: 0.0 }
     }
 
     /// Radiance along a camera ray.
     pub fn trace_primary(&mut self, ray: &Ray, rng: &mut SampleRng) -> DVec3 {
         self.stats.primary += 1;
-        self.trace(ray, 0, None, rng)
+        self.trace(ray, 0, None, 0.0, rng)
     }
 
     /// Radiance arriving along `ray`. `medium` is the absorption coefficient of the dielectric
-    /// the ray travels inside, if any (Beer's law applies over the segment's length).
-    fn trace(&mut self, ray: &Ray, depth: u32, medium: Option<DVec3>, rng: &mut SampleRng) -> DVec3 {
+    /// the ray travels inside, if any (Beer's law applies over the segment's length). `cone` is
+    /// the width of the pixel's ray cone at the ray's origin (0 at a pinhole camera); it grows
+    /// by `spread` per unit of distance (curved mirrors and lenses are not modelled).
+    fn trace(
+        &mut self,
+        ray: &Ray,
+        depth: u32,
+        medium: Option<DVec3>,
+        cone: f64,
+        rng: &mut SampleRng,
+    ) -> DVec3 {
         let scene = self.scene;
         let Some(hit) = scene.accel.intersect(ray, scene.intersection_test_epsilon, f64::INFINITY) else {
             // Rays that miss see the environment (§5.6), else the background.
@@ -67,14 +80,23 @@ impl<'a> Tracer<'a> {
                 None => self.background,
             };
         };
-        let l = self.shade(ray, &hit, depth, medium.is_some(), rng);
+        let cone = cone + self.spread * hit.t;
+        let l = self.shade(ray, &hit, depth, medium.is_some(), cone, rng);
         match medium {
             Some(c) if c != DVec3::ZERO => l * (-c * hit.t).exp(),
             _ => l,
         }
     }
 
-    fn shade(&mut self, ray: &Ray, hit: &SurfaceHit, depth: u32, inside: bool, rng: &mut SampleRng) -> DVec3 {
+    fn shade(
+        &mut self,
+        ray: &Ray,
+        hit: &SurfaceHit,
+        depth: u32,
+        inside: bool,
+        cone: f64,
+        rng: &mut SampleRng,
+    ) -> DVec3 {
         let scene = self.scene;
         let mut mat = &scene.materials[hit.material as usize];
         let d = ray.dir;
@@ -83,12 +105,15 @@ impl<'a> Tracer<'a> {
         // Textures (§11.6): the normal map first, then the colour map on a copy of the material.
         let textures = scene.accel.instances[hit.instance as usize].textures;
         let mut shading_normal = hit.shading_normal;
+        let textured_hit = textures.normal.is_some() || textures.colour[0].is_some();
+        let footprint =
+            if textured_hit && self.spread > 0.0 { uv_footprint(hit, d, cone) } else { DVec2::ZERO };
+        let p = TexturePoint { uv: hit.uv, world: hit.point, footprint };
         if let Some(k) = textures.normal {
-            shading_normal = perturbed_normal(&scene.textures[k as usize], hit, shading_normal);
+            shading_normal = perturbed_normal(&scene.textures[k as usize], hit, &p, shading_normal);
         }
         let textured;
         if textures.colour[0].is_some() {
-            let p = TexturePoint { uv: hit.uv, world: hit.point };
             let mut m = mat.clone();
             for k in textures.colour.into_iter().flatten() {
                 let map = &scene.textures[k as usize];
@@ -128,7 +153,7 @@ impl<'a> Tracer<'a> {
                 if weight != DVec3::ZERO {
                     let r = glossy(reflect(d, n), mat.roughness, rng);
                     self.stats.secondary += 1;
-                    l += weight * self.trace(&ray.spawn(hit.point + eps * n, r), depth + 1, None, rng);
+                    l += weight * self.trace(&ray.spawn(hit.point + eps * n, r), depth + 1, None, cone, rng);
                 }
             }
             MaterialKind::Dielectric if can_recurse => {
@@ -141,13 +166,13 @@ impl<'a> Tracer<'a> {
                 match refract(d, n, n1, n2) {
                     Refraction::Total => {
                         self.stats.secondary += 1;
-                        l += self.trace(&reflected, depth + 1, refl_medium, rng);
+                        l += self.trace(&reflected, depth + 1, refl_medium, cone, rng);
                     }
                     Refraction::Split { fr, dir } => {
                         self.stats.secondary += 2;
-                        l += fr * self.trace(&reflected, depth + 1, refl_medium, rng);
-                        l += (1.0 - fr)
-                            * self.trace(&Ray::new(hit.point - eps * n, dir), depth + 1, refr_medium, rng);
+                        l += fr * self.trace(&reflected, depth + 1, refl_medium, cone, rng);
+                        let refracted = Ray::new(hit.point - eps * n, dir);
+                        l += (1.0 - fr) * self.trace(&refracted, depth + 1, refr_medium, cone, rng);
                     }
                 }
             }
@@ -240,21 +265,21 @@ impl<'a> Tracer<'a> {
 
 /// The shading normal after a normal map or bump map (§11.6a, §11.7); `n` is the unperturbed
 /// unit shading normal, on the geometric normal's side.
-fn perturbed_normal(map: &TextureMap, hit: &SurfaceHit, n: DVec3) -> DVec3 {
+fn perturbed_normal(map: &TextureMap, hit: &SurfaceHit, p: &TexturePoint, n: DVec3) -> DVec3 {
     let bent = match (map.decal, &map.source) {
         (DecalMode::ReplaceNormal, _) => {
-            let Some(nt) = map.tangent_normal(hit.uv) else { return n };
+            let Some(nt) = map.tangent_normal(p.uv, p.footprint) else { return n };
             let Some((t, b)) = tangent_basis(n, hit.dpdu, hit.dpdv) else { return n };
             nt.x * t + nt.y * b + nt.z * n
         }
-        (DecalMode::BumpNormal, Source::Image { image, normalizer, interpolation }) => {
+        (DecalMode::BumpNormal, source @ Source::Image { image, normalizer, .. }) => {
             if hit.dpdu == DVec3::ZERO || hit.dpdv == DVec3::ZERO {
                 return n;
             }
             // Blinn's bump mapping: height slopes added along the normal to the unnormalised
             // ∂p/∂u, ∂p/∂v.
             let (w, h) = (image.width as f64, image.height as f64);
-            let height = |du: f64, dv: f64| image_height(image, *interpolation, *normalizer, hit.uv, du, dv);
+            let height = |du: f64, dv: f64| image_height(source, p, du, dv);
             let h0 = height(0.0, 0.0);
             // Measured against the references: the height slope is the difference of
             // neighbouring texels on the 0-255 scale (h · Normalizer), per texel — not per unit
@@ -263,8 +288,16 @@ fn perturbed_normal(map: &TextureMap, hit: &SurfaceHit, n: DVec3) -> DVec3 {
             // 40.6 dB (PSNR after the 4x4 box).
             let dhdu = (height(1.0 / w, 0.0) - h0) * *normalizer;
             let dhdv = (height(0.0, 1.0 / h) - h0) * *normalizer;
-            // The height displaces along the object-space normal: in world space that is
-            // `bump_axis`, so the relief keeps its proportions under (non-uniform) scaling.
+            // The height displaces along `bump_axis`. For meshes that is the object-space normal
+            // carried to world space (relief scales with the object: the floor of
+            // bump_mapping_transformed, scaled by -0.05, needs exactly that length — 0.04 or
+            // 0.06 instead fall to 45 / 50 dB). For spheres it is the unit world normal, with
+            // ∂p/∂u, ∂p/∂v still carried by the transformation: on the (-2, 1, 1)-scaled sphere
+            // of bump_mapping_transformed that takes 4.8 % of pixels off by >3 down to 0.24 %
+            // (box4 40.6 -> 52.1 dB); its length is sharp (0.9 or 1.1 give ~47 dB, 4 %). The
+            // handedness flip of the mirroring transforms needs nothing special: q_v × q_u is
+            // oriented to the side of `n` below, which is the mirror image of the object-space
+            // result.
             let axis = hit.bump_axis;
             let qu = hit.dpdu + map.bump_factor * dhdu * axis;
             let qv = hit.dpdv + map.bump_factor * dhdv * axis;
@@ -278,6 +311,44 @@ fn perturbed_normal(map: &TextureMap, hit: &SurfaceHit, n: DVec3) -> DVec3 {
     };
     let len = bent.length();
     if len > 1e-12 && len.is_finite() { bent / len } else { n }
+}
+
+/// Extent (Δu, Δv) in texture coordinates of a ray cone of width `cone` meeting the surface at
+/// `hit` along the unit direction `d`: the mip footprint of trilinear maps (see
+/// [`crate::texture::mip`]). The cone's cross-section is spanned by `e1`, the direction of the
+/// normal seen across the ray, and `e2 = d × e1`; projected along `d` onto the tangent plane
+/// they become `cone·(e1 − d (e1·n)/(d·n))` (stretched by 1/|cos θ|, at most 1000x) and
+/// `cone·e2`, the two (full-width) axes of an ellipse, which are expressed in ∂p/∂u, ∂p/∂v by
+/// least squares. (Δu, Δv) is the ellipse's bounding box in uv: `Δu = √(a1u² + a2u²)`, likewise Δv, so
+/// a circular footprint does not depend on how the cross-section axes happen to be turned. Zero
+/// where the surface has no usable parametrisation.
+fn uv_footprint(hit: &SurfaceHit, d: DVec3, cone: f64) -> DVec2 {
+    let (pu, pv) = (hit.dpdu, hit.dpdv);
+    let (uu, uv, vv) = (pu.dot(pu), pu.dot(pv), pv.dot(pv));
+    let det = uu * vv - uv * uv;
+    // Also false for NaN: a degenerate or broken parametrisation reads level 0.
+    let usable = det > 1e-12 * uu * vv;
+    if !usable || !cone.is_finite() || cone <= 0.0 {
+        return DVec2::ZERO;
+    }
+    let n = hit.geo_normal;
+    let cos = d.dot(n);
+    let across = n - d * cos;
+    let (e1, e2) = match across.try_normalize() {
+        Some(e1) => (e1, d.cross(e1)),
+        None => orthonormal_pair(d),
+    };
+    let cos = if cos.abs() < 1e-3 { 1e-3f64.copysign(cos) } else { cos };
+    let a1 = cone * (e1 - d * (e1.dot(n) / cos));
+    let a2 = cone * e2;
+    // Least squares a ≈ du·∂p/∂u + dv·∂p/∂v.
+    let to_uv = |a: DVec3| {
+        let (r1, r2) = (a.dot(pu), a.dot(pv));
+        DVec2::new((vv * r1 - uv * r2) / det, (uu * r2 - uv * r1) / det)
+    };
+    let (f1, f2) = (to_uv(a1), to_uv(a2));
+    let f = DVec2::new(f1.x.hypot(f2.x), f1.y.hypot(f2.y));
+    if f.is_finite() { f } else { DVec2::ZERO }
 }
 
 /// Unit tangent and bitangent of a surface point from ∂p/∂u and ∂p/∂v, made perpendicular to
@@ -315,7 +386,50 @@ fn glossy(r: DVec3, roughness: f64, rng: &mut SampleRng) -> DVec3 {
 
 #[cfg(test)]
 mod tests {
+    use super::{SurfaceHit, uv_footprint};
     use crate::assets::FsResolver;
+    use glam::{DVec2, DVec3};
+
+    /// A hit on the plane z = 0 (normal +z) with ∂p/∂u = (su, 0, 0), ∂p/∂v = (0, sv, 0).
+    fn plane_hit(su: f64, sv: f64) -> SurfaceHit {
+        SurfaceHit {
+            t: 1.0,
+            point: DVec3::ZERO,
+            geo_normal: DVec3::Z,
+            shading_normal: DVec3::Z,
+            material: 0,
+            instance: 0,
+            uv: DVec2::ZERO,
+            dpdu: DVec3::new(su, 0.0, 0.0),
+            dpdv: DVec3::new(0.0, sv, 0.0),
+            bump_axis: DVec3::Z,
+        }
+    }
+
+    #[test]
+    fn footprints_scale_with_the_cone_and_stretch_at_grazing_angles() {
+        let close = |a: DVec2, b: DVec2| (a - b).abs().max_element() < 1e-12;
+        // Head-on: a cone of width 0.1 covers 0.1 / |∂p/∂u| in u, 0.1 / |∂p/∂v| in v.
+        let hit = plane_hit(2.0, 4.0);
+        let f = uv_footprint(&hit, DVec3::NEG_Z, 0.1);
+        assert!(close(f, DVec2::new(0.05, 0.025)), "{f}");
+        assert!(close(uv_footprint(&hit, DVec3::NEG_Z, 0.2), 2.0 * f));
+        // 60° from the normal in the xz plane: stretched by 1 / cos 60° = 2 along u only.
+        let d = DVec3::new(60f64.to_radians().sin(), 0.0, -60f64.to_radians().cos());
+        let f = uv_footprint(&hit, d, 0.1);
+        assert!(close(f, DVec2::new(0.1, 0.025)), "{f}");
+        // Turned about the normal (∂p/∂u along the diagonal): a head-on circle stays a circle.
+        let mut turned = plane_hit(1.0, 1.0);
+        turned.dpdu = DVec3::new(1.0, 1.0, 0.0) / 2f64.sqrt();
+        turned.dpdv = DVec3::new(-1.0, 1.0, 0.0) / 2f64.sqrt();
+        assert!(close(uv_footprint(&turned, DVec3::NEG_Z, 0.1), DVec2::splat(0.1)));
+        // No parametrisation, no cone, grazing or garbage: finite.
+        assert_eq!(uv_footprint(&plane_hit(0.0, 1.0), DVec3::NEG_Z, 0.1), DVec2::ZERO);
+        assert_eq!(uv_footprint(&hit, DVec3::NEG_Z, 0.0), DVec2::ZERO);
+        assert_eq!(uv_footprint(&hit, DVec3::NEG_Z, f64::NAN), DVec2::ZERO);
+        assert!(uv_footprint(&hit, DVec3::X, 0.1).is_finite());
+        assert!(uv_footprint(&hit, DVec3::new(f64::NAN, 0.0, -1.0), 0.1).is_finite());
+    }
     use crate::render::{RenderSettings, TileRect, render_tile};
     use crate::scene::load_scene_str;
     use crate::scene::records::EnvSampler;

@@ -7,7 +7,8 @@
 //! * T = texel / Normalizer (default 255), then `degamma="true"` raises it to 2.2;
 //! * (u, v) = (0, 0) is the top-left texel; `replace_background` uses the raw texel at the pixel
 //!   centre u = (x + 0.5)/width, v = (y + 0.5)/height;
-//! * checkerboard and Perlin noise use the world-space hit point.
+//! * checkerboard and Perlin noise use the world-space hit point;
+//! * image bump maps on transformed spheres displace along the unit world normal.
 //!
 //! Each test writes its own tiny PNGs (a minimal stored-deflate encoder below) into a temporary
 //! directory and loads the scene text with an `FsResolver` pointing there.
@@ -481,6 +482,92 @@ fn bilinear_and_nearest_follow_the_lookup_formulas() {
     assert_close(got, formula / 255.0, 1e-5, "bilinear / 255");
 }
 
+/// A 2x2 quad at depth `depth` (x, y ∈ [−1, 1], z = −depth; u = (x + 1)/2 + 7/128,
+/// v = (1 − y)/2 + 7/128, so the axis point (0, 0) has uv (71/128, 71/128), texel point (35.5,
+/// 35.5) of a 64x64 image), seen from the origin by a `w` x `w` camera whose image plane
+/// (distance 1) spans ±`half`, showing `map`.
+fn far_quad(depth: f64, half: f64, w: u32, map: &str) -> String {
+    format!(
+        r#"<Scene>
+  <MaxRecursionDepth>0</MaxRecursionDepth>
+  <BackgroundColor>7 7 7</BackgroundColor>
+  {}
+  <Lights></Lights>
+  <Materials><Material id="1"><DiffuseReflectance>1 1 1</DiffuseReflectance></Material></Materials>
+  <Textures>{map}</Textures>
+  <VertexData>-1 1 -{depth}  -1 -1 -{depth}  1 -1 -{depth}  1 1 -{depth}</VertexData>
+  <TexCoordData>{o} {o}  {o} {p}  {p} {p}  {p} {o}</TexCoordData>
+  <Objects>
+    <Mesh id="1"><Material>1</Material><Textures>1</Textures><Faces>1 2 3  1 3 4</Faces></Mesh>
+  </Objects>
+</Scene>"#,
+        camera(-half, half, -half, half, w, w),
+        o = 7.0 / 128.0,
+        p = 1.0 + 7.0 / 128.0,
+    )
+}
+
+/// A `n` x `n` checkerboard of black and white squares of `cell` texels.
+fn checker(n: usize, cell: usize) -> Vec<[u8; 3]> {
+    (0..n * n)
+        .map(|k| if ((k % n) / cell + (k / n) / cell).is_multiple_of(2) { [0; 3] } else { [255; 3] })
+        .collect()
+}
+
+#[test]
+fn trilinear_is_bilinear_close_up_and_the_mean_far_away() {
+    // §11.5 trilinear: the mip level follows the pixel's footprint. On this quad seen head-on,
+    // a pixel of angular width p (= image-plane width / near distance 1) covers p·depth world
+    // units, p·depth/2 in u, i.e. 64·p·depth/2 texels of a 64-texel-wide image.
+    let stage = Stage::new("trilinear");
+    let map = |file: &str, interp: &str| {
+        image_map(
+            file,
+            "replace_all",
+            &format!("<Normalizer>1</Normalizer><Interpolation>{interp}</Interpolation>"),
+        )
+    };
+    // Close up, a pixel covers less than a texel: exactly the bilinear lookup (level 0), on a
+    // texture with distinct texels. 8x8 pixels of width 0.0025 at depth 2: 0.16 texels each.
+    let noise: Vec<[u8; 3]> = (0..64 * 64)
+        .map(|k: usize| [(k * 37 % 251) as u8, (k * 101 % 241) as u8, (k * 7 % 256) as u8])
+        .collect();
+    stage.png("noise.png", 64, 64, &noise);
+    let tri = render(&stage.scene(&far_quad(2.0, 0.01, 8, &map("noise.png", "trilinear"))));
+    let bil = render(&stage.scene(&far_quad(2.0, 0.01, 8, &map("noise.png", "bilinear"))));
+    assert_eq!(tri, bil, "magnified trilinear = bilinear");
+
+    // Far away, one pixel covers the whole 1-texel checkerboard: the mean, 127.5. Nearest still
+    // shows a single texel (bilinear happens to sit on a texel corner here, so it is grey too).
+    stage.png("checker.png", 64, 64, &checker(64, 1));
+    // Pixel width 0.02 at depth 100: 64 texels across -> λ = 6, the 1x1 level.
+    let far = |interp: &str| render(&stage.scene(&far_quad(100.0, 0.01, 1, &map("checker.png", interp))))[0];
+    assert_close(far("trilinear"), V3::splat(127.5), 1e-6, "far trilinear");
+    let v = far("nearest").x;
+    assert!(v == 0.0 || v == 255.0, "nearest aliases: {v}");
+
+    // Squares of 8 texels: the pixel centre, texel point (35.5, 35.5), is the middle of the
+    // black square (4, 4), which every level down to 8x8 (one texel per square, λ = 3) still
+    // resolves; from λ = 4 on (4x4: each texel averages 2x2 squares) it is grey, and in
+    // between the two levels mix linearly. At depth d a pixel of width 0.02 spans 0.64·d
+    // texels: λ = log2(0.64·d).
+    stage.png("squares.png", 64, 64, &checker(64, 8));
+    let at =
+        |depth: f64| render(&stage.scene(&far_quad(depth, 0.01, 1, &map("squares.png", "trilinear"))))[0].x;
+    let lambda = |l: f64| 2f64.powf(l) / 0.64;
+    for (depth, want) in [
+        (1.0, 0.0),                         // λ < 0: level 0
+        (lambda(2.5), 0.0),                 // levels 2 and 3, both black here
+        (lambda(3.0 + 0.25), 0.25 * 127.5), // a quarter of the way to level 4
+        (lambda(3.0 + 1.5f64.log2()), 127.5 * 1.5f64.log2()),
+        (lambda(4.0), 127.5),
+        (500.0, 127.5), // past the last level
+    ] {
+        let got = at(depth);
+        assert!((got - want).abs() < 1e-3, "depth {depth}: {got}, expected {want}");
+    }
+}
+
 #[test]
 fn uv_origin_is_the_top_left_texel() {
     // The 4x2 image on the quad: the quad's top-left corner region shows t(0, 0), its
@@ -687,6 +774,90 @@ fn normal_maps_bend_the_shading_normal_in_tangent_space() {
     );
     assert!((lit_below - predicted(below, Some(down_tilt))).abs() < 1e-3, "below: {lit_below}");
     assert!((lit_above - predicted(above, Some(down_tilt))).abs() < 1e-3, "above: {lit_above}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Bump mapping.
+
+/// A unit sphere at the origin under `transformations` (empty: none), seen by a 1x1 camera at
+/// `eye` looking along `gaze`, lit by one light at `light`; diffuse white, optionally bump-mapped
+/// (BumpFactor 0.05) by `ramp.png`. Returns the pixel's red channel.
+fn bumped_sphere(stage: &Stage, transformations: &str, eye: V3, gaze: V3, light: V3, bump: bool) -> f64 {
+    let (scaling, refs) = match transformations {
+        "" => (String::new(), String::new()),
+        s => (
+            format!("<Transformations><Scaling id=\"1\">{s}</Scaling></Transformations>"),
+            "<Transformations>s1</Transformations>".to_string(),
+        ),
+    };
+    let xml = format!(
+        r#"<Scene>
+  <MaxRecursionDepth>0</MaxRecursionDepth>
+  <Cameras><Camera id="1"><Position>{} {} {}</Position><Gaze>{} {} {}</Gaze><Up>0 1 0</Up>
+    <NearPlane>-0.01 0.01 -0.01 0.01</NearPlane><NearDistance>1</NearDistance>
+    <ImageResolution>1 1</ImageResolution><ImageName>t.png</ImageName></Camera></Cameras>
+  <Lights><PointLight id="1"><Position>{} {} {}</Position><Intensity>900 900 900</Intensity></PointLight></Lights>
+  <Materials><Material id="1"><DiffuseReflectance>1 1 1</DiffuseReflectance></Material></Materials>
+  <Textures>{}</Textures>
+  {scaling}
+  <VertexData>0 0 0</VertexData>
+  <Objects><Sphere id="1"><Material>1</Material>{}{refs}<Center>1</Center><Radius>1</Radius></Sphere></Objects>
+</Scene>"#,
+        eye.x,
+        eye.y,
+        eye.z,
+        gaze.x,
+        gaze.y,
+        gaze.z,
+        light.x,
+        light.y,
+        light.z,
+        image_map("ramp.png", "bump_normal", "<BumpFactor>0.05</BumpFactor>"),
+        if bump { "<Textures>1</Textures>" } else { "" },
+    );
+    render(&stage.scene(&xml))[0].x
+}
+
+#[test]
+fn bump_maps_on_mirrored_ellipsoids_displace_along_the_unit_world_normal() {
+    // bump_mapping_transformed (a sphere scaled by (-2, 1, 1)) settles this: the references bump
+    // a transformed sphere with ∂p/∂u, ∂p/∂v carried by the transformation but the height along
+    // the *unit* world normal, not along the object normal carried as a vector (length 2 where
+    // the x scale of 2 stretches it).
+    //
+    // The unit sphere's point (1, 0, 0) (u = v = 0.5) has T = ∂p/∂u = (0, 0, −2π),
+    // B = ∂p/∂v = (0, −π, 0), n = +x. Scaled by (−2, 1, 1) that object point lands at world
+    // (−2, 0, 0) with the same T and B (no x component) and normal −x. So the ellipsoid seen
+    // from −x with a light mirrored in x must shade like the plain sphere seen from +x: n·l is
+    // unchanged by the mirror as long as the tilt (slope / |T|, slope / |B|) is the same, which
+    // holds only if the height is not stretched by the x scale along the normal.
+    let stage = Stage::new("bump_mirrored");
+    // Grey ramp: height grows by 20 per texel along u and 10 per texel along v; (u, v) = (0.5,
+    // 0.5) is texel (2, 2) (or (1, 1) by rounding), whose +1 neighbours are inside the image.
+    let ramp: Vec<[u8; 3]> = (0..16)
+        .map(|k| {
+            let (x, y) = (k % 4, k / 4);
+            [(60 + 20 * x + 10 * y) as u8; 3]
+        })
+        .collect();
+    stage.png("ramp.png", 4, 4, &ramp);
+    let plain_eye = V3::new(5.0, 0.0, 0.0);
+    let plain_light = V3::new(3.0, 1.0, 0.5);
+    let mirrored_eye = V3::new(-6.0, 0.0, 0.0);
+    let mirrored_light = V3::new(-4.0, 1.0, 0.5);
+    let neg_x = V3::new(-1.0, 0.0, 0.0);
+    let plain = bumped_sphere(&stage, "", plain_eye, neg_x, plain_light, true);
+    let mirrored = bumped_sphere(&stage, "-2 1 1", mirrored_eye, V3::X, mirrored_light, true);
+    let unbumped = bumped_sphere(&stage, "", plain_eye, neg_x, plain_light, false);
+    let unbumped_mirrored = bumped_sphere(&stage, "-2 1 1", mirrored_eye, V3::X, mirrored_light, false);
+    // The geometry is mirrored exactly: without the bump map both shade alike.
+    assert!((unbumped - unbumped_mirrored).abs() < 1e-6 * unbumped, "{unbumped} vs {unbumped_mirrored}");
+    // The ramp bends the normal noticeably (149.6 -> 163.4; the test would tell nothing
+    // otherwise)...
+    assert!((plain - unbumped).abs() > 0.05 * unbumped, "bumped {plain} vs plain {unbumped}");
+    // ...and by the same amount on the mirrored ellipsoid. Displacing along the object normal
+    // carried as a vector (length 2 here) doubles the tilt and gives 169.0 instead.
+    assert!((mirrored - plain).abs() < 1e-6 * plain, "mirrored ellipsoid {mirrored} vs sphere {plain}");
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -92,9 +92,11 @@ pub struct SurfaceHit {
     /// World-space surface derivatives ∂p/∂u and ∂p/∂v (zero when the surface has no uvs).
     pub dpdu: DVec3,
     pub dpdv: DVec3,
-    /// The object-space unit shading normal carried to world space as a vector (not as a
-    /// normal): the direction and length a bump map's height displaces the surface by, so bumps
-    /// scale with their object like ∂p/∂u and ∂p/∂v do.
+    /// The direction and length a bump map's height displaces the surface by (§11.7), on the
+    /// side of `shading_normal`. Meshes: the object-space unit shading normal carried to world
+    /// space as a vector (not as a normal), so their bumps scale with the object like ∂p/∂u and
+    /// ∂p/∂v do. Spheres: the unit world shading normal, whatever the transformation — the
+    /// course references do it this way (see `perturbed_normal` for the figures).
     pub bump_axis: DVec3,
 }
 
@@ -309,6 +311,7 @@ impl Accel {
         // needed by objects that have texture maps: skip it on every other hit.
         let textured = inst.textures != ObjectTextures::default();
         let no_frame = (DVec2::ZERO, DVec3::ZERO, DVec3::ZERO);
+        let sphere = matches!(inst.shape, Shape::Sphere { .. });
         let (t, n_geo, n_shade, (uv, dpdu, dpdv)) = match &inst.shape {
             Shape::Sphere { center, radius } => {
                 let p = local.at(c.t);
@@ -354,7 +357,15 @@ impl Accel {
             uv,
             dpdu,
             dpdv,
-            bump_axis: if bump_axis.dot(shading_normal) < 0.0 { -bump_axis } else { bump_axis },
+            // Measured (bump_mapping_transformed): a transformed mesh's relief scales with the
+            // object (axis M·n_obj), a transformed sphere's does not (the unit world normal).
+            bump_axis: if sphere {
+                shading_normal
+            } else if bump_axis.dot(shading_normal) < 0.0 {
+                -bump_axis
+            } else {
+                bump_axis
+            },
         }
     }
 }

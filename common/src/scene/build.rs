@@ -21,6 +21,7 @@ use crate::material::Material;
 use crate::math::{Transform, v3};
 use crate::texture::image::TextureImage;
 use crate::texture::maps::{Source, TextureMap};
+use crate::texture::mip::MipChain;
 
 /// Largest image we agree to render (a float frame of this size is 3 GiB).
 const MAX_IMAGE_SIDE: u32 = 65_536;
@@ -388,6 +389,20 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
         let (path, img) = d?;
         by_path.insert(path, img);
     }
+    // Mip pyramids (§11.5) for the images that trilinear maps read, each built once.
+    let mut trilinear_paths: Vec<&str> = Vec::new();
+    for m in &rec.texture_maps {
+        if let TextureSource::Image { image, interpolation: Interpolation::Trilinear, .. } = &m.source {
+            let path = image_recs[image.as_str()].path.as_str();
+            if !trilinear_paths.contains(&path) {
+                trilinear_paths.push(path);
+            }
+        }
+    }
+    let mips: HashMap<&str, Arc<MipChain>> = trilinear_paths
+        .par_iter()
+        .map(|&path| (path, Arc::new(MipChain::new(by_path[path].clone()))))
+        .collect();
     let env_light = rec
         .env_lights
         .first()
@@ -402,6 +417,10 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
                 }
                 Source::Image {
                     image: by_path[path].clone(),
+                    mips: match interpolation {
+                        Interpolation::Trilinear => mips.get(path.as_str()).cloned(),
+                        _ => None,
+                    },
                     interpolation: *interpolation,
                     normalizer: *normalizer,
                 }

@@ -133,6 +133,14 @@ impl TextureImage {
     #[inline]
     pub fn bilinear(&self, u: f64, v: f64) -> [f64; 3] {
         let (i, j) = texel_space(wrap01(u), wrap01(v), self.width, self.height);
+        self.bilinear_texel(i, j)
+    }
+
+    /// The bilinear weighting of [`TextureImage::bilinear`] at continuous texel coordinates
+    /// `(i, j)` (texel `(p, q)` has its full weight at `(p, q)`), neighbours clamped at the
+    /// border; mip levels use it with their alignment shift (see `texture::mip`).
+    #[inline]
+    pub fn bilinear_texel(&self, i: f64, j: f64) -> [f64; 3] {
         let (p, q) = (floor_index(i), floor_index(j));
         let (dx, dy) = (i - p as f64, j - q as f64);
         let w = self.width as usize;
@@ -172,7 +180,7 @@ impl TextureImage {
 /// decide (calibrate with sphere_nearest_bilinear and cube_wall), so a different choice is a
 /// one-line change here. Both lookups clamp whatever this returns, so any shift stays safe.
 #[inline(always)]
-fn texel_space(u: f64, v: f64, width: u32, height: u32) -> (f64, f64) {
+pub(crate) fn texel_space(u: f64, v: f64, width: u32, height: u32) -> (f64, f64) {
     (u * f64::from(width), v * f64::from(height))
 }
 
@@ -181,7 +189,7 @@ fn texel_space(u: f64, v: f64, width: u32, height: u32) -> (f64, f64) {
 /// uvs, where the integer floor saturates) land outside [0, 1) — all become 0, so lookups always
 /// return finite texel values.
 #[inline(always)]
-fn wrap01(t: f64) -> f64 {
+pub(crate) fn wrap01(t: f64) -> f64 {
     let f = t - floor_index(t) as f64;
     if (0.0..1.0).contains(&f) { f } else { 0.0 }
 }

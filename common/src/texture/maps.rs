@@ -6,14 +6,30 @@ use std::sync::Arc;
 use glam::{DVec2, DVec3};
 
 use super::image::TextureImage;
+use super::mip::MipChain;
 use crate::scene::records::{DecalMode, Interpolation, NoiseConversion};
 
 /// Where a map's values come from.
 #[derive(Clone, Debug)]
 pub enum Source {
-    Image { image: Arc<TextureImage>, interpolation: Interpolation, normalizer: f64 },
-    Perlin { conversion: NoiseConversion, scale: f64 },
-    Checkerboard { black: DVec3, white: DVec3, scale: f64, offset: f64 },
+    /// `mips` is the image's pyramid, built at scene build when `interpolation` is trilinear
+    /// (`None` otherwise; a trilinear map without one reads bilinear).
+    Image {
+        image: Arc<TextureImage>,
+        mips: Option<Arc<MipChain>>,
+        interpolation: Interpolation,
+        normalizer: f64,
+    },
+    Perlin {
+        conversion: NoiseConversion,
+        scale: f64,
+    },
+    Checkerboard {
+        black: DVec3,
+        white: DVec3,
+        scale: f64,
+        offset: f64,
+    },
 }
 
 /// A texture map ready for shading.
@@ -32,14 +48,30 @@ pub struct TexturePoint {
     pub uv: DVec2,
     /// World-space position (Perlin noise and checkerboards are solid textures, §11.9-11.10).
     pub world: DVec3,
+    /// Extent of the pixel's footprint on the surface in texture coordinates (Δu, Δv): picks
+    /// the mip level of trilinear maps (zero: level 0). See [`crate::texture::mip`].
+    pub footprint: DVec2,
 }
 
 impl TextureMap {
-    /// Raw image texel value at `uv` through the map's interpolation, before normalising.
-    fn image_raw(image: &TextureImage, interpolation: Interpolation, uv: DVec2) -> DVec3 {
-        let t = match interpolation {
-            Interpolation::Nearest => image.nearest(uv.x, uv.y),
-            Interpolation::Bilinear | Interpolation::Trilinear => image.bilinear(uv.x, uv.y),
+    /// Whether lookups depend on [`TexturePoint::footprint`] (trilinear image maps).
+    pub fn needs_footprint(&self) -> bool {
+        matches!(self.source, Source::Image { interpolation: Interpolation::Trilinear, .. })
+    }
+
+    /// Raw image texel value at `uv` through the map's interpolation, before normalising;
+    /// `footprint` (Δu, Δv) only matters to trilinear maps.
+    fn image_raw(
+        image: &TextureImage,
+        mips: Option<&MipChain>,
+        interpolation: Interpolation,
+        uv: DVec2,
+        footprint: DVec2,
+    ) -> DVec3 {
+        let t = match (interpolation, mips) {
+            (Interpolation::Nearest, _) => image.nearest(uv.x, uv.y),
+            (Interpolation::Trilinear, Some(m)) => m.trilinear(uv.x, uv.y, footprint),
+            (Interpolation::Bilinear | Interpolation::Trilinear, _) => image.bilinear(uv.x, uv.y),
         };
         DVec3::from_array(t)
     }
@@ -48,8 +80,8 @@ impl TextureMap {
     /// or checkerboard colour; degamma applied.
     pub fn value(&self, p: &TexturePoint) -> DVec3 {
         let v = match &self.source {
-            Source::Image { image, interpolation, normalizer } => {
-                Self::image_raw(image, *interpolation, p.uv) / *normalizer
+            Source::Image { image, mips, interpolation, normalizer } => {
+                Self::image_raw(image, mips.as_deref(), *interpolation, p.uv, p.footprint) / *normalizer
             }
             Source::Perlin { conversion, scale } => DVec3::splat(perlin_value(p.world * *scale, *conversion)),
             Source::Checkerboard { black, white, scale, offset } => {
@@ -63,19 +95,22 @@ impl TextureMap {
     }
 
     /// Background value for screen position `uv` (§11.8): the raw texel, no normaliser.
-    pub fn background(&self, uv: DVec2) -> DVec3 {
+    /// `footprint` is one pixel's extent in uv, (1/width, 1/height) of the frame.
+    pub fn background(&self, uv: DVec2, footprint: DVec2) -> DVec3 {
         match &self.source {
-            Source::Image { image, interpolation, .. } => Self::image_raw(image, *interpolation, uv),
-            _ => self.value(&TexturePoint { uv, world: DVec3::new(uv.x, uv.y, 0.0) }),
+            Source::Image { image, mips, interpolation, .. } => {
+                Self::image_raw(image, mips.as_deref(), *interpolation, uv, footprint)
+            }
+            _ => self.value(&TexturePoint { uv, world: DVec3::new(uv.x, uv.y, 0.0), footprint }),
         }
     }
 
     /// A tangent-space normal from a normal map (`replace_normal`, §11.6a): texel/255 mapped
     /// to [-1, 1]. `None` for maps that are not images.
-    pub fn tangent_normal(&self, uv: DVec2) -> Option<DVec3> {
+    pub fn tangent_normal(&self, uv: DVec2, footprint: DVec2) -> Option<DVec3> {
         match &self.source {
-            Source::Image { image, interpolation, .. } => {
-                let t = Self::image_raw(image, *interpolation, uv) / 255.0;
+            Source::Image { image, mips, interpolation, .. } => {
+                let t = Self::image_raw(image, mips.as_deref(), *interpolation, uv, footprint) / 255.0;
                 Some(t * 2.0 - DVec3::ONE)
             }
             _ => None,
@@ -84,17 +119,22 @@ impl TextureMap {
 }
 
 /// Height of an image bump map: mean of R, G, B over the Normalizer, looked up with the map's
-/// interpolation at `uv` offset by (du, dv).
-pub fn image_height(
-    image: &TextureImage,
-    interpolation: Interpolation,
-    normalizer: f64,
-    uv: DVec2,
-    du: f64,
-    dv: f64,
-) -> f64 {
-    let t = TextureMap::image_raw(image, interpolation, uv + DVec2::new(du, dv));
-    (t.x + t.y + t.z) / 3.0 / normalizer
+/// interpolation at `p.uv` offset by (du, dv). A trilinear map reads the level of
+/// `p.footprint`, so its slopes are those of the filtered height field.
+pub fn image_height(source: &Source, p: &TexturePoint, du: f64, dv: f64) -> f64 {
+    match source {
+        Source::Image { image, mips, interpolation, normalizer } => {
+            let t = TextureMap::image_raw(
+                image,
+                mips.as_deref(),
+                *interpolation,
+                p.uv + DVec2::new(du, dv),
+                p.footprint,
+            );
+            (t.x + t.y + t.z) / 3.0 / normalizer
+        }
+        _ => 0.0,
+    }
 }
 
 /// The course's checkerboard (§11.10): C-style truncation and remainder, world-space point.
