@@ -70,6 +70,80 @@ impl AssetResolver for FsResolver {
     }
 }
 
+/// Resolves assets inside an in-memory bundle (an uploaded job): `files` maps normalised
+/// relative paths (`ply/head.ply`, `/`-separated, no `.` or `..`) to bytes, and `base` is the
+/// scene file's directory inside the bundle ("" for the top). Paths that would leave the bundle
+/// are not found. Like [`FsResolver`], a path that is not found as written is retried with its
+/// leading components stripped one at a time.
+#[derive(Clone, Debug, Default)]
+pub struct MemResolver {
+    pub files: std::collections::HashMap<String, std::sync::Arc<Vec<u8>>>,
+    pub base: String,
+}
+
+/// `path` with `.` and `..` resolved and `\` read as `/`; `None` if it is absolute or leaves the
+/// top directory.
+pub fn normalize_bundle_path(path: &str) -> Option<String> {
+    let unified = path.replace('\\', "/");
+    if unified.starts_with('/') || unified.contains(':') {
+        return None;
+    }
+    let mut parts: Vec<&str> = Vec::new();
+    for part in unified.split('/') {
+        match part {
+            "" | "." => {}
+            ".." => {
+                parts.pop()?;
+            }
+            p => parts.push(p),
+        }
+    }
+    if parts.is_empty() { None } else { Some(parts.join("/")) }
+}
+
+impl MemResolver {
+    /// A resolver for the scene at `scene_path` (a normalised bundle path).
+    pub fn for_scene(
+        files: std::collections::HashMap<String, std::sync::Arc<Vec<u8>>>,
+        scene_path: &str,
+    ) -> Self {
+        let base = match scene_path.rfind('/') {
+            Some(i) => scene_path[..i].to_string(),
+            None => String::new(),
+        };
+        MemResolver { files, base }
+    }
+
+    fn candidates(&self, rel: &str) -> Vec<String> {
+        let joined = if self.base.is_empty() { rel.to_string() } else { format!("{}/{rel}", self.base) };
+        let mut out: Vec<String> = normalize_bundle_path(&joined).into_iter().collect();
+        out.extend(normalize_bundle_path(rel));
+        let parts: Vec<&str> = rel.split(['/', '\\']).filter(|p| !p.is_empty()).collect();
+        for skip in 1..parts.len() {
+            let tail = parts[skip..].join("/");
+            let joined = if self.base.is_empty() { tail } else { format!("{}/{tail}", self.base) };
+            out.extend(normalize_bundle_path(&joined));
+        }
+        out
+    }
+}
+
+impl AssetResolver for MemResolver {
+    fn read(&self, rel: &str) -> io::Result<(Vec<u8>, PathBuf)> {
+        for cand in self.candidates(rel) {
+            if let Some(bytes) = self.files.get(&cand) {
+                return Ok((bytes.as_ref().clone(), PathBuf::from(cand)));
+            }
+        }
+        Err(io::Error::new(io::ErrorKind::NotFound, "not in the uploaded files"))
+    }
+
+    fn display_path(&self, rel: &str) -> PathBuf {
+        let joined = if self.base.is_empty() { rel.to_string() } else { format!("{}/{rel}", self.base) };
+        PathBuf::from(normalize_bundle_path(&joined).unwrap_or(joined))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -84,5 +158,24 @@ mod tests {
         assert_eq!(r.read("assets/ply/x.ply").unwrap().0, b"abc");
         assert!(r.read("ply/missing.ply").is_err());
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn bundle_paths_are_normalised_and_cannot_escape() {
+        assert_eq!(normalize_bundle_path("a/./b/../c.ply").as_deref(), Some("a/c.ply"));
+        assert_eq!(normalize_bundle_path("a\\b.ply").as_deref(), Some("a/b.ply"));
+        for bad in ["../x", "a/../../x", "/etc/passwd", "C:/x", "", "."] {
+            assert_eq!(normalize_bundle_path(bad), None, "{bad}");
+        }
+        let mut files = std::collections::HashMap::new();
+        files.insert("scenes/ply/x.ply".to_string(), std::sync::Arc::new(b"abc".to_vec()));
+        files.insert("top.txt".to_string(), std::sync::Arc::new(b"t".to_vec()));
+        let r = MemResolver::for_scene(files, "scenes/a.xml");
+        assert_eq!(r.read("ply/x.ply").unwrap().0, b"abc");
+        assert_eq!(r.read("assets/ply/x.ply").unwrap().0, b"abc");
+        assert_eq!(r.read("../top.txt").unwrap().0, b"t");
+        assert!(r.read("../../top.txt").is_err());
+        assert!(r.read("ply/missing.ply").is_err());
+        assert_eq!(r.display_path("ply/missing.ply"), PathBuf::from("scenes/ply/missing.ply"));
     }
 }

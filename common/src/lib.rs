@@ -19,6 +19,7 @@ pub mod material;
 pub mod math;
 pub mod output;
 pub mod ply;
+pub mod protocol;
 pub mod render;
 pub mod sampler;
 pub mod scene;

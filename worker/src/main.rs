@@ -2,7 +2,9 @@
 //!
 //! `render` renders a scene file on this machine, like the course's `./raytracer scene.xml`;
 //! `tonemap` turns an HDR image (OpenEXR or Radiance HDR) into a PNG with the course's
-//! photographic operator. (Pulling tiles from a farm server arrives with the farm.)
+//! photographic operator; `work` pulls tiles from a `tessera-server` farm (`farm.rs`).
+
+mod farm;
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -75,6 +77,31 @@ enum Command {
         #[arg(long, short)]
         quiet: bool,
     },
+    /// Pull tiles from a tessera-server and render them, until stopped.
+    ///
+    /// Registers with the server, then long-polls for tiles (one fetched ahead while the
+    /// current one renders), fetches each job's scene bundle once, renders with every core (or
+    /// --threads) and uploads the float pixels. Heartbeats keep its leases alive; if it dies,
+    /// its tiles go back to the queue by themselves.
+    ///
+    /// Example: tessera-worker work --server http://farm.example:8080 --token "$TOKEN"
+    Work {
+        /// The server's base URL.
+        #[arg(long, env = "TESSERA_SERVER", value_name = "URL")]
+        server: String,
+        /// The farm's worker token (tessera-server --worker-token).
+        #[arg(long, env = "TESSERA_WORKER_TOKEN", value_name = "TOKEN", hide_env_values = true)]
+        token: String,
+        /// A name for logs and the status page (default: host name and process id).
+        #[arg(long, value_name = "NAME")]
+        name: Option<String>,
+        /// Render threads; default: every core.
+        #[arg(long, short = 'j', value_name = "N")]
+        threads: Option<usize>,
+        /// Exit after rendering this many tiles (for tests and benchmarks).
+        #[arg(long, value_name = "N", hide = true)]
+        max_tiles: Option<u64>,
+    },
     /// Tone-map an HDR image (OpenEXR or Radiance .hdr) to an 8-bit PNG.
     ///
     /// Uses the course's photographic operator (Reinhard et al. 2002, global; scene-format.md
@@ -124,6 +151,17 @@ enum Command {
     },
 }
 
+/// The host name (from /etc/hostname or $HOSTNAME) and the process id.
+fn default_worker_name() -> String {
+    let host = std::fs::read_to_string("/etc/hostname")
+        .ok()
+        .map(|h| h.trim().to_string())
+        .filter(|h| !h.is_empty())
+        .or_else(|| std::env::var("HOSTNAME").ok())
+        .unwrap_or_else(|| "worker".into());
+    format!("{host}-{}", std::process::id())
+}
+
 /// `--env-sampling` values.
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum EnvSampling {
@@ -148,6 +186,14 @@ fn main() -> ExitCode {
         Command::Render { scene, out, threads, camera, tile_size, samples, env_sampling, quiet } => {
             let env_sampling = env_sampling.map(EnvSampling::into);
             render(&scene, &out, &Options { threads, camera, tile_size, samples, env_sampling, quiet })
+        }
+        Command::Work { server, token, name, threads, max_tiles } => {
+            if threads == Some(0) {
+                eprintln!("error: --threads must be at least 1");
+                return ExitCode::FAILURE;
+            }
+            let name = name.unwrap_or_else(default_worker_name);
+            farm::work(farm::WorkOptions { server, token, name, threads, max_tiles })
         }
         Command::Tonemap { input, out, scene, camera, key, burn, saturation, gamma } => {
             tonemap_params(scene.as_deref(), camera).and_then(|base| {

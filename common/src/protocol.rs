@@ -1,0 +1,268 @@
+//! The wire types of the farm: the job API (`/api/v1/jobs...`) and the worker protocol
+//! (`/api/v1/worker/...`), serialised as JSON, plus the binary tile format.
+//!
+//! Only these types derive `Serialize`/`Deserialize`; the tracer's own types never travel.
+//!
+//! Worker protocol, in order:
+//! 1. `POST /api/v1/worker/register` [`RegisterRequest`] → [`RegisterResponse`].
+//! 2. `POST /api/v1/worker/lease` [`LeaseRequest`] (a long poll: the server answers as soon as
+//!    a tile is free, or after `wait_seconds` with 204 No Content) → [`Lease`].
+//! 3. `GET /api/v1/worker/bundles/{sha256}`: the job's files as a tar archive, fetched once per
+//!    job and cached by the worker (content-addressed, so it never changes).
+//! 4. While rendering, `POST /api/v1/worker/heartbeat` [`HeartbeatRequest`] every
+//!    `heartbeat_seconds` renews the deadlines of the worker's leases (from a thread of its own
+//!    that rendering cannot starve) → [`HeartbeatResponse`] lists leases the server revoked.
+//! 5. `PUT /api/v1/worker/leases/{lease}/result`: the tile as [`encode_tile`] bytes with the
+//!    header [`CHECKSUM_HEADER`] = [`checksum`] of the body. Accepted once; a lease that expired
+//!    or was revoked gets 409 Conflict and the worker drops the tile. Or
+//!    `POST /api/v1/worker/leases/{lease}/fail` [`FailRequest`] when the tile cannot be rendered.
+//!
+//! Every worker request carries `Authorization: Bearer <worker token>`.
+
+use serde::{Deserialize, Serialize};
+
+/// Header carrying the checksum of a tile upload.
+pub const CHECKSUM_HEADER: &str = "x-tessera-checksum";
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RegisterRequest {
+    /// A name for logs and the status page (host name and process id by default).
+    pub name: String,
+    /// Render threads the worker uses.
+    pub threads: u32,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RegisterResponse {
+    pub worker_id: u64,
+    /// How often to send heartbeats.
+    pub heartbeat_seconds: f64,
+    /// How long a lease lives without a heartbeat.
+    pub lease_seconds: f64,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LeaseRequest {
+    pub worker_id: u64,
+    /// How long the server may hold the request open waiting for work (it caps this).
+    pub wait_seconds: f64,
+}
+
+/// A pixel rectangle of a frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Rect {
+    pub x0: u32,
+    pub y0: u32,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// One tile to render, owned by one worker until its deadline.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Lease {
+    pub lease_id: u64,
+    pub job_id: u64,
+    /// Index of the camera in the scene file (0-based).
+    pub camera: u32,
+    pub tile: u32,
+    pub rect: Rect,
+    /// SHA-256 (hex) of the job's bundle: fetch it once, cache the built scene by it.
+    pub bundle: String,
+    /// The scene file's path inside the bundle.
+    pub scene_path: String,
+    /// Samples per pixel instead of the camera's NumSamples (the job's option).
+    pub samples: Option<u32>,
+    /// Seconds until the lease expires unless a heartbeat renews it.
+    pub lease_seconds: f64,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HeartbeatRequest {
+    pub worker_id: u64,
+    /// The leases the worker holds (rendering or prefetched).
+    pub leases: Vec<u64>,
+    /// What the worker is doing, for the status page.
+    pub rendering: Option<u64>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HeartbeatResponse {
+    /// Leases the worker no longer owns (expired, cancelled job): drop their work.
+    pub revoked: Vec<u64>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FailRequest {
+    pub worker_id: u64,
+    pub error: String,
+}
+
+/// A problem with a submitted scene or bundle, as precise as the parser knows it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Problem {
+    pub file: Option<String>,
+    pub line: Option<u32>,
+    pub element: Option<String>,
+    pub message: String,
+}
+
+/// Every error response of the API: `{"error": ..., "problems": [...]}`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ApiError {
+    pub error: String,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub problems: Vec<Problem>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum JobState {
+    Queued,
+    Running,
+    Done,
+    Failed,
+    Canceled,
+}
+
+impl JobState {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            JobState::Queued => "queued",
+            JobState::Running => "running",
+            JobState::Done => "done",
+            JobState::Failed => "failed",
+            JobState::Canceled => "canceled",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<JobState> {
+        Some(match s {
+            "queued" => JobState::Queued,
+            "running" => JobState::Running,
+            "done" => JobState::Done,
+            "failed" => JobState::Failed,
+            "canceled" => JobState::Canceled,
+            _ => return None,
+        })
+    }
+
+    /// Finished one way or another: no more tiles will be handed out.
+    pub fn is_final(self) -> bool {
+        matches!(self, JobState::Done | JobState::Failed | JobState::Canceled)
+    }
+}
+
+/// A frame (one camera) of a job.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FrameInfo {
+    pub index: u32,
+    pub camera: u32,
+    pub image_name: String,
+    pub width: u32,
+    pub height: u32,
+    pub tiles_total: u32,
+    pub tiles_done: u32,
+    /// Output files once the frame is merged, with their download URLs.
+    pub outputs: Vec<OutputInfo>,
+    /// A PNG of the tiles that have arrived (black elsewhere).
+    pub preview_url: String,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct OutputInfo {
+    pub name: String,
+    pub url: String,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JobInfo {
+    pub id: u64,
+    pub name: String,
+    pub state: JobState,
+    pub priority: i64,
+    pub tile_size: u32,
+    pub samples: Option<u32>,
+    /// Unix seconds.
+    pub submitted_at: f64,
+    pub started_at: Option<f64>,
+    pub finished_at: Option<f64>,
+    pub frames: Vec<FrameInfo>,
+    pub error: Option<String>,
+    pub url: String,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JobList {
+    pub jobs: Vec<JobInfo>,
+}
+
+/// A tile's pixels on the wire: width·height RGB triples of little-endian `f32`, row-major.
+pub fn encode_tile(px: &[[f32; 3]]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(px.len() * 12);
+    for p in px {
+        for c in p {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    out
+}
+
+/// The inverse of [`encode_tile`]; `None` unless `bytes` holds exactly `pixels` pixels.
+pub fn decode_tile(bytes: &[u8], pixels: usize) -> Option<Vec<[f32; 3]>> {
+    if bytes.len() != pixels.checked_mul(12)? {
+        return None;
+    }
+    Some(
+        bytes
+            .chunks_exact(12)
+            .map(|b| {
+                let f = |i: usize| f32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
+                [f(0), f(4), f(8)]
+            })
+            .collect(),
+    )
+}
+
+/// FNV-1a (64-bit) of `bytes` as 16 hex digits: detects a tile damaged on the way.
+pub fn checksum(bytes: &[u8]) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in bytes {
+        h ^= u64::from(*b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    format!("{h:016x}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tiles_round_trip_bit_exact() {
+        let px = vec![[1.0, -2.5, f32::INFINITY], [f32::MIN_POSITIVE, 0.0, 1e30]];
+        let bytes = encode_tile(&px);
+        assert_eq!(bytes.len(), 24);
+        assert_eq!(decode_tile(&bytes, 2).unwrap(), px);
+        assert_eq!(decode_tile(&bytes, 3), None);
+        assert_eq!(decode_tile(&bytes[..23], 2), None);
+        // NaN bits survive too.
+        let nan = encode_tile(&[[f32::NAN; 3]]);
+        assert!(decode_tile(&nan, 1).unwrap()[0][0].is_nan());
+    }
+
+    #[test]
+    fn checksum_is_fnv1a() {
+        // Published FNV-1a 64 test vectors.
+        assert_eq!(checksum(b""), "cbf29ce484222325");
+        assert_eq!(checksum(b"a"), "af63dc4c8601ec8c");
+        assert_ne!(checksum(b"ab"), checksum(b"ba"));
+    }
+
+    #[test]
+    fn job_states_round_trip() {
+        for s in [JobState::Queued, JobState::Running, JobState::Done, JobState::Failed, JobState::Canceled] {
+            assert_eq!(JobState::parse(s.as_str()), Some(s));
+            assert_eq!(serde_json::to_string(&s).unwrap(), format!("\"{}\"", s.as_str()));
+        }
+    }
+}

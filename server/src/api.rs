@@ -1,0 +1,863 @@
+//! The HTTP API: the job API for people (curl, the web page) and the worker protocol
+//! (`tessera::protocol`), both JSON under `/api/v1`, plus `/healthz` and `/metrics`.
+//!
+//! [`app`] builds the router from an [`AppState`]; handlers do database work under a short
+//! mutex and push CPU work (scene validation, merging, tone mapping, PNG encoding) to
+//! `spawn_blocking`. Every error is an [`AppError`] answered as `{"error", "problems"}` JSON with
+//! a fitting status; internal details go to the log, not to the client.
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+
+use axum::body::Bytes;
+use axum::extract::{DefaultBodyLimit, Multipart, Path, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post, put};
+use axum::{Json, Router};
+use tessera::assets::MemResolver;
+use tessera::camera::Camera;
+use tessera::protocol::*;
+use tessera::scene::build::build_scene;
+use tessera::scene::parse_scene;
+use tokio::sync::Notify;
+
+use crate::bundle::{self, BlobStore, Files};
+use crate::db::{FailOutcome, ResultOutcome, Store};
+use crate::merge;
+
+/// Settings the handlers need.
+#[derive(Clone, Debug)]
+pub struct Settings {
+    pub data_dir: PathBuf,
+    pub tile_size: u32,
+    /// `None`: the job API is open (loopback only; `main` enforces that).
+    pub api_token: Option<String>,
+    pub worker_token: String,
+    pub lease_seconds: f64,
+    pub heartbeat_seconds: f64,
+    /// Longest a lease request is held open.
+    pub max_wait_seconds: f64,
+    pub max_upload_bytes: usize,
+}
+
+/// Counters that are not in the database.
+#[derive(Default)]
+pub struct Counters {
+    pub lease_expiries: AtomicU64,
+    pub results_refused: AtomicU64,
+}
+
+#[derive(Clone)]
+pub struct AppState {
+    pub store: Arc<Store>,
+    pub blobs: BlobStore,
+    pub settings: Arc<Settings>,
+    /// Woken when tiles become available (a job submitted, a lease expired, a tile failed).
+    pub work: Arc<Notify>,
+    pub counters: Arc<Counters>,
+    /// Built cameras per job (parsed once from the bundle), for merging and previews.
+    pub cameras: Arc<std::sync::Mutex<HashMap<u64, Arc<Vec<Camera>>>>>,
+}
+
+impl AppState {
+    pub fn outputs_dir(&self, job: u64) -> PathBuf {
+        self.settings.data_dir.join("outputs").join(job.to_string())
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Errors
+// ---------------------------------------------------------------------------------------------
+
+#[derive(Debug)]
+pub struct AppError {
+    pub status: StatusCode,
+    pub body: ApiError,
+}
+
+impl AppError {
+    pub fn new(status: StatusCode, message: impl Into<String>) -> Self {
+        AppError { status, body: ApiError { error: message.into(), problems: Vec::new() } }
+    }
+    fn bad_request(message: impl Into<String>) -> Self {
+        Self::new(StatusCode::BAD_REQUEST, message)
+    }
+    fn not_found(message: impl Into<String>) -> Self {
+        Self::new(StatusCode::NOT_FOUND, message)
+    }
+}
+
+impl From<anyhow::Error> for AppError {
+    fn from(e: anyhow::Error) -> Self {
+        tracing::error!("internal error: {e:#}");
+        AppError::new(StatusCode::INTERNAL_SERVER_ERROR, "internal error; see the server log")
+    }
+}
+
+impl IntoResponse for AppError {
+    fn into_response(self) -> Response {
+        (self.status, Json(self.body)).into_response()
+    }
+}
+
+type ApiResult<T> = Result<T, AppError>;
+
+// ---------------------------------------------------------------------------------------------
+// Router
+// ---------------------------------------------------------------------------------------------
+
+pub fn app(state: AppState) -> Router {
+    let jobs = Router::new()
+        .route("/api/v1/jobs", post(submit_job).get(list_jobs))
+        .route("/api/v1/jobs/{id}", get(show_job))
+        .route("/api/v1/jobs/{id}/cancel", post(cancel_job))
+        .route("/api/v1/jobs/{id}/frames/{frame}/preview.png", get(frame_preview))
+        .route("/api/v1/jobs/{id}/frames/{frame}/files/{name}", get(frame_file))
+        .route("/api/v1/workers", get(list_workers))
+        .route_layer(axum::middleware::from_fn_with_state(state.clone(), require_api_token));
+    let workers = Router::new()
+        .route("/api/v1/worker/register", post(register))
+        .route("/api/v1/worker/lease", post(lease))
+        .route("/api/v1/worker/heartbeat", post(heartbeat))
+        .route("/api/v1/worker/leases/{lease}/result", put(result))
+        .route("/api/v1/worker/leases/{lease}/fail", post(fail))
+        .route("/api/v1/worker/bundles/{hash}", get(get_bundle))
+        .route_layer(axum::middleware::from_fn_with_state(state.clone(), require_worker_token));
+    let limit = state.settings.max_upload_bytes;
+    Router::new()
+        .route("/healthz", get(|| async { "ok\n" }))
+        .route("/metrics", get(metrics))
+        .merge(jobs)
+        .merge(workers)
+        .fallback(|| async {
+            AppError::not_found("no such endpoint; the API lives under /api/v1 (see the README)")
+        })
+        .layer(DefaultBodyLimit::max(limit))
+        .with_state(state)
+}
+
+fn bearer(headers: &HeaderMap) -> Option<&str> {
+    headers.get(header::AUTHORIZATION)?.to_str().ok()?.strip_prefix("Bearer ").map(str::trim)
+}
+
+/// Constant-time comparison, so a token cannot be guessed byte by byte from response times.
+fn same_token(a: &str, b: &str) -> bool {
+    a.len() == b.len() && a.bytes().zip(b.bytes()).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+async fn require_api_token(
+    State(state): State<AppState>,
+    req: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    if let Some(token) = &state.settings.api_token {
+        match bearer(req.headers()) {
+            Some(t) if same_token(t, token) => {}
+            Some(_) => return AppError::new(StatusCode::UNAUTHORIZED, "wrong API token").into_response(),
+            None => {
+                return AppError::new(
+                    StatusCode::UNAUTHORIZED,
+                    "this server needs an API token: send the header \"Authorization: Bearer <token>\"",
+                )
+                .into_response();
+            }
+        }
+    }
+    next.run(req).await
+}
+
+async fn require_worker_token(
+    State(state): State<AppState>,
+    req: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    match bearer(req.headers()) {
+        Some(t) if same_token(t, &state.settings.worker_token) => next.run(req).await,
+        _ => AppError::new(StatusCode::UNAUTHORIZED, "missing or wrong worker token").into_response(),
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Jobs
+// ---------------------------------------------------------------------------------------------
+
+/// Options of a submission (multipart text fields).
+#[derive(Default)]
+struct SubmitOptions {
+    name: Option<String>,
+    priority: i64,
+    tile_size: Option<u32>,
+    samples: Option<u32>,
+    cameras: Option<Vec<u32>>,
+    scene_path: Option<String>,
+}
+
+fn problem_from(e: &tessera::SceneError) -> Problem {
+    Problem {
+        file: Some(e.file.display().to_string()),
+        line: e.loc.line,
+        element: e.loc.element.clone(),
+        message: e.message.clone(),
+    }
+}
+
+async fn submit_job(
+    State(state): State<AppState>,
+    mut multipart: Multipart,
+) -> ApiResult<(StatusCode, Json<JobInfo>)> {
+    let mut files = Files::new();
+    let mut opts = SubmitOptions::default();
+    let mut scene_field: Option<String> = None;
+    let too_big = |e: &axum::extract::multipart::MultipartError| e.status() == StatusCode::PAYLOAD_TOO_LARGE;
+    loop {
+        let field = match multipart.next_field().await {
+            Ok(Some(f)) => f,
+            Ok(None) => break,
+            Err(e) if too_big(&e) => return Err(upload_too_large(&state)),
+            Err(e) => {
+                return Err(AppError::bad_request(format!(
+                    "the upload is not valid multipart/form-data: {e}"
+                )));
+            }
+        };
+        let name = field.name().unwrap_or("").to_string();
+        let file_name = field.file_name().map(str::to_string);
+        let data = match field.bytes().await {
+            Ok(d) => d,
+            Err(e) if too_big(&e) => return Err(upload_too_large(&state)),
+            Err(e) => return Err(AppError::bad_request(format!("cannot read the field \"{name}\": {e}"))),
+        };
+        let text = || String::from_utf8_lossy(&data).trim().to_string();
+        let number = |what: &str| -> ApiResult<i64> {
+            text().parse::<i64>().map_err(|_| {
+                AppError::bad_request(format!("{what} must be an integer, found \"{}\"", text()))
+            })
+        };
+        match name.as_str() {
+            "scene" => {
+                let path = file_name.unwrap_or_else(|| "scene.xml".into());
+                bundle::add_file(&mut files, &path, data.to_vec())
+                    .map_err(|e| AppError::bad_request(e.to_string()))?;
+                scene_field = tessera::assets::normalize_bundle_path(&path);
+            }
+            "asset" | "file" | "assets" | "files" => {
+                let path = file_name.ok_or_else(|| {
+                    AppError::bad_request(format!(
+                        "the field \"{name}\" needs a file name: its path relative to the scene file"
+                    ))
+                })?;
+                bundle::add_file(&mut files, &path, data.to_vec())
+                    .map_err(|e| AppError::bad_request(e.to_string()))?;
+            }
+            "bundle" => {
+                bundle::add_archive(&mut files, &data).map_err(|e| AppError::bad_request(e.to_string()))?
+            }
+            "name" => opts.name = Some(text()),
+            "priority" => opts.priority = number("priority")?,
+            "tile_size" => {
+                let t = number("tile_size")?;
+                if !(1..=4096).contains(&t) {
+                    return Err(AppError::bad_request(format!(
+                        "tile_size must be between 1 and 4096 pixels, found {t}"
+                    )));
+                }
+                opts.tile_size = Some(t as u32);
+            }
+            "samples" => {
+                let s = number("samples")?;
+                if !(1..=1_000_000).contains(&s) {
+                    return Err(AppError::bad_request(format!(
+                        "samples must be between 1 and 1000000, found {s}"
+                    )));
+                }
+                opts.samples = Some(s as u32);
+            }
+            "cameras" => {
+                let mut list = Vec::new();
+                for part in text().split([',', ' ']).filter(|p| !p.is_empty()) {
+                    let k: u32 = part.parse().ok().filter(|k| *k >= 1).ok_or_else(|| {
+                        AppError::bad_request(format!(
+                            "cameras must list camera numbers from 1, e.g. \"1,3\"; found \"{part}\""
+                        ))
+                    })?;
+                    list.push(k);
+                }
+                opts.cameras = Some(list);
+            }
+            "scene_path" => opts.scene_path = Some(text()),
+            other => {
+                return Err(AppError::bad_request(format!(
+                    "unknown field \"{other}\"; send scene, asset (one per file, named by its relative path), bundle, name, priority, tile_size, samples, cameras or scene_path"
+                )));
+            }
+        }
+    }
+    if files.is_empty() {
+        return Err(AppError::bad_request(
+            "the upload holds no files; send the scene as the \"scene\" field (and its assets as \"asset\" fields) or a \"bundle\" archive",
+        ));
+    }
+    let wanted = opts.scene_path.clone().or(scene_field);
+    let scene_path = bundle::find_scene(&files, wanted.as_deref()).map_err(AppError::bad_request)?;
+
+    // Parse and build the whole scene (every asset read and decoded) before accepting.
+    let tile_size = opts.tile_size.unwrap_or(state.settings.tile_size);
+    let (tar, cameras, frames) = {
+        let scene_path = scene_path.clone();
+        let cameras_wanted = opts.cameras.clone();
+        tokio::task::spawn_blocking(move || validate(files, &scene_path, cameras_wanted, tile_size))
+            .await
+            .map_err(|e| anyhow::anyhow!("validation task: {e}"))??
+    };
+    let hash = state.blobs.put(&tar)?;
+    let name = opts.name.unwrap_or_else(|| scene_path.rsplit('/').next().unwrap_or(&scene_path).to_string());
+    let job = crate::db::NewJob {
+        name,
+        priority: opts.priority,
+        tile_size,
+        samples: opts.samples,
+        bundle: hash,
+        scene_path,
+        frames,
+    };
+    let id = state.store.insert_job(&job)?;
+    state.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(id, Arc::new(cameras));
+    state.work.notify_waiters();
+    tracing::info!(job = id, name = %job.name, "job accepted");
+    let info = job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?;
+    Ok((StatusCode::CREATED, Json(info)))
+}
+
+fn upload_too_large(state: &AppState) -> AppError {
+    AppError::new(
+        StatusCode::PAYLOAD_TOO_LARGE,
+        format!(
+            "the upload is larger than this server accepts ({} MiB); start the server with a larger --max-upload-mb",
+            state.settings.max_upload_bytes >> 20
+        ),
+    )
+}
+
+/// Parses and builds the scene from the uploaded files; returns the canonical bundle, the
+/// cameras and the frames to render.
+fn validate(
+    files: Files,
+    scene_path: &str,
+    cameras_wanted: Option<Vec<u32>>,
+    tile_size: u32,
+) -> ApiResult<(Vec<u8>, Vec<Camera>, Vec<crate::db::NewFrame>)> {
+    let tar = bundle::canonical_tar(&files);
+    let text = std::str::from_utf8(&files[scene_path]).map_err(|e| {
+        AppError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!(
+                "{scene_path}: the scene file is not UTF-8 text (byte {}); save it as UTF-8",
+                e.valid_up_to()
+            ),
+        )
+    })?;
+    let invalid = |e: tessera::SceneError| AppError {
+        status: StatusCode::UNPROCESSABLE_ENTITY,
+        body: ApiError {
+            error: format!("the scene cannot be rendered: {e}"),
+            problems: vec![problem_from(&e)],
+        },
+    };
+    let records = parse_scene(text, std::path::Path::new(scene_path)).map_err(invalid)?;
+    let shared: HashMap<String, Arc<Vec<u8>>> = files.into_iter().map(|(k, v)| (k, Arc::new(v))).collect();
+    let resolver = MemResolver::for_scene(shared, scene_path);
+    let scene = build_scene(&records, &resolver).map_err(invalid)?;
+    if scene.cameras.is_empty() {
+        return Err(AppError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!("{scene_path}: the scene has no camera; add one under <Cameras>"),
+        ));
+    }
+    let selected: Vec<u32> = match cameras_wanted {
+        None => (0..scene.cameras.len() as u32).collect(),
+        Some(list) => {
+            let n = scene.cameras.len() as u32;
+            if let Some(bad) = list.iter().find(|k| **k > n) {
+                return Err(AppError::bad_request(format!(
+                    "camera {bad} does not exist: the scene has {n} camera(s), numbered from 1"
+                )));
+            }
+            list.into_iter().map(|k| k - 1).collect()
+        }
+    };
+    let frames = selected
+        .iter()
+        .map(|&c| {
+            let cam = &scene.cameras[c as usize];
+            crate::db::NewFrame {
+                camera: c,
+                image_name: cam.image_name.clone(),
+                width: cam.width,
+                height: cam.height,
+                tiles: tessera::render::tiles(cam.width, cam.height, tile_size)
+                    .into_iter()
+                    .map(|r| Rect { x0: r.x0, y0: r.y0, width: r.width, height: r.height })
+                    .collect(),
+            }
+        })
+        .collect();
+    Ok((tar, scene.cameras, frames))
+}
+
+/// The cameras of a job, parsed from its bundle once and cached.
+pub fn job_cameras(state: &AppState, job: &crate::db::JobRow) -> anyhow::Result<Arc<Vec<Camera>>> {
+    if let Some(c) = state.cameras.lock().unwrap_or_else(|e| e.into_inner()).get(&job.id) {
+        return Ok(c.clone());
+    }
+    let tar = state
+        .blobs
+        .get(&job.bundle)
+        .ok_or_else(|| anyhow::anyhow!("bundle {} of job {} is missing", job.bundle, job.id))?;
+    let files = bundle::read_tar(&tar)?;
+    let text = files
+        .get(&job.scene_path)
+        .ok_or_else(|| anyhow::anyhow!("scene {} missing from its bundle", job.scene_path))?;
+    let records = parse_scene(&String::from_utf8_lossy(text), std::path::Path::new(&job.scene_path))
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let cameras: Vec<Camera> = records
+        .cameras
+        .iter()
+        .map(|c| Camera::from_record(c).ok_or_else(|| anyhow::anyhow!("camera {} has no valid frame", c.id)))
+        .collect::<anyhow::Result<_>>()?;
+    let cameras = Arc::new(cameras);
+    state.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(job.id, cameras.clone());
+    Ok(cameras)
+}
+
+fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobInfo>> {
+    let Some(job) = state.store.job(id)? else { return Ok(None) };
+    let frames = state.store.frames(id)?;
+    let url = format!("/api/v1/jobs/{id}");
+    let mut error = job.error.clone();
+    if error.is_none() && !job.state.is_final() {
+        // Tile failures that have not failed the job yet are worth seeing too.
+        let recent = state.store.recent_failures(id)?;
+        if !recent.is_empty() {
+            error = Some(format!("retrying after tile failures: {}", recent.join("; ")));
+        }
+    }
+    Ok(Some(JobInfo {
+        id,
+        name: job.name.clone(),
+        state: job.state,
+        priority: job.priority,
+        tile_size: job.tile_size,
+        samples: job.samples,
+        submitted_at: job.submitted_at,
+        started_at: job.started_at,
+        finished_at: job.finished_at,
+        frames: frames
+            .iter()
+            .map(|f| FrameInfo {
+                index: f.index,
+                camera: f.camera,
+                image_name: f.image_name.clone(),
+                width: f.width,
+                height: f.height,
+                tiles_total: f.tiles_total,
+                tiles_done: f.tiles_done,
+                outputs: f
+                    .outputs
+                    .iter()
+                    .flatten()
+                    .map(|n| OutputInfo {
+                        name: n.clone(),
+                        url: format!("{url}/frames/{}/files/{n}", f.index),
+                    })
+                    .collect(),
+                preview_url: format!("{url}/frames/{}/preview.png", f.index),
+            })
+            .collect(),
+        error,
+        url,
+    }))
+}
+
+async fn list_jobs(State(state): State<AppState>) -> ApiResult<Json<JobList>> {
+    let ids: Vec<u64> = state.store.jobs()?.iter().map(|j| j.id).collect();
+    let mut jobs = Vec::new();
+    for id in ids {
+        jobs.extend(job_info(&state, id)?);
+    }
+    Ok(Json(JobList { jobs }))
+}
+
+async fn show_job(State(state): State<AppState>, Path(id): Path<u64>) -> ApiResult<Json<JobInfo>> {
+    job_info(&state, id)?.map(Json).ok_or_else(|| AppError::not_found(format!("there is no job {id}")))
+}
+
+async fn cancel_job(State(state): State<AppState>, Path(id): Path<u64>) -> ApiResult<Json<JobInfo>> {
+    let Some(job) = state.store.job(id)? else {
+        return Err(AppError::not_found(format!("there is no job {id}")));
+    };
+    if !state.store.cancel_job(id)? {
+        return Err(AppError::new(
+            StatusCode::CONFLICT,
+            format!("job {id} has already ended ({})", job.state.as_str()),
+        ));
+    }
+    tracing::info!(job = id, "job canceled");
+    Ok(Json(job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?))
+}
+
+async fn frame_file(
+    State(state): State<AppState>,
+    Path((id, frame, name)): Path<(u64, u32, String)>,
+) -> ApiResult<Response> {
+    let frames = state.store.frames(id)?;
+    let f = frames
+        .iter()
+        .find(|f| f.index == frame)
+        .ok_or_else(|| AppError::not_found(format!("job {id} has no frame {frame}")))?;
+    let Some(outputs) = &f.outputs else {
+        return Err(AppError::new(
+            StatusCode::CONFLICT,
+            format!(
+                "frame {frame} of job {id} is not finished ({} of {} tiles); see preview.png meanwhile",
+                f.tiles_done, f.tiles_total
+            ),
+        ));
+    };
+    if !outputs.contains(&name) {
+        return Err(AppError::not_found(format!(
+            "frame {frame} of job {id} has no file {name}; it has {}",
+            outputs.join(", ")
+        )));
+    }
+    let path = state.outputs_dir(id).join(frame.to_string()).join(&name);
+    let bytes =
+        tokio::fs::read(&path).await.map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?;
+    let mime =
+        if name.to_ascii_lowercase().ends_with(".png") { "image/png" } else { "application/octet-stream" };
+    Ok((
+        [
+            (header::CONTENT_TYPE, HeaderValue::from_static(mime)),
+            (
+                header::CONTENT_DISPOSITION,
+                HeaderValue::from_str(&format!("attachment; filename=\"{name}\""))
+                    .unwrap_or(HeaderValue::from_static("attachment")),
+            ),
+        ],
+        bytes,
+    )
+        .into_response())
+}
+
+async fn frame_preview(
+    State(state): State<AppState>,
+    Path((id, frame)): Path<(u64, u32)>,
+) -> ApiResult<Response> {
+    let job = state.store.job(id)?.ok_or_else(|| AppError::not_found(format!("there is no job {id}")))?;
+    let frames = state.store.frames(id)?;
+    let f = frames
+        .into_iter()
+        .find(|f| f.index == frame)
+        .ok_or_else(|| AppError::not_found(format!("job {id} has no frame {frame}")))?;
+    let cameras = job_cameras(&state, &job)?;
+    let cam = cameras
+        .get(f.camera as usize)
+        .cloned()
+        .ok_or_else(|| anyhow::anyhow!("camera {} missing", f.camera))?;
+    let store = state.store.clone();
+    let png = tokio::task::spawn_blocking(move || -> anyhow::Result<Vec<u8>> {
+        let tiles = store.frame_tiles(id, frame)?;
+        let img = if tiles.is_empty() && f.outputs.is_some() {
+            // Merged frames drop their tiles: read the float frame back.
+            None
+        } else {
+            Some(merge::assemble(f.width, f.height, &tiles)?)
+        };
+        let img = match img {
+            Some(i) => i,
+            None => {
+                let outputs = f.outputs.clone().unwrap_or_default();
+                let exr = outputs.iter().find(|n| n.to_ascii_lowercase().ends_with(".exr"));
+                match exr {
+                    Some(n) => {
+                        tessera::hdr_io::read_exr(&state.outputs_dir(id).join(frame.to_string()).join(n))?
+                    }
+                    None => tessera::image::Image::new(f.width, f.height),
+                }
+            }
+        };
+        merge::preview_png(&cam, &img)
+    })
+    .await
+    .map_err(|e| anyhow::anyhow!("preview task: {e}"))??;
+    Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/png"))], png).into_response())
+}
+
+// ---------------------------------------------------------------------------------------------
+// Workers
+// ---------------------------------------------------------------------------------------------
+
+#[derive(serde::Serialize)]
+struct WorkerInfo {
+    id: u64,
+    name: String,
+    threads: u32,
+    state: &'static str,
+    current_tile: Option<CurrentTile>,
+    last_heartbeat: f64,
+    tiles_done: u64,
+    failures: u64,
+}
+
+#[derive(serde::Serialize)]
+struct CurrentTile {
+    job: u64,
+    frame: u32,
+    tile: u32,
+}
+
+async fn list_workers(State(state): State<AppState>) -> ApiResult<Json<serde_json::Value>> {
+    let lost_after = 3.0 * state.settings.heartbeat_seconds + 2.0;
+    let t = crate::db::now();
+    let workers: Vec<WorkerInfo> = state
+        .store
+        .workers()?
+        .into_iter()
+        .map(|w| WorkerInfo {
+            id: w.id,
+            name: w.name,
+            threads: w.threads,
+            state: if t - w.last_seen > lost_after {
+                "lost"
+            } else if w.rendering.is_some() {
+                "rendering"
+            } else {
+                "idle"
+            },
+            current_tile: w.current_tile.map(|(job, frame, tile)| CurrentTile { job, frame, tile }),
+            last_heartbeat: w.last_seen,
+            tiles_done: w.tiles_done,
+            failures: w.failures,
+        })
+        .collect();
+    Ok(Json(serde_json::json!({ "workers": workers })))
+}
+
+async fn register(
+    State(state): State<AppState>,
+    Json(req): Json<RegisterRequest>,
+) -> ApiResult<Json<RegisterResponse>> {
+    let id = state.store.register_worker(&req.name, req.threads)?;
+    tracing::info!(worker = id, name = %req.name, threads = req.threads, "worker registered");
+    Ok(Json(RegisterResponse {
+        worker_id: id,
+        heartbeat_seconds: state.settings.heartbeat_seconds,
+        lease_seconds: state.settings.lease_seconds,
+    }))
+}
+
+async fn known_worker(state: &AppState, id: u64) -> ApiResult<()> {
+    if state.store.worker_exists(id)? {
+        Ok(())
+    } else {
+        Err(AppError::new(StatusCode::NOT_FOUND, format!("unknown worker {id}; register again")))
+    }
+}
+
+/// Long poll: a lease as soon as a tile is free, or 204 after the wait.
+async fn lease(State(state): State<AppState>, Json(req): Json<LeaseRequest>) -> ApiResult<Response> {
+    known_worker(&state, req.worker_id).await?;
+    let wait = req.wait_seconds.clamp(0.0, state.settings.max_wait_seconds);
+    let deadline = tokio::time::Instant::now() + Duration::from_secs_f64(wait);
+    loop {
+        // Register interest before looking, so a notification between the look and the wait
+        // is not lost.
+        let notified = state.work.notified();
+        if let Some(l) = state.store.lease(req.worker_id, state.settings.lease_seconds)? {
+            let body = Lease {
+                lease_id: l.lease_id,
+                job_id: l.job_id,
+                camera: l.camera,
+                tile: l.tile,
+                rect: l.rect,
+                bundle: l.bundle,
+                scene_path: l.scene_path,
+                samples: l.samples,
+                lease_seconds: state.settings.lease_seconds,
+            };
+            return Ok(Json(body).into_response());
+        }
+        if tokio::time::timeout_at(deadline, notified).await.is_err() {
+            return Ok(StatusCode::NO_CONTENT.into_response());
+        }
+    }
+}
+
+async fn heartbeat(
+    State(state): State<AppState>,
+    Json(req): Json<HeartbeatRequest>,
+) -> ApiResult<Json<HeartbeatResponse>> {
+    known_worker(&state, req.worker_id).await?;
+    let revoked =
+        state.store.heartbeat(req.worker_id, &req.leases, req.rendering, state.settings.lease_seconds)?;
+    Ok(Json(HeartbeatResponse { revoked }))
+}
+
+async fn result(
+    State(state): State<AppState>,
+    Path(lease): Path<u64>,
+    headers: HeaderMap,
+    body: Bytes,
+) -> ApiResult<StatusCode> {
+    let worker: u64 = headers
+        .get("x-tessera-worker")
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse().ok())
+        .ok_or_else(|| AppError::bad_request("missing header x-tessera-worker (the worker id)"))?;
+    let sum = headers
+        .get(CHECKSUM_HEADER)
+        .and_then(|v| v.to_str().ok())
+        .ok_or_else(|| AppError::bad_request(format!("missing header {CHECKSUM_HEADER}")))?;
+    if sum != checksum(&body) {
+        return Err(AppError::bad_request("the tile's checksum does not match its bytes; send it again"));
+    }
+    let render_seconds =
+        headers.get("x-tessera-render-seconds").and_then(|v| v.to_str().ok()).and_then(|v| v.parse().ok());
+    match state.store.submit_result(lease, worker, &body, render_seconds)? {
+        ResultOutcome::Accepted { job_id, frame, frame_complete } => {
+            if frame_complete {
+                let state = state.clone();
+                tokio::spawn(async move { merge_frame(state, job_id, frame).await });
+            }
+            Ok(StatusCode::NO_CONTENT)
+        }
+        ResultOutcome::Conflict => {
+            state.counters.results_refused.fetch_add(1, Ordering::Relaxed);
+            Err(AppError::new(
+                StatusCode::CONFLICT,
+                format!(
+                    "lease {lease} is not yours any more (expired, revoked or already done); drop the tile"
+                ),
+            ))
+        }
+        ResultOutcome::WrongSize { expected } => Err(AppError::bad_request(format!(
+            "the tile holds {} bytes; its rectangle needs {expected} (width x height x 3 little-endian f32)",
+            body.len()
+        ))),
+    }
+}
+
+async fn fail(
+    State(state): State<AppState>,
+    Path(lease): Path<u64>,
+    Json(req): Json<FailRequest>,
+) -> ApiResult<StatusCode> {
+    match state.store.fail_tile(lease, req.worker_id, &req.error)? {
+        FailOutcome::Requeued => {
+            tracing::warn!(lease, worker = req.worker_id, error = %req.error, "tile failed; queued again");
+            state.work.notify_waiters();
+            Ok(StatusCode::NO_CONTENT)
+        }
+        FailOutcome::JobFailed(m) => {
+            tracing::error!(lease, "job failed: {m}");
+            Ok(StatusCode::NO_CONTENT)
+        }
+        FailOutcome::Conflict => {
+            Err(AppError::new(StatusCode::CONFLICT, format!("lease {lease} is not yours any more")))
+        }
+    }
+}
+
+async fn get_bundle(State(state): State<AppState>, Path(hash): Path<String>) -> ApiResult<Response> {
+    let blobs = state.blobs.clone();
+    let h = hash.clone();
+    let bytes = tokio::task::spawn_blocking(move || blobs.get(&h))
+        .await
+        .map_err(|e| anyhow::anyhow!("bundle task: {e}"))?
+        .ok_or_else(|| AppError::not_found(format!("no bundle {hash}")))?;
+    Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("application/x-tar"))], bytes).into_response())
+}
+
+/// Merges a complete frame off the executor; a failure fails the job with the reason.
+pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
+    let st = state.clone();
+    let outcome = tokio::task::spawn_blocking(move || -> anyhow::Result<bool> {
+        let job = st.store.job(job_id)?.ok_or_else(|| anyhow::anyhow!("job {job_id} vanished"))?;
+        let frames = st.store.frames(job_id)?;
+        let f = frames
+            .iter()
+            .find(|f| f.index == frame)
+            .ok_or_else(|| anyhow::anyhow!("frame {frame} vanished"))?;
+        let cameras = job_cameras(&st, &job)?;
+        let cam =
+            cameras.get(f.camera as usize).ok_or_else(|| anyhow::anyhow!("camera {} missing", f.camera))?;
+        let tiles = st.store.frame_tiles(job_id, frame)?;
+        let img = merge::assemble(f.width, f.height, &tiles)?;
+        let names = merge::write_outputs(&st.outputs_dir(job_id).join(frame.to_string()), cam, &img)?;
+        st.store.frame_merged(job_id, frame, &names)
+    })
+    .await;
+    match outcome {
+        Ok(Ok(done)) => tracing::info!(job = job_id, frame, done, "frame merged"),
+        Ok(Err(e)) => {
+            tracing::error!(job = job_id, frame, "merge failed: {e:#}");
+            let _ = state.store.fail_job(job_id, &format!("merging frame {frame} failed: {e:#}"));
+        }
+        Err(e) => tracing::error!(job = job_id, frame, "merge task panicked: {e}"),
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Metrics
+// ---------------------------------------------------------------------------------------------
+
+async fn metrics(State(state): State<AppState>) -> ApiResult<Response> {
+    let crate::db::StoreMetrics {
+        jobs_by_state: states,
+        tiles_done,
+        render_seconds_sum: render_sum,
+        render_seconds_count: render_count,
+    } = state.store.metrics()?;
+    let workers = state.store.workers()?;
+    let lost_after = 3.0 * state.settings.heartbeat_seconds + 2.0;
+    let t = crate::db::now();
+    let mut by_state: HashMap<&str, i64> = HashMap::new();
+    for w in &workers {
+        let s = if t - w.last_seen > lost_after {
+            "lost"
+        } else if w.rendering.is_some() {
+            "rendering"
+        } else {
+            "idle"
+        };
+        *by_state.entry(s).or_default() += 1;
+    }
+    let mut out = String::new();
+    out += "# HELP tessera_jobs Jobs by state.\n# TYPE tessera_jobs gauge\n";
+    for s in ["queued", "running", "done", "failed", "canceled"] {
+        let n = states.iter().find(|(k, _)| k == s).map_or(0, |(_, n)| *n);
+        out += &format!("tessera_jobs{{state=\"{s}\"}} {n}\n");
+    }
+    out += "# HELP tessera_tiles_done_total Tiles rendered and accepted.\n# TYPE tessera_tiles_done_total counter\n";
+    out += &format!("tessera_tiles_done_total {tiles_done}\n");
+    out += "# HELP tessera_lease_expiries_total Leases that expired and went back to the queue.\n# TYPE tessera_lease_expiries_total counter\n";
+    out +=
+        &format!("tessera_lease_expiries_total {}\n", state.counters.lease_expiries.load(Ordering::Relaxed));
+    out += "# HELP tessera_results_refused_total Tile results refused (expired or revoked leases).\n# TYPE tessera_results_refused_total counter\n";
+    out += &format!(
+        "tessera_results_refused_total {}\n",
+        state.counters.results_refused.load(Ordering::Relaxed)
+    );
+    out += "# HELP tessera_workers Registered workers by state.\n# TYPE tessera_workers gauge\n";
+    for s in ["idle", "rendering", "lost"] {
+        out += &format!("tessera_workers{{state=\"{s}\"}} {}\n", by_state.get(s).copied().unwrap_or(0));
+    }
+    out += "# HELP tessera_tile_render_seconds Time workers spent rendering tiles.\n# TYPE tessera_tile_render_seconds summary\n";
+    out += &format!(
+        "tessera_tile_render_seconds_sum {render_sum}\ntessera_tile_render_seconds_count {render_count}\n"
+    );
+    Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("text/plain; version=0.0.4"))], out).into_response())
+}

@@ -1,0 +1,696 @@
+//! The job store: one SQLite database in WAL mode (`tessera.db` in the data directory).
+//!
+//! SQLite is the single source of truth for jobs, frames, tiles (with their rendered pixels),
+//! leases and workers, so a server killed at any instant restarts with everything it had
+//! accepted: a tile result is acknowledged only after its transaction commits. Leases do not
+//! survive a restart (their workers may be gone): [`Store::open`] puts every leased tile back in
+//! the queue, and a late result for such a lease is refused like any expired one.
+//!
+//! All access goes through one `std::sync::Mutex<Connection>`; every method is a short
+//! transaction that never crosses an `.await`.
+
+use std::path::Path;
+use std::sync::Mutex;
+
+use anyhow::{Context, Result};
+use rusqlite::{Connection, OptionalExtension, params};
+use tessera::protocol::{JobState, Rect};
+
+const SCHEMA: &str = "
+CREATE TABLE IF NOT EXISTS jobs(
+    id INTEGER PRIMARY KEY,
+    name TEXT NOT NULL,
+    state TEXT NOT NULL,
+    priority INTEGER NOT NULL,
+    tile_size INTEGER NOT NULL,
+    samples INTEGER,
+    bundle TEXT NOT NULL,
+    scene_path TEXT NOT NULL,
+    submitted_at REAL NOT NULL,
+    started_at REAL,
+    finished_at REAL,
+    error TEXT
+);
+CREATE TABLE IF NOT EXISTS frames(
+    job_id INTEGER NOT NULL,
+    idx INTEGER NOT NULL,
+    camera INTEGER NOT NULL,
+    image_name TEXT NOT NULL,
+    width INTEGER NOT NULL,
+    height INTEGER NOT NULL,
+    tiles_total INTEGER NOT NULL,
+    tiles_done INTEGER NOT NULL DEFAULT 0,
+    outputs TEXT,
+    PRIMARY KEY(job_id, idx)
+);
+CREATE TABLE IF NOT EXISTS tiles(
+    job_id INTEGER NOT NULL,
+    frame INTEGER NOT NULL,
+    tile INTEGER NOT NULL,
+    x0 INTEGER NOT NULL, y0 INTEGER NOT NULL, w INTEGER NOT NULL, h INTEGER NOT NULL,
+    state TEXT NOT NULL,
+    lease_id INTEGER,
+    worker_id INTEGER,
+    deadline REAL,
+    pixels BLOB,
+    render_seconds REAL,
+    PRIMARY KEY(job_id, frame, tile)
+);
+CREATE INDEX IF NOT EXISTS tiles_by_state ON tiles(state, job_id);
+CREATE UNIQUE INDEX IF NOT EXISTS tiles_by_lease ON tiles(lease_id) WHERE lease_id IS NOT NULL;
+CREATE TABLE IF NOT EXISTS tile_failures(
+    job_id INTEGER NOT NULL,
+    frame INTEGER NOT NULL,
+    tile INTEGER NOT NULL,
+    worker_id INTEGER NOT NULL,
+    error TEXT NOT NULL,
+    at REAL NOT NULL
+);
+CREATE TABLE IF NOT EXISTS workers(
+    id INTEGER PRIMARY KEY,
+    name TEXT NOT NULL,
+    threads INTEGER NOT NULL,
+    registered_at REAL NOT NULL,
+    last_seen REAL NOT NULL,
+    tiles_done INTEGER NOT NULL DEFAULT 0,
+    failures INTEGER NOT NULL DEFAULT 0,
+    rendering INTEGER
+);
+";
+
+/// A tile that fails on this many different workers fails its job.
+pub const TILE_FAILURE_WORKERS: i64 = 3;
+/// ... or this many times in all (so that a farm with fewer workers still ends).
+pub const TILE_FAILURE_TOTAL: i64 = 5;
+/// A worker that fails this many tiles of a job is kept off that job.
+pub const WORKER_FAILURES_PER_JOB: i64 = 3;
+
+pub struct Store {
+    conn: Mutex<Connection>,
+    next_lease: Mutex<u64>,
+}
+
+/// A new job's rows.
+pub struct NewJob {
+    pub name: String,
+    pub priority: i64,
+    pub tile_size: u32,
+    pub samples: Option<u32>,
+    pub bundle: String,
+    pub scene_path: String,
+    pub frames: Vec<NewFrame>,
+}
+
+pub struct NewFrame {
+    pub camera: u32,
+    pub image_name: String,
+    pub width: u32,
+    pub height: u32,
+    pub tiles: Vec<Rect>,
+}
+
+#[derive(Clone, Debug)]
+pub struct JobRow {
+    pub id: u64,
+    pub name: String,
+    pub state: JobState,
+    pub priority: i64,
+    pub tile_size: u32,
+    pub samples: Option<u32>,
+    pub bundle: String,
+    pub scene_path: String,
+    pub submitted_at: f64,
+    pub started_at: Option<f64>,
+    pub finished_at: Option<f64>,
+    pub error: Option<String>,
+}
+
+#[derive(Clone, Debug)]
+pub struct FrameRow {
+    pub job_id: u64,
+    pub index: u32,
+    pub camera: u32,
+    pub image_name: String,
+    pub width: u32,
+    pub height: u32,
+    pub tiles_total: u32,
+    pub tiles_done: u32,
+    /// Output file names once merged.
+    pub outputs: Option<Vec<String>>,
+}
+
+/// A lease handed to a worker.
+#[derive(Clone, Debug)]
+pub struct LeaseRow {
+    pub lease_id: u64,
+    pub job_id: u64,
+    pub frame: u32,
+    pub camera: u32,
+    pub tile: u32,
+    pub rect: Rect,
+    pub bundle: String,
+    pub scene_path: String,
+    pub samples: Option<u32>,
+}
+
+#[derive(Clone, Debug)]
+pub struct WorkerRow {
+    pub id: u64,
+    pub name: String,
+    pub threads: u32,
+    pub registered_at: f64,
+    pub last_seen: f64,
+    pub tiles_done: u64,
+    pub failures: u64,
+    pub rendering: Option<u64>,
+    /// The tile of `rendering`: (job, frame, tile).
+    pub current_tile: Option<(u64, u32, u32)>,
+}
+
+/// What happened to a submitted result.
+#[derive(Debug, PartialEq)]
+pub enum ResultOutcome {
+    /// Stored; `frame_complete` when it was the frame's last tile.
+    Accepted { job_id: u64, frame: u32, frame_complete: bool },
+    /// No such live lease (expired, revoked, already submitted, job not running).
+    Conflict,
+    /// The pixel count does not match the lease's rectangle.
+    WrongSize { expected: usize },
+}
+
+/// What a tile failure did.
+#[derive(Debug, PartialEq)]
+pub enum FailOutcome {
+    Requeued,
+    JobFailed(String),
+    Conflict,
+}
+
+/// What /metrics reads from the store.
+pub struct StoreMetrics {
+    pub jobs_by_state: Vec<(String, i64)>,
+    pub tiles_done: i64,
+    pub render_seconds_sum: f64,
+    pub render_seconds_count: i64,
+}
+
+pub fn now() -> f64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0)
+}
+
+fn job_from_row(r: &rusqlite::Row) -> rusqlite::Result<JobRow> {
+    let state: String = r.get(2)?;
+    Ok(JobRow {
+        id: r.get::<_, i64>(0)? as u64,
+        name: r.get(1)?,
+        state: JobState::parse(&state).unwrap_or(JobState::Failed),
+        priority: r.get(3)?,
+        tile_size: r.get::<_, i64>(4)? as u32,
+        samples: r.get::<_, Option<i64>>(5)?.map(|s| s as u32),
+        bundle: r.get(6)?,
+        scene_path: r.get(7)?,
+        submitted_at: r.get(8)?,
+        started_at: r.get(9)?,
+        finished_at: r.get(10)?,
+        error: r.get(11)?,
+    })
+}
+
+const JOB_COLUMNS: &str = "id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, started_at, finished_at, error";
+
+fn frame_from_row(r: &rusqlite::Row) -> rusqlite::Result<FrameRow> {
+    let outputs: Option<String> = r.get(8)?;
+    Ok(FrameRow {
+        job_id: r.get::<_, i64>(0)? as u64,
+        index: r.get::<_, i64>(1)? as u32,
+        camera: r.get::<_, i64>(2)? as u32,
+        image_name: r.get(3)?,
+        width: r.get::<_, i64>(4)? as u32,
+        height: r.get::<_, i64>(5)? as u32,
+        tiles_total: r.get::<_, i64>(6)? as u32,
+        tiles_done: r.get::<_, i64>(7)? as u32,
+        outputs: outputs.and_then(|o| serde_json::from_str(&o).ok()),
+    })
+}
+
+const FRAME_COLUMNS: &str =
+    "job_id, idx, camera, image_name, width, height, tiles_total, tiles_done, outputs";
+
+impl Store {
+    /// Opens (creating if needed) the database at `path`, and returns every tile that was
+    /// leased when the server stopped to the queue.
+    pub fn open(path: &Path) -> Result<Store> {
+        let conn = Connection::open(path)
+            .with_context(|| format!("cannot open the job store {}", path.display()))?;
+        conn.pragma_update(None, "journal_mode", "WAL")?;
+        conn.pragma_update(None, "synchronous", "NORMAL")?;
+        conn.busy_timeout(std::time::Duration::from_secs(5))?;
+        conn.execute_batch(SCHEMA).context("cannot create the job store's tables")?;
+        conn.execute(
+            "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE state = 'leased'",
+            [],
+        )?;
+        conn.execute("UPDATE workers SET rendering = NULL", [])?;
+        let max_lease: Option<i64> = conn.query_row("SELECT max(lease_id) FROM tiles", [], |r| r.get(0))?;
+        // Lease ids never repeat, across restarts too: start past every id still recorded, and
+        // past the clock (ids handed out before a crash were never recorded if their tile was
+        // requeued above, so a stale worker could otherwise hold a reused id).
+        let clock = (now() * 1000.0) as u64 * 1000;
+        let next = (max_lease.unwrap_or(0) as u64 + 1).max(clock);
+        Ok(Store { conn: Mutex::new(conn), next_lease: Mutex::new(next) })
+    }
+
+    fn conn(&self) -> std::sync::MutexGuard<'_, Connection> {
+        // A panic while holding the lock leaves SQLite consistent (transactions roll back).
+        self.conn.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    pub fn insert_job(&self, job: &NewJob) -> Result<u64> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        tx.execute(
+            "INSERT INTO jobs(name, state, priority, tile_size, samples, bundle, scene_path, submitted_at) VALUES (?1, 'queued', ?2, ?3, ?4, ?5, ?6, ?7)",
+            params![job.name, job.priority, job.tile_size, job.samples, job.bundle, job.scene_path, now()],
+        )?;
+        let id = tx.last_insert_rowid();
+        for (i, f) in job.frames.iter().enumerate() {
+            tx.execute(
+                "INSERT INTO frames(job_id, idx, camera, image_name, width, height, tiles_total) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
+                params![id, i as i64, f.camera, f.image_name, f.width, f.height, f.tiles.len() as i64],
+            )?;
+            let mut stmt = tx.prepare_cached(
+                "INSERT INTO tiles(job_id, frame, tile, x0, y0, w, h, state) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, 'queued')",
+            )?;
+            for (t, r) in f.tiles.iter().enumerate() {
+                stmt.execute(params![id, i as i64, t as i64, r.x0, r.y0, r.width, r.height])?;
+            }
+        }
+        tx.commit()?;
+        Ok(id as u64)
+    }
+
+    pub fn job(&self, id: u64) -> Result<Option<JobRow>> {
+        let conn = self.conn();
+        Ok(conn
+            .query_row(&format!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = ?1"), [id as i64], job_from_row)
+            .optional()?)
+    }
+
+    pub fn jobs(&self) -> Result<Vec<JobRow>> {
+        let conn = self.conn();
+        let mut stmt = conn.prepare(&format!("SELECT {JOB_COLUMNS} FROM jobs ORDER BY id DESC"))?;
+        let rows = stmt.query_map([], job_from_row)?.collect::<rusqlite::Result<Vec<_>>>()?;
+        Ok(rows)
+    }
+
+    pub fn frames(&self, job: u64) -> Result<Vec<FrameRow>> {
+        let conn = self.conn();
+        let mut stmt =
+            conn.prepare(&format!("SELECT {FRAME_COLUMNS} FROM frames WHERE job_id = ?1 ORDER BY idx"))?;
+        let rows = stmt.query_map([job as i64], frame_from_row)?.collect::<rusqlite::Result<Vec<_>>>()?;
+        Ok(rows)
+    }
+
+    /// Frames whose every tile has arrived but whose outputs were never written (the server
+    /// stopped in between): merged again at startup.
+    pub fn frames_awaiting_merge(&self) -> Result<Vec<FrameRow>> {
+        let conn = self.conn();
+        let mut stmt = conn.prepare(&format!(
+            "SELECT {FRAME_COLUMNS} FROM frames f WHERE tiles_done = tiles_total AND outputs IS NULL AND (SELECT state FROM jobs WHERE id = f.job_id) IN ('queued', 'running')"
+        ))?;
+        let rows = stmt.query_map([], frame_from_row)?.collect::<rusqlite::Result<Vec<_>>>()?;
+        Ok(rows)
+    }
+
+    /// The rendered tiles of a frame: (rect, pixels bytes).
+    pub fn frame_tiles(&self, job: u64, frame: u32) -> Result<Vec<(Rect, Vec<u8>)>> {
+        let conn = self.conn();
+        let mut stmt = conn.prepare(
+            "SELECT x0, y0, w, h, pixels FROM tiles WHERE job_id = ?1 AND frame = ?2 AND state = 'done' AND pixels IS NOT NULL",
+        )?;
+        let rows = stmt
+            .query_map(params![job as i64, frame], |r| {
+                Ok((
+                    Rect {
+                        x0: r.get::<_, i64>(0)? as u32,
+                        y0: r.get::<_, i64>(1)? as u32,
+                        width: r.get::<_, i64>(2)? as u32,
+                        height: r.get::<_, i64>(3)? as u32,
+                    },
+                    r.get::<_, Vec<u8>>(4)?,
+                ))
+            })?
+            .collect::<rusqlite::Result<Vec<_>>>()?;
+        Ok(rows)
+    }
+
+    /// Records a merged frame's outputs; when it was the job's last frame the job is done.
+    /// Returns whether the job is now done.
+    pub fn frame_merged(&self, job: u64, frame: u32, outputs: &[String]) -> Result<bool> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        tx.execute(
+            "UPDATE frames SET outputs = ?3 WHERE job_id = ?1 AND idx = ?2",
+            params![job as i64, frame, serde_json::to_string(outputs)?],
+        )?;
+        let left: i64 = tx.query_row(
+            "SELECT count(*) FROM frames WHERE job_id = ?1 AND outputs IS NULL",
+            [job as i64],
+            |r| r.get(0),
+        )?;
+        let done = left == 0;
+        if done {
+            tx.execute(
+                "UPDATE jobs SET state = 'done', finished_at = ?2 WHERE id = ?1 AND state IN ('queued', 'running')",
+                params![job as i64, now()],
+            )?;
+            // The pixels live on in the outputs; keep the database small.
+            tx.execute("UPDATE tiles SET pixels = NULL WHERE job_id = ?1", [job as i64])?;
+        }
+        tx.commit()?;
+        Ok(done)
+    }
+
+    pub fn fail_job(&self, job: u64, error: &str) -> Result<()> {
+        self.conn().execute(
+            "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3 WHERE id = ?1 AND state IN ('queued', 'running')",
+            params![job as i64, error, now()],
+        )?;
+        Ok(())
+    }
+
+    /// Cancels a job that has not finished; returns false if it had (or does not exist).
+    pub fn cancel_job(&self, job: u64) -> Result<bool> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        let n = tx.execute(
+            "UPDATE jobs SET state = 'canceled', finished_at = ?2 WHERE id = ?1 AND state IN ('queued', 'running')",
+            params![job as i64, now()],
+        )?;
+        if n > 0 {
+            // Revoke its leases: heartbeats report them, results are refused.
+            tx.execute(
+                "UPDATE tiles SET state = 'canceled', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE job_id = ?1 AND state IN ('queued', 'leased')",
+                [job as i64],
+            )?;
+        }
+        tx.commit()?;
+        Ok(n > 0)
+    }
+
+    pub fn register_worker(&self, name: &str, threads: u32) -> Result<u64> {
+        let conn = self.conn();
+        let t = now();
+        conn.execute(
+            "INSERT INTO workers(name, threads, registered_at, last_seen) VALUES (?1, ?2, ?3, ?3)",
+            params![name, threads, t],
+        )?;
+        Ok(conn.last_insert_rowid() as u64)
+    }
+
+    pub fn worker_exists(&self, id: u64) -> Result<bool> {
+        let conn = self.conn();
+        let n: i64 =
+            conn.query_row("SELECT count(*) FROM workers WHERE id = ?1", [id as i64], |r| r.get(0))?;
+        Ok(n > 0)
+    }
+
+    pub fn workers(&self) -> Result<Vec<WorkerRow>> {
+        let conn = self.conn();
+        let mut stmt = conn.prepare(
+            "SELECT w.id, w.name, w.threads, w.registered_at, w.last_seen, w.tiles_done, w.failures, w.rendering, t.job_id, t.frame, t.tile
+             FROM workers w LEFT JOIN tiles t ON t.lease_id = w.rendering ORDER BY w.id",
+        )?;
+        let rows = stmt
+            .query_map([], |r| {
+                let job: Option<i64> = r.get(8)?;
+                Ok(WorkerRow {
+                    id: r.get::<_, i64>(0)? as u64,
+                    name: r.get(1)?,
+                    threads: r.get::<_, i64>(2)? as u32,
+                    registered_at: r.get(3)?,
+                    last_seen: r.get(4)?,
+                    tiles_done: r.get::<_, i64>(5)? as u64,
+                    failures: r.get::<_, i64>(6)? as u64,
+                    rendering: r.get::<_, Option<i64>>(7)?.map(|x| x as u64),
+                    current_tile: match job {
+                        Some(j) => Some((j as u64, r.get::<_, i64>(9)? as u32, r.get::<_, i64>(10)? as u32)),
+                        None => None,
+                    },
+                })
+            })?
+            .collect::<rusqlite::Result<Vec<_>>>()?;
+        Ok(rows)
+    }
+
+    /// Hands the next tile to `worker`: highest job priority first, then submission order; never
+    /// a tile of a job the worker has failed too often, nor a tile it failed before while other
+    /// workers could take it.
+    pub fn lease(&self, worker: u64, lease_seconds: f64) -> Result<Option<LeaseRow>> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        let w = worker as i64;
+        let candidate = tx
+            .query_row(
+                "SELECT t.job_id, t.frame, t.tile, t.x0, t.y0, t.w, t.h, j.bundle, j.scene_path, j.samples, f.camera
+                 FROM tiles t JOIN jobs j ON j.id = t.job_id JOIN frames f ON f.job_id = t.job_id AND f.idx = t.frame
+                 WHERE t.state = 'queued' AND j.state IN ('queued', 'running')
+                   AND (SELECT count(*) FROM tile_failures x WHERE x.job_id = t.job_id AND x.worker_id = ?1) < ?2
+                   AND NOT EXISTS (SELECT 1 FROM tile_failures x WHERE x.job_id = t.job_id AND x.frame = t.frame AND x.tile = t.tile AND x.worker_id = ?1)
+                 ORDER BY j.priority DESC, j.id, t.frame, t.tile LIMIT 1",
+                params![w, WORKER_FAILURES_PER_JOB],
+                |r| {
+                    Ok((
+                        r.get::<_, i64>(0)?,
+                        r.get::<_, i64>(1)?,
+                        r.get::<_, i64>(2)?,
+                        Rect {
+                            x0: r.get::<_, i64>(3)? as u32,
+                            y0: r.get::<_, i64>(4)? as u32,
+                            width: r.get::<_, i64>(5)? as u32,
+                            height: r.get::<_, i64>(6)? as u32,
+                        },
+                        r.get::<_, String>(7)?,
+                        r.get::<_, String>(8)?,
+                        r.get::<_, Option<i64>>(9)?,
+                        r.get::<_, i64>(10)?,
+                    ))
+                },
+            )
+            .optional()?;
+        let Some((job, frame, tile, rect, bundle, scene_path, samples, camera)) = candidate else {
+            tx.execute("UPDATE workers SET last_seen = ?2 WHERE id = ?1", params![w, now()])?;
+            tx.commit()?;
+            return Ok(None);
+        };
+        let lease_id = {
+            let mut next = self.next_lease.lock().unwrap_or_else(|e| e.into_inner());
+            let id = *next;
+            *next += 1;
+            id
+        };
+        let t = now();
+        tx.execute(
+            "UPDATE tiles SET state = 'leased', lease_id = ?4, worker_id = ?5, deadline = ?6 WHERE job_id = ?1 AND frame = ?2 AND tile = ?3",
+            params![job, frame, tile, lease_id as i64, w, t + lease_seconds],
+        )?;
+        tx.execute(
+            "UPDATE jobs SET state = 'running', started_at = ?2 WHERE id = ?1 AND state = 'queued'",
+            params![job, t],
+        )?;
+        tx.execute("UPDATE workers SET last_seen = ?2 WHERE id = ?1", params![w, t])?;
+        tx.commit()?;
+        Ok(Some(LeaseRow {
+            lease_id,
+            job_id: job as u64,
+            frame: frame as u32,
+            camera: camera as u32,
+            tile: tile as u32,
+            rect,
+            bundle,
+            scene_path,
+            samples: samples.map(|s| s as u32),
+        }))
+    }
+
+    /// Renews the worker's live leases; returns those it listed that it no longer owns.
+    pub fn heartbeat(
+        &self,
+        worker: u64,
+        leases: &[u64],
+        rendering: Option<u64>,
+        lease_seconds: f64,
+    ) -> Result<Vec<u64>> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        let t = now();
+        let mut revoked = Vec::new();
+        for &l in leases {
+            let n = tx.execute(
+                "UPDATE tiles SET deadline = ?3 WHERE lease_id = ?1 AND worker_id = ?2 AND state = 'leased'",
+                params![l as i64, worker as i64, t + lease_seconds],
+            )?;
+            if n == 0 {
+                revoked.push(l);
+            }
+        }
+        let rendering = rendering.filter(|r| !revoked.contains(r));
+        tx.execute(
+            "UPDATE workers SET last_seen = ?2, rendering = ?3 WHERE id = ?1",
+            params![worker as i64, t, rendering.map(|r| r as i64)],
+        )?;
+        tx.commit()?;
+        Ok(revoked)
+    }
+
+    /// Puts tiles whose lease deadline passed back in the queue; returns how many.
+    pub fn expire_leases(&self) -> Result<usize> {
+        let conn = self.conn();
+        let n = conn.execute(
+            "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE state = 'leased' AND deadline < ?1",
+            [now()],
+        )?;
+        Ok(n)
+    }
+
+    /// Stores a tile's pixels for a live lease held by `worker`, once.
+    pub fn submit_result(
+        &self,
+        lease: u64,
+        worker: u64,
+        pixels: &[u8],
+        render_seconds: Option<f64>,
+    ) -> Result<ResultOutcome> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        let row = tx
+            .query_row(
+                "SELECT t.job_id, t.frame, t.w, t.h, t.deadline FROM tiles t JOIN jobs j ON j.id = t.job_id
+                 WHERE t.lease_id = ?1 AND t.worker_id = ?2 AND t.state = 'leased' AND j.state IN ('queued', 'running')",
+                params![lease as i64, worker as i64],
+                |r| Ok((r.get::<_, i64>(0)?, r.get::<_, i64>(1)?, r.get::<_, i64>(2)?, r.get::<_, i64>(3)?, r.get::<_, f64>(4)?)),
+            )
+            .optional()?;
+        let Some((job, frame, w, h, deadline)) = row else { return Ok(ResultOutcome::Conflict) };
+        if deadline < now() {
+            // Expired but not swept yet: the tile may already be someone else's.
+            return Ok(ResultOutcome::Conflict);
+        }
+        let expected = (w * h * 12) as usize;
+        if pixels.len() != expected {
+            return Ok(ResultOutcome::WrongSize { expected });
+        }
+        tx.execute(
+            "UPDATE tiles SET state = 'done', pixels = ?2, deadline = NULL, render_seconds = ?3 WHERE lease_id = ?1",
+            params![lease as i64, pixels, render_seconds],
+        )?;
+        tx.execute(
+            "UPDATE frames SET tiles_done = tiles_done + 1 WHERE job_id = ?1 AND idx = ?2",
+            params![job, frame],
+        )?;
+        tx.execute(
+            "UPDATE workers SET tiles_done = tiles_done + 1, last_seen = ?2, rendering = NULL WHERE id = ?1",
+            params![worker as i64, now()],
+        )?;
+        let (done, total): (i64, i64) = tx.query_row(
+            "SELECT tiles_done, tiles_total FROM frames WHERE job_id = ?1 AND idx = ?2",
+            params![job, frame],
+            |r| Ok((r.get(0)?, r.get(1)?)),
+        )?;
+        tx.commit()?;
+        Ok(ResultOutcome::Accepted { job_id: job as u64, frame: frame as u32, frame_complete: done == total })
+    }
+
+    /// Records that `worker` could not render the tile of `lease`: the tile goes back to the
+    /// queue, or fails its job after [`TILE_FAILURE_WORKERS`] different workers (or
+    /// [`TILE_FAILURE_TOTAL`] attempts).
+    pub fn fail_tile(&self, lease: u64, worker: u64, error: &str) -> Result<FailOutcome> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        let row = tx
+            .query_row(
+                "SELECT job_id, frame, tile FROM tiles WHERE lease_id = ?1 AND worker_id = ?2 AND state = 'leased'",
+                params![lease as i64, worker as i64],
+                |r| Ok((r.get::<_, i64>(0)?, r.get::<_, i64>(1)?, r.get::<_, i64>(2)?)),
+            )
+            .optional()?;
+        let Some((job, frame, tile)) = row else { return Ok(FailOutcome::Conflict) };
+        let t = now();
+        tx.execute(
+            "INSERT INTO tile_failures(job_id, frame, tile, worker_id, error, at) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+            params![job, frame, tile, worker as i64, error, t],
+        )?;
+        tx.execute(
+            "UPDATE workers SET failures = failures + 1, rendering = NULL WHERE id = ?1",
+            [worker as i64],
+        )?;
+        tx.execute(
+            "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE job_id = ?1 AND frame = ?2 AND tile = ?3",
+            params![job, frame, tile],
+        )?;
+        let (workers, total): (i64, i64) = tx.query_row(
+            "SELECT count(DISTINCT worker_id), count(*) FROM tile_failures WHERE job_id = ?1 AND frame = ?2 AND tile = ?3",
+            params![job, frame, tile],
+            |r| Ok((r.get(0)?, r.get(1)?)),
+        )?;
+        let outcome = if workers >= TILE_FAILURE_WORKERS || total >= TILE_FAILURE_TOTAL {
+            let message = format!(
+                "tile {tile} of frame {frame} failed on {workers} worker(s), {total} time(s); last error: {error}"
+            );
+            tx.execute(
+                "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3 WHERE id = ?1 AND state IN ('queued', 'running')",
+                params![job, message, t],
+            )?;
+            tx.execute(
+                "UPDATE tiles SET state = 'canceled', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE job_id = ?1 AND state IN ('queued', 'leased')",
+                [job],
+            )?;
+            FailOutcome::JobFailed(message)
+        } else {
+            FailOutcome::Requeued
+        };
+        tx.commit()?;
+        Ok(outcome)
+    }
+
+    /// The most recent failure messages of a job's tiles (for the job view).
+    pub fn recent_failures(&self, job: u64) -> Result<Vec<String>> {
+        let conn = self.conn();
+        let mut stmt = conn.prepare(
+            "SELECT frame, tile, worker_id, error FROM tile_failures WHERE job_id = ?1 ORDER BY at DESC LIMIT 10",
+        )?;
+        let rows = stmt
+            .query_map([job as i64], |r| {
+                Ok(format!(
+                    "frame {} tile {} on worker {}: {}",
+                    r.get::<_, i64>(0)?,
+                    r.get::<_, i64>(1)?,
+                    r.get::<_, i64>(2)?,
+                    r.get::<_, String>(3)?
+                ))
+            })?
+            .collect::<rusqlite::Result<Vec<_>>>()?;
+        Ok(rows)
+    }
+
+    /// Counts for /metrics.
+    pub fn metrics(&self) -> Result<StoreMetrics> {
+        let conn = self.conn();
+        let mut stmt = conn.prepare("SELECT state, count(*) FROM jobs GROUP BY state")?;
+        let states =
+            stmt.query_map([], |r| Ok((r.get(0)?, r.get(1)?)))?.collect::<rusqlite::Result<Vec<_>>>()?;
+        let done: i64 =
+            conn.query_row("SELECT count(*) FROM tiles WHERE state = 'done'", [], |r| r.get(0))?;
+        let (sum, count): (Option<f64>, i64) = conn.query_row(
+            "SELECT sum(render_seconds), count(render_seconds) FROM tiles WHERE render_seconds IS NOT NULL",
+            [],
+            |r| Ok((r.get(0)?, r.get(1)?)),
+        )?;
+        Ok(StoreMetrics {
+            jobs_by_state: states,
+            tiles_done: done,
+            render_seconds_sum: sum.unwrap_or(0.0),
+            render_seconds_count: count,
+        })
+    }
+}

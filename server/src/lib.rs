@@ -1,0 +1,232 @@
+//! `tessera-server`: the farm's HTTP server.
+//!
+//! - [`api`]: the routes (job API, worker protocol, health, metrics) over an [`api::AppState`].
+//! - [`db`]: the SQLite job store, the single source of truth (jobs, frames, tiles with their
+//!   pixels, leases, workers); a restart loses nothing that was acknowledged.
+//! - [`bundle`]: uploads into content-addressed tar bundles.
+//! - [`merge`]: tiles into frames, frames into `.exr` and tone-mapped `.png` files, once.
+//! - [`serve`]: binds, starts the background tasks (lease expiry, merges left over from a crash)
+//!   and the local worker processes, and shuts down on Ctrl-C or SIGTERM.
+
+pub mod api;
+pub mod bundle;
+pub mod db;
+pub mod merge;
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use tokio::process::Command;
+
+/// Everything `tessera-server` can be told (flags and environment).
+#[derive(Clone, Debug)]
+pub struct Config {
+    pub bind: SocketAddr,
+    pub data_dir: PathBuf,
+    pub local_workers: usize,
+    /// Threads per local worker (`None`: every core).
+    pub local_worker_threads: Option<usize>,
+    pub worker_bin: Option<PathBuf>,
+    pub tile_size: u32,
+    pub api_token: Option<String>,
+    pub worker_token: Option<String>,
+    pub insecure: bool,
+    pub lease_seconds: f64,
+    pub heartbeat_seconds: f64,
+    pub max_upload_mb: usize,
+}
+
+/// A random token from the operating system's generator (for local workers when none is set).
+fn random_token() -> String {
+    use std::io::Read;
+    let mut bytes = [0u8; 24];
+    if let Ok(mut f) = std::fs::File::open("/dev/urandom") {
+        let _ = f.read_exact(&mut bytes);
+    }
+    if bytes == [0u8; 24] {
+        // No /dev/urandom: mix the clock and the process id (still unguessable enough for a
+        // loopback-only default, and never used when the operator sets a token).
+        let seed = format!("{:?}{}", std::time::SystemTime::now(), std::process::id());
+        let h = bundle::sha256_hex(seed.as_bytes());
+        return h[..48].to_string();
+    }
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Checks the configuration before anything starts.
+pub fn check_config(config: &Config) -> Result<()> {
+    if !config.bind.ip().is_loopback() && config.api_token.is_none() && !config.insecure {
+        bail!(
+            "refusing to listen on {} without an API token: anyone who can reach it could run jobs on this machine. \
+             Set --api-token (or TESSERA_API_TOKEN), or pass --insecure if this network is trusted",
+            config.bind
+        );
+    }
+    if !config.bind.ip().is_loopback()
+        && config.worker_token.is_none()
+        && config.local_workers == 0
+        && !config.insecure
+    {
+        bail!(
+            "listening on {} for remote workers needs --worker-token (or TESSERA_WORKER_TOKEN) so that they can authenticate",
+            config.bind
+        );
+    }
+    if config.tile_size == 0 || config.tile_size > 4096 {
+        bail!("--tile-size must be between 1 and 4096 pixels, found {}", config.tile_size);
+    }
+    if config.lease_seconds <= 0.0
+        || config.heartbeat_seconds <= 0.0
+        || config.heartbeat_seconds >= config.lease_seconds
+    {
+        bail!(
+            "--heartbeat-seconds ({}) must be positive and shorter than --lease-seconds ({})",
+            config.heartbeat_seconds,
+            config.lease_seconds
+        );
+    }
+    Ok(())
+}
+
+/// The `tessera-worker` binary the local workers run: `--worker-bin`, else next to this
+/// executable.
+fn worker_binary(config: &Config) -> Result<PathBuf> {
+    if let Some(p) = &config.worker_bin {
+        return Ok(p.clone());
+    }
+    let exe = std::env::current_exe().context("cannot find this executable's path")?;
+    let name = if cfg!(windows) { "tessera-worker.exe" } else { "tessera-worker" };
+    let candidate = exe.parent().map(|d| d.join(name)).unwrap_or_else(|| PathBuf::from(name));
+    if candidate.exists() {
+        Ok(candidate)
+    } else {
+        bail!(
+            "cannot find {} for the local workers; build it (cargo build --release builds both binaries), pass --worker-bin, or start with --local-workers 0",
+            candidate.display()
+        )
+    }
+}
+
+/// Runs the server until Ctrl-C or SIGTERM. `on_listening` gets the bound address (port 0
+/// picks a free one).
+pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Result<()> {
+    check_config(&config)?;
+    std::fs::create_dir_all(&config.data_dir)
+        .with_context(|| format!("cannot create the data directory {}", config.data_dir.display()))?;
+    let store = Arc::new(db::Store::open(&config.data_dir.join("tessera.db"))?);
+    let blobs = bundle::BlobStore::new(&config.data_dir)?;
+    let worker_token = config.worker_token.clone().unwrap_or_else(random_token);
+    let settings = api::Settings {
+        data_dir: config.data_dir.clone(),
+        tile_size: config.tile_size,
+        api_token: config.api_token.clone(),
+        worker_token: worker_token.clone(),
+        lease_seconds: config.lease_seconds,
+        heartbeat_seconds: config.heartbeat_seconds,
+        max_wait_seconds: 20.0,
+        max_upload_bytes: config.max_upload_mb << 20,
+    };
+    let state = api::AppState {
+        store: store.clone(),
+        blobs,
+        settings: Arc::new(settings),
+        work: Arc::new(tokio::sync::Notify::new()),
+        counters: Arc::new(api::Counters::default()),
+        cameras: Arc::default(),
+    };
+
+    let listener = tokio::net::TcpListener::bind(config.bind)
+        .await
+        .with_context(|| format!("cannot listen on {}", config.bind))?;
+    let addr = listener.local_addr()?;
+    tracing::info!("listening on http://{addr}, data in {}", config.data_dir.display());
+    on_listening(addr);
+
+    // Frames whose last tile arrived just before a crash.
+    for f in store.frames_awaiting_merge()? {
+        tracing::info!(job = f.job_id, frame = f.index, "merging a frame left from before the restart");
+        tokio::spawn(api::merge_frame(state.clone(), f.job_id, f.index));
+    }
+
+    // Lease expiry: tiles of silent workers go back to the queue.
+    {
+        let state = state.clone();
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(Duration::from_millis(500));
+            loop {
+                tick.tick().await;
+                match state.store.expire_leases() {
+                    Ok(0) => {}
+                    Ok(n) => {
+                        tracing::warn!("{n} lease(s) expired; their tiles are queued again");
+                        state.counters.lease_expiries.fetch_add(n as u64, Ordering::Relaxed);
+                        state.work.notify_waiters();
+                    }
+                    Err(e) => tracing::error!("lease expiry: {e:#}"),
+                }
+            }
+        });
+    }
+
+    // Local workers: real processes over real HTTP, restarted if they die.
+    let mut supervisors = Vec::new();
+    if config.local_workers > 0 {
+        let bin = worker_binary(&config)?;
+        let url = format!(
+            "http://{}",
+            if addr.ip().is_unspecified() { SocketAddr::from(([127, 0, 0, 1], addr.port())) } else { addr }
+        );
+        for k in 0..config.local_workers {
+            let (bin, url, token) = (bin.clone(), url.clone(), worker_token.clone());
+            let threads = config.local_worker_threads;
+            supervisors
+                .push(tokio::spawn(async move { supervise_worker(k + 1, bin, url, token, threads).await }));
+        }
+    }
+
+    let shutdown = async {
+        let ctrl_c = tokio::signal::ctrl_c();
+        #[cfg(unix)]
+        {
+            let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+                .expect("SIGTERM handler");
+            tokio::select! { _ = ctrl_c => {}, _ = term.recv() => {} }
+        }
+        #[cfg(not(unix))]
+        let _ = ctrl_c.await;
+        tracing::info!("shutting down");
+    };
+    axum::serve(listener, api::app(state)).with_graceful_shutdown(shutdown).await?;
+    for s in supervisors {
+        s.abort();
+        let _ = s.await;
+    }
+    Ok(())
+}
+
+/// Keeps local worker `k` running until the server stops (the child is killed with its task).
+async fn supervise_worker(k: usize, bin: PathBuf, url: String, token: String, threads: Option<usize>) {
+    loop {
+        let mut cmd = Command::new(&bin);
+        cmd.arg("work").arg("--server").arg(&url).arg("--name").arg(format!("local-{k}"));
+        if let Some(t) = threads {
+            cmd.arg("--threads").arg(t.to_string());
+        }
+        cmd.env("TESSERA_WORKER_TOKEN", &token).kill_on_drop(true);
+        match cmd.spawn() {
+            Ok(mut child) => {
+                tracing::info!(worker = k, pid = child.id(), "local worker started");
+                match child.wait().await {
+                    Ok(status) => tracing::warn!(worker = k, %status, "local worker exited; restarting it"),
+                    Err(e) => tracing::error!(worker = k, "local worker: {e}"),
+                }
+            }
+            Err(e) => tracing::error!(worker = k, "cannot start {}: {e}", bin.display()),
+        }
+        tokio::time::sleep(Duration::from_secs(1)).await;
+    }
+}

@@ -1,0 +1,102 @@
+//! `tessera-server`: the render farm's server. See the crate docs (`lib.rs`) and the README.
+
+use std::io::Write;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::Parser;
+use tessera_server::{Config, serve};
+
+#[derive(Parser)]
+#[command(
+    name = "tessera-server",
+    version,
+    about = "Tessera's render farm server: takes CENG795 scenes over HTTP, cuts every frame into tiles, hands them to workers, merges and tone-maps the results",
+    after_help = "With no options it listens on 127.0.0.1:8080, keeps its state in ./tessera-data and starts one local worker that uses every core: a working farm.\n\nExamples:\n  tessera-server\n  curl -F scene=@scene.xml -F asset=@ply/bunny.ply\\;filename=ply/bunny.ply http://127.0.0.1:8080/api/v1/jobs\n  tessera-server --bind 0.0.0.0:8080 --api-token SECRET --worker-token WSECRET --local-workers 0\n  tessera-worker work --server http://farm:8080 --token WSECRET"
+)]
+struct Cli {
+    /// Address and port to listen on. Anything other than loopback needs --api-token (or
+    /// --insecure).
+    #[arg(long, default_value = "127.0.0.1:8080", env = "TESSERA_BIND", value_name = "ADDR:PORT")]
+    bind: SocketAddr,
+    /// Directory for the job database (tessera.db), uploaded bundles and rendered outputs.
+    #[arg(long, default_value = "tessera-data", env = "TESSERA_DATA_DIR", value_name = "DIR")]
+    data_dir: PathBuf,
+    /// Worker processes to start on this machine (0: only remote workers).
+    #[arg(long, default_value_t = 1, env = "TESSERA_LOCAL_WORKERS", value_name = "N")]
+    local_workers: usize,
+    /// Render threads of each local worker (default: every core).
+    #[arg(long, env = "TESSERA_LOCAL_WORKER_THREADS", value_name = "N")]
+    local_worker_threads: Option<usize>,
+    /// The tessera-worker binary for local workers (default: the one next to this binary).
+    #[arg(long, env = "TESSERA_WORKER_BIN", value_name = "PATH")]
+    worker_bin: Option<PathBuf>,
+    /// Default tile edge in pixels (a job may choose its own).
+    #[arg(long, default_value_t = 32, env = "TESSERA_TILE_SIZE", value_name = "PX")]
+    tile_size: u32,
+    /// Token the job API requires ("Authorization: Bearer TOKEN"). Without one the API is open,
+    /// which is allowed on loopback addresses only.
+    #[arg(long, env = "TESSERA_API_TOKEN", value_name = "TOKEN", hide_env_values = true)]
+    api_token: Option<String>,
+    /// Token workers must present. Default: a random one, given to the local workers.
+    #[arg(long, env = "TESSERA_WORKER_TOKEN", value_name = "TOKEN", hide_env_values = true)]
+    worker_token: Option<String>,
+    /// Allow a non-loopback --bind without tokens (only on a network you trust).
+    #[arg(long)]
+    insecure: bool,
+    /// Seconds a lease lives without a heartbeat before its tile goes back to the queue.
+    #[arg(long, default_value_t = 30.0, env = "TESSERA_LEASE_SECONDS", value_name = "S")]
+    lease_seconds: f64,
+    /// How often workers send heartbeats.
+    #[arg(long, default_value_t = 5.0, env = "TESSERA_HEARTBEAT_SECONDS", value_name = "S")]
+    heartbeat_seconds: f64,
+    /// Largest accepted upload in MiB.
+    #[arg(long, default_value_t = 1024, env = "TESSERA_MAX_UPLOAD_MB", value_name = "MIB")]
+    max_upload_mb: usize,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_env("TESSERA_LOG")
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .init();
+    let config = Config {
+        bind: cli.bind,
+        data_dir: cli.data_dir,
+        local_workers: cli.local_workers,
+        local_worker_threads: cli.local_worker_threads,
+        worker_bin: cli.worker_bin,
+        tile_size: cli.tile_size,
+        api_token: cli.api_token.filter(|t| !t.is_empty()),
+        worker_token: cli.worker_token.filter(|t| !t.is_empty()),
+        insecure: cli.insecure,
+        lease_seconds: cli.lease_seconds,
+        heartbeat_seconds: cli.heartbeat_seconds,
+        max_upload_mb: cli.max_upload_mb,
+    };
+    let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("error: cannot start the async runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let result = runtime.block_on(serve(config, |addr| {
+        // One machine-readable line on stdout, for scripts and tests that bind port 0.
+        println!("listening on http://{addr}");
+        let _ = std::io::stdout().flush();
+    }));
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

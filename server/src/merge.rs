@@ -1,0 +1,89 @@
+//! Merge and tone-map once: a frame's float tiles become one image, written as the camera's
+//! outputs (`tessera::output`): `.exr` plus the tone-mapped `.png` for HDR image names, the
+//! clamped `.png` plus the float frame as `.exr` for LDR ones. The photographic operator needs
+//! the whole image (log average, burn-out percentile), so it runs here and nowhere per tile.
+//!
+//! Everything here is CPU and file work: callers run it on `spawn_blocking`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use tessera::camera::Camera;
+use tessera::image::Image;
+use tessera::output::{self, OutputFile, OutputKind};
+use tessera::protocol::{Rect, decode_tile};
+use tessera::render::TileRect;
+use tessera::tonemap::tonemap;
+
+/// Assembles `tiles` into a `width` x `height` image; missing tiles stay black.
+pub fn assemble(width: u32, height: u32, tiles: &[(Rect, Vec<u8>)]) -> Result<Image> {
+    let mut img = Image::new(width, height);
+    for (r, bytes) in tiles {
+        if r.x0 + r.width > width || r.y0 + r.height > height {
+            bail!("tile {r:?} lies outside the {width}x{height} frame");
+        }
+        let px = decode_tile(bytes, (r.width * r.height) as usize).with_context(|| {
+            format!("tile {r:?} holds {} bytes, not {}", bytes.len(), r.width * r.height * 12)
+        })?;
+        img.put_tile(TileRect { x0: r.x0, y0: r.y0, width: r.width, height: r.height }, &px);
+    }
+    Ok(img)
+}
+
+/// The files the farm writes for a camera: what `tessera-worker render` writes, plus the float
+/// frame as `<stem>.exr` when the image name is LDR (so it can be re-tone-mapped later).
+pub fn farm_outputs(cam: &Camera) -> Vec<OutputFile> {
+    let (mut files, _) = output::plan(cam);
+    if !files.iter().any(|f| matches!(f.kind, OutputKind::Exr | OutputKind::Hdr)) {
+        let stem = Path::new(&files[0].name)
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let exr = format!("{stem}.exr");
+        if !files.iter().any(|f| f.name == exr) {
+            files.push(OutputFile { name: exr, kind: OutputKind::Exr });
+        }
+    }
+    files
+}
+
+/// Writes the frame's outputs into `dir` (created), each through a temporary file and a rename
+/// so that a crash never leaves half a file under the final name. Returns the file names.
+pub fn write_outputs(dir: &Path, cam: &Camera, img: &Image) -> Result<Vec<String>> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let files = farm_outputs(cam);
+    let tmp = dir.join(format!(".merge-{}", std::process::id()));
+    std::fs::create_dir_all(&tmp)?;
+    output::write(&tmp, img, &files).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut names = Vec::new();
+    for f in &files {
+        let from: PathBuf = tmp.join(&f.name);
+        std::fs::File::open(&from)?.sync_all()?;
+        std::fs::rename(&from, dir.join(&f.name))
+            .with_context(|| format!("cannot move {} into place", f.name))?;
+        names.push(f.name.clone());
+    }
+    let _ = std::fs::remove_dir_all(&tmp);
+    Ok(names)
+}
+
+/// A PNG of what has arrived so far, for the status page: the camera's tone mapping for HDR
+/// frames (on the arrived pixels only), the clamped image for LDR ones.
+pub fn preview_png(cam: &Camera, img: &Image) -> Result<Vec<u8>> {
+    let files = farm_outputs(cam);
+    let rgb = match files.iter().find_map(|f| match &f.kind {
+        OutputKind::Tonemapped(p) => Some(*p),
+        _ => None,
+    }) {
+        Some(params) => tonemap(img, &params).0,
+        None => img.to_ldr(),
+    };
+    let mut out = Vec::new();
+    {
+        use image::ImageEncoder;
+        image::codecs::png::PngEncoder::new(&mut out)
+            .write_image(&rgb, img.width, img.height, image::ExtendedColorType::Rgb8)
+            .context("cannot encode the preview")?;
+    }
+    Ok(out)
+}

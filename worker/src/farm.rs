@@ -1,0 +1,345 @@
+//! `tessera-worker work`: pulls tiles from a `tessera-server` and renders them
+//! (the worker side of `tessera::protocol`).
+//!
+//! Three threads share the work:
+//! - the **fetcher** long-polls for the next lease and hands it over through a channel of one,
+//!   so while a tile renders the next one is already here and the cores never wait on the
+//!   network;
+//! - the **heartbeat** thread renews every lease the worker holds (rendering or prefetched)
+//!   every `heartbeat_seconds`; it only does HTTP, so rendering cannot starve it; leases the
+//!   server revoked are remembered and their tiles dropped;
+//! - the **main** thread renders on a rayon pool: it fetches a job's bundle once, builds the
+//!   scene once per bundle (cached by its hash), renders the tile with the same
+//!   `render_tile` as `tessera-worker render` (same bits), and uploads it with a checksum.
+
+use std::collections::{HashMap, HashSet};
+use std::io::Read;
+use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, anyhow, bail};
+use tessera::assets::MemResolver;
+use tessera::protocol::*;
+use tessera::render::{RenderSettings, TileRect, render_tile};
+use tessera::scene::Scene;
+use tessera::scene::build::build_scene;
+use tessera::scene::parse_scene;
+
+/// What `work` was told.
+pub struct WorkOptions {
+    pub server: String,
+    pub token: String,
+    pub name: String,
+    pub threads: Option<usize>,
+    /// Stop after this many tiles (tests and benchmarks); `None`: run until killed.
+    pub max_tiles: Option<u64>,
+}
+
+/// The leases this worker holds and those the server took back.
+#[derive(Default)]
+struct Leases {
+    held: HashSet<u64>,
+    revoked: HashSet<u64>,
+    rendering: Option<u64>,
+}
+
+struct Client {
+    base: String,
+    token: String,
+    agent: ureq::Agent,
+}
+
+impl Client {
+    fn url(&self, path: &str) -> String {
+        format!("{}{path}", self.base)
+    }
+
+    // ureq's error type is large; these calls are a few per tile, not a hot path.
+    #[allow(clippy::result_large_err)]
+    fn post_json<T: serde::Serialize>(&self, path: &str, body: &T) -> Result<ureq::Response, ureq::Error> {
+        self.agent
+            .post(&self.url(path))
+            .set("Authorization", &format!("Bearer {}", self.token))
+            .send_json(serde_json::to_value(body).expect("protocol types serialise"))
+    }
+}
+
+/// Why a request failed, for messages: the server's JSON error when there is one.
+fn describe(e: ureq::Error) -> String {
+    match e {
+        ureq::Error::Status(code, resp) => {
+            let body = resp.into_string().unwrap_or_default();
+            match serde_json::from_str::<ApiError>(&body) {
+                Ok(api) => format!("HTTP {code}: {}", api.error),
+                Err(_) => format!("HTTP {code}: {}", body.trim()),
+            }
+        }
+        ureq::Error::Transport(t) => format!("cannot reach the server: {t}"),
+    }
+}
+
+/// Registers, retrying while the server is not up yet; fails at once on a bad token.
+fn register(client: &Client, name: &str, threads: u32) -> Result<RegisterResponse> {
+    let mut delay = Duration::from_millis(200);
+    let started = Instant::now();
+    loop {
+        match client.post_json("/api/v1/worker/register", &RegisterRequest { name: name.into(), threads }) {
+            Ok(resp) => return resp.into_json().context("the server's register answer is not valid JSON"),
+            Err(ureq::Error::Status(401, _)) => {
+                bail!(
+                    "the server refused the worker token; pass the farm's worker token with --token or TESSERA_WORKER_TOKEN"
+                )
+            }
+            Err(e) => {
+                if started.elapsed() > Duration::from_secs(5) {
+                    eprintln!("waiting for the server at {}: {}", client.base, describe(e));
+                }
+                std::thread::sleep(delay);
+                delay = (delay * 2).min(Duration::from_secs(5));
+            }
+        }
+    }
+}
+
+pub fn work(opts: WorkOptions) -> Result<()> {
+    let base = opts.server.trim_end_matches('/').to_string();
+    let agent = ureq::AgentBuilder::new()
+        .timeout_connect(Duration::from_secs(10))
+        .timeout(Duration::from_secs(120))
+        .build();
+    let client = Arc::new(Client { base, token: opts.token.clone(), agent });
+    let mut pool = rayon::ThreadPoolBuilder::new();
+    if let Some(n) = opts.threads {
+        pool = pool.num_threads(n);
+    }
+    let pool = pool.build().context("cannot start the render threads")?;
+    let reg = register(&client, &opts.name, pool.current_num_threads() as u32)?;
+    let worker_id = reg.worker_id;
+    eprintln!(
+        "worker {} ({}, {} threads) registered with {}",
+        worker_id,
+        opts.name,
+        pool.current_num_threads(),
+        client.base
+    );
+    let leases = Arc::new(Mutex::new(Leases::default()));
+
+    // Heartbeats.
+    {
+        let (client, leases) = (client.clone(), leases.clone());
+        let every = Duration::from_secs_f64(reg.heartbeat_seconds);
+        std::thread::Builder::new().name("heartbeat".into()).spawn(move || {
+            loop {
+                std::thread::sleep(every);
+                let (held, rendering) = {
+                    let l = leases.lock().unwrap_or_else(|e| e.into_inner());
+                    (l.held.iter().copied().collect::<Vec<_>>(), l.rendering)
+                };
+                match client.post_json(
+                    "/api/v1/worker/heartbeat",
+                    &HeartbeatRequest { worker_id, leases: held, rendering },
+                ) {
+                    Ok(resp) => {
+                        if let Ok(hb) = resp.into_json::<HeartbeatResponse>() {
+                            let mut l = leases.lock().unwrap_or_else(|e| e.into_inner());
+                            for r in hb.revoked {
+                                l.held.remove(&r);
+                                l.revoked.insert(r);
+                            }
+                        }
+                    }
+                    Err(e) => eprintln!("heartbeat: {}", describe(e)),
+                }
+            }
+        })?;
+    }
+
+    // The fetcher: one lease ahead.
+    let (tx, rx): (SyncSender<Lease>, Receiver<Lease>) = sync_channel(0);
+    {
+        let (client, leases) = (client.clone(), leases.clone());
+        std::thread::Builder::new()
+            .name("fetcher".into())
+            .spawn(move || fetch_leases(&client, worker_id, &leases, &tx))?;
+    }
+
+    let mut scenes: HashMap<(String, String), Arc<Scene>> = HashMap::new();
+    let mut done = 0u64;
+    while let Ok(lease) = rx.recv() {
+        let id = lease.lease_id;
+        leases.lock().unwrap_or_else(|e| e.into_inner()).rendering = Some(id);
+        let started = Instant::now();
+        let rendered = pool.install(|| render_lease(&client, &mut scenes, &lease));
+        let seconds = started.elapsed().as_secs_f64();
+        let revoked = {
+            let mut l = leases.lock().unwrap_or_else(|e| e.into_inner());
+            l.rendering = None;
+            l.revoked.remove(&id)
+        };
+        if revoked {
+            eprintln!("lease {id} was revoked while rendering; dropping the tile");
+            leases.lock().unwrap_or_else(|e| e.into_inner()).held.remove(&id);
+            continue;
+        }
+        match rendered {
+            Ok(px) => upload(&client, worker_id, id, &px, seconds),
+            Err(e) => {
+                eprintln!("tile {} of job {} failed: {e:#}", lease.tile, lease.job_id);
+                let req = FailRequest { worker_id, error: format!("{e:#}") };
+                if let Err(e) = client.post_json(&format!("/api/v1/worker/leases/{id}/fail"), &req) {
+                    eprintln!("reporting the failure: {}", describe(e));
+                }
+            }
+        }
+        leases.lock().unwrap_or_else(|e| e.into_inner()).held.remove(&id);
+        done += 1;
+        if opts.max_tiles.is_some_and(|m| done >= m) {
+            break;
+        }
+    }
+    Ok(())
+}
+
+/// Long-polls for leases forever, handing each to the renderer (blocking while it is busy, so
+/// exactly one lease waits ahead).
+fn fetch_leases(client: &Client, worker_id: u64, leases: &Mutex<Leases>, tx: &SyncSender<Lease>) {
+    let mut delay = Duration::from_millis(200);
+    loop {
+        match client.post_json("/api/v1/worker/lease", &LeaseRequest { worker_id, wait_seconds: 20.0 }) {
+            Ok(resp) if resp.status() == 200 => {
+                delay = Duration::from_millis(200);
+                match resp.into_json::<Lease>() {
+                    Ok(lease) => {
+                        leases.lock().unwrap_or_else(|e| e.into_inner()).held.insert(lease.lease_id);
+                        if tx.send(lease).is_err() {
+                            return;
+                        }
+                    }
+                    Err(e) => eprintln!("lease: the answer is not valid JSON: {e}"),
+                }
+            }
+            Ok(_) => {} // 204: no work yet; ask again.
+            Err(ureq::Error::Status(404, _)) => {
+                // The server forgot this worker (a new data directory): nothing sensible to do
+                // but stop; a supervisor restarts and registers again.
+                eprintln!("the server does not know worker {worker_id} any more; exiting");
+                std::process::exit(3);
+            }
+            Err(e) => {
+                eprintln!("lease: {}", describe(e));
+                std::thread::sleep(delay);
+                delay = (delay * 2).min(Duration::from_secs(5));
+            }
+        }
+    }
+}
+
+/// Renders the tile of `lease`, building its scene first if this bundle is new here.
+fn render_lease(
+    client: &Client,
+    scenes: &mut HashMap<(String, String), Arc<Scene>>,
+    lease: &Lease,
+) -> Result<Vec<[f32; 3]>> {
+    let key = (lease.bundle.clone(), lease.scene_path.clone());
+    let scene = match scenes.get(&key) {
+        Some(s) => s.clone(),
+        None => {
+            let s = Arc::new(load_bundle_scene(client, &lease.bundle, &lease.scene_path)?);
+            // Keep a few scenes; jobs rarely interleave more.
+            if scenes.len() >= 4 {
+                scenes.clear();
+            }
+            scenes.insert(key, s.clone());
+            s
+        }
+    };
+    let cam = scene
+        .cameras
+        .get(lease.camera as usize)
+        .ok_or_else(|| anyhow!("the scene has no camera {}", lease.camera))?;
+    let r = lease.rect;
+    if r.width == 0 || r.height == 0 || r.x0 + r.width > cam.width || r.y0 + r.height > cam.height {
+        bail!("tile {:?} lies outside the {}x{} frame", r, cam.width, cam.height);
+    }
+    let settings = RenderSettings { samples: lease.samples, ..RenderSettings::default() };
+    let rect = TileRect { x0: r.x0, y0: r.y0, width: r.width, height: r.height };
+    let camera = lease.camera as usize;
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| render_tile(&scene, camera, rect, &settings).0))
+        .map_err(|_| {
+            anyhow!("the renderer panicked on this tile (a bug in Tessera; please report it with the scene)")
+        })
+}
+
+fn load_bundle_scene(client: &Client, bundle: &str, scene_path: &str) -> Result<Scene> {
+    let resp = client
+        .agent
+        .get(&client.url(&format!("/api/v1/worker/bundles/{bundle}")))
+        .set("Authorization", &format!("Bearer {}", client.token))
+        .call()
+        .map_err(|e| anyhow!("fetching bundle {bundle}: {}", describe(e)))?;
+    let mut tar = Vec::new();
+    resp.into_reader().read_to_end(&mut tar).context("downloading the bundle")?;
+    let files = read_tar(&tar)?;
+    let text = files.get(scene_path).ok_or_else(|| anyhow!("the bundle has no {scene_path}"))?;
+    let text = String::from_utf8_lossy(text).into_owned();
+    let records = parse_scene(&text, std::path::Path::new(scene_path))?;
+    let resolver = MemResolver::for_scene(files, scene_path);
+    Ok(build_scene(&records, &resolver)?)
+}
+
+/// The files of a bundle (a tar of regular files with normalised paths).
+fn read_tar(bytes: &[u8]) -> Result<HashMap<String, Arc<Vec<u8>>>> {
+    let mut out = HashMap::new();
+    let mut archive = tar::Archive::new(bytes);
+    for entry in archive.entries().context("reading the bundle")? {
+        let mut entry = entry.context("reading the bundle")?;
+        if !entry.header().entry_type().is_file() {
+            continue;
+        }
+        let path = String::from_utf8_lossy(&entry.path_bytes()).into_owned();
+        let mut data = Vec::new();
+        entry.read_to_end(&mut data).context("reading the bundle")?;
+        if let Some(p) = tessera::assets::normalize_bundle_path(&path) {
+            out.insert(p, Arc::new(data));
+        }
+    }
+    Ok(out)
+}
+
+/// Uploads a tile, retrying transport errors; a 409 means the lease is gone: drop the tile.
+fn upload(client: &Client, worker_id: u64, lease: u64, px: &[[f32; 3]], seconds: f64) {
+    let body = encode_tile(px);
+    let sum = checksum(&body);
+    let mut delay = Duration::from_millis(200);
+    for _ in 0..8 {
+        let res = client
+            .agent
+            .put(&client.url(&format!("/api/v1/worker/leases/{lease}/result")))
+            .set("Authorization", &format!("Bearer {}", client.token))
+            .set("x-tessera-worker", &worker_id.to_string())
+            .set(CHECKSUM_HEADER, &sum)
+            .set("x-tessera-render-seconds", &format!("{seconds:.6}"))
+            .set("Content-Type", "application/octet-stream")
+            .send_bytes(&body);
+        match res {
+            Ok(_) => return,
+            Err(ureq::Error::Status(409, _)) => {
+                eprintln!("lease {lease} expired or was revoked before the upload; the tile is dropped");
+                return;
+            }
+            Err(ureq::Error::Status(code, r)) if code < 500 => {
+                eprintln!(
+                    "the server refused tile of lease {lease}: {}",
+                    describe(ureq::Error::Status(code, r))
+                );
+                return;
+            }
+            Err(e) => {
+                eprintln!("uploading lease {lease}: {}; retrying", describe(e));
+                std::thread::sleep(delay);
+                delay = (delay * 2).min(Duration::from_secs(5));
+            }
+        }
+    }
+}
