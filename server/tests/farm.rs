@@ -1,0 +1,548 @@
+//! End-to-end tests of the farm: the real `tessera-server` and `tessera-worker` binaries as
+//! separate processes, talking HTTP on loopback, with a real SQLite file in a temp directory.
+//! Results are compared byte for byte with what `tessera-worker render` writes.
+
+use std::io::{BufRead, BufReader, Read};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+/// Farm tests start several processes that each want every core: run them one at a time.
+static SERIAL: Mutex<()> = Mutex::new(());
+
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn server_bin() -> PathBuf {
+    PathBuf::from(env!("CARGO_BIN_EXE_tessera-server"))
+}
+
+/// `tessera-worker`, built next to the server binary (`cargo test --workspace` builds it; a
+/// test run of this package alone builds it here).
+fn worker_bin() -> PathBuf {
+    let bin = server_bin().with_file_name("tessera-worker");
+    if !bin.exists() {
+        let release = server_bin().components().any(|c| c.as_os_str() == "release");
+        let mut cmd = Command::new(env!("CARGO"));
+        cmd.args(["build", "-p", "tessera-worker"]);
+        if release {
+            cmd.arg("--release");
+        }
+        let status = cmd.status().expect("run cargo build -p tessera-worker");
+        assert!(status.success(), "cannot build tessera-worker");
+    }
+    bin
+}
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("tessera-farm-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+struct Server {
+    child: Child,
+    url: String,
+    log: PathBuf,
+}
+
+impl Server {
+    /// Starts `tessera-server` with `args` (plus a data dir and a free port unless given).
+    fn start(data: &Path, args: &[&str]) -> Server {
+        let log = data.with_extension(format!("log{}", std::process::id()));
+        let mut cmd = Command::new(server_bin());
+        cmd.arg("--data-dir").arg(data).args(args);
+        if !args.contains(&"--bind") {
+            cmd.args(["--bind", "127.0.0.1:0"]);
+        }
+        cmd.arg("--worker-bin").arg(worker_bin());
+        cmd.env_remove("TESSERA_API_TOKEN").env_remove("TESSERA_WORKER_TOKEN");
+        let mut child = cmd
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .expect("start tessera-server");
+        let stdout = child.stdout.take().unwrap();
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let mut lines = BufReader::new(stdout).lines();
+            if let Some(Ok(line)) = lines.next() {
+                let _ = tx.send(line);
+            }
+            for _ in lines {}
+        });
+        let line = rx.recv_timeout(Duration::from_secs(30)).unwrap_or_else(|_| {
+            panic!("the server did not start:\n{}", std::fs::read_to_string(&log).unwrap_or_default())
+        });
+        let url = line
+            .strip_prefix("listening on ")
+            .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
+            .to_string();
+        Server { child, url, log }
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    fn kill9(&mut self) {
+        let _ = Command::new("kill").args(["-9", &self.child.id().to_string()]).status();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        // SIGTERM, so that the server stops its local workers.
+        let _ = Command::new("kill").args(["-TERM", &self.child.id().to_string()]).stderr(Stdio::null()).status();
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while Instant::now() < deadline {
+            if let Ok(Some(_)) = self.child.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+struct Worker(Child);
+
+impl Worker {
+    fn start(url: &str, token: &str, name: &str) -> Worker {
+        let child = Command::new(worker_bin())
+            .args(["work", "--server", url, "--token", token, "--name", name, "--threads", "1"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start tessera-worker work");
+        Worker(child)
+    }
+
+    fn kill9(&mut self) {
+        let _ = Command::new("kill").args(["-9", &self.0.id().to_string()]).status();
+        let _ = self.0.wait();
+    }
+}
+
+impl Drop for Worker {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// A multipart/form-data body: (field, file name or None, bytes).
+fn multipart(parts: &[(&str, Option<&str>, &[u8])]) -> (String, Vec<u8>) {
+    let boundary = "tessera-test-boundary-7f3a";
+    let mut body = Vec::new();
+    for (name, file, data) in parts {
+        body.extend_from_slice(format!("--{boundary}\r\n").as_bytes());
+        match file {
+            Some(f) => body.extend_from_slice(
+                format!("Content-Disposition: form-data; name=\"{name}\"; filename=\"{f}\"\r\nContent-Type: application/octet-stream\r\n\r\n").as_bytes(),
+            ),
+            None => body.extend_from_slice(format!("Content-Disposition: form-data; name=\"{name}\"\r\n\r\n").as_bytes()),
+        }
+        body.extend_from_slice(data);
+        body.extend_from_slice(b"\r\n");
+    }
+    body.extend_from_slice(format!("--{boundary}--\r\n").as_bytes());
+    (format!("multipart/form-data; boundary={boundary}"), body)
+}
+
+/// (status, JSON body) of a request; never panics on 4xx/5xx.
+fn call(req: ureq::Request, body: Option<(String, Vec<u8>)>) -> (u16, Value) {
+    let res = match body {
+        Some((ct, bytes)) => req.set("Content-Type", &ct).send_bytes(&bytes),
+        None => req.call(),
+    };
+    let (code, text) = match res {
+        Ok(r) => (r.status(), r.into_string().unwrap_or_default()),
+        Err(ureq::Error::Status(code, r)) => (code, r.into_string().unwrap_or_default()),
+        Err(e) => panic!("request failed: {e}"),
+    };
+    (code, serde_json::from_str(&text).unwrap_or(Value::String(text)))
+}
+
+fn submit(url: &str, token: Option<&str>, parts: &[(&str, Option<&str>, &[u8])]) -> (u16, Value) {
+    let mut req = ureq::post(&format!("{url}/api/v1/jobs"));
+    if let Some(t) = token {
+        req = req.set("Authorization", &format!("Bearer {t}"));
+    }
+    call(req, Some(multipart(parts)))
+}
+
+fn get_json(url: &str, path: &str) -> Value {
+    let (code, v) = call(ureq::get(&format!("{url}{path}")), None);
+    assert_eq!(code, 200, "GET {path}: {v}");
+    v
+}
+
+fn get_bytes(url: &str, path: &str) -> Vec<u8> {
+    let r = ureq::get(&format!("{url}{path}")).call().unwrap_or_else(|e| panic!("GET {path}: {e}"));
+    let mut out = Vec::new();
+    r.into_reader().read_to_end(&mut out).unwrap();
+    out
+}
+
+/// Polls the job until `until` holds for it, or panics with the server log after `secs`.
+fn wait_job(server: &Server, id: u64, secs: u64, until: impl Fn(&Value) -> bool) -> Value {
+    let deadline = Instant::now() + Duration::from_secs(secs);
+    loop {
+        let job = get_json(&server.url, &format!("/api/v1/jobs/{id}"));
+        if until(&job) {
+            return job;
+        }
+        assert!(
+            !matches!(job["state"].as_str(), Some("failed") | Some("canceled")) || until(&job),
+            "job ended unexpectedly: {job}\n{}",
+            server.log()
+        );
+        if Instant::now() > deadline {
+            panic!("timed out waiting for job {id}: {job}\n--- server log ---\n{}", server.log());
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+fn tiles_done(job: &Value) -> u64 {
+    job["frames"].as_array().map_or(0, |f| f.iter().map(|f| f["tiles_done"].as_u64().unwrap_or(0)).sum())
+}
+
+/// The demo environment scene (HDR output, an image asset) as upload parts.
+fn environment_parts(samples: &str) -> (Vec<u8>, Vec<u8>, String) {
+    let scene = std::fs::read(repo().join("scenes/environment.xml")).unwrap();
+    let sky = std::fs::read(repo().join("scenes/textures/sky.hdr")).unwrap();
+    (scene, sky, samples.to_string())
+}
+
+/// What `tessera-worker render` writes for the environment scene at `samples` spp.
+fn cli_render(samples: &str) -> (Vec<u8>, Vec<u8>) {
+    let out = temp_dir(&format!("cli-{samples}"));
+    let status = Command::new(worker_bin())
+        .args([
+            "render",
+            repo().join("scenes/environment.xml").to_str().unwrap(),
+            "--quiet",
+            "--samples",
+            samples,
+            "--out",
+        ])
+        .arg(&out)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .unwrap();
+    assert!(status.success());
+    (std::fs::read(out.join("environment.exr")).unwrap(), std::fs::read(out.join("environment.png")).unwrap())
+}
+
+fn submit_environment(server: &Server, samples: &str, tile: &str) -> u64 {
+    let (scene, sky, samples) = environment_parts(samples);
+    let (code, job) = submit(
+        &server.url,
+        None,
+        &[
+            ("scene", Some("environment.xml"), &scene),
+            ("asset", Some("textures/sky.hdr"), &sky),
+            ("samples", None, samples.as_bytes()),
+            ("tile_size", None, tile.as_bytes()),
+        ],
+    );
+    assert_eq!(code, 201, "{job}\n{}", server.log());
+    job["id"].as_u64().unwrap()
+}
+
+fn assert_outputs_equal_cli(server: &Server, id: u64, samples: &str) {
+    let job = get_json(&server.url, &format!("/api/v1/jobs/{id}"));
+    let names: Vec<&str> =
+        job["frames"][0]["outputs"].as_array().unwrap().iter().map(|o| o["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["environment.exr", "environment.png"], "{job}");
+    let exr = get_bytes(&server.url, &format!("/api/v1/jobs/{id}/frames/0/files/environment.exr"));
+    let png = get_bytes(&server.url, &format!("/api/v1/jobs/{id}/frames/0/files/environment.png"));
+    let (cli_exr, cli_png) = cli_render(samples);
+    assert!(
+        exr == cli_exr,
+        "the farm's EXR differs from the CLI's ({} vs {} bytes)",
+        exr.len(),
+        cli_exr.len()
+    );
+    assert!(png == cli_png, "the farm's PNG differs from the CLI's");
+}
+
+#[test]
+fn a_job_renders_on_two_local_workers_exactly_like_the_cli() {
+    let _s = serial();
+    let data = temp_dir("two");
+    let server = Server::start(&data, &["--local-workers", "2", "--local-worker-threads", "1"]);
+    assert_eq!(get_bytes(&server.url, "/healthz"), b"ok\n");
+    let id = submit_environment(&server, "4", "16");
+    let job = wait_job(&server, id, 120, |j| j["state"] == "done");
+    assert_eq!(job["frames"][0]["tiles_done"], job["frames"][0]["tiles_total"]);
+    assert_outputs_equal_cli(&server, id, "4");
+    // Both workers rendered part of the frame.
+    let workers = get_json(&server.url, "/api/v1/workers");
+    let done: Vec<u64> =
+        workers["workers"].as_array().unwrap().iter().map(|w| w["tiles_done"].as_u64().unwrap()).collect();
+    assert_eq!(done.len(), 2, "{workers}");
+    assert!(done.iter().all(|&d| d > 0), "one worker did nothing: {workers}");
+    assert_eq!(done.iter().sum::<u64>(), job["frames"][0]["tiles_total"].as_u64().unwrap());
+    // The job list, the preview and the metrics.
+    let list = get_json(&server.url, "/api/v1/jobs");
+    assert_eq!(list["jobs"][0]["id"], id);
+    let preview = get_bytes(&server.url, &format!("/api/v1/jobs/{id}/frames/0/preview.png"));
+    assert!(preview.starts_with(b"\x89PNG"));
+    let metrics = String::from_utf8(get_bytes(&server.url, "/metrics")).unwrap();
+    assert!(metrics.contains("tessera_jobs{state=\"done\"} 1"), "{metrics}");
+    assert!(metrics.contains(&format!("tessera_tiles_done_total {}", done.iter().sum::<u64>())), "{metrics}");
+    assert!(metrics.contains("tessera_tile_render_seconds_count"), "{metrics}");
+}
+
+#[test]
+fn a_worker_killed_mid_job_loses_nothing() {
+    let _s = serial();
+    let data = temp_dir("killworker");
+    let server = Server::start(
+        &data,
+        &[
+            "--local-workers",
+            "0",
+            "--worker-token",
+            "wtok",
+            "--lease-seconds",
+            "2",
+            "--heartbeat-seconds",
+            "0.5",
+        ],
+    );
+    let mut a = Worker::start(&server.url, "wtok", "a");
+    let _b = Worker::start(&server.url, "wtok", "b");
+    let id = submit_environment(&server, "24", "16");
+    wait_job(&server, id, 120, |j| tiles_done(j) >= 6);
+    a.kill9();
+    wait_job(&server, id, 180, |j| j["state"] == "done");
+    assert_outputs_equal_cli(&server, id, "24");
+    let metrics = String::from_utf8(get_bytes(&server.url, "/metrics")).unwrap();
+    let expiries: u64 = metrics
+        .lines()
+        .find_map(|l| l.strip_prefix("tessera_lease_expiries_total "))
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap();
+    assert!(expiries >= 1, "the killed worker's lease should have expired: {metrics}");
+}
+
+#[test]
+fn a_server_killed_mid_job_resumes_after_restart() {
+    let _s = serial();
+    let data = temp_dir("killserver");
+    let args = [
+        "--local-workers",
+        "0",
+        "--worker-token",
+        "wtok",
+        "--lease-seconds",
+        "2",
+        "--heartbeat-seconds",
+        "0.5",
+    ];
+    let mut server = Server::start(&data, &args);
+    let port = server.url.rsplit(':').next().unwrap().to_string();
+    let _w = Worker::start(&server.url, "wtok", "w");
+    let id = submit_environment(&server, "24", "16");
+    let before = wait_job(&server, id, 120, |j| tiles_done(j) >= 6);
+    server.kill9();
+    // Same data directory, same port: the worker carries on against the new process.
+    let bind = format!("127.0.0.1:{port}");
+    let mut args2 = args.to_vec();
+    args2.extend(["--bind", &bind]);
+    let server = Server::start(&data, &args2);
+    let after = get_json(&server.url, &format!("/api/v1/jobs/{id}"));
+    assert!(tiles_done(&after) >= tiles_done(&before), "tiles were lost: {before} -> {after}");
+    wait_job(&server, id, 180, |j| j["state"] == "done");
+    assert_outputs_equal_cli(&server, id, "24");
+}
+
+#[test]
+fn canceling_a_job_stops_it_and_revokes_its_tiles() {
+    let _s = serial();
+    let data = temp_dir("cancel");
+    let server = Server::start(&data, &["--local-workers", "1", "--local-worker-threads", "1"]);
+    let id = submit_environment(&server, "64", "16");
+    wait_job(&server, id, 60, |j| j["state"] == "running");
+    let (code, job) = call(
+        ureq::post(&format!("{}/api/v1/jobs/{id}/cancel", server.url)),
+        Some(("text/plain".into(), vec![])),
+    );
+    assert_eq!(code, 200, "{job}");
+    assert_eq!(job["state"], "canceled");
+    let (code, again) = call(
+        ureq::post(&format!("{}/api/v1/jobs/{id}/cancel", server.url)),
+        Some(("text/plain".into(), vec![])),
+    );
+    assert_eq!(code, 409, "{again}");
+    // No outputs appear, and the worker is free for the next job.
+    let id2 = submit_environment(&server, "1", "64");
+    wait_job(&server, id2, 60, |j| j["state"] == "done");
+    let job = get_json(&server.url, &format!("/api/v1/jobs/{id}"));
+    assert_eq!(job["state"], "canceled");
+    assert!(job["frames"][0]["outputs"].as_array().unwrap().is_empty());
+    let (code, _) =
+        call(ureq::get(&format!("{}/api/v1/jobs/{id}/frames/0/files/environment.exr", server.url)), None);
+    assert_eq!(code, 409);
+}
+
+/// A tar archive with one entry named `name` (written by hand: tar libraries refuse `..`).
+fn raw_tar(name: &str, data: &[u8]) -> Vec<u8> {
+    let mut h = [0u8; 512];
+    h[..name.len()].copy_from_slice(name.as_bytes());
+    h[100..107].copy_from_slice(b"0000644");
+    h[108..115].copy_from_slice(b"0000000");
+    h[116..123].copy_from_slice(b"0000000");
+    h[124..135].copy_from_slice(format!("{:011o}", data.len()).as_bytes());
+    h[136..147].copy_from_slice(b"00000000000");
+    h[156] = b'0';
+    h[257..263].copy_from_slice(b"ustar\0");
+    h[263..265].copy_from_slice(b"00");
+    h[148..156].copy_from_slice(b"        ");
+    let sum: u32 = h.iter().map(|b| u32::from(*b)).sum();
+    h[148..155].copy_from_slice(format!("{sum:06o}\0").as_bytes());
+    let mut out = h.to_vec();
+    out.extend_from_slice(data);
+    out.resize(out.len().div_ceil(512) * 512 + 1024, 0);
+    out
+}
+
+#[test]
+fn bad_requests_get_clear_errors_and_the_server_keeps_serving() {
+    let _s = serial();
+    let data = temp_dir("bad");
+    let server =
+        Server::start(&data, &["--local-workers", "1", "--api-token", "sekret", "--max-upload-mb", "1"]);
+    let tori = std::fs::read(repo().join("scenes/tori.xml")).unwrap();
+    let torus = std::fs::read(repo().join("scenes/ply/torus.ply")).unwrap();
+    let t = Some("sekret");
+
+    // No token, a wrong token.
+    let (code, v) = submit(&server.url, None, &[("scene", Some("tori.xml"), &tori)]);
+    assert_eq!(code, 401, "{v}");
+    assert!(v["error"].as_str().unwrap().contains("Authorization: Bearer"), "{v}");
+    let (code, _) = submit(&server.url, Some("guess"), &[("scene", Some("tori.xml"), &tori)]);
+    assert_eq!(code, 401);
+    let (code, _) = call(ureq::get(&format!("{}/api/v1/jobs", server.url)), None);
+    assert_eq!(code, 401);
+
+    // A malformed scene: 422 with the file, line and element.
+    let bad = b"<Scene>\n<Cameras>\n<Camera id=\"1\"><Position>0 zero 0</Position></Camera>\n</Cameras>\n</Scene>\n";
+    let (code, v) = submit(&server.url, t, &[("scene", Some("bad.xml"), bad)]);
+    assert_eq!(code, 422, "{v}");
+    let p = &v["problems"][0];
+    assert_eq!((p["file"].as_str(), p["line"].as_u64()), (Some("bad.xml"), Some(3)), "{v}");
+    assert!(p["message"].as_str().unwrap().contains("expected 3 numbers"), "{v}");
+
+    // A missing asset names the file.
+    let (code, v) = submit(&server.url, t, &[("scene", Some("tori.xml"), &tori)]);
+    assert_eq!(code, 422, "{v}");
+    assert!(v["error"].as_str().unwrap().contains("ply/torus.ply"), "{v}");
+
+    // Paths that leave the bundle, as a file name and inside a tar.
+    let (code, v) = submit(
+        &server.url,
+        t,
+        &[("scene", Some("tori.xml"), &tori), ("asset", Some("../ply/torus.ply"), &torus)],
+    );
+    assert_eq!(code, 400, "{v}");
+    assert!(v["error"].as_str().unwrap().contains("../ply/torus.ply"), "{v}");
+    let (code, v) =
+        submit(&server.url, t, &[("bundle", Some("b.tar"), &raw_tar("../../etc/x.xml", b"<Scene/>"))]);
+    assert_eq!(code, 400, "{v}");
+    assert!(v["error"].as_str().unwrap().contains("leaves the bundle"), "{v}");
+    let (code, v) = submit(&server.url, t, &[("bundle", Some("b.zip"), b"not an archive at all")]);
+    assert_eq!(code, 400, "{v}");
+
+    // Over the size limit.
+    let big = vec![b' '; 2 << 20];
+    let (code, v) =
+        submit(&server.url, t, &[("scene", Some("tori.xml"), &tori), ("asset", Some("big.bin"), &big)]);
+    assert_eq!(code, 413, "{v}");
+    assert!(v["error"].as_str().unwrap().contains("--max-upload-mb"), "{v}");
+
+    // Workers need their token too.
+    let (code, _) = call(
+        ureq::post(&format!("{}/api/v1/worker/register", server.url)),
+        Some(("application/json".into(), br#"{"name":"x","threads":1}"#.to_vec())),
+    );
+    assert_eq!(code, 401);
+
+    // Still serving: a good job (the scene and its asset inside a tar bundle) completes.
+    let mut tar = tar::Builder::new(Vec::new());
+    let mut add = |path: &str, data: &[u8]| {
+        let mut h = tar::Header::new_gnu();
+        h.set_size(data.len() as u64);
+        h.set_mode(0o644);
+        tar.append_data(&mut h, path, data).unwrap();
+    };
+    add("tori/tori.xml", &tori);
+    add("tori/ply/torus.ply", &torus);
+    let bundle = tar.into_inner().unwrap();
+    let (code, v) =
+        submit(&server.url, t, &[("bundle", Some("tori.tar"), &bundle), ("tile_size", None, b"64")]);
+    assert_eq!(code, 201, "{v}");
+    let id = v["id"].as_u64().unwrap();
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        let (_, job) = call(
+            ureq::get(&format!("{}/api/v1/jobs/{id}", server.url)).set("Authorization", "Bearer sekret"),
+            None,
+        );
+        if job["state"] == "done" {
+            break;
+        }
+        assert!(Instant::now() < deadline, "{job}\n{}", server.log());
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert_eq!(get_bytes(&server.url, "/healthz"), b"ok\n");
+    assert!(!server.log().contains("panicked"), "{}", server.log());
+}
+
+#[test]
+fn listening_beyond_loopback_needs_a_token() {
+    let out = Command::new(server_bin())
+        .args(["--bind", "0.0.0.0:0", "--local-workers", "0", "--data-dir"])
+        .arg(temp_dir("open"))
+        .env_remove("TESSERA_API_TOKEN")
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--api-token") && err.contains("--insecure"), "{err}");
+}
+
+#[test]
+fn help_lists_every_option() {
+    let out = Command::new(server_bin()).arg("--help").output().unwrap();
+    let help = String::from_utf8_lossy(&out.stdout);
+    for flag in [
+        "--bind",
+        "--data-dir",
+        "--local-workers",
+        "--tile-size",
+        "--api-token",
+        "--worker-token",
+        "--insecure",
+        "--lease-seconds",
+        "--max-upload-mb",
+    ] {
+        assert!(help.contains(flag), "{flag} missing from --help:\n{help}");
+    }
+}
