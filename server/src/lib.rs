@@ -188,7 +188,8 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
         }
     }
 
-    let shutdown = async {
+    let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
+    let shutdown = async move {
         let ctrl_c = tokio::signal::ctrl_c();
         #[cfg(unix)]
         {
@@ -199,11 +200,22 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
         #[cfg(not(unix))]
         let _ = ctrl_c.await;
         tracing::info!("shutting down");
+        // Stop the local workers first (their long polls would otherwise hold the server up).
+        for s in supervisors {
+            s.abort();
+            let _ = s.await;
+        }
+        let _ = stop_tx.send(true);
     };
-    axum::serve(listener, api::app(state)).with_graceful_shutdown(shutdown).await?;
-    for s in supervisors {
-        s.abort();
-        let _ = s.await;
+    let server = axum::serve(listener, api::app(state)).with_graceful_shutdown(shutdown);
+    // In-flight requests (long polls of remote workers) get a few seconds to finish.
+    let server = std::pin::pin!(server.into_future());
+    tokio::select! {
+        r = server => r?,
+        _ = async {
+            let _ = stop_rx.wait_for(|s| *s).await;
+            tokio::time::sleep(Duration::from_secs(3)).await;
+        } => tracing::info!("stopped with requests still open"),
     }
     Ok(())
 }
@@ -212,7 +224,12 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
 async fn supervise_worker(k: usize, bin: PathBuf, url: String, token: String, threads: Option<usize>) {
     loop {
         let mut cmd = Command::new(&bin);
-        cmd.arg("work").arg("--server").arg(&url).arg("--name").arg(format!("local-{k}"));
+        cmd.arg("work")
+            .arg("--server")
+            .arg(&url)
+            .arg("--name")
+            .arg(format!("local-{k}"))
+            .arg("--exit-with-parent");
         if let Some(t) = threads {
             cmd.arg("--threads").arg(t.to_string());
         }

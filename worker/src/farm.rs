@@ -19,6 +19,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
+use rayon::prelude::*;
 use tessera::assets::MemResolver;
 use tessera::protocol::*;
 use tessera::render::{RenderSettings, TileRect, render_tile};
@@ -62,6 +63,24 @@ impl Client {
             .post(&self.url(path))
             .set("Authorization", &format!("Bearer {}", self.token))
             .send_json(serde_json::to_value(body).expect("protocol types serialise"))
+    }
+}
+
+/// Exits this process when its parent ends (it is re-parented), checked twice a second: local
+/// workers must not outlive a server that was killed.
+pub fn exit_with_parent() {
+    #[cfg(unix)]
+    {
+        let parent = std::os::unix::process::parent_id();
+        let _ = std::thread::Builder::new().name("parent-watch".into()).spawn(move || {
+            loop {
+                std::thread::sleep(Duration::from_millis(500));
+                if std::os::unix::process::parent_id() != parent {
+                    eprintln!("the server that started this worker is gone; exiting");
+                    std::process::exit(0);
+                }
+            }
+        });
     }
 }
 
@@ -263,12 +282,27 @@ fn render_lease(
         bail!("tile {:?} lies outside the {}x{} frame", r, cam.width, cam.height);
     }
     let settings = RenderSettings { samples: lease.samples, ..RenderSettings::default() };
-    let rect = TileRect { x0: r.x0, y0: r.y0, width: r.width, height: r.height };
     let camera = lease.camera as usize;
-    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| render_tile(&scene, camera, rect, &settings).0))
-        .map_err(|_| {
-            anyhow!("the renderer panicked on this tile (a bug in Tessera; please report it with the scene)")
-        })
+    // Every core on this one tile: its rows render in parallel. A pixel's value does not depend
+    // on which rectangle it is rendered in, so the rows put together are the tile's exact bits.
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        let rows: Vec<Vec<[f32; 3]>> = (r.y0..r.y0 + r.height)
+            .into_par_iter()
+            .map(|y| {
+                render_tile(
+                    &scene,
+                    camera,
+                    TileRect { x0: r.x0, y0: y, width: r.width, height: 1 },
+                    &settings,
+                )
+                .0
+            })
+            .collect();
+        rows.concat()
+    }))
+    .map_err(|_| {
+        anyhow!("the renderer panicked on this tile (a bug in Tessera; please report it with the scene)")
+    })
 }
 
 fn load_bundle_scene(client: &Client, bundle: &str, scene_path: &str) -> Result<Scene> {

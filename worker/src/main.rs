@@ -101,6 +101,9 @@ enum Command {
         /// Exit after rendering this many tiles (for tests and benchmarks).
         #[arg(long, value_name = "N", hide = true)]
         max_tiles: Option<u64>,
+        /// Exit when the process that started this one ends (tessera-server's local workers).
+        #[arg(long, hide = true)]
+        exit_with_parent: bool,
     },
     /// Tone-map an HDR image (OpenEXR or Radiance .hdr) to an 8-bit PNG.
     ///
@@ -187,7 +190,10 @@ fn main() -> ExitCode {
             let env_sampling = env_sampling.map(EnvSampling::into);
             render(&scene, &out, &Options { threads, camera, tile_size, samples, env_sampling, quiet })
         }
-        Command::Work { server, token, name, threads, max_tiles } => {
+        Command::Work { server, token, name, threads, max_tiles, exit_with_parent } => {
+            if exit_with_parent {
+                farm::exit_with_parent();
+            }
             if threads == Some(0) {
                 eprintln!("error: --threads must be at least 1");
                 return ExitCode::FAILURE;

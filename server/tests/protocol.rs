@@ -1,0 +1,228 @@
+//! The worker protocol's rules, checked against the real server over HTTP with hand-driven
+//! workers (the test plays the worker, so it can be late, wrong or failing on purpose).
+
+mod support;
+
+use serde_json::{Value, json};
+use support::*;
+use tessera::protocol::{checksum, encode_tile};
+
+const TOKEN: &str = "wtok";
+
+fn worker_post(url: &str, path: &str, body: Value) -> (u16, Value) {
+    call(
+        ureq::post(&format!("{url}{path}")).set("Authorization", &format!("Bearer {TOKEN}")),
+        Some(("application/json".into(), body.to_string().into_bytes())),
+    )
+}
+
+fn register(url: &str, name: &str) -> u64 {
+    let (code, v) = worker_post(url, "/api/v1/worker/register", json!({"name": name, "threads": 1}));
+    assert_eq!(code, 200, "{v}");
+    v["worker_id"].as_u64().unwrap()
+}
+
+/// A lease without waiting, or None (204).
+fn lease(url: &str, worker: u64) -> Option<Value> {
+    let (code, v) =
+        worker_post(url, "/api/v1/worker/lease", json!({"worker_id": worker, "wait_seconds": 0.0}));
+    match code {
+        200 => Some(v),
+        204 => None,
+        _ => panic!("lease: {code} {v}"),
+    }
+}
+
+fn upload(url: &str, worker: u64, lease: &Value, pixels: &[[f32; 3]], sum: Option<&str>) -> (u16, Value) {
+    let body = encode_tile(pixels);
+    let sum = sum.map(str::to_string).unwrap_or_else(|| checksum(&body));
+    let id = lease["lease_id"].as_u64().unwrap();
+    let req = ureq::put(&format!("{url}/api/v1/worker/leases/{id}/result"))
+        .set("Authorization", &format!("Bearer {TOKEN}"))
+        .set("x-tessera-worker", &worker.to_string())
+        .set("x-tessera-checksum", &sum);
+    call(req, Some(("application/octet-stream".into(), body)))
+}
+
+fn pixels_for(lease: &Value) -> Vec<[f32; 3]> {
+    let r = &lease["rect"];
+    vec![[1.0, 2.0, 3.0]; (r["width"].as_u64().unwrap() * r["height"].as_u64().unwrap()) as usize]
+}
+
+/// A tiny scene: `w` x `h` pixels, nothing to load.
+fn tiny_scene(w: u32, h: u32) -> Vec<u8> {
+    format!(
+        r#"<Scene><Cameras><Camera id="1"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+<NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>{w} {h}</ImageResolution>
+<ImageName>tiny.png</ImageName></Camera></Cameras><Materials><Material id="1"><DiffuseReflectance>1 1 1</DiffuseReflectance></Material></Materials>
+<VertexData>0 0 -5</VertexData><Objects><Sphere id="1"><Material>1</Material><Center>1</Center><Radius>1</Radius></Sphere></Objects></Scene>"#
+    )
+    .into_bytes()
+}
+
+fn submit_tiny(url: &str, w: u32, h: u32, tile: u32, priority: i64) -> u64 {
+    let scene = tiny_scene(w, h);
+    let (code, v) = submit(
+        url,
+        None,
+        &[
+            ("scene", Some("tiny.xml"), &scene),
+            ("tile_size", None, tile.to_string().as_bytes()),
+            ("priority", None, priority.to_string().as_bytes()),
+        ],
+    );
+    assert_eq!(code, 201, "{v}");
+    v["id"].as_u64().unwrap()
+}
+
+fn start() -> Server {
+    Server::start(
+        &temp_dir(&format!("proto-{}", std::thread::current().name().unwrap_or("t").replace("::", "-"))),
+        &[
+            "--local-workers",
+            "0",
+            "--worker-token",
+            TOKEN,
+            "--lease-seconds",
+            "1",
+            "--heartbeat-seconds",
+            "0.3",
+        ],
+    )
+}
+
+#[test]
+fn results_are_accepted_once_checked_and_refused_after_expiry() {
+    let _s = serial();
+    let server = start();
+    let url = &server.url;
+    let job = submit_tiny(url, 8, 8, 4, 0); // 4 tiles
+    let w = register(url, "fake");
+
+    // Accepted once; the same lease again is a conflict.
+    let l1 = lease(url, w).unwrap();
+    assert_eq!(l1["job_id"], job);
+    let (code, v) = upload(url, w, &l1, &pixels_for(&l1), None);
+    assert_eq!(code, 204, "{v}");
+    let (code, v) = upload(url, w, &l1, &pixels_for(&l1), None);
+    assert_eq!(code, 409, "{v}");
+
+    // A damaged tile (checksum mismatch) and a wrong size are refused, the lease stays live.
+    let l2 = lease(url, w).unwrap();
+    let (code, v) = upload(url, w, &l2, &pixels_for(&l2), Some("0000000000000000"));
+    assert_eq!(code, 400, "{v}");
+    assert!(v["error"].as_str().unwrap().contains("checksum"), "{v}");
+    let (code, v) = upload(url, w, &l2, &[[0.0; 3]], None);
+    assert_eq!(code, 400, "{v}");
+    // Another worker cannot deliver it.
+    let other = register(url, "other");
+    let (code, _) = upload(url, other, &l2, &pixels_for(&l2), None);
+    assert_eq!(code, 409);
+
+    // Without heartbeats the lease expires (1 s), the tile is handed out again, and the late
+    // result is refused.
+    std::thread::sleep(std::time::Duration::from_millis(2500));
+    let (code, v) = upload(url, w, &l2, &pixels_for(&l2), None);
+    assert_eq!(code, 409, "{v}");
+    let again = lease(url, other).unwrap();
+    assert_eq!((again["tile"].clone(), again["job_id"].clone()), (l2["tile"].clone(), l2["job_id"].clone()));
+    // A heartbeat tells the first worker its lease is gone; the second keeps its own.
+    let (code, hb) = worker_post(
+        url,
+        "/api/v1/worker/heartbeat",
+        json!({"worker_id": w, "leases": [l2["lease_id"]], "rendering": l2["lease_id"]}),
+    );
+    assert_eq!(code, 200);
+    assert_eq!(hb["revoked"], json!([l2["lease_id"]]));
+    let (_, hb) = worker_post(
+        url,
+        "/api/v1/worker/heartbeat",
+        json!({"worker_id": other, "leases": [again["lease_id"]], "rendering": null}),
+    );
+    assert_eq!(hb["revoked"], json!([]));
+    let metrics = String::from_utf8(get_bytes(url, "/metrics")).unwrap();
+    assert!(metrics.contains("tessera_lease_expiries_total 1"), "{metrics}");
+    assert!(metrics.contains("tessera_results_refused_total 3"), "{metrics}");
+}
+
+#[test]
+fn a_tile_failing_on_three_workers_fails_the_job() {
+    let _s = serial();
+    let server = start();
+    let url = &server.url;
+    let job = submit_tiny(url, 4, 4, 64, 0); // one tile
+    for k in 0..3 {
+        let w = register(url, &format!("bad-{k}"));
+        let l = lease(url, w).expect("the failed tile is offered to the next worker");
+        let (code, v) = worker_post(
+            url,
+            &format!("/api/v1/worker/leases/{}/fail", l["lease_id"]),
+            json!({"worker_id": w, "error": format!("out of memory on bad-{k}")}),
+        );
+        assert_eq!(code, 204, "{v}");
+        // The same worker is not given the tile it failed again.
+        assert!(lease(url, w).is_none());
+    }
+    let j = get_json(url, &format!("/api/v1/jobs/{job}"));
+    assert_eq!(j["state"], "failed", "{j}");
+    let err = j["error"].as_str().unwrap();
+    assert!(err.contains("3 worker(s)") && err.contains("out of memory on bad-2"), "{err}");
+}
+
+#[test]
+fn a_worker_failing_three_tiles_of_a_job_is_kept_off_it() {
+    let _s = serial();
+    let server = start();
+    let url = &server.url;
+    let job = submit_tiny(url, 8, 8, 2, 0); // 16 tiles
+    let w = register(url, "flaky");
+    for _ in 0..3 {
+        let l = lease(url, w).unwrap();
+        let (code, _) = worker_post(
+            url,
+            &format!("/api/v1/worker/leases/{}/fail", l["lease_id"]),
+            json!({"worker_id": w, "error": "boom"}),
+        );
+        assert_eq!(code, 204);
+    }
+    assert!(lease(url, w).is_none(), "a worker with 3 failures in the job got another of its tiles");
+    // The job goes on with other workers.
+    let good = register(url, "good");
+    let l = lease(url, good).unwrap();
+    assert_eq!(l["job_id"], job);
+    let j = get_json(url, &format!("/api/v1/jobs/{job}"));
+    assert_eq!(j["state"], "running");
+    assert!(j["error"].as_str().unwrap_or("").contains("boom"), "recent failures are shown: {j}");
+}
+
+#[test]
+fn higher_priority_jobs_go_first_then_submission_order() {
+    let _s = serial();
+    let server = start();
+    let url = &server.url;
+    let low = submit_tiny(url, 2, 2, 64, 0);
+    let low2 = submit_tiny(url, 2, 2, 64, 0);
+    let high = submit_tiny(url, 2, 2, 64, 5);
+    let w = register(url, "w");
+    let order: Vec<u64> = (0..3).map(|_| lease(url, w).unwrap()["job_id"].as_u64().unwrap()).collect();
+    assert_eq!(order, [high, low, low2]);
+}
+
+#[test]
+fn unknown_workers_and_bad_bodies_are_refused() {
+    let _s = serial();
+    let server = start();
+    let url = &server.url;
+    let (code, v) = worker_post(url, "/api/v1/worker/lease", json!({"worker_id": 999, "wait_seconds": 0.0}));
+    assert_eq!(code, 404, "{v}");
+    assert!(v["error"].as_str().unwrap().contains("register"), "{v}");
+    let (code, _) = worker_post(url, "/api/v1/worker/register", json!({"nom": "x"}));
+    assert!((400..500).contains(&code));
+    let (code, v) = call(ureq::get(&format!("{url}/api/v1/nothing")), None);
+    assert_eq!(code, 404, "{v}");
+    let (code, _) = call(
+        ureq::get(&format!("{url}/api/v1/worker/bundles/abc")).set("Authorization", "Bearer wtok"),
+        None,
+    );
+    assert_eq!(code, 404);
+}

@@ -1,0 +1,198 @@
+//! What the farm's end-to-end tests share: starting the real binaries, HTTP calls, uploads.
+
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader, Read};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+/// Farm tests start several processes that each want every core: run them one at a time.
+pub static SERIAL: Mutex<()> = Mutex::new(());
+
+pub fn serial() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+pub fn server_bin() -> PathBuf {
+    PathBuf::from(env!("CARGO_BIN_EXE_tessera-server"))
+}
+
+/// `tessera-worker`, built next to the server binary (`cargo test --workspace` builds it; a
+/// test run of this package alone builds it here).
+pub fn worker_bin() -> PathBuf {
+    let bin = server_bin().with_file_name("tessera-worker");
+    if !bin.exists() {
+        let release = server_bin().components().any(|c| c.as_os_str() == "release");
+        let mut cmd = Command::new(env!("CARGO"));
+        cmd.args(["build", "-p", "tessera-worker"]);
+        if release {
+            cmd.arg("--release");
+        }
+        let status = cmd.status().expect("run cargo build -p tessera-worker");
+        assert!(status.success(), "cannot build tessera-worker");
+    }
+    bin
+}
+
+pub fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+pub fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("tessera-farm-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+pub struct Server {
+    pub child: Child,
+    pub url: String,
+    pub log: PathBuf,
+}
+
+impl Server {
+    /// Starts `tessera-server` with `args` (plus a data dir and a free port unless given).
+    pub fn start(data: &Path, args: &[&str]) -> Server {
+        let log = data.with_extension(format!("log{}", std::process::id()));
+        let mut cmd = Command::new(server_bin());
+        cmd.arg("--data-dir").arg(data).args(args);
+        if !args.contains(&"--bind") {
+            cmd.args(["--bind", "127.0.0.1:0"]);
+        }
+        cmd.arg("--worker-bin").arg(worker_bin());
+        cmd.env_remove("TESSERA_API_TOKEN").env_remove("TESSERA_WORKER_TOKEN");
+        let mut child = cmd
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .expect("start tessera-server");
+        let stdout = child.stdout.take().unwrap();
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let mut lines = BufReader::new(stdout).lines();
+            if let Some(Ok(line)) = lines.next() {
+                let _ = tx.send(line);
+            }
+            for _ in lines {}
+        });
+        let line = rx.recv_timeout(Duration::from_secs(30)).unwrap_or_else(|_| {
+            panic!("the server did not start:\n{}", std::fs::read_to_string(&log).unwrap_or_default())
+        });
+        let url = line
+            .strip_prefix("listening on ")
+            .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
+            .to_string();
+        Server { child, url, log }
+    }
+
+    pub fn log(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    pub fn kill9(&mut self) {
+        let _ = Command::new("kill").args(["-9", &self.child.id().to_string()]).status();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        // SIGTERM, so that the server stops its local workers.
+        let _ =
+            Command::new("kill").args(["-TERM", &self.child.id().to_string()]).stderr(Stdio::null()).status();
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while Instant::now() < deadline {
+            if let Ok(Some(_)) = self.child.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+pub struct Worker(pub Child);
+
+impl Worker {
+    pub fn start(url: &str, token: &str, name: &str) -> Worker {
+        let child = Command::new(worker_bin())
+            .args(["work", "--server", url, "--token", token, "--name", name, "--threads", "1"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start tessera-worker work");
+        Worker(child)
+    }
+
+    pub fn kill9(&mut self) {
+        let _ = Command::new("kill").args(["-9", &self.0.id().to_string()]).status();
+        let _ = self.0.wait();
+    }
+}
+
+impl Drop for Worker {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// A multipart/form-data body: (field, file name or None, bytes).
+pub fn multipart(parts: &[(&str, Option<&str>, &[u8])]) -> (String, Vec<u8>) {
+    let boundary = "tessera-test-boundary-7f3a";
+    let mut body = Vec::new();
+    for (name, file, data) in parts {
+        body.extend_from_slice(format!("--{boundary}\r\n").as_bytes());
+        match file {
+            Some(f) => body.extend_from_slice(
+                format!("Content-Disposition: form-data; name=\"{name}\"; filename=\"{f}\"\r\nContent-Type: application/octet-stream\r\n\r\n").as_bytes(),
+            ),
+            None => body.extend_from_slice(format!("Content-Disposition: form-data; name=\"{name}\"\r\n\r\n").as_bytes()),
+        }
+        body.extend_from_slice(data);
+        body.extend_from_slice(b"\r\n");
+    }
+    body.extend_from_slice(format!("--{boundary}--\r\n").as_bytes());
+    (format!("multipart/form-data; boundary={boundary}"), body)
+}
+
+/// (status, JSON body) of a request; never panics on 4xx/5xx.
+pub fn call(req: ureq::Request, body: Option<(String, Vec<u8>)>) -> (u16, Value) {
+    let res = match body {
+        Some((ct, bytes)) => req.set("Content-Type", &ct).send_bytes(&bytes),
+        None => req.call(),
+    };
+    let (code, text) = match res {
+        Ok(r) => (r.status(), r.into_string().unwrap_or_default()),
+        Err(ureq::Error::Status(code, r)) => (code, r.into_string().unwrap_or_default()),
+        Err(e) => panic!("request failed: {e}"),
+    };
+    (code, serde_json::from_str(&text).unwrap_or(Value::String(text)))
+}
+
+pub fn submit(url: &str, token: Option<&str>, parts: &[(&str, Option<&str>, &[u8])]) -> (u16, Value) {
+    let mut req = ureq::post(&format!("{url}/api/v1/jobs"));
+    if let Some(t) = token {
+        req = req.set("Authorization", &format!("Bearer {t}"));
+    }
+    call(req, Some(multipart(parts)))
+}
+
+pub fn get_json(url: &str, path: &str) -> Value {
+    let (code, v) = call(ureq::get(&format!("{url}{path}")), None);
+    assert_eq!(code, 200, "GET {path}: {v}");
+    v
+}
+
+pub fn get_bytes(url: &str, path: &str) -> Vec<u8> {
+    let r = ureq::get(&format!("{url}{path}")).call().unwrap_or_else(|e| panic!("GET {path}: {e}"));
+    let mut out = Vec::new();
+    r.into_reader().read_to_end(&mut out).unwrap();
+    out
+}
