@@ -174,7 +174,10 @@ mod tests {
         assert_eq!(r.read("ply/x.ply").unwrap().0, b"abc");
         assert_eq!(r.read("assets/ply/x.ply").unwrap().0, b"abc");
         assert_eq!(r.read("../top.txt").unwrap().0, b"t");
-        assert!(r.read("../../top.txt").is_err());
+        // Nothing outside the bundle exists for it: a path climbing out is looked up inside it
+        // (the leading-components fallback), never on disk.
+        assert_eq!(r.read("../../top.txt").unwrap().1, PathBuf::from("top.txt"));
+        assert!(r.read("../../etc/passwd").is_err());
         assert!(r.read("ply/missing.ply").is_err());
         assert_eq!(r.display_path("ply/missing.ply"), PathBuf::from("scenes/ply/missing.ply"));
     }

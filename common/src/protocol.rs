@@ -166,6 +166,43 @@ pub struct FrameInfo {
     pub outputs: Vec<OutputInfo>,
     /// A PNG of the tiles that have arrived (black elsewhere).
     pub preview_url: String,
+    /// The camera's photographic operator for HDR frames (the defaults of a re-tone-map).
+    pub tonemap: Option<ToneParams>,
+}
+
+/// Photographic operator parameters as the API shows them (`gamma`: a number or "sRGB").
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ToneParams {
+    pub key: f64,
+    pub burn: f64,
+    pub saturation: f64,
+    pub gamma: String,
+}
+
+/// What the server pushes to the status page (`GET /api/v1/events`, server-sent events; the
+/// event name is the variant, the data this JSON).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "lowercase")]
+pub enum ServerEvent {
+    /// A job was submitted or changed state.
+    Job { job: u64, state: JobState },
+    /// A tile was accepted.
+    Tile { job: u64, frame: u32, tile: u32, rect: Rect, tiles_done: u32, tiles_total: u32 },
+    /// A frame's outputs were written.
+    Frame { job: u64, frame: u32 },
+    /// A worker registered, took a tile or finished one.
+    Workers,
+}
+
+impl ServerEvent {
+    pub fn name(&self) -> &'static str {
+        match self {
+            ServerEvent::Job { .. } => "job",
+            ServerEvent::Tile { .. } => "tile",
+            ServerEvent::Frame { .. } => "frame",
+            ServerEvent::Workers => "workers",
+        }
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -61,9 +61,15 @@ pub struct AppState {
     pub counters: Arc<Counters>,
     /// Built cameras per job (parsed once from the bundle), for merging and previews.
     pub cameras: Arc<std::sync::Mutex<HashMap<u64, Arc<Vec<Camera>>>>>,
+    /// Pushed to the status page (server-sent events); nobody listening is fine.
+    pub events: tokio::sync::broadcast::Sender<ServerEvent>,
 }
 
 impl AppState {
+    pub fn emit(&self, e: ServerEvent) {
+        let _ = self.events.send(e);
+    }
+
     pub fn outputs_dir(&self, job: u64) -> PathBuf {
         self.settings.data_dir.join("outputs").join(job.to_string())
     }
@@ -117,7 +123,9 @@ pub fn app(state: AppState) -> Router {
         .route("/api/v1/jobs/{id}/cancel", post(cancel_job))
         .route("/api/v1/jobs/{id}/frames/{frame}/preview.png", get(frame_preview))
         .route("/api/v1/jobs/{id}/frames/{frame}/files/{name}", get(frame_file))
+        .route("/api/v1/jobs/{id}/frames/{frame}/tonemap.png", get(frame_tonemap))
         .route("/api/v1/workers", get(list_workers))
+        .route("/api/v1/events", get(events))
         .route_layer(axum::middleware::from_fn_with_state(state.clone(), require_api_token));
     let workers = Router::new()
         .route("/api/v1/worker/register", post(register))
@@ -130,6 +138,8 @@ pub fn app(state: AppState) -> Router {
     let limit = state.settings.max_upload_bytes;
     Router::new()
         .route("/healthz", get(|| async { "ok\n" }))
+        .route("/", get(|| async { crate::web::page("index.html") }))
+        .route("/static/{name}", get(|Path(name): Path<String>| async move { crate::web::page(&name) }))
         .route("/metrics", get(metrics))
         .merge(jobs)
         .merge(workers)
@@ -137,7 +147,14 @@ pub fn app(state: AppState) -> Router {
             AppError::not_found("no such endpoint; the API lives under /api/v1 (see the README)")
         })
         .layer(DefaultBodyLimit::max(limit))
+        .layer(axum::middleware::map_response(no_store))
         .with_state(state)
+}
+
+/// Answers change from one moment to the next: browsers must not reuse them.
+async fn no_store(mut resp: Response) -> Response {
+    resp.headers_mut().entry(header::CACHE_CONTROL).or_insert(HeaderValue::from_static("no-store"));
+    resp
 }
 
 fn bearer(headers: &HeaderMap) -> Option<&str> {
@@ -155,7 +172,13 @@ async fn require_api_token(
     next: axum::middleware::Next,
 ) -> Response {
     if let Some(token) = &state.settings.api_token {
-        match bearer(req.headers()) {
+        // EventSource and <img> cannot send headers: the page may pass ?access_token= instead.
+        let from_query = req
+            .uri()
+            .query()
+            .and_then(|q| q.split('&').find_map(|kv| kv.strip_prefix("access_token=")).map(str::to_string));
+        let given = bearer(req.headers()).map(str::to_string).or(from_query);
+        match given.as_deref() {
             Some(t) if same_token(t, token) => {}
             Some(_) => return AppError::new(StatusCode::UNAUTHORIZED, "wrong API token").into_response(),
             None => {
@@ -327,6 +350,7 @@ async fn submit_job(
     let id = state.store.insert_job(&job)?;
     state.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(id, Arc::new(cameras));
     state.work.notify_waiters();
+    state.emit(ServerEvent::Job { job: id, state: JobState::Queued });
     tracing::info!(job = id, name = %job.name, "job accepted");
     let info = job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?;
     Ok((StatusCode::CREATED, Json(info)))
@@ -433,9 +457,22 @@ pub fn job_cameras(state: &AppState, job: &crate::db::JobRow) -> anyhow::Result<
     Ok(cameras)
 }
 
+fn tone_params(p: &tessera::tonemap::Photographic) -> ToneParams {
+    ToneParams { key: p.key, burn: p.burn_percent, saturation: p.saturation, gamma: p.gamma.to_string() }
+}
+
+/// The photographic parameters a camera's HDR output is tone-mapped with, if it is HDR.
+fn camera_tonemap(cam: &Camera) -> Option<tessera::tonemap::Photographic> {
+    merge::farm_outputs(cam).iter().find_map(|f| match &f.kind {
+        tessera::output::OutputKind::Tonemapped(p) => Some(*p),
+        _ => None,
+    })
+}
+
 fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobInfo>> {
     let Some(job) = state.store.job(id)? else { return Ok(None) };
     let frames = state.store.frames(id)?;
+    let cameras = job_cameras(state, &job).ok();
     let url = format!("/api/v1/jobs/{id}");
     let mut error = job.error.clone();
     if error.is_none() && !job.state.is_final() {
@@ -475,6 +512,11 @@ fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobInfo>> {
                     })
                     .collect(),
                 preview_url: format!("{url}/frames/{}/preview.png", f.index),
+                tonemap: cameras
+                    .as_ref()
+                    .and_then(|c| c.get(f.camera as usize))
+                    .and_then(camera_tonemap)
+                    .map(|p| tone_params(&p)),
             })
             .collect(),
         error,
@@ -506,6 +548,7 @@ async fn cancel_job(State(state): State<AppState>, Path(id): Path<u64>) -> ApiRe
         ));
     }
     tracing::info!(job = id, "job canceled");
+    state.emit(ServerEvent::Job { job: id, state: JobState::Canceled });
     Ok(Json(job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?))
 }
 
@@ -570,30 +613,94 @@ async fn frame_preview(
     let store = state.store.clone();
     let png = tokio::task::spawn_blocking(move || -> anyhow::Result<Vec<u8>> {
         let tiles = store.frame_tiles(id, frame)?;
-        let img = if tiles.is_empty() && f.outputs.is_some() {
-            // Merged frames drop their tiles: read the float frame back.
-            None
-        } else {
-            Some(merge::assemble(f.width, f.height, &tiles)?)
-        };
-        let img = match img {
-            Some(i) => i,
-            None => {
-                let outputs = f.outputs.clone().unwrap_or_default();
-                let exr = outputs.iter().find(|n| n.to_ascii_lowercase().ends_with(".exr"));
-                match exr {
-                    Some(n) => {
-                        tessera::hdr_io::read_exr(&state.outputs_dir(id).join(frame.to_string()).join(n))?
-                    }
-                    None => tessera::image::Image::new(f.width, f.height),
-                }
+        if tiles.is_empty() && f.outputs.is_some() {
+            // A finished job drops its tiles: show the stored float frame.
+            let outputs = f.outputs.clone().unwrap_or_default();
+            if let Some(n) = outputs.iter().find(|n| n.to_ascii_lowercase().ends_with(".exr")) {
+                let img = tessera::hdr_io::read_exr(&state.outputs_dir(id).join(frame.to_string()).join(n))?;
+                return merge::final_png(&cam, &img);
             }
-        };
-        merge::preview_png(&cam, &img)
+        }
+        merge::preview_png(&cam, f.width, f.height, &tiles)
     })
     .await
     .map_err(|e| anyhow::anyhow!("preview task: {e}"))??;
     Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/png"))], png).into_response())
+}
+
+/// Query of `tonemap.png`: any parameter left out takes the camera's value.
+#[derive(serde::Deserialize)]
+struct ToneQuery {
+    key: Option<f64>,
+    burn: Option<f64>,
+    saturation: Option<f64>,
+    gamma: Option<String>,
+}
+
+/// A finished frame's float image tone-mapped again with other parameters, without rendering:
+/// `GET /api/v1/jobs/ID/frames/F/tonemap.png?key=0.3&burn=2&saturation=1&gamma=2.2`.
+async fn frame_tonemap(
+    State(state): State<AppState>,
+    Path((id, frame)): Path<(u64, u32)>,
+    axum::extract::Query(q): axum::extract::Query<ToneQuery>,
+) -> ApiResult<Response> {
+    let job = state.store.job(id)?.ok_or_else(|| AppError::not_found(format!("there is no job {id}")))?;
+    let frames = state.store.frames(id)?;
+    let f = frames
+        .into_iter()
+        .find(|f| f.index == frame)
+        .ok_or_else(|| AppError::not_found(format!("job {id} has no frame {frame}")))?;
+    let Some(outputs) = f.outputs.clone() else {
+        return Err(AppError::new(
+            StatusCode::CONFLICT,
+            format!("frame {frame} of job {id} is not finished yet"),
+        ));
+    };
+    let exr = outputs
+        .iter()
+        .find(|n| n.to_ascii_lowercase().ends_with(".exr"))
+        .ok_or_else(|| AppError::not_found(format!("frame {frame} of job {id} has no .exr to tone-map")))?
+        .clone();
+    let cameras = job_cameras(&state, &job)?;
+    let base = cameras.get(f.camera as usize).and_then(camera_tonemap).unwrap_or_default();
+    let gamma = match q.gamma.as_deref() {
+        Some(g) => g.parse().map_err(AppError::bad_request)?,
+        None => base.gamma,
+    };
+    let params = tessera::tonemap::Photographic {
+        key: q.key.unwrap_or(base.key),
+        burn_percent: q.burn.unwrap_or(base.burn_percent),
+        saturation: q.saturation.unwrap_or(base.saturation),
+        gamma,
+    };
+    params.validate().map_err(AppError::bad_request)?;
+    let path = state.outputs_dir(id).join(frame.to_string()).join(exr);
+    let png = tokio::task::spawn_blocking(move || -> anyhow::Result<Vec<u8>> {
+        let img = tessera::hdr_io::read_exr(&path)?;
+        let (rgb, _) = tessera::tonemap::tonemap(&img, &params);
+        merge::encode_png(img.width, img.height, &rgb)
+    })
+    .await
+    .map_err(|e| anyhow::anyhow!("tone-map task: {e}"))??;
+    Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/png"))], png).into_response())
+}
+
+/// Server-sent events for the status page: every [`ServerEvent`] as it happens.
+async fn events(State(state): State<AppState>) -> Response {
+    use axum::response::sse::{Event, KeepAlive, Sse};
+    let rx = state.events.subscribe();
+    let stream = futures_util::stream::unfold(rx, |mut rx| async move {
+        let ev = match rx.recv().await {
+            Ok(e) => Event::default().event(e.name()).data(serde_json::to_string(&e).unwrap_or_default()),
+            // A slow page missed some: tell it to reload everything.
+            Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {
+                Event::default().event("resync").data("{}")
+            }
+            Err(tokio::sync::broadcast::error::RecvError::Closed) => return None,
+        };
+        Some((Ok::<Event, std::convert::Infallible>(ev), rx))
+    });
+    Sse::new(stream).keep_alive(KeepAlive::default()).into_response()
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -652,6 +759,7 @@ async fn register(
 ) -> ApiResult<Json<RegisterResponse>> {
     let id = state.store.register_worker(&req.name, req.threads)?;
     tracing::info!(worker = id, name = %req.name, threads = req.threads, "worker registered");
+    state.emit(ServerEvent::Workers);
     Ok(Json(RegisterResponse {
         worker_id: id,
         heartbeat_seconds: state.settings.heartbeat_seconds,
@@ -677,6 +785,8 @@ async fn lease(State(state): State<AppState>, Json(req): Json<LeaseRequest>) -> 
         // is not lost.
         let notified = state.work.notified();
         if let Some(l) = state.store.lease(req.worker_id, state.settings.lease_seconds)? {
+            state.emit(ServerEvent::Job { job: l.job_id, state: JobState::Running });
+            state.emit(ServerEvent::Workers);
             let body = Lease {
                 lease_id: l.lease_id,
                 job_id: l.job_id,
@@ -727,7 +837,9 @@ async fn result(
     let render_seconds =
         headers.get("x-tessera-render-seconds").and_then(|v| v.to_str().ok()).and_then(|v| v.parse().ok());
     match state.store.submit_result(lease, worker, &body, render_seconds)? {
-        ResultOutcome::Accepted { job_id, frame, frame_complete } => {
+        ResultOutcome::Accepted { job_id, frame, tile, rect, tiles_done, tiles_total, frame_complete } => {
+            state.emit(ServerEvent::Tile { job: job_id, frame, tile, rect, tiles_done, tiles_total });
+            state.emit(ServerEvent::Workers);
             if frame_complete {
                 let state = state.clone();
                 tokio::spawn(async move { merge_frame(state, job_id, frame).await });
@@ -761,8 +873,9 @@ async fn fail(
             state.work.notify_waiters();
             Ok(StatusCode::NO_CONTENT)
         }
-        FailOutcome::JobFailed(m) => {
-            tracing::error!(lease, "job failed: {m}");
+        FailOutcome::JobFailed { job, message } => {
+            tracing::error!(lease, job, "job failed: {message}");
+            state.emit(ServerEvent::Job { job, state: JobState::Failed });
             Ok(StatusCode::NO_CONTENT)
         }
         FailOutcome::Conflict => {
@@ -801,10 +914,17 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
     })
     .await;
     match outcome {
-        Ok(Ok(done)) => tracing::info!(job = job_id, frame, done, "frame merged"),
+        Ok(Ok(done)) => {
+            tracing::info!(job = job_id, frame, done, "frame merged");
+            state.emit(ServerEvent::Frame { job: job_id, frame });
+            if done {
+                state.emit(ServerEvent::Job { job: job_id, state: JobState::Done });
+            }
+        }
         Ok(Err(e)) => {
             tracing::error!(job = job_id, frame, "merge failed: {e:#}");
             let _ = state.store.fail_job(job_id, &format!("merging frame {frame} failed: {e:#}"));
+            state.emit(ServerEvent::Job { job: job_id, state: JobState::Failed });
         }
         Err(e) => tracing::error!(job = job_id, frame, "merge task panicked: {e}"),
     }

@@ -171,7 +171,15 @@ pub struct WorkerRow {
 #[derive(Debug, PartialEq)]
 pub enum ResultOutcome {
     /// Stored; `frame_complete` when it was the frame's last tile.
-    Accepted { job_id: u64, frame: u32, frame_complete: bool },
+    Accepted {
+        job_id: u64,
+        frame: u32,
+        tile: u32,
+        rect: Rect,
+        tiles_done: u32,
+        tiles_total: u32,
+        frame_complete: bool,
+    },
     /// No such live lease (expired, revoked, already submitted, job not running).
     Conflict,
     /// The pixel count does not match the lease's rectangle.
@@ -182,7 +190,7 @@ pub enum ResultOutcome {
 #[derive(Debug, PartialEq)]
 pub enum FailOutcome {
     Requeued,
-    JobFailed(String),
+    JobFailed { job: u64, message: String },
     Conflict,
 }
 
@@ -498,7 +506,11 @@ impl Store {
             "UPDATE jobs SET state = 'running', started_at = ?2 WHERE id = ?1 AND state = 'queued'",
             params![job, t],
         )?;
-        tx.execute("UPDATE workers SET last_seen = ?2 WHERE id = ?1", params![w, t])?;
+        // Shown as the worker's current tile until a heartbeat says which one it renders.
+        tx.execute(
+            "UPDATE workers SET last_seen = ?2, rendering = coalesce(rendering, ?3) WHERE id = ?1",
+            params![w, t, lease_id as i64],
+        )?;
         tx.commit()?;
         Ok(Some(LeaseRow {
             lease_id,
@@ -565,13 +577,26 @@ impl Store {
         let tx = conn.transaction()?;
         let row = tx
             .query_row(
-                "SELECT t.job_id, t.frame, t.w, t.h, t.deadline FROM tiles t JOIN jobs j ON j.id = t.job_id
+                "SELECT t.job_id, t.frame, t.w, t.h, t.deadline, t.tile, t.x0, t.y0 FROM tiles t JOIN jobs j ON j.id = t.job_id
                  WHERE t.lease_id = ?1 AND t.worker_id = ?2 AND t.state = 'leased' AND j.state IN ('queued', 'running')",
                 params![lease as i64, worker as i64],
-                |r| Ok((r.get::<_, i64>(0)?, r.get::<_, i64>(1)?, r.get::<_, i64>(2)?, r.get::<_, i64>(3)?, r.get::<_, f64>(4)?)),
+                |r| {
+                    Ok((
+                        r.get::<_, i64>(0)?,
+                        r.get::<_, i64>(1)?,
+                        r.get::<_, i64>(2)?,
+                        r.get::<_, i64>(3)?,
+                        r.get::<_, f64>(4)?,
+                        r.get::<_, i64>(5)?,
+                        r.get::<_, i64>(6)?,
+                        r.get::<_, i64>(7)?,
+                    ))
+                },
             )
             .optional()?;
-        let Some((job, frame, w, h, deadline)) = row else { return Ok(ResultOutcome::Conflict) };
+        let Some((job, frame, w, h, deadline, tile, x0, y0)) = row else {
+            return Ok(ResultOutcome::Conflict);
+        };
         if deadline < now() {
             // Expired but not swept yet: the tile may already be someone else's.
             return Ok(ResultOutcome::Conflict);
@@ -598,7 +623,15 @@ impl Store {
             |r| Ok((r.get(0)?, r.get(1)?)),
         )?;
         tx.commit()?;
-        Ok(ResultOutcome::Accepted { job_id: job as u64, frame: frame as u32, frame_complete: done == total })
+        Ok(ResultOutcome::Accepted {
+            job_id: job as u64,
+            frame: frame as u32,
+            tile: tile as u32,
+            rect: Rect { x0: x0 as u32, y0: y0 as u32, width: w as u32, height: h as u32 },
+            tiles_done: done as u32,
+            tiles_total: total as u32,
+            frame_complete: done == total,
+        })
     }
 
     /// Records that `worker` could not render the tile of `lease`: the tile goes back to the
@@ -645,7 +678,7 @@ impl Store {
                 "UPDATE tiles SET state = 'canceled', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE job_id = ?1 AND state IN ('queued', 'leased')",
                 [job],
             )?;
-            FailOutcome::JobFailed(message)
+            FailOutcome::JobFailed { job: job as u64, message }
         } else {
             FailOutcome::Requeued
         };

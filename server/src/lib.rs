@@ -12,6 +12,7 @@ pub mod api;
 pub mod bundle;
 pub mod db;
 pub mod merge;
+pub mod web;
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -137,6 +138,7 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
         work: Arc::new(tokio::sync::Notify::new()),
         counters: Arc::new(api::Counters::default()),
         cameras: Arc::default(),
+        events: tokio::sync::broadcast::channel(1024).0,
     };
 
     let listener = tokio::net::TcpListener::bind(config.bind)

@@ -67,23 +67,59 @@ pub fn write_outputs(dir: &Path, cam: &Camera, img: &Image) -> Result<Vec<String
     Ok(names)
 }
 
-/// A PNG of what has arrived so far, for the status page: the camera's tone mapping for HDR
-/// frames (on the arrived pixels only), the clamped image for LDR ones.
-pub fn preview_png(cam: &Camera, img: &Image) -> Result<Vec<u8>> {
-    let files = farm_outputs(cam);
-    let rgb = match files.iter().find_map(|f| match &f.kind {
+/// A PNG of what has arrived so far, for the status page: HDR frames through the camera's
+/// operator with its statistics taken over the arrived tiles only (the black of missing tiles
+/// would otherwise drag the log average down and wash the picture out), LDR frames clamped.
+pub fn preview_png(cam: &Camera, width: u32, height: u32, tiles: &[(Rect, Vec<u8>)]) -> Result<Vec<u8>> {
+    let img = assemble(width, height, tiles)?;
+    let params = farm_outputs(cam).iter().find_map(|f| match &f.kind {
+        OutputKind::Tonemapped(p) => Some(*p),
+        _ => None,
+    });
+    let Some(params) = params else { return encode_png(width, height, &img.to_ldr()) };
+    // The arrived pixels as one strip, tone-mapped together, then put back in place.
+    let mut strip = Vec::new();
+    for (r, _) in tiles {
+        for y in r.y0..r.y0 + r.height {
+            let row = (y * width + r.x0) as usize;
+            strip.extend_from_slice(&img.pixels[row..row + r.width as usize]);
+        }
+    }
+    let mut rgb = vec![0u8; (width * height * 3) as usize];
+    if !strip.is_empty() {
+        let n = strip.len() as u32;
+        let (mapped, _) = tonemap(&Image { width: n, height: 1, pixels: strip }, &params);
+        let mut k = 0usize;
+        for (r, _) in tiles {
+            for y in r.y0..r.y0 + r.height {
+                let at = ((y * width + r.x0) * 3) as usize;
+                let len = (r.width * 3) as usize;
+                rgb[at..at + len].copy_from_slice(&mapped[k..k + len]);
+                k += len;
+            }
+        }
+    }
+    encode_png(width, height, &rgb)
+}
+
+/// A finished frame's picture for the page: the camera's tone mapping of the whole image.
+pub fn final_png(cam: &Camera, img: &Image) -> Result<Vec<u8>> {
+    let rgb = match farm_outputs(cam).iter().find_map(|f| match &f.kind {
         OutputKind::Tonemapped(p) => Some(*p),
         _ => None,
     }) {
         Some(params) => tonemap(img, &params).0,
         None => img.to_ldr(),
     };
+    encode_png(img.width, img.height, &rgb)
+}
+
+/// 8-bit RGB bytes as a PNG file in memory.
+pub fn encode_png(width: u32, height: u32, rgb: &[u8]) -> Result<Vec<u8>> {
+    use image::ImageEncoder;
     let mut out = Vec::new();
-    {
-        use image::ImageEncoder;
-        image::codecs::png::PngEncoder::new(&mut out)
-            .write_image(&rgb, img.width, img.height, image::ExtendedColorType::Rgb8)
-            .context("cannot encode the preview")?;
-    }
+    image::codecs::png::PngEncoder::new(&mut out)
+        .write_image(rgb, width, height, image::ExtendedColorType::Rgb8)
+        .context("cannot encode the PNG")?;
     Ok(out)
 }

@@ -1,0 +1,359 @@
+// Tessera's status page. Plain JavaScript, no build step: reads the JSON API, listens to
+// server-sent events (/api/v1/events) and redraws only what changed.
+"use strict";
+
+const $ = (sel, root = document) => root.querySelector(sel);
+const el = (tag, attrs = {}, ...kids) => {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k === "class") e.className = v;
+    else if (k === "text") e.textContent = v;
+    else if (k.startsWith("on")) e.addEventListener(k.slice(2), v);
+    else e.setAttribute(k, v);
+  }
+  for (const kid of kids) if (kid != null) e.append(kid);
+  return e;
+};
+
+// --- API access (with the optional API token) ---------------------------------------------
+
+let token = localStorage.getItem("tessera-token") || "";
+$("#token").value = token;
+$("#token").addEventListener("change", () => {
+  token = $("#token").value.trim();
+  localStorage.setItem("tessera-token", token);
+  connect();
+  loadAll();
+});
+
+function withToken(url) {
+  if (!token) return url;
+  return url + (url.includes("?") ? "&" : "?") + "access_token=" + encodeURIComponent(token);
+}
+
+async function api(path, options = {}) {
+  const headers = options.headers || {};
+  if (token) headers["Authorization"] = "Bearer " + token;
+  const resp = await fetch(path, { ...options, headers });
+  if (resp.status === 401) $("#token-box").hidden = false;
+  return resp;
+}
+
+async function apiJson(path) {
+  const resp = await api(path);
+  if (!resp.ok) throw new Error(path + ": HTTP " + resp.status);
+  return resp.json();
+}
+
+// Runs `fn` at most once per `ms` (trailing call kept): events can arrive by the hundred.
+function throttle(fn, ms) {
+  const timers = new Map();
+  return (key, ...args) => {
+    if (timers.has(key)) { timers.get(key).args = args; return; }
+    const entry = { args };
+    timers.set(key, entry);
+    fn(...args);
+    entry.args = null;
+    setTimeout(() => {
+      timers.delete(key);
+      if (entry.args) fn(...entry.args);
+    }, ms);
+  };
+}
+
+// --- Jobs ------------------------------------------------------------------------------------
+
+const jobs = new Map();   // id -> { data, node }
+
+function fmtTime(unix) {
+  return unix ? new Date(unix * 1000).toLocaleTimeString() : "-";
+}
+
+function fmtDuration(s) {
+  if (!isFinite(s) || s < 0) return "-";
+  if (s < 60) return s.toFixed(s < 10 ? 1 : 0) + " s";
+  const m = Math.floor(s / 60);
+  if (m < 60) return m + " min " + Math.round(s % 60) + " s";
+  return Math.floor(m / 60) + " h " + (m % 60) + " min";
+}
+
+function jobNode(id) {
+  let entry = jobs.get(id);
+  if (entry) return entry;
+  const node = el("div", { class: "job", "data-job-id": String(id) },
+    el("div", { class: "job-head" },
+      el("span", { class: "job-name" }),
+      el("span", { class: "state" }),
+      el("span", { class: "meta times" }),
+      el("span", { class: "spacer" }),
+      el("button", { class: "secondary cancel", text: "Cancel", onclick: () => cancelJob(id) })),
+    el("div", { class: "error job-error", hidden: "" }),
+    el("div", { class: "frames" }));
+  entry = { data: null, node, frames: new Map() };
+  jobs.set(id, entry);
+  const list = $("#jobs");
+  $(".empty", list)?.remove();
+  // Newest first.
+  const after = [...list.children].find((c) => Number(c.dataset.jobId) < id);
+  list.insertBefore(node, after || null);
+  return entry;
+}
+
+function renderJob(job) {
+  const entry = jobNode(job.id);
+  // Answers can overtake each other: progress only ever grows.
+  if (entry.data) {
+    for (const f of job.frames) {
+      const old = entry.data.frames.find((x) => x.index === f.index);
+      if (old) f.tiles_done = Math.max(f.tiles_done, old.tiles_done);
+    }
+  }
+  entry.data = job;
+  const n = entry.node;
+  $(".job-name", n).textContent = "#" + job.id + " " + job.name;
+  const st = $(".state", n);
+  st.textContent = job.state;
+  st.className = "state " + job.state;
+  const now = Date.now() / 1000;
+  const done = job.frames.reduce((a, f) => a + f.tiles_done, 0);
+  const total = job.frames.reduce((a, f) => a + f.tiles_total, 0);
+  const end = job.finished_at || now;
+  const elapsed = job.started_at ? end - job.started_at : 0;
+  const rate = elapsed > 0 ? done / elapsed : 0;
+  let times = "submitted " + fmtTime(job.submitted_at) + " · elapsed " + fmtDuration(elapsed);
+  if (job.state === "running" && rate > 0) times += " · ETA " + fmtDuration((total - done) / rate);
+  if (rate > 0) times += " · " + rate.toFixed(1) + " tiles/s";
+  $(".times", n).textContent = times;
+  $(".cancel", n).hidden = !(job.state === "queued" || job.state === "running");
+  const err = $(".job-error", n);
+  err.hidden = !job.error;
+  err.textContent = job.error || "";
+  for (const f of job.frames) renderFrame(entry, job, f);
+}
+
+function frameNode(entry, job, f) {
+  let fr = entry.frames.get(f.index);
+  if (fr) return fr;
+  const node = el("div", { class: "frame", "data-frame": String(f.index) },
+    el("div", { class: "frame-title" },
+      el("span", { text: f.image_name + " (" + f.width + "×" + f.height + ")" }),
+      el("span", { class: "progress-text" })),
+    el("div", { class: "bar" }, el("div")),
+    el("canvas", { class: "preview", width: String(f.width), height: String(f.height) }),
+    el("div", { class: "links" }),
+    el("div", { class: "tone", hidden: "" }));
+  $(".frames", entry.node).append(node);
+  fr = { node, shown: null, toneBuilt: false };
+  entry.frames.set(f.index, fr);
+  return fr;
+}
+
+function renderFrame(entry, job, f) {
+  const fr = frameNode(entry, job, f);
+  const pct = f.tiles_total ? Math.floor((100 * f.tiles_done) / f.tiles_total) : 0;
+  $(".progress-text", fr.node).textContent = f.tiles_done + "/" + f.tiles_total + " tiles · " + pct + "%";
+  fr.node.dataset.percent = String(pct);
+  $(".bar > div", fr.node).style.width = pct + "%";
+  const links = $(".links", fr.node);
+  links.replaceChildren(...f.outputs.map((o) => el("a", { href: withToken(o.url), download: o.name, text: o.name })));
+  if (f.outputs.length) {
+    // The finished picture: the first PNG output (tone-mapped for HDR frames).
+    const png = f.outputs.find((o) => o.name.toLowerCase().endsWith(".png"));
+    if (png && fr.shown !== png.url && !fr.toneActive) {
+      fr.shown = png.url;
+      draw(fr, png.url);
+    }
+    if (f.tonemap && f.outputs.some((o) => o.name.toLowerCase().endsWith(".exr")) && !fr.toneBuilt) buildTone(fr, job, f);
+  } else if (f.tiles_done > 0 && !fr.shown) {
+    refreshPreview(job.id + "/" + f.index, fr, f.preview_url);
+  }
+}
+
+function draw(fr, url) {
+  const img = new Image();
+  img.onload = () => {
+    const c = $("canvas", fr.node);
+    if (c.width !== img.naturalWidth) { c.width = img.naturalWidth; c.height = img.naturalHeight; }
+    c.getContext("2d").drawImage(img, 0, 0);
+    fr.node.dataset.drawn = String((Number(fr.node.dataset.drawn) || 0) + 1);
+  };
+  img.src = withToken(url + (url.includes("?") ? "&" : "?") + "t=" + Date.now());
+}
+
+// The preview of a running frame: the server tone-maps what has arrived; at most every 400 ms.
+const refreshPreview = throttle((fr, url) => draw(fr, url), 400);
+
+function buildTone(fr, job, f) {
+  fr.toneBuilt = true;
+  const t = f.tonemap;
+  const box = $(".tone", fr.node);
+  const gamma0 = parseFloat(t.gamma) || 2.2;
+  const sliders = [
+    ["key", "Key", 0.01, 1.0, 0.01, t.key],
+    ["burn", "Burn %", 0, 20, 0.1, t.burn],
+    ["saturation", "Saturation", 0, 2, 0.05, t.saturation],
+    ["gamma", "Gamma", 1, 3, 0.05, gamma0],
+  ];
+  const values = {};
+  const update = debounce(() => {
+    fr.toneActive = true;
+    const q = Object.entries(values).map(([k, v]) => k + "=" + v).join("&");
+    const url = "/api/v1/jobs/" + job.id + "/frames/" + f.index + "/tonemap.png?" + q;
+    draw(fr, url);
+    const a = $("a.retoned", box);
+    a.href = withToken(url);
+  }, 150);
+  const kids = [];
+  for (const [name, label, min, max, step, value] of sliders) {
+    values[name] = value;
+    const out = el("span", { text: String(value) });
+    const input = el("input", { type: "range", class: "tone-" + name, min: String(min), max: String(max), step: String(step), value: String(value) });
+    input.addEventListener("input", () => { values[name] = input.value; out.textContent = input.value; update(); });
+    kids.push(el("span", { text: label }), input, out);
+  }
+  box.replaceChildren(...kids, el("span"), el("a", { class: "retoned", href: "#", download: "retoned.png", text: "download this PNG" }));
+  box.hidden = false;
+}
+
+function debounce(fn, ms) {
+  let t = null;
+  return () => { clearTimeout(t); t = setTimeout(fn, ms); };
+}
+
+async function loadJob(id) {
+  try { renderJob(await apiJson("/api/v1/jobs/" + id)); } catch (e) { console.warn(e); }
+}
+const refreshJob = throttle((id) => loadJob(id), 700);
+
+async function cancelJob(id) {
+  const resp = await api("/api/v1/jobs/" + id + "/cancel", { method: "POST" });
+  if (!resp.ok) alert((await resp.json()).error);
+  loadJob(id);
+}
+
+// --- Workers ---------------------------------------------------------------------------------
+
+let workers = [];
+async function loadWorkers() {
+  try { workers = (await apiJson("/api/v1/workers")).workers; renderWorkers(); } catch (e) { console.warn(e); }
+}
+const refreshWorkers = throttle(() => loadWorkers(), 1000);
+
+function renderWorkers() {
+  const body = $("#workers tbody");
+  if (!workers.length) {
+    body.replaceChildren(el("tr", {}, el("td", { colspan: "6", class: "empty", text: "No workers registered." })));
+    return;
+  }
+  const now = Date.now() / 1000;
+  body.replaceChildren(...workers.map((w) => el("tr", {},
+    el("td", { text: w.name + " (" + w.threads + " threads)" }),
+    el("td", { class: "state-" + w.state, text: w.state }),
+    el("td", { text: w.current_tile ? "job " + w.current_tile.job + " · frame " + w.current_tile.frame + " · tile " + w.current_tile.tile : "-" }),
+    el("td", { text: fmtDuration(now - w.last_heartbeat) + " ago" }),
+    el("td", { text: String(w.tiles_done) }),
+    el("td", { text: String(w.failures) }))));
+}
+// Heartbeat ages tick on the page; the data itself comes with events.
+setInterval(renderWorkers, 1000);
+
+// --- Live updates ----------------------------------------------------------------------------
+
+let source = null;
+function connect() {
+  if (source) source.close();
+  source = new EventSource(withToken("/api/v1/events"));
+  const live = $("#live");
+  source.onopen = () => { live.textContent = "live"; live.className = "live on"; };
+  source.onerror = () => { live.textContent = "reconnecting"; live.className = "live off"; };
+  source.addEventListener("tile", (ev) => {
+    const e = JSON.parse(ev.data);
+    const entry = jobs.get(e.job);
+    if (!entry || !entry.data) { refreshJob(e.job, e.job); return; }
+    const f = entry.data.frames.find((x) => x.index === e.frame);
+    if (f) {
+      f.tiles_done = Math.max(f.tiles_done, e.tiles_done);
+      const fr = frameNode(entry, entry.data, f);
+      renderFrame(entry, entry.data, f);
+      refreshPreview(e.job + "/" + e.frame, fr, f.preview_url);
+    }
+    refreshJob(e.job, e.job);
+  });
+  for (const name of ["job", "frame"]) {
+    source.addEventListener(name, (ev) => { const e = JSON.parse(ev.data); refreshJob(e.job, e.job); });
+  }
+  source.addEventListener("workers", () => refreshWorkers("w"));
+  source.addEventListener("resync", () => loadAll());
+}
+
+async function loadAll() {
+  try {
+    const list = await apiJson("/api/v1/jobs");
+    for (const job of list.jobs.slice().reverse()) renderJob(job);
+  } catch (e) { console.warn(e); }
+  loadWorkers();
+}
+
+// --- Submitting ------------------------------------------------------------------------------
+
+const ARCHIVE = /\.(tar|tar\.gz|tgz|zip)$/i;
+const SCENE = /\.(xml|json)$/i;
+
+// A file's path inside the upload: relative to the chosen folder, or its plain name.
+function relPath(file) {
+  const p = file.webkitRelativePath || file.name;
+  const parts = p.split("/");
+  return parts.length > 1 ? parts.slice(1).join("/") : p;
+}
+
+$("#submit").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const errBox = $("#submit-error"), okBox = $("#submit-ok");
+  errBox.hidden = true; okBox.hidden = true;
+  const files = [...$("#files").files, ...$("#folder").files];
+  if (!files.length) { showError("Choose a scene file (and its assets), a folder or a bundle first."); return; }
+  const form = new FormData();
+  if (files.length === 1 && ARCHIVE.test(files[0].name)) {
+    form.append("bundle", files[0], files[0].name);
+  } else {
+    const scenes = files.filter((f) => SCENE.test(f.name));
+    if (!scenes.length) { showError("No scene file (.xml or .json) among the chosen files."); return; }
+    scenes.sort((a, b) => relPath(a).split("/").length - relPath(b).split("/").length);
+    const scene = scenes[0];
+    form.append("scene", scene, relPath(scene));
+    for (const f of files) if (f !== scene) form.append("asset", f, relPath(f));
+  }
+  for (const [id, field] of [["priority", "priority"], ["tile-size", "tile_size"], ["samples", "samples"]]) {
+    const v = $("#" + id).value.trim();
+    if (v !== "" && !(field === "priority" && v === "0")) form.append(field, v);
+  }
+  const button = $("#submit-button");
+  button.disabled = true;
+  try {
+    const resp = await api("/api/v1/jobs", { method: "POST", body: form });
+    const body = await resp.json().catch(() => ({ error: "HTTP " + resp.status }));
+    if (!resp.ok) { showError(body.error, body.problems); return; }
+    okBox.textContent = "Job #" + body.id + " accepted: " + body.frames.length + " frame(s), " +
+      body.frames.reduce((a, f) => a + f.tiles_total, 0) + " tiles.";
+    okBox.hidden = false;
+    renderJob(body);
+    $("#files").value = ""; $("#folder").value = "";
+  } catch (e) {
+    showError("The upload failed: " + e.message);
+  } finally {
+    button.disabled = false;
+  }
+});
+
+function showError(message, problems) {
+  const box = $("#submit-error");
+  box.replaceChildren(el("strong", { text: message }));
+  for (const p of problems || []) {
+    const where = [p.file, p.line != null ? "line " + p.line : null, p.element ? "<" + p.element + ">" : null].filter(Boolean).join(", ");
+    box.append(el("div", { class: "problem", text: where + ": " + p.message }));
+  }
+  box.hidden = false;
+}
+
+connect();
+loadAll();

@@ -1,0 +1,283 @@
+//! The status page in a real browser: headless Chromium driven over WebDriver (chromedriver),
+//! against a real server with a real worker process.
+//!
+//! Needs `chromium` and `chromedriver` (Debian: `chromium`, `chromium-driver`; `.ci/run` installs
+//! them and sets `TESSERA_REQUIRE_BROWSER=1`, so CI cannot skip these tests). Without them, and
+//! without that variable, the tests print why and pass without checking anything.
+
+mod support;
+
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::{Value, json};
+use support::*;
+
+const ELEMENT: &str = "element-6066-11e4-a52e-4f735466cecf";
+
+fn find_program(names: &[&str]) -> Option<PathBuf> {
+    let path = std::env::var_os("PATH")?;
+    for dir in std::env::split_paths(&path) {
+        for n in names {
+            let p = dir.join(n);
+            if p.is_file() {
+                return Some(p);
+            }
+        }
+    }
+    None
+}
+
+struct Browser {
+    driver: Child,
+    base: String,
+    session: String,
+}
+
+impl Browser {
+    /// A headless Chromium session, or `None` when the browser is not installed here.
+    fn start() -> Option<Browser> {
+        let required = std::env::var_os("TESSERA_REQUIRE_BROWSER").is_some();
+        let (Some(driver), Some(chrome)) = (
+            find_program(&["chromedriver"]),
+            find_program(&["chromium", "chromium-browser", "google-chrome"]),
+        ) else {
+            assert!(
+                !required,
+                "TESSERA_REQUIRE_BROWSER is set but chromium or chromedriver is not installed"
+            );
+            eprintln!(
+                "skipping the browser test: chromium and chromedriver are not installed (apt-get install chromium chromium-driver)"
+            );
+            return None;
+        };
+        let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+        let child = Command::new(driver)
+            .arg(format!("--port={port}"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start chromedriver");
+        let base = format!("http://127.0.0.1:{port}");
+        let deadline = Instant::now() + Duration::from_secs(20);
+        while ureq::get(&format!("{base}/status")).call().is_err() {
+            assert!(Instant::now() < deadline, "chromedriver did not start");
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        let caps = json!({"capabilities": {"alwaysMatch": {"browserName": "chrome", "goog:chromeOptions": {
+            "binary": chrome.to_string_lossy(),
+            "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1280,1000"]
+        }}}});
+        let v: Value = ureq::post(&format!("{base}/session"))
+            .send_json(caps)
+            .expect("new WebDriver session")
+            .into_json()
+            .unwrap();
+        let session = v["value"]["sessionId"].as_str().expect("session id").to_string();
+        Some(Browser { driver: child, base, session })
+    }
+
+    fn cmd(&self, method: &str, path: &str, body: Option<Value>) -> Value {
+        let url = format!("{}/session/{}{path}", self.base, self.session);
+        let req = ureq::request(method, &url);
+        let res = match body {
+            Some(b) => req.send_json(b),
+            None => req.call(),
+        };
+        match res {
+            Ok(r) => r.into_json::<Value>().unwrap()["value"].clone(),
+            Err(ureq::Error::Status(code, r)) => {
+                panic!("WebDriver {method} {path}: {code} {}", r.into_string().unwrap_or_default())
+            }
+            Err(e) => panic!("WebDriver {method} {path}: {e}"),
+        }
+    }
+
+    fn goto(&self, url: &str) {
+        self.cmd("POST", "/url", Some(json!({"url": url})));
+    }
+
+    fn find(&self, css: &str) -> String {
+        let v = self.cmd("POST", "/element", Some(json!({"using": "css selector", "value": css})));
+        v[ELEMENT].as_str().unwrap().to_string()
+    }
+
+    fn type_into(&self, css: &str, text: &str) {
+        let e = self.find(css);
+        self.cmd("POST", &format!("/element/{e}/value"), Some(json!({"text": text})));
+    }
+
+    fn click(&self, css: &str) {
+        let e = self.find(css);
+        self.cmd("POST", &format!("/element/{e}/click"), Some(json!({})));
+    }
+
+    fn exec(&self, script: &str) -> Value {
+        self.cmd("POST", "/execute/sync", Some(json!({"script": script, "args": []})))
+    }
+
+    /// Waits until `script` (a JS expression) is truthy.
+    fn wait(&self, what: &str, secs: u64, script: &str) -> Value {
+        let deadline = Instant::now() + Duration::from_secs(secs);
+        loop {
+            let v = self.exec(&format!("return ({script});"));
+            if !(v.is_null() || v == json!(false) || v == json!(0) || v == json!("")) {
+                return v;
+            }
+            if Instant::now() > deadline {
+                let page = self.exec("return document.body.innerText;");
+                panic!("timed out waiting for {what}; the page says:\n{}", page.as_str().unwrap_or(""));
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    fn screenshot(&self) -> Vec<u8> {
+        let b64 = self.cmd("GET", "/screenshot", None);
+        base64_decode(b64.as_str().unwrap())
+    }
+}
+
+impl Drop for Browser {
+    fn drop(&mut self) {
+        let _ = ureq::delete(&format!("{}/session/{}", self.base, self.session)).call();
+        let _ = self.driver.kill();
+        let _ = self.driver.wait();
+    }
+}
+
+fn base64_decode(s: &str) -> Vec<u8> {
+    let val = |c: u8| -> u32 {
+        match c {
+            b'A'..=b'Z' => (c - b'A') as u32,
+            b'a'..=b'z' => (c - b'a' + 26) as u32,
+            b'0'..=b'9' => (c - b'0' + 52) as u32,
+            b'+' => 62,
+            b'/' => 63,
+            _ => 0,
+        }
+    };
+    let bytes: Vec<u8> = s.bytes().filter(|c| !c.is_ascii_whitespace()).collect();
+    let mut out = Vec::with_capacity(bytes.len() * 3 / 4);
+    for chunk in bytes.chunks(4) {
+        let n = chunk.iter().take_while(|c| **c != b'=').count();
+        let v = chunk.iter().take(n).enumerate().fold(0u32, |acc, (i, c)| acc | (val(*c) << (18 - 6 * i)));
+        out.extend_from_slice(&v.to_be_bytes()[1..n.max(1)]);
+    }
+    out
+}
+
+/// The sum of the preview canvas's pixel bytes (0 for a blank canvas).
+const CANVAS_SUM: &str = "(() => { const c = document.querySelector('.frame canvas'); if (!c) return 0; \
+    const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data; let s = 0, lit = 0; \
+    for (let i = 0; i < d.length; i += 4) { const v = d[i] + d[i+1] + d[i+2]; s += v; if (v > 30) lit++; } \
+    return lit > 1000 ? s : 0; })()";
+
+#[test]
+fn the_page_follows_a_render_live_and_retonemaps_it() {
+    let _s = serial();
+    let Some(browser) = Browser::start() else { return };
+    let server = Server::start(
+        &temp_dir("browser"),
+        &["--local-workers", "1", "--local-worker-threads", "2", "--tile-size", "32"],
+    );
+    browser.goto(&server.url);
+    assert_eq!(browser.exec("return document.title;"), json!("Tessera render farm"));
+    browser.wait("the live connection", 20, "document.querySelector('#live').textContent === 'live'");
+    browser.wait(
+        "the local worker in the table",
+        20,
+        "document.querySelector('#workers tbody').innerText.includes('local-1')",
+    );
+
+    // Submit the environment demo (an HDR scene) from the page: scene and asset picked as files.
+    // chromedriver wants canonical paths.
+    let scene = repo().join("scenes/environment.xml").canonicalize().unwrap();
+    let sky = repo().join("scenes/textures/sky.hdr").canonicalize().unwrap();
+    browser.type_into("#files", &format!("{}\n{}", scene.display(), sky.display()));
+    browser.type_into("#samples", "64");
+    browser.click("#submit-button");
+    browser.wait("the job to be accepted", 60, "!document.querySelector('#submit-ok').hidden");
+
+    // While it renders, the preview fills in from tile events.
+    browser.wait(
+        "a drawn preview",
+        60,
+        "document.querySelector('.frame') && Number(document.querySelector('.frame').dataset.drawn) >= 1",
+    );
+    browser.wait(
+        "a preview half done",
+        120,
+        "Number(document.querySelector('.frame').dataset.percent) >= 45",
+    );
+    // Let the throttled preview catch up before the picture.
+    std::thread::sleep(Duration::from_millis(900));
+    let pct = browser.exec("return document.querySelector('.frame').dataset.percent;");
+    let shot = browser.screenshot();
+    assert!(shot.starts_with(b"\x89PNG"));
+    let target = repo().join("target");
+    let _ = std::fs::create_dir_all(&target);
+    std::fs::write(target.join("browser-during-render.png"), &shot).unwrap();
+    if std::env::var_os("TESSERA_UPDATE_SCREENSHOT").is_some() {
+        std::fs::write(repo().join("docs/screenshot.png"), &shot).unwrap();
+    }
+    eprintln!("screenshot at {pct}% written to target/browser-during-render.png");
+
+    // Progress reaches 100 % in the page, with the output links.
+    browser.wait("100 %", 180, "document.querySelector('.frame').dataset.percent === '100' && document.querySelectorAll('.frame .links a').length === 2");
+    browser.wait("the job state done", 30, "document.querySelector('.job .state').textContent === 'done'");
+    let links = browser
+        .exec("return [...document.querySelectorAll('.frame .links a')].map(a => a.textContent).join(',');");
+    assert_eq!(links, json!("environment.exr,environment.png"));
+    // The canvas shows the picture.
+    let before = browser.wait("a non-blank canvas", 30, CANVAS_SUM);
+
+    // Re-tone-mapping: a brighter key redraws the canvas from the stored EXR.
+    browser.wait("the tone sliders", 30, "!document.querySelector('.tone').hidden");
+    let drawn =
+        browser.exec("return Number(document.querySelector('.frame').dataset.drawn);").as_u64().unwrap();
+    browser.exec("const s = document.querySelector('input.tone-key'); s.value = '0.9'; s.dispatchEvent(new Event('input')); return 1;");
+    browser.wait(
+        "the re-tone-mapped picture",
+        30,
+        &format!("Number(document.querySelector('.frame').dataset.drawn) > {drawn}"),
+    );
+    let after = browser.wait("a non-blank canvas", 30, CANVAS_SUM);
+    assert!(
+        after.as_f64().unwrap() > before.as_f64().unwrap() * 1.2,
+        "a brighter key should brighten the picture: {before} -> {after}"
+    );
+    // The workers table shows the work done.
+    let table = browser.exec("return document.querySelector('#workers tbody').innerText;");
+    assert!(table.as_str().unwrap().contains("local-1"), "{table}");
+}
+
+#[test]
+fn a_bad_upload_shows_its_error_on_the_page() {
+    let _s = serial();
+    let Some(browser) = Browser::start() else { return };
+    let server = Server::start(&temp_dir("browser-bad"), &["--local-workers", "0"]);
+    let dir = temp_dir("browser-bad-scene");
+    let bad = dir.canonicalize().unwrap().join("broken.xml");
+    std::fs::write(
+        &bad,
+        "<Scene>\n<Cameras>\n<Camera id=\"1\"><Position>0 zero 0</Position></Camera>\n</Cameras>\n</Scene>\n",
+    )
+    .unwrap();
+    browser.goto(&server.url);
+    browser.type_into("#files", &bad.display().to_string());
+    browser.click("#submit-button");
+    let text = browser.wait(
+        "the error box",
+        30,
+        "!document.querySelector('#submit-error').hidden && document.querySelector('#submit-error').innerText",
+    );
+    let text = text.as_str().unwrap();
+    assert!(
+        text.contains("expected 3 numbers") && text.contains("line 3") && text.contains("broken.xml"),
+        "{text}"
+    );
+    // No job was created.
+    assert_eq!(browser.exec("return document.querySelectorAll('.job').length;"), json!(0));
+}
