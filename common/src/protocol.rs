@@ -16,6 +16,9 @@
 //!    header [`CHECKSUM_HEADER`] = [`checksum`] of the body. Accepted once; a lease that expired
 //!    or was revoked gets 409 Conflict and the worker drops the tile. Or
 //!    `POST /api/v1/worker/leases/{lease}/fail` [`FailRequest`] when the tile cannot be rendered.
+//! 6. `POST /api/v1/worker/leases/{lease}/release` [`ReleaseRequest`]: a worker that is stopping
+//!    gives back a lease it has not started (204; 409 when it is not that worker's live lease),
+//!    so the tile goes back to the queue at once instead of waiting for the lease to expire.
 //!
 //! Every worker request carries `Authorization: Bearer <worker token>`.
 
@@ -89,6 +92,12 @@ pub struct HeartbeatRequest {
 pub struct HeartbeatResponse {
     /// Leases the worker no longer owns (expired, cancelled job): drop their work.
     pub revoked: Vec<u64>,
+}
+
+/// Gives a lease back unrendered (the worker is stopping).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ReleaseRequest {
+    pub worker_id: u64,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

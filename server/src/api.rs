@@ -133,6 +133,7 @@ pub fn app(state: AppState) -> Router {
         .route("/api/v1/worker/heartbeat", post(heartbeat))
         .route("/api/v1/worker/leases/{lease}/result", put(result))
         .route("/api/v1/worker/leases/{lease}/fail", post(fail))
+        .route("/api/v1/worker/leases/{lease}/release", post(release))
         .route("/api/v1/worker/bundles/{hash}", get(get_bundle))
         .route_layer(axum::middleware::from_fn_with_state(state.clone(), require_worker_token));
     let limit = state.settings.max_upload_bytes;
@@ -881,6 +882,25 @@ async fn fail(
         FailOutcome::Conflict => {
             Err(AppError::new(StatusCode::CONFLICT, format!("lease {lease} is not yours any more")))
         }
+    }
+}
+
+/// A stopping worker gives back a lease it has not started: the tile is queued again at once.
+async fn release(
+    State(state): State<AppState>,
+    Path(lease): Path<u64>,
+    Json(req): Json<ReleaseRequest>,
+) -> ApiResult<StatusCode> {
+    if state.store.release_lease(lease, req.worker_id)? {
+        tracing::info!(lease, worker = req.worker_id, "lease given back; its tile is queued again");
+        state.emit(ServerEvent::Workers);
+        state.work.notify_waiters();
+        Ok(StatusCode::NO_CONTENT)
+    } else {
+        Err(AppError::new(
+            StatusCode::CONFLICT,
+            format!("lease {lease} is not a live lease of worker {}", req.worker_id),
+        ))
     }
 }
 

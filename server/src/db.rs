@@ -565,6 +565,26 @@ impl Store {
         Ok(n)
     }
 
+    /// Puts the tile of a live lease held by `worker` back in the queue (the worker is stopping
+    /// and never started it); false when it is not that worker's live lease.
+    pub fn release_lease(&self, lease: u64, worker: u64) -> Result<bool> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        let n = tx.execute(
+            "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL
+             WHERE lease_id = ?1 AND worker_id = ?2 AND state = 'leased' AND deadline >= ?3",
+            params![lease as i64, worker as i64, now()],
+        )?;
+        if n > 0 {
+            tx.execute(
+                "UPDATE workers SET rendering = NULL, last_seen = ?3 WHERE id = ?1 AND rendering = ?2",
+                params![worker as i64, lease as i64, now()],
+            )?;
+        }
+        tx.commit()?;
+        Ok(n > 0)
+    }
+
     /// Stores a tile's pixels for a live lease held by `worker`, once.
     pub fn submit_result(
         &self,

@@ -11,10 +11,17 @@
 //! - the **main** thread renders on a rayon pool: it fetches a job's bundle once, builds the
 //!   scene once per bundle (cached by its hash), renders the tile with the same
 //!   `render_tile` as `tessera-worker render` (same bits), and uploads it with a checksum.
+//!
+//! **Stopping.** SIGTERM or Ctrl-C (SIGINT) sets a flag: the worker takes no new lease, finishes
+//! and uploads the tile it is rendering, gives back (`.../release`) the lease it fetched ahead and
+//! exits with status 0, so its tiles go back to the queue at once instead of after the lease
+//! expires. A second signal exits at once (status 1); the server then requeues the tile when its
+//! lease expires, as after a crash.
 
 use std::collections::{HashMap, HashSet};
 use std::io::Read;
-use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, sync_channel};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -98,13 +105,32 @@ fn describe(e: ureq::Error) -> String {
     }
 }
 
-/// Registers, retrying while the server is not up yet; fails at once on a bad token.
-fn register(client: &Client, name: &str, threads: u32) -> Result<RegisterResponse> {
+/// The flag SIGTERM and SIGINT set; a second signal while it is set exits at once (status 1).
+fn stop_flag() -> Result<Arc<AtomicBool>> {
+    let stop = Arc::new(AtomicBool::new(false));
+    #[cfg(unix)]
+    for sig in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
+        // The conditional exit first: it sees the flag as the previous signal left it.
+        signal_hook::flag::register_conditional_shutdown(sig, 1, stop.clone())
+            .context("cannot install the signal handlers")?;
+        signal_hook::flag::register(sig, stop.clone()).context("cannot install the signal handlers")?;
+    }
+    Ok(stop)
+}
+
+/// Registers, retrying while the server is not up yet; fails at once on a bad token. `None`
+/// when told to stop before the server answered.
+fn register(client: &Client, name: &str, threads: u32, stop: &AtomicBool) -> Result<Option<RegisterResponse>> {
     let mut delay = Duration::from_millis(200);
     let started = Instant::now();
     loop {
+        if stop.load(Ordering::SeqCst) {
+            return Ok(None);
+        }
         match client.post_json("/api/v1/worker/register", &RegisterRequest { name: name.into(), threads }) {
-            Ok(resp) => return resp.into_json().context("the server's register answer is not valid JSON"),
+            Ok(resp) => {
+                return resp.into_json().map(Some).context("the server's register answer is not valid JSON");
+            }
             Err(ureq::Error::Status(401, _)) => {
                 bail!(
                     "the server refused the worker token; pass the farm's worker token with --token or TESSERA_WORKER_TOKEN"
@@ -133,7 +159,11 @@ pub fn work(opts: WorkOptions) -> Result<()> {
         pool = pool.num_threads(n);
     }
     let pool = pool.build().context("cannot start the render threads")?;
-    let reg = register(&client, &opts.name, pool.current_num_threads() as u32)?;
+    let stop = stop_flag()?;
+    let Some(reg) = register(&client, &opts.name, pool.current_num_threads() as u32, &stop)? else {
+        eprintln!("stopped before the server answered");
+        return Ok(());
+    };
     let worker_id = reg.worker_id;
     eprintln!(
         "worker {} ({}, {} threads) registered with {}",
@@ -177,15 +207,30 @@ pub fn work(opts: WorkOptions) -> Result<()> {
     // The fetcher: one lease ahead.
     let (tx, rx): (SyncSender<Lease>, Receiver<Lease>) = sync_channel(0);
     {
-        let (client, leases) = (client.clone(), leases.clone());
+        let (client, leases, stop) = (client.clone(), leases.clone(), stop.clone());
         std::thread::Builder::new()
             .name("fetcher".into())
-            .spawn(move || fetch_leases(&client, worker_id, &leases, &tx))?;
+            .spawn(move || fetch_leases(&client, worker_id, &leases, &tx, &stop))?;
     }
 
     let mut scenes: HashMap<(String, String), Arc<Scene>> = HashMap::new();
     let mut done = 0u64;
-    while let Ok(lease) = rx.recv() {
+    loop {
+        if stop.load(Ordering::SeqCst) {
+            eprintln!("stopping: no new tiles");
+            break;
+        }
+        let lease = match rx.recv_timeout(Duration::from_millis(200)) {
+            Ok(lease) => lease,
+            Err(RecvTimeoutError::Timeout) => continue,
+            Err(RecvTimeoutError::Disconnected) => break,
+        };
+        if stop.load(Ordering::SeqCst) {
+            // The signal came while this lease was on its way: it was never started.
+            release(&client, worker_id, lease.lease_id);
+            leases.lock().unwrap_or_else(|e| e.into_inner()).held.remove(&lease.lease_id);
+            break;
+        }
         let id = lease.lease_id;
         leases.lock().unwrap_or_else(|e| e.into_inner()).rendering = Some(id);
         let started = Instant::now();
@@ -217,21 +262,65 @@ pub fn work(opts: WorkOptions) -> Result<()> {
             break;
         }
     }
+    stop.store(true, Ordering::SeqCst);
+    give_back(&client, worker_id, &leases, &rx);
     Ok(())
 }
 
-/// Long-polls for leases forever, handing each to the renderer (blocking while it is busy, so
-/// exactly one lease waits ahead).
-fn fetch_leases(client: &Client, worker_id: u64, leases: &Mutex<Leases>, tx: &SyncSender<Lease>) {
+/// How long a stopping worker waits for a long poll in flight to come back (a lease it brings
+/// is given back too); after that the worker exits and such a lease expires on the server.
+const STOP_WAIT: Duration = Duration::from_secs(3);
+
+/// Gives back the lease the fetcher holds (and one its poll in flight may still bring).
+fn give_back(client: &Client, worker_id: u64, leases: &Mutex<Leases>, rx: &Receiver<Lease>) {
+    let deadline = Instant::now() + STOP_WAIT;
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        match rx.recv_timeout(left) {
+            Ok(lease) => {
+                release(client, worker_id, lease.lease_id);
+                leases.lock().unwrap_or_else(|e| e.into_inner()).held.remove(&lease.lease_id);
+            }
+            // The fetcher saw the flag and ended, or is still in a long poll: done either way.
+            Err(_) => return,
+        }
+    }
+}
+
+fn release(client: &Client, worker_id: u64, lease: u64) {
+    match client.post_json(&format!("/api/v1/worker/leases/{lease}/release"), &ReleaseRequest { worker_id }) {
+        Ok(_) => eprintln!("gave back lease {lease}"),
+        Err(e) => eprintln!("giving back lease {lease}: {}", describe(e)),
+    }
+}
+
+/// Long-polls for leases until told to stop, handing each to the renderer (blocking while it is
+/// busy, so exactly one lease waits ahead). A lease that arrives after the stop is given back.
+fn fetch_leases(
+    client: &Client,
+    worker_id: u64,
+    leases: &Mutex<Leases>,
+    tx: &SyncSender<Lease>,
+    stop: &AtomicBool,
+) {
     let mut delay = Duration::from_millis(200);
     loop {
+        if stop.load(Ordering::SeqCst) {
+            return;
+        }
         match client.post_json("/api/v1/worker/lease", &LeaseRequest { worker_id, wait_seconds: 20.0 }) {
             Ok(resp) if resp.status() == 200 => {
                 delay = Duration::from_millis(200);
                 match resp.into_json::<Lease>() {
                     Ok(lease) => {
+                        if stop.load(Ordering::SeqCst) {
+                            release(client, worker_id, lease.lease_id);
+                            return;
+                        }
                         leases.lock().unwrap_or_else(|e| e.into_inner()).held.insert(lease.lease_id);
-                        if tx.send(lease).is_err() {
+                        if let Err(e) = tx.send(lease) {
+                            // The renderer is gone (it stopped): nobody will render this one.
+                            release(client, worker_id, e.0.lease_id);
                             return;
                         }
                     }

@@ -1,0 +1,172 @@
+//! Stopping a worker gracefully: SIGTERM makes `tessera-worker work` finish and upload the tile it
+//! renders, give back (`POST /api/v1/worker/leases/{lease}/release`) the lease it fetched ahead
+//! and exit with status 0; the job completes through another worker without any lease expiring.
+
+mod support;
+
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::{Value, json};
+use support::*;
+
+const TOKEN: &str = "wtok";
+const SAMPLES: &str = "16";
+
+fn worker_post(url: &str, path: &str, body: Value) -> (u16, Value) {
+    call(
+        ureq::post(&format!("{url}{path}")).set("Authorization", &format!("Bearer {TOKEN}")),
+        Some(("application/json".into(), body.to_string().into_bytes())),
+    )
+}
+
+fn job(server: &Server, id: u64) -> Value {
+    get_json(&server.url, &format!("/api/v1/jobs/{id}"))
+}
+
+fn tiles_done(job: &Value) -> u64 {
+    job["frames"][0]["tiles_done"].as_u64().unwrap_or(0)
+}
+
+fn metric(server: &Server, name: &str) -> String {
+    let metrics = String::from_utf8(get_bytes(&server.url, "/metrics")).unwrap();
+    metrics
+        .lines()
+        .find_map(|l| l.strip_prefix(name).and_then(|v| v.strip_prefix(' ')).map(str::to_string))
+        .unwrap_or_else(|| panic!("no {name} in\n{metrics}"))
+}
+
+fn wait_until(server: &Server, what: &str, secs: u64, mut f: impl FnMut() -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(secs);
+    while !f() {
+        assert!(Instant::now() < deadline, "timed out waiting for {what}\n--- server log ---\n{}", server.log());
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn release_gives_a_live_lease_back_to_the_queue_once() {
+    let _s = serial();
+    let data = temp_dir("release");
+    let server = Server::start(&data, &["--local-workers", "0", "--worker-token", TOKEN]);
+    let scene = std::fs::read(repo().join("scenes/environment.xml")).unwrap();
+    let sky = std::fs::read(repo().join("scenes/textures/sky.hdr")).unwrap();
+    let (code, v) = submit(
+        &server.url,
+        None,
+        &[
+            ("scene", Some("environment.xml"), &scene),
+            ("asset", Some("textures/sky.hdr"), &sky),
+            ("samples", None, b"1"),
+            ("tile_size", None, b"64"),
+        ],
+    );
+    assert_eq!(code, 201, "{v}");
+    let (_, reg) = worker_post(&server.url, "/api/v1/worker/register", json!({"name": "h", "threads": 1}));
+    let w = reg["worker_id"].as_u64().unwrap();
+    let lease = || {
+        let (code, l) =
+            worker_post(&server.url, "/api/v1/worker/lease", json!({"worker_id": w, "wait_seconds": 0.0}));
+        assert_eq!(code, 200, "{l}");
+        l
+    };
+    let first = lease();
+    let id = first["lease_id"].as_u64().unwrap();
+    let release = |lease: u64, worker: u64| {
+        worker_post(&server.url, &format!("/api/v1/worker/leases/{lease}/release"), json!({"worker_id": worker}))
+            .0
+    };
+    // Not this worker's lease, not a lease at all: 409, and the lease stays.
+    assert_eq!(release(id, w + 1000), 409);
+    assert_eq!(release(id + 1000, w), 409);
+    // Without the worker token: refused.
+    let (code, _) = call(
+        ureq::post(&format!("{}/api/v1/worker/leases/{id}/release", server.url)),
+        Some(("application/json".into(), json!({"worker_id": w}).to_string().into_bytes())),
+    );
+    assert_eq!(code, 401);
+    assert_eq!(release(id, w), 204);
+    assert_eq!(release(id, w), 409, "a lease is given back once");
+    // The same tile is handed out again at once, under a new lease.
+    let again = lease();
+    assert_eq!(again["tile"], first["tile"], "{again} vs {first}");
+    assert_ne!(again["lease_id"], first["lease_id"]);
+    assert_eq!(metric(&server, "tessera_lease_expiries_total"), "0");
+}
+
+#[test]
+fn a_worker_given_sigterm_mid_job_finishes_its_tile_gives_back_the_next_and_exits_0() {
+    let _s = serial();
+    let data = temp_dir("sigterm");
+    // Leases live ten minutes: a tile that was not given back would hold the job up far longer
+    // than this test waits.
+    let server = Server::start(
+        &data,
+        &["--local-workers", "0", "--worker-token", TOKEN, "--lease-seconds", "600", "--heartbeat-seconds", "0.5"],
+    );
+    let scene = std::fs::read(repo().join("scenes/environment.xml")).unwrap();
+    let sky = std::fs::read(repo().join("scenes/textures/sky.hdr")).unwrap();
+    let (code, v) = submit(
+        &server.url,
+        None,
+        &[
+            ("scene", Some("environment.xml"), &scene),
+            ("asset", Some("textures/sky.hdr"), &sky),
+            ("samples", None, SAMPLES.as_bytes()),
+            ("tile_size", None, b"32"),
+        ],
+    );
+    assert_eq!(code, 201, "{v}");
+    let id = v["id"].as_u64().unwrap();
+
+    let log = data.join("worker-a.log");
+    let mut a = Command::new(worker_bin())
+        .args(["work", "--server", &server.url, "--token", TOKEN, "--name", "a", "--threads", "1"])
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&log).unwrap())
+        .spawn()
+        .expect("start tessera-worker work");
+    wait_until(&server, "worker a's first tiles", 120, || tiles_done(&job(&server, id)) >= 2);
+    let total = job(&server, id)["frames"][0]["tiles_total"].as_u64().unwrap();
+    let status = Command::new("kill").args(["-TERM", &a.id().to_string()]).status().unwrap();
+    assert!(status.success());
+    let signalled = Instant::now();
+    let exit = loop {
+        if let Some(s) = a.try_wait().unwrap() {
+            break s;
+        }
+        if signalled.elapsed() > Duration::from_secs(15) {
+            let _ = a.kill();
+            panic!("the worker did not stop within 15 s of SIGTERM:\n{}", std::fs::read_to_string(&log).unwrap());
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let worker_log = std::fs::read_to_string(&log).unwrap();
+    assert!(exit.success(), "worker exit {exit:?}:\n{worker_log}");
+    assert!(worker_log.contains("gave back lease"), "no lease given back:\n{worker_log}");
+    let after = job(&server, id);
+    assert!(tiles_done(&after) < total, "the job finished before the signal; the test proves nothing: {after}");
+
+    // Another worker finishes the job, long before any lease could expire.
+    let _b = Worker::start(&server.url, TOKEN, "b");
+    wait_until(&server, "the job to finish on worker b", 240, || job(&server, id)["state"] == "done");
+    assert_eq!(metric(&server, "tessera_lease_expiries_total"), "0");
+    assert_eq!(metric(&server, "tessera_results_refused_total"), "0");
+    assert_eq!(metric(&server, "tessera_tiles_done_total"), total.to_string());
+
+    // Byte for byte what the CLI renders.
+    let out = temp_dir("sigterm-cli");
+    let status = Command::new(worker_bin())
+        .args(["render", repo().join("scenes/environment.xml").to_str().unwrap(), "--quiet", "--samples", SAMPLES])
+        .arg("--out")
+        .arg(&out)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .unwrap();
+    assert!(status.success());
+    for name in ["environment.exr", "environment.png"] {
+        let farm = get_bytes(&server.url, &format!("/api/v1/jobs/{id}/frames/0/files/{name}"));
+        assert!(farm == std::fs::read(out.join(name)).unwrap(), "the farm's {name} differs from the CLI's");
+    }
+}
