@@ -102,7 +102,9 @@ fn env_vars_in(text: &str) -> BTreeSet<String> {
     let mut out = BTreeSet::new();
     for (i, _) in text.match_indices("TESSERA_") {
         let rest = &text[i..];
-        let end = rest.find(|c: char| !(c.is_ascii_uppercase() || c.is_ascii_digit() || c == '_')).unwrap_or(rest.len());
+        let end = rest
+            .find(|c: char| !(c.is_ascii_uppercase() || c.is_ascii_digit() || c == '_'))
+            .unwrap_or(rest.len());
         out.insert(rest[..end].to_string());
     }
     out
@@ -132,7 +134,8 @@ fn command_lines() -> Vec<(String, Vec<String>)> {
         for line in text.lines() {
             let t = line.trim_start().trim_start_matches("- ");
             let list = |rest: &str| -> Vec<String> {
-                serde_json::from_str(rest.trim()).unwrap_or_else(|e| panic!("{file}: {line:?} is not a flow list: {e}"))
+                serde_json::from_str(rest.trim())
+                    .unwrap_or_else(|e| panic!("{file}: {line:?} is not a flow list: {e}"))
             };
             if let Some(rest) = t.strip_prefix("CMD ").filter(|r| r.trim_start().starts_with('[')) {
                 out.push((file.clone(), list(rest)));
@@ -177,9 +180,12 @@ fn every_flag_and_variable_in_deploy_exists_in_the_binaries() {
     let mut problems = Vec::new();
     for (file, text) in &files {
         for flag in flags_in(text) {
-            let ok = server_flags.contains(&flag) || worker_flags.contains(&flag) || FOREIGN_FLAGS.contains(&flag.as_str());
+            let ok = server_flags.contains(&flag)
+                || worker_flags.contains(&flag)
+                || FOREIGN_FLAGS.contains(&flag.as_str());
             if !ok {
-                problems.push(format!("{file}: {flag} is not a flag of tessera-server or tessera-worker work"));
+                problems
+                    .push(format!("{file}: {flag} is not a flag of tessera-server or tessera-worker work"));
             }
         }
         for var in env_vars_in(text) {
@@ -198,7 +204,8 @@ fn every_flag_and_variable_in_deploy_exists_in_the_binaries() {
                 (&worker_flags, "tessera-worker work")
             }
             other => {
-                problems.push(format!("{file}: command {other} is neither tessera-server nor tessera-worker"));
+                problems
+                    .push(format!("{file}: command {other} is neither tessera-server nor tessera-worker"));
                 continue;
             }
         };
@@ -278,7 +285,8 @@ fn ports_and_health_paths_match_the_server() {
                 health_paths.insert(p.trim().to_string());
             }
             if let Some(i) = line.find(&format!(":{PORT}/")) {
-                let path: String = line[i + 5..].chars().take_while(|c| !c.is_whitespace() && *c != '"').collect();
+                let path: String =
+                    line[i + 5..].chars().take_while(|c| !c.is_whitespace() && *c != '"').collect();
                 health_paths.insert(path);
             }
         }
@@ -331,8 +339,11 @@ fn every_command_line_in_deploy_runs() {
                     .spawn()
                     .unwrap();
                 let mut line = String::new();
-                std::io::BufRead::read_line(&mut std::io::BufReader::new(child.stdout.take().unwrap()), &mut line)
-                    .unwrap();
+                std::io::BufRead::read_line(
+                    &mut std::io::BufReader::new(child.stdout.take().unwrap()),
+                    &mut line,
+                )
+                .unwrap();
                 let _ = child.kill();
                 let out = child.wait_with_output().unwrap();
                 assert!(
@@ -377,8 +388,13 @@ fn every_command_line_in_deploy_runs() {
 
 #[test]
 fn kubernetes_manifests_are_valid() {
-    let required = std::env::var_os("TESSERA_REQUIRE_K8S_VALIDATE").is_some_and(|v| v != "0" && !v.is_empty());
-    let probe = Command::new("kubernetes-validate").arg("--version").stdout(Stdio::null()).stderr(Stdio::null()).status();
+    let required =
+        std::env::var_os("TESSERA_REQUIRE_K8S_VALIDATE").is_some_and(|v| v != "0" && !v.is_empty());
+    let probe = Command::new("kubernetes-validate")
+        .arg("--version")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status();
     if !probe.is_ok_and(|s| s.success()) {
         assert!(!required, "TESSERA_REQUIRE_K8S_VALIDATE is set but kubernetes-validate is not on PATH");
         eprintln!("skipped: kubernetes-validate is not installed (pip install kubernetes-validate)");

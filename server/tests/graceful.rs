@@ -39,7 +39,11 @@ fn metric(server: &Server, name: &str) -> String {
 fn wait_until(server: &Server, what: &str, secs: u64, mut f: impl FnMut() -> bool) {
     let deadline = Instant::now() + Duration::from_secs(secs);
     while !f() {
-        assert!(Instant::now() < deadline, "timed out waiting for {what}\n--- server log ---\n{}", server.log());
+        assert!(
+            Instant::now() < deadline,
+            "timed out waiting for {what}\n--- server log ---\n{}",
+            server.log()
+        );
         std::thread::sleep(Duration::from_millis(50));
     }
 }
@@ -73,8 +77,12 @@ fn release_gives_a_live_lease_back_to_the_queue_once() {
     let first = lease();
     let id = first["lease_id"].as_u64().unwrap();
     let release = |lease: u64, worker: u64| {
-        worker_post(&server.url, &format!("/api/v1/worker/leases/{lease}/release"), json!({"worker_id": worker}))
-            .0
+        worker_post(
+            &server.url,
+            &format!("/api/v1/worker/leases/{lease}/release"),
+            json!({"worker_id": worker}),
+        )
+        .0
     };
     // Not this worker's lease, not a lease at all: 409, and the lease stays.
     assert_eq!(release(id, w + 1000), 409);
@@ -102,7 +110,16 @@ fn a_worker_given_sigterm_mid_job_finishes_its_tile_gives_back_the_next_and_exit
     // than this test waits.
     let server = Server::start(
         &data,
-        &["--local-workers", "0", "--worker-token", TOKEN, "--lease-seconds", "600", "--heartbeat-seconds", "0.5"],
+        &[
+            "--local-workers",
+            "0",
+            "--worker-token",
+            TOKEN,
+            "--lease-seconds",
+            "600",
+            "--heartbeat-seconds",
+            "0.5",
+        ],
     );
     let scene = std::fs::read(repo().join("scenes/environment.xml")).unwrap();
     let sky = std::fs::read(repo().join("scenes/textures/sky.hdr")).unwrap();
@@ -137,7 +154,10 @@ fn a_worker_given_sigterm_mid_job_finishes_its_tile_gives_back_the_next_and_exit
         }
         if signalled.elapsed() > Duration::from_secs(15) {
             let _ = a.kill();
-            panic!("the worker did not stop within 15 s of SIGTERM:\n{}", std::fs::read_to_string(&log).unwrap());
+            panic!(
+                "the worker did not stop within 15 s of SIGTERM:\n{}",
+                std::fs::read_to_string(&log).unwrap()
+            );
         }
         std::thread::sleep(Duration::from_millis(20));
     };
@@ -145,7 +165,10 @@ fn a_worker_given_sigterm_mid_job_finishes_its_tile_gives_back_the_next_and_exit
     assert!(exit.success(), "worker exit {exit:?}:\n{worker_log}");
     assert!(worker_log.contains("gave back lease"), "no lease given back:\n{worker_log}");
     let after = job(&server, id);
-    assert!(tiles_done(&after) < total, "the job finished before the signal; the test proves nothing: {after}");
+    assert!(
+        tiles_done(&after) < total,
+        "the job finished before the signal; the test proves nothing: {after}"
+    );
 
     // Another worker finishes the job, long before any lease could expire.
     let _b = Worker::start(&server.url, TOKEN, "b");
@@ -157,7 +180,13 @@ fn a_worker_given_sigterm_mid_job_finishes_its_tile_gives_back_the_next_and_exit
     // Byte for byte what the CLI renders.
     let out = temp_dir("sigterm-cli");
     let status = Command::new(worker_bin())
-        .args(["render", repo().join("scenes/environment.xml").to_str().unwrap(), "--quiet", "--samples", SAMPLES])
+        .args([
+            "render",
+            repo().join("scenes/environment.xml").to_str().unwrap(),
+            "--quiet",
+            "--samples",
+            SAMPLES,
+        ])
         .arg("--out")
         .arg(&out)
         .stdout(Stdio::null())

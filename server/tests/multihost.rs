@@ -78,7 +78,15 @@ impl Farm {
     /// `curl` inside the server's namespace; (HTTP status, body).
     fn curl(&self, args: &[&str]) -> (u16, Vec<u8>) {
         let out = Command::new("ip")
-            .args(["netns", "exec", &self.server_ns, "curl", "-sS", "-H", &format!("Authorization: Bearer {API}")])
+            .args([
+                "netns",
+                "exec",
+                &self.server_ns,
+                "curl",
+                "-sS",
+                "-H",
+                &format!("Authorization: Bearer {API}"),
+            ])
             .args(["-w", "\n%{http_code}"])
             .args(args)
             .output()
@@ -126,7 +134,9 @@ fn a_farm_across_three_hosts_survives_a_worker_host_losing_its_link() {
     }
     ip_ok(&["-n", &hub, "link", "add", "br0", "type", "bridge"]);
     ip_ok(&["-n", &hub, "link", "set", "br0", "up"]);
-    for (ns, host, addr) in [(&srv, "s", "10.77.0.1/24"), (&wa, "a", "10.77.0.2/24"), (&wb, "b", "10.77.0.3/24")] {
+    for (ns, host, addr) in
+        [(&srv, "s", "10.77.0.1/24"), (&wa, "a", "10.77.0.2/24"), (&wb, "b", "10.77.0.3/24")]
+    {
         // Created in this namespace under unique names, then moved to their hosts and the hub.
         let (near, far) = (format!("{tag}{host}0"), format!("{tag}{host}1"));
         ip_ok(&["link", "add", &near, "type", "veth", "peer", "name", &far]);
@@ -209,8 +219,12 @@ fn a_farm_across_three_hosts_survives_a_worker_host_losing_its_link() {
     let deadline = Instant::now() + Duration::from_secs(120);
     loop {
         let workers = farm.get_json("/api/v1/workers");
-        let done: Vec<u64> =
-            workers["workers"].as_array().unwrap().iter().map(|w| w["tiles_done"].as_u64().unwrap()).collect();
+        let done: Vec<u64> = workers["workers"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|w| w["tiles_done"].as_u64().unwrap())
+            .collect();
         if done.len() == 2 && done.iter().all(|&d| d >= 1) {
             break;
         }

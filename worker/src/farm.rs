@@ -120,7 +120,12 @@ fn stop_flag() -> Result<Arc<AtomicBool>> {
 
 /// Registers, retrying while the server is not up yet; fails at once on a bad token. `None`
 /// when told to stop before the server answered.
-fn register(client: &Client, name: &str, threads: u32, stop: &AtomicBool) -> Result<Option<RegisterResponse>> {
+fn register(
+    client: &Client,
+    name: &str,
+    threads: u32,
+    stop: &AtomicBool,
+) -> Result<Option<RegisterResponse>> {
     let mut delay = Duration::from_millis(200);
     let started = Instant::now();
     loop {
