@@ -169,6 +169,37 @@ fn a_worker_given_sigterm_mid_job_finishes_its_tile_gives_back_the_next_and_exit
         tiles_done(&after) < total,
         "the job finished before the signal; the test proves nothing: {after}"
     );
+    // Every tile not done is in the queue again: a hand-driven worker gets a lease on each (none
+    // is still held by the stopped worker), then gives them all back.
+    let (_, reg) =
+        worker_post(&server.url, "/api/v1/worker/register", json!({"name": "probe", "threads": 1}));
+    let probe = reg["worker_id"].as_u64().unwrap();
+    let mut queued = Vec::new();
+    loop {
+        let (code, l) = worker_post(
+            &server.url,
+            "/api/v1/worker/lease",
+            json!({"worker_id": probe, "wait_seconds": 0.0}),
+        );
+        if code != 200 {
+            assert_eq!(code, 204, "{l}");
+            break;
+        }
+        queued.push(l["lease_id"].as_u64().unwrap());
+    }
+    assert_eq!(
+        queued.len() as u64,
+        total - tiles_done(&job(&server, id)),
+        "a tile is still leased to the stopped worker\n{worker_log}"
+    );
+    for l in queued {
+        let (code, v) = worker_post(
+            &server.url,
+            &format!("/api/v1/worker/leases/{l}/release"),
+            json!({"worker_id": probe}),
+        );
+        assert_eq!(code, 204, "{v}");
+    }
 
     // Another worker finishes the job, long before any lease could expire.
     let _b = Worker::start(&server.url, TOKEN, "b");
