@@ -238,6 +238,8 @@ fn a_farm_across_three_hosts_survives_a_worker_host_losing_its_link() {
         "the job is nearly done before the link goes down: {job}"
     );
     ip_ok(&["-n", &wa, "link", "set", "eth0", "down"]);
+    // Let a request that was already in the server's hands before the cut finish.
+    std::thread::sleep(Duration::from_millis(500));
     let cut = farm.get_json("/api/v1/workers");
     let a_at_cut = tiles_of(&cut, "host-a");
 
