@@ -13,7 +13,7 @@ use tessera::image::Image;
 use tessera::output::{self, OutputFile, OutputKind};
 use tessera::protocol::{Rect, decode_tile};
 use tessera::render::TileRect;
-use tessera::tonemap::tonemap;
+use tessera::tonemap::tonemap_with;
 
 /// Assembles `tiles` into a `width` x `height` image; missing tiles stay black.
 pub fn assemble(width: u32, height: u32, tiles: &[(Rect, Vec<u8>)]) -> Result<Image> {
@@ -72,10 +72,10 @@ pub fn write_outputs(dir: &Path, cam: &Camera, img: &Image) -> Result<Vec<String
 pub fn preview_png(cam: &Camera, img: &Image) -> Result<Vec<u8>> {
     let files = farm_outputs(cam);
     let rgb = match files.iter().find_map(|f| match &f.kind {
-        OutputKind::Tonemapped(p) => Some(*p),
+        OutputKind::Tonemapped(op, p) => Some((*op, *p)),
         _ => None,
     }) {
-        Some(params) => tonemap(img, &params).0,
+        Some((operator, params)) => tonemap_with(img, operator, &params).0,
         None => img.to_ldr(),
     };
     let mut out = Vec::new();

@@ -29,7 +29,7 @@ use super::records::{
     TextureMapRec, TextureSource, TonemapRec, TransformOp, TransformRec, TransformRef, TriangleRec, Vec3,
 };
 use crate::error::{Loc, SceneError, Warning};
-use crate::tonemap::Photographic;
+use crate::tonemap::{Operator, Photographic};
 
 type Result<T> = std::result::Result<T, SceneError>;
 
@@ -1159,14 +1159,15 @@ impl Parser<'_> {
     fn tonemap(&mut self, n: &Node) -> Result<TonemapRec> {
         self.check(n, &TONEMAP);
         let mut params = Photographic::default();
+        let mut operator = Operator::Photographic;
         if let Some(t) = n.child("TMO") {
-            match t.text.trim() {
-                "Photographic" => {}
-                other => self.warn(
+            match t.text.parse::<Operator>() {
+                Ok(op) => operator = op,
+                Err(_) => self.warn(
                     t,
                     format!(
-                        "tone-mapping operator {} is not supported yet; the photographic operator is used",
-                        quoted(other)
+                        "tone-mapping operator {} is not supported (Photographic, Filmic or ACES); the photographic operator is used",
+                        quoted(t.text.trim())
                     ),
                 ),
             }
@@ -1191,7 +1192,7 @@ impl Parser<'_> {
             Some(e) => Some(self.text(e, "a file name ending such as _phot.png")?.to_string()),
             None => None,
         };
-        Ok(TonemapRec { loc: n.loc(), params, extension })
+        Ok(TonemapRec { loc: n.loc(), operator, params, extension })
     }
 
     fn lights(&mut self, lights: &Node) -> Result<()> {
@@ -2085,6 +2086,7 @@ mod tests {
   <ImageName>a.exr</ImageName>
   <Tonemap><TMO>Photographic</TMO><TMOOptions>0.36 0</TMOOptions><Saturation>0.8</Saturation><Gamma>sRGB</Gamma></Tonemap>
   <Tonemap><Extension>_two.png</Extension></Tonemap>
+  <Tonemap><TMO>ACES</TMO><Extension>_aces.png</Extension></Tonemap>
 </Camera></Cameras>
 <Textures><Images><Image id="7">textures/sky.exr</Image></Images></Textures>
 <Lights>
@@ -2096,7 +2098,11 @@ mod tests {
         );
         assert!(rec.warnings.is_empty(), "{:?}", rec.warnings);
         let t = &rec.cameras[0].tonemaps;
-        assert_eq!(t.len(), 2);
+        assert_eq!(t.len(), 3);
+        assert_eq!(
+            t.iter().map(|t| t.operator).collect::<Vec<_>>(),
+            [Operator::Photographic, Operator::Photographic, Operator::Aces]
+        );
         assert_eq!(
             t[0].params,
             Photographic {
@@ -2688,14 +2694,14 @@ mod tests {
                 &scene(
                     "<Cameras>\n<Camera id=\"1\" type=\"lookAt\"><Position>0 0 0</Position><GazePoint>0 0 -1</GazePoint>\n<Gaze>0 0 1</Gaze>\
                         <Up>0 1 0</Up><FovY>45</FovY><NearDistance>1</NearDistance><ImageResolution>1 1</ImageResolution>\
-                        <ImageName>a.exr</ImageName>\n<Tonemap><TMO>Filmic</TMO></Tonemap></Camera>\n</Cameras>",
+                        <ImageName>a.exr</ImageName>\n<Tonemap><TMO>Drago</TMO></Tonemap></Camera>\n</Cameras>",
                 ),
                 &[
                     &w(4, r#"Camera id="1"> / <Gaze"#, "<Gaze> is ignored because <GazePoint> is given"),
                     &w(
                         5,
                         r#"Camera id="1"> / <Tonemap> / <TMO"#,
-                        "tone-mapping operator \"Filmic\" is not supported yet; the photographic operator is used",
+                        "tone-mapping operator \"Drago\" is not supported (Photographic, Filmic or ACES); the photographic operator is used",
                     ),
                 ],
             ),
