@@ -74,6 +74,10 @@ pub(super) fn parse_tree(root: &Node, source: &Path, dialect: Dialect) -> Result
         dialect,
         out: SceneRecords::new(source),
     };
+    if dialect == Dialect::Json {
+        // Measured: the 2025 references trace mirrors in scenes without MaxRecursionDepth.
+        parser.out.max_recursion_depth = super::json::DEFAULT_MAX_RECURSION_DEPTH;
+    }
     parser.scene(root)?;
     // Report in file order (the walk visits blocks, not lines); the sort is stable.
     parser.out.warnings.sort_by_key(|w| w.loc.line);
