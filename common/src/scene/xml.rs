@@ -68,7 +68,9 @@ pub(super) enum Dialect {
 pub(super) fn parse_tree(root: &Node, source: &Path, dialect: Dialect) -> Result<SceneRecords> {
     let mut parser = Parser {
         file: source,
-        // The 2019 rules never apply to JSON files (they are all 2025 scenes).
+        // The 2019 rules never apply to JSON files: they are 2025 scenes, and the 2025
+        // references render an untyped MirrorReflectance as no mirror (rt_raven: 51.6 dB this
+        // way, 17.2 dB with the 2019 rule).
         legacy: dialect == Dialect::Xml && is_legacy_2019(root),
         legacy_bumps: Vec::new(),
         dialect,
