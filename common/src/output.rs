@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use crate::camera::Camera;
 use crate::hdr_io::{HdrError, write_exr, write_hdr, write_png_rgb8};
 use crate::image::Image;
-use crate::tonemap::{Photographic, TonemapStats, tonemap};
+use crate::tonemap::{Operator, Photographic, TonemapStats, tonemap_with};
 
 /// One file to write for a camera.
 #[derive(Clone, Debug, PartialEq)]
@@ -33,8 +33,8 @@ pub enum OutputKind {
     Exr,
     /// Radiance RGBE of the linear image.
     Hdr,
-    /// 8-bit PNG through the photographic operator.
-    Tonemapped(Photographic),
+    /// 8-bit PNG through a tone-mapping operator (photographic, or the 2025 Filmic / ACES).
+    Tonemapped(Operator, Photographic),
 }
 
 /// The files a camera's `ImageName` asks for, and notes about anything changed on the way
@@ -69,13 +69,13 @@ pub fn plan(cam: &Camera) -> (Vec<OutputFile>, Vec<String>) {
         }
     };
     let mut files = vec![OutputFile { name: name.clone(), kind: hdr_kind }];
-    let defaults = [(Photographic::default(), None)];
-    let tonemaps: Vec<(Photographic, Option<&str>)> = if cam.tonemaps.is_empty() {
+    let defaults = [(Operator::Photographic, Photographic::default(), None)];
+    let tonemaps: Vec<(Operator, Photographic, Option<&str>)> = if cam.tonemaps.is_empty() {
         defaults.to_vec()
     } else {
-        cam.tonemaps.iter().map(|t| (t.params, t.extension.as_deref())).collect()
+        cam.tonemaps.iter().map(|t| (t.operator, t.params, t.extension.as_deref())).collect()
     };
-    for (params, extension) in tonemaps {
+    for (operator, params, extension) in tonemaps {
         let png = format!("{stem}{}", extension.unwrap_or(".png"));
         let png = match Path::new(&png).file_name() {
             Some(n) if !n.is_empty() => n.to_string_lossy().into_owned(),
@@ -88,7 +88,7 @@ pub fn plan(cam: &Camera) -> (Vec<OutputFile>, Vec<String>) {
             ));
             continue;
         }
-        files.push(OutputFile { name: png, kind: OutputKind::Tonemapped(params) });
+        files.push(OutputFile { name: png, kind: OutputKind::Tonemapped(operator, params) });
     }
     (files, notes)
 }
@@ -120,8 +120,8 @@ pub fn write(dir: &Path, img: &Image, files: &[OutputFile]) -> Result<Vec<Writte
                 write_hdr(&path, img)?;
                 None
             }
-            OutputKind::Tonemapped(params) => {
-                let (rgb, stats) = tonemap(img, params);
+            OutputKind::Tonemapped(operator, params) => {
+                let (rgb, stats) = tonemap_with(img, *operator, params);
                 write_png_rgb8(&path, img.width, img.height, &rgb)?;
                 Some(stats)
             }
@@ -169,7 +169,7 @@ mod tests {
         let (f, _) = plan(&camera("../../etc/cube.exr", vec![]));
         assert_eq!(names(&f), ["cube.exr", "cube.png"]);
         assert_eq!(f[0].kind, OutputKind::Exr);
-        assert_eq!(f[1].kind, OutputKind::Tonemapped(Photographic::default()));
+        assert_eq!(f[1].kind, OutputKind::Tonemapped(Operator::Photographic, Photographic::default()));
 
         let (f, _) = plan(&camera("c.HDR", vec![]));
         assert_eq!(names(&f), ["c.HDR", "c.png"]);
@@ -184,12 +184,19 @@ mod tests {
     fn each_tonemap_writes_its_own_png() {
         let t = |key: f64, ext: Option<&str>| TonemapRec {
             loc: crate::Loc::default(),
+            operator: if key == 0.5 { Operator::Aces } else { Operator::Photographic },
             params: Photographic { key, ..Photographic::default() },
             extension: ext.map(Into::into),
         };
         let (f, notes) = plan(&camera("s.exr", vec![t(0.36, None)]));
         assert_eq!(names(&f), ["s.exr", "s.png"]);
-        assert_eq!(f[1].kind, OutputKind::Tonemapped(Photographic { key: 0.36, ..Photographic::default() }));
+        assert_eq!(
+            f[1].kind,
+            OutputKind::Tonemapped(
+                Operator::Photographic,
+                Photographic { key: 0.36, ..Photographic::default() }
+            )
+        );
         assert!(notes.is_empty());
 
         let (f, notes) = plan(&camera(
@@ -197,6 +204,10 @@ mod tests {
             vec![t(0.18, Some("_phot.png")), t(0.5, Some("_b.png")), t(1.0, Some("_phot.png"))],
         ));
         assert_eq!(names(&f), ["s.exr", "s_phot.png", "s_b.png"]);
+        assert_eq!(
+            f[2].kind,
+            OutputKind::Tonemapped(Operator::Aces, Photographic { key: 0.5, ..Photographic::default() })
+        );
         assert_eq!(notes.len(), 1, "{notes:?}");
         // An Extension cannot leave the directory either.
         let (f, _) = plan(&camera("s.exr", vec![t(0.18, Some("/../../x.png"))]));

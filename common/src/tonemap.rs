@@ -51,6 +51,31 @@
 //!   not depend on the thread count. The white point is found by selection
 //!   (`select_nth_unstable_by`, O(N)), not by sorting.
 
+//!
+//! # Filmic and ACES (2025 scenes, §12.3)
+//!
+//! The 2025 JSON scenes name two more operators in `<TMO>` (`Filmic`, `ACES`) with the same
+//! `TMOOptions`, `Saturation` and `Gamma`. How the course's reference reads them is not
+//! documented, and no 2025 reference image of a `_film.png` / `_aces.png` output is available
+//! here (the corpus has no 2025 HW5 outputs at all), so [`Operator::Filmic`] and
+//! [`Operator::Aces`] follow the pipeline of the course's HW5 text and of 2025 student tracers
+//! that implemented them: everything of the photographic operator is kept (luminance, log
+//! average, key scaling `L = (a/Ȳ)·Y`, white point at the burn percentile, colour re-application
+//! `L_d·(C/Y)^s`, clamp, gamma, truncation); only the curve `L → L_d` changes, normalised so that
+//! the white point maps to display white:
+//!
+//! ```text
+//! Filmic  L_d = H(L) / H(L_white),  H(x) = ((x(Ax + CB) + DE) / (x(Ax + B) + DF)) − E/F
+//!         (Hable's Uncharted 2 curve, A 0.22, B 0.30, C 0.10, D 0.20, E 0.01, F 0.30)
+//! ACES    L_d = N(L) / N(L_white),  N(x) = x(2.51x + 0.03) / (x(2.43x + 0.59) + 0.14)
+//!         (Narkowicz's fit of the ACES RRT+ODT)
+//! L_white = the scaled luminance at the burn percentile as above; b = 0: the largest L
+//! ```
+//!
+//! Both curves are applied to luminance, not per channel, so `Saturation` means what it means
+//! for the photographic operator. `TMOOptions 0.18 1` with these curves gives a slightly darker,
+//! more contrasted image than the photographic one (the toe of both curves), as expected of them.
+
 use std::fmt;
 use std::str::FromStr;
 
@@ -130,7 +155,65 @@ impl FromStr for Gamma {
     }
 }
 
-/// The photographic operator's parameters (`<Tonemap>` of §12.2).
+/// Which tone-mapping curve (`<TMO>`, §12.2): the course's photographic operator, or the 2025
+/// additions (module docs, "Filmic and ACES").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Operator {
+    #[default]
+    Photographic,
+    /// Hable's filmic (Uncharted 2) curve on luminance.
+    Filmic,
+    /// Narkowicz's fitted ACES curve on luminance.
+    Aces,
+}
+
+impl Operator {
+    /// The `<TMO>` spellings, as the scenes write them.
+    pub const NAMES: [(&'static str, Operator); 3] =
+        [("Photographic", Operator::Photographic), ("Filmic", Operator::Filmic), ("ACES", Operator::Aces)];
+}
+
+impl fmt::Display for Operator {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let name = Operator::NAMES.iter().find(|(_, op)| op == self).map_or("?", |(n, _)| n);
+        f.write_str(name)
+    }
+}
+
+impl FromStr for Operator {
+    type Err = String;
+
+    /// `Photographic`, `Filmic` or `ACES`, in any case.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let t = s.trim();
+        Operator::NAMES
+            .iter()
+            .find(|(name, _)| name.eq_ignore_ascii_case(t))
+            .map(|&(_, op)| op)
+            .ok_or_else(|| format!("tone-mapping operator \"{t}\": expected Photographic, Filmic or ACES"))
+    }
+}
+
+/// Hable's filmic curve (Uncharted 2 constants).
+#[inline]
+fn hable(x: f64) -> f64 {
+    const A: f64 = 0.22;
+    const B: f64 = 0.30;
+    const C: f64 = 0.10;
+    const D: f64 = 0.20;
+    const E: f64 = 0.01;
+    const F: f64 = 0.30;
+    ((x * (A * x + C * B) + D * E) / (x * (A * x + B) + D * F)) - E / F
+}
+
+/// Narkowicz's ACES fit.
+#[inline]
+fn aces(x: f64) -> f64 {
+    (x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)
+}
+
+/// The parameters shared by every operator (`<Tonemap>` of §12.2); named after the operator
+/// they were made for.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Photographic {
     /// Key value `a`: the display luminance the log-average maps to (first `TMOOptions` number).
@@ -215,6 +298,12 @@ fn stat_luminance(p: [f32; 3]) -> Option<f64> {
 /// (`width * height * 3`, row-major from the top-left, ready for
 /// [`crate::hdr_io::write_png_rgb8`]) and the statistics it used.
 pub fn tonemap(img: &Image, op: &Photographic) -> (Vec<u8>, TonemapStats) {
+    tonemap_with(img, Operator::Photographic, op)
+}
+
+/// Tone-maps `img` with `operator` and the shared parameters `op` (module docs); the
+/// photographic operator is [`tonemap`].
+pub fn tonemap_with(img: &Image, operator: Operator, op: &Photographic) -> (Vec<u8>, TonemapStats) {
     // Statistics over the finite pixels, in pixel order (deterministic).
     let mut lum: Vec<f64> = Vec::with_capacity(img.pixels.len());
     let mut log_sum = 0.0f64;
@@ -235,10 +324,12 @@ pub fn tonemap(img: &Image, op: &Photographic) -> (Vec<u8>, TonemapStats) {
     }
     let log_average = (log_sum / n as f64).exp();
     let scale = op.key / log_average;
-    let white = if op.burn_percent > 0.0 {
+    // Filmic and ACES always normalise by a white point: b = 0 takes the largest L.
+    let burn = op.burn_percent;
+    let white = if burn > 0.0 || operator != Operator::Photographic {
         // L_white by selection on Y: L = scale·Y is monotone in Y, so the k-th smallest L is
         // scale times the k-th smallest Y, computed with the same expression as every L.
-        let k = white_index(n, op.burn_percent);
+        let k = if burn > 0.0 { white_index(n, burn) } else { n - 1 };
         let (_, kth, _) = lum.select_nth_unstable_by(k, f64::total_cmp);
         scale * *kth
     } else {
@@ -248,6 +339,15 @@ pub fn tonemap(img: &Image, op: &Photographic) -> (Vec<u8>, TonemapStats) {
     // 1 / L_white², or 0 (no white point: L / (1 + L)) when L_white is not positive and finite.
     let (white, inv_white2) =
         if white > 0.0 && white.is_finite() { (white, 1.0 / (white * white)) } else { (f64::INFINITY, 0.0) };
+    // Filmic / ACES: the curve's value at the white point (the curve's limit without one).
+    let curve_white = match operator {
+        Operator::Photographic => 1.0,
+        Operator::Filmic if white.is_finite() => hable(white),
+        Operator::Filmic => 1.0 - 0.01 / 0.30,
+        Operator::Aces if white.is_finite() => aces(white),
+        Operator::Aces => 2.51 / 2.43,
+    };
+    let curve_white = if curve_white > 0.0 { curve_white } else { 1.0 };
 
     out.par_chunks_mut(3).zip(img.pixels.par_iter()).for_each(|(o, p)| {
         if !p.iter().all(|c| c.is_finite()) {
@@ -260,7 +360,11 @@ pub fn tonemap(img: &Image, op: &Photographic) -> (Vec<u8>, TonemapStats) {
             return; // black stays black (Y = 0 → 0)
         }
         let l = scale * y;
-        let ld = l * (1.0 + l * inv_white2) / (1.0 + l);
+        let ld = match operator {
+            Operator::Photographic => l * (1.0 + l * inv_white2) / (1.0 + l),
+            Operator::Filmic => hable(l) / curve_white,
+            Operator::Aces => aces(l) / curve_white,
+        };
         for ch in 0..3 {
             let ratio = c[ch] / y;
             let ratio = if ratio > 0.0 { ratio } else { 0.0 };
@@ -554,6 +658,35 @@ mod tests {
         ] {
             let (out, _) = tonemap(&img, &p);
             assert_eq!(out.len(), 12);
+        }
+    }
+
+    /// Hand-worked: pixels grey 1 and grey 16, key 0.18, burn 0 (white = the largest L).
+    /// Ȳ = exp((ln 1.000001 + ln 16.000001)/2) = 4, scale 0.045: L = 0.045 and 0.72 = L_white.
+    /// Filmic: H(0.045)/H(0.72) = 0.0563106 → ⌊255 · 0.0563106^(1/2.2)⌋ = 68;
+    /// ACES:   N(0.045)/N(0.72) = 0.0517445 → 66; the white pixel is 255 for both.
+    #[test]
+    fn filmic_and_aces_by_hand() {
+        let img = image(2, 1, vec![[1.0; 3], [16.0; 3]]);
+        let p = op(0.18, 0.0);
+        let (film, stats) = tonemap_with(&img, Operator::Filmic, &p);
+        assert_eq!(film, vec![68, 68, 68, 255, 255, 255]);
+        assert!(close(stats.white, 0.72, 1e-5), "{}", stats.white);
+        let (aces, _) = tonemap_with(&img, Operator::Aces, &p);
+        assert_eq!(aces, vec![66, 66, 66, 255, 255, 255]);
+        // The photographic operator is unchanged by the refactoring (b = 0: no white point).
+        assert_eq!(tonemap_with(&img, Operator::Photographic, &p), tonemap(&img, &p));
+        // Names as the scenes write them, any case; unknown ones are errors.
+        assert_eq!("ACES".parse::<Operator>(), Ok(Operator::Aces));
+        assert_eq!(" filmic ".parse::<Operator>(), Ok(Operator::Filmic));
+        assert!("Reinhard".parse::<Operator>().is_err());
+        assert_eq!(Operator::Aces.to_string(), "ACES");
+        // Degenerate inputs never give NaN bytes or panics.
+        for op in [Operator::Filmic, Operator::Aces] {
+            let dark = image(2, 1, vec![[0.0; 3], [1e-30, 0.0, 0.0]]);
+            let _ = tonemap_with(&dark, op, &p);
+            let odd = image(2, 1, vec![[f32::NAN, 1.0, 1.0], [f32::INFINITY, 1.0, -1.0]]);
+            let _ = tonemap_with(&odd, op, &p);
         }
     }
 }

@@ -462,12 +462,9 @@ fn tone_params(p: &tessera::tonemap::Photographic) -> ToneParams {
     ToneParams { key: p.key, burn: p.burn_percent, saturation: p.saturation, gamma: p.gamma.to_string() }
 }
 
-/// The photographic parameters a camera's HDR output is tone-mapped with, if it is HDR.
+/// The parameters a camera's HDR output is tone-mapped with, if it is HDR.
 fn camera_tonemap(cam: &Camera) -> Option<tessera::tonemap::Photographic> {
-    merge::farm_outputs(cam).iter().find_map(|f| match &f.kind {
-        tessera::output::OutputKind::Tonemapped(p) => Some(*p),
-        _ => None,
-    })
+    merge::display_tonemap(cam).map(|(_, p)| p)
 }
 
 fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobInfo>> {
@@ -663,7 +660,10 @@ async fn frame_tonemap(
         .ok_or_else(|| AppError::not_found(format!("frame {frame} of job {id} has no .exr to tone-map")))?
         .clone();
     let cameras = job_cameras(&state, &job)?;
-    let base = cameras.get(f.camera as usize).and_then(camera_tonemap).unwrap_or_default();
+    let (operator, base) = cameras
+        .get(f.camera as usize)
+        .and_then(merge::display_tonemap)
+        .unwrap_or((tessera::tonemap::Operator::Photographic, Default::default()));
     let gamma = match q.gamma.as_deref() {
         Some(g) => g.parse().map_err(AppError::bad_request)?,
         None => base.gamma,
@@ -678,7 +678,7 @@ async fn frame_tonemap(
     let path = state.outputs_dir(id).join(frame.to_string()).join(exr);
     let png = tokio::task::spawn_blocking(move || -> anyhow::Result<Vec<u8>> {
         let img = tessera::hdr_io::read_exr(&path)?;
-        let (rgb, _) = tessera::tonemap::tonemap(&img, &params);
+        let (rgb, _) = tessera::tonemap::tonemap_with(&img, operator, &params);
         merge::encode_png(img.width, img.height, &rgb)
     })
     .await

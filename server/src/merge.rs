@@ -13,7 +13,7 @@ use tessera::image::Image;
 use tessera::output::{self, OutputFile, OutputKind};
 use tessera::protocol::{Rect, decode_tile};
 use tessera::render::TileRect;
-use tessera::tonemap::tonemap;
+use tessera::tonemap::{Operator, Photographic, tonemap_with};
 
 /// Assembles `tiles` into a `width` x `height` image; missing tiles stay black.
 pub fn assemble(width: u32, height: u32, tiles: &[(Rect, Vec<u8>)]) -> Result<Image> {
@@ -67,16 +67,22 @@ pub fn write_outputs(dir: &Path, cam: &Camera, img: &Image) -> Result<Vec<String
     Ok(names)
 }
 
+/// The operator of a camera's first tone-mapped PNG, if its image name is HDR.
+pub fn display_tonemap(cam: &Camera) -> Option<(Operator, Photographic)> {
+    farm_outputs(cam).iter().find_map(|f| match &f.kind {
+        OutputKind::Tonemapped(op, p) => Some((*op, *p)),
+        _ => None,
+    })
+}
+
 /// A PNG of what has arrived so far, for the status page: HDR frames through the camera's
 /// operator with its statistics taken over the arrived tiles only (the black of missing tiles
 /// would otherwise drag the log average down and wash the picture out), LDR frames clamped.
 pub fn preview_png(cam: &Camera, width: u32, height: u32, tiles: &[(Rect, Vec<u8>)]) -> Result<Vec<u8>> {
     let img = assemble(width, height, tiles)?;
-    let params = farm_outputs(cam).iter().find_map(|f| match &f.kind {
-        OutputKind::Tonemapped(p) => Some(*p),
-        _ => None,
-    });
-    let Some(params) = params else { return encode_png(width, height, &img.to_ldr()) };
+    let Some((operator, params)) = display_tonemap(cam) else {
+        return encode_png(width, height, &img.to_ldr());
+    };
     // The arrived pixels as one strip, tone-mapped together, then put back in place.
     let mut strip = Vec::new();
     for (r, _) in tiles {
@@ -88,7 +94,7 @@ pub fn preview_png(cam: &Camera, width: u32, height: u32, tiles: &[(Rect, Vec<u8
     let mut rgb = vec![0u8; (width * height * 3) as usize];
     if !strip.is_empty() {
         let n = strip.len() as u32;
-        let (mapped, _) = tonemap(&Image { width: n, height: 1, pixels: strip }, &params);
+        let (mapped, _) = tonemap_with(&Image { width: n, height: 1, pixels: strip }, operator, &params);
         let mut k = 0usize;
         for (r, _) in tiles {
             for y in r.y0..r.y0 + r.height {
@@ -104,11 +110,8 @@ pub fn preview_png(cam: &Camera, width: u32, height: u32, tiles: &[(Rect, Vec<u8
 
 /// A finished frame's picture for the page: the camera's tone mapping of the whole image.
 pub fn final_png(cam: &Camera, img: &Image) -> Result<Vec<u8>> {
-    let rgb = match farm_outputs(cam).iter().find_map(|f| match &f.kind {
-        OutputKind::Tonemapped(p) => Some(*p),
-        _ => None,
-    }) {
-        Some(params) => tonemap(img, &params).0,
+    let rgb = match display_tonemap(cam) {
+        Some((operator, params)) => tonemap_with(img, operator, &params).0,
         None => img.to_ldr(),
     };
     encode_png(img.width, img.height, &rgb)

@@ -329,6 +329,41 @@ fn bad_requests_get_clear_errors_and_the_server_keeps_serving() {
     assert!(!server.log().contains("panicked"), "{}", server.log());
 }
 
+/// A 2025 JSON scene goes through the farm like any other and gives the CLI's bytes.
+#[test]
+fn a_json_scene_renders_on_the_farm_like_on_the_cli() {
+    let _s = serial();
+    let scene_path = repo().join("../shared/scenes/json/hw1/spheres_with_plane.json");
+    let Ok(scene) = std::fs::read(&scene_path) else {
+        panic!("the course scenes are expected at {} (see README)", scene_path.display());
+    };
+    let data = temp_dir("json");
+    let server = Server::start(&data, &["--local-workers", "1"]);
+    let (code, job) = submit(&server.url, None, &[("scene", Some("spheres_with_plane.json"), &scene)]);
+    assert_eq!(code, 201, "{job}");
+    let id = job["id"].as_u64().unwrap();
+    let job = wait_job(&server, id, 120, |j| j["state"] == "done");
+    let out = temp_dir("json-cli");
+    let status = Command::new(worker_bin())
+        .args(["render", scene_path.to_str().unwrap(), "--quiet", "--out"])
+        .arg(&out)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let png = job["frames"][0]["outputs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|o| o["name"].as_str().unwrap().to_string())
+        .find(|n| n.ends_with(".png"))
+        .unwrap();
+    let farm = get_bytes(&server.url, &format!("/api/v1/jobs/{id}/frames/0/files/{png}"));
+    let cli = std::fs::read(out.join(&png)).unwrap();
+    assert!(farm == cli, "the farm's {png} differs from the CLI's");
+}
+
 #[test]
 fn listening_beyond_loopback_needs_a_token() {
     let out = Command::new(server_bin())

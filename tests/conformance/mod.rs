@@ -26,13 +26,28 @@ pub struct Row {
 }
 
 impl Row {
-    pub fn scene_path(&self) -> PathBuf {
-        crate::shared_scenes().join("xml").join(format!("{}.xml", self.scene))
+    /// A 2025 JSON scene's row names it by its path under the corpus without `.json`, e.g.
+    /// `json/hw1/simple`; other rows name an XML scene under `xml/`.
+    pub fn json_scene(&self) -> Option<&str> {
+        self.scene.strip_prefix("json/")
     }
 
-    /// `reference/<scene>.png`, or `reference/<scene>__<image>` for multi-camera scenes.
+    /// `xml/<scene>.xml`, or `json/<path>.json` for JSON rows.
+    pub fn scene_path(&self) -> PathBuf {
+        match self.json_scene() {
+            Some(path) => crate::shared_scenes().join("json").join(format!("{path}.json")),
+            None => crate::shared_scenes().join("xml").join(format!("{}.xml", self.scene)),
+        }
+    }
+
+    /// `reference/<scene>.png`, or `reference/<scene>__<image>` for multi-camera scenes; for a
+    /// JSON row `json/<dir>/<name>`, the 2025 reference `reference/json2025/<dir>/<image>`.
     pub fn reference_path(&self) -> PathBuf {
         let dir = crate::shared_scenes().join("reference");
+        if let Some(path) = self.json_scene() {
+            let sub = Path::new(path).parent().unwrap_or(Path::new(""));
+            return dir.join("json2025").join(sub).join(&self.image);
+        }
         let single = dir.join(format!("{}.png", self.scene));
         let multi = dir.join(format!("{}__{}", self.scene, self.image));
         if multi.exists() { multi } else { single }
@@ -120,7 +135,7 @@ fn render_one(row: &Row, out_dir: &Path) -> Result<Comparison> {
     let ours = display_image(&scene.cameras[cam], &img);
     let spp = row.spp.map_or(String::new(), |n| format!("__{n}spp"));
     let stem = Path::new(&row.image).with_extension("");
-    let out = out_dir.join(format!("{}__{}{spp}.png", row.scene, stem.display()));
+    let out = out_dir.join(format!("{}__{}{spp}.png", row.scene.replace('/', "_"), stem.display()));
     if std::fs::create_dir_all(out_dir).is_ok() {
         let _ = tessera::hdr_io::write_png_rgb8(&out, ours.width, ours.height, &ours.data);
     }
@@ -153,11 +168,11 @@ fn render_one(row: &Row, out_dir: &Path) -> Result<Comparison> {
 pub fn display_image(cam: &tessera::camera::Camera, img: &tessera::image::Image) -> Rgb8 {
     let (files, _) = tessera::output::plan(cam);
     match files.iter().find_map(|f| match &f.kind {
-        tessera::output::OutputKind::Tonemapped(p) => Some(*p),
+        tessera::output::OutputKind::Tonemapped(op, p) => Some((*op, *p)),
         _ => None,
     }) {
-        Some(params) => {
-            let (data, _) = tessera::tonemap::tonemap(img, &params);
+        Some((operator, params)) => {
+            let (data, _) = tessera::tonemap::tonemap_with(img, operator, &params);
             Rgb8 { width: img.width, height: img.height, data }
         }
         None => Rgb8::from_image(img),
@@ -244,6 +259,17 @@ mod tests {
         assert!(parse_table("x\ty\t1\t1\tci\t0\n").is_err());
         let err = parse_table("x\ty\tabc\t1\tci\n").unwrap_err().to_string();
         assert!(err.contains("line 1") && err.contains("abc"), "{err}");
+    }
+
+    #[test]
+    fn json_rows_name_json_scenes_and_2025_references() {
+        let rows =
+            parse_table("json/hw1/raven/rt_raven\traven.png\t35\t0.5\tci\nsimple\tsimple.png\t35\t0.5\tci\n")
+                .unwrap();
+        let corpus = crate::shared_scenes();
+        assert_eq!(rows[0].scene_path(), corpus.join("json/hw1/raven/rt_raven.json"));
+        assert_eq!(rows[0].reference_path(), corpus.join("reference/json2025/hw1/raven/raven.png"));
+        assert_eq!(rows[1].scene_path(), corpus.join("xml/simple.xml"));
     }
 
     #[test]

@@ -24,6 +24,9 @@ pub enum Shape {
     Mesh { mesh: u32, smooth: bool },
     /// Object-space sphere (an ellipsoid once transformed).
     Sphere { center: DVec3, radius: f64 },
+    /// Infinite object-space plane through `point` with unit `normal` (2025 scenes, §9.8).
+    /// Unbounded, so it never enters the top-level BVH: [`Accel`] tests planes one by one.
+    Plane { point: DVec3, normal: DVec3 },
 }
 
 /// One placed object of the scene.
@@ -107,9 +110,13 @@ pub struct Accel {
     tlas: CwBvh,
     /// TLAS primitive order -> instance index.
     tlas_order: Vec<u32>,
-    /// World bounds of each instance (over the whole exposure), for scenes small enough to test
-    /// every instance directly.
+    /// World bounds of each bounded instance (over the whole exposure), parallel to `bounded`,
+    /// for scenes small enough to test every instance directly.
     bounds: Vec<Aabb>,
+    /// The instances with bounds (everything but planes): TLAS primitive `k` is `bounded[k]`.
+    bounded: Vec<u32>,
+    /// Unbounded instances (planes), tested linearly before the bounded ones.
+    unbounded: Vec<u32>,
 }
 
 /// Up to this many instances a linear loop over their boxes beats traversing the top level.
@@ -155,13 +162,27 @@ fn sphere_t(center: DVec3, radius: f64, r: &Ray, tmin: f64, tmax: f64) -> Option
     }
 }
 
-fn instance_bounds(inst: &Instance, meshes: &[Arc<MeshGeom>]) -> Aabb {
+/// Distance in (tmin, tmax) to the plane through `point` with normal `normal`, in the ray's own
+/// space; `None` for rays parallel to it.
+#[inline]
+fn plane_t(point: DVec3, normal: DVec3, r: &Ray, tmin: f64, tmax: f64) -> Option<f64> {
+    let denom = normal.dot(r.dir);
+    if denom == 0.0 || !denom.is_finite() {
+        return None;
+    }
+    let t = (point - r.origin).dot(normal) / denom;
+    (t > tmin && t < tmax).then_some(t)
+}
+
+/// World bounds of a bounded instance; `None` for planes.
+fn instance_bounds(inst: &Instance, meshes: &[Arc<MeshGeom>]) -> Option<Aabb> {
     let local = match &inst.shape {
         Shape::Mesh { mesh, .. } => meshes[*mesh as usize].bounds,
         Shape::Sphere { center, radius } => {
             let r = DVec3::splat(*radius);
             Aabb::new((*center - r).as_vec3a(), (*center + r).as_vec3a())
         }
+        Shape::Plane { .. } => return None,
     };
     let world = match &inst.transform {
         None => local,
@@ -179,13 +200,13 @@ fn instance_bounds(inst: &Instance, meshes: &[Arc<MeshGeom>]) -> Aabb {
         }
     };
     // A moving object's box covers the whole exposure: its boxes at time 0 and 1.
-    match inst.motion {
+    Some(match inst.motion {
         Some(v) => {
             let v = v.as_vec3a();
             pad(world.union(&Aabb::new(world.min + v, world.max + v)))
         }
         None => pad(world),
-    }
+    })
 }
 
 /// Grows a box by a relative epsilon so `f32` rounding never culls a surface lying on it.
@@ -196,14 +217,23 @@ fn pad(b: Aabb) -> Aabb {
 
 impl Accel {
     pub fn new(meshes: Vec<Arc<MeshGeom>>, instances: Vec<Instance>) -> Self {
-        let bounds: Vec<Aabb> = instances.iter().map(|i| instance_bounds(i, &meshes)).collect();
+        let (mut bounds, mut bounded, mut unbounded) = (Vec::new(), Vec::new(), Vec::new());
+        for (i, inst) in instances.iter().enumerate() {
+            match instance_bounds(inst, &meshes) {
+                Some(b) => {
+                    bounds.push(b);
+                    bounded.push(i as u32);
+                }
+                None => unbounded.push(i as u32),
+            }
+        }
         let tlas = if bounds.is_empty() {
             CwBvh::default()
         } else {
             build_cwbvh(&bounds, BvhBuildParams::medium_build(), &mut Duration::default())
         };
-        let tlas_order = tlas.primitive_indices.clone();
-        Accel { meshes, instances, tlas, tlas_order, bounds }
+        let tlas_order = tlas.primitive_indices.iter().map(|&k| bounded[k as usize]).collect();
+        Accel { meshes, instances, tlas, tlas_order, bounds, bounded, unbounded }
     }
 
     /// Total triangles over all instances (instanced triangles counted once per instance).
@@ -212,7 +242,7 @@ impl Accel {
             .iter()
             .map(|i| match i.shape {
                 Shape::Mesh { mesh, .. } => self.meshes[mesh as usize].triangle_count(),
-                Shape::Sphere { .. } => 0,
+                Shape::Sphere { .. } | Shape::Plane { .. } => 0,
             })
             .sum()
     }
@@ -221,10 +251,14 @@ impl Accel {
     pub fn intersect(&self, ray: &Ray, tmin: f64, tmax: f64) -> Option<SurfaceHit> {
         let mut best = Candidate { t: tmax, instance: u32::MAX, tri: 0 };
         let mut fr = to_f32_ray(ray, tmin, tmax);
-        if self.instances.len() <= LINEAR_MAX {
-            for (idx, b) in self.bounds.iter().enumerate() {
+        for &idx in &self.unbounded {
+            let t = self.hit_instance(idx, ray, &fr, tmin, &mut best);
+            fr.tmax = fr.tmax.min(t);
+        }
+        if self.bounded.len() <= LINEAR_MAX {
+            for (&idx, b) in self.bounded.iter().zip(&self.bounds) {
                 if b.intersect_ray(&fr) <= fr.tmax {
-                    let t = self.hit_instance(idx as u32, ray, &fr, tmin, &mut best);
+                    let t = self.hit_instance(idx, ray, &fr, tmin, &mut best);
                     fr.tmax = fr.tmax.min(t);
                 }
             }
@@ -243,10 +277,15 @@ impl Accel {
     /// True if anything blocks the ray within (tmin, tmax).
     pub fn occluded(&self, ray: &Ray, tmin: f64, tmax: f64) -> bool {
         let fr = to_f32_ray(ray, tmin, tmax);
-        if self.instances.len() <= LINEAR_MAX {
-            return self.bounds.iter().enumerate().any(|(idx, b)| {
-                b.intersect_ray(&fr) <= fr.tmax && self.blocks(idx as u32, ray, &fr, tmin, tmax)
-            });
+        if self.unbounded.iter().any(|&idx| self.blocks(idx, ray, &fr, tmin, tmax)) {
+            return true;
+        }
+        if self.bounded.len() <= LINEAR_MAX {
+            return self
+                .bounded
+                .iter()
+                .zip(&self.bounds)
+                .any(|(&idx, b)| b.intersect_ray(&fr) <= fr.tmax && self.blocks(idx, ray, &fr, tmin, tmax));
         }
         !self.tlas.ray_traverse_miss(fr, |fr, id| {
             if self.blocks(self.tlas_order[id], ray, fr, tmin, tmax) { fr.tmin } else { f32::INFINITY }
@@ -268,6 +307,13 @@ impl Accel {
         let local = inst.local_ray(ray);
         match &inst.shape {
             Shape::Sphere { center, radius } => match sphere_t(*center, *radius, &local, tmin, best.t) {
+                Some(t) => {
+                    *best = Candidate { t, instance: idx, tri: 0 };
+                    t as f32
+                }
+                None => f32::INFINITY,
+            },
+            Shape::Plane { point, normal } => match plane_t(*point, *normal, &local, tmin, best.t) {
                 Some(t) => {
                     *best = Candidate { t, instance: idx, tri: 0 };
                     t as f32
@@ -296,6 +342,7 @@ impl Accel {
         let local = inst.local_ray(ray);
         match &inst.shape {
             Shape::Sphere { center, radius } => sphere_t(*center, *radius, &local, tmin, tmax).is_some(),
+            Shape::Plane { point, normal } => plane_t(*point, *normal, &local, tmin, tmax).is_some(),
             Shape::Mesh { mesh, .. } => {
                 let lr = if inst.is_world_space() { *fr } else { to_f32_ray(&local, tmin, fr.tmax as f64) };
                 self.meshes[*mesh as usize].occluded_f32(lr)
@@ -317,6 +364,10 @@ impl Accel {
                 let p = local.at(c.t);
                 let n = (p - *center) / *radius;
                 (c.t, n, n, if textured { sphere_uv_frame(p - *center, *radius) } else { no_frame })
+            }
+            Shape::Plane { point, normal } => {
+                let frame = if textured { plane_uv_frame(local.at(c.t) - *point, *normal) } else { no_frame };
+                (c.t, *normal, *normal, frame)
             }
             Shape::Mesh { mesh, smooth } => {
                 let m = &self.meshes[*mesh as usize];
@@ -368,6 +419,23 @@ impl Accel {
             },
         }
     }
+}
+
+/// Texture coordinates and ∂p/∂u, ∂p/∂v of a plane at object-space offset `d` from its point:
+/// distances along a fixed unit tangent pair (u along the axis least aligned with the normal,
+/// projected into the plane), so a texture repeats with period 1 in object units.
+fn plane_uv_frame(d: DVec3, n: DVec3) -> (DVec2, DVec3, DVec3) {
+    let a = n.abs();
+    let axis = if a.x <= a.y && a.x <= a.z {
+        DVec3::X
+    } else if a.y <= a.z {
+        DVec3::Y
+    } else {
+        DVec3::Z
+    };
+    let t = (axis - n * n.dot(axis)).normalize_or_zero();
+    let b = n.cross(t);
+    (DVec2::new(d.dot(t), d.dot(b)), t, b)
 }
 
 /// Texture coordinates and ∂p/∂u, ∂p/∂v of a sphere at object-space offset `d` from its centre
@@ -532,6 +600,56 @@ mod tests {
             let blocked = singles.iter().any(|a| a.occluded(&ray, 1e-6, 12.0));
             assert_eq!(accel.occluded(&ray, 1e-6, 12.0), blocked);
         }
+    }
+
+    #[test]
+    fn planes_are_hit_from_both_sides_and_beside_a_bvh() {
+        let plane = |material: u32| Instance {
+            shape: Shape::Plane { point: DVec3::new(0.0, -1.0, 0.0), normal: DVec3::Y },
+            material,
+            transform: None,
+            motion: None,
+            textures: ObjectTextures::default(),
+        };
+        // Many spheres, so that the bounded instances go through the top-level BVH.
+        let mut instances: Vec<Instance> = (0..20)
+            .map(|i| Instance {
+                shape: Shape::Sphere { center: DVec3::new(i as f64 * 3.0, 0.0, -10.0), radius: 1.0 },
+                material: 1,
+                transform: None,
+                motion: None,
+                textures: ObjectTextures::default(),
+            })
+            .collect();
+        instances.push(plane(0));
+        let accel = Accel::new(vec![], instances);
+        assert!(accel.bounded.len() > LINEAR_MAX && accel.unbounded == vec![20]);
+        // Down onto the plane from above, and up onto it from below.
+        let down = Ray::new(DVec3::new(100.0, 4.0, 7.0), DVec3::NEG_Y);
+        let h = accel.intersect(&down, 1e-6, f64::INFINITY).unwrap();
+        assert_eq!(h.material, 0);
+        assert!((h.t - 5.0).abs() < 1e-12 && (h.point.y + 1.0).abs() < 1e-12);
+        assert_eq!(h.geo_normal, DVec3::Y);
+        let up = Ray::new(DVec3::new(0.0, -3.0, 0.0), DVec3::Y);
+        assert!((accel.intersect(&up, 1e-6, f64::INFINITY).unwrap().t - 2.0).abs() < 1e-12);
+        // A sphere in front of the plane wins; parallel rays miss; shadow rays see the plane.
+        let slanted = Ray::new(DVec3::new(0.0, 0.0, 0.0), DVec3::new(0.0, 0.0, -1.0));
+        assert_eq!(accel.intersect(&slanted, 1e-6, f64::INFINITY).unwrap().material, 1);
+        let parallel = Ray::new(DVec3::new(0.0, 5.0, 0.0), DVec3::X);
+        assert!(accel.intersect(&parallel, 1e-6, f64::INFINITY).is_none());
+        assert!(accel.occluded(&down, 1e-6, 6.0));
+        assert!(!accel.occluded(&down, 1e-6, 4.0));
+        // Transformed (lifted by 2) and textured: the frame is orthonormal and in the plane.
+        let lifted = Instance {
+            transform: Transform::new(DAffine3::from_translation(DVec3::new(0.0, 2.0, 0.0))),
+            textures: ObjectTextures { normal: Some(0), ..ObjectTextures::default() },
+            ..plane(2)
+        };
+        let accel = Accel::new(vec![], vec![lifted]);
+        let h = accel.intersect(&down, 1e-6, f64::INFINITY).unwrap();
+        assert!((h.t - 3.0).abs() < 1e-12 && (h.geo_normal - DVec3::Y).length() < 1e-12);
+        assert!(h.dpdu.dot(DVec3::Y).abs() < 1e-12 && h.dpdv.dot(DVec3::Y).abs() < 1e-12);
+        assert!((h.dpdu.cross(h.dpdv) - DVec3::Y).length() < 1e-12, "{:?} {:?}", h.dpdu, h.dpdv);
     }
 
     #[test]

@@ -741,6 +741,23 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         });
     }
 
+    for p in &rec.planes {
+        let material = ctx.material(&mat_ids, &p.material, &p.loc)?;
+        let point = ctx.vertex(p.point, &p.loc, "<Point>")?;
+        let normal = v3(p.normal).normalize_or_zero();
+        if normal == DVec3::ZERO || !normal.is_finite() {
+            return Err(ctx.err(&p.loc, "<Normal> must be a non-zero direction"));
+        }
+        let world = ctx.transform(&transforms, &p.transforms, &p.loc)?;
+        instances.push(Instance {
+            shape: Shape::Plane { point: v3(rec.vertices[point as usize]), normal },
+            material,
+            transform: ctx.make_transform(world, &p.loc)?,
+            motion: p.motion_blur.map(v3).filter(|v| *v != DVec3::ZERO),
+            textures: textures.for_object(&ctx, &p.textures, &p.loc, &mut warnings)?,
+        });
+    }
+
     let accel = Accel::new(meshes, instances);
     let stats = SceneStats {
         triangles: accel.instanced_triangle_count(),

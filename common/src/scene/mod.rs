@@ -2,6 +2,7 @@
 //! ([`build`]).
 
 pub mod build;
+pub mod json;
 pub mod records;
 pub mod xml;
 
@@ -54,9 +55,31 @@ pub struct Scene {
     pub stats: SceneStats,
 }
 
-/// Parses scene text (chosen by content: XML now, JSON later) named `source` for messages.
+/// Which front end reads a scene text, chosen by content, not by file name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SceneFormat {
+    /// First non-blank character `<`, or anything else (the XML parser explains what is wrong).
+    Xml,
+    /// First non-blank character `{` or `[`: the 2025 JSON dialect (scene-format.md §14).
+    Json,
+}
+
+/// The front end for `text`: JSON if its first non-whitespace character (after a UTF-8 byte
+/// order mark) is `{` or `[`, XML otherwise.
+pub fn detect_format(text: &str) -> SceneFormat {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    match text.trim_start().as_bytes().first() {
+        Some(b'{' | b'[') => SceneFormat::Json,
+        _ => SceneFormat::Xml,
+    }
+}
+
+/// Parses scene text named `source` (for messages) with the front end [`detect_format`] picks.
 pub fn parse_scene(text: &str, source: &Path) -> Result<records::SceneRecords, SceneError> {
-    xml::parse_xml(text, source)
+    match detect_format(text) {
+        SceneFormat::Json => json::parse_json(text, source),
+        SceneFormat::Xml => xml::parse_xml(text, source),
+    }
 }
 
 /// Parses and builds a scene from text, with assets from `resolver`.

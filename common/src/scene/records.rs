@@ -46,6 +46,8 @@ pub struct SceneRecords {
     pub triangles: Vec<TriangleRec>,
     pub spheres: Vec<SphereRec>,
     pub instances: Vec<InstanceRec>,
+    /// `Plane`s (2025 JSON dialect, §9.8).
+    pub planes: Vec<PlaneRec>,
     /// Unknown or not-yet-supported elements, reported but not fatal.
     pub warnings: Vec<Warning>,
 }
@@ -76,6 +78,7 @@ impl SceneRecords {
             triangles: Vec::new(),
             spheres: Vec::new(),
             instances: Vec::new(),
+            planes: Vec::new(),
             warnings: Vec::new(),
         }
     }
@@ -124,6 +127,9 @@ pub struct CameraRec {
 #[derive(Clone, Debug, PartialEq)]
 pub struct TonemapRec {
     pub loc: Loc,
+    /// `<TMO>`: Photographic (default), or the 2025 Filmic / ACES.
+    pub operator: crate::tonemap::Operator,
+    /// `TMOOptions`, `Saturation`, `Gamma`: used by every operator.
     pub params: crate::tonemap::Photographic,
     /// [JSON 2025] the PNG's name suffix replacing `.exr` (e.g. `_phot.png`); `None`: `.png`.
     pub extension: Option<String>,
@@ -413,6 +419,22 @@ pub struct SphereRec {
     pub radius: f64,
     pub transforms: Vec<TransformRef>,
     /// `MotionBlur` (2019 dialect on spheres).
+    pub motion_blur: Option<Vec3>,
+    pub textures: Vec<String>,
+}
+
+/// An infinite plane `{x : (x − P)·N = 0}` (2025, §9.8).
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlaneRec {
+    pub id: String,
+    pub loc: Loc,
+    pub material: String,
+    /// 1-based vertex id of a point on the plane.
+    pub point: i64,
+    /// The plane's normal (not normalised; never zero). Which side it points to only matters
+    /// for dielectrics, as for the other shapes.
+    pub normal: Vec3,
+    pub transforms: Vec<TransformRef>,
     pub motion_blur: Option<Vec3>,
     pub textures: Vec<String>,
 }

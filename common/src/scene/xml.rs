@@ -25,11 +25,11 @@ use quick_xml::{Reader, XmlVersion};
 use super::records::{
     AreaLightRec, CameraRec, DecalMode, DirectionalLightRec, EnvLightRec, EnvMapping, EnvSampler, FacesRec,
     Handedness, ImageRec, InstanceRec, Interpolation, LensRec, MaterialKind, MaterialRec, MeshRec,
-    NoiseConversion, PointLightRec, Projection, SceneRecords, ShadingMode, SphereRec, SpotLightRec,
+    NoiseConversion, PlaneRec, PointLightRec, Projection, SceneRecords, ShadingMode, SphereRec, SpotLightRec,
     TextureMapRec, TextureSource, TonemapRec, TransformOp, TransformRec, TransformRef, TriangleRec, Vec3,
 };
 use crate::error::{Loc, SceneError, Warning};
-use crate::tonemap::Photographic;
+use crate::tonemap::{Operator, Photographic};
 
 type Result<T> = std::result::Result<T, SceneError>;
 
@@ -52,13 +52,35 @@ pub fn parse_xml(text: &str, source: &Path) -> Result<SceneRecords> {
             format!("the root element must be <Scene>, found <{}>; is this a scene file?", root.name),
         ));
     }
+    parse_tree(&root, source, Dialect::Xml)
+}
+
+/// Which front end built the [`Node`] tree: only changes how messages name elements.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Dialect {
+    Xml,
+    /// The 2025 JSON encoding (scene-format.md §14): node labels are JSON paths, and messages
+    /// say `"Faces"` / `"_id"` where the XML ones say `<Faces>` / `attribute id`.
+    Json,
+}
+
+/// Step 2 for both front ends: walks a `<Scene>` tree into records.
+pub(super) fn parse_tree(root: &Node, source: &Path, dialect: Dialect) -> Result<SceneRecords> {
     let mut parser = Parser {
         file: source,
-        legacy: is_legacy_2019(&root),
+        // The 2019 rules never apply to JSON files: they are 2025 scenes, and the 2025
+        // references render an untyped MirrorReflectance as no mirror (rt_raven: 51.6 dB this
+        // way, 17.2 dB with the 2019 rule).
+        legacy: dialect == Dialect::Xml && is_legacy_2019(root),
         legacy_bumps: Vec::new(),
+        dialect,
         out: SceneRecords::new(source),
     };
-    parser.scene(&root)?;
+    if dialect == Dialect::Json {
+        // Measured: the 2025 references trace mirrors in scenes without MaxRecursionDepth.
+        parser.out.max_recursion_depth = super::json::DEFAULT_MAX_RECURSION_DEPTH;
+    }
+    parser.scene(root)?;
     // Report in file order (the walk visits blocks, not lines); the sort is stable.
     parser.out.warnings.sort_by_key(|w| w.loc.line);
     Ok(parser.out)
@@ -74,24 +96,24 @@ const MAX_DEPTH: usize = 64;
 
 /// One XML element with what the walk needs: name, attributes, text and where it was written.
 #[derive(Debug)]
-struct Node {
-    name: String,
+pub(super) struct Node {
+    pub(super) name: String,
     /// How errors name this element: `Sphere id="2"`, or for an element inside a record its
     /// path from the record, `Camera id="1"> / <Position` (displayed by [`SceneError`] as
     /// `<Camera id="1"> / <Position>`).
-    label: String,
+    pub(super) label: String,
     /// Nesting depth: `<Scene>` is 1, `<Cameras>` 2, `<Camera>` 3, `<Position>` 4.
-    depth: usize,
+    pub(super) depth: usize,
     /// Line of the start tag.
-    line: u32,
+    pub(super) line: u32,
     /// Line on which the element's text starts (after the start tag's `>`).
-    content_line: u32,
-    attrs: Vec<(String, String)>,
+    pub(super) content_line: u32,
+    pub(super) attrs: Vec<(String, String)>,
     /// The element's own character data, concatenated. Comments inside it are replaced by a
     /// space plus their newlines, so tokens keep their line numbers and a comment separates
     /// numbers (`1 2<!-- note -->3` reads as three numbers).
-    text: String,
-    children: Vec<Node>,
+    pub(super) text: String,
+    pub(super) children: Vec<Node>,
 }
 
 impl Node {
@@ -537,9 +559,9 @@ const TRANSFORMATIONS: Schema =
     Schema { many: &["Translation", "Scaling", "Rotation", "Composite"], ..Schema::EMPTY };
 const TRANSFORMATION: Schema = Schema { attrs: &["id"], ..Schema::EMPTY };
 const OBJECTS: Schema = Schema {
-    many: &["Mesh", "Triangle", "Sphere", "MeshInstance"],
-    // Plane only exists in the 2025 JSON dialect so far.
-    unsupported: &["LightMesh", "LightSphere", "Plane"],
+    // Plane only exists in the 2025 JSON dialect so far (§9.8); XML files may use it too.
+    many: &["Mesh", "Triangle", "Sphere", "MeshInstance", "Plane"],
+    unsupported: &["LightMesh", "LightSphere"],
     ..Schema::EMPTY
 };
 // `Texture` is the 2019 spelling of an object's `Textures`. Both are read (and their repeats
@@ -563,6 +585,12 @@ const SPHERE: Schema = Schema {
     attrs: &["id"],
     ..Schema::EMPTY
 };
+const PLANE: Schema = Schema {
+    single: &["Material", "Point", "Normal", "Transformations", "MotionBlur"],
+    many: &["Textures", "Texture"],
+    attrs: &["id"],
+    ..Schema::EMPTY
+};
 const MESH_INSTANCE: Schema = Schema {
     single: &["Material", "Transformations", "MotionBlur"],
     unsupported: &["Textures", "Texture"],
@@ -570,10 +598,11 @@ const MESH_INSTANCE: Schema = Schema {
     ..Schema::EMPTY
 };
 // Also used for `TexCoordData`.
-const VERTEX_DATA_ATTRS: &[&str] = &[];
+// `type` is the 2025 JSON `_type` (`xyz`, `uv`), checked by `Parser::data_type`.
+const VERTEX_DATA_ATTRS: &[&str] = &["type"];
 const VERTEX_DATA_UNSUPPORTED_ATTRS: &[&str] = &["binaryFile"];
 // `binaryFile` is known here but handled by `Parser::mesh` (the mesh is skipped).
-const FACES_ATTRS: &[&str] = &["vertexOffset", "textureOffset", "plyFile", "binaryFile"];
+const FACES_ATTRS: &[&str] = &["vertexOffset", "textureOffset", "plyFile", "binaryFile", "type"];
 const FACES_UNSUPPORTED_ATTRS: &[&str] = &[];
 
 // --- textures (HW4, scene-format.md §11) ---
@@ -710,6 +739,7 @@ struct Parser<'a> {
     /// 2019 `<Texture bumpmap="true">` ids with the id of the extra bump map made for each,
     /// so that an object's `<Texture>k</Texture>` can refer to both maps.
     legacy_bumps: Vec<(String, String)>,
+    dialect: Dialect,
     out: SceneRecords,
 }
 
@@ -717,15 +747,20 @@ impl Parser<'_> {
     // --- reporting ---
 
     fn err(&self, node: &Node, message: impl Into<String>) -> SceneError {
-        SceneError::new(self.file, node.loc(), message)
+        SceneError::new(self.file, node.loc(), self.say(message.into()))
     }
 
     fn warn(&mut self, node: &Node, message: impl Into<String>) {
-        self.out.warnings.push(Warning {
-            file: self.file.to_path_buf(),
-            loc: node.loc(),
-            message: message.into(),
-        });
+        let message = self.say(message.into());
+        self.out.warnings.push(Warning { file: self.file.to_path_buf(), loc: node.loc(), message });
+    }
+
+    /// A message in the words of the file's dialect (see [`super::json::json_words`]).
+    fn say(&self, message: String) -> String {
+        match self.dialect {
+            Dialect::Xml => message,
+            Dialect::Json => super::json::json_words(&message),
+        }
     }
 
     /// Warns about every child or attribute of `node` that `schema` does not read, and about
@@ -765,7 +800,15 @@ impl Parser<'_> {
     // --- values ---
 
     fn required<'n>(&self, parent: &'n Node, name: &str) -> Result<&'n Node> {
-        parent.child(name).ok_or_else(|| self.err(parent, format!("missing <{name}>")))
+        parent.child(name).ok_or_else(|| match self.dialect {
+            Dialect::Xml => self.err(parent, format!("missing <{name}>")),
+            // Name the JSON path of the missing key itself, e.g. `Scene.Objects.Mesh[3].Faces`.
+            Dialect::Json => SceneError::new(
+                self.file,
+                Loc::new(parent.line, format!("{}.{name}", parent.label)),
+                format!("missing \"{name}\"; add the key \"{name}\" to {}", parent.label),
+            ),
+        })
     }
 
     /// The first `N` tokens of `node`'s text; extra tokens are ignored (scene-format.md §2).
@@ -1122,14 +1165,15 @@ impl Parser<'_> {
     fn tonemap(&mut self, n: &Node) -> Result<TonemapRec> {
         self.check(n, &TONEMAP);
         let mut params = Photographic::default();
+        let mut operator = Operator::Photographic;
         if let Some(t) = n.child("TMO") {
-            match t.text.trim() {
-                "Photographic" => {}
-                other => self.warn(
+            match t.text.parse::<Operator>() {
+                Ok(op) => operator = op,
+                Err(_) => self.warn(
                     t,
                     format!(
-                        "tone-mapping operator {} is not supported yet; the photographic operator is used",
-                        quoted(other)
+                        "tone-mapping operator {} is not supported (Photographic, Filmic or ACES); the photographic operator is used",
+                        quoted(t.text.trim())
                     ),
                 ),
             }
@@ -1154,7 +1198,7 @@ impl Parser<'_> {
             Some(e) => Some(self.text(e, "a file name ending such as _phot.png")?.to_string()),
             None => None,
         };
-        Ok(TonemapRec { loc: n.loc(), params, extension })
+        Ok(TonemapRec { loc: n.loc(), operator, params, extension })
     }
 
     fn lights(&mut self, lights: &Node) -> Result<()> {
@@ -1351,8 +1395,20 @@ impl Parser<'_> {
         Ok(Some(TransformRec { id: self.id(n, true)?, loc: n.loc(), op }))
     }
 
+    /// The 2025 `type` attribute of `VertexData` / `TexCoordData` / `Faces` (§14.2), which
+    /// only has one value each: anything else would change how the numbers are read.
+    fn data_type(&self, n: &Node, only: &str, meaning: &str) -> Result<()> {
+        match n.attr("type").map(str::trim) {
+            None => Ok(()),
+            Some(t) if t == only => Ok(()),
+            Some(other) => Err(self
+                .err(n, format!("attribute type must be {only} ({meaning}), found \"{}\"", excerpt(other)))),
+        }
+    }
+
     fn vertex_data(&mut self, n: &Node) -> Result<()> {
         self.check_attrs(n, VERTEX_DATA_ATTRS, VERTEX_DATA_UNSUPPORTED_ATTRS);
+        self.data_type(n, "xyz", "x y z per vertex")?;
         let values = self.number_list::<f64>(n, 3, "x y z per vertex")?;
         self.out.vertices = values.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
         Ok(())
@@ -1360,6 +1416,7 @@ impl Parser<'_> {
 
     fn tex_coord_data(&mut self, n: &Node) -> Result<()> {
         self.check_attrs(n, VERTEX_DATA_ATTRS, VERTEX_DATA_UNSUPPORTED_ATTRS);
+        self.data_type(n, "uv", "u v per texture coordinate")?;
         let values = self.number_list::<f64>(n, 2, "u v per texture coordinate")?;
         self.out.tex_coords = values.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
         Ok(())
@@ -1652,6 +1709,10 @@ impl Parser<'_> {
                     let instance = self.instance(n)?;
                     self.out.instances.push(instance);
                 }
+                "Plane" => {
+                    let plane = self.plane(n)?;
+                    self.out.planes.push(plane);
+                }
                 _ => {}
             }
         }
@@ -1693,6 +1754,7 @@ impl Parser<'_> {
         let id = self.id(n, true)?;
         let faces = self.required(n, "Faces")?;
         self.check_attrs(faces, FACES_ATTRS, FACES_UNSUPPORTED_ATTRS);
+        self.data_type(faces, "triangle", "three vertex ids per face")?;
         let faces_rec = if let Some(path) = faces.attr("plyFile") {
             match path.trim() {
                 "" => return Err(self.err(faces, "attribute plyFile is empty; expected a PLY file path")),
@@ -1744,6 +1806,25 @@ impl Parser<'_> {
             material: self.material_ref(n)?,
             center: self.required_number(n, "Center")?,
             radius: self.required_number(n, "Radius")?,
+            transforms: self.transform_refs(n)?,
+            motion_blur: self.optional_numbers(n, "MotionBlur")?,
+            textures: self.object_textures(n)?,
+        })
+    }
+
+    /// An infinite plane (2025, §9.8): `Point` is a vertex id, `Normal` a direction.
+    fn plane(&mut self, n: &Node) -> Result<PlaneRec> {
+        self.check(n, &PLANE);
+        let normal: Vec3 = self.required_numbers(n, "Normal")?;
+        if normal == [0.0; 3] {
+            return Err(self.err(n, "<Normal> is the zero vector; give the direction the plane faces"));
+        }
+        Ok(PlaneRec {
+            id: self.id(n, false)?,
+            loc: n.loc(),
+            material: self.material_ref(n)?,
+            point: self.required_number(n, "Point")?,
+            normal,
             transforms: self.transform_refs(n)?,
             motion_blur: self.optional_numbers(n, "MotionBlur")?,
             textures: self.object_textures(n)?,
@@ -2011,6 +2092,7 @@ mod tests {
   <ImageName>a.exr</ImageName>
   <Tonemap><TMO>Photographic</TMO><TMOOptions>0.36 0</TMOOptions><Saturation>0.8</Saturation><Gamma>sRGB</Gamma></Tonemap>
   <Tonemap><Extension>_two.png</Extension></Tonemap>
+  <Tonemap><TMO>ACES</TMO><Extension>_aces.png</Extension></Tonemap>
 </Camera></Cameras>
 <Textures><Images><Image id="7">textures/sky.exr</Image></Images></Textures>
 <Lights>
@@ -2022,7 +2104,11 @@ mod tests {
         );
         assert!(rec.warnings.is_empty(), "{:?}", rec.warnings);
         let t = &rec.cameras[0].tonemaps;
-        assert_eq!(t.len(), 2);
+        assert_eq!(t.len(), 3);
+        assert_eq!(
+            t.iter().map(|t| t.operator).collect::<Vec<_>>(),
+            [Operator::Photographic, Operator::Photographic, Operator::Aces]
+        );
         assert_eq!(
             t[0].params,
             Photographic {
@@ -2614,14 +2700,14 @@ mod tests {
                 &scene(
                     "<Cameras>\n<Camera id=\"1\" type=\"lookAt\"><Position>0 0 0</Position><GazePoint>0 0 -1</GazePoint>\n<Gaze>0 0 1</Gaze>\
                         <Up>0 1 0</Up><FovY>45</FovY><NearDistance>1</NearDistance><ImageResolution>1 1</ImageResolution>\
-                        <ImageName>a.exr</ImageName>\n<Tonemap><TMO>Filmic</TMO></Tonemap></Camera>\n</Cameras>",
+                        <ImageName>a.exr</ImageName>\n<Tonemap><TMO>Drago</TMO></Tonemap></Camera>\n</Cameras>",
                 ),
                 &[
                     &w(4, r#"Camera id="1"> / <Gaze"#, "<Gaze> is ignored because <GazePoint> is given"),
                     &w(
                         5,
                         r#"Camera id="1"> / <Tonemap> / <TMO"#,
-                        "tone-mapping operator \"Filmic\" is not supported yet; the photographic operator is used",
+                        "tone-mapping operator \"Drago\" is not supported (Photographic, Filmic or ACES); the photographic operator is used",
                     ),
                 ],
             ),
