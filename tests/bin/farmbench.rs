@@ -69,13 +69,15 @@ fn main() -> Result<()> {
     let mut scene = root.join("scenes/environment.xml");
     let mut samples = Some(200u32);
     let mut tile = 32u32;
+    let mut repeat = 3usize;
     while let Some(a) = args.next() {
         match a.as_str() {
             "--samples" => samples = Some(args.next().context("--samples N")?.parse()?),
             "--scene-samples" => samples = None,
             "--tile-size" => tile = args.next().context("--tile-size PX")?.parse()?,
+            "--repeat" => repeat = args.next().context("--repeat N")?.parse::<usize>()?.max(1),
             "-h" | "--help" => {
-                println!("farmbench [SCENE] [--samples N | --scene-samples] [--tile-size PX]");
+                println!("farmbench [SCENE] [--samples N | --scene-samples] [--tile-size PX] [--repeat N]");
                 return Ok(());
             }
             other => scene = PathBuf::from(other),
@@ -87,25 +89,6 @@ fn main() -> Result<()> {
         bail!("build the binaries first: cargo build --release (looked in {})", bin_dir.display());
     }
     let spp: Vec<String> = samples.map(|s| vec!["--samples".into(), s.to_string()]).unwrap_or_default();
-
-    // 1. The CLI.
-    let out = std::env::temp_dir().join(format!("farmbench-cli-{}", std::process::id()));
-    let cpu0 = self_children_cpu();
-    let t = Instant::now();
-    let status = Command::new(&worker_bin)
-        .arg("render")
-        .arg(&scene)
-        .args(&spp)
-        .args(["--quiet", "--tile-size", &tile.to_string(), "--out"])
-        .arg(&out)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()?;
-    let cli_wall = t.elapsed().as_secs_f64();
-    let cli_cpu = self_children_cpu() - cpu0;
-    if !status.success() {
-        bail!("tessera-worker render failed on {}", scene.display());
-    }
 
     // 2. The farm: a server with one local worker, already up.
     let data = std::env::temp_dir().join(format!("farmbench-data-{}", std::process::id()));
@@ -144,9 +127,6 @@ fn main() -> Result<()> {
         }
         std::thread::sleep(Duration::from_millis(50));
     };
-    let (s0, _) = cpu_of(server.id())?;
-    let (w0, _) = cpu_of(worker_pid)?;
-
     // The upload: the scene and every file under its folder, as curl -F would send them.
     let dir = scene.parent().unwrap_or(Path::new("."));
     let mut parts: Vec<(String, Vec<u8>)> = vec![(
@@ -180,53 +160,88 @@ fn main() -> Result<()> {
     }
     body.extend_from_slice(format!("--{boundary}--\r\n").as_bytes());
 
-    let t = Instant::now();
-    let resp = ureq::post(&format!("{url}/api/v1/jobs"))
-        .set("Content-Type", &format!("multipart/form-data; boundary={boundary}"))
-        .send_bytes(&body);
-    let job: serde_json::Value = match resp {
-        Ok(r) => r.into_json()?,
-        Err(ureq::Error::Status(code, r)) => {
-            bail!("submission refused ({code}): {}", r.into_string().unwrap_or_default())
+    let out = std::env::temp_dir().join(format!("farmbench-cli-{}", std::process::id()));
+    // One CLI render: (wall, CPU of the process).
+    let run_cli = || -> Result<(f64, f64)> {
+        let cpu0 = self_children_cpu();
+        let t = Instant::now();
+        let status = Command::new(&worker_bin)
+            .arg("render")
+            .arg(&scene)
+            .args(&spp)
+            .args(["--quiet", "--tile-size", &tile.to_string(), "--out"])
+            .arg(&out)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .status()?;
+        let wall = t.elapsed().as_secs_f64();
+        if !status.success() {
+            bail!("tessera-worker render failed on {}", scene.display());
         }
-        Err(e) => bail!("submission failed: {e}"),
+        Ok((wall, self_children_cpu() - cpu0))
     };
-    let id = job["id"].as_u64().context("no job id")?;
-    loop {
-        let mut text = String::new();
-        ureq::get(&format!("{url}/api/v1/jobs/{id}")).call()?.into_reader().read_to_string(&mut text)?;
-        let j: serde_json::Value = serde_json::from_str(&text)?;
-        match j["state"].as_str() {
-            Some("done") => break,
-            Some("failed") | Some("canceled") => bail!("the job ended: {j}"),
-            _ => std::thread::sleep(Duration::from_millis(20)),
+    // One job through the farm: (wall, CPU of server and worker, server CPU, worker CPU).
+    let run_farm = || -> Result<(f64, f64, f64, f64)> {
+        let (s0, _) = cpu_of(server.id())?;
+        let (w0, _) = cpu_of(worker_pid)?;
+        let t = Instant::now();
+        let resp = ureq::post(&format!("{url}/api/v1/jobs"))
+            .set("Content-Type", &format!("multipart/form-data; boundary={boundary}"))
+            .send_bytes(&body);
+        let job: serde_json::Value = match resp {
+            Ok(r) => r.into_json()?,
+            Err(ureq::Error::Status(code, r)) => {
+                bail!("submission refused ({code}): {}", r.into_string().unwrap_or_default())
+            }
+            Err(e) => bail!("submission failed: {e}"),
+        };
+        let id = job["id"].as_u64().context("no job id")?;
+        loop {
+            let mut text = String::new();
+            ureq::get(&format!("{url}/api/v1/jobs/{id}")).call()?.into_reader().read_to_string(&mut text)?;
+            let j: serde_json::Value = serde_json::from_str(&text)?;
+            match j["state"].as_str() {
+                Some("done") => break,
+                Some("failed") | Some("canceled") => bail!("the job ended: {j}"),
+                _ => std::thread::sleep(Duration::from_millis(20)),
+            }
         }
+        let farm_wall = t.elapsed().as_secs_f64();
+        let (s1, _) = cpu_of(server.id())?;
+        let (w1, _) = cpu_of(worker_pid)?;
+        let farm_cpu = (s1 - s0) + (w1 - w0);
+        Ok((farm_wall, farm_cpu, s1 - s0, w1 - w0))
+    };
+    println!(
+        "scene {} ({}), tile {tile} px, {repeat} alternating runs each",
+        scene.display(),
+        samples.map_or("its own samples".to_string(), |s| format!("{s} spp"))
+    );
+    let (mut walls, mut cpus) = (Vec::new(), Vec::new());
+    for k in 1..=repeat {
+        let (cw, cc) = run_cli()?;
+        let (fw, fc, sc, wc) = run_farm()?;
+        println!(
+            "run {k}: CLI wall {cw:.2} s, CPU {cc:.2} s | farm wall {fw:.2} s, CPU {fc:.2} s (server {sc:.2}, worker {wc:.2}) | ratio wall {:.3}, CPU {:.3}",
+            fw / cw,
+            fc / cc
+        );
+        walls.push(fw / cw);
+        cpus.push(fc / cc);
     }
-    let farm_wall = t.elapsed().as_secs_f64();
-    let (s1, _) = cpu_of(server.id())?;
-    let (w1, _) = cpu_of(worker_pid)?;
-    let farm_cpu = (s1 - s0) + (w1 - w0);
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    println!(
+        "median ratio farm/CLI: wall {:.3}, CPU {:.3} (target <= 1.10; this machine's timings vary by about 10 % run to run)",
+        median(&mut walls),
+        median(&mut cpus)
+    );
     let _ = Command::new("kill").args(["-TERM", &server.id().to_string()]).status();
     let _ = server.wait();
     let _ = std::fs::remove_dir_all(&data);
     let _ = std::fs::remove_dir_all(&out);
-
-    println!(
-        "scene {} ({}), tile {tile} px",
-        scene.display(),
-        samples.map_or("its own samples".to_string(), |s| format!("{s} spp"))
-    );
-    println!("CLI  tessera-worker render: wall {cli_wall:.2} s, CPU {cli_cpu:.2} s");
-    println!(
-        "farm server + 1 local worker: wall {farm_wall:.2} s, CPU {farm_cpu:.2} s (server {:.2} s, worker {:.2} s)",
-        s1 - s0,
-        w1 - w0
-    );
-    println!(
-        "ratio farm/CLI: wall {:.3}, CPU {:.3} (target <= 1.10)",
-        farm_wall / cli_wall,
-        farm_cpu / cli_cpu
-    );
     Ok(())
 }
 

@@ -218,6 +218,19 @@ pub fn work(opts: WorkOptions) -> Result<()> {
             .spawn(move || fetch_leases(&client, worker_id, &leases, &tx, &stop))?;
     }
 
+    // Uploads run beside the rendering, so the cores start the next tile at once; the lease
+    // stays held (and heartbeated) until its upload is answered.
+    let (up_tx, up_rx) = sync_channel::<(u64, Vec<[f32; 3]>, f64)>(2);
+    let uploader = {
+        let (client, leases) = (client.clone(), leases.clone());
+        std::thread::Builder::new().name("uploader".into()).spawn(move || {
+            for (id, px, seconds) in up_rx {
+                upload(&client, worker_id, id, &px, seconds);
+                leases.lock().unwrap_or_else(|e| e.into_inner()).held.remove(&id);
+            }
+        })?
+    };
+
     let mut scenes: HashMap<(String, String), Arc<Scene>> = HashMap::new();
     let mut done = 0u64;
     loop {
@@ -252,22 +265,29 @@ pub fn work(opts: WorkOptions) -> Result<()> {
             continue;
         }
         match rendered {
-            Ok(px) => upload(&client, worker_id, id, &px, seconds),
+            Ok(px) => {
+                if up_tx.send((id, px, seconds)).is_err() {
+                    bail!("the upload thread ended");
+                }
+            }
             Err(e) => {
                 eprintln!("tile {} of job {} failed: {e:#}", lease.tile, lease.job_id);
                 let req = FailRequest { worker_id, error: format!("{e:#}") };
                 if let Err(e) = client.post_json(&format!("/api/v1/worker/leases/{id}/fail"), &req) {
                     eprintln!("reporting the failure: {}", describe(e));
                 }
+                leases.lock().unwrap_or_else(|e| e.into_inner()).held.remove(&id);
             }
         }
-        leases.lock().unwrap_or_else(|e| e.into_inner()).held.remove(&id);
         done += 1;
         if opts.max_tiles.is_some_and(|m| done >= m) {
             break;
         }
     }
     stop.store(true, Ordering::SeqCst);
+    // Finish the uploads in flight, then give back what was fetched ahead.
+    drop(up_tx);
+    let _ = uploader.join();
     give_back(&client, worker_id, &leases, &rx);
     Ok(())
 }
