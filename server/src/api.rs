@@ -282,24 +282,8 @@ async fn submit_job(
             }
             "name" => opts.name = Some(text()),
             "priority" => opts.priority = number("priority")?,
-            "tile_size" => {
-                let t = number("tile_size")?;
-                if !(1..=4096).contains(&t) {
-                    return Err(AppError::bad_request(format!(
-                        "tile_size must be between 1 and 4096 pixels, found {t}"
-                    )));
-                }
-                opts.tile_size = Some(t as u32);
-            }
-            "samples" => {
-                let s = number("samples")?;
-                if !(1..=1_000_000).contains(&s) {
-                    return Err(AppError::bad_request(format!(
-                        "samples must be between 1 and 1000000, found {s}"
-                    )));
-                }
-                opts.samples = Some(s as u32);
-            }
+            "tile_size" => opts.tile_size = Some(bounded("tile_size", number("tile_size")?, 4096, "pixels")?),
+            "samples" => opts.samples = Some(bounded("samples", number("samples")?, 1_000_000, "")?),
             "cameras" => {
                 let mut list = Vec::new();
                 for part in text().split([',', ' ']).filter(|p| !p.is_empty()) {
@@ -355,6 +339,16 @@ async fn submit_job(
     tracing::info!(job = id, name = %job.name, "job accepted");
     let info = job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?;
     Ok((StatusCode::CREATED, Json(info)))
+}
+
+/// An upload field that must be an integer between 1 and `max` (`unit` for the message).
+fn bounded(what: &str, value: i64, max: i64, unit: &str) -> ApiResult<u32> {
+    if (1..=max).contains(&value) {
+        Ok(value as u32)
+    } else {
+        let unit = if unit.is_empty() { String::new() } else { format!(" {unit}") };
+        Err(AppError::bad_request(format!("{what} must be between 1 and {max}{unit}, found {value}")))
+    }
 }
 
 fn upload_too_large(state: &AppState) -> AppError {
