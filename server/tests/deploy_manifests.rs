@@ -338,18 +338,16 @@ fn every_command_line_in_deploy_runs() {
                     .stderr(Stdio::piped())
                     .spawn()
                     .unwrap();
-                let mut line = String::new();
-                std::io::BufRead::read_line(
-                    &mut std::io::BufReader::new(child.stdout.take().unwrap()),
-                    &mut line,
-                )
-                .unwrap();
+                let line = first_line(child.stdout.take().unwrap(), Duration::from_secs(30)).unwrap_or_default();
                 let _ = child.kill();
-                let out = child.wait_with_output().unwrap();
+                // Read what the server said on stderr, without waiting for end of file: local
+                // workers it started may hold the pipe open for a moment after it is gone.
+                let _ = wait_timeout(&mut child, Duration::from_secs(10));
+                let stderr = drain_for(child.stderr.take().unwrap(), Duration::from_secs(2));
                 assert!(
                     line.starts_with("listening on http://127.0.0.1:"),
                     "{file}: {argv:?} did not start: {line:?}\n{}",
-                    String::from_utf8_lossy(&out.stderr)
+                    stderr
                 );
             }
             "tessera-worker" => {
@@ -376,10 +374,17 @@ fn every_command_line_in_deploy_runs() {
                     }
                     std::thread::sleep(Duration::from_millis(50));
                 };
-                let _ = Command::new("kill").args(["-TERM", &child.id().to_string()]).status();
-                let status = child.wait().unwrap();
+                signal(&child, libc::SIGTERM);
+                let status = wait_timeout(&mut child, Duration::from_secs(40));
+                if status.is_none() {
+                    let _ = child.kill();
+                    let _ = child.wait();
+                }
                 assert!(registered, "{file}: {argv:?} did not register with the server");
-                assert!(status.success(), "{file}: {argv:?} did not stop cleanly on SIGTERM: {status:?}");
+                assert!(
+                    status.is_some_and(|s| s.success()),
+                    "{file}: {argv:?} did not stop cleanly within 40 s of SIGTERM: {status:?}"
+                );
             }
             other => panic!("{file}: unexpected program {other}"),
         }

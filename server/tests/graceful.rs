@@ -145,8 +145,7 @@ fn a_worker_given_sigterm_mid_job_finishes_its_tile_gives_back_the_next_and_exit
         .expect("start tessera-worker work");
     wait_until(&server, "worker a's first tiles", 120, || tiles_done(&job(&server, id)) >= 2);
     let total = job(&server, id)["frames"][0]["tiles_total"].as_u64().unwrap();
-    let status = Command::new("kill").args(["-TERM", &a.id().to_string()]).status().unwrap();
-    assert!(status.success());
+    signal(&a, libc::SIGTERM);
     let signalled = Instant::now();
     let exit = loop {
         if let Some(s) = a.try_wait().unwrap() {

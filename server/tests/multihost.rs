@@ -10,7 +10,6 @@
 
 mod support;
 
-use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
@@ -166,8 +165,7 @@ fn a_farm_across_three_hosts_survives_a_worker_host_losing_its_link() {
             .spawn()
             .expect("start tessera-server in its namespace"),
     );
-    let mut line = String::new();
-    BufReader::new(server.0.stdout.take().unwrap()).read_line(&mut line).unwrap();
+    let line = first_line(server.0.stdout.take().unwrap(), Duration::from_secs(30)).unwrap_or_default();
     let url = line.trim().strip_prefix("listening on ").unwrap_or_else(|| {
         panic!("the server did not start: {line:?}\n{}", std::fs::read_to_string(&log).unwrap_or_default())
     });

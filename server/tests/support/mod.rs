@@ -13,8 +13,101 @@ use serde_json::Value;
 /// Farm tests start several processes that each want every core: run them one at a time.
 pub static SERIAL: Mutex<()> = Mutex::new(());
 
-pub fn serial() -> std::sync::MutexGuard<'static, ()> {
-    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+/// How long one farm test may run before the whole test binary is stopped: a hang (a child that
+/// never exits, a pipe that never closes) must fail CI with the test's name, not eat its clock.
+/// Generous, and never an assertion about speed: the slowest test takes about a minute here.
+const HANG_LIMIT: Duration = Duration::from_secs(600);
+
+/// The lock that runs farm tests one at a time, and the hang watchdog of the test holding it.
+pub struct Serial {
+    _lock: std::sync::MutexGuard<'static, ()>,
+    done: std::sync::Arc<std::sync::atomic::AtomicBool>,
+}
+
+impl Drop for Serial {
+    fn drop(&mut self) {
+        self.done.store(true, std::sync::atomic::Ordering::SeqCst);
+    }
+}
+
+pub fn serial() -> Serial {
+    let lock = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let flag = done.clone();
+    let test = std::thread::current().name().unwrap_or("a farm test").to_string();
+    std::thread::spawn(move || {
+        let start = Instant::now();
+        while start.elapsed() < HANG_LIMIT {
+            std::thread::sleep(Duration::from_millis(200));
+            if flag.load(std::sync::atomic::Ordering::SeqCst) {
+                return;
+            }
+        }
+        // Straight to file descriptor 2: the harness captures eprintln! and would lose it.
+        use std::io::Write;
+        let _ = writeln!(
+            std::io::stderr(),
+            "{test} is still running after {} s: it hangs; stopping this test binary",
+            HANG_LIMIT.as_secs()
+        );
+        std::process::abort();
+    });
+    Serial { _lock: lock, done }
+}
+
+/// Sends `sig` to a child process (no `kill` program needed: minimal machines lack procps).
+pub fn signal(child: &Child, sig: libc::c_int) {
+    // SAFETY: kill(2) has no memory effects; a pid that is gone gives ESRCH, which is fine here.
+    unsafe {
+        libc::kill(child.id() as libc::pid_t, sig);
+    }
+}
+
+/// What a pipe yields within `limit` (a reader thread; whatever arrived by then, lossily as text).
+pub fn drain_for(mut pipe: impl Read + Send + 'static, limit: Duration) -> String {
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 4096];
+        while let Ok(n) = pipe.read(&mut buf) {
+            if n == 0 || tx.send(buf[..n].to_vec()).is_err() {
+                break;
+            }
+        }
+    });
+    let deadline = Instant::now() + limit;
+    let mut out = Vec::new();
+    while let Ok(chunk) = rx.recv_timeout(deadline.saturating_duration_since(Instant::now())) {
+        out.extend(chunk);
+    }
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+/// The child's exit status, or None when it is still running after `limit`.
+pub fn wait_timeout(child: &mut Child, limit: Duration) -> Option<std::process::ExitStatus> {
+    let start = Instant::now();
+    loop {
+        if let Ok(Some(status)) = child.try_wait() {
+            return Some(status);
+        }
+        if start.elapsed() > limit {
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// The first line a child writes to `stdout` (read on a thread of its own, which then drains the
+/// rest so the child never blocks on a full pipe), or None after `limit` or at end of file.
+pub fn first_line(stdout: std::process::ChildStdout, limit: Duration) -> Option<String> {
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut lines = BufReader::new(stdout).lines();
+        if let Some(Ok(line)) = lines.next() {
+            let _ = tx.send(line);
+        }
+        for _ in lines {}
+    });
+    rx.recv_timeout(limit).ok()
 }
 
 pub fn server_bin() -> PathBuf {
@@ -71,16 +164,8 @@ impl Server {
             .stderr(std::fs::File::create(&log).unwrap())
             .spawn()
             .expect("start tessera-server");
-        let stdout = child.stdout.take().unwrap();
-        let (tx, rx) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            let mut lines = BufReader::new(stdout).lines();
-            if let Some(Ok(line)) = lines.next() {
-                let _ = tx.send(line);
-            }
-            for _ in lines {}
-        });
-        let line = rx.recv_timeout(Duration::from_secs(30)).unwrap_or_else(|_| {
+        let line = first_line(child.stdout.take().unwrap(), Duration::from_secs(30)).unwrap_or_else(|| {
+            let _ = child.kill();
             panic!("the server did not start:\n{}", std::fs::read_to_string(&log).unwrap_or_default())
         });
         let url = line
@@ -95,7 +180,7 @@ impl Server {
     }
 
     pub fn kill9(&mut self) {
-        let _ = Command::new("kill").args(["-9", &self.child.id().to_string()]).status();
+        let _ = self.child.kill();
         let _ = self.child.wait();
     }
 }
@@ -103,14 +188,9 @@ impl Server {
 impl Drop for Server {
     fn drop(&mut self) {
         // SIGTERM, so that the server stops its local workers.
-        let _ =
-            Command::new("kill").args(["-TERM", &self.child.id().to_string()]).stderr(Stdio::null()).status();
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while Instant::now() < deadline {
-            if let Ok(Some(_)) = self.child.try_wait() {
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(50));
+        signal(&self.child, libc::SIGTERM);
+        if wait_timeout(&mut self.child, Duration::from_secs(10)).is_some() {
+            return;
         }
         let _ = self.child.kill();
         let _ = self.child.wait();
@@ -131,7 +211,7 @@ impl Worker {
     }
 
     pub fn kill9(&mut self) {
-        let _ = Command::new("kill").args(["-9", &self.0.id().to_string()]).status();
+        let _ = self.0.kill();
         let _ = self.0.wait();
     }
 }
