@@ -7,76 +7,7 @@ mod support;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use serde_json::Value;
 use support::*;
-
-/// Polls the job until `until` holds for it, or panics with the server log after `secs`.
-fn wait_job(server: &Server, id: u64, secs: u64, until: impl Fn(&Value) -> bool) -> Value {
-    let deadline = Instant::now() + Duration::from_secs(secs);
-    loop {
-        let job = get_json(&server.url, &format!("/api/v1/jobs/{id}"));
-        if until(&job) {
-            return job;
-        }
-        assert!(
-            !matches!(job["state"].as_str(), Some("failed") | Some("canceled")) || until(&job),
-            "job ended unexpectedly: {job}\n{}",
-            server.log()
-        );
-        if Instant::now() > deadline {
-            panic!("timed out waiting for job {id}: {job}\n--- server log ---\n{}", server.log());
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    }
-}
-
-fn tiles_done(job: &Value) -> u64 {
-    job["frames"].as_array().map_or(0, |f| f.iter().map(|f| f["tiles_done"].as_u64().unwrap_or(0)).sum())
-}
-
-/// The demo environment scene (HDR output, an image asset) as upload parts.
-fn environment_parts(samples: &str) -> (Vec<u8>, Vec<u8>, String) {
-    let scene = std::fs::read(repo().join("scenes/environment.xml")).unwrap();
-    let sky = std::fs::read(repo().join("scenes/textures/sky.hdr")).unwrap();
-    (scene, sky, samples.to_string())
-}
-
-/// What `tessera-worker render` writes for the environment scene at `samples` spp.
-fn cli_render(samples: &str) -> (Vec<u8>, Vec<u8>) {
-    let out = temp_dir(&format!("cli-{samples}"));
-    let status = Command::new(worker_bin())
-        .args([
-            "render",
-            repo().join("scenes/environment.xml").to_str().unwrap(),
-            "--quiet",
-            "--samples",
-            samples,
-            "--out",
-        ])
-        .arg(&out)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .unwrap();
-    assert!(status.success());
-    (std::fs::read(out.join("environment.exr")).unwrap(), std::fs::read(out.join("environment.png")).unwrap())
-}
-
-fn submit_environment(server: &Server, samples: &str, tile: &str) -> u64 {
-    let (scene, sky, samples) = environment_parts(samples);
-    let (code, job) = submit(
-        &server.url,
-        None,
-        &[
-            ("scene", Some("environment.xml"), &scene),
-            ("asset", Some("textures/sky.hdr"), &sky),
-            ("samples", None, samples.as_bytes()),
-            ("tile_size", None, tile.as_bytes()),
-        ],
-    );
-    assert_eq!(code, 201, "{job}\n{}", server.log());
-    job["id"].as_u64().unwrap()
-}
 
 fn assert_outputs_equal_cli(server: &Server, id: u64, samples: &str) {
     let job = get_json(&server.url, &format!("/api/v1/jobs/{id}"));
@@ -85,7 +16,7 @@ fn assert_outputs_equal_cli(server: &Server, id: u64, samples: &str) {
     assert_eq!(names, ["environment.exr", "environment.png"], "{job}");
     let exr = get_bytes(&server.url, &format!("/api/v1/jobs/{id}/frames/0/files/environment.exr"));
     let png = get_bytes(&server.url, &format!("/api/v1/jobs/{id}/frames/0/files/environment.png"));
-    let (cli_exr, cli_png) = cli_render(samples);
+    let (cli_exr, cli_png) = cli_render_environment(samples);
     assert!(
         exr == cli_exr,
         "the farm's EXR differs from the CLI's ({} vs {} bytes)",
@@ -123,23 +54,16 @@ fn a_job_renders_on_two_local_workers_exactly_like_the_cli() {
     assert!(metrics.contains("tessera_tile_render_seconds_count"), "{metrics}");
 }
 
+/// No local workers, worker token `wtok`, and leases that expire 2 s after the last heartbeat:
+/// what the failure tests need to see a lost worker's tiles come back quickly.
+const SHORT_LEASES: [&str; 8] =
+    ["--local-workers", "0", "--worker-token", "wtok", "--lease-seconds", "2", "--heartbeat-seconds", "0.5"];
+
 #[test]
 fn a_worker_killed_mid_job_loses_nothing() {
     let _s = serial();
     let data = temp_dir("killworker");
-    let server = Server::start(
-        &data,
-        &[
-            "--local-workers",
-            "0",
-            "--worker-token",
-            "wtok",
-            "--lease-seconds",
-            "2",
-            "--heartbeat-seconds",
-            "0.5",
-        ],
-    );
+    let server = Server::start(&data, &SHORT_LEASES);
     let mut a = Worker::start(&server.url, "wtok", "a");
     let _b = Worker::start(&server.url, "wtok", "b");
     let id = submit_environment(&server, "24", "16");
@@ -147,29 +71,15 @@ fn a_worker_killed_mid_job_loses_nothing() {
     a.kill9();
     wait_job(&server, id, 180, |j| j["state"] == "done");
     assert_outputs_equal_cli(&server, id, "24");
-    let metrics = String::from_utf8(get_bytes(&server.url, "/metrics")).unwrap();
-    let expiries: u64 = metrics
-        .lines()
-        .find_map(|l| l.strip_prefix("tessera_lease_expiries_total "))
-        .and_then(|v| v.trim().parse().ok())
-        .unwrap();
-    assert!(expiries >= 1, "the killed worker's lease should have expired: {metrics}");
+    let expiries: u64 = metric(&server, "tessera_lease_expiries_total").trim().parse().unwrap();
+    assert!(expiries >= 1, "the killed worker's lease should have expired");
 }
 
 #[test]
 fn a_server_killed_mid_job_resumes_after_restart() {
     let _s = serial();
     let data = temp_dir("killserver");
-    let args = [
-        "--local-workers",
-        "0",
-        "--worker-token",
-        "wtok",
-        "--lease-seconds",
-        "2",
-        "--heartbeat-seconds",
-        "0.5",
-    ];
+    let args = SHORT_LEASES;
     let mut server = Server::start(&data, &args);
     let port = server.url.rsplit(':').next().unwrap().to_string();
     let _w = Worker::start(&server.url, "wtok", "w");

@@ -13,27 +13,12 @@ use support::*;
 const TOKEN: &str = "wtok";
 const SAMPLES: &str = "16";
 
-fn worker_post(url: &str, path: &str, body: Value) -> (u16, Value) {
-    call(
-        ureq::post(&format!("{url}{path}")).set("Authorization", &format!("Bearer {TOKEN}")),
-        Some(("application/json".into(), body.to_string().into_bytes())),
-    )
+fn post(url: &str, path: &str, body: Value) -> (u16, Value) {
+    worker_post(url, TOKEN, path, body)
 }
 
 fn job(server: &Server, id: u64) -> Value {
     get_json(&server.url, &format!("/api/v1/jobs/{id}"))
-}
-
-fn tiles_done(job: &Value) -> u64 {
-    job["frames"][0]["tiles_done"].as_u64().unwrap_or(0)
-}
-
-fn metric(server: &Server, name: &str) -> String {
-    let metrics = String::from_utf8(get_bytes(&server.url, "/metrics")).unwrap();
-    metrics
-        .lines()
-        .find_map(|l| l.strip_prefix(name).and_then(|v| v.strip_prefix(' ')).map(str::to_string))
-        .unwrap_or_else(|| panic!("no {name} in\n{metrics}"))
 }
 
 fn wait_until(server: &Server, what: &str, secs: u64, mut f: impl FnMut() -> bool) {
@@ -53,31 +38,19 @@ fn release_gives_a_live_lease_back_to_the_queue_once() {
     let _s = serial();
     let data = temp_dir("release");
     let server = Server::start(&data, &["--local-workers", "0", "--worker-token", TOKEN]);
-    let scene = std::fs::read(repo().join("scenes/environment.xml")).unwrap();
-    let sky = std::fs::read(repo().join("scenes/textures/sky.hdr")).unwrap();
-    let (code, v) = submit(
-        &server.url,
-        None,
-        &[
-            ("scene", Some("environment.xml"), &scene),
-            ("asset", Some("textures/sky.hdr"), &sky),
-            ("samples", None, b"1"),
-            ("tile_size", None, b"64"),
-        ],
-    );
-    assert_eq!(code, 201, "{v}");
-    let (_, reg) = worker_post(&server.url, "/api/v1/worker/register", json!({"name": "h", "threads": 1}));
+    submit_environment(&server, "1", "64");
+    let (_, reg) = post(&server.url, "/api/v1/worker/register", json!({"name": "h", "threads": 1}));
     let w = reg["worker_id"].as_u64().unwrap();
     let lease = || {
         let (code, l) =
-            worker_post(&server.url, "/api/v1/worker/lease", json!({"worker_id": w, "wait_seconds": 0.0}));
+            post(&server.url, "/api/v1/worker/lease", json!({"worker_id": w, "wait_seconds": 0.0}));
         assert_eq!(code, 200, "{l}");
         l
     };
     let first = lease();
     let id = first["lease_id"].as_u64().unwrap();
     let release = |lease: u64, worker: u64| {
-        worker_post(
+        post(
             &server.url,
             &format!("/api/v1/worker/leases/{lease}/release"),
             json!({"worker_id": worker}),
@@ -121,20 +94,7 @@ fn a_worker_given_sigterm_mid_job_finishes_its_tile_gives_back_the_next_and_exit
             "0.5",
         ],
     );
-    let scene = std::fs::read(repo().join("scenes/environment.xml")).unwrap();
-    let sky = std::fs::read(repo().join("scenes/textures/sky.hdr")).unwrap();
-    let (code, v) = submit(
-        &server.url,
-        None,
-        &[
-            ("scene", Some("environment.xml"), &scene),
-            ("asset", Some("textures/sky.hdr"), &sky),
-            ("samples", None, SAMPLES.as_bytes()),
-            ("tile_size", None, b"32"),
-        ],
-    );
-    assert_eq!(code, 201, "{v}");
-    let id = v["id"].as_u64().unwrap();
+    let id = submit_environment(&server, SAMPLES, "32");
 
     let log = data.join("worker-a.log");
     let mut a = Command::new(worker_bin())
@@ -171,11 +131,11 @@ fn a_worker_given_sigterm_mid_job_finishes_its_tile_gives_back_the_next_and_exit
     // Every tile not done is in the queue again: a hand-driven worker gets a lease on each (none
     // is still held by the stopped worker), then gives them all back.
     let (_, reg) =
-        worker_post(&server.url, "/api/v1/worker/register", json!({"name": "probe", "threads": 1}));
+        post(&server.url, "/api/v1/worker/register", json!({"name": "probe", "threads": 1}));
     let probe = reg["worker_id"].as_u64().unwrap();
     let mut queued = Vec::new();
     loop {
-        let (code, l) = worker_post(
+        let (code, l) = post(
             &server.url,
             "/api/v1/worker/lease",
             json!({"worker_id": probe, "wait_seconds": 0.0}),
@@ -192,7 +152,7 @@ fn a_worker_given_sigterm_mid_job_finishes_its_tile_gives_back_the_next_and_exit
         "a tile is still leased to the stopped worker\n{worker_log}"
     );
     for l in queued {
-        let (code, v) = worker_post(
+        let (code, v) = post(
             &server.url,
             &format!("/api/v1/worker/leases/{l}/release"),
             json!({"worker_id": probe}),
@@ -208,24 +168,9 @@ fn a_worker_given_sigterm_mid_job_finishes_its_tile_gives_back_the_next_and_exit
     assert_eq!(metric(&server, "tessera_tiles_done_total"), total.to_string());
 
     // Byte for byte what the CLI renders.
-    let out = temp_dir("sigterm-cli");
-    let status = Command::new(worker_bin())
-        .args([
-            "render",
-            repo().join("scenes/environment.xml").to_str().unwrap(),
-            "--quiet",
-            "--samples",
-            SAMPLES,
-        ])
-        .arg("--out")
-        .arg(&out)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .unwrap();
-    assert!(status.success());
-    for name in ["environment.exr", "environment.png"] {
+    let (exr, png) = cli_render_environment(SAMPLES);
+    for (name, cli) in [("environment.exr", exr), ("environment.png", png)] {
         let farm = get_bytes(&server.url, &format!("/api/v1/jobs/{id}/frames/0/files/{name}"));
-        assert!(farm == std::fs::read(out.join(name)).unwrap(), "the farm's {name} differs from the CLI's");
+        assert!(farm == cli, "the farm's {name} differs from the CLI's");
     }
 }

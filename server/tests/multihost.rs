@@ -264,24 +264,14 @@ fn a_farm_across_three_hosts_survives_a_worker_host_losing_its_link() {
     assert!(expiries >= 1, "host a's leases should have expired: {metrics}");
 
     // The outputs, fetched over the farm's network, equal the CLI's.
-    let cli = temp_dir("multihost-cli");
-    let status = Command::new(worker_bin())
-        .args(["render", scenes.join("environment.xml").to_str().unwrap(), "--quiet", "--samples", SAMPLES])
-        .arg("--out")
-        .arg(&cli)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .unwrap();
-    assert!(status.success());
-    for name in ["environment.exr", "environment.png"] {
+    let (exr, png) = cli_render_environment(SAMPLES);
+    for (name, cli) in [("environment.exr", exr), ("environment.png", png)] {
         let (code, bytes) = farm.curl(&[&format!("{url}/api/v1/jobs/{id}/frames/0/files/{name}")]);
         assert_eq!(code, 200, "{name}");
-        assert!(bytes == std::fs::read(cli.join(name)).unwrap(), "the farm's {name} differs from the CLI's");
+        assert!(bytes == cli, "the farm's {name} differs from the CLI's");
     }
     drop(server);
     let _ = std::fs::remove_dir_all(&data);
-    let _ = std::fs::remove_dir_all(&cli);
     drop(namespaces);
     assert!(!Path::new(&format!("/var/run/netns/{srv}")).exists(), "namespace {srv} left behind");
 }

@@ -9,15 +9,12 @@ use tessera::protocol::{checksum, encode_tile};
 
 const TOKEN: &str = "wtok";
 
-fn worker_post(url: &str, path: &str, body: Value) -> (u16, Value) {
-    call(
-        ureq::post(&format!("{url}{path}")).set("Authorization", &format!("Bearer {TOKEN}")),
-        Some(("application/json".into(), body.to_string().into_bytes())),
-    )
+fn post(url: &str, path: &str, body: Value) -> (u16, Value) {
+    worker_post(url, TOKEN, path, body)
 }
 
 fn register(url: &str, name: &str) -> u64 {
-    let (code, v) = worker_post(url, "/api/v1/worker/register", json!({"name": name, "threads": 1}));
+    let (code, v) = post(url, "/api/v1/worker/register", json!({"name": name, "threads": 1}));
     assert_eq!(code, 200, "{v}");
     v["worker_id"].as_u64().unwrap()
 }
@@ -25,7 +22,7 @@ fn register(url: &str, name: &str) -> u64 {
 /// A lease without waiting, or None (204).
 fn lease(url: &str, worker: u64) -> Option<Value> {
     let (code, v) =
-        worker_post(url, "/api/v1/worker/lease", json!({"worker_id": worker, "wait_seconds": 0.0}));
+        post(url, "/api/v1/worker/lease", json!({"worker_id": worker, "wait_seconds": 0.0}));
     match code {
         200 => Some(v),
         204 => None,
@@ -127,14 +124,14 @@ fn results_are_accepted_once_checked_and_refused_after_expiry() {
     let again = lease(url, other).unwrap();
     assert_eq!((again["tile"].clone(), again["job_id"].clone()), (l2["tile"].clone(), l2["job_id"].clone()));
     // A heartbeat tells the first worker its lease is gone; the second keeps its own.
-    let (code, hb) = worker_post(
+    let (code, hb) = post(
         url,
         "/api/v1/worker/heartbeat",
         json!({"worker_id": w, "leases": [l2["lease_id"]], "rendering": l2["lease_id"]}),
     );
     assert_eq!(code, 200);
     assert_eq!(hb["revoked"], json!([l2["lease_id"]]));
-    let (_, hb) = worker_post(
+    let (_, hb) = post(
         url,
         "/api/v1/worker/heartbeat",
         json!({"worker_id": other, "leases": [again["lease_id"]], "rendering": null}),
@@ -154,7 +151,7 @@ fn a_tile_failing_on_three_workers_fails_the_job() {
     for k in 0..3 {
         let w = register(url, &format!("bad-{k}"));
         let l = lease(url, w).expect("the failed tile is offered to the next worker");
-        let (code, v) = worker_post(
+        let (code, v) = post(
             url,
             &format!("/api/v1/worker/leases/{}/fail", l["lease_id"]),
             json!({"worker_id": w, "error": format!("out of memory on bad-{k}")}),
@@ -178,7 +175,7 @@ fn a_worker_failing_three_tiles_of_a_job_is_kept_off_it() {
     let w = register(url, "flaky");
     for _ in 0..3 {
         let l = lease(url, w).unwrap();
-        let (code, _) = worker_post(
+        let (code, _) = post(
             url,
             &format!("/api/v1/worker/leases/{}/fail", l["lease_id"]),
             json!({"worker_id": w, "error": "boom"}),
@@ -213,10 +210,10 @@ fn unknown_workers_and_bad_bodies_are_refused() {
     let _s = serial();
     let server = start();
     let url = &server.url;
-    let (code, v) = worker_post(url, "/api/v1/worker/lease", json!({"worker_id": 999, "wait_seconds": 0.0}));
+    let (code, v) = post(url, "/api/v1/worker/lease", json!({"worker_id": 999, "wait_seconds": 0.0}));
     assert_eq!(code, 404, "{v}");
     assert!(v["error"].as_str().unwrap().contains("register"), "{v}");
-    let (code, _) = worker_post(url, "/api/v1/worker/register", json!({"nom": "x"}));
+    let (code, _) = post(url, "/api/v1/worker/register", json!({"nom": "x"}));
     assert!((400..500).contains(&code));
     let (code, v) = call(ureq::get(&format!("{url}/api/v1/nothing")), None);
     assert_eq!(code, 404, "{v}");

@@ -686,17 +686,11 @@ const DECAL_MODES: &[(&str, DecalMode)] = &[
     ("replace_background", DecalMode::ReplaceBackground),
 ];
 /// 2019 files: the 2020 names plus the short spellings of the 2019 assignment text.
-const LEGACY_DECAL_MODES: &[(&str, DecalMode)] = &[
-    ("replace_kd", DecalMode::ReplaceKd),
-    ("blend_kd", DecalMode::BlendKd),
-    ("replace_ks", DecalMode::ReplaceKs),
-    ("replace_all", DecalMode::ReplaceAll),
-    ("replace_normal", DecalMode::ReplaceNormal),
-    ("bump_normal", DecalMode::BumpNormal),
-    ("replace_background", DecalMode::ReplaceBackground),
-    ("replace", DecalMode::ReplaceKd),
-    ("blend", DecalMode::BlendKd),
-];
+static LEGACY_DECAL_MODES: std::sync::LazyLock<Vec<(&str, DecalMode)>> = std::sync::LazyLock::new(|| {
+    let mut modes = DECAL_MODES.to_vec();
+    modes.extend([("replace", DecalMode::ReplaceKd), ("blend", DecalMode::BlendKd)]);
+    modes
+});
 const INTERPOLATIONS: &[(&str, Interpolation)] = &[
     ("nearest", Interpolation::Nearest),
     ("bilinear", Interpolation::Bilinear),
@@ -1547,7 +1541,7 @@ impl Parser<'_> {
         };
         self.check(n, schema);
         let decal =
-            self.optional_keyword(n, "DecalMode", LEGACY_DECAL_MODES)?.unwrap_or(DecalMode::ReplaceKd);
+            self.optional_keyword(n, "DecalMode", &LEGACY_DECAL_MODES)?.unwrap_or(DecalMode::ReplaceKd);
         let bumpmap = self.bool_attr(n, "bumpmap")?.unwrap_or(false);
         // Read (and checked) even with bumpmap="false", where the 2019 files also write it.
         let multiplier = self.number_attr(n, "bumpmapMultiplier")?.unwrap_or(1.0);

@@ -276,3 +276,81 @@ pub fn get_bytes(url: &str, path: &str) -> Vec<u8> {
     r.into_reader().read_to_end(&mut out).unwrap();
     out
 }
+
+/// Polls the job until `until` holds for it, or panics with the server log after `secs` (or when
+/// the job ends in a way `until` does not accept).
+pub fn wait_job(server: &Server, id: u64, secs: u64, until: impl Fn(&Value) -> bool) -> Value {
+    let deadline = Instant::now() + Duration::from_secs(secs);
+    loop {
+        let job = get_json(&server.url, &format!("/api/v1/jobs/{id}"));
+        if until(&job) {
+            return job;
+        }
+        assert!(
+            !matches!(job["state"].as_str(), Some("failed") | Some("canceled")),
+            "job ended unexpectedly: {job}\n{}",
+            server.log()
+        );
+        if Instant::now() > deadline {
+            panic!("timed out waiting for job {id}: {job}\n--- server log ---\n{}", server.log());
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// Tiles done over all of a job's frames.
+pub fn tiles_done(job: &Value) -> u64 {
+    job["frames"].as_array().map_or(0, |f| f.iter().map(|f| f["tiles_done"].as_u64().unwrap_or(0)).sum())
+}
+
+/// Submits the demo environment scene (HDR output, an image asset) at `samples` spp in tiles of
+/// `tile` pixels; returns the job id.
+pub fn submit_environment(server: &Server, samples: &str, tile: &str) -> u64 {
+    let scene = std::fs::read(repo().join("scenes/environment.xml")).unwrap();
+    let sky = std::fs::read(repo().join("scenes/textures/sky.hdr")).unwrap();
+    let (code, job) = submit(
+        &server.url,
+        None,
+        &[
+            ("scene", Some("environment.xml"), &scene),
+            ("asset", Some("textures/sky.hdr"), &sky),
+            ("samples", None, samples.as_bytes()),
+            ("tile_size", None, tile.as_bytes()),
+        ],
+    );
+    assert_eq!(code, 201, "{job}\n{}", server.log());
+    job["id"].as_u64().unwrap()
+}
+
+/// What `tessera-worker render` writes for the environment scene at `samples` spp: the bytes of
+/// its `.exr` and `.png`.
+pub fn cli_render_environment(samples: &str) -> (Vec<u8>, Vec<u8>) {
+    let out = temp_dir(&format!("cli-{samples}"));
+    let status = Command::new(worker_bin())
+        .args(["render", repo().join("scenes/environment.xml").to_str().unwrap(), "--quiet", "--samples", samples])
+        .arg("--out")
+        .arg(&out)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .unwrap();
+    assert!(status.success(), "tessera-worker render environment.xml failed");
+    (std::fs::read(out.join("environment.exr")).unwrap(), std::fs::read(out.join("environment.png")).unwrap())
+}
+
+/// A worker-protocol POST with the worker token `token`.
+pub fn worker_post(url: &str, token: &str, path: &str, body: Value) -> (u16, Value) {
+    call(
+        ureq::post(&format!("{url}{path}")).set("Authorization", &format!("Bearer {token}")),
+        Some(("application/json".into(), body.to_string().into_bytes())),
+    )
+}
+
+/// The value of an unlabelled Prometheus metric, as text.
+pub fn metric(server: &Server, name: &str) -> String {
+    let metrics = String::from_utf8(get_bytes(&server.url, "/metrics")).unwrap();
+    metrics
+        .lines()
+        .find_map(|l| l.strip_prefix(name).and_then(|v| v.strip_prefix(' ')).map(str::to_string))
+        .unwrap_or_else(|| panic!("no {name} in\n{metrics}"))
+}
