@@ -63,6 +63,9 @@ pub struct AppState {
     pub cameras: Arc<std::sync::Mutex<HashMap<u64, Arc<Vec<Camera>>>>>,
     /// Pushed to the status page (server-sent events); nobody listening is fine.
     pub events: tokio::sync::broadcast::Sender<ServerEvent>,
+    /// Set when the server begins to shut down: no more leases, and long polls answer at once
+    /// (so stopping workers are not held up by a poll that could only bring a lease to give back).
+    pub shutting_down: Arc<std::sync::atomic::AtomicBool>,
 }
 
 impl AppState {
@@ -779,6 +782,9 @@ async fn lease(State(state): State<AppState>, Json(req): Json<LeaseRequest>) -> 
         // Register interest before looking, so a notification between the look and the wait
         // is not lost.
         let notified = state.work.notified();
+        if state.shutting_down.load(Ordering::SeqCst) {
+            return Ok(StatusCode::NO_CONTENT.into_response());
+        }
         if let Some(l) = state.store.lease(req.worker_id, state.settings.lease_seconds)? {
             state.emit(ServerEvent::Job { job: l.job_id, state: JobState::Running });
             state.emit(ServerEvent::Workers);

@@ -139,6 +139,7 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
         counters: Arc::new(api::Counters::default()),
         cameras: Arc::default(),
         events: tokio::sync::broadcast::channel(1024).0,
+        shutting_down: Arc::default(),
     };
 
     let listener = tokio::net::TcpListener::bind(config.bind)
@@ -174,7 +175,8 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
         });
     }
 
-    // Local workers: real processes over real HTTP, restarted if they die.
+    // Local workers: real processes over real HTTP, restarted if they die, stopped gracefully.
+    let (stopping_tx, stopping_rx) = tokio::sync::watch::channel(Stopping::No);
     let mut supervisors = Vec::new();
     if config.local_workers > 0 {
         let bin = worker_binary(&config)?;
@@ -183,33 +185,41 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
             if addr.ip().is_unspecified() { SocketAddr::from(([127, 0, 0, 1], addr.port())) } else { addr }
         );
         for k in 0..config.local_workers {
-            let (bin, url, token) = (bin.clone(), url.clone(), worker_token.clone());
-            let threads = config.local_worker_threads;
-            supervisors
-                .push(tokio::spawn(async move { supervise_worker(k + 1, bin, url, token, threads).await }));
+            let local = LocalWorker {
+                k: k + 1,
+                bin: bin.clone(),
+                url: url.clone(),
+                token: worker_token.clone(),
+                threads: config.local_worker_threads,
+            };
+            supervisors.push(tokio::spawn(supervise_worker(local, stopping_rx.clone())));
         }
     }
 
     let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
+    let app = api::app(state.clone());
     let shutdown = async move {
-        let ctrl_c = tokio::signal::ctrl_c();
-        #[cfg(unix)]
-        {
-            let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-                .expect("SIGTERM handler");
-            tokio::select! { _ = ctrl_c => {}, _ = term.recv() => {} }
-        }
-        #[cfg(not(unix))]
-        let _ = ctrl_c.await;
+        let mut signals = Signals::new();
+        signals.next().await;
         tracing::info!("shutting down");
-        // Stop the local workers first (their long polls would otherwise hold the server up).
-        for s in supervisors {
-            s.abort();
-            let _ = s.await;
+        state.shutting_down.store(true, Ordering::SeqCst);
+        state.work.notify_waiters();
+        // Stop the local workers first, while the server still takes their last results and
+        // the leases they give back; a second signal stops them at once.
+        let _ = stopping_tx.send(Stopping::Gracefully);
+        let all_stopped = futures_util::future::join_all(supervisors);
+        tokio::pin!(all_stopped);
+        tokio::select! {
+            _ = &mut all_stopped => {}
+            _ = signals.next() => {
+                tracing::warn!("second signal: stopping the local workers now");
+                let _ = stopping_tx.send(Stopping::Now);
+                all_stopped.await;
+            }
         }
         let _ = stop_tx.send(true);
     };
-    let server = axum::serve(listener, api::app(state)).with_graceful_shutdown(shutdown);
+    let server = axum::serve(listener, app).with_graceful_shutdown(shutdown);
     // In-flight requests (long polls of remote workers) get a few seconds to finish.
     let server = std::pin::pin!(server.into_future());
     tokio::select! {
@@ -222,30 +232,127 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
     Ok(())
 }
 
-/// Keeps local worker `k` running until the server stops (the child is killed with its task).
-async fn supervise_worker(k: usize, bin: PathBuf, url: String, token: String, threads: Option<usize>) {
+/// How long a local worker may take to stop after SIGTERM (it finishes and uploads the tile it
+/// is rendering, and gives back the one it fetched ahead) before it is killed.
+pub const LOCAL_WORKER_GRACE: Duration = Duration::from_secs(10);
+
+/// What the local workers' supervisors are told.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Stopping {
+    No,
+    /// SIGTERM, then up to [`LOCAL_WORKER_GRACE`] to finish.
+    Gracefully,
+    /// SIGKILL.
+    Now,
+}
+
+/// Ctrl-C and SIGTERM, as one stream.
+struct Signals {
+    #[cfg(unix)]
+    term: tokio::signal::unix::Signal,
+}
+
+impl Signals {
+    fn new() -> Signals {
+        Signals {
+            #[cfg(unix)]
+            term: tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+                .expect("SIGTERM handler"),
+        }
+    }
+
+    async fn next(&mut self) {
+        #[cfg(unix)]
+        tokio::select! { _ = tokio::signal::ctrl_c() => {}, _ = self.term.recv() => {} }
+        #[cfg(not(unix))]
+        let _ = tokio::signal::ctrl_c().await;
+    }
+}
+
+/// How to start local worker `k`.
+struct LocalWorker {
+    k: usize,
+    bin: PathBuf,
+    url: String,
+    token: String,
+    threads: Option<usize>,
+}
+
+/// Keeps a local worker running until the server stops, then stops it: SIGTERM and a grace
+/// period, SIGKILL after that or on [`Stopping::Now`].
+async fn supervise_worker(w: LocalWorker, mut stopping: tokio::sync::watch::Receiver<Stopping>) {
+    let k = w.k;
     loop {
-        let mut cmd = Command::new(&bin);
+        let mut cmd = Command::new(&w.bin);
         cmd.arg("work")
             .arg("--server")
-            .arg(&url)
+            .arg(&w.url)
             .arg("--name")
             .arg(format!("local-{k}"))
             .arg("--exit-with-parent");
-        if let Some(t) = threads {
+        if let Some(t) = w.threads {
             cmd.arg("--threads").arg(t.to_string());
         }
-        cmd.env("TESSERA_WORKER_TOKEN", &token).kill_on_drop(true);
-        match cmd.spawn() {
-            Ok(mut child) => {
-                tracing::info!(worker = k, pid = child.id(), "local worker started");
-                match child.wait().await {
+        // A process group of its own: a Ctrl-C in the terminal reaches the server only, which
+        // then stops its workers once and in order (a worker given two signals exits at once).
+        #[cfg(unix)]
+        cmd.process_group(0);
+        cmd.env("TESSERA_WORKER_TOKEN", &w.token).kill_on_drop(true);
+        let mut child = match cmd.spawn() {
+            Ok(child) => child,
+            Err(e) => {
+                tracing::error!(worker = k, "cannot start {}: {e}", w.bin.display());
+                tokio::select! {
+                    _ = tokio::time::sleep(Duration::from_secs(1)) => continue,
+                    _ = stopping.wait_for(|s| *s != Stopping::No) => return,
+                }
+            }
+        };
+        tracing::info!(worker = k, pid = child.id(), "local worker started");
+        let stop = tokio::select! {
+            status = child.wait() => {
+                match status {
                     Ok(status) => tracing::warn!(worker = k, %status, "local worker exited; restarting it"),
                     Err(e) => tracing::error!(worker = k, "local worker: {e}"),
                 }
+                false
             }
-            Err(e) => tracing::error!(worker = k, "cannot start {}: {e}", bin.display()),
+            _ = stopping.wait_for(|s| *s != Stopping::No) => true,
+        };
+        if stop {
+            stop_worker(k, &mut child, &mut stopping).await;
+            return;
         }
-        tokio::time::sleep(Duration::from_secs(1)).await;
+        tokio::select! {
+            _ = tokio::time::sleep(Duration::from_secs(1)) => {}
+            _ = stopping.wait_for(|s| *s != Stopping::No) => return,
+        }
     }
+}
+
+async fn stop_worker(k: usize, child: &mut tokio::process::Child, stopping: &mut tokio::sync::watch::Receiver<Stopping>) {
+    if *stopping.borrow() == Stopping::Gracefully {
+        #[cfg(unix)]
+        if let Some(pid) = child.id() {
+            // SAFETY: kill(2) has no memory effects; `pid` is our own child, not yet reaped.
+            unsafe {
+                libc::kill(pid as libc::pid_t, libc::SIGTERM);
+            }
+        }
+        tokio::select! {
+            status = child.wait() => {
+                match status {
+                    Ok(status) => tracing::info!(worker = k, %status, "local worker stopped"),
+                    Err(e) => tracing::error!(worker = k, "local worker: {e}"),
+                }
+                return;
+            }
+            _ = tokio::time::sleep(LOCAL_WORKER_GRACE) => {
+                tracing::warn!(worker = k, "local worker still busy {} s after SIGTERM; killing it", LOCAL_WORKER_GRACE.as_secs());
+            }
+            _ = stopping.wait_for(|s| *s == Stopping::Now) => {}
+        }
+    }
+    let _ = child.kill().await;
+    tracing::warn!(worker = k, "local worker killed; its tiles are queued again");
 }

@@ -4,6 +4,7 @@
 
 mod support;
 
+use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -168,6 +169,54 @@ fn a_worker_given_sigterm_mid_job_finishes_its_tile_gives_back_the_next_and_exit
     assert_eq!(metric(&server, "tessera_tiles_done_total"), total.to_string());
 
     // Byte for byte what the CLI renders.
+    let (exr, png) = cli_render_environment(SAMPLES);
+    for (name, cli) in [("environment.exr", exr), ("environment.png", png)] {
+        let farm = get_bytes(&server.url, &format!("/api/v1/jobs/{id}/frames/0/files/{name}"));
+        assert!(farm == cli, "the farm's {name} differs from the CLI's");
+    }
+}
+
+#[test]
+fn a_server_given_sigterm_lets_its_local_worker_finish_then_resumes_the_job_after_restart() {
+    let _s = serial();
+    let data = temp_dir("server-sigterm");
+    let args = ["--local-workers", "1", "--local-worker-threads", "1", "--worker-token", TOKEN];
+    let mut server = Server::start(&data, &args);
+    let id = submit_environment(&server, SAMPLES, "32");
+    let total = wait_job(&server, id, 120, |j| tiles_done(j) >= 2)["frames"][0]["tiles_total"].as_u64().unwrap();
+    // The worker renders without pause, so the signal finds it inside a tile.
+    let at_signal = tiles_done(&job(&server, id));
+    signal(&server.child, libc::SIGTERM);
+    let limit = tessera_server::LOCAL_WORKER_GRACE + Duration::from_secs(10);
+    let status = wait_timeout(&mut server.child, limit);
+    let log = server.log();
+    assert!(status.is_some_and(|s| s.success()), "the server did not exit 0 within {limit:?}: {status:?}\n{log}");
+    // The worker was told once (SIGTERM, not SIGKILL): it gave back the lease it had fetched
+    // ahead and exited by itself, and nothing was killed.
+    assert!(log.contains("local worker stopped"), "{log}");
+    assert!(log.contains("gave back lease"), "the local worker did not give back its next lease:\n{log}");
+    assert!(!log.contains("killed"), "{log}");
+    let pid: u32 = log
+        .lines()
+        .find(|l| l.contains("local worker started"))
+        .and_then(|l| l.split("pid=").nth(1))
+        .and_then(|rest| rest.split(|c: char| !c.is_ascii_digit()).next())
+        .and_then(|p| p.parse().ok())
+        .unwrap_or_else(|| panic!("no worker pid in the log:\n{log}"));
+    assert!(!Path::new(&format!("/proc/{pid}")).exists(), "local worker {pid} outlived the server");
+
+    // Restarted on the same data, the farm keeps every tile it took and finishes the job exactly
+    // as the CLI renders it.
+    drop(server);
+    let server = Server::start(&data, &["--local-workers", "0", "--worker-token", TOKEN]);
+    let resumed = tiles_done(&job(&server, id));
+    assert!(resumed < total, "the job finished before the signal; the test proves nothing");
+    assert!(
+        resumed > at_signal,
+        "the tile in progress at the signal was not kept ({resumed} tiles done, {at_signal} before the signal)"
+    );
+    let _w = Worker::start(&server.url, TOKEN, "after-restart");
+    wait_job(&server, id, 240, |j| j["state"] == "done");
     let (exr, png) = cli_render_environment(SAMPLES);
     for (name, cli) in [("environment.exr", exr), ("environment.png", png)] {
         let farm = get_bytes(&server.url, &format!("/api/v1/jobs/{id}/frames/0/files/{name}"));
