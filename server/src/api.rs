@@ -785,21 +785,10 @@ async fn lease(State(state): State<AppState>, Json(req): Json<LeaseRequest>) -> 
         if state.shutting_down.load(Ordering::SeqCst) {
             return Ok(StatusCode::NO_CONTENT.into_response());
         }
-        if let Some(l) = state.store.lease(req.worker_id, state.settings.lease_seconds)? {
-            state.emit(ServerEvent::Job { job: l.job_id, state: JobState::Running });
+        if let Some(lease) = state.store.lease(req.worker_id, state.settings.lease_seconds)? {
+            state.emit(ServerEvent::Job { job: lease.job_id, state: JobState::Running });
             state.emit(ServerEvent::Workers);
-            let body = Lease {
-                lease_id: l.lease_id,
-                job_id: l.job_id,
-                camera: l.camera,
-                tile: l.tile,
-                rect: l.rect,
-                bundle: l.bundle,
-                scene_path: l.scene_path,
-                samples: l.samples,
-                lease_seconds: state.settings.lease_seconds,
-            };
-            return Ok(Json(body).into_response());
+            return Ok(Json(lease).into_response());
         }
         if tokio::time::timeout_at(deadline, notified).await.is_err() {
             return Ok(StatusCode::NO_CONTENT.into_response());

@@ -14,7 +14,7 @@ use std::sync::Mutex;
 
 use anyhow::{Context, Result};
 use rusqlite::{Connection, OptionalExtension, params};
-use tessera::protocol::{JobState, Rect};
+use tessera::protocol::{JobState, Lease, Rect};
 
 const SCHEMA: &str = "
 CREATE TABLE IF NOT EXISTS jobs(
@@ -137,20 +137,6 @@ pub struct FrameRow {
     pub tiles_done: u32,
     /// Output file names once merged.
     pub outputs: Option<Vec<String>>,
-}
-
-/// A lease handed to a worker.
-#[derive(Clone, Debug)]
-pub struct LeaseRow {
-    pub lease_id: u64,
-    pub job_id: u64,
-    pub frame: u32,
-    pub camera: u32,
-    pub tile: u32,
-    pub rect: Rect,
-    pub bundle: String,
-    pub scene_path: String,
-    pub samples: Option<u32>,
 }
 
 #[derive(Clone, Debug)]
@@ -454,7 +440,7 @@ impl Store {
     /// Hands the next tile to `worker`: highest job priority first, then submission order; never
     /// a tile of a job the worker has failed too often, nor a tile it failed before while other
     /// workers could take it.
-    pub fn lease(&self, worker: u64, lease_seconds: f64) -> Result<Option<LeaseRow>> {
+    pub fn lease(&self, worker: u64, lease_seconds: f64) -> Result<Option<Lease>> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         let w = worker as i64;
@@ -512,16 +498,16 @@ impl Store {
             params![w, t, lease_id as i64],
         )?;
         tx.commit()?;
-        Ok(Some(LeaseRow {
+        Ok(Some(Lease {
             lease_id,
             job_id: job as u64,
-            frame: frame as u32,
             camera: camera as u32,
             tile: tile as u32,
             rect,
             bundle,
             scene_path,
             samples: samples.map(|s| s as u32),
+            lease_seconds,
         }))
     }
 
