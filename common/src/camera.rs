@@ -35,6 +35,9 @@ pub struct Camera {
 
 impl Camera {
     /// `None` when the gaze and up vectors do not define a frame (zero or parallel).
+    ///
+    /// The record's vectors are taken as they are: its `Transformations` (§10.4) are applied by
+    /// [`crate::scene::build::build_scene`] before it calls this.
     pub fn from_record(c: &CameraRec) -> Option<Camera> {
         let gaze = v3(c.gaze);
         let up = v3(c.up);
@@ -121,6 +124,7 @@ mod tests {
             position: [0.0, 0.0, 0.0],
             gaze: [0.0, 0.0, -1.0],
             up: [0.0, 1.0, 0.0],
+            transforms: Vec::new(),
             projection,
             near_distance: 1.0,
             width: 100,

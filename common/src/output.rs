@@ -143,6 +143,7 @@ mod tests {
             position: [0.0; 3],
             gaze: [0.0, 0.0, -1.0],
             up: [0.0, 1.0, 0.0],
+            transforms: Vec::new(),
             projection: crate::scene::records::Projection::FovY(45.0),
             near_distance: 1.0,
             width: 2,

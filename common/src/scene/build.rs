@@ -100,6 +100,56 @@ impl Ctx<'_> {
             self.err(loc, "the transformation is singular (a zero scale?); the object would be flat: use non-zero Scaling factors")
         })
     }
+
+    /// Where a camera's or light's `Transformations` put it (§10.4): the same composite matrix
+    /// as an object's, `None` when there are none, so untransformed scenes keep their exact
+    /// numbers. A singular matrix is refused: it would squash a viewing or lighting direction
+    /// to nothing or, for an area light, leave its normal undefined.
+    fn placement(
+        &self,
+        table: &HashMap<(char, &str), TransformOp>,
+        refs: &[TransformRef],
+        loc: &Loc,
+    ) -> Result<Option<Transform>, SceneError> {
+        if refs.is_empty() {
+            return Ok(None);
+        }
+        let m = self.transform(table, refs, loc)?;
+        Transform::new(m).map(Some).ok_or_else(|| {
+            self.err(loc, "the transformation is singular (a zero scale?); it would flatten the directions of this camera or light: use non-zero Scaling factors")
+        })
+    }
+}
+
+/// A position (camera or light Position) under an optional placement: moved as a point (w = 1).
+fn placed_point(placement: Option<&Transform>, p: Vec3) -> DVec3 {
+    placement.map_or(v3(p), |t| t.to_world.transform_point3(v3(p)))
+}
+
+/// A direction (Gaze, Up, light Direction) under an optional placement: only the linear part
+/// acts (w = 0). Its length is not kept; every user normalises it.
+fn placed_vector(placement: Option<&Transform>, d: Vec3) -> DVec3 {
+    placement.map_or(v3(d), |t| t.to_world.transform_vector3(v3(d)))
+}
+
+/// An area light's normal under an optional placement: by the inverse transpose, like a
+/// surface normal (§10.3), so that it stays perpendicular to the square's plane under
+/// non-uniform scaling.
+fn placed_normal(placement: Option<&Transform>, n: Vec3) -> DVec3 {
+    placement.map_or(v3(n), |t| t.normal_to_world(v3(n)))
+}
+
+/// A camera record with its `Transformations` applied. A GazePoint camera's record holds
+/// `GazePoint − Position`, and moving both points by an affine M changes that difference by M's
+/// linear part only, so treating it as a direction places the gaze point as a point. Distances
+/// (NearDistance, NearPlane, FovY, FocusDistance) stay as written: scaling a camera changes
+/// where it looks, not its image plane.
+fn placed_camera(c: &CameraRec, placement: Option<&Transform>) -> CameraRec {
+    let mut placed = c.clone();
+    placed.position = placed_point(placement, c.position).to_array();
+    placed.gaze = placed_vector(placement, c.gaze).to_array();
+    placed.up = placed_vector(placement, c.up).to_array();
+    placed
 }
 
 /// The matrix of one transformation element (§10.1).
@@ -571,7 +621,9 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
                 ),
             ));
         }
-        let cam = Camera::from_record(c).ok_or_else(|| {
+        let placement = ctx.placement(&transforms, &c.transforms, &c.loc)?;
+        let placed = placed_camera(c, placement.as_ref());
+        let cam = Camera::from_record(&placed).ok_or_else(|| {
             ctx.err(&c.loc, "Gaze and Up are zero or parallel, so they do not define a camera frame; give an Up that is not parallel to the viewing direction")
         })?;
         cameras.push(cam);
@@ -582,6 +634,40 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
             loc: Loc::default(),
             message: "the scene has no <Camera>; nothing will be rendered".into(),
         });
+    }
+
+    // Lights, each placed by its own Transformations (§10.4). An area light keeps its Size: the
+    // record is a square of side `size`, which a non-uniform scale could not keep square, and
+    // the course gives no rule for scaling it.
+    let mut point_lights = Vec::with_capacity(rec.point_lights.len());
+    for l in &rec.point_lights {
+        let placement = ctx.placement(&transforms, &l.transforms, &l.loc)?;
+        let position = placed_point(placement.as_ref(), l.position);
+        point_lights.push(PointLight { position, intensity: v3(l.intensity) });
+    }
+    let mut area_lights = Vec::with_capacity(rec.area_lights.len());
+    for l in &rec.area_lights {
+        let placement = ctx.placement(&transforms, &l.transforms, &l.loc)?;
+        let center = placed_point(placement.as_ref(), l.position);
+        let normal = placed_normal(placement.as_ref(), l.normal);
+        area_lights.push(AreaLight::new(center, normal, l.size, v3(l.radiance)));
+    }
+    let mut directional_lights = Vec::with_capacity(rec.directional_lights.len());
+    for l in &rec.directional_lights {
+        let placement = ctx.placement(&transforms, &l.transforms, &l.loc)?;
+        let direction = placed_vector(placement.as_ref(), l.direction);
+        directional_lights.push(DirectionalLight::new(direction, v3(l.radiance)));
+    }
+    let mut spot_lights = Vec::with_capacity(rec.spot_lights.len());
+    for l in &rec.spot_lights {
+        let placement = ctx.placement(&transforms, &l.transforms, &l.loc)?;
+        spot_lights.push(SpotLight::new(
+            placed_point(placement.as_ref(), l.position),
+            placed_vector(placement.as_ref(), l.direction),
+            v3(l.intensity),
+            l.coverage_angle,
+            l.falloff_angle,
+        ));
     }
 
     let textures = build_textures(&ctx, &mut warnings)?;
@@ -771,34 +857,10 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         intersection_test_epsilon: rec.intersection_test_epsilon,
         max_recursion_depth: rec.max_recursion_depth,
         ambient_light: v3(rec.ambient_light),
-        area_lights: rec
-            .area_lights
-            .iter()
-            .map(|l| AreaLight::new(v3(l.position), v3(l.normal), l.size, v3(l.radiance)))
-            .collect(),
-        point_lights: rec
-            .point_lights
-            .iter()
-            .map(|l| PointLight { position: v3(l.position), intensity: v3(l.intensity) })
-            .collect(),
-        directional_lights: rec
-            .directional_lights
-            .iter()
-            .map(|l| DirectionalLight::new(v3(l.direction), v3(l.radiance)))
-            .collect(),
-        spot_lights: rec
-            .spot_lights
-            .iter()
-            .map(|l| {
-                SpotLight::new(
-                    v3(l.position),
-                    v3(l.direction),
-                    v3(l.intensity),
-                    l.coverage_angle,
-                    l.falloff_angle,
-                )
-            })
-            .collect(),
+        area_lights,
+        point_lights,
+        directional_lights,
+        spot_lights,
         env_light: textures.env_light,
         materials,
         cameras,
@@ -897,6 +959,164 @@ mod tests {
             <ImageName>a.png</ImageName></Camera></Cameras></Scene>"#;
         let e = build(xml).err().expect("must fail").to_string();
         assert!(e.contains("too large") && e.contains("Camera"), "{e}");
+    }
+
+    /// A scene with r1 (90° about y), t1 (10, 0, 0), s1 (2, 1, 1) and s2 (0, 0, 0), and the given
+    /// `<Cameras>` and `<Lights>` contents.
+    fn placed(cameras: &str, lights: &str) -> String {
+        format!(
+            r#"<Scene>
+      <Transformations><Rotation id="1">90 0 1 0</Rotation><Translation id="1">10 0 0</Translation>
+        <Scaling id="1">2 1 1</Scaling><Scaling id="2">0 0 0</Scaling></Transformations>
+      <Cameras>
+{cameras}
+      </Cameras>
+      <Lights>
+{lights}
+      </Lights></Scene>"#
+        )
+    }
+
+    /// A camera of `kind` (`""` or `type="lookAt"`) with the given view children.
+    fn camera_xml(kind: &str, view: &str) -> String {
+        let plane =
+            if kind.is_empty() { "<NearPlane>-1 1 -0.75 0.75</NearPlane>" } else { "<FovY>40</FovY>" };
+        format!(
+            r#"<Camera id="1" {kind}>{view}{plane}
+            <NearDistance>1</NearDistance><ImageResolution>8 6</ImageResolution><ImageName>a.png</ImageName></Camera>"#
+        )
+    }
+
+    fn assert_near(got: DVec3, want: DVec3, what: &str) {
+        assert!((got - want).length() < 1e-9, "{what}: got {got}, want {want}");
+    }
+
+    /// Every pixel's primary ray, through several points of the pixel.
+    fn assert_same_rays(got: &Camera, want: &Camera) {
+        for y in 0..want.height {
+            for x in 0..want.width {
+                for (dx, dy) in [(0.0, 0.0), (0.5, 0.5), (0.9, 0.2)] {
+                    let (g, w) = (got.ray(x, y, dx, dy), want.ray(x, y, dx, dy));
+                    assert_near(g.origin, w.origin, &format!("origin of ray ({x}, {y})"));
+                    assert_near(g.dir, w.dir, &format!("direction of ray ({x}, {y})"));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn camera_transformations_place_it_like_moving_its_vectors_by_hand() {
+        // r1 then t1: (x, y, z) -> (z + 10, y, -x). Up is tilted so the rotation changes it.
+        let cases = [
+            (
+                "",
+                "<Position>1 2 3</Position><Gaze>0 0 -1</Gaze><Up>0 1 0.2</Up>",
+                "<Position>13 2 -1</Position><Gaze>-1 0 0</Gaze><Up>0.2 1 0</Up>",
+            ),
+            (
+                r#"type="lookAt""#,
+                "<Position>1 2 3</Position><GazePoint>1 2 -7</GazePoint><Up>0 1 0.2</Up>",
+                "<Position>13 2 -1</Position><GazePoint>3 2 -1</GazePoint><Up>0.2 1 0</Up>",
+            ),
+        ];
+        for (kind, view, by_hand) in cases {
+            let transformed = format!("{view}<Transformations>r1 t1</Transformations>");
+            let got = build(&placed(&camera_xml(kind, &transformed), "")).unwrap();
+            let want = build(&placed(&camera_xml(kind, by_hand), "")).unwrap();
+            assert!(got.warnings.is_empty(), "{:?}", got.warnings);
+            assert_same_rays(&got.cameras[0], &want.cameras[0]);
+        }
+        // Rotation alone: the position turns about the origin too.
+        let got = build(&placed(
+            &camera_xml("", "<Position>1 2 3</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up><Transformations>r1</Transformations>"),
+            "",
+        ))
+        .unwrap();
+        let want = build(&placed(
+            &camera_xml("", "<Position>3 2 -1</Position><Gaze>-1 0 0</Gaze><Up>0 1 0</Up>"),
+            "",
+        ))
+        .unwrap();
+        assert_same_rays(&got.cameras[0], &want.cameras[0]);
+    }
+
+    #[test]
+    fn light_transformations_move_positions_and_turn_directions() {
+        let lights = r#"<PointLight id="1"><Position>1 2 3</Position><Intensity>5 5 5</Intensity>
+                <Transformations>t1</Transformations></PointLight>
+            <SpotLight id="2"><Position>1 2 3</Position><Direction>0 0 -1</Direction><Intensity>1 1 1</Intensity>
+                <CoverageAngle>30</CoverageAngle><FalloffAngle>20</FalloffAngle><Transformations>r1 t1</Transformations></SpotLight>
+            <DirectionalLight id="3"><Direction>0 0 -2</Direction><Radiance>1 1 1</Radiance>
+                <Transformations>r1</Transformations></DirectionalLight>
+            <AreaLight id="4"><Position>0 5 0</Position><Normal>0 0 1</Normal><Size>2</Size><Radiance>1 1 1</Radiance>
+                <Transformations>r1</Transformations></AreaLight>
+            <AreaLight id="5"><Position>1 1 1</Position><Normal>1 1 0</Normal><Size>3</Size><Radiance>1 1 1</Radiance>
+                <Transformations>s1</Transformations></AreaLight>
+            <PointLight id="6"><Position>1 2 3</Position><Intensity>5 5 5</Intensity></PointLight>"#;
+        let scene = build(&placed("", lights)).unwrap();
+        assert_near(scene.point_lights[0].position, DVec3::new(11.0, 2.0, 3.0), "translated point light");
+        assert_eq!(scene.point_lights[0].intensity, DVec3::splat(5.0));
+        assert_eq!(scene.point_lights[1].position, DVec3::new(1.0, 2.0, 3.0), "untransformed point light");
+        let spot = &scene.spot_lights[0];
+        assert_near(spot.position, DVec3::new(13.0, 2.0, -1.0), "spot position");
+        assert_near(spot.axis, DVec3::NEG_X, "spot axis");
+        assert_near(scene.directional_lights[0].to_light, DVec3::X, "directional light");
+        let area = &scene.area_lights[0];
+        assert_near(area.center, DVec3::new(0.0, 5.0, 0.0), "area light centre on the rotation axis");
+        assert_near(area.normal, DVec3::X, "rotated area light normal");
+        assert_eq!(area.size, 2.0);
+        // Under a non-uniform scale the normal goes by the inverse transpose, so it stays
+        // perpendicular to the scaled square (a tangent (1, -1, 0) becomes (2, -1, 0)); Size stays.
+        let scaled = &scene.area_lights[1];
+        assert_near(scaled.normal, DVec3::new(0.5, 1.0, 0.0).normalize(), "scaled area light normal");
+        assert!(scaled.normal.dot(DVec3::new(2.0, -1.0, 0.0)).abs() < 1e-12);
+        assert_near(scaled.center, DVec3::new(2.0, 1.0, 1.0), "scaled area light centre");
+        assert_eq!(scaled.size, 3.0);
+    }
+
+    #[test]
+    fn unknown_or_singular_camera_and_light_transformations_are_errors() {
+        let view = "<Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>";
+        let point = |t: &str| {
+            format!(
+                "<PointLight id=\"7\"><Position>0 0 0</Position><Intensity>1 1 1</Intensity><Transformations>{t}</Transformations></PointLight>"
+            )
+        };
+        let spot = r#"<SpotLight id="8"><Position>0 0 0</Position><Direction>0 -1 0</Direction><Intensity>1 1 1</Intensity>
+                <CoverageAngle>30</CoverageAngle><FalloffAngle>20</FalloffAngle><Transformations>t1 c3</Transformations></SpotLight>"#;
+        let directional = r#"<DirectionalLight id="9"><Direction>0 -1 0</Direction><Radiance>1 1 1</Radiance>
+                <Transformations>r1 s2</Transformations></DirectionalLight>"#;
+        let cases: &[(String, &str)] = &[
+            (
+                placed(&camera_xml("", &format!("{view}<Transformations>r1 r9</Transformations>")), ""),
+                r#"t.xml:5: <Camera id="1">: transformation "r9" is not defined; add <Rotation id="9"> under <Transformations>"#,
+            ),
+            (
+                placed(
+                    &camera_xml(r#"type="lookAt""#, &format!("{view}<Transformations>t2</Transformations>")),
+                    "",
+                ),
+                r#"t.xml:5: <Camera id="1">: transformation "t2" is not defined; add <Translation id="2"> under <Transformations>"#,
+            ),
+            (
+                placed("", &point("s5")),
+                r#"t.xml:8: <PointLight id="7">: transformation "s5" is not defined; add <Scaling id="5"> under <Transformations>"#,
+            ),
+            (
+                placed("", spot),
+                r#"t.xml:8: <SpotLight id="8">: transformation "c3" is not defined; add <Composite id="3"> under <Transformations>"#,
+            ),
+            (
+                placed("", directional),
+                r#"t.xml:8: <DirectionalLight id="9">: the transformation is singular (a zero scale?); it would flatten the directions of this camera or light: use non-zero Scaling factors"#,
+            ),
+        ];
+        for (xml, want) in cases {
+            match build(xml) {
+                Ok(_) => panic!("expected {want:?} for\n{xml}"),
+                Err(e) => assert_eq!(e.to_string(), *want, "input:\n{xml}"),
+            }
+        }
     }
 
     #[test]

@@ -496,6 +496,75 @@ mod tests {
         assert!(r.warnings.is_empty(), "{:?}", r.warnings);
     }
 
+    /// `Transformations` on cameras and lights (§10.4), a 2025 JSON element, reach the same
+    /// records from JSON as from XML.
+    #[test]
+    fn camera_and_light_transformations_match_their_xml_twin() {
+        let json = r#"{"Scene": {
+  "MaxRecursionDepth": "2",
+  "Cameras": {"Camera": [
+    {"_id": "1", "Position": "0 0 0", "Gaze": "0 0 -1", "Up": "0 1 0", "NearPlane": "-1 1 -1 1",
+     "NearDistance": "1", "ImageResolution": "8 8", "ImageName": "a.png", "Transformations": "r1 t1"},
+    {"_id": "2", "_type": "lookAt", "Position": "1 2 3", "GazePoint": "0 0 0", "Up": "0 1 0", "FovY": "40",
+     "NearDistance": "1", "ImageResolution": "8 8", "ImageName": "b.png", "Transformations": "t1"}]},
+  "Lights": {
+    "PointLight": {"_id": "1", "Position": "1 2 3", "Intensity": "5 5 5", "Transformations": "t1"},
+    "AreaLight": {"_id": "2", "Position": "0 5 0", "Normal": "0 0 1", "Size": "2", "Radiance": "1 1 1",
+                  "Transformations": "r1"},
+    "DirectionalLight": {"_id": "3", "Direction": "0 0 -1", "Radiance": "1 1 1", "Transformations": "r1"},
+    "SpotLight": {"_id": "4", "Position": "1 2 3", "Direction": "0 0 -1", "Intensity": "1 1 1",
+                  "CoverageAngle": "30", "FalloffAngle": "20", "Transformations": "r1 t1"}},
+  "Transformations": {"Rotation": {"_id": "1", "_data": "90 0 1 0"},
+                      "Translation": {"_id": "1", "_data": "10 0 0"}}
+}}"#;
+        let xml = r#"<Scene>
+  <MaxRecursionDepth>2</MaxRecursionDepth>
+  <Cameras>
+    <Camera id="1"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up><NearPlane>-1 1 -1 1</NearPlane>
+      <NearDistance>1</NearDistance><ImageResolution>8 8</ImageResolution><ImageName>a.png</ImageName>
+      <Transformations>r1 t1</Transformations></Camera>
+    <Camera id="2" type="lookAt"><Position>1 2 3</Position><GazePoint>0 0 0</GazePoint><Up>0 1 0</Up><FovY>40</FovY>
+      <NearDistance>1</NearDistance><ImageResolution>8 8</ImageResolution><ImageName>b.png</ImageName>
+      <Transformations>t1</Transformations></Camera>
+  </Cameras>
+  <Lights>
+    <PointLight id="1"><Position>1 2 3</Position><Intensity>5 5 5</Intensity><Transformations>t1</Transformations></PointLight>
+    <AreaLight id="2"><Position>0 5 0</Position><Normal>0 0 1</Normal><Size>2</Size><Radiance>1 1 1</Radiance>
+      <Transformations>r1</Transformations></AreaLight>
+    <DirectionalLight id="3"><Direction>0 0 -1</Direction><Radiance>1 1 1</Radiance>
+      <Transformations>r1</Transformations></DirectionalLight>
+    <SpotLight id="4"><Position>1 2 3</Position><Direction>0 0 -1</Direction><Intensity>1 1 1</Intensity>
+      <CoverageAngle>30</CoverageAngle><FalloffAngle>20</FalloffAngle><Transformations>r1 t1</Transformations></SpotLight>
+  </Lights>
+  <Transformations><Rotation id="1">90 0 1 0</Rotation><Translation id="1">10 0 0</Translation></Transformations>
+</Scene>"#;
+        // Locations differ (lines, JSON paths); everything else must not.
+        let content = |mut r: SceneRecords| {
+            assert!(r.warnings.is_empty(), "{:?}", r.warnings);
+            r.cameras.iter_mut().for_each(|x| x.loc = Loc::default());
+            r.point_lights.iter_mut().for_each(|x| x.loc = Loc::default());
+            r.area_lights.iter_mut().for_each(|x| x.loc = Loc::default());
+            r.directional_lights.iter_mut().for_each(|x| x.loc = Loc::default());
+            r.spot_lights.iter_mut().for_each(|x| x.loc = Loc::default());
+            r.transformations.iter_mut().for_each(|x| x.loc = Loc::default());
+            r
+        };
+        let from_json = content(parse(json).unwrap());
+        let from_xml = content(xml::parse_xml(xml, Path::new(FILE)).unwrap());
+        assert_eq!(from_json, from_xml);
+        assert_eq!(from_json.cameras[0].transforms.len(), 2);
+        assert_eq!(from_json.spot_lights[0].transforms.len(), 2);
+        // And a reference to a transformation the scene lacks is reported with its JSON path.
+        let undefined = json.replace(r#""Transformations": "r1 t1"},"#, r#""Transformations": "r1 t7"},"#);
+        let resolver = crate::assets::FsResolver { base_dir: ".".into() };
+        let built = crate::scene::build::build_scene(&parse(&undefined).unwrap(), &resolver);
+        let e = built.err().expect("t7 is not defined").to_string();
+        assert_eq!(
+            e,
+            r#"scene.json:4: <Scene.Cameras.Camera[0]>: transformation "t7" is not defined; add <Translation id="7"> under <Transformations>"#
+        );
+    }
+
     #[test]
     fn syntax_errors_have_line_and_column() {
         let e = err("{\"Scene\": {\n  \"BackgroundColor\": \"0 0 0\",\n}}");

@@ -107,6 +107,9 @@ pub struct CameraRec {
     /// Viewing direction (for lookAt cameras with GazePoint: `GazePoint - Position`). Not normalised.
     pub gaze: Vec3,
     pub up: Vec3,
+    /// `Transformations` (2025, §10.4), applied by the build step to Position (and so GazePoint)
+    /// as a point and to Gaze and Up as directions. Empty for the 2020/21 course scenes.
+    pub transforms: Vec<TransformRef>,
     pub projection: Projection,
     pub near_distance: f64,
     pub width: u32,
@@ -147,6 +150,8 @@ pub struct PointLightRec {
     pub loc: Loc,
     pub position: Vec3,
     pub intensity: Vec3,
+    /// `Transformations` (2025, §10.4), applied by the build step to the position.
+    pub transforms: Vec<TransformRef>,
 }
 
 /// A square emitter of side `size` centred at `position`, perpendicular to `normal` (HW3).
@@ -158,6 +163,9 @@ pub struct AreaLightRec {
     pub normal: Vec3,
     pub size: f64,
     pub radiance: Vec3,
+    /// `Transformations` (2025, §10.4), applied by the build step to the position as a point and
+    /// to the normal as a normal; `size` stays as written.
+    pub transforms: Vec<TransformRef>,
 }
 
 /// Light arriving from one direction everywhere (HW5, §5.4): no falloff, shadow rays to infinity.
@@ -168,6 +176,8 @@ pub struct DirectionalLightRec {
     /// The direction the light travels in (not normalised; never zero).
     pub direction: Vec3,
     pub radiance: Vec3,
+    /// `Transformations` (2025, §10.4), applied by the build step to the direction.
+    pub transforms: Vec<TransformRef>,
 }
 
 /// A point light limited to a cone with a smooth edge (HW5, §5.5).
@@ -183,6 +193,9 @@ pub struct SpotLightRec {
     /// `0 <= falloff_angle <= coverage_angle`, `0 < coverage_angle < 360` (the parser checks).
     pub coverage_angle: f64,
     pub falloff_angle: f64,
+    /// `Transformations` (2025, §10.4), applied by the build step to the position as a point and
+    /// to the direction as a direction.
+    pub transforms: Vec<TransformRef>,
 }
 
 /// How an environment map's image is laid out (§5.6).

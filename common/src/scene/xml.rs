@@ -504,9 +504,10 @@ const CAMERA: Schema = Schema {
         "NumSamples",
         "FocusDistance",
         "ApertureSize",
+        "Transformations",
     ],
     many: &["Tonemap"],
-    unsupported: &["Renderer", "RendererParams", "Transformations", "ClampSamples"],
+    unsupported: &["Renderer", "RendererParams", "ClampSamples"],
     attrs: &["id", "type", "handedness"],
     ..Schema::EMPTY
 };
@@ -515,10 +516,11 @@ const LIGHTS: Schema = Schema {
     many: &["PointLight", "AreaLight", "DirectionalLight", "SpotLight", "SphericalDirectionalLight"],
     ..Schema::EMPTY
 };
+// Cameras and lights take `Transformations` in 2025 scenes (§10.4).
 const DIRECTIONAL_LIGHT: Schema =
-    Schema { single: &["Direction", "Radiance"], attrs: &["id"], ..Schema::EMPTY };
+    Schema { single: &["Direction", "Radiance", "Transformations"], attrs: &["id"], ..Schema::EMPTY };
 const SPOT_LIGHT: Schema = Schema {
-    single: &["Position", "Direction", "Intensity", "CoverageAngle", "FalloffAngle"],
+    single: &["Position", "Direction", "Intensity", "CoverageAngle", "FalloffAngle", "Transformations"],
     attrs: &["id"],
     ..Schema::EMPTY
 };
@@ -534,9 +536,13 @@ const ENV_SAMPLERS: &[(&str, EnvSampler)] = &[
     ("cosine", EnvSampler::Cosine),
     ("importance", EnvSampler::Importance),
 ];
-const POINT_LIGHT: Schema = Schema { single: &["Position", "Intensity"], attrs: &["id"], ..Schema::EMPTY };
-const AREA_LIGHT: Schema =
-    Schema { single: &["Position", "Normal", "Size", "Radiance"], attrs: &["id"], ..Schema::EMPTY };
+const POINT_LIGHT: Schema =
+    Schema { single: &["Position", "Intensity", "Transformations"], attrs: &["id"], ..Schema::EMPTY };
+const AREA_LIGHT: Schema = Schema {
+    single: &["Position", "Normal", "Size", "Radiance", "Transformations"],
+    attrs: &["id"],
+    ..Schema::EMPTY
+};
 const MATERIALS: Schema = Schema { many: &["Material"], ..Schema::EMPTY };
 const MATERIAL: Schema = Schema {
     single: &[
@@ -1143,6 +1149,7 @@ impl Parser<'_> {
             position,
             gaze,
             up,
+            transforms: self.transform_refs(n)?,
             projection,
             near_distance,
             width,
@@ -1207,6 +1214,7 @@ impl Parser<'_> {
                 loc: n.loc(),
                 position: self.required_numbers(n, "Position")?,
                 intensity: self.required_numbers(n, "Intensity")?,
+                transforms: self.transform_refs(n)?,
             };
             self.out.point_lights.push(light);
         }
@@ -1219,6 +1227,7 @@ impl Parser<'_> {
                 normal: self.required_numbers(n, "Normal")?,
                 size: self.required_number(n, "Size")?,
                 radiance: self.required_numbers(n, "Radiance")?,
+                transforms: self.transform_refs(n)?,
             };
             if light.normal == [0.0; 3] {
                 return Err(self.err(n, "<Normal> is the zero vector; give the direction the light faces"));
@@ -1235,6 +1244,7 @@ impl Parser<'_> {
                 loc: n.loc(),
                 direction: self.required_numbers(n, "Direction")?,
                 radiance: self.required_numbers(n, "Radiance")?,
+                transforms: self.transform_refs(n)?,
             };
             if light.direction == [0.0; 3] {
                 return Err(
@@ -1253,6 +1263,7 @@ impl Parser<'_> {
                 intensity: self.required_numbers(n, "Intensity")?,
                 coverage_angle: self.required_number(n, "CoverageAngle")?,
                 falloff_angle: self.required_number(n, "FalloffAngle")?,
+                transforms: self.transform_refs(n)?,
             };
             if light.direction == [0.0; 3] {
                 return Err(
@@ -1981,6 +1992,7 @@ mod tests {
             position: [0.0, 0.0, 0.0],
             gaze: [0.0, 0.0, -1.0],
             up: [0.0, 1.0, 0.0],
+            transforms: Vec::new(),
             projection: Projection::NearPlane { left: -1.0, right: 1.0, bottom: -1.0, top: 1.0 },
             near_distance: 1.0,
             width: 800,
@@ -1997,6 +2009,7 @@ mod tests {
             loc: at("<PointLight", r#"PointLight id="1""#),
             position: [0.0; 3],
             intensity: [1000.0, 1000.0, 1e5],
+            transforms: Vec::new(),
         });
         let mut material = MaterialRec::new("1", at("<Material id", r#"Material id="1""#));
         material.ambient = [1.0; 3];
@@ -2280,6 +2293,66 @@ mod tests {
         );
         assert_eq!(records.spheres[0].transforms, refs(&[('t', "1"), ('r', "2"), ('s', "3"), ('c', "1")]));
         assert_eq!(records.triangles[0].transforms, vec![]);
+    }
+
+    /// Cameras and lights of 2025 scenes carry `Transformations` (§10.4): recorded like an
+    /// object's, applied by the build step.
+    #[test]
+    fn cameras_and_lights_record_their_transformations() {
+        let view = "<Up>0 1 0</Up><NearDistance>1</NearDistance><ImageResolution>4 4</ImageResolution>";
+        let records = parse(&scene(&format!(
+            r#"<Cameras>
+<Camera id="1"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><NearPlane>-1 1 -1 1</NearPlane>{view}
+    <ImageName>a.png</ImageName><Transformations>r1 t2</Transformations></Camera>
+<Camera id="2" type="lookAt"><Position>1 2 3</Position><GazePoint>1 2 -7</GazePoint><FovY>45</FovY>{view}
+    <ImageName>b.png</ImageName><Transformations> c1
+    </Transformations></Camera>
+<Camera id="3"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><NearPlane>-1 1 -1 1</NearPlane>{view}
+    <ImageName>c.png</ImageName></Camera>
+</Cameras>
+<Lights>
+<PointLight id="1"><Position>1 2 3</Position><Intensity>1 1 1</Intensity><Transformations>t1</Transformations></PointLight>
+<AreaLight id="2"><Position>0 0 0</Position><Normal>0 1 0</Normal><Size>1</Size><Radiance>1 1 1</Radiance>
+    <Transformations>s1 r1</Transformations></AreaLight>
+<DirectionalLight id="3"><Direction>0 -1 0</Direction><Radiance>1 1 1</Radiance>
+    <Transformations>r2</Transformations></DirectionalLight>
+<SpotLight id="4"><Position>0 0 0</Position><Direction>0 -1 0</Direction><Intensity>1 1 1</Intensity>
+    <CoverageAngle>30</CoverageAngle><FalloffAngle>20</FalloffAngle><Transformations>t3 r3</Transformations></SpotLight>
+<PointLight id="5"><Position>0 0 0</Position><Intensity>1 1 1</Intensity></PointLight>
+</Lights>"#
+        )));
+        assert!(records.warnings.is_empty(), "{:?}", records.warnings);
+        assert_eq!(records.cameras[0].transforms, refs(&[('r', "1"), ('t', "2")]));
+        assert_eq!(records.cameras[1].transforms, refs(&[('c', "1")]));
+        assert_eq!(records.cameras[2].transforms, vec![]);
+        assert_eq!(records.point_lights[0].transforms, refs(&[('t', "1")]));
+        assert_eq!(records.area_lights[0].transforms, refs(&[('s', "1"), ('r', "1")]));
+        assert_eq!(records.directional_lights[0].transforms, refs(&[('r', "2")]));
+        assert_eq!(records.spot_lights[0].transforms, refs(&[('t', "3"), ('r', "3")]));
+        assert_eq!(records.point_lights[1].transforms, vec![]);
+        // Nothing is resolved while parsing: the vectors are as written.
+        assert_eq!(
+            (records.cameras[1].position, records.cameras[1].gaze),
+            ([1.0, 2.0, 3.0], [0.0, 0.0, -10.0])
+        );
+        assert_eq!(records.point_lights[0].position, [1.0, 2.0, 3.0]);
+
+        check_errors(&[
+            (
+                &scene(
+                    "<Lights>\n<PointLight id=\"1\"><Position>0 0 0</Position><Intensity>1 1 1</Intensity>\n\
+                     <Transformations>t1 q</Transformations></PointLight>\n</Lights>",
+                ),
+                r#"scene.xml:4: <PointLight id="1"> / <Transformations>: bad transformation reference "q": expected t, s, r or c followed by an id, e.g. "t1""#,
+            ),
+            (
+                &scene(&format!(
+                    "<Cameras>\n<Camera id=\"5\"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><NearPlane>-1 1 -1 1</NearPlane>{view}\n\
+                     <ImageName>a.png</ImageName><Transformations>r1,t1</Transformations></Camera>\n</Cameras>"
+                )),
+                r#"scene.xml:4: <Camera id="5"> / <Transformations>: bad transformation reference "r1,t1": expected t, s, r or c followed by an id, e.g. "t1""#,
+            ),
+        ]);
     }
 
     #[test]
