@@ -37,7 +37,8 @@ impl Camera {
     /// `None` when the gaze and up vectors do not define a frame (zero or parallel).
     ///
     /// The record's vectors are taken as they are: its `Transformations` (§10.4) are applied by
-    /// [`crate::scene::build::build_scene`] before it calls this.
+    /// [`crate::scene::build::build_scene`] and [`crate::scene::build::build_cameras`] before they
+    /// call this; use those.
     pub fn from_record(c: &CameraRec) -> Option<Camera> {
         let gaze = v3(c.gaze);
         let up = v3(c.up);

@@ -445,12 +445,7 @@ pub fn job_cameras(state: &AppState, job: &crate::db::JobRow) -> anyhow::Result<
         .ok_or_else(|| anyhow::anyhow!("scene {} missing from its bundle", job.scene_path))?;
     let records = parse_scene(&String::from_utf8_lossy(text), std::path::Path::new(&job.scene_path))
         .map_err(|e| anyhow::anyhow!("{e}"))?;
-    let cameras: Vec<Camera> = records
-        .cameras
-        .iter()
-        .map(|c| Camera::from_record(c).ok_or_else(|| anyhow::anyhow!("camera {} has no valid frame", c.id)))
-        .collect::<anyhow::Result<_>>()?;
-    let cameras = Arc::new(cameras);
+    let cameras = Arc::new(tessera::scene::build::build_cameras(&records).map_err(|e| anyhow::anyhow!("{e}"))?);
     state.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(job.id, cameras.clone());
     Ok(cameras)
 }

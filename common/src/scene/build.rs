@@ -556,6 +556,51 @@ impl BuiltTextures<'_> {
 }
 
 /// Builds the render scene. `resolver` supplies PLY files named by the scene.
+/// The scene's cameras, placed by their `Transformations` (§10.4) and checked (size limits, a
+/// valid frame), without loading any asset: what the farm server needs to name and size frames.
+pub fn build_cameras(rec: &SceneRecords) -> Result<Vec<Camera>, SceneError> {
+    let no_assets = crate::assets::MemResolver { files: HashMap::new(), base: String::new() };
+    let ctx = Ctx { rec, resolver: &no_assets };
+    let transforms = transform_table(rec);
+    placed_cameras(&ctx, &transforms)
+}
+
+/// The `<Transformations>` block by (letter, id).
+fn transform_table(rec: &SceneRecords) -> HashMap<(char, &str), TransformOp> {
+    rec.transformations.iter().map(|t| ((t.op.letter(), t.id.as_str()), t.op)).collect()
+}
+
+fn placed_cameras(ctx: &Ctx, transforms: &HashMap<(char, &str), TransformOp>) -> Result<Vec<Camera>, SceneError> {
+    let rec = ctx.rec;
+    let mut cameras = Vec::with_capacity(rec.cameras.len());
+    for c in &rec.cameras {
+        if c.width == 0 || c.height == 0 {
+            return Err(
+                ctx.err(&c.loc, format!("<ImageResolution> {} {} has a zero size", c.width, c.height))
+            );
+        }
+        if c.width > MAX_IMAGE_SIDE
+            || c.height > MAX_IMAGE_SIDE
+            || c.width as u64 * c.height as u64 > MAX_IMAGE_PIXELS
+        {
+            return Err(ctx.err(
+                &c.loc,
+                format!(
+                    "<ImageResolution> {} {} is too large: at most {MAX_IMAGE_SIDE} pixels a side and {MAX_IMAGE_PIXELS} in all",
+                    c.width, c.height
+                ),
+            ));
+        }
+        let placement = ctx.placement(transforms, &c.transforms, &c.loc)?;
+        let placed = placed_camera(c, placement.as_ref());
+        let cam = Camera::from_record(&placed).ok_or_else(|| {
+            ctx.err(&c.loc, "Gaze and Up are zero or parallel, so they do not define a camera frame; give an Up that is not parallel to the viewing direction")
+        })?;
+        cameras.push(cam);
+    }
+    Ok(cameras)
+}
+
 pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<Scene, SceneError> {
     let started = Instant::now();
     let ctx = Ctx { rec, resolver };
@@ -598,36 +643,9 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         });
     }
 
-    let transforms: HashMap<(char, &str), TransformOp> =
-        rec.transformations.iter().map(|t| ((t.op.letter(), t.id.as_str()), t.op)).collect();
+    let transforms = transform_table(rec);
 
-    // Cameras.
-    let mut cameras = Vec::with_capacity(rec.cameras.len());
-    for c in &rec.cameras {
-        if c.width == 0 || c.height == 0 {
-            return Err(
-                ctx.err(&c.loc, format!("<ImageResolution> {} {} has a zero size", c.width, c.height))
-            );
-        }
-        if c.width > MAX_IMAGE_SIDE
-            || c.height > MAX_IMAGE_SIDE
-            || c.width as u64 * c.height as u64 > MAX_IMAGE_PIXELS
-        {
-            return Err(ctx.err(
-                &c.loc,
-                format!(
-                    "<ImageResolution> {} {} is too large: at most {MAX_IMAGE_SIDE} pixels a side and {MAX_IMAGE_PIXELS} in all",
-                    c.width, c.height
-                ),
-            ));
-        }
-        let placement = ctx.placement(&transforms, &c.transforms, &c.loc)?;
-        let placed = placed_camera(c, placement.as_ref());
-        let cam = Camera::from_record(&placed).ok_or_else(|| {
-            ctx.err(&c.loc, "Gaze and Up are zero or parallel, so they do not define a camera frame; give an Up that is not parallel to the viewing direction")
-        })?;
-        cameras.push(cam);
-    }
+    let cameras = placed_cameras(&ctx, &transforms)?;
     if cameras.is_empty() {
         warnings.push(Warning {
             file: rec.source.clone(),
