@@ -228,7 +228,7 @@ pub fn find_scene(files: &Files, wanted: Option<&str>) -> Result<String, String>
     let depth = |p: &str| p.matches('/').count();
     let Some(min) = scenes.iter().map(|p| depth(p)).min() else {
         return Err(
-            "the upload has no scene file (.xml); add one as the \"scene\" field or inside the bundle".into(),
+            "the upload has no scene file (.xml or .json); add one as the \"scene\" field or inside the bundle".into(),
         );
     };
     let top: Vec<&&String> = scenes.iter().filter(|p| depth(p) == min).collect();

@@ -48,7 +48,7 @@ enum Command {
     ///
     /// Example: tessera-worker render scenes/cornell_box.xml --out out/
     Render {
-        /// The scene file (CENG795 XML).
+        /// The scene file (CENG795 XML or 2025 JSON; told apart by content).
         scene: PathBuf,
         /// Directory for the output images (created if missing).
         #[arg(long, short, default_value = ".", value_name = "DIR")]
