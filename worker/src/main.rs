@@ -20,7 +20,7 @@ use tessera::render::{RenderSettings, render_camera};
 use tessera::scene::build::build_scene;
 use tessera::scene::parse_scene;
 use tessera::scene::records::EnvSampler;
-use tessera::tonemap::{Gamma, Photographic, tonemap};
+use tessera::tonemap::{Gamma, Operator, Photographic, tonemap_with};
 
 #[derive(Parser)]
 #[command(
@@ -129,7 +129,7 @@ enum Command {
         out: PathBuf,
         /// Take the defaults from this scene file's <Tonemap> (of --camera, else the first camera
         /// with one) instead of the course defaults; the options below still override them.
-        #[arg(long, value_name = "SCENE.xml")]
+        #[arg(long, value_name = "SCENE")]
         scene: Option<PathBuf>,
         /// With --scene: the camera whose <Tonemap> to use (1 = the first camera in the file).
         #[arg(long, value_name = "K", requires = "scene")]
@@ -151,6 +151,12 @@ enum Command {
         /// [default: 2.2, or the scene's]
         #[arg(long, value_name = "G|srgb")]
         gamma: Option<Gamma>,
+        /// The luminance curve (<TMO>): photographic (Reinhard et al. 2002), filmic (Hable) or
+        /// aces (Narkowicz's fit); the key, burn-out, saturation and gamma steps are shared. With
+        /// --scene, the camera's <Tonemap> of this operator gives the defaults when it has one
+        /// (2025 cameras list several). [default: photographic, or the scene's first]
+        #[arg(long, value_name = "NAME")]
+        operator: Option<Operator>,
     },
 }
 
@@ -201,15 +207,15 @@ fn main() -> ExitCode {
             let name = name.unwrap_or_else(default_worker_name);
             farm::work(farm::WorkOptions { server, token, name, threads, max_tiles })
         }
-        Command::Tonemap { input, out, scene, camera, key, burn, saturation, gamma } => {
-            tonemap_params(scene.as_deref(), camera).and_then(|base| {
+        Command::Tonemap { input, out, scene, camera, key, burn, saturation, gamma, operator } => {
+            tonemap_params(scene.as_deref(), camera, operator).and_then(|(scene_operator, base)| {
                 let params = Photographic {
                     key: key.unwrap_or(base.key),
                     burn_percent: burn.unwrap_or(base.burn_percent),
                     saturation: saturation.unwrap_or(base.saturation),
                     gamma: gamma.unwrap_or(base.gamma),
                 };
-                tonemap_file(&input, &out, &params)
+                tonemap_file(&input, &out, operator.unwrap_or(scene_operator), &params)
             })
         }
     };
@@ -328,8 +334,15 @@ fn render(scene_path: &Path, out: &Path, opts: &Options) -> Result<()> {
 }
 
 /// The tone-mapping defaults: the course's, or a scene camera's `<Tonemap>`.
-fn tonemap_params(scene: Option<&Path>, camera: Option<usize>) -> Result<Photographic> {
-    let Some(path) = scene else { return Ok(Photographic::default()) };
+/// The operator and parameters `tonemap` starts from: the course defaults, or with a scene the
+/// chosen camera's `<Tonemap>` (the one of `wanted`'s operator when it has one, else its first).
+fn tonemap_params(
+    scene: Option<&Path>,
+    camera: Option<usize>,
+    wanted: Option<Operator>,
+) -> Result<(Operator, Photographic)> {
+    let defaults = (Operator::default(), Photographic::default());
+    let Some(path) = scene else { return Ok(defaults) };
     let text = std::fs::read_to_string(path)
         .map_err(|e| anyhow::anyhow!("{}: cannot read the scene file: {e}", path.display()))?;
     let records = parse_scene(&text, path)?;
@@ -341,29 +354,33 @@ fn tonemap_params(scene: Option<&Path>, camera: Option<usize>) -> Result<Photogr
             Some(c) => c,
             None => {
                 eprintln!("warning: {} has no <Tonemap>; using the course defaults", path.display());
-                return Ok(Photographic::default());
+                return Ok(defaults);
             }
         },
     };
-    match cam.tonemaps.first() {
-        Some(t) => Ok(t.params),
+    let chosen = match wanted {
+        Some(op) => cam.tonemaps.iter().find(|t| t.operator == op).or(cam.tonemaps.first()),
+        None => cam.tonemaps.first(),
+    };
+    match chosen {
+        Some(t) => Ok((t.operator, t.params)),
         None => {
             eprintln!(
                 "warning: camera {} of {} has no <Tonemap>; using the course defaults",
                 cam.id,
                 path.display()
             );
-            Ok(Photographic::default())
+            Ok(defaults)
         }
     }
 }
 
 /// `tonemap`: reads an HDR image, tone-maps it, writes the PNG and prints one summary line.
-fn tonemap_file(input: &Path, out: &Path, params: &Photographic) -> Result<()> {
+fn tonemap_file(input: &Path, out: &Path, operator: Operator, params: &Photographic) -> Result<()> {
     params.validate().map_err(|e| anyhow::anyhow!("{e}"))?;
     let t = Instant::now();
     let img = read_float_image(input)?;
-    let (rgb, stats) = tonemap(&img, params);
+    let (rgb, stats) = tonemap_with(&img, operator, params);
     write_png_rgb8(out, img.width, img.height, &rgb)?;
     let white = if stats.white.is_finite() {
         format!("white point L_white {:.6} (burn {}%)", stats.white, params.burn_percent)
@@ -371,7 +388,7 @@ fn tonemap_file(input: &Path, out: &Path, params: &Photographic) -> Result<()> {
         format!("no white point (burn {}%)", params.burn_percent)
     };
     println!(
-        "{}: {}x{} from {}, key {}, saturation {}, gamma {}: log-average luminance {:.6}, {white}, {} non-finite pixel(s), {:.3} s",
+        "{}: {}x{} from {}, {operator}, key {}, saturation {}, gamma {}: log-average luminance {:.6}, {white}, {} non-finite pixel(s), {:.3} s",
         out.display(),
         img.width,
         img.height,

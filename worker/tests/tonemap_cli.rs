@@ -146,6 +146,55 @@ fn tonemap_takes_its_defaults_from_a_scene() {
 }
 
 #[test]
+fn each_operator_re_tone_maps_to_the_png_the_render_wrote() {
+    // The 2025 cube_point_hdr camera lists three Tonemaps (Photographic, ACES, Filmic), each
+    // with its own PNG. Re-tone-mapping the rendered EXR with --scene and --operator must give
+    // each of those PNGs back byte for byte, and the three must differ.
+    let scene = reference_dir().join("../json/hw5/cube_point_hdr.json");
+    if !scene.exists() {
+        println!("skipping: {} absent", scene.display());
+        return;
+    }
+    let dir = TempDir::new("operators");
+    let r = run(&[OsArg::from("render"), scene.clone().into(), "--quiet".into(), "--out".into(), dir.path().into()]);
+    assert_eq!(r.code, Some(0), "{}", r.describe());
+    let exr = dir.path().join("cube_point_hdr.exr");
+    let mut rendered = Vec::new();
+    for (operator, suffix, shown) in
+        [("photographic", "_phot", "Photographic"), ("aces", "_aces", "ACES"), ("filmic", "_film", "Filmic")]
+    {
+        let out = dir.path().join(format!("again_{operator}.png"));
+        let r = run(&[
+            OsArg::from("tonemap"),
+            exr.clone().into(),
+            "--scene".into(),
+            scene.clone().into(),
+            "--operator".into(),
+            operator.into(),
+            "-o".into(),
+            out.clone().into(),
+        ]);
+        assert_eq!(r.code, Some(0), "{}", r.describe());
+        assert!(r.stdout.contains(&format!(", {shown}, key 0.18")), "{}", r.describe());
+        let from_render = std::fs::read(dir.path().join(format!("cube_point_hdr{suffix}.png"))).unwrap();
+        assert!(std::fs::read(&out).unwrap() == from_render, "{operator}: differs from the render's PNG");
+        rendered.push(from_render);
+    }
+    assert!(rendered[0] != rendered[1] && rendered[1] != rendered[2] && rendered[0] != rendered[2]);
+    // An operator that does not exist is refused with the choices.
+    let r = run(&[
+        OsArg::from("tonemap"),
+        exr.into(),
+        "--operator".into(),
+        "drago".into(),
+        "-o".into(),
+        dir.path().join("x.png").into(),
+    ]);
+    assert_eq!(r.code, Some(2), "{}", r.describe());
+    assert!(r.stderr.contains("expected Photographic, Filmic or ACES"), "{}", r.describe());
+}
+
+#[test]
 fn tonemap_defaults_are_the_course_defaults() {
     let Some((exr, _)) = official("sphere_env_light") else { return };
     let dir = TempDir::new("defaults");
