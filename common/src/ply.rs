@@ -1047,6 +1047,29 @@ mod tests {
         V::F32(x)
     }
 
+    /// The header lines of a float-xyz vertex element of 3 and a face element of `faces`.
+    fn triangle_header(faces: usize) -> Vec<String> {
+        ["element vertex 3", "property float x", "property float y", "property float z"]
+            .iter()
+            .map(|l| l.to_string())
+            .chain([format!("element face {faces}"), "property list uchar int vertex_indices".into()])
+            .collect()
+    }
+
+    /// The three vertices (0,0,0), (1,0,0), (0,1,0) as records.
+    fn triangle_vertices() -> Vec<Vec<V>> {
+        vec![vec![f(0.), f(0.), f(0.)], vec![f(1.), f(0.), f(0.)], vec![f(0.), f(1.), f(0.)]]
+    }
+
+    /// A binary file of that one triangle, with `before` header lines ahead of its elements.
+    fn one_triangle(fmt: Fmt, before: &[&str]) -> Vec<u8> {
+        let header = triangle_header(1);
+        let lines: Vec<&str> = before.iter().copied().chain(header.iter().map(String::as_str)).collect();
+        let mut records = triangle_vertices();
+        records.push(face(&[0, 1, 2]));
+        build(fmt, &lines, &records)
+    }
+
     /// A face record with uchar count and int indices.
     fn face(idx: &[i32]) -> Vec<V> {
         let mut r = vec![V::U8(idx.len() as u8)];
@@ -1140,23 +1163,7 @@ end_header
         let crlf = CUBE.replace('\n', "\r\n");
         assert_eq!(parse_ok(crlf.as_bytes()), cube_expected());
         // Binary body after a CRLF header.
-        let bin = build(
-            Fmt::Le,
-            &[
-                "element vertex 3",
-                "property float x",
-                "property float y",
-                "property float z",
-                "element face 1",
-                "property list uchar int vertex_indices",
-            ],
-            &[
-                vec![f(0.), f(0.), f(0.)],
-                vec![f(1.), f(0.), f(0.)],
-                vec![f(0.), f(1.), f(0.)],
-                face(&[0, 1, 2]),
-            ],
-        );
+        let bin = one_triangle(Fmt::Le, &[]);
         let split = bin.windows(10).position(|w| w == b"end_header").unwrap() + 11;
         let mut with_crlf =
             String::from_utf8(bin[..split].to_vec()).unwrap().replace('\n', "\r\n").into_bytes();
@@ -1441,24 +1448,7 @@ end_header
                     end_header\n0 0 0 1\n0 0 0 1 0\n3.0 0 1 2";
         assert_eq!(parse_ok(text.as_bytes()).triangles, vec![[0, 1, 2]]);
         // Empty element with no properties and a huge count is skipped instantly in binary.
-        let bin = build(
-            Fmt::Le,
-            &[
-                "element nothing 4000000000",
-                "element vertex 3",
-                "property float x",
-                "property float y",
-                "property float z",
-                "element face 1",
-                "property list uchar int vertex_indices",
-            ],
-            &[
-                vec![f(0.), f(0.), f(0.)],
-                vec![f(1.), f(0.), f(0.)],
-                vec![f(0.), f(1.), f(0.)],
-                face(&[0, 1, 2]),
-            ],
-        );
+        let bin = one_triangle(Fmt::Le, &["element nothing 4000000000"]);
         assert_eq!(parse_ok(&bin).triangles, vec![[0, 1, 2]]);
     }
 
@@ -1555,15 +1545,9 @@ end_header
             assert_eq!(e.to_string(), message);
         }
         // Binary: an index out of range and a truncated face list.
-        let header = &[
-            "element vertex 3",
-            "property float x",
-            "property float y",
-            "property float z",
-            "element face 2",
-            "property list uchar int vertex_indices",
-        ];
-        let verts = vec![vec![f(0.), f(0.), f(0.)], vec![f(1.), f(0.), f(0.)], vec![f(0.), f(1.), f(0.)]];
+        let header_lines = triangle_header(2);
+        let header: &[&str] = &header_lines.iter().map(String::as_str).collect::<Vec<_>>();
+        let verts = triangle_vertices();
         for fmt in [Fmt::Le, Fmt::Be] {
             let mut r = verts.clone();
             r.push(face(&[0, 1, 2]));
