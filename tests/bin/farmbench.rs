@@ -70,14 +70,20 @@ fn main() -> Result<()> {
     let mut samples = Some(200u32);
     let mut tile = 32u32;
     let mut repeat = 3usize;
+    // Threads for the CLI and the local worker alike; None: every core.
+    let mut threads: Option<usize> = None;
     while let Some(a) = args.next() {
         match a.as_str() {
             "--samples" => samples = Some(args.next().context("--samples N")?.parse()?),
             "--scene-samples" => samples = None,
             "--tile-size" => tile = args.next().context("--tile-size PX")?.parse()?,
             "--repeat" => repeat = args.next().context("--repeat N")?.parse::<usize>()?.max(1),
+            "--threads" => threads = Some(args.next().context("--threads N")?.parse::<usize>()?.max(1)),
             "-h" | "--help" => {
-                println!("farmbench [SCENE] [--samples N | --scene-samples] [--tile-size PX] [--repeat N]");
+                println!(
+                    "farmbench [SCENE] [--samples N | --scene-samples] [--tile-size PX] [--repeat N] [--threads N]\n\
+                     --threads 1 compares one core with one core: steadier on a small shared machine"
+                );
                 return Ok(());
             }
             other => scene = PathBuf::from(other),
@@ -104,6 +110,7 @@ fn main() -> Result<()> {
             "--data-dir",
         ])
         .arg(&data)
+        .args(threads.map(|t| vec!["--local-worker-threads".to_string(), t.to_string()]).unwrap_or_default())
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()?;
@@ -171,6 +178,7 @@ fn main() -> Result<()> {
             .args(&spp)
             .args(["--quiet", "--tile-size", &tile.to_string(), "--out"])
             .arg(&out)
+            .args(threads.map(|t| vec!["--threads".to_string(), t.to_string()]).unwrap_or_default())
             .stdout(Stdio::null())
             .stderr(Stdio::null())
             .status()?;
@@ -213,9 +221,10 @@ fn main() -> Result<()> {
         Ok((farm_wall, farm_cpu, s1 - s0, w1 - w0))
     };
     println!(
-        "scene {} ({}), tile {tile} px, {repeat} alternating runs each",
+        "scene {} ({}), tile {tile} px, {}, {repeat} alternating runs each",
         scene.display(),
-        samples.map_or("its own samples".to_string(), |s| format!("{s} spp"))
+        samples.map_or("its own samples".to_string(), |s| format!("{s} spp")),
+        threads.map_or("every core".to_string(), |t| format!("{t} thread(s) each"))
     );
     let (mut walls, mut cpus) = (Vec::new(), Vec::new());
     for k in 1..=repeat {
