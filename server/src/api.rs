@@ -64,7 +64,8 @@ pub struct AppState {
     /// Pushed to the status page (server-sent events); nobody listening is fine.
     pub events: tokio::sync::broadcast::Sender<ServerEvent>,
     /// Set when the server begins to shut down: no more leases, and long polls answer at once
-    /// (so stopping workers are not held up by a poll that could only bring a lease to give back).
+    /// with 503 (so stopping workers are not held up by a poll that could only bring a lease to
+    /// give back).
     pub shutting_down: Arc<std::sync::atomic::AtomicBool>,
 }
 
@@ -778,7 +779,13 @@ async fn lease(State(state): State<AppState>, Json(req): Json<LeaseRequest>) -> 
         // is not lost.
         let notified = state.work.notified();
         if state.shutting_down.load(Ordering::SeqCst) {
-            return Ok(StatusCode::NO_CONTENT.into_response());
+            // An error, not "no work": workers back off on errors, while they ask again at once
+            // after a 204, which would spin until the server is gone.
+            let mut response =
+                AppError::new(StatusCode::SERVICE_UNAVAILABLE, "the server is shutting down; ask again later")
+                    .into_response();
+            response.headers_mut().insert(axum::http::header::RETRY_AFTER, axum::http::HeaderValue::from_static("5"));
+            return Ok(response);
         }
         if let Some(lease) = state.store.lease(req.worker_id, state.settings.lease_seconds)? {
             state.emit(ServerEvent::Job { job: lease.job_id, state: JobState::Running });

@@ -202,11 +202,12 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
         let mut signals = Signals::new();
         signals.next().await;
         tracing::info!("shutting down");
+        // Stop the local workers first, while the server still takes their last results and
+        // the leases they give back; a second signal stops them at once. Then end the long
+        // polls, which can no longer bring anything but a lease to give back.
+        let _ = stopping_tx.send(Stopping::Gracefully);
         state.shutting_down.store(true, Ordering::SeqCst);
         state.work.notify_waiters();
-        // Stop the local workers first, while the server still takes their last results and
-        // the leases they give back; a second signal stops them at once.
-        let _ = stopping_tx.send(Stopping::Gracefully);
         let all_stopped = futures_util::future::join_all(supervisors);
         tokio::pin!(all_stopped);
         tokio::select! {

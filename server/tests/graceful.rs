@@ -191,10 +191,10 @@ fn a_server_given_sigterm_lets_its_local_worker_finish_then_resumes_the_job_afte
     let status = wait_timeout(&mut server.child, limit);
     let log = server.log();
     assert!(status.is_some_and(|s| s.success()), "the server did not exit 0 within {limit:?}: {status:?}\n{log}");
-    // The worker was told once (SIGTERM, not SIGKILL): it gave back the lease it had fetched
-    // ahead and exited by itself, and nothing was killed.
-    assert!(log.contains("local worker stopped"), "{log}");
-    assert!(log.contains("gave back lease"), "the local worker did not give back its next lease:\n{log}");
+    // The worker was told once (SIGTERM, not SIGKILL) and exited by itself with status 0, and
+    // nothing was killed. (Whether it also had a lease fetched ahead to give back depends on
+    // where the signal found it; the worker's own SIGTERM test above checks that part.)
+    assert!(log.contains("local worker stopped worker=1 status=exit status: 0"), "{log}");
     assert!(!log.contains("killed"), "{log}");
     let pid: u32 = log
         .lines()

@@ -359,6 +359,7 @@ fn fetch_leases(
                 eprintln!("the server does not know worker {worker_id} any more; exiting");
                 std::process::exit(3);
             }
+            Err(_) if stop.load(Ordering::SeqCst) => return,
             Err(e) => {
                 eprintln!("lease: {}", describe(e));
                 std::thread::sleep(delay);
