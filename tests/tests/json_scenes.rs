@@ -74,6 +74,7 @@ fn parse_file(path: &Path) -> SceneRecords {
 fn content(mut r: SceneRecords) -> SceneRecords {
     let none = Loc::default;
     r.source = PathBuf::new();
+    r.json = false;
     r.warnings.clear();
     for c in &mut r.cameras {
         c.loc = none();

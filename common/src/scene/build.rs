@@ -47,7 +47,10 @@ struct Ctx<'a> {
 }
 
 impl Ctx<'_> {
+    /// An error about the scene, in the words of its dialect.
     fn err(&self, loc: &Loc, msg: impl Into<String>) -> SceneError {
+        let msg = msg.into();
+        let msg = if self.rec.json { super::json::json_words(&msg) } else { msg };
         SceneError::new(&self.rec.source, loc.clone(), msg)
     }
 
@@ -868,6 +871,12 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         instances: accel.instances.len(),
         build_seconds: started.elapsed().as_secs_f64(),
     };
+    if rec.json {
+        // The parser's warnings are in JSON words already; this makes the build's match them.
+        for w in &mut warnings {
+            w.message = super::json::json_words(&w.message);
+        }
+    }
     Ok(Scene {
         source: rec.source.clone(),
         background: v3(rec.background_color),

@@ -77,6 +77,18 @@ fn syntax_error(e: &serde_json::Error, file: &Path) -> SceneError {
 
 /// Rewrites a message of the shared element rules in JSON words: `<Faces>` → `"Faces"`,
 /// `attribute id` → `key "_id"`.
+/// ` key="value">` at the start of `s`: (key, value, what follows the `>`).
+fn one_attribute(s: &str) -> Option<(&str, &str, &str)> {
+    let s = s.strip_prefix(' ')?;
+    let (key, s) = s.split_once("=\"")?;
+    if key.is_empty() || !key.bytes().all(|b| b.is_ascii_alphanumeric()) {
+        return None;
+    }
+    let (value, s) = s.split_once('"')?;
+    let tail = s.strip_prefix('>')?;
+    (!value.contains(['<', '>'])).then_some((key, value, tail))
+}
+
 pub(super) fn json_words(message: &str) -> String {
     let mut out = String::with_capacity(message.len() + 8);
     let mut rest = message;
@@ -89,6 +101,14 @@ pub(super) fn json_words(message: &str) -> String {
                 out.push('"');
                 rest = &after[name_len + 1..];
                 continue;
+            }
+            // `<Name key="value">` (what to add, in build messages): `"Name" with "_key": "value"`.
+            if name_len > 0 {
+                if let Some((key, value, tail)) = one_attribute(&after[name_len..]) {
+                    out.push_str(&format!("\"{}\" with \"_{key}\": \"{value}\"", &after[..name_len]));
+                    rest = tail;
+                    continue;
+                }
             }
         }
         if let Some(after) = rest.strip_prefix("attribute ") {
@@ -460,6 +480,12 @@ mod tests {
         );
         assert_eq!(json_words("a < b and <x y>"), "a < b and <x y>");
         assert_eq!(json_words("ünïcode <Ä>"), "ünïcode <Ä>");
+        assert_eq!(
+            json_words(r#"add <Material id="7"> under <Materials> or use an existing id"#),
+            r#"add "Material" with "_id": "7" under "Materials" or use an existing id"#
+        );
+        // Not one plain attribute: left as written.
+        assert_eq!(json_words(r#"<A b="1" c="2">, <A b=1>, <A b="1""#), r#"<A b="1" c="2">, <A b=1>, <A b="1""#);
     }
 
     #[test]
@@ -547,6 +573,7 @@ mod tests {
             r.directional_lights.iter_mut().for_each(|x| x.loc = Loc::default());
             r.spot_lights.iter_mut().for_each(|x| x.loc = Loc::default());
             r.transformations.iter_mut().for_each(|x| x.loc = Loc::default());
+            r.json = false;
             r
         };
         let from_json = content(parse(json).unwrap());
@@ -561,8 +588,13 @@ mod tests {
         let e = built.err().expect("t7 is not defined").to_string();
         assert_eq!(
             e,
-            r#"scene.json:4: <Scene.Cameras.Camera[0]>: transformation "t7" is not defined; add <Translation id="7"> under <Transformations>"#
+            r#"scene.json:4: <Scene.Cameras.Camera[0]>: transformation "t7" is not defined; add "Translation" with "_id": "7" under "Transformations""#
         );
+        // The build's warnings use JSON words too.
+        let no_cameras = r#"{"Scene": {"Cameras": {}}}"#;
+        let scene = crate::scene::build::build_scene(&parse(no_cameras).unwrap(), &resolver).unwrap();
+        let messages: Vec<&str> = scene.warnings.iter().map(|w| w.message.as_str()).collect();
+        assert!(messages.contains(&"the scene has no \"Camera\"; nothing will be rendered"), "{messages:?}");
     }
 
     #[test]

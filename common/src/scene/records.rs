@@ -19,6 +19,9 @@ pub type Vec3 = [f64; 3];
 pub struct SceneRecords {
     /// The scene file this came from; asset paths are relative to its directory.
     pub source: PathBuf,
+    /// Written in the 2025 JSON dialect: messages about it use JSON words (`"Material"` with
+    /// `"_id"`, not `<Material id>`).
+    pub json: bool,
     pub background_color: Vec3,
     pub shadow_ray_epsilon: f64,
     pub intersection_test_epsilon: f64,
@@ -57,6 +60,7 @@ impl SceneRecords {
     pub fn new(source: impl Into<PathBuf>) -> Self {
         SceneRecords {
             source: source.into(),
+            json: false,
             background_color: [0.0; 3],
             shadow_ray_epsilon: 1e-3,
             intersection_test_epsilon: 1e-6,

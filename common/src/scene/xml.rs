@@ -77,6 +77,7 @@ pub(super) fn parse_tree(root: &Node, source: &Path, dialect: Dialect) -> Result
         out: SceneRecords::new(source),
     };
     if dialect == Dialect::Json {
+        parser.out.json = true;
         // Measured: the 2025 references trace mirrors in scenes without MaxRecursionDepth.
         parser.out.max_recursion_depth = super::json::DEFAULT_MAX_RECURSION_DEPTH;
     }
