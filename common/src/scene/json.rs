@@ -103,12 +103,10 @@ pub(super) fn json_words(message: &str) -> String {
                 continue;
             }
             // `<Name key="value">` (what to add, in build messages): `"Name" with "_key": "value"`.
-            if name_len > 0 {
-                if let Some((key, value, tail)) = one_attribute(&after[name_len..]) {
-                    out.push_str(&format!("\"{}\" with \"_{key}\": \"{value}\"", &after[..name_len]));
-                    rest = tail;
-                    continue;
-                }
+            if let Some((key, value, tail)) = one_attribute(&after[name_len..]).filter(|_| name_len > 0) {
+                out.push_str(&format!("\"{}\" with \"_{key}\": \"{value}\"", &after[..name_len]));
+                rest = tail;
+                continue;
             }
         }
         if let Some(after) = rest.strip_prefix("attribute ") {
