@@ -123,7 +123,9 @@ fn a_worker_given_sigterm_mid_job_finishes_its_tile_gives_back_the_next_and_exit
     };
     let worker_log = std::fs::read_to_string(&log).unwrap();
     assert!(exit.success(), "worker exit {exit:?}:\n{worker_log}");
-    assert!(worker_log.contains("gave back lease"), "no lease given back:\n{worker_log}");
+    // Whether the worker held a lease fetched ahead depends on where the signal found its
+    // fetcher (just after handing one over, it holds none); when it held one it must have given
+    // it back, which the probe below checks: no tile may still be leased to the stopped worker.
     let after = job(&server, id);
     assert!(
         tiles_done(&after) < total,
