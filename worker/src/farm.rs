@@ -91,6 +91,18 @@ pub fn exit_with_parent() {
     }
 }
 
+/// Sleeps for `d`, or less once `stop` is set: a back-off must not hold up a stopping worker.
+fn pause(stop: &AtomicBool, d: Duration) {
+    let end = Instant::now() + d;
+    while !stop.load(Ordering::SeqCst) {
+        let left = end.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return;
+        }
+        std::thread::sleep(left.min(Duration::from_millis(20)));
+    }
+}
+
 /// Why a request failed, for messages: the server's JSON error when there is one.
 fn describe(e: ureq::Error) -> String {
     match e {
@@ -145,7 +157,7 @@ fn register(
                 if started.elapsed() > Duration::from_secs(5) {
                     eprintln!("waiting for the server at {}: {}", client.base, describe(e));
                 }
-                std::thread::sleep(delay);
+                pause(stop, delay);
                 delay = (delay * 2).min(Duration::from_secs(5));
             }
         }
@@ -362,7 +374,7 @@ fn fetch_leases(
             Err(_) if stop.load(Ordering::SeqCst) => return,
             Err(e) => {
                 eprintln!("lease: {}", describe(e));
-                std::thread::sleep(delay);
+                pause(stop, delay);
                 delay = (delay * 2).min(Duration::from_secs(5));
             }
         }
