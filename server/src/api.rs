@@ -446,7 +446,8 @@ pub fn job_cameras(state: &AppState, job: &crate::db::JobRow) -> anyhow::Result<
         .ok_or_else(|| anyhow::anyhow!("scene {} missing from its bundle", job.scene_path))?;
     let records = parse_scene(&String::from_utf8_lossy(text), std::path::Path::new(&job.scene_path))
         .map_err(|e| anyhow::anyhow!("{e}"))?;
-    let cameras = Arc::new(tessera::scene::build::build_cameras(&records).map_err(|e| anyhow::anyhow!("{e}"))?);
+    let cameras =
+        Arc::new(tessera::scene::build::build_cameras(&records).map_err(|e| anyhow::anyhow!("{e}"))?);
     state.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(job.id, cameras.clone());
     Ok(cameras)
 }
@@ -781,10 +782,14 @@ async fn lease(State(state): State<AppState>, Json(req): Json<LeaseRequest>) -> 
         if state.shutting_down.load(Ordering::SeqCst) {
             // An error, not "no work": workers back off on errors, while they ask again at once
             // after a 204, which would spin until the server is gone.
-            let mut response =
-                AppError::new(StatusCode::SERVICE_UNAVAILABLE, "the server is shutting down; ask again later")
-                    .into_response();
-            response.headers_mut().insert(axum::http::header::RETRY_AFTER, axum::http::HeaderValue::from_static("5"));
+            let mut response = AppError::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "the server is shutting down; ask again later",
+            )
+            .into_response();
+            response
+                .headers_mut()
+                .insert(axum::http::header::RETRY_AFTER, axum::http::HeaderValue::from_static("5"));
             return Ok(response);
         }
         if let Some(lease) = state.store.lease(req.worker_id, state.settings.lease_seconds)? {

@@ -331,7 +331,11 @@ async fn supervise_worker(w: LocalWorker, mut stopping: tokio::sync::watch::Rece
     }
 }
 
-async fn stop_worker(k: usize, child: &mut tokio::process::Child, stopping: &mut tokio::sync::watch::Receiver<Stopping>) {
+async fn stop_worker(
+    k: usize,
+    child: &mut tokio::process::Child,
+    stopping: &mut tokio::sync::watch::Receiver<Stopping>,
+) {
     if *stopping.borrow() == Stopping::Gracefully {
         #[cfg(unix)]
         if let Some(pid) = child.id() {

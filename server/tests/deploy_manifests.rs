@@ -338,7 +338,8 @@ fn every_command_line_in_deploy_runs() {
                     .stderr(Stdio::piped())
                     .spawn()
                     .unwrap();
-                let line = first_line(child.stdout.take().unwrap(), Duration::from_secs(30)).unwrap_or_default();
+                let line =
+                    first_line(child.stdout.take().unwrap(), Duration::from_secs(30)).unwrap_or_default();
                 let _ = child.kill();
                 // Read what the server said on stderr, without waiting for end of file: local
                 // workers it started may hold the pipe open for a moment after it is gone.

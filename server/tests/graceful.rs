@@ -51,12 +51,7 @@ fn release_gives_a_live_lease_back_to_the_queue_once() {
     let first = lease();
     let id = first["lease_id"].as_u64().unwrap();
     let release = |lease: u64, worker: u64| {
-        post(
-            &server.url,
-            &format!("/api/v1/worker/leases/{lease}/release"),
-            json!({"worker_id": worker}),
-        )
-        .0
+        post(&server.url, &format!("/api/v1/worker/leases/{lease}/release"), json!({"worker_id": worker})).0
     };
     // Not this worker's lease, not a lease at all: 409, and the lease stays.
     assert_eq!(release(id, w + 1000), 409);
@@ -133,16 +128,12 @@ fn a_worker_given_sigterm_mid_job_finishes_its_tile_gives_back_the_next_and_exit
     );
     // Every tile not done is in the queue again: a hand-driven worker gets a lease on each (none
     // is still held by the stopped worker), then gives them all back.
-    let (_, reg) =
-        post(&server.url, "/api/v1/worker/register", json!({"name": "probe", "threads": 1}));
+    let (_, reg) = post(&server.url, "/api/v1/worker/register", json!({"name": "probe", "threads": 1}));
     let probe = reg["worker_id"].as_u64().unwrap();
     let mut queued = Vec::new();
     loop {
-        let (code, l) = post(
-            &server.url,
-            "/api/v1/worker/lease",
-            json!({"worker_id": probe, "wait_seconds": 0.0}),
-        );
+        let (code, l) =
+            post(&server.url, "/api/v1/worker/lease", json!({"worker_id": probe, "wait_seconds": 0.0}));
         if code != 200 {
             assert_eq!(code, 204, "{l}");
             break;
@@ -155,11 +146,8 @@ fn a_worker_given_sigterm_mid_job_finishes_its_tile_gives_back_the_next_and_exit
         "a tile is still leased to the stopped worker\n{worker_log}"
     );
     for l in queued {
-        let (code, v) = post(
-            &server.url,
-            &format!("/api/v1/worker/leases/{l}/release"),
-            json!({"worker_id": probe}),
-        );
+        let (code, v) =
+            post(&server.url, &format!("/api/v1/worker/leases/{l}/release"), json!({"worker_id": probe}));
         assert_eq!(code, 204, "{v}");
     }
 
@@ -185,14 +173,18 @@ fn a_server_given_sigterm_lets_its_local_worker_finish_then_resumes_the_job_afte
     let args = ["--local-workers", "1", "--local-worker-threads", "1", "--worker-token", TOKEN];
     let mut server = Server::start(&data, &args);
     let id = submit_environment(&server, SAMPLES, "32");
-    let total = wait_job(&server, id, 120, |j| tiles_done(j) >= 2)["frames"][0]["tiles_total"].as_u64().unwrap();
+    let total =
+        wait_job(&server, id, 120, |j| tiles_done(j) >= 2)["frames"][0]["tiles_total"].as_u64().unwrap();
     // The worker renders without pause, so the signal finds it inside a tile.
     let at_signal = tiles_done(&job(&server, id));
     signal(&server.child, libc::SIGTERM);
     let limit = tessera_server::LOCAL_WORKER_GRACE + Duration::from_secs(10);
     let status = wait_timeout(&mut server.child, limit);
     let log = server.log();
-    assert!(status.is_some_and(|s| s.success()), "the server did not exit 0 within {limit:?}: {status:?}\n{log}");
+    assert!(
+        status.is_some_and(|s| s.success()),
+        "the server did not exit 0 within {limit:?}: {status:?}\n{log}"
+    );
     // The worker was told once (SIGTERM, not SIGKILL) and exited by itself with status 0, and
     // nothing was killed. (Whether it also had a lease fetched ahead to give back depends on
     // where the signal found it; the worker's own SIGTERM test above checks that part.)

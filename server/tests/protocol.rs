@@ -21,8 +21,7 @@ fn register(url: &str, name: &str) -> u64 {
 
 /// A lease without waiting, or None (204).
 fn lease(url: &str, worker: u64) -> Option<Value> {
-    let (code, v) =
-        post(url, "/api/v1/worker/lease", json!({"worker_id": worker, "wait_seconds": 0.0}));
+    let (code, v) = post(url, "/api/v1/worker/lease", json!({"worker_id": worker, "wait_seconds": 0.0}));
     match code {
         200 => Some(v),
         204 => None,

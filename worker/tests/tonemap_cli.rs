@@ -156,7 +156,13 @@ fn each_operator_re_tone_maps_to_the_png_the_render_wrote() {
         return;
     }
     let dir = TempDir::new("operators");
-    let r = run(&[OsArg::from("render"), scene.clone().into(), "--quiet".into(), "--out".into(), dir.path().into()]);
+    let r = run(&[
+        OsArg::from("render"),
+        scene.clone().into(),
+        "--quiet".into(),
+        "--out".into(),
+        dir.path().into(),
+    ]);
     assert_eq!(r.code, Some(0), "{}", r.describe());
     let exr = dir.path().join("cube_point_hdr.exr");
     let mut rendered = Vec::new();

@@ -573,7 +573,10 @@ fn transform_table(rec: &SceneRecords) -> HashMap<(char, &str), TransformOp> {
     rec.transformations.iter().map(|t| ((t.op.letter(), t.id.as_str()), t.op)).collect()
 }
 
-fn placed_cameras(ctx: &Ctx, transforms: &HashMap<(char, &str), TransformOp>) -> Result<Vec<Camera>, SceneError> {
+fn placed_cameras(
+    ctx: &Ctx,
+    transforms: &HashMap<(char, &str), TransformOp>,
+) -> Result<Vec<Camera>, SceneError> {
     let rec = ctx.rec;
     let mut cameras = Vec::with_capacity(rec.cameras.len());
     for c in &rec.cameras {

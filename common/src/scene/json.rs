@@ -483,7 +483,10 @@ mod tests {
             r#"add "Material" with "_id": "7" under "Materials" or use an existing id"#
         );
         // Not one plain attribute: left as written.
-        assert_eq!(json_words(r#"<A b="1" c="2">, <A b=1>, <A b="1""#), r#"<A b="1" c="2">, <A b=1>, <A b="1""#);
+        assert_eq!(
+            json_words(r#"<A b="1" c="2">, <A b=1>, <A b="1""#),
+            r#"<A b="1" c="2">, <A b=1>, <A b="1""#
+        );
     }
 
     #[test]

@@ -327,7 +327,13 @@ pub fn submit_environment(server: &Server, samples: &str, tile: &str) -> u64 {
 pub fn cli_render_environment(samples: &str) -> (Vec<u8>, Vec<u8>) {
     let out = temp_dir(&format!("cli-{samples}"));
     let status = Command::new(worker_bin())
-        .args(["render", repo().join("scenes/environment.xml").to_str().unwrap(), "--quiet", "--samples", samples])
+        .args([
+            "render",
+            repo().join("scenes/environment.xml").to_str().unwrap(),
+            "--quiet",
+            "--samples",
+            samples,
+        ])
         .arg("--out")
         .arg(&out)
         .stdout(Stdio::null())
