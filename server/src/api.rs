@@ -74,8 +74,9 @@ impl AppState {
         let _ = self.events.send(e);
     }
 
-    pub fn outputs_dir(&self, job: u64) -> PathBuf {
-        self.settings.data_dir.join("outputs").join(job.to_string())
+    /// Where the output files of a job's frame are written: `outputs/JOB/FRAME/`.
+    pub fn frame_dir(&self, job: u64, frame: u32) -> PathBuf {
+        self.settings.data_dir.join("outputs").join(job.to_string()).join(frame.to_string())
     }
 }
 
@@ -544,15 +545,31 @@ async fn cancel_job(State(state): State<AppState>, Path(id): Path<u64>) -> ApiRe
     Ok(Json(job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?))
 }
 
+/// Frame `frame` of job `id`, or a 404 naming what is missing.
+fn find_frame(state: &AppState, id: u64, frame: u32) -> ApiResult<crate::db::FrameRow> {
+    state
+        .store
+        .frames(id)?
+        .into_iter()
+        .find(|f| f.index == frame)
+        .ok_or_else(|| AppError::not_found(format!("job {id} has no frame {frame}")))
+}
+
+/// Job `id` and its frame `frame`, or a 404 naming the first that is missing.
+fn job_and_frame(
+    state: &AppState,
+    id: u64,
+    frame: u32,
+) -> ApiResult<(crate::db::JobRow, crate::db::FrameRow)> {
+    let job = state.store.job(id)?.ok_or_else(|| AppError::not_found(format!("there is no job {id}")))?;
+    Ok((job, find_frame(state, id, frame)?))
+}
+
 async fn frame_file(
     State(state): State<AppState>,
     Path((id, frame, name)): Path<(u64, u32, String)>,
 ) -> ApiResult<Response> {
-    let frames = state.store.frames(id)?;
-    let f = frames
-        .iter()
-        .find(|f| f.index == frame)
-        .ok_or_else(|| AppError::not_found(format!("job {id} has no frame {frame}")))?;
+    let f = &find_frame(&state, id, frame)?;
     let Some(outputs) = &f.outputs else {
         return Err(AppError::new(
             StatusCode::CONFLICT,
@@ -568,7 +585,7 @@ async fn frame_file(
             outputs.join(", ")
         )));
     }
-    let path = state.outputs_dir(id).join(frame.to_string()).join(&name);
+    let path = state.frame_dir(id, frame).join(&name);
     let bytes =
         tokio::fs::read(&path).await.map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?;
     let mime =
@@ -591,12 +608,7 @@ async fn frame_preview(
     State(state): State<AppState>,
     Path((id, frame)): Path<(u64, u32)>,
 ) -> ApiResult<Response> {
-    let job = state.store.job(id)?.ok_or_else(|| AppError::not_found(format!("there is no job {id}")))?;
-    let frames = state.store.frames(id)?;
-    let f = frames
-        .into_iter()
-        .find(|f| f.index == frame)
-        .ok_or_else(|| AppError::not_found(format!("job {id} has no frame {frame}")))?;
+    let (job, f) = job_and_frame(&state, id, frame)?;
     let cameras = job_cameras(&state, &job)?;
     let cam = cameras
         .get(f.camera as usize)
@@ -607,9 +619,8 @@ async fn frame_preview(
         let tiles = store.frame_tiles(id, frame)?;
         if tiles.is_empty() && f.outputs.is_some() {
             // A finished job drops its tiles: show the stored float frame.
-            let outputs = f.outputs.clone().unwrap_or_default();
-            if let Some(n) = outputs.iter().find(|n| n.to_ascii_lowercase().ends_with(".exr")) {
-                let img = tessera::hdr_io::read_exr(&state.outputs_dir(id).join(frame.to_string()).join(n))?;
+            if let Some(path) = stored_exr(&state, &f) {
+                let img = tessera::hdr_io::read_exr(&path)?;
                 return merge::final_png(&cam, &img);
             }
         }
@@ -618,6 +629,12 @@ async fn frame_preview(
     .await
     .map_err(|e| anyhow::anyhow!("preview task: {e}"))??;
     Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/png"))], png).into_response())
+}
+
+/// Where a merged frame's float image (`.exr` output) is stored, if it has one.
+fn stored_exr(state: &AppState, f: &crate::db::FrameRow) -> Option<std::path::PathBuf> {
+    let name = f.outputs.as_ref()?.iter().find(|n| n.to_ascii_lowercase().ends_with(".exr"))?;
+    Some(state.frame_dir(f.job_id, f.index).join(name))
 }
 
 /// Query of `tonemap.png`: any parameter left out takes the camera's value.
@@ -636,23 +653,15 @@ async fn frame_tonemap(
     Path((id, frame)): Path<(u64, u32)>,
     axum::extract::Query(q): axum::extract::Query<ToneQuery>,
 ) -> ApiResult<Response> {
-    let job = state.store.job(id)?.ok_or_else(|| AppError::not_found(format!("there is no job {id}")))?;
-    let frames = state.store.frames(id)?;
-    let f = frames
-        .into_iter()
-        .find(|f| f.index == frame)
-        .ok_or_else(|| AppError::not_found(format!("job {id} has no frame {frame}")))?;
-    let Some(outputs) = f.outputs.clone() else {
+    let (job, f) = job_and_frame(&state, id, frame)?;
+    if f.outputs.is_none() {
         return Err(AppError::new(
             StatusCode::CONFLICT,
             format!("frame {frame} of job {id} is not finished yet"),
         ));
-    };
-    let exr = outputs
-        .iter()
-        .find(|n| n.to_ascii_lowercase().ends_with(".exr"))
-        .ok_or_else(|| AppError::not_found(format!("frame {frame} of job {id} has no .exr to tone-map")))?
-        .clone();
+    }
+    let path = stored_exr(&state, &f)
+        .ok_or_else(|| AppError::not_found(format!("frame {frame} of job {id} has no .exr to tone-map")))?;
     let cameras = job_cameras(&state, &job)?;
     let (operator, base) = cameras
         .get(f.camera as usize)
@@ -669,7 +678,6 @@ async fn frame_tonemap(
         gamma,
     };
     params.validate().map_err(AppError::bad_request)?;
-    let path = state.outputs_dir(id).join(frame.to_string()).join(exr);
     let png = tokio::task::spawn_blocking(move || -> anyhow::Result<Vec<u8>> {
         let img = tessera::hdr_io::read_exr(&path)?;
         let (rgb, _) = tessera::tonemap::tonemap_with(&img, operator, &params);
@@ -925,7 +933,7 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
             cameras.get(f.camera as usize).ok_or_else(|| anyhow::anyhow!("camera {} missing", f.camera))?;
         let tiles = st.store.frame_tiles(job_id, frame)?;
         let img = merge::assemble(f.width, f.height, &tiles)?;
-        let names = merge::write_outputs(&st.outputs_dir(job_id).join(frame.to_string()), cam, &img)?;
+        let names = merge::write_outputs(&st.frame_dir(job_id, frame), cam, &img)?;
         st.store.frame_merged(job_id, frame, &names)
     })
     .await;

@@ -52,6 +52,11 @@ struct Leases {
     rendering: Option<u64>,
 }
 
+/// The lease book, even if a thread panicked while holding it (its sets stay consistent).
+fn lock(leases: &Mutex<Leases>) -> std::sync::MutexGuard<'_, Leases> {
+    leases.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 struct Client {
     base: String,
     token: String,
@@ -199,7 +204,7 @@ pub fn work(opts: WorkOptions) -> Result<()> {
             loop {
                 std::thread::sleep(every);
                 let (held, rendering) = {
-                    let l = leases.lock().unwrap_or_else(|e| e.into_inner());
+                    let l = lock(&leases);
                     (l.held.iter().copied().collect::<Vec<_>>(), l.rendering)
                 };
                 match client.post_json(
@@ -208,7 +213,7 @@ pub fn work(opts: WorkOptions) -> Result<()> {
                 ) {
                     Ok(resp) => {
                         if let Ok(hb) = resp.into_json::<HeartbeatResponse>() {
-                            let mut l = leases.lock().unwrap_or_else(|e| e.into_inner());
+                            let mut l = lock(&leases);
                             for r in hb.revoked {
                                 l.held.remove(&r);
                                 l.revoked.insert(r);
@@ -238,7 +243,7 @@ pub fn work(opts: WorkOptions) -> Result<()> {
         std::thread::Builder::new().name("uploader".into()).spawn(move || {
             for (id, px, seconds) in up_rx {
                 upload(&client, worker_id, id, &px, seconds);
-                leases.lock().unwrap_or_else(|e| e.into_inner()).held.remove(&id);
+                lock(&leases).held.remove(&id);
             }
         })?
     };
@@ -257,23 +262,22 @@ pub fn work(opts: WorkOptions) -> Result<()> {
         };
         if stop.load(Ordering::SeqCst) {
             // The signal came while this lease was on its way: it was never started.
-            release(&client, worker_id, lease.lease_id);
-            leases.lock().unwrap_or_else(|e| e.into_inner()).held.remove(&lease.lease_id);
+            release(&client, worker_id, &leases, lease.lease_id);
             break;
         }
         let id = lease.lease_id;
-        leases.lock().unwrap_or_else(|e| e.into_inner()).rendering = Some(id);
+        lock(&leases).rendering = Some(id);
         let started = Instant::now();
         let rendered = pool.install(|| render_lease(&client, &mut scenes, &lease));
         let seconds = started.elapsed().as_secs_f64();
         let revoked = {
-            let mut l = leases.lock().unwrap_or_else(|e| e.into_inner());
+            let mut l = lock(&leases);
             l.rendering = None;
             l.revoked.remove(&id)
         };
         if revoked {
             eprintln!("lease {id} was revoked while rendering; dropping the tile");
-            leases.lock().unwrap_or_else(|e| e.into_inner()).held.remove(&id);
+            lock(&leases).held.remove(&id);
             continue;
         }
         match rendered {
@@ -288,7 +292,7 @@ pub fn work(opts: WorkOptions) -> Result<()> {
                 if let Err(e) = client.post_json(&format!("/api/v1/worker/leases/{id}/fail"), &req) {
                     eprintln!("reporting the failure: {}", describe(e));
                 }
-                leases.lock().unwrap_or_else(|e| e.into_inner()).held.remove(&id);
+                lock(&leases).held.remove(&id);
             }
         }
         done += 1;
@@ -315,8 +319,7 @@ fn give_back(client: &Client, worker_id: u64, leases: &Mutex<Leases>, rx: &Recei
         let left = deadline.saturating_duration_since(Instant::now());
         match rx.recv_timeout(left) {
             Ok(lease) => {
-                release(client, worker_id, lease.lease_id);
-                leases.lock().unwrap_or_else(|e| e.into_inner()).held.remove(&lease.lease_id);
+                release(client, worker_id, leases, lease.lease_id);
             }
             // The fetcher saw the flag and ended, or is still in a long poll: done either way.
             Err(_) => return,
@@ -324,7 +327,9 @@ fn give_back(client: &Client, worker_id: u64, leases: &Mutex<Leases>, rx: &Recei
     }
 }
 
-fn release(client: &Client, worker_id: u64, lease: u64) {
+/// Gives lease `lease` back to the server, and forgets it here.
+fn release(client: &Client, worker_id: u64, leases: &Mutex<Leases>, lease: u64) {
+    lock(leases).held.remove(&lease);
     match client.post_json(&format!("/api/v1/worker/leases/{lease}/release"), &ReleaseRequest { worker_id }) {
         Ok(_) => eprintln!("gave back lease {lease}"),
         Err(e) => eprintln!("giving back lease {lease}: {}", describe(e)),
@@ -351,13 +356,13 @@ fn fetch_leases(
                 match resp.into_json::<Lease>() {
                     Ok(lease) => {
                         if stop.load(Ordering::SeqCst) {
-                            release(client, worker_id, lease.lease_id);
+                            release(client, worker_id, leases, lease.lease_id);
                             return;
                         }
-                        leases.lock().unwrap_or_else(|e| e.into_inner()).held.insert(lease.lease_id);
+                        lock(leases).held.insert(lease.lease_id);
                         if let Err(e) = tx.send(lease) {
                             // The renderer is gone (it stopped): nobody will render this one.
-                            release(client, worker_id, e.0.lease_id);
+                            release(client, worker_id, leases, e.0.lease_id);
                             return;
                         }
                     }
