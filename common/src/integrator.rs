@@ -4,13 +4,16 @@
 
 use glam::{DVec2, DVec3};
 
+use crate::geometry::Instance;
 use crate::geometry::SurfaceHit;
 use crate::material::{Material, MaterialKind, Refraction, fresnel_conductor, refract};
 use crate::math::{Ray, orthonormal_pair, reflect};
 use crate::sampler::SampleRng;
 use crate::scene::Scene;
 use crate::scene::records::{DecalMode, EnvSampler};
-use crate::texture::maps::{Source, TextureMap, TexturePoint, image_height, perlin_bump};
+use crate::texture::maps::{
+    Source, TextureMap, TexturePoint, bump_by_gradient, image_height, perlin_gradient,
+};
 
 /// Rays traced, by kind, for throughput figures.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -73,12 +76,23 @@ impl<'a> Tracer<'a> {
         rng: &mut SampleRng,
     ) -> DVec3 {
         let scene = self.scene;
-        let Some(hit) = scene.accel.intersect(ray, scene.intersection_test_epsilon, f64::INFINITY) else {
-            // Rays that miss see the environment (§5.6), else the background.
-            return match &scene.env_light {
-                Some(env) => env.radiance(ray.dir),
-                None => self.background,
+        let cull = depth == 0 && scene.cull_camera_back_faces;
+        let mut tmin = scene.intersection_test_epsilon;
+        let hit = loop {
+            let Some(hit) = scene.accel.intersect(ray, tmin, f64::INFINITY) else {
+                // Rays that miss see the environment (§5.6), else the background.
+                return match &scene.env_light {
+                    Some(env) => env.radiance(ray.dir),
+                    None => self.background,
+                };
             };
+            if cull && ray.dir.dot(hit.geo_normal) > 0.0 && scene.accel.is_triangle(hit.instance) {
+                // Culled: look again beyond it (a relative step, so f32 traversal cannot return
+                // the same triangle).
+                tmin = hit.t * (1.0 + 1e-6) + scene.intersection_test_epsilon;
+                continue;
+            }
+            break hit;
         };
         let cone = cone + self.spread * hit.t;
         let l = self.shade(ray, &hit, depth, medium.is_some(), cone, rng);
@@ -103,14 +117,16 @@ impl<'a> Tracer<'a> {
         let entering = d.dot(hit.geo_normal) < 0.0;
 
         // Textures (§11.6): the normal map first, then the colour map on a copy of the material.
-        let textures = scene.accel.instances[hit.instance as usize].textures;
+        let instance = &scene.accel.instances[hit.instance as usize];
+        let textures = instance.textures;
         let mut shading_normal = hit.shading_normal;
         let textured_hit = textures.normal.is_some() || textures.colour[0].is_some();
         let footprint =
             if textured_hit && self.spread > 0.0 { uv_footprint(hit, d, cone) } else { DVec2::ZERO };
-        let p = TexturePoint { uv: hit.uv, world: hit.point, footprint };
+        let object = if textured_hit { instance.object_point(hit.point, ray.time) } else { hit.point };
+        let p = TexturePoint { uv: hit.uv, object, footprint };
         if let Some(k) = textures.normal {
-            shading_normal = perturbed_normal(&scene.textures[k as usize], hit, &p, shading_normal);
+            shading_normal = perturbed_normal(&scene.textures[k as usize], hit, instance, &p, shading_normal);
         }
         let textured;
         if textures.colour[0].is_some() {
@@ -130,16 +146,20 @@ impl<'a> Tracer<'a> {
             textured = m;
             mat = &textured;
         }
-        // Shading normal facing the incoming ray.
+        // Shading normal facing the incoming ray: where reflected rays start, and the normal
+        // dielectrics shade and refract with (they track entering and leaving).
         let n = if entering { shading_normal } else { -shading_normal };
         let eps = scene.shadow_ray_epsilon;
         let can_recurse = depth < scene.max_recursion_depth;
 
-        // Local shading; skipped for hits seen from inside a dielectric (§6.4, §15 #20).
-        let mut l = if mat.kind == MaterialKind::Dielectric && inside {
-            DVec3::ZERO
-        } else {
-            self.direct(ray, hit.point, n, mat, rng)
+        // Local shading; skipped for hits seen from inside a dielectric (§6.4, §15 #20). Opaque
+        // surfaces are lit with their normal as given, never turned towards the viewer (§6.8,
+        // measured on grass_desert): one seen from behind is lit by the lights on its front
+        // side, and its shadow rays start on that side.
+        let mut l = match mat.kind {
+            MaterialKind::Dielectric if inside => DVec3::ZERO,
+            MaterialKind::Dielectric => self.direct(ray, hit.point, n, mat, rng),
+            _ => self.direct(ray, hit.point, shading_normal, mat, rng),
         };
 
         match mat.kind {
@@ -162,7 +182,9 @@ impl<'a> Tracer<'a> {
                 // The reflected ray stays on the incoming side; the refracted one crosses.
                 let (refl_medium, refr_medium) =
                     if entering { (None, Some(mat.absorption)) } else { (Some(mat.absorption), None) };
-                let reflected = ray.spawn(hit.point + eps * n, reflect(d, n));
+                // Rough glass blurs both directions, each with its own two random numbers, as a
+                // rough mirror does (§6.7, measured on metal_glass_plates).
+                let reflected = ray.spawn(hit.point + eps * n, glossy(reflect(d, n), mat.roughness, rng));
                 match refract(d, n, n1, n2) {
                     Refraction::Total => {
                         self.stats.secondary += 1;
@@ -171,7 +193,7 @@ impl<'a> Tracer<'a> {
                     Refraction::Split { fr, dir } => {
                         self.stats.secondary += 2;
                         l += fr * self.trace(&reflected, depth + 1, refl_medium, cone, rng);
-                        let refracted = Ray::new(hit.point - eps * n, dir);
+                        let refracted = ray.spawn(hit.point - eps * n, glossy(dir, mat.roughness, rng));
                         l += (1.0 - fr) * self.trace(&refracted, depth + 1, refr_medium, cone, rng);
                     }
                 }
@@ -265,7 +287,13 @@ impl<'a> Tracer<'a> {
 
 /// The shading normal after a normal map or bump map (§11.6a, §11.7); `n` is the unperturbed
 /// unit shading normal, on the geometric normal's side.
-fn perturbed_normal(map: &TextureMap, hit: &SurfaceHit, p: &TexturePoint, n: DVec3) -> DVec3 {
+fn perturbed_normal(
+    map: &TextureMap,
+    hit: &SurfaceHit,
+    instance: &Instance,
+    p: &TexturePoint,
+    n: DVec3,
+) -> DVec3 {
     let bent = match (map.decal, &map.source) {
         (DecalMode::ReplaceNormal, _) => {
             let Some(nt) = map.tangent_normal(p.uv, p.footprint) else { return n };
@@ -305,7 +333,14 @@ fn perturbed_normal(map: &TextureMap, hit: &SurfaceHit, p: &TexturePoint, n: DVe
             if c.dot(n) < 0.0 { -c } else { c }
         }
         (DecalMode::BumpNormal, Source::Perlin { conversion, scale }) => {
-            perlin_bump(n, hit.point, *scale, *conversion, map.bump_factor)
+            // The height field lives in object space (like the noise's colour); its gradient
+            // is a covector, carried to world space by the normal matrix.
+            let g = perlin_gradient(p.object, *scale, *conversion);
+            let g = match &instance.transform {
+                Some(xf) => xf.normal_matrix * g,
+                None => g,
+            };
+            return bump_by_gradient(n, g, map.bump_factor);
         }
         _ => return n,
     };

@@ -7,7 +7,7 @@
 //! * T = texel / Normalizer (default 255), then `degamma="true"` raises it to 2.2;
 //! * (u, v) = (0, 0) is the top-left texel; `replace_background` uses the raw texel at the pixel
 //!   centre u = (x + 0.5)/width, v = (y + 0.5)/height;
-//! * checkerboard and Perlin noise use the world-space hit point;
+//! * checkerboard and Perlin noise use the object-space hit point (before `Transformations`);
 //! * image bump maps on transformed spheres displace along the unit world normal.
 //!
 //! Each test writes its own tiny PNGs (a minimal stored-deflate encoder below) into a temporary
@@ -618,7 +618,7 @@ fn spheres_compute_their_own_uv() {
 // Procedural textures.
 
 #[test]
-fn checkerboard_uses_c_truncation_on_the_world_point() {
+fn checkerboard_uses_c_truncation_on_the_object_point() {
     let stage = Stage::new("checkerboard");
     // Four pixels with centres at image-plane x = -0.375, -0.125, 0.125, 0.375 and y = 0.05:
     // quad points x = -0.75, -0.25, 0.25, 0.75, y = 0.1, z = -2.
@@ -651,7 +651,7 @@ fn checkerboard_uses_c_truncation_on_the_world_point() {
 #[test]
 fn perlin_noise_vanishes_on_lattice_points() {
     // Course Perlin noise is 0 at integer points (§11.9); the quad point (0, 0, -2) seen by the
-    // centre pixel is one (world space, NoiseScale 1).
+    // centre pixel is one (the quad is untransformed: object space is world space; NoiseScale 1).
     let stage = Stage::new("perlin");
     let map = |conversion: &str| {
         format!(

@@ -59,6 +59,21 @@ impl Instance {
         self.transform.is_none() && self.motion.is_none()
     }
 
+    /// A world-space point of this instance at `time`, in its object space: before its
+    /// transformation and motion (for a MeshInstance, its base mesh's vertex space). Solid
+    /// textures are evaluated there (scene-format.md §11.10).
+    #[inline]
+    pub fn object_point(&self, p: DVec3, time: f64) -> DVec3 {
+        let p = match self.motion {
+            Some(v) => p - time * v,
+            None => p,
+        };
+        match &self.transform {
+            Some(xf) => xf.to_object.transform_point3(p),
+            None => p,
+        }
+    }
+
     /// The ray in this instance's object space at the ray's time.
     #[inline]
     fn local_ray(&self, ray: &Ray) -> Ray {
@@ -245,6 +260,12 @@ impl Accel {
                 Shape::Sphere { .. } | Shape::Plane { .. } => 0,
             })
             .sum()
+    }
+
+    /// Whether instance `idx` is made of triangles (a mesh), not an analytic shape.
+    #[inline]
+    pub fn is_triangle(&self, idx: u32) -> bool {
+        matches!(self.instances[idx as usize].shape, Shape::Mesh { .. })
     }
 
     /// Closest surface hit with `t` in (tmin, tmax).

@@ -886,6 +886,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         shadow_ray_epsilon: rec.shadow_ray_epsilon,
         intersection_test_epsilon: rec.intersection_test_epsilon,
         max_recursion_depth: rec.max_recursion_depth,
+        cull_camera_back_faces: rec.json,
         ambient_light: v3(rec.ambient_light),
         area_lights,
         point_lights,

@@ -35,6 +35,11 @@ pub struct Scene {
     pub shadow_ray_epsilon: f64,
     pub intersection_test_epsilon: f64,
     pub max_recursion_depth: u32,
+    /// Camera rays pass through triangles seen from behind (2025 JSON scenes, §15 #23): the
+    /// 2025 references cull them, e.g. the inward-facing front wall of the 2025
+    /// cornellbox_boxes_dynamic, whose camera sits outside the box. Shadow and secondary rays
+    /// never cull.
+    pub cull_camera_back_faces: bool,
     pub ambient_light: DVec3,
     pub point_lights: Vec<PointLight>,
     pub area_lights: Vec<AreaLight>,

@@ -46,8 +46,10 @@ pub struct TextureMap {
 #[derive(Clone, Copy, Debug)]
 pub struct TexturePoint {
     pub uv: DVec2,
-    /// World-space position (Perlin noise and checkerboards are solid textures, §11.9-11.10).
-    pub world: DVec3,
+    /// Object-space position: the hit point before the object's transformations and motion
+    /// (for a MeshInstance, in its base mesh's vertex space). Perlin noise and checkerboards are
+    /// solid textures evaluated here (§11.9-11.10), so the pattern moves and scales with the object.
+    pub object: DVec3,
     /// Extent of the pixel's footprint on the surface in texture coordinates (Δu, Δv): picks
     /// the mip level of trilinear maps (zero: level 0). See [`crate::texture::mip`].
     pub footprint: DVec2,
@@ -83,9 +85,11 @@ impl TextureMap {
             Source::Image { image, mips, interpolation, normalizer } => {
                 Self::image_raw(image, mips.as_deref(), *interpolation, p.uv, p.footprint) / *normalizer
             }
-            Source::Perlin { conversion, scale } => DVec3::splat(perlin_value(p.world * *scale, *conversion)),
+            Source::Perlin { conversion, scale } => {
+                DVec3::splat(perlin_value(p.object * *scale, *conversion))
+            }
             Source::Checkerboard { black, white, scale, offset } => {
-                checkerboard(p.world, *scale, *offset, *black, *white)
+                checkerboard(p.object, *scale, *offset, *black, *white)
             }
         };
         match self.degamma {
@@ -101,7 +105,7 @@ impl TextureMap {
             Source::Image { image, mips, interpolation, .. } => {
                 Self::image_raw(image, mips.as_deref(), *interpolation, uv, footprint)
             }
-            _ => self.value(&TexturePoint { uv, world: DVec3::new(uv.x, uv.y, 0.0), footprint }),
+            _ => self.value(&TexturePoint { uv, object: DVec3::new(uv.x, uv.y, 0.0), footprint }),
         }
     }
 
@@ -137,7 +141,9 @@ pub fn image_height(source: &Source, p: &TexturePoint, du: f64, dv: f64) -> f64 
     }
 }
 
-/// The course's checkerboard (§11.10): C-style truncation and remainder, world-space point.
+/// The course's checkerboard (§11.10): C-style truncation and remainder, at the object-space
+/// point `p` (measured on the official VeachAjar image: its floor is scaled by 1.8 along x, and
+/// world-space points get 45 % of the floor's pixels wrong).
 pub fn checkerboard(p: DVec3, scale: f64, offset: f64, black: DVec3, white: DVec3) -> DVec3 {
     let cell = |c: f64| -> bool { (((c + offset) * scale) as i64) % 2 != 0 };
     if (cell(p.x) != cell(p.y)) != cell(p.z) { black } else { white }
@@ -203,14 +209,18 @@ pub fn perlin_value(p: DVec3, conversion: NoiseConversion) -> f64 {
     }
 }
 
-/// Perturbs the unit normal `n` by the gradient of a solid (Perlin) height field (§11.7):
-/// finite differences of the height around `p`, the tangential part subtracted.
-pub fn perlin_bump(n: DVec3, p: DVec3, scale: f64, conversion: NoiseConversion, factor: f64) -> DVec3 {
+/// Gradient of a solid (Perlin) height field at the object-space point `p`, by forward
+/// differences, in object space.
+pub fn perlin_gradient(p: DVec3, scale: f64, conversion: NoiseConversion) -> DVec3 {
     const EPS: f64 = 1e-3;
     let h = |q: DVec3| perlin_value(q * scale, conversion);
     let h0 = h(p);
-    let grad =
-        DVec3::new(h(p + DVec3::X * EPS) - h0, h(p + DVec3::Y * EPS) - h0, h(p + DVec3::Z * EPS) - h0) / EPS;
+    DVec3::new(h(p + DVec3::X * EPS) - h0, h(p + DVec3::Y * EPS) - h0, h(p + DVec3::Z * EPS) - h0) / EPS
+}
+
+/// Perturbs the unit normal `n` by a height-field gradient `grad` (§11.7), both in world
+/// space: the gradient's tangential part is subtracted, scaled by the bump factor.
+pub fn bump_by_gradient(n: DVec3, grad: DVec3, factor: f64) -> DVec3 {
     let tangential = grad - grad.dot(n) * n;
     let bent = n - factor * tangential;
     if bent.length_squared() > 0.0 { bent.normalize() } else { n }
@@ -264,8 +274,12 @@ mod tests {
     #[test]
     fn perlin_bump_keeps_unit_length_and_flat_fields_unbent() {
         let n = DVec3::Y;
-        let bent = perlin_bump(n, DVec3::new(0.3, 0.0, 0.7), 3.0, NoiseConversion::Linear, 1.0);
+        let g = perlin_gradient(DVec3::new(0.3, 0.0, 0.7), 3.0, NoiseConversion::Linear);
+        let bent = bump_by_gradient(n, g, 1.0);
         assert!((bent.length() - 1.0).abs() < 1e-12);
-        assert_eq!(perlin_bump(n, DVec3::new(0.3, 0.0, 0.7), 3.0, NoiseConversion::Linear, 0.0), n);
+        assert_ne!(bent, n);
+        assert_eq!(bump_by_gradient(n, g, 0.0), n);
+        // A gradient along the normal does not bend it.
+        assert_eq!(bump_by_gradient(n, DVec3::new(0.0, 5.0, 0.0), 1.0), n);
     }
 }
