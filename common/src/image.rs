@@ -27,15 +27,20 @@ impl Image {
         }
     }
 
-    /// 8-bit RGB as the course's LDR output: clamp to [0, 255], round to nearest; NaN -> 0 (§12.1).
+    /// 8-bit RGB as the course's LDR output: clamp to [0, 255], then truncate (a C cast); NaN
+    /// -> 0. Measured against the official images, truncation is what the course's renderer
+    /// does, although scene-format.md §12.1 says "rounded": on deterministic scenes our pixels
+    /// were never below the reference and 27-44 % of channels one above it when rounding, and
+    /// truncating makes two_spheres identical and bunny 111 dB after the 4x4 box (62 dB
+    /// rounding), cube_point 102 dB (54), cornellbox_boxes_dynamic 53.6 (50.7, at 16 spp).
     pub fn to_ldr(&self) -> Vec<u8> {
         self.pixels
             .iter()
-            .flat_map(|p| p.map(|c| if c.is_nan() { 0 } else { c.clamp(0.0, 255.0).round() as u8 }))
+            .flat_map(|p| p.map(|c| if c.is_nan() { 0 } else { c.clamp(0.0, 255.0) as u8 }))
             .collect()
     }
 
-    /// Writes the clamped, rounded image as PNG.
+    /// Writes the clamped, truncated image as PNG.
     pub fn write_png(&self, path: &Path) -> Result<(), image::ImageError> {
         image::save_buffer(path, &self.to_ldr(), self.width, self.height, image::ExtendedColorType::Rgb8)
     }
@@ -136,9 +141,13 @@ mod tests {
     }
 
     #[test]
-    fn ldr_clamps_rounds_and_zeroes_nan() {
-        let img = Image { width: 2, height: 1, pixels: vec![[-3.0, 0.5, 254.49], [f32::NAN, 300.0, 1.5]] };
-        assert_eq!(img.to_ldr(), vec![0, 1, 254, 0, 255, 2]);
+    fn ldr_clamps_truncates_and_zeroes_nan() {
+        let img = Image {
+            width: 3,
+            height: 1,
+            pixels: vec![[-3.0, 0.5, 254.99], [f32::NAN, 300.0, 1.5], [0.999, 1.0, 255.0]],
+        };
+        assert_eq!(img.to_ldr(), vec![0, 0, 254, 0, 255, 1, 0, 1, 255]);
     }
 
     #[test]
