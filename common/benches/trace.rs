@@ -21,7 +21,7 @@ use std::time::Instant;
 use glam::DVec3;
 use tessera::geometry::{Accel, Instance, MeshGeom, Shape};
 use tessera::math::{Ray, orthonormal_pair};
-use tessera::sampler::SampleRng;
+use tessera::sampler::Sampler;
 
 fn load_head() -> (Vec<DVec3>, Vec<[u32; 3]>) {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes/xml/ply/head.ply");
@@ -114,8 +114,8 @@ fn throughput(accel: &Accel, pos: &[DVec3], w: u32, h: u32) -> Figures {
     let n_shadow = (w * h) as usize;
     let mut segs = Vec::with_capacity(n_shadow);
     for i in 0..n_shadow {
-        let mut r = SampleRng::new(1, i as u32, 0, 0);
-        let mut pt = || lo + (hi - lo) * DVec3::new(r.next_f64(), r.next_f64(), r.next_f64());
+        let mut r = Sampler::new(1, i as u32, 0, 0);
+        let mut pt = || lo + (hi - lo) * DVec3::new(r.next_1d(), r.next_1d(), r.next_1d());
         let (a, b) = (pt(), pt());
         segs.push((a, b));
     }
@@ -133,9 +133,9 @@ fn throughput(accel: &Accel, pos: &[DVec3], w: u32, h: u32) -> Figures {
 
     let mut dirs = Vec::with_capacity(hits.len());
     for (i, (p, n)) in hits.iter().enumerate() {
-        let mut r = SampleRng::new(2, i as u32, 0, 0);
+        let mut r = Sampler::new(2, i as u32, 0, 0);
         let (u, v) = orthonormal_pair(*n);
-        let (r1, r2) = (r.next_f64(), r.next_f64());
+        let (r1, r2) = r.next_2d();
         let (s, phi) = (r1.sqrt(), 2.0 * std::f64::consts::PI * r2);
         let dir = (u * (s * phi.cos()) + v * (s * phi.sin()) + *n * (1.0 - r1).sqrt()).normalize();
         dirs.push(Ray::new(*p + *n * 1e-4 * radius, dir));

@@ -8,7 +8,7 @@ use crate::geometry::Instance;
 use crate::geometry::SurfaceHit;
 use crate::material::{Material, MaterialKind, Refraction, fresnel_conductor, refract};
 use crate::math::{Ray, orthonormal_pair, reflect};
-use crate::sampler::SampleRng;
+use crate::sampler::Sampler;
 use crate::scene::Scene;
 use crate::scene::records::{DecalMode, EnvSampler};
 use crate::texture::maps::{
@@ -58,7 +58,7 @@ impl<'a> Tracer<'a> {
     }
 
     /// Radiance along a camera ray.
-    pub fn trace_primary(&mut self, ray: &Ray, rng: &mut SampleRng) -> DVec3 {
+    pub fn trace_primary(&mut self, ray: &Ray, rng: &mut Sampler) -> DVec3 {
         self.stats.primary += 1;
         self.trace(ray, 0, None, 0.0, rng)
     }
@@ -73,7 +73,7 @@ impl<'a> Tracer<'a> {
         depth: u32,
         medium: Option<DVec3>,
         cone: f64,
-        rng: &mut SampleRng,
+        rng: &mut Sampler,
     ) -> DVec3 {
         let scene = self.scene;
         let cull = depth == 0 && scene.cull_camera_back_faces;
@@ -109,7 +109,7 @@ impl<'a> Tracer<'a> {
         depth: u32,
         inside: bool,
         cone: f64,
-        rng: &mut SampleRng,
+        rng: &mut Sampler,
     ) -> DVec3 {
         let scene = self.scene;
         let mut mat = &scene.materials[hit.material as usize];
@@ -206,7 +206,7 @@ impl<'a> Tracer<'a> {
     /// Ambient plus Blinn-Phong from every light with shadow rays (§5, §6.2, §6.3): point,
     /// directional and spot lights exactly, one sample of every area light and one direction of
     /// the environment light. `n` faces the incoming `ray`.
-    fn direct(&mut self, ray: &Ray, x: DVec3, n: DVec3, mat: &Material, rng: &mut SampleRng) -> DVec3 {
+    fn direct(&mut self, ray: &Ray, x: DVec3, n: DVec3, mat: &Material, rng: &mut Sampler) -> DVec3 {
         let scene = self.scene;
         let mut l = mat.ambient * scene.ambient_light;
         if mat.diffuse == DVec3::ZERO && mat.specular == DVec3::ZERO {
@@ -222,7 +222,8 @@ impl<'a> Tracer<'a> {
         }
         for light in &scene.area_lights {
             // One point of the square per shading event; the pixel's samples average them.
-            let q = light.point(rng.next_f64(), rng.next_f64());
+            let (u, v) = rng.next_2d();
+            let q = light.point(u, v);
             if let Some(wi) = self.visible(ray, x, n, origin, q) {
                 let d2 = (q - x).length_squared();
                 let e = light.radiance * (light.size * light.size * light.normal.dot(wi).abs() / d2);
@@ -409,13 +410,13 @@ fn blinn_phong(mat: &Material, n: DVec3, wi: DVec3, wo: DVec3) -> DVec3 {
 }
 
 /// Glossy perturbation of a reflection direction (§6.7); identity for roughness 0.
-fn glossy(r: DVec3, roughness: f64, rng: &mut SampleRng) -> DVec3 {
+fn glossy(r: DVec3, roughness: f64, rng: &mut Sampler) -> DVec3 {
     if roughness <= 0.0 {
         return r;
     }
     let (u, v) = orthonormal_pair(r);
-    let a = rng.next_f64() - 0.5;
-    let b = rng.next_f64() - 0.5;
+    let (a, b) = rng.next_2d();
+    let (a, b) = (a - 0.5, b - 0.5);
     (r + roughness * (a * u + b * v)).normalize()
 }
 

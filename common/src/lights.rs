@@ -4,7 +4,7 @@
 //! Every light answers the same question for a shaded point `x` with normal `n`: a direction
 //! `wi` towards it, how far a shadow ray must travel, and the irradiance-like term `E` that the
 //! shading formula multiplies (§5). Random choices take their numbers from the sample's
-//! [`SampleRng`], so lighting is as deterministic as everything else.
+//! [`Sampler`], so lighting is as deterministic as everything else.
 
 use std::f64::consts::{PI, TAU};
 use std::sync::Arc;
@@ -12,7 +12,7 @@ use std::sync::Arc;
 use glam::DVec3;
 
 use crate::math::orthonormal_pair;
-use crate::sampler::SampleRng;
+use crate::sampler::Sampler;
 use crate::scene::records::{EnvMapping, EnvSampler};
 use crate::texture::image::TextureImage;
 use crate::tonemap::luminance;
@@ -217,8 +217,8 @@ impl EnvLight {
     /// One direction for a point with unit normal `n` (on the side the light can arrive from),
     /// chosen by `sampler`; `None` when the direction is below the surface (importance sampling
     /// covers the whole sphere) or its pdf is zero.
-    pub fn sample(&self, n: DVec3, sampler: EnvSampler, rng: &mut SampleRng) -> Option<EnvSample> {
-        let (xi1, xi2) = (rng.next_f64(), rng.next_f64());
+    pub fn sample(&self, n: DVec3, sampler: EnvSampler, rng: &mut Sampler) -> Option<EnvSample> {
+        let (xi1, xi2) = rng.next_2d();
         match sampler {
             EnvSampler::Uniform => {
                 // cos θ uniform in [0, 1) gives uniform directions on the hemisphere.
@@ -235,7 +235,7 @@ impl EnvLight {
                 // luminance, half the cosine lobe, and every sample is divided by the mixture's
                 // pdf (the balance heuristic). The map finds a small sun; the lobe keeps points
                 // that face away from it from wasting their samples below the horizon.
-                let xi3 = rng.next_f64();
+                let xi3 = rng.next_1d();
                 let wi = if xi3 < 0.5 {
                     self.distribution.sample(xi1, xi2)?.0
                 } else {
@@ -501,8 +501,9 @@ mod tests {
         // Samples land where the pdf says: most in the bright cell.
         let mut in_bright = 0;
         for k in 0..1000 {
-            let mut rng = SampleRng::new(7, k, 0, 0);
-            let (d, pdf) = dist.sample(rng.next_f64(), rng.next_f64()).unwrap();
+            let mut rng = Sampler::new(7, k, 0, 0);
+            let (xi1, xi2) = rng.next_2d();
+            let (d, pdf) = dist.sample(xi1, xi2).unwrap();
             assert!((pdf - dist.pdf(d)).abs() <= 1e-9 * pdf, "{pdf} vs {}", dist.pdf(d));
             let (u, v) = env_uv(EnvMapping::LatLong, d);
             if (4..=5).contains(&((u * 16.0) as u32)) && (2..=3).contains(&((v * 8.0) as u32)) {
@@ -521,7 +522,7 @@ mod tests {
             let count = 200_000;
             let mut sum = 0.0;
             for k in 0..count {
-                let mut rng = SampleRng::new(1, k, 0, 0);
+                let mut rng = Sampler::new(1, k, 0, 0);
                 if let Some(s) = env.sample(n, sampler, &mut rng) {
                     sum += s.weight.x * n.dot(s.wi);
                 }

@@ -1,7 +1,7 @@
 //! Tile rendering: the unit of work for the CLI (rayon over tiles) and, later, for farm workers.
 //!
 //! Invariant: a pixel's value depends only on (scene, camera, pixel, seed). Tiles share nothing
-//! mutable, samples draw from [`SampleRng`] keyed by pixel and sample index, and samples are
+//! mutable, samples draw from a [`Sampler`] keyed by pixel and sample index, and samples are
 //! summed in a fixed order, so any tile size and any thread count give identical bits.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -10,7 +10,7 @@ use rayon::prelude::*;
 
 use crate::image::Image;
 use crate::integrator::{RayStats, Tracer};
-use crate::sampler::{SampleRng, frame_seed};
+use crate::sampler::{Sampler, frame_seed};
 use crate::scene::Scene;
 use crate::scene::records::EnvSampler;
 
@@ -75,8 +75,6 @@ pub fn render_tile(
     );
     let seed = frame_seed(settings.seed, camera);
     let n = settings.samples.unwrap_or(cam.num_samples).max(1);
-    let strata = (n as f64).sqrt() as u32;
-    let stratified = strata * strata == n;
     let moving = scene.accel.instances.iter().any(|i| i.motion.is_some());
     let mut tracer = Tracer::new(scene);
     if let Some(s) = settings.env_sampling {
@@ -100,28 +98,21 @@ pub fn render_tile(
             }
             let mut sum = glam::DVec3::ZERO;
             for s in 0..n {
-                let mut rng = SampleRng::new(seed, x, y, s);
-                let (dx, dy) = if n == 1 {
-                    (0.5, 0.5)
-                } else if stratified {
-                    (
-                        ((s % strata) as f64 + rng.next_f64()) / strata as f64,
-                        ((s / strata) as f64 + rng.next_f64()) / strata as f64,
-                    )
-                } else {
-                    (rng.next_f64(), rng.next_f64())
-                };
-                // Random dimensions in a fixed order: pixel jitter, lens, time, then shading.
+                let mut sampler = Sampler::new(seed, x, y, s);
+                // One sample goes through the pixel centre (§4.5); several are stratified over
+                // the pixel by the sampler, like every other dimension.
+                let (dx, dy) = if n == 1 { (0.5, 0.5) } else { sampler.next_2d() };
+                // Dimensions in a fixed order: pixel position, lens, time, then shading.
                 let mut ray = if cam.lens.is_some() {
-                    let (l1, l2) = (rng.next_f64(), rng.next_f64());
+                    let (l1, l2) = sampler.next_2d();
                     cam.lens_ray(x, y, dx, dy, l1, l2)
                 } else {
                     cam.ray(x, y, dx, dy)
                 };
                 if moving {
-                    ray.time = rng.next_f64();
+                    ray.time = sampler.next_1d();
                 }
-                sum += tracer.trace_primary(&ray, &mut rng);
+                sum += tracer.trace_primary(&ray, &mut sampler);
             }
             let c = sum / n as f64;
             out.push([c.x as f32, c.y as f32, c.z as f32]);

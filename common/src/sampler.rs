@@ -1,9 +1,20 @@
-//! Deterministic random numbers: a counter-based generator keyed by
-//! (frame seed, pixel x, pixel y, sample index) and advanced by a dimension counter.
+//! Deterministic, stratified sample values: a padded, Owen-scrambled Sobol sampler.
 //!
-//! There is no thread-local or global state: a pixel's samples are the same whichever tile,
-//! thread, process or machine renders it, which is what makes farm renders equal CLI renders
-//! bit for bit.
+//! Every camera sample of a pixel draws its random numbers in a fixed order of *dimensions*
+//! (pixel position, lens, time, then whatever shading asks for: area-light points, glossy
+//! directions, environment directions, ...). Dimension `k` of sample `i` of pixel `(x, y)` is a
+//! pure function of (frame seed, x, y, i, k): no thread-local or global state, so a pixel's
+//! samples are the same whichever tile, thread, process or machine renders it, which is what
+//! makes farm renders equal CLI renders bit for bit.
+//!
+//! Within a pixel the values are stratified in every dimension: each request (one or two
+//! numbers) gets its own pair of Sobol dimensions 0 and 1 (a (0, 2)-sequence), whose sample
+//! index is shuffled and whose coordinates are Owen-scrambled by hashes of (seed, pixel,
+//! dimension) ("padding", as in pbrt-v4's PaddedSobolSampler, with Burley's hash-based Owen
+//! scrambling, "Practical Hash-based Owen Scrambling", JCGT 2020). So the first 2^k samples of
+//! a pixel fall one per cell of every 2^k-cell elementary interval of each 2-D request
+//! (e.g. 8x8 squares for 64 samples), and different requests are decorrelated. Any sample
+//! count works; powers of two are stratified best.
 
 /// Murmur3's 64-bit finaliser: a bijective mixer with full avalanche.
 #[inline]
@@ -18,27 +29,91 @@ fn fmix64(mut k: u64) -> u64 {
 
 const GOLDEN: u64 = 0x9e37_79b9_7f4a_7c15;
 
-/// The random stream of one camera sample of one pixel.
+/// Burley's variant of the Laine-Karras permutation: every bit of the result depends only on
+/// itself and the *less* significant bits of `x` (additions and products with even constants
+/// carry upwards only), which is what nested uniform scrambling needs in the bit-reversed domain.
+#[inline]
+fn laine_karras(mut x: u32, seed: u32) -> u32 {
+    x = x.wrapping_add(seed);
+    x ^= x.wrapping_mul(0x6c50_b47c);
+    x ^= x.wrapping_mul(0xb82f_1e52);
+    x ^= x.wrapping_mul(0xc7af_e638);
+    x ^= x.wrapping_mul(0x8d22_f6e6);
+    x
+}
+
+/// Owen (nested uniform) scrambling of a 32-bit fixed-point value in [0, 1): each bit flips
+/// depending only on the more significant bits above it and the seed.
+#[inline]
+fn owen_scramble(x: u32, seed: u32) -> u32 {
+    laine_karras(x.reverse_bits(), seed).reverse_bits()
+}
+
+/// Sobol dimension 1 (the Pascal matrix mod 2); dimension 0 is the van der Corput sequence,
+/// `index.reverse_bits()`. Together they form a (0, 2)-sequence in base 2.
+#[inline]
+fn sobol_dim1(mut index: u32) -> u32 {
+    let mut v: u32 = 1 << 31;
+    let mut r = 0;
+    while index != 0 {
+        if index & 1 != 0 {
+            r ^= v;
+        }
+        index >>= 1;
+        v ^= v >> 1;
+    }
+    r
+}
+
+/// 32-bit fixed point to a float in [0, 1).
+#[inline]
+fn unit(v: u32) -> f64 {
+    f64::from(v) * (1.0 / 4_294_967_296.0)
+}
+
+/// The sample values of one camera sample of one pixel, drawn dimension by dimension.
 #[derive(Clone, Debug)]
-pub struct SampleRng {
+pub struct Sampler {
+    /// Hash of (frame seed, pixel).
     key: u64,
+    /// The camera sample's index within its pixel.
+    index: u32,
+    /// Next dimension (one per request).
     dim: u64,
 }
 
-impl SampleRng {
+impl Sampler {
     pub fn new(frame_seed: u64, x: u32, y: u32, sample: u32) -> Self {
         let mut k = fmix64(frame_seed ^ GOLDEN);
         k = fmix64(k ^ ((x as u64) << 32 | y as u64));
-        k = fmix64(k ^ (sample as u64).wrapping_mul(GOLDEN));
-        SampleRng { key: k, dim: 0 }
+        Sampler { key: k, index: sample, dim: 0 }
     }
 
-    /// The next uniform number in [0, 1).
+    /// The next request's point of the scrambled (0, 2)-sequence, as fixed-point values.
     #[inline]
-    pub fn next_f64(&mut self) -> f64 {
+    fn next_bits(&mut self) -> (u32, u32) {
         self.dim += 1;
-        let h = fmix64(self.key.wrapping_add(self.dim.wrapping_mul(GOLDEN)));
-        (h >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+        let h = fmix64(self.key ^ self.dim.wrapping_mul(GOLDEN));
+        let h2 = fmix64(h ^ GOLDEN);
+        // Shuffle the index (an Owen scramble of it: within each block of 2^k samples a
+        // permutation), then scramble each coordinate with its own seed.
+        let i = owen_scramble(self.index, h as u32);
+        let a = owen_scramble(i.reverse_bits(), (h >> 32) as u32);
+        let b = owen_scramble(sobol_dim1(i), h2 as u32);
+        (a, b)
+    }
+
+    /// One number in [0, 1), stratified over the pixel's samples.
+    #[inline]
+    pub fn next_1d(&mut self) -> f64 {
+        unit(self.next_bits().0)
+    }
+
+    /// Two numbers in [0, 1)², stratified jointly over the pixel's samples.
+    #[inline]
+    pub fn next_2d(&mut self) -> (f64, f64) {
+        let (a, b) = self.next_bits();
+        (unit(a), unit(b))
     }
 }
 
@@ -51,33 +126,78 @@ pub fn frame_seed(base: u64, camera: usize) -> u64 {
 mod tests {
     use super::*;
 
-    #[test]
-    fn same_key_same_stream_different_keys_differ() {
-        let a: Vec<f64> = {
-            let mut r = SampleRng::new(7, 3, 4, 5);
-            (0..8).map(|_| r.next_f64()).collect()
-        };
-        let b: Vec<f64> = {
-            let mut r = SampleRng::new(7, 3, 4, 5);
-            (0..8).map(|_| r.next_f64()).collect()
-        };
-        let c: Vec<f64> = {
-            let mut r = SampleRng::new(7, 4, 3, 5);
-            (0..8).map(|_| r.next_f64()).collect()
-        };
-        assert_eq!(a, b);
-        assert_ne!(a, c);
+    /// The points of request `dim` (counted from 1) over samples 0..n of pixel (x, y).
+    fn points(x: u32, y: u32, n: u32, dim: usize) -> Vec<(f64, f64)> {
+        (0..n)
+            .map(|s| {
+                let mut r = Sampler::new(7, x, y, s);
+                let mut p = (0.0, 0.0);
+                for _ in 0..dim {
+                    p = r.next_2d();
+                }
+                p
+            })
+            .collect()
     }
 
     #[test]
-    fn uniform_enough() {
-        // Mean and variance of 100k draws over many pixels: 1/2 and 1/12 within sampling error.
-        let mut sum = 0.0;
-        let mut sq = 0.0;
+    fn same_key_same_values_different_keys_differ() {
+        let draw = |x, y, s| {
+            let mut r = Sampler::new(7, x, y, s);
+            (0..8).map(|_| r.next_1d()).collect::<Vec<f64>>()
+        };
+        assert_eq!(draw(3, 4, 5), draw(3, 4, 5));
+        assert_ne!(draw(3, 4, 5), draw(4, 3, 5));
+        assert_ne!(draw(3, 4, 5), draw(3, 4, 6));
+    }
+
+    #[test]
+    fn every_request_is_stratified_over_a_pixels_samples() {
+        // 64 samples: in every request, each of the 8x8, 64x1 and 1x64 elementary intervals
+        // holds exactly one point (a (0, 6, 2)-net), on several pixels and dimensions.
+        for (x, y) in [(0, 0), (17, 3), (1000, 999)] {
+            for dim in [1, 2, 5, 40] {
+                let pts = points(x, y, 64, dim);
+                for (cols, rows) in [(8usize, 8usize), (64, 1), (1, 64), (16, 4), (2, 32)] {
+                    let mut seen = vec![0u32; cols * rows];
+                    for &(a, b) in &pts {
+                        assert!((0.0..1.0).contains(&a) && (0.0..1.0).contains(&b));
+                        seen[(b * rows as f64) as usize * cols + (a * cols as f64) as usize] += 1;
+                    }
+                    assert!(seen.iter().all(|&c| c == 1), "pixel ({x}, {y}) dim {dim}, {cols}x{rows}: {seen:?}");
+                }
+            }
+        }
+        // Not a power of two (100): still no 10x10 cell with more than 3 of the 100 points,
+        // where independent uniform points put 5 or more in one cell almost always.
+        let pts = points(5, 6, 100, 3);
+        let mut seen = [0u32; 100];
+        for &(a, b) in &pts {
+            seen[(b * 10.0) as usize * 10 + (a * 10.0) as usize] += 1;
+        }
+        assert!(seen.iter().all(|&c| c <= 3), "{seen:?}");
+    }
+
+    #[test]
+    fn requests_are_decorrelated_and_pixels_differ() {
+        // Correlation of the first coordinates of two requests over 256 samples.
+        let (a, b) = (points(2, 9, 256, 1), points(2, 9, 256, 2));
+        let n = a.len() as f64;
+        let (ma, mb) = (a.iter().map(|p| p.0).sum::<f64>() / n, b.iter().map(|p| p.0).sum::<f64>() / n);
+        let cov = a.iter().zip(&b).map(|(p, q)| (p.0 - ma) * (q.0 - mb)).sum::<f64>() / n;
+        let corr = cov / (1.0 / 12.0);
+        assert!(corr.abs() < 0.2, "correlation {corr}");
+        assert_ne!(points(2, 9, 4, 1), points(3, 9, 4, 1));
+    }
+
+    #[test]
+    fn uniform_over_many_pixels() {
+        // Mean and variance of 100k first values over many pixels: 1/2 and 1/12 within
+        // sampling error.
+        let (mut sum, mut sq) = (0.0, 0.0);
         let n = 100_000;
         for i in 0..n {
-            let mut r = SampleRng::new(1, i % 317, i / 317, 0);
-            let x = r.next_f64();
+            let x = Sampler::new(1, i % 317, i / 317, 0).next_1d();
             assert!((0.0..1.0).contains(&x));
             sum += x;
             sq += x * x;

@@ -571,8 +571,8 @@ mod tests {
     /// occlusions as testing every instance on its own.
     #[test]
     fn top_level_bvh_agrees_with_brute_force() {
-        let mut rng = crate::sampler::SampleRng::new(3, 1, 2, 3);
-        let mut r = move || rng.next_f64();
+        let mut rng = crate::sampler::Sampler::new(3, 1, 2, 3);
+        let mut r = move || rng.next_1d();
         let mut instances = Vec::new();
         for i in 0..40 {
             let at = DVec3::new(r() * 20.0 - 10.0, r() * 20.0 - 10.0, r() * 20.0 - 10.0);

@@ -235,9 +235,9 @@ mod tests {
         for p in [DVec3::ZERO, DVec3::new(3.0, -2.0, 7.0), DVec3::new(-5.0, 0.0, 1.0)] {
             assert!(perlin(p).abs() < 1e-12);
         }
-        let mut r = crate::sampler::SampleRng::new(1, 2, 3, 4);
+        let mut r = crate::sampler::Sampler::new(1, 2, 3, 4);
         for _ in 0..10_000 {
-            let p = DVec3::new(r.next_f64(), r.next_f64(), r.next_f64()) * 40.0 - DVec3::splat(20.0);
+            let p = DVec3::new(r.next_1d(), r.next_1d(), r.next_1d()) * 40.0 - DVec3::splat(20.0);
             let n = perlin(p);
             assert!((-1.0..=1.0).contains(&n), "{n} at {p}");
             assert!((0.0..=1.0).contains(&perlin_value(p, NoiseConversion::Linear)));
