@@ -49,17 +49,33 @@ pub struct Tracer<'a> {
     /// trilinear texture maps ([`Camera::pixel_spread`](crate::camera::Camera)); 0 reads
     /// level 0 everywhere.
     pub spread: f64,
+    /// Rays the current camera sample may still trace (see [`SECONDARY_RAY_BUDGET`]).
+    budget: u32,
 }
+
+/// Most rays traced for one camera sample. Glass splits every ray in two, so the tree of a
+/// deep `MaxRecursionDepth` grows as 2^depth; the course's depths (at most 6, 127 rays) never
+/// reach this, and past it the recursion stops as it does at the depth limit, so a hostile
+/// scene costs bounded work per sample.
+pub const SECONDARY_RAY_BUDGET: u32 = 4096;
 
 impl<'a> Tracer<'a> {
     pub fn new(scene: &'a Scene) -> Self {
         let env_sampler = scene.env_light.as_ref().and_then(|l| l.sampler).unwrap_or(EnvSampler::Uniform);
-        Tracer { scene, stats: RayStats::default(), background: scene.background, env_sampler, spread: 0.0 }
+        Tracer {
+            scene,
+            stats: RayStats::default(),
+            background: scene.background,
+            env_sampler,
+            spread: 0.0,
+            budget: 0,
+        }
     }
 
     /// Radiance along a camera ray.
     pub fn trace_primary(&mut self, ray: &Ray, rng: &mut Sampler) -> DVec3 {
         self.stats.primary += 1;
+        self.budget = SECONDARY_RAY_BUDGET;
         self.trace(ray, 0, None, 0.0, rng)
     }
 
@@ -150,7 +166,14 @@ impl<'a> Tracer<'a> {
         // dielectrics shade and refract with (they track entering and leaving).
         let n = if entering { shading_normal } else { -shading_normal };
         let eps = scene.shadow_ray_epsilon;
-        let can_recurse = depth < scene.max_recursion_depth;
+        // Depth is capped when the scene is read (MAX_RECURSION_DEPTH_LIMIT), and so is the
+        // stack; the budget bounds the work of a tree of splitting rays.
+        let can_recurse = depth < scene.max_recursion_depth
+            && self.budget >= 2
+            && matches!(mat.kind, MaterialKind::Mirror | MaterialKind::Conductor | MaterialKind::Dielectric);
+        if can_recurse {
+            self.budget -= 2;
+        }
 
         // Local shading; skipped for hits seen from inside a dielectric (§6.4, §15 #20). Opaque
         // surfaces are lit with their normal as given, never turned towards the viewer (§6.8,
@@ -487,6 +510,35 @@ mod tests {
             .unwrap();
         let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
         render_tile(&scene, 0, rect, &RenderSettings::default()).0[0]
+    }
+
+    #[test]
+    fn a_deep_tree_of_glass_rays_stops_at_the_budget() {
+        // The camera inside two nested glass spheres: every hit splits in two, so depth 64 would
+        // be 2^64 rays; the scene's depth is capped and the sample's rays are counted.
+        let xml = r#"<Scene><MaxRecursionDepth>1000000</MaxRecursionDepth>
+            <Cameras><Camera id="1"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+              <NearPlane>-0.1 0.1 -0.1 0.1</NearPlane><NearDistance>1</NearDistance>
+              <ImageResolution>1 1</ImageResolution><ImageName>a.png</ImageName></Camera></Cameras>
+            <Lights><PointLight id="1"><Position>0 0.5 0</Position><Intensity>1 1 1</Intensity></PointLight></Lights>
+            <Materials><Material id="1" type="dielectric"><RefractionIndex>1.5</RefractionIndex>
+              <AbsorptionCoefficient>0 0 0</AbsorptionCoefficient></Material></Materials>
+            <VertexData>0 0 0  0 0 0.3</VertexData>
+            <Objects><Sphere id="1"><Material>1</Material><Center>1</Center><Radius>2</Radius></Sphere>
+              <Sphere id="2"><Material>1</Material><Center>2</Center><Radius>1.5</Radius></Sphere></Objects>
+            </Scene>"#;
+        let scene =
+            load_scene_str(xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() }).unwrap();
+        assert_eq!(scene.max_recursion_depth, crate::scene::records::MAX_RECURSION_DEPTH_LIMIT);
+        let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
+        let (px, stats) = render_tile(&scene, 0, rect, &RenderSettings::default());
+        assert!(px[0].iter().all(|c| c.is_finite()));
+        // Deeper than the course's depths (127 rays at depth 6), never past the budget.
+        assert!(
+            stats.secondary > 1000 && stats.secondary <= u64::from(super::SECONDARY_RAY_BUDGET),
+            "{} secondary rays",
+            stats.secondary
+        );
     }
 
     #[test]

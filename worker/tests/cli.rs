@@ -179,6 +179,47 @@ fn unknown_element_warns_and_still_renders() {
     assert!(r.stdout.contains("Mrays/s"), "{}", r.describe());
 }
 
+/// A camera inside a closed mirror (then glass) sphere with a hostile MaxRecursionDepth: the
+/// depth is capped with a warning that says so, and the render finishes instead of overflowing a
+/// render thread's stack (a mirror) or splitting rays for ever (glass, 2^depth rays a sample).
+#[test]
+fn hostile_recursion_depth_is_capped_with_a_warning() {
+    let tmp = TempDir::new("depth");
+    for (kind, material) in [
+        ("mirror", r#"<Material id="1" type="mirror"><AmbientReflectance>0 0 0</AmbientReflectance><DiffuseReflectance>0.1 0.1 0.1</DiffuseReflectance><SpecularReflectance>0 0 0</SpecularReflectance><MirrorReflectance>1 1 1</MirrorReflectance></Material>"#),
+        ("glass", r#"<Material id="1" type="dielectric"><AmbientReflectance>0 0 0</AmbientReflectance><DiffuseReflectance>0 0 0</DiffuseReflectance><SpecularReflectance>0 0 0</SpecularReflectance><AbsorptionCoefficient>0 0 0</AbsorptionCoefficient><RefractionIndex>1.5</RefractionIndex></Material>"#),
+    ] {
+        let scene = format!(
+            r#"<Scene>
+  <MaxRecursionDepth>1000000</MaxRecursionDepth>
+  <Cameras>
+    <Camera id="1"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up><NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>4 4</ImageResolution><ImageName>{kind}.png</ImageName></Camera>
+  </Cameras>
+  <Lights><AmbientLight>25 25 25</AmbientLight><PointLight id="1"><Position>0 0.5 0</Position><Intensity>10 10 10</Intensity></PointLight></Lights>
+  <Materials>{material}</Materials>
+  <VertexData>0 0 0  0 0 0.3</VertexData>
+  <Objects>
+    <Sphere id="1"><Material>1</Material><Center>1</Center><Radius>2</Radius></Sphere>
+    <Sphere id="2"><Material>1</Material><Center>2</Center><Radius>1.5</Radius></Sphere>
+  </Objects>
+</Scene>
+"#
+        );
+        let file = tmp.write(&format!("{kind}.xml"), &scene);
+        let out = tmp.path().join(kind);
+        let r = run(&["render".as_ref(), file.as_os_str(), "--out".as_ref(), out.as_os_str(), "-q".as_ref()]);
+        assert_eq!(r.code, Some(0), "{kind}: {}", r.describe());
+        let warning = r.stderr.lines().find(|l| l.contains("MaxRecursionDepth"));
+        let warning = warning.unwrap_or_else(|| panic!("{kind}: no warning about the depth\n{}", r.describe()));
+        assert!(
+            warning.contains("1000000") && warning.contains("capped to 64") && warning.contains(&format!("{kind}.xml:2")),
+            "{kind}: the warning should give the value, the cap and the line: {warning}"
+        );
+        let img = Rgb8::read_png(&out.join(format!("{kind}.png"))).expect("the scene renders");
+        assert_eq!((img.width, img.height), (4, 4));
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // Help
 // ---------------------------------------------------------------------------------------------

@@ -885,7 +885,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         background: v3(rec.background_color),
         shadow_ray_epsilon: rec.shadow_ray_epsilon,
         intersection_test_epsilon: rec.intersection_test_epsilon,
-        max_recursion_depth: rec.max_recursion_depth,
+        max_recursion_depth: rec.max_recursion_depth.min(super::records::MAX_RECURSION_DEPTH_LIMIT),
         cull_camera_back_faces: rec.json,
         ambient_light: v3(rec.ambient_light),
         area_lights,

@@ -14,6 +14,11 @@ use crate::error::{Loc, Warning};
 
 pub type Vec3 = [f64; 3];
 
+/// The deepest `MaxRecursionDepth` traced; a scene asking for more is capped, with a warning.
+/// The course's scenes ask for at most 6; the cap keeps a hostile value (a million) from
+/// overflowing a render thread's stack, as secondary rays recurse.
+pub const MAX_RECURSION_DEPTH_LIMIT: u32 = 64;
+
 /// A whole scene file.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SceneRecords {
@@ -25,6 +30,7 @@ pub struct SceneRecords {
     pub background_color: Vec3,
     pub shadow_ray_epsilon: f64,
     pub intersection_test_epsilon: f64,
+    /// At most [`MAX_RECURSION_DEPTH_LIMIT`].
     pub max_recursion_depth: u32,
     pub cameras: Vec<CameraRec>,
     pub ambient_light: Vec3,

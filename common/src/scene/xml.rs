@@ -23,7 +23,7 @@ use quick_xml::events::{BytesStart, Event};
 use quick_xml::{Reader, XmlVersion};
 
 use super::records::{
-    AreaLightRec, CameraRec, DecalMode, DirectionalLightRec, EnvLightRec, EnvMapping, EnvSampler, FacesRec,
+    MAX_RECURSION_DEPTH_LIMIT, AreaLightRec, CameraRec, DecalMode, DirectionalLightRec, EnvLightRec, EnvMapping, EnvSampler, FacesRec,
     Handedness, ImageRec, InstanceRec, Interpolation, LensRec, MaterialKind, MaterialRec, MeshRec,
     NoiseConversion, PlaneRec, PointLightRec, Projection, SceneRecords, ShadingMode, SphereRec, SpotLightRec,
     TextureMapRec, TextureSource, TonemapRec, TransformOp, TransformRec, TransformRef, TriangleRec, Vec3,
@@ -1005,8 +1005,18 @@ impl Parser<'_> {
         if let Some(e) = self.optional_number(scene, "IntersectionTestEpsilon")? {
             self.out.intersection_test_epsilon = e;
         }
-        if let Some(d) = self.optional_number(scene, "MaxRecursionDepth")? {
-            self.out.max_recursion_depth = d;
+        if let Some(d) = self.optional_number::<u32>(scene, "MaxRecursionDepth")? {
+            self.out.max_recursion_depth = d.min(MAX_RECURSION_DEPTH_LIMIT);
+            if d > MAX_RECURSION_DEPTH_LIMIT {
+                let node = scene.child("MaxRecursionDepth").expect("just read");
+                self.warn(
+                    node,
+                    format!(
+                        "MaxRecursionDepth {d} is more than Tessera traces; it is capped to {MAX_RECURSION_DEPTH_LIMIT} \
+                         (each bounce past a few dozen changes no pixel of an 8-bit or tone-mapped image)"
+                    ),
+                );
+            }
         }
         if let Some(v) = scene.child("VertexData") {
             self.vertex_data(v)?;
