@@ -77,12 +77,12 @@ fn every_substituted_environment_scene_renders() {
 
 /// The three environment estimators converge to the same image (the course's uniform one,
 /// cosine, and importance sampling by the map mixed with the cosine lobe) on sphere_env_light
-/// lit by the park map (a sun holding 11 % of the light in 10 texels). Background pixels are
+/// lit by the sunrise map (a small bright sun). Background pixels are
 /// bit-identical (same camera rays, same lookups); on the sphere the mean radiance must agree
 /// within noise.
 #[test]
 fn environment_estimators_converge_to_the_same_image() {
-    let (scene, _) = load_substituted("sphere_env_light", "park", |r| shrink(r, 100)).unwrap();
+    let (scene, _) = load_substituted("sphere_env_light", "sunrise", |r| shrink(r, 100)).unwrap();
     let run = |sampler, spp| {
         render(
             &scene,
@@ -124,8 +124,11 @@ fn environment_estimators_converge_to_the_same_image() {
     }
 }
 
-/// Relative tolerance of the sphere means above. Measured over 6 seeds (`envbench`), the
-/// relative standard deviation of the sphere's mean is 0.24 % (uniform, 1024 spp), 0.13 %
-/// (cosine, 1024 spp) and 0.34 % (importance, 256 spp), so 2 % is about 5 standard deviations
-/// of a difference; a wrong pdf (a missing sin θ, a missing mixture weight) is off by far more.
+/// Relative tolerance of the sphere means above. Measured over 6 seeds with the Sobol sampler,
+/// the relative standard deviation of the sphere's mean is at most 0.35 % per channel (uniform
+/// and cosine at 1024 spp, importance at 256), so 2 % is about 4 standard deviations of a
+/// difference; a wrong pdf (a missing sin θ, a missing mixture weight) is off by far more.
+/// The park map is not used: a few isolated blue-only texels (up to 11800) make its blue
+/// channel heavy-tailed for the uniform and cosine estimators (one seed in six put the cosine
+/// mean 13 % high through a single pixel).
 const TOLERANCE: f64 = 0.02;
