@@ -12,6 +12,9 @@
 //! 4. While rendering, `POST /api/v1/worker/heartbeat` [`HeartbeatRequest`] every
 //!    `heartbeat_seconds` renews the deadlines of the worker's leases (from a thread of its own
 //!    that rendering cannot starve) → [`HeartbeatResponse`] lists leases the server revoked.
+//!    Beside it, `POST /api/v1/worker/watch` [`WatchRequest`] is a long poll that answers as
+//!    soon as one of the listed leases is revoked (its job cancelled), so a tile in progress
+//!    stops within a moment of a cancel, not a heartbeat later → [`HeartbeatResponse`].
 //! 5. `PUT /api/v1/worker/leases/{lease}/result`: the tile as [`encode_tile`] bytes with the
 //!    header [`CHECKSUM_HEADER`] = [`checksum`] of the body. Accepted once; a lease that expired
 //!    or was revoked gets 409 Conflict and the worker drops the tile. Or
@@ -77,6 +80,19 @@ pub struct Lease {
     pub samples: Option<u32>,
     /// Seconds until the lease expires unless a heartbeat renews it.
     pub lease_seconds: f64,
+    /// Longest the tile may render (the server's `--max-tile-seconds`); past it the worker
+    /// stops and reports the tile failed. Absent from older servers: no limit.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_render_seconds: Option<f64>,
+}
+
+/// A long poll for revocations of the leases a worker is rendering.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WatchRequest {
+    pub worker_id: u64,
+    pub leases: Vec<u64>,
+    /// Longest the server holds the request (it may answer sooner, with nothing revoked).
+    pub wait_seconds: f64,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

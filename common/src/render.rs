@@ -4,7 +4,8 @@
 //! mutable, samples draw from a [`Sampler`] keyed by pixel and sample index, and samples are
 //! summed in a fixed order, so any tile size and any thread count give identical bits.
 
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::time::Instant;
 
 use rayon::prelude::*;
 
@@ -59,6 +60,43 @@ pub fn tiles(width: u32, height: u32, tile: u32) -> Vec<TileRect> {
     out
 }
 
+/// When a render in progress must give up: a flag someone else raises (a cancelled job, a
+/// revoked lease) and a deadline (the farm's longest tile render). Checked between samples, so
+/// a tile stops within one sample's time of either, however many samples a pixel asks for.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Stop<'a> {
+    pub flag: Option<&'a AtomicBool>,
+    pub deadline: Option<Instant>,
+}
+
+/// Why a render stopped before it finished.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stopped {
+    /// The flag was raised.
+    Cancelled,
+    /// The deadline passed.
+    OutOfTime,
+}
+
+impl Stop<'_> {
+    /// Never stops.
+    pub const NEVER: Stop<'static> = Stop { flag: None, deadline: None };
+
+    fn check(&self) -> Result<(), Stopped> {
+        if self.flag.is_some_and(|f| f.load(Ordering::Relaxed)) {
+            return Err(Stopped::Cancelled);
+        }
+        if self.deadline.is_some_and(|d| Instant::now() >= d) {
+            return Err(Stopped::OutOfTime);
+        }
+        Ok(())
+    }
+}
+
+/// How many samples pass between two looks at a [`Stop`] (a sample costs a microsecond or more,
+/// the look tens of nanoseconds).
+const STOP_CHECK_EVERY: u32 = 16;
+
 /// Renders one tile of camera `camera`: linear float RGB, row-major within the tile.
 ///
 /// Panics only if `camera` or `rect` is out of range for the scene (a caller bug, not input).
@@ -68,6 +106,20 @@ pub fn render_tile(
     rect: TileRect,
     settings: &RenderSettings,
 ) -> (Vec<[f32; 3]>, RayStats) {
+    match render_tile_until(scene, camera, rect, settings, Stop::NEVER) {
+        Ok(r) => r,
+        Err(_) => unreachable!("Stop::NEVER never stops"),
+    }
+}
+
+/// [`render_tile`] that gives up when `stop` says so; the pixels it returns are the same bits.
+pub fn render_tile_until(
+    scene: &Scene,
+    camera: usize,
+    rect: TileRect,
+    settings: &RenderSettings,
+    stop: Stop<'_>,
+) -> Result<(Vec<[f32; 3]>, RayStats), Stopped> {
     let cam = &scene.cameras[camera];
     assert!(
         rect.x0 + rect.width <= cam.width && rect.y0 + rect.height <= cam.height,
@@ -98,6 +150,9 @@ pub fn render_tile(
             }
             let mut sum = glam::DVec3::ZERO;
             for s in 0..n {
+                if s % STOP_CHECK_EVERY == 0 {
+                    stop.check()?;
+                }
                 let mut sampler = Sampler::new(seed, x, y, s);
                 // One sample goes through the pixel centre (§4.5); several are stratified over
                 // the pixel by the sampler, like every other dimension.
@@ -118,7 +173,7 @@ pub fn render_tile(
             out.push([c.x as f32, c.y as f32, c.z as f32]);
         }
     }
-    (out, tracer.stats)
+    Ok((out, tracer.stats))
 }
 
 /// Renders a whole camera with rayon over tiles. `progress(done, total)` is called after every
@@ -154,6 +209,55 @@ pub fn render_camera(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::assets::FsResolver;
+    use crate::scene::load_scene_str;
+
+    /// A 4x4 diffuse triangle asking for `samples` samples per pixel.
+    fn small_scene(samples: u32) -> Scene {
+        let xml = format!(
+            r#"<Scene><Cameras><Camera id="1"><Position>0 0 5</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+              <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>4 4</ImageResolution>
+              <NumSamples>{samples}</NumSamples><ImageName>a.png</ImageName></Camera></Cameras>
+            <Lights><AmbientLight>25 25 25</AmbientLight></Lights>
+            <Materials><Material id="1"><AmbientReflectance>1 1 1</AmbientReflectance></Material></Materials>
+            <VertexData>-1 -1 0  1 -1 0  0 1 0</VertexData>
+            <Objects><Mesh id="1"><Material>1</Material><Faces>1 2 3</Faces></Mesh></Objects></Scene>"#
+        );
+        load_scene_str(&xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() }).unwrap()
+    }
+
+    #[test]
+    fn a_raised_flag_or_a_passed_deadline_stops_a_tile_that_would_run_for_days() {
+        // 10^12 samples a pixel: only a stop inside the pixel's sample loop ends this.
+        let scene = small_scene(1_000_000_000);
+        let settings = RenderSettings { samples: Some(u32::MAX), ..RenderSettings::default() };
+        let rect = TileRect { x0: 0, y0: 0, width: 4, height: 4 };
+        let flag = AtomicBool::new(false);
+        std::thread::scope(|s| {
+            s.spawn(|| {
+                std::thread::sleep(std::time::Duration::from_millis(50));
+                flag.store(true, Ordering::Relaxed);
+            });
+            let stop = Stop { flag: Some(&flag), deadline: None };
+            assert_eq!(render_tile_until(&scene, 0, rect, &settings, stop).err(), Some(Stopped::Cancelled));
+        });
+        let stop = Stop { flag: None, deadline: Some(Instant::now() + std::time::Duration::from_millis(50)) };
+        assert_eq!(render_tile_until(&scene, 0, rect, &settings, stop).err(), Some(Stopped::OutOfTime));
+    }
+
+    #[test]
+    fn a_stop_that_never_fires_changes_no_bit() {
+        let scene = small_scene(8);
+        let settings = RenderSettings::default();
+        let rect = TileRect { x0: 0, y0: 0, width: 4, height: 4 };
+        let flag = AtomicBool::new(false);
+        let far = Instant::now() + std::time::Duration::from_secs(3600);
+        let stopped = render_tile_until(&scene, 0, rect, &settings, Stop { flag: Some(&flag), deadline: Some(far) });
+        let (plain, _) = render_tile(&scene, 0, rect, &settings);
+        let (px, _) = stopped.expect("not stopped");
+        assert_eq!(px, plain);
+        assert!(plain.iter().any(|p| p[0] > 0.0), "the triangle is lit");
+    }
 
     #[test]
     fn tiles_cover_frame_exactly_once() {

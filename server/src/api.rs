@@ -42,6 +42,10 @@ pub struct Settings {
     /// Longest a lease request is held open.
     pub max_wait_seconds: f64,
     pub max_upload_bytes: usize,
+    /// Longest one tile may render (sent with every lease).
+    pub max_tile_seconds: f64,
+    /// Most samples (pixels x samples per pixel over all frames) one job may ask for.
+    pub max_job_samples: u64,
 }
 
 /// Counters that are not in the database.
@@ -136,6 +140,7 @@ pub fn app(state: AppState) -> Router {
         .route("/api/v1/worker/register", post(register))
         .route("/api/v1/worker/lease", post(lease))
         .route("/api/v1/worker/heartbeat", post(heartbeat))
+        .route("/api/v1/worker/watch", post(watch))
         .route("/api/v1/worker/leases/{lease}/result", put(result))
         .route("/api/v1/worker/leases/{lease}/fail", post(fail))
         .route("/api/v1/worker/leases/{lease}/release", post(release))
@@ -326,6 +331,7 @@ async fn submit_job(
             .await
             .map_err(|e| anyhow::anyhow!("validation task: {e}"))??
     };
+    check_sample_budget(&state.settings, &cameras, &frames, opts.samples)?;
     let hash = state.blobs.put(&tar)?;
     let name = opts.name.unwrap_or_else(|| scene_path.rsplit('/').next().unwrap_or(&scene_path).to_string());
     let job = crate::db::NewJob {
@@ -344,6 +350,34 @@ async fn submit_job(
     tracing::info!(job = id, name = %job.name, "job accepted");
     let info = job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?;
     Ok((StatusCode::CREATED, Json(info)))
+}
+
+/// Refuses a job asking for more samples than the server's `--max-job-samples`: one that would
+/// keep the farm busy for days is a 422 that says the limit and how to get under it.
+fn check_sample_budget(
+    settings: &Settings,
+    cameras: &[Camera],
+    frames: &[crate::db::NewFrame],
+    samples: Option<u32>,
+) -> ApiResult<()> {
+    let mut total: u64 = 0;
+    for f in frames {
+        let spp = samples.unwrap_or(cameras[f.camera as usize].num_samples).max(1);
+        let n = u64::from(f.width) * u64::from(f.height) * u64::from(spp);
+        total = total.saturating_add(n);
+    }
+    if total > settings.max_job_samples {
+        return Err(AppError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!(
+                "the job asks for {total} samples (pixels x samples per pixel over its frames), more than this \
+                 server's limit of {}: lower NumSamples or ImageResolution, submit with samples=N, or start the \
+                 server with a larger --max-job-samples (TESSERA_MAX_JOB_SAMPLES)",
+                settings.max_job_samples
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// An upload field that must be an integer between 1 and `max` (`unit` for the message).
@@ -800,7 +834,8 @@ async fn lease(State(state): State<AppState>, Json(req): Json<LeaseRequest>) -> 
                 .insert(axum::http::header::RETRY_AFTER, axum::http::HeaderValue::from_static("5"));
             return Ok(response);
         }
-        if let Some(lease) = state.store.lease(req.worker_id, state.settings.lease_seconds)? {
+        if let Some(mut lease) = state.store.lease(req.worker_id, state.settings.lease_seconds)? {
+            lease.max_render_seconds = Some(state.settings.max_tile_seconds);
             state.emit(ServerEvent::Job { job: lease.job_id, state: JobState::Running });
             state.emit(ServerEvent::Workers);
             return Ok(Json(lease).into_response());
@@ -819,6 +854,36 @@ async fn heartbeat(
     let revoked =
         state.store.heartbeat(req.worker_id, &req.leases, req.rendering, state.settings.lease_seconds)?;
     Ok(Json(HeartbeatResponse { revoked }))
+}
+
+/// Long poll: answers as soon as one of the worker's listed leases is no longer its own (its
+/// job was cancelled or failed), else after the wait with nothing revoked. Reads only; the
+/// heartbeat still renews the leases.
+async fn watch(State(state): State<AppState>, Json(req): Json<WatchRequest>) -> ApiResult<Json<HeartbeatResponse>> {
+    known_worker(&state, req.worker_id).await?;
+    let wait = req.wait_seconds.clamp(0.0, state.settings.max_wait_seconds);
+    let deadline = tokio::time::Instant::now() + Duration::from_secs_f64(wait);
+    let leases: Vec<u64> = req.leases.into_iter().take(64).collect();
+    // Subscribe before looking, so a cancel between the look and the wait is not lost.
+    let mut events = state.events.subscribe();
+    loop {
+        let revoked = state.store.revoked_among(req.worker_id, &leases)?;
+        if !revoked.is_empty() || state.shutting_down.load(Ordering::SeqCst) {
+            return Ok(Json(HeartbeatResponse { revoked }));
+        }
+        loop {
+            match tokio::time::timeout_at(deadline, events.recv()).await {
+                Err(_) => return Ok(Json(HeartbeatResponse { revoked: Vec::new() })),
+                Ok(Ok(ServerEvent::Job { state: JobState::Canceled | JobState::Failed, .. })) => break,
+                // Missed events: look again.
+                Ok(Err(tokio::sync::broadcast::error::RecvError::Lagged(_))) => break,
+                Ok(Err(tokio::sync::broadcast::error::RecvError::Closed)) => {
+                    return Ok(Json(HeartbeatResponse { revoked: Vec::new() }));
+                }
+                Ok(Ok(_)) => {}
+            }
+        }
+    }
 }
 
 async fn result(

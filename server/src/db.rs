@@ -508,6 +508,7 @@ impl Store {
             scene_path,
             samples: samples.map(|s| s as u32),
             lease_seconds,
+            max_render_seconds: None,
         }))
     }
 
@@ -538,6 +539,22 @@ impl Store {
             params![worker as i64, t, rendering.map(|r| r as i64)],
         )?;
         tx.commit()?;
+        Ok(revoked)
+    }
+
+    /// Of `leases`, those `worker` no longer owns (expired, revoked, cancelled, done). Reads only.
+    pub fn revoked_among(&self, worker: u64, leases: &[u64]) -> Result<Vec<u64>> {
+        let conn = self.conn();
+        let mut live = conn.prepare_cached(
+            "SELECT COUNT(*) FROM tiles WHERE lease_id = ?1 AND worker_id = ?2 AND state = 'leased'",
+        )?;
+        let mut revoked = Vec::new();
+        for &l in leases {
+            let n: i64 = live.query_row(params![l as i64, worker as i64], |r| r.get(0))?;
+            if n == 0 {
+                revoked.push(l);
+            }
+        }
         Ok(revoked)
     }
 

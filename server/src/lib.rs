@@ -39,6 +39,10 @@ pub struct Config {
     pub lease_seconds: f64,
     pub heartbeat_seconds: f64,
     pub max_upload_mb: usize,
+    /// Longest one tile may render before its worker gives up and fails it.
+    pub max_tile_seconds: f64,
+    /// Most samples (pixels x samples per pixel, over every frame) one job may ask for.
+    pub max_job_samples: u64,
 }
 
 /// A random token from the operating system's generator (for local workers when none is set).
@@ -90,6 +94,12 @@ pub fn check_config(config: &Config) -> Result<()> {
             config.lease_seconds
         );
     }
+    if !(config.max_tile_seconds > 0.0 && config.max_tile_seconds.is_finite()) {
+        bail!("--max-tile-seconds must be a positive number of seconds, found {}", config.max_tile_seconds);
+    }
+    if config.max_job_samples == 0 {
+        bail!("--max-job-samples must be at least 1");
+    }
     Ok(())
 }
 
@@ -130,6 +140,8 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
         heartbeat_seconds: config.heartbeat_seconds,
         max_wait_seconds: 20.0,
         max_upload_bytes: config.max_upload_mb << 20,
+        max_tile_seconds: config.max_tile_seconds,
+        max_job_samples: config.max_job_samples,
     };
     let state = api::AppState {
         store: store.clone(),

@@ -54,6 +54,15 @@ struct Cli {
     /// Largest accepted upload in MiB.
     #[arg(long, default_value_t = 1024, env = "TESSERA_MAX_UPLOAD_MB", value_name = "MIB")]
     max_upload_mb: usize,
+    /// Longest one tile may render; past it the worker stops and the tile fails (a job whose
+    /// tiles keep failing fails). Raise it, or submit with a larger tile count (smaller
+    /// --tile-size) or fewer samples.
+    #[arg(long, default_value_t = 1800.0, env = "TESSERA_MAX_TILE_SECONDS", value_name = "S")]
+    max_tile_seconds: f64,
+    /// Most samples one job may ask for: pixels x samples per pixel, summed over its frames
+    /// (VeachAjar_hw6's 1280x720 at 2500 spp is 2.3e9). Larger jobs are refused with 422.
+    #[arg(long, default_value_t = 100_000_000_000, env = "TESSERA_MAX_JOB_SAMPLES", value_name = "N")]
+    max_job_samples: u64,
 }
 
 fn main() -> ExitCode {
@@ -79,6 +88,8 @@ fn main() -> ExitCode {
         lease_seconds: cli.lease_seconds,
         heartbeat_seconds: cli.heartbeat_seconds,
         max_upload_mb: cli.max_upload_mb,
+        max_tile_seconds: cli.max_tile_seconds,
+        max_job_samples: cli.max_job_samples,
     };
     let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
         Ok(r) => r,
