@@ -83,14 +83,7 @@ impl<'a> Tracer<'a> {
     /// the ray travels inside, if any (Beer's law applies over the segment's length). `cone` is
     /// the width of the pixel's ray cone at the ray's origin (0 at a pinhole camera); it grows
     /// by `spread` per unit of distance (curved mirrors and lenses are not modelled).
-    fn trace(
-        &mut self,
-        ray: &Ray,
-        depth: u32,
-        medium: Option<DVec3>,
-        cone: f64,
-        rng: &mut Sampler,
-    ) -> DVec3 {
+    fn trace(&mut self, ray: &Ray, depth: u32, medium: Option<DVec3>, cone: f64, rng: &mut Sampler) -> DVec3 {
         let scene = self.scene;
         let cull = depth == 0 && scene.cull_camera_back_faces;
         let mut tmin = scene.intersection_test_epsilon;

@@ -120,6 +120,11 @@ pub struct ReleaseRequest {
 pub struct FailRequest {
     pub worker_id: u64,
     pub error: String,
+    /// The failure is the job's, not this worker's: its tile went over the farm's longest render
+    /// of one tile. The server fails the job at once rather than spend that time again on other
+    /// workers. Absent from older workers: false.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub fatal: bool,
 }
 
 /// A problem with a submitted scene or bundle, as precise as the parser knows it.

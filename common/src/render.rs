@@ -252,7 +252,8 @@ mod tests {
         let rect = TileRect { x0: 0, y0: 0, width: 4, height: 4 };
         let flag = AtomicBool::new(false);
         let far = Instant::now() + std::time::Duration::from_secs(3600);
-        let stopped = render_tile_until(&scene, 0, rect, &settings, Stop { flag: Some(&flag), deadline: Some(far) });
+        let stopped =
+            render_tile_until(&scene, 0, rect, &settings, Stop { flag: Some(&flag), deadline: Some(far) });
         let (plain, _) = render_tile(&scene, 0, rect, &settings);
         let (px, _) = stopped.expect("not stopped");
         assert_eq!(px, plain);

@@ -164,7 +164,10 @@ mod tests {
                         assert!((0.0..1.0).contains(&a) && (0.0..1.0).contains(&b));
                         seen[(b * rows as f64) as usize * cols + (a * cols as f64) as usize] += 1;
                     }
-                    assert!(seen.iter().all(|&c| c == 1), "pixel ({x}, {y}) dim {dim}, {cols}x{rows}: {seen:?}");
+                    assert!(
+                        seen.iter().all(|&c| c == 1),
+                        "pixel ({x}, {y}) dim {dim}, {cols}x{rows}: {seen:?}"
+                    );
                 }
             }
         }

@@ -859,7 +859,10 @@ async fn heartbeat(
 /// Long poll: answers as soon as one of the worker's listed leases is no longer its own (its
 /// job was cancelled or failed), else after the wait with nothing revoked. Reads only; the
 /// heartbeat still renews the leases.
-async fn watch(State(state): State<AppState>, Json(req): Json<WatchRequest>) -> ApiResult<Json<HeartbeatResponse>> {
+async fn watch(
+    State(state): State<AppState>,
+    Json(req): Json<WatchRequest>,
+) -> ApiResult<Json<HeartbeatResponse>> {
     known_worker(&state, req.worker_id).await?;
     let wait = req.wait_seconds.clamp(0.0, state.settings.max_wait_seconds);
     let deadline = tokio::time::Instant::now() + Duration::from_secs_f64(wait);
@@ -937,7 +940,7 @@ async fn fail(
     Path(lease): Path<u64>,
     Json(req): Json<FailRequest>,
 ) -> ApiResult<StatusCode> {
-    match state.store.fail_tile(lease, req.worker_id, &req.error)? {
+    match state.store.fail_tile(lease, req.worker_id, &req.error, req.fatal)? {
         FailOutcome::Requeued => {
             tracing::warn!(lease, worker = req.worker_id, error = %req.error, "tile failed; queued again");
             state.work.notify_waiters();

@@ -659,8 +659,9 @@ impl Store {
 
     /// Records that `worker` could not render the tile of `lease`: the tile goes back to the
     /// queue, or fails its job after [`TILE_FAILURE_WORKERS`] different workers (or
-    /// [`TILE_FAILURE_TOTAL`] attempts).
-    pub fn fail_tile(&self, lease: u64, worker: u64, error: &str) -> Result<FailOutcome> {
+    /// [`TILE_FAILURE_TOTAL`] attempts), or at once when the failure is `fatal` (the tile went
+    /// over the farm's render time limit: another worker would spend that time again).
+    pub fn fail_tile(&self, lease: u64, worker: u64, error: &str, fatal: bool) -> Result<FailOutcome> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         let row = tx
@@ -689,7 +690,7 @@ impl Store {
             params![job, frame, tile],
             |r| Ok((r.get(0)?, r.get(1)?)),
         )?;
-        let outcome = if workers >= TILE_FAILURE_WORKERS || total >= TILE_FAILURE_TOTAL {
+        let outcome = if fatal || workers >= TILE_FAILURE_WORKERS || total >= TILE_FAILURE_TOTAL {
             let message = format!(
                 "tile {tile} of frame {frame} failed on {workers} worker(s), {total} time(s); last error: {error}"
             );

@@ -8,9 +8,15 @@
 //! - the **heartbeat** thread renews every lease the worker holds (rendering or prefetched)
 //!   every `heartbeat_seconds`; it only does HTTP, so rendering cannot starve it; leases the
 //!   server revoked are remembered and their tiles dropped;
+//! - the **watcher** holds a long poll (`/api/v1/worker/watch`) on the lease being rendered,
+//!   which the server answers the moment that lease is revoked (its job cancelled or failed);
+//!   it, or the heartbeat, raises the tile's stop flag, and the renderer, which looks at the
+//!   flag every few samples, gives up within a moment instead of finishing a tile nobody wants;
 //! - the **main** thread renders on a rayon pool: it fetches a job's bundle once, builds the
 //!   scene once per bundle (cached by its hash), renders the tile with the same
 //!   `render_tile` as `tessera-worker render` (same bits), and uploads it with a checksum.
+//!   A tile that is still rendering after the lease's `max_render_seconds` (the server's
+//!   `--max-tile-seconds`) is stopped and reported failed with a message naming that limit.
 //!
 //! **Stopping.** SIGTERM or Ctrl-C (SIGINT) sets a flag: the worker takes no new lease, finishes
 //! and uploads the tile it is rendering, gives back (`.../release`) the lease it fetched ahead and
@@ -29,7 +35,7 @@ use anyhow::{Context, Result, anyhow, bail};
 use rayon::prelude::*;
 use tessera::assets::MemResolver;
 use tessera::protocol::*;
-use tessera::render::{RenderSettings, TileRect, render_tile};
+use tessera::render::{RenderSettings, Stop, Stopped, TileRect, render_tile_until};
 use tessera::scene::Scene;
 use tessera::scene::build::build_scene;
 use tessera::scene::parse_scene;
@@ -50,6 +56,19 @@ struct Leases {
     held: HashSet<u64>,
     revoked: HashSet<u64>,
     rendering: Option<u64>,
+    /// Raised to stop the tile being rendered; a new one for every tile.
+    cancel: Arc<AtomicBool>,
+}
+
+impl Leases {
+    /// The server took `lease` back: forget it, and stop it if it is being rendered.
+    fn revoke(&mut self, lease: u64) {
+        self.held.remove(&lease);
+        self.revoked.insert(lease);
+        if self.rendering == Some(lease) {
+            self.cancel.store(true, Ordering::SeqCst);
+        }
+    }
 }
 
 /// The lease book, even if a thread panicked while holding it (its sets stay consistent).
@@ -215,8 +234,7 @@ pub fn work(opts: WorkOptions) -> Result<()> {
                         if let Ok(hb) = resp.into_json::<HeartbeatResponse>() {
                             let mut l = lock(&leases);
                             for r in hb.revoked {
-                                l.held.remove(&r);
-                                l.revoked.insert(r);
+                                l.revoke(r);
                             }
                         }
                     }
@@ -224,6 +242,14 @@ pub fn work(opts: WorkOptions) -> Result<()> {
                 }
             }
         })?;
+    }
+
+    // The watcher: a long poll on the lease being rendered.
+    {
+        let (client, leases, stop) = (client.clone(), leases.clone(), stop.clone());
+        std::thread::Builder::new()
+            .name("watcher".into())
+            .spawn(move || watch_rendering(&client, worker_id, &leases, &stop))?;
     }
 
     // The fetcher: one lease ahead.
@@ -266,9 +292,18 @@ pub fn work(opts: WorkOptions) -> Result<()> {
             break;
         }
         let id = lease.lease_id;
-        lock(&leases).rendering = Some(id);
+        let cancel = {
+            let mut l = lock(&leases);
+            l.rendering = Some(id);
+            l.cancel = Arc::new(AtomicBool::new(false));
+            // Revoked while it waited in the channel: start it only to drop it at once.
+            if l.revoked.contains(&id) {
+                l.cancel.store(true, Ordering::SeqCst);
+            }
+            l.cancel.clone()
+        };
         let started = Instant::now();
-        let rendered = pool.install(|| render_lease(&client, &mut scenes, &lease));
+        let rendered = pool.install(|| render_lease(&client, &mut scenes, &lease, &cancel));
         let seconds = started.elapsed().as_secs_f64();
         let revoked = {
             let mut l = lock(&leases);
@@ -281,14 +316,19 @@ pub fn work(opts: WorkOptions) -> Result<()> {
             continue;
         }
         match rendered {
-            Ok(px) => {
+            // Only a revocation raises the flag, and that was handled above.
+            Ok(None) => {
+                lock(&leases).held.remove(&id);
+            }
+            Ok(Some(px)) => {
                 if up_tx.send((id, px, seconds)).is_err() {
                     bail!("the upload thread ended");
                 }
             }
             Err(e) => {
                 eprintln!("tile {} of job {} failed: {e:#}", lease.tile, lease.job_id);
-                let req = FailRequest { worker_id, error: format!("{e:#}") };
+                let fatal = e.downcast_ref::<OutOfTime>().is_some();
+                let req = FailRequest { worker_id, error: format!("{e:#}"), fatal };
                 if let Err(e) = client.post_json(&format!("/api/v1/worker/leases/{id}/fail"), &req) {
                     eprintln!("reporting the failure: {}", describe(e));
                 }
@@ -386,12 +426,59 @@ fn fetch_leases(
     }
 }
 
-/// Renders the tile of `lease`, building its scene first if this bundle is new here.
+/// How long the watcher asks the server to hold a watch open.
+const WATCH_SECONDS: f64 = 15.0;
+
+/// Keeps a long poll open on the lease being rendered, and raises its stop flag as soon as the
+/// server says it was revoked. Idle (nothing rendering) it looks again every 50 ms; after an
+/// error (an older server without the endpoint, a restart) it backs off up to 30 s, and the
+/// heartbeat still revokes, only later.
+fn watch_rendering(client: &Client, worker_id: u64, leases: &Mutex<Leases>, stop: &AtomicBool) {
+    let mut delay = Duration::from_secs(1);
+    loop {
+        let Some(id) = lock(leases).rendering else {
+            if stop.load(Ordering::SeqCst) {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+            continue;
+        };
+        let req = WatchRequest { worker_id, leases: vec![id], wait_seconds: WATCH_SECONDS };
+        match client.post_json("/api/v1/worker/watch", &req) {
+            Ok(resp) => {
+                delay = Duration::from_secs(1);
+                if let Ok(answer) = resp.into_json::<HeartbeatResponse>() {
+                    let mut l = lock(leases);
+                    // The server also lists a lease that ended because its tile was uploaded
+                    // meanwhile; only the one still rendering is stopped.
+                    if l.rendering == Some(id) && answer.revoked.contains(&id) {
+                        l.revoke(id);
+                    }
+                }
+            }
+            Err(e) => {
+                if stop.load(Ordering::SeqCst) {
+                    return;
+                }
+                eprintln!("watching lease {id}: {}", describe(e));
+                std::thread::sleep(delay);
+                delay = (delay * 2).min(Duration::from_secs(30));
+            }
+        }
+    }
+}
+
+/// Renders the tile of `lease`, building its scene first if this bundle is new here. `None`
+/// when `cancel` was raised (the lease was revoked) before the tile was done.
 fn render_lease(
     client: &Client,
     scenes: &mut HashMap<(String, String), Arc<Scene>>,
     lease: &Lease,
-) -> Result<Vec<[f32; 3]>> {
+    cancel: &AtomicBool,
+) -> Result<Option<Vec<[f32; 3]>>> {
+    if cancel.load(Ordering::SeqCst) {
+        return Ok(None);
+    }
     let key = (lease.bundle.clone(), lease.scene_path.clone());
     let scene = match scenes.get(&key) {
         Some(s) => s.clone(),
@@ -415,27 +502,51 @@ fn render_lease(
     }
     let settings = RenderSettings { samples: lease.samples, ..RenderSettings::default() };
     let camera = lease.camera as usize;
+    let limit = lease.max_render_seconds.filter(|s| s.is_finite() && *s > 0.0);
+    let stop = Stop {
+        flag: Some(cancel),
+        deadline: limit.and_then(|s| Instant::now().checked_add(Duration::from_secs_f64(s.min(1e9)))),
+    };
     // Every core on this one tile: its rows render in parallel. A pixel's value does not depend
     // on which rectangle it is rendered in, so the rows put together are the tile's exact bits.
-    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        let rows: Vec<Vec<[f32; 3]>> = (r.y0..r.y0 + r.height)
+    let rows = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        (r.y0..r.y0 + r.height)
             .into_par_iter()
             .map(|y| {
-                render_tile(
-                    &scene,
-                    camera,
-                    TileRect { x0: r.x0, y0: y, width: r.width, height: 1 },
-                    &settings,
-                )
-                .0
+                let row = TileRect { x0: r.x0, y0: y, width: r.width, height: 1 };
+                render_tile_until(&scene, camera, row, &settings, stop).map(|(px, _)| px)
             })
-            .collect();
-        rows.concat()
+            .collect::<Result<Vec<Vec<[f32; 3]>>, Stopped>>()
     }))
     .map_err(|_| {
         anyhow!("the renderer panicked on this tile (a bug in Tessera; please report it with the scene)")
-    })
+    })?;
+    match rows {
+        Ok(rows) => Ok(Some(rows.concat())),
+        Err(Stopped::Cancelled) => Ok(None),
+        Err(Stopped::OutOfTime) => Err(OutOfTime { seconds: limit.unwrap_or_default() }.into()),
+    }
 }
+
+/// A tile went over the lease's `max_render_seconds`.
+#[derive(Debug)]
+struct OutOfTime {
+    seconds: f64,
+}
+
+impl std::fmt::Display for OutOfTime {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "the tile did not finish within {} s, this farm's longest render of one tile (the server's \
+             --max-tile-seconds, TESSERA_MAX_TILE_SECONDS); submit with a smaller tile_size or fewer samples, \
+             or ask the farm's operator to raise the limit",
+            self.seconds
+        )
+    }
+}
+
+impl std::error::Error for OutOfTime {}
 
 fn load_bundle_scene(client: &Client, bundle: &str, scene_path: &str) -> Result<Scene> {
     let resp = client

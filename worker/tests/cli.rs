@@ -186,8 +186,14 @@ fn unknown_element_warns_and_still_renders() {
 fn hostile_recursion_depth_is_capped_with_a_warning() {
     let tmp = TempDir::new("depth");
     for (kind, material) in [
-        ("mirror", r#"<Material id="1" type="mirror"><AmbientReflectance>0 0 0</AmbientReflectance><DiffuseReflectance>0.1 0.1 0.1</DiffuseReflectance><SpecularReflectance>0 0 0</SpecularReflectance><MirrorReflectance>1 1 1</MirrorReflectance></Material>"#),
-        ("glass", r#"<Material id="1" type="dielectric"><AmbientReflectance>0 0 0</AmbientReflectance><DiffuseReflectance>0 0 0</DiffuseReflectance><SpecularReflectance>0 0 0</SpecularReflectance><AbsorptionCoefficient>0 0 0</AbsorptionCoefficient><RefractionIndex>1.5</RefractionIndex></Material>"#),
+        (
+            "mirror",
+            r#"<Material id="1" type="mirror"><AmbientReflectance>0 0 0</AmbientReflectance><DiffuseReflectance>0.1 0.1 0.1</DiffuseReflectance><SpecularReflectance>0 0 0</SpecularReflectance><MirrorReflectance>1 1 1</MirrorReflectance></Material>"#,
+        ),
+        (
+            "glass",
+            r#"<Material id="1" type="dielectric"><AmbientReflectance>0 0 0</AmbientReflectance><DiffuseReflectance>0 0 0</DiffuseReflectance><SpecularReflectance>0 0 0</SpecularReflectance><AbsorptionCoefficient>0 0 0</AbsorptionCoefficient><RefractionIndex>1.5</RefractionIndex></Material>"#,
+        ),
     ] {
         let scene = format!(
             r#"<Scene>
@@ -210,9 +216,12 @@ fn hostile_recursion_depth_is_capped_with_a_warning() {
         let r = run(&["render".as_ref(), file.as_os_str(), "--out".as_ref(), out.as_os_str(), "-q".as_ref()]);
         assert_eq!(r.code, Some(0), "{kind}: {}", r.describe());
         let warning = r.stderr.lines().find(|l| l.contains("MaxRecursionDepth"));
-        let warning = warning.unwrap_or_else(|| panic!("{kind}: no warning about the depth\n{}", r.describe()));
+        let warning =
+            warning.unwrap_or_else(|| panic!("{kind}: no warning about the depth\n{}", r.describe()));
         assert!(
-            warning.contains("1000000") && warning.contains("capped to 64") && warning.contains(&format!("{kind}.xml:2")),
+            warning.contains("1000000")
+                && warning.contains("capped to 64")
+                && warning.contains(&format!("{kind}.xml:2")),
             "{kind}: the warning should give the value, the cap and the line: {warning}"
         );
         let img = Rgb8::read_png(&out.join(format!("{kind}.png"))).expect("the scene renders");

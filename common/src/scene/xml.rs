@@ -23,10 +23,11 @@ use quick_xml::events::{BytesStart, Event};
 use quick_xml::{Reader, XmlVersion};
 
 use super::records::{
-    MAX_RECURSION_DEPTH_LIMIT, AreaLightRec, CameraRec, DecalMode, DirectionalLightRec, EnvLightRec, EnvMapping, EnvSampler, FacesRec,
-    Handedness, ImageRec, InstanceRec, Interpolation, LensRec, MaterialKind, MaterialRec, MeshRec,
-    NoiseConversion, PlaneRec, PointLightRec, Projection, SceneRecords, ShadingMode, SphereRec, SpotLightRec,
-    TextureMapRec, TextureSource, TonemapRec, TransformOp, TransformRec, TransformRef, TriangleRec, Vec3,
+    AreaLightRec, CameraRec, DecalMode, DirectionalLightRec, EnvLightRec, EnvMapping, EnvSampler, FacesRec,
+    Handedness, ImageRec, InstanceRec, Interpolation, LensRec, MAX_RECURSION_DEPTH_LIMIT, MaterialKind,
+    MaterialRec, MeshRec, NoiseConversion, PlaneRec, PointLightRec, Projection, SceneRecords, ShadingMode,
+    SphereRec, SpotLightRec, TextureMapRec, TextureSource, TonemapRec, TransformOp, TransformRec,
+    TransformRef, TriangleRec, Vec3,
 };
 use crate::error::{Loc, SceneError, Warning};
 use crate::tonemap::{Operator, Photographic};

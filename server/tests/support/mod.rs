@@ -114,11 +114,13 @@ pub fn server_bin() -> PathBuf {
     PathBuf::from(env!("CARGO_BIN_EXE_tessera-server"))
 }
 
-/// `tessera-worker`, built next to the server binary (`cargo test --workspace` builds it; a
-/// test run of this package alone builds it here).
+/// `tessera-worker`, built next to the server binary. Cargo builds it for `cargo test
+/// --workspace` but not for a test run of this package alone, where an older build would be
+/// tested: so `cargo build` runs once per test binary here (a no-op when it is up to date).
 pub fn worker_bin() -> PathBuf {
+    static BUILT: std::sync::Once = std::sync::Once::new();
     let bin = server_bin().with_file_name("tessera-worker");
-    if !bin.exists() {
+    BUILT.call_once(|| {
         let release = server_bin().components().any(|c| c.as_os_str() == "release");
         let mut cmd = Command::new(env!("CARGO"));
         cmd.args(["build", "-p", "tessera-worker"]);
@@ -127,7 +129,7 @@ pub fn worker_bin() -> PathBuf {
         }
         let status = cmd.status().expect("run cargo build -p tessera-worker");
         assert!(status.success(), "cannot build tessera-worker");
-    }
+    });
     bin
 }
 

@@ -1,0 +1,105 @@
+//! Jobs that would keep the farm busy for days (issue #16 item 3), with the real binaries: a
+//! cancel reaches the tile being rendered, a tile that outlives `--max-tile-seconds` fails its
+//! job with a message naming the limit, and a job over `--max-job-samples` is refused.
+
+mod support;
+
+use std::time::{Duration, Instant};
+
+use support::*;
+
+fn cancel(server: &Server, id: u64) {
+    let (code, job) = call(
+        ureq::post(&format!("{}/api/v1/jobs/{id}/cancel", server.url)),
+        Some(("text/plain".into(), vec![])),
+    );
+    assert_eq!(code, 200, "{job}");
+}
+
+/// A worker is rendering a tile of a million samples per pixel (hours of work); the job is
+/// cancelled, and the worker drops the tile at once: a small job submitted right after the
+/// cancel finishes in seconds. Before cancels reached the core the worker finished the
+/// cancelled tile first, and the small job waited for hours.
+#[test]
+fn a_cancel_stops_the_tile_being_rendered() {
+    let _s = serial();
+    let data = temp_dir("limits-cancel");
+    let server = Server::start(
+        &data,
+        &["--local-workers", "1", "--local-worker-threads", "1", "--max-job-samples", "1000000000000"],
+    );
+    let big = submit_environment(&server, "1000000", "16");
+    wait_job(&server, big, 60, |j| j["state"] == "running");
+    // Let the worker fetch the scene and get into the tile's samples.
+    std::thread::sleep(Duration::from_secs(2));
+    let t0 = Instant::now();
+    cancel(&server, big);
+    let small = submit_environment(&server, "1", "64");
+    wait_job(&server, small, 60, |j| j["state"] == "done");
+    let took = t0.elapsed();
+    eprintln!("the small job finished {:.2} s after the cancel", took.as_secs_f64());
+    let log = server.log();
+    assert!(log.contains("was revoked while rendering; dropping the tile"), "{log}");
+    let big_job = get_json(&server.url, &format!("/api/v1/jobs/{big}"));
+    assert_eq!(big_job["state"], "canceled", "{big_job}");
+    assert_eq!(tiles_done(&big_job), 0, "{big_job}");
+}
+
+/// With `--max-tile-seconds 1`, a tile that needs far longer is stopped by its worker and
+/// reported failed; after the failure limit the job fails with an error that names the limit
+/// and how to raise it, and the farm goes on serving the next job.
+#[test]
+fn a_tile_over_the_render_time_limit_fails_its_job_with_the_limit_named() {
+    let _s = serial();
+    let data = temp_dir("limits-deadline");
+    let server = Server::start(
+        &data,
+        &["--local-workers", "1", "--local-worker-threads", "1", "--max-tile-seconds", "1"],
+    );
+    let slow = submit_environment(&server, "100000", "16");
+    let job = wait_job(&server, slow, 120, |j| j["state"] == "failed" || j["state"] == "done");
+    assert_eq!(job["state"], "failed", "{job}");
+    let error = job["error"].as_str().unwrap_or_default();
+    assert!(
+        error.contains("did not finish within 1 s")
+            && error.contains("--max-tile-seconds")
+            && error.contains("TESSERA_MAX_TILE_SECONDS"),
+        "{job}"
+    );
+    let next = submit_environment(&server, "1", "64");
+    wait_job(&server, next, 60, |j| j["state"] == "done");
+}
+
+/// The issue's scene: 64x64 pixels at 100 000 000 samples per pixel is 4.1e11 samples, over the
+/// default limit of 1e11: refused with a 422 that gives the count, the limit and the flag, and
+/// nothing is queued. Under a raised limit the same upload is accepted.
+#[test]
+fn a_job_over_the_sample_limit_is_refused_with_the_limit_named() {
+    let _s = serial();
+    let data = temp_dir("limits-samples");
+    let server = Server::start(&data, &["--local-workers", "0"]);
+    let scene = std::fs::read_to_string(repo().join("scenes/environment.xml")).unwrap();
+    let huge = scene
+        .replace("<ImageResolution>480 270</ImageResolution>", "<ImageResolution>64 64</ImageResolution>")
+        .replace("<NumSamples>36</NumSamples>", "<NumSamples>100000000</NumSamples>");
+    assert_ne!(huge, scene, "the demo scene changed; update this test");
+    let sky = std::fs::read(repo().join("scenes/textures/sky.hdr")).unwrap();
+    let parts: [(&str, Option<&str>, &[u8]); 2] =
+        [("scene", Some("environment.xml"), huge.as_bytes()), ("asset", Some("textures/sky.hdr"), &sky)];
+    let (code, body) = submit(&server.url, None, &parts);
+    assert_eq!(code, 422, "{body}");
+    let msg = body["error"].as_str().unwrap_or_default();
+    assert!(
+        msg.contains("409600000000 samples")
+            && msg.contains("100000000000")
+            && msg.contains("--max-job-samples")
+            && msg.contains("TESSERA_MAX_JOB_SAMPLES"),
+        "{msg}"
+    );
+    let jobs = get_json(&server.url, "/api/v1/jobs");
+    assert_eq!(jobs["jobs"].as_array().map(Vec::len), Some(0), "{jobs}");
+    drop(server);
+    let server = Server::start(&data, &["--local-workers", "0", "--max-job-samples", "1000000000000"]);
+    let (code, body) = submit(&server.url, None, &parts);
+    assert_eq!(code, 201, "{body}");
+}
