@@ -255,6 +255,10 @@ pub struct JobInfo {
     pub finished_at: Option<f64>,
     pub frames: Vec<FrameInfo>,
     pub error: Option<String>,
+    /// What the scene's parser and builder warned about (unknown elements, a capped
+    /// MaxRecursionDepth, ...): in the answer to a submission only.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
     pub url: String,
 }
 

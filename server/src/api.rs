@@ -324,7 +324,7 @@ async fn submit_job(
 
     // Parse and build the whole scene (every asset read and decoded) before accepting.
     let tile_size = opts.tile_size.unwrap_or(state.settings.tile_size);
-    let (tar, cameras, frames) = {
+    let (tar, cameras, frames, warnings) = {
         let scene_path = scene_path.clone();
         let cameras_wanted = opts.cameras.clone();
         tokio::task::spawn_blocking(move || validate(files, &scene_path, cameras_wanted, tile_size))
@@ -348,7 +348,8 @@ async fn submit_job(
     state.work.notify_waiters();
     state.emit(ServerEvent::Job { job: id, state: JobState::Queued });
     tracing::info!(job = id, name = %job.name, "job accepted");
-    let info = job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?;
+    let mut info = job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?;
+    info.warnings = warnings;
     Ok((StatusCode::CREATED, Json(info)))
 }
 
@@ -407,7 +408,7 @@ fn validate(
     scene_path: &str,
     cameras_wanted: Option<Vec<u32>>,
     tile_size: u32,
-) -> ApiResult<(Vec<u8>, Vec<Camera>, Vec<crate::db::NewFrame>)> {
+) -> ApiResult<(Vec<u8>, Vec<Camera>, Vec<crate::db::NewFrame>, Vec<String>)> {
     let tar = bundle::canonical_tar(&files);
     let text = std::str::from_utf8(&files[scene_path]).map_err(|e| {
         AppError::new(
@@ -463,7 +464,8 @@ fn validate(
             }
         })
         .collect();
-    Ok((tar, scene.cameras, frames))
+    let warnings = scene.warnings.iter().map(ToString::to_string).collect();
+    Ok((tar, scene.cameras, frames, warnings))
 }
 
 /// The cameras of a job, parsed from its bundle once and cached.
@@ -547,6 +549,7 @@ fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobInfo>> {
             })
             .collect(),
         error,
+        warnings: Vec::new(),
         url,
     }))
 }

@@ -103,3 +103,30 @@ fn a_job_over_the_sample_limit_is_refused_with_the_limit_named() {
     let (code, body) = submit(&server.url, None, &parts);
     assert_eq!(code, 201, "{body}");
 }
+
+/// The issue's first row on the farm: a camera inside a perfect mirror sphere with
+/// `MaxRecursionDepth 1000000` used to crash the worker (a stack overflow) on every attempt, and
+/// the job ran for ever. The depth is capped with a warning the submitter sees, and the job ends.
+#[test]
+fn a_hostile_recursion_depth_renders_on_the_farm() {
+    let _s = serial();
+    let data = temp_dir("limits-depth");
+    let server = Server::start(&data, &["--local-workers", "1", "--local-worker-threads", "1"]);
+    let scene = r#"<Scene>
+  <MaxRecursionDepth>1000000</MaxRecursionDepth>
+  <Cameras>
+    <Camera id="1"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up><NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>4 4</ImageResolution><ImageName>mirror.png</ImageName></Camera>
+  </Cameras>
+  <Lights><AmbientLight>25 25 25</AmbientLight><PointLight id="1"><Position>0 0.5 0</Position><Intensity>10 10 10</Intensity></PointLight></Lights>
+  <Materials><Material id="1" type="mirror"><AmbientReflectance>0 0 0</AmbientReflectance><DiffuseReflectance>0.1 0.1 0.1</DiffuseReflectance><SpecularReflectance>0 0 0</SpecularReflectance><MirrorReflectance>1 1 1</MirrorReflectance></Material></Materials>
+  <VertexData>0 0 0</VertexData>
+  <Objects><Sphere id="1"><Material>1</Material><Center>1</Center><Radius>2</Radius></Sphere></Objects>
+</Scene>
+"#;
+    let (code, job) = submit(&server.url, None, &[("scene", Some("mirror.xml"), scene.as_bytes())]);
+    assert_eq!(code, 201, "{job}");
+    assert!(job.to_string().contains("capped to 64"), "the answer should carry the warning: {job}");
+    let id = job["id"].as_u64().unwrap();
+    let done = wait_job(&server, id, 120, |j| j["state"] == "done");
+    assert_eq!(tiles_done(&done), 1, "{done}");
+}
