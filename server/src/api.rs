@@ -999,6 +999,10 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
             .iter()
             .find(|f| f.index == frame)
             .ok_or_else(|| anyhow::anyhow!("frame {frame} vanished"))?;
+        if f.outputs.is_some() {
+            // Merged already (a second trigger of one frame): the outputs stand.
+            return Ok(frames.iter().all(|f| f.outputs.is_some()));
+        }
         let cameras = job_cameras(&st, &job)?;
         let cam =
             cameras.get(f.camera as usize).ok_or_else(|| anyhow::anyhow!("camera {} missing", f.camera))?;

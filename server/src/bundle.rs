@@ -169,6 +169,7 @@ impl BlobStore {
     pub fn new(data_dir: &Path) -> Result<BlobStore> {
         let dir = data_dir.join("blobs");
         std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        remove_stale_temp_files(&dir);
         Ok(BlobStore { dir })
     }
 
@@ -176,8 +177,10 @@ impl BlobStore {
         self.dir.join(format!("{hash}.tar"))
     }
 
-    /// Stores `bytes` (if not stored yet) and returns their hash. Written to a temporary file,
-    /// synced and renamed, so a blob is either complete or absent.
+    /// Stores `bytes` (if not stored yet) and returns their hash. Written to a temporary file
+    /// of its own, synced and renamed, so a blob is either complete or absent. Any number of
+    /// writers may put the same bytes at once: each renames its own complete copy over the same
+    /// name (an atomic replace of equal content), so none fails because another won.
     pub fn put(&self, bytes: &[u8]) -> Result<String> {
         let hash = sha256_hex(bytes);
         let path = self.path(&hash);
@@ -195,16 +198,56 @@ impl BlobStore {
     }
 }
 
-/// Writes `bytes` to `path` through a synced temporary file and a rename.
+/// A name beside `path` that no other writer in this or any other process uses: the process
+/// id, a per-process counter and the clock. Concurrent writers of one file each get their own.
+pub fn unique_temp_name(path: &Path) -> PathBuf {
+    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.subsec_nanos())
+        .unwrap_or(0);
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    path.with_file_name(format!(".{name}.{}-{n}-{nanos}.tmp", std::process::id()))
+}
+
+/// Removes temporary files a killed writer left in `dir`, once they are an hour old (a live
+/// writer finishes long before; another server sharing the folder may be writing newer ones).
+fn remove_stale_temp_files(dir: &Path) {
+    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let old = e
+            .metadata()
+            .and_then(|m| m.modified())
+            .ok()
+            .and_then(|t| t.elapsed().ok())
+            .is_some_and(|age| age > std::time::Duration::from_secs(3600));
+        if name.starts_with('.') && name.ends_with(".tmp") && old {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
+}
+
+/// Writes `bytes` to `path` through a synced temporary file of its own and a rename (which
+/// replaces an existing file atomically), so readers see the old or the new file, never half
+/// of one, and concurrent writers never trip over each other's temporary files.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     use std::io::Write;
-    let tmp = path.with_extension(format!("tmp{}", std::process::id()));
-    let mut f = std::fs::File::create(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
-    f.write_all(bytes).with_context(|| format!("cannot write {}", tmp.display()))?;
-    f.sync_all().with_context(|| format!("cannot sync {}", tmp.display()))?;
-    drop(f);
-    std::fs::rename(&tmp, path).with_context(|| format!("cannot move {} into place", path.display()))?;
-    Ok(())
+    let tmp = unique_temp_name(path);
+    let write = || -> Result<()> {
+        let mut f =
+            std::fs::File::create(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
+        f.write_all(bytes).with_context(|| format!("cannot write {}", tmp.display()))?;
+        f.sync_all().with_context(|| format!("cannot sync {}", tmp.display()))?;
+        drop(f);
+        std::fs::rename(&tmp, path).with_context(|| format!("cannot move {} into place", path.display()))
+    };
+    let result = write();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
 }
 
 /// The scene file of a bundle: `wanted` if given, else the only `.xml` (or `.json`) file at the
@@ -272,6 +315,35 @@ mod tests {
         assert!(matches!(add_archive(&mut f, b"hello world"), Err(BundleError::Archive(_))));
         add_file(&mut f, "a.xml", vec![]).unwrap();
         assert!(matches!(add_file(&mut f, "./a.xml", vec![]), Err(BundleError::Duplicate(_))));
+    }
+
+    /// Many threads storing the same bytes and different bytes at once: every put succeeds, each
+    /// blob holds its bytes, and no temporary file is left behind.
+    #[test]
+    fn concurrent_puts_of_equal_and_different_bytes_all_succeed() {
+        let dir = std::env::temp_dir().join(format!("tessera-blobs-race-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let store = BlobStore::new(&dir).unwrap();
+        let threads: Vec<_> = (0..64)
+            .map(|i| {
+                let store = store.clone();
+                std::thread::spawn(move || {
+                    let bytes = if i % 4 == 0 { vec![i as u8; 100_000] } else { vec![7u8; 300_000] };
+                    let hash = store.put(&bytes).unwrap();
+                    assert_eq!(store.get(&hash).unwrap(), bytes);
+                })
+            })
+            .collect();
+        for t in threads {
+            t.join().unwrap();
+        }
+        let names: Vec<String> = std::fs::read_dir(&store.dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(names.len(), 17, "{names:?}");
+        assert!(names.iter().all(|n| n.ends_with(".tar") && !n.starts_with('.')), "{names:?}");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

@@ -52,8 +52,10 @@ pub fn farm_outputs(cam: &Camera) -> Vec<OutputFile> {
 pub fn write_outputs(dir: &Path, cam: &Camera, img: &Image) -> Result<Vec<String>> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let files = farm_outputs(cam);
-    let tmp = dir.join(format!(".merge-{}", std::process::id()));
-    std::fs::create_dir_all(&tmp)?;
+    // A staging folder of this merge's own: two merges of one frame (a restart's recovery and a
+    // late trigger) never write into each other's files.
+    let tmp = crate::bundle::unique_temp_name(&dir.join("merge"));
+    std::fs::create_dir_all(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
     output::write(&tmp, img, &files).map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut names = Vec::new();
     for f in &files {
