@@ -9,6 +9,16 @@ use std::time::Duration;
 use glam::{DVec2, DVec3, Vec3A};
 use obvhs::{BvhBuildParams, aabb::Aabb, cwbvh::CwBvh, cwbvh::builder::build_cwbvh, ray::RayHit};
 
+/// Largest coordinate a box may reach to go into a BVH: the builder's surface areas (products
+/// of extents) stay finite in `f32` below it.
+pub const MAX_COORDINATE: f32 = 1e18;
+
+/// A box that the BVH builder can take: finite, not inverted, within [`MAX_COORDINATE`].
+pub fn is_sane(b: &Aabb) -> bool {
+    let inside = |v: Vec3A| v.is_finite() && v.abs().max_element() <= MAX_COORDINATE;
+    inside(b.min) && inside(b.max) && b.min.cmple(b.max).all()
+}
+
 /// A triangle prepared for the `f32` Möller–Trumbore test.
 #[derive(Clone, Copy, Debug)]
 pub struct TriAccel {
@@ -97,14 +107,27 @@ impl MeshGeom {
                 TriAccel::new(p(a), p(b), p(c))
             })
             .collect();
-        let aabbs: Vec<Aabb> =
-            tris.iter().map(|t| Aabb::from_points(&[t.v0, t.v0 + t.e1, t.v0 + t.e2])).collect();
+        // Triangles whose box is not finite and within `MAX_COORDINATE` (a vertex beyond f32's
+        // range, found by fuzzing) would break the BVH build's arithmetic; they are left out
+        // of the BVH and can never be hit.
+        let (mut aabbs, mut kept) = (Vec::with_capacity(tris.len()), Vec::with_capacity(tris.len()));
+        for (i, t) in tris.iter().enumerate() {
+            let b = Aabb::from_points(&[t.v0, t.v0 + t.e1, t.v0 + t.e2]);
+            if is_sane(&b) {
+                aabbs.push(b);
+                kept.push(i as u32);
+            }
+        }
         // `fast_build` traces as fast as the slower presets on the course meshes (measured with
         // the trace bench) and builds a 1M-triangle mesh about twice as fast as `medium_build`.
-        let bvh = build_cwbvh(&aabbs, BvhBuildParams::fast_build(), &mut Duration::default());
-        let accel_tri = bvh.primitive_indices.clone();
+        let bvh = if aabbs.is_empty() {
+            CwBvh::default()
+        } else {
+            build_cwbvh(&aabbs, BvhBuildParams::fast_build(), &mut Duration::default())
+        };
+        let accel_tri: Vec<u32> = bvh.primitive_indices.iter().map(|&k| kept[k as usize]).collect();
         let accel = accel_tri.iter().map(|&i| tris[i as usize]).collect();
-        let bounds = bvh.total_aabb;
+        let bounds = if aabbs.is_empty() { Aabb::empty() } else { bvh.total_aabb };
         MeshGeom { positions, indices, vertex_normals, uvs, accel, accel_tri, bvh, bounds }
     }
 
