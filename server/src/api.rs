@@ -25,7 +25,7 @@ use tessera::scene::build::build_scene;
 use tessera::scene::parse_scene;
 use tokio::sync::Notify;
 
-use crate::bundle::{self, BlobStore, Files};
+use crate::bundle::{self, BlobStore, BundleError, Files, Unpacker};
 use crate::db::{FailOutcome, ResultOutcome, Store};
 use crate::merge;
 
@@ -42,6 +42,8 @@ pub struct Settings {
     /// Longest a lease request is held open.
     pub max_wait_seconds: f64,
     pub max_upload_bytes: usize,
+    /// Caps on what an upload unpacks to.
+    pub bundle_limits: bundle::Limits,
     /// Longest one tile may render (sent with every lease).
     pub max_tile_seconds: f64,
     /// Most samples (pixels x samples per pixel over all frames) one job may ask for.
@@ -71,6 +73,8 @@ pub struct AppState {
     /// with 503 (so stopping workers are not held up by a poll that could only bring a lease to
     /// give back).
     pub shutting_down: Arc<std::sync::atomic::AtomicBool>,
+    /// Uploads being unpacked and validated at once (each holds its files in memory).
+    pub unpacking: Arc<tokio::sync::Semaphore>,
 }
 
 impl AppState {
@@ -239,19 +243,55 @@ fn problem_from(e: &tessera::SceneError) -> Problem {
     }
 }
 
-async fn submit_job(
-    State(state): State<AppState>,
-    mut multipart: Multipart,
-) -> ApiResult<(StatusCode, Json<JobInfo>)> {
-    let mut files = Files::new();
-    let mut opts = SubmitOptions::default();
-    let mut scene_field: Option<String> = None;
+/// An upload's files on disk while its request is read: the multipart body is streamed into
+/// `<data>/uploads/<unique>/`, never held in memory, and the folder goes when the request ends.
+struct Spool {
+    dir: PathBuf,
+    /// (field kind, file name given, spooled file)
+    parts: Vec<(SpoolKind, String, PathBuf)>,
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum SpoolKind {
+    File,
+    Archive,
+}
+
+impl Spool {
+    fn new(data_dir: &std::path::Path) -> anyhow::Result<Spool> {
+        let dir = crate::bundle::unique_temp_name(&data_dir.join("uploads").join("upload"));
+        std::fs::create_dir_all(&dir).map_err(|e| anyhow::anyhow!("cannot create {}: {e}", dir.display()))?;
+        Ok(Spool { dir, parts: Vec::new() })
+    }
+}
+
+impl Drop for Spool {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+/// The longest a text field (name, priority, cameras, ...) may be.
+const MAX_TEXT_FIELD: usize = 64 << 10;
+
+/// Reads the multipart fields of a submission: files are streamed into `spool` under the
+/// caps, the options into `opts`.
+async fn read_fields(
+    state: &AppState,
+    multipart: &mut Multipart,
+    spool: &mut Spool,
+    opts: &mut SubmitOptions,
+    scene_field: &mut Option<String>,
+) -> ApiResult<()> {
+    use tokio::io::AsyncWriteExt;
+    let limits = state.settings.bundle_limits;
     let too_big = |e: &axum::extract::multipart::MultipartError| e.status() == StatusCode::PAYLOAD_TOO_LARGE;
+    let too_large = |e: BundleError| AppError::new(StatusCode::PAYLOAD_TOO_LARGE, e.to_string());
     loop {
-        let field = match multipart.next_field().await {
+        let mut field = match multipart.next_field().await {
             Ok(Some(f)) => f,
             Ok(None) => break,
-            Err(e) if too_big(&e) => return Err(upload_too_large(&state)),
+            Err(e) if too_big(&e) => return Err(upload_too_large(state)),
             Err(e) => {
                 return Err(AppError::bad_request(format!(
                     "the upload is not valid multipart/form-data: {e}"
@@ -260,11 +300,65 @@ async fn submit_job(
         };
         let name = field.name().unwrap_or("").to_string();
         let file_name = field.file_name().map(str::to_string);
-        let data = match field.bytes().await {
-            Ok(d) => d,
-            Err(e) if too_big(&e) => return Err(upload_too_large(&state)),
-            Err(e) => return Err(AppError::bad_request(format!("cannot read the field \"{name}\": {e}"))),
+        let kind = match name.as_str() {
+            "scene" | "asset" | "file" | "assets" | "files" => Some(SpoolKind::File),
+            "bundle" => Some(SpoolKind::Archive),
+            _ => None,
         };
+        let read_error = |e: axum::extract::multipart::MultipartError| {
+            if too_big(&e) {
+                upload_too_large(state)
+            } else {
+                AppError::bad_request(format!("cannot read the field \"{name}\": {e}"))
+            }
+        };
+        if let Some(kind) = kind {
+            let path = match (name.as_str(), file_name) {
+                ("scene", f) => {
+                    let f = f.unwrap_or_else(|| "scene.xml".into());
+                    *scene_field = tessera::assets::normalize_bundle_path(&f);
+                    f
+                }
+                ("bundle", f) => f.unwrap_or_else(|| "bundle".into()),
+                (_, Some(f)) => f,
+                (_, None) => {
+                    return Err(AppError::bad_request(format!(
+                        "the field \"{name}\" needs a file name: its path relative to the scene file"
+                    )));
+                }
+            };
+            if kind == SpoolKind::File && tessera::assets::normalize_bundle_path(&path).is_none() {
+                return Err(AppError::bad_request(BundleError::UnsafePath(path).to_string()));
+            }
+            if spool.parts.len() >= limits.max_files {
+                return Err(too_large(Unpacker::new(limits).too_many_files_error()));
+            }
+            let file = spool.dir.join(format!("part{}", spool.parts.len()));
+            let mut out = tokio::fs::File::create(&file)
+                .await
+                .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", file.display()))?;
+            let mut size = 0u64;
+            while let Some(chunk) = field.chunk().await.map_err(read_error)? {
+                size += chunk.len() as u64;
+                if kind == SpoolKind::File && size > limits.max_file_bytes {
+                    return Err(too_large(Unpacker::new(limits).file_too_large_error(&path)));
+                }
+                out.write_all(&chunk).await.map_err(|e| anyhow::anyhow!("cannot write {}: {e}", file.display()))?;
+            }
+            out.flush().await.map_err(|e| anyhow::anyhow!("cannot write {}: {e}", file.display()))?;
+            spool.parts.push((kind, path, file));
+            continue;
+        }
+        let mut data = Vec::new();
+        while let Some(chunk) = field.chunk().await.map_err(read_error)? {
+            data.extend_from_slice(&chunk);
+            if data.len() > MAX_TEXT_FIELD {
+                return Err(AppError::bad_request(format!(
+                    "the field \"{name}\" is longer than {} KiB; send files as scene, asset or bundle fields",
+                    MAX_TEXT_FIELD >> 10
+                )));
+            }
+        }
         let text = || String::from_utf8_lossy(&data).trim().to_string();
         let number = |what: &str| -> ApiResult<i64> {
             text().parse::<i64>().map_err(|_| {
@@ -272,24 +366,6 @@ async fn submit_job(
             })
         };
         match name.as_str() {
-            "scene" => {
-                let path = file_name.unwrap_or_else(|| "scene.xml".into());
-                bundle::add_file(&mut files, &path, data.to_vec())
-                    .map_err(|e| AppError::bad_request(e.to_string()))?;
-                scene_field = tessera::assets::normalize_bundle_path(&path);
-            }
-            "asset" | "file" | "assets" | "files" => {
-                let path = file_name.ok_or_else(|| {
-                    AppError::bad_request(format!(
-                        "the field \"{name}\" needs a file name: its path relative to the scene file"
-                    ))
-                })?;
-                bundle::add_file(&mut files, &path, data.to_vec())
-                    .map_err(|e| AppError::bad_request(e.to_string()))?;
-            }
-            "bundle" => {
-                bundle::add_archive(&mut files, &data).map_err(|e| AppError::bad_request(e.to_string()))?
-            }
             "name" => opts.name = Some(text()),
             "priority" => opts.priority = number("priority")?,
             "tile_size" => opts.tile_size = Some(bounded("tile_size", number("tile_size")?, 4096, "pixels")?),
@@ -314,23 +390,65 @@ async fn submit_job(
             }
         }
     }
-    if files.is_empty() {
+    Ok(())
+}
+
+async fn submit_job(
+    State(state): State<AppState>,
+    mut multipart: Multipart,
+) -> ApiResult<(StatusCode, Json<JobInfo>)> {
+    let limits = state.settings.bundle_limits;
+    let mut spool = Spool::new(&state.settings.data_dir)?;
+    let mut opts = SubmitOptions::default();
+    let mut scene_field: Option<String> = None;
+    if let Err(refusal) = read_fields(&state, &mut multipart, &mut spool, &mut opts, &mut scene_field).await {
+        // Read the rest of the body (bounded by --max-upload-mb, discarded) so that a client
+        // still sending gets the answer instead of a broken connection.
+        while let Ok(Some(mut field)) = multipart.next_field().await {
+            while let Ok(Some(_)) = field.chunk().await {}
+        }
+        return Err(refusal);
+    }
+    let too_large = |e: BundleError| AppError::new(StatusCode::PAYLOAD_TOO_LARGE, e.to_string());
+    if spool.parts.is_empty() {
         return Err(AppError::bad_request(
             "the upload holds no files; send the scene as the \"scene\" field (and its assets as \"asset\" fields) or a \"bundle\" archive",
         ));
     }
-    let wanted = opts.scene_path.clone().or(scene_field);
-    let scene_path = bundle::find_scene(&files, wanted.as_deref()).map_err(AppError::bad_request)?;
 
-    // Parse and build the whole scene (every asset read and decoded) before accepting.
+    // Unpacking and validation hold the files in memory: a few uploads at a time, so the
+    // server's memory stays bounded however many arrive at once.
+    let _permit = state
+        .unpacking
+        .clone()
+        .acquire_owned()
+        .await
+        .map_err(|_| AppError::new(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping"))?;
     let tile_size = opts.tile_size.unwrap_or(state.settings.tile_size);
-    let (tar, cameras, frames, warnings) = {
-        let scene_path = scene_path.clone();
-        let cameras_wanted = opts.cameras.clone();
-        tokio::task::spawn_blocking(move || validate(files, &scene_path, cameras_wanted, tile_size))
-            .await
-            .map_err(|e| anyhow::anyhow!("validation task: {e}"))??
-    };
+    let wanted = opts.scene_path.clone().or(scene_field);
+    let cameras_wanted = opts.cameras.clone();
+    let (scene_path, tar, cameras, frames, warnings) = tokio::task::spawn_blocking(move || {
+        let mut unpacker = Unpacker::new(limits);
+        for (kind, path, file) in &spool.parts {
+            let opened =
+                std::fs::File::open(file).map_err(|e| anyhow::anyhow!("cannot read {}: {e}", file.display()))?;
+            let added = match kind {
+                SpoolKind::File => unpacker.add_reader(path, opened),
+                SpoolKind::Archive => unpacker.add_archive(opened),
+            };
+            added.map_err(|e| match e {
+                e @ BundleError::TooLarge(_) => too_large(e),
+                e => AppError::bad_request(e.to_string()),
+            })?;
+        }
+        drop(spool);
+        let files = unpacker.files;
+        let scene_path = bundle::find_scene(&files, wanted.as_deref()).map_err(AppError::bad_request)?;
+        let (tar, cameras, frames, warnings) = validate(files, &scene_path, cameras_wanted, tile_size)?;
+        Ok::<_, AppError>((scene_path, tar, cameras, frames, warnings))
+    })
+    .await
+    .map_err(|e| anyhow::anyhow!("validation task: {e}"))??;
     check_sample_budget(&state.settings, &cameras, &frames, opts.samples)?;
     let hash = state.blobs.put(&tar)?;
     let name = opts.name.unwrap_or_else(|| scene_path.rsplit('/').next().unwrap_or(&scene_path).to_string());

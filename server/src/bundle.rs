@@ -8,7 +8,7 @@
 //! bundle once per hash and cache the scene built from it.
 
 use std::collections::{BTreeMap, HashMap};
-use std::io::Read;
+use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -19,7 +19,34 @@ use tessera::assets::normalize_bundle_path;
 /// Files of a bundle by normalised path.
 pub type Files = BTreeMap<String, Vec<u8>>;
 
-/// Why an upload is not a usable bundle (a 400 for the client).
+/// Caps on what an upload may unpack to, checked while reading (an archive is never unpacked
+/// further than the cap, whatever its headers claim).
+#[derive(Clone, Copy, Debug)]
+pub struct Limits {
+    /// Total bytes of every file of the bundle, unpacked.
+    pub max_unpacked_bytes: u64,
+    /// Number of files.
+    pub max_files: usize,
+    /// Bytes of any one file, unpacked.
+    pub max_file_bytes: u64,
+}
+
+impl Default for Limits {
+    /// 256 MiB in all, in at most 10 000 files: every course scene with its assets is under
+    /// 20 MiB.
+    fn default() -> Self {
+        Limits { max_unpacked_bytes: 256 << 20, max_files: 10_000, max_file_bytes: 256 << 20 }
+    }
+}
+
+impl Limits {
+    /// No caps: for bundles the server wrote itself.
+    pub fn unlimited() -> Self {
+        Limits { max_unpacked_bytes: u64::MAX, max_files: usize::MAX, max_file_bytes: u64::MAX }
+    }
+}
+
+/// Why an upload is not a usable bundle (a 400 for the client, a 413 for [`BundleError::TooLarge`]).
 #[derive(Debug)]
 pub enum BundleError {
     /// A path that is absolute or climbs out of the bundle (`../`).
@@ -28,6 +55,8 @@ pub enum BundleError {
     Archive(String),
     /// The same path twice.
     Duplicate(String),
+    /// Over one of the [`Limits`]; the message names the cap and the flag that raises it.
+    TooLarge(String),
 }
 
 impl std::error::Error for BundleError {}
@@ -39,13 +68,168 @@ impl std::fmt::Display for BundleError {
                 f,
                 "the path \"{p}\" leaves the bundle (absolute, or with ../ above its top); name files by their path relative to the scene's folder"
             ),
-            BundleError::Archive(m) => write!(f, "{m}"),
+            BundleError::Archive(m) | BundleError::TooLarge(m) => write!(f, "{m}"),
             BundleError::Duplicate(p) => write!(f, "the file \"{p}\" is given twice"),
         }
     }
 }
 
-/// Adds one uploaded file under `path`.
+fn mib(bytes: u64) -> String {
+    let m = bytes as f64 / f64::from(1 << 20);
+    if m >= 10.0 { format!("{m:.0} MiB") } else { format!("{m:.2} MiB") }
+}
+
+/// Collects a bundle's files under [`Limits`]: every file is read through a cap of what is
+/// left, so an upload can never make it hold more than `max_unpacked_bytes`.
+pub struct Unpacker {
+    pub files: Files,
+    limits: Limits,
+    total: u64,
+}
+
+impl Unpacker {
+    pub fn new(limits: Limits) -> Unpacker {
+        Unpacker { files: Files::new(), limits, total: 0 }
+    }
+
+    /// Bytes unpacked so far.
+    pub fn total_bytes(&self) -> u64 {
+        self.total
+    }
+
+    pub fn too_many_files_error(&self) -> BundleError {
+        BundleError::TooLarge(format!(
+            "the bundle holds more than {} files, the most this server accepts (--max-bundle-files, \
+             TESSERA_MAX_BUNDLE_FILES); leave out files the scene does not use, or ask the farm's operator to raise the limit",
+            self.limits.max_files
+        ))
+    }
+
+    /// A file whose size is known before reading it (a header's claim, checked again on reading).
+    fn check_claim(&self, path: &str, size: u64) -> Result<(), BundleError> {
+        if size > self.limits.max_file_bytes {
+            return Err(self.file_too_large_error(path));
+        }
+        if size > self.limits.max_unpacked_bytes - self.total {
+            return Err(self.total_too_large());
+        }
+        Ok(())
+    }
+
+    pub fn file_too_large_error(&self, path: &str) -> BundleError {
+        BundleError::TooLarge(format!(
+            "\"{path}\" is larger than {}, the largest single file this server accepts (--max-file-mb, \
+             TESSERA_MAX_FILE_MB); shrink the file, or ask the farm's operator to raise the limit",
+            mib(self.limits.max_file_bytes)
+        ))
+    }
+
+    fn total_too_large(&self) -> BundleError {
+        BundleError::TooLarge(format!(
+            "the bundle unpacks to more than {}, the most this server accepts (--max-unpacked-mb, \
+             TESSERA_MAX_UNPACKED_MB); an archive that unpacks to far more than its size may be a \
+             decompression bomb; send only the files the scene uses, or ask the farm's operator to raise the limit",
+            mib(self.limits.max_unpacked_bytes)
+        ))
+    }
+
+    /// Adds one file under `path`, read from `data` through the caps.
+    pub fn add_reader(&mut self, path: &str, data: impl Read) -> Result<(), BundleError> {
+        let norm = normalize_bundle_path(path).ok_or_else(|| BundleError::UnsafePath(path.to_string()))?;
+        if self.files.contains_key(&norm) {
+            return Err(BundleError::Duplicate(norm));
+        }
+        if self.files.len() >= self.limits.max_files {
+            return Err(self.too_many_files_error());
+        }
+        let room = self.limits.max_file_bytes.min(self.limits.max_unpacked_bytes - self.total);
+        let mut bytes = Vec::new();
+        data.take(room.saturating_add(1))
+            .read_to_end(&mut bytes)
+            .map_err(|e| BundleError::Archive(format!("cannot unpack {path}: {e}")))?;
+        if bytes.len() as u64 > room {
+            return Err(if bytes.len() as u64 > self.limits.max_file_bytes {
+                self.file_too_large_error(path)
+            } else {
+                self.total_too_large()
+            });
+        }
+        self.total += bytes.len() as u64;
+        self.files.insert(norm, bytes);
+        Ok(())
+    }
+
+    /// Unpacks an archive (recognised by content: gzip, zip or tar), streaming from `source`.
+    pub fn add_archive<R: Read + Seek>(&mut self, mut source: R) -> Result<(), BundleError> {
+        let damaged = |e: std::io::Error| BundleError::Archive(format!("the bundle cannot be read: {e}"));
+        let mut head = Vec::with_capacity(512);
+        (&mut source).take(512).read_to_end(&mut head).map_err(damaged)?;
+        source.seek(SeekFrom::Start(0)).map_err(damaged)?;
+        if head.starts_with(&[0x1f, 0x8b]) {
+            let gz = flate2::read::GzDecoder::new(std::io::BufReader::new(source));
+            return self.add_tar(gz, ".tar.gz");
+        }
+        if head.starts_with(b"PK") {
+            return self.add_zip(source);
+        }
+        if head.len() >= 262 && &head[257..262] == b"ustar" || head.len() == 512 && looks_like_v7_tar(&head) {
+            return self.add_tar(std::io::BufReader::new(source), "tar");
+        }
+        Err(BundleError::Archive(
+            "the bundle is not a .tar, .tar.gz or .zip archive; upload the scene and its assets as separate files, or pack them with tar or zip".into(),
+        ))
+    }
+
+    fn add_zip<R: Read + Seek>(&mut self, source: R) -> Result<(), BundleError> {
+        let mut zip = zip::ZipArchive::new(source)
+            .map_err(|e| BundleError::Archive(format!("the .zip bundle cannot be read: {e}")))?;
+        // The central directory gives the count up front: refuse before unpacking anything.
+        if zip.len() > self.limits.max_files.saturating_sub(self.files.len()) {
+            return Err(self.too_many_files_error());
+        }
+        for i in 0..zip.len() {
+            let entry = zip
+                .by_index(i)
+                .map_err(|e| BundleError::Archive(format!("the .zip bundle is damaged: {e}")))?;
+            if entry.is_dir() {
+                continue;
+            }
+            let name = entry.name().to_string();
+            self.check_claim(&name, entry.size())?;
+            self.add_reader(&name, entry).map_err(|e| match e {
+                BundleError::Archive(m) => BundleError::Archive(format!("{m} (in the .zip bundle)")),
+                other => other,
+            })?;
+        }
+        Ok(())
+    }
+
+    fn add_tar(&mut self, source: impl Read, what: &str) -> Result<(), BundleError> {
+        let mut archive = tar::Archive::new(source);
+        let entries = archive
+            .entries()
+            .map_err(|e| BundleError::Archive(format!("the {what} bundle cannot be read: {e}")))?;
+        for entry in entries {
+            let entry = entry.map_err(|e| BundleError::Archive(format!("the {what} bundle is damaged: {e}")))?;
+            let kind = entry.header().entry_type();
+            if kind.is_dir() || kind.is_pax_global_extensions() || kind.is_pax_local_extensions() {
+                continue;
+            }
+            let path = entry.path_bytes().into_owned();
+            let path = String::from_utf8_lossy(&path).into_owned();
+            if !kind.is_file() {
+                return Err(BundleError::Archive(format!(
+                    "the {what} bundle holds \"{path}\", which is not a regular file (links are not accepted)"
+                )));
+            }
+            self.check_claim(&path, entry.size())?;
+            self.add_reader(&path, entry)?;
+        }
+        Ok(())
+    }
+}
+
+/// Adds one uploaded file under `path` (no caps: the bytes are in memory already).
 pub fn add_file(files: &mut Files, path: &str, bytes: Vec<u8>) -> Result<(), BundleError> {
     let norm = normalize_bundle_path(path).ok_or_else(|| BundleError::UnsafePath(path.to_string()))?;
     if files.insert(norm.clone(), bytes).is_some() {
@@ -54,45 +238,19 @@ pub fn add_file(files: &mut Files, path: &str, bytes: Vec<u8>) -> Result<(), Bun
     Ok(())
 }
 
-/// Unpacks an archive (recognised by content: gzip, zip or tar) into `files`.
+/// Unpacks an archive held in memory into `files` under the default [`Limits`].
 pub fn add_archive(files: &mut Files, bytes: &[u8]) -> Result<(), BundleError> {
-    if bytes.starts_with(&[0x1f, 0x8b]) {
-        let mut tar = Vec::new();
-        flate2::read::GzDecoder::new(bytes)
-            .read_to_end(&mut tar)
-            .map_err(|e| BundleError::Archive(format!("the .tar.gz bundle cannot be decompressed: {e}")))?;
-        return add_tar(files, &tar);
-    }
-    if bytes.starts_with(b"PK") {
-        let mut zip = zip::ZipArchive::new(std::io::Cursor::new(bytes))
-            .map_err(|e| BundleError::Archive(format!("the .zip bundle cannot be read: {e}")))?;
-        for i in 0..zip.len() {
-            let mut entry = zip
-                .by_index(i)
-                .map_err(|e| BundleError::Archive(format!("the .zip bundle is damaged: {e}")))?;
-            if entry.is_dir() {
-                continue;
-            }
-            let name = entry.name().to_string();
-            let mut data = Vec::new();
-            entry.read_to_end(&mut data).map_err(|e| {
-                BundleError::Archive(format!("cannot unpack {name} from the .zip bundle: {e}"))
-            })?;
-            add_file(files, &name, data)?;
-        }
-        return Ok(());
-    }
-    if bytes.len() >= 262 && &bytes[257..262] == b"ustar" || bytes.len() >= 512 && looks_like_v7_tar(bytes) {
-        return add_tar(files, bytes);
-    }
-    Err(BundleError::Archive(
-        "the bundle is not a .tar, .tar.gz or .zip archive; upload the scene and its assets as separate files, or pack them with tar or zip".into(),
-    ))
+    let mut unpacker = Unpacker::new(Limits::default());
+    unpacker.files = std::mem::take(files);
+    unpacker.total = unpacker.files.values().map(|v| v.len() as u64).sum();
+    let result = unpacker.add_archive(std::io::Cursor::new(bytes));
+    *files = unpacker.files;
+    result
 }
 
 /// An old-style tar without the ustar magic: the header checksum matches.
-fn looks_like_v7_tar(bytes: &[u8]) -> bool {
-    let header = &bytes[..512];
+fn looks_like_v7_tar(header: &[u8]) -> bool {
+    let header = &header[..512];
     let stored =
         std::str::from_utf8(&header[148..156]).ok().map(|s| s.trim_matches(|c: char| c == '\0' || c == ' '));
     let Some(stored) = stored.and_then(|s| u32::from_str_radix(s, 8).ok()) else { return false };
@@ -102,32 +260,6 @@ fn looks_like_v7_tar(bytes: &[u8]) -> bool {
         .map(|(i, b)| if (148..156).contains(&i) { 32 } else { u32::from(*b) })
         .sum();
     sum == stored
-}
-
-fn add_tar(files: &mut Files, bytes: &[u8]) -> Result<(), BundleError> {
-    let mut archive = tar::Archive::new(bytes);
-    let entries =
-        archive.entries().map_err(|e| BundleError::Archive(format!("the tar bundle cannot be read: {e}")))?;
-    for entry in entries {
-        let mut entry = entry.map_err(|e| BundleError::Archive(format!("the tar bundle is damaged: {e}")))?;
-        let kind = entry.header().entry_type();
-        if kind.is_dir() || kind.is_pax_global_extensions() || kind.is_pax_local_extensions() {
-            continue;
-        }
-        let path = entry.path_bytes().into_owned();
-        let path = String::from_utf8_lossy(&path).into_owned();
-        if !kind.is_file() {
-            return Err(BundleError::Archive(format!(
-                "the tar bundle holds \"{path}\", which is not a regular file (links are not accepted)"
-            )));
-        }
-        let mut data = Vec::new();
-        entry
-            .read_to_end(&mut data)
-            .map_err(|e| BundleError::Archive(format!("cannot unpack {path} from the tar bundle: {e}")))?;
-        add_file(files, &path, data)?;
-    }
-    Ok(())
 }
 
 /// The bundle as a tar with sorted entries, mode 0644 and mtime 0: same files, same bytes.
@@ -149,9 +281,9 @@ pub fn canonical_tar(files: &Files) -> Vec<u8> {
 
 /// Reads a tar written by [`canonical_tar`] back into shared buffers (for the resolver).
 pub fn read_tar(bytes: &[u8]) -> Result<HashMap<String, Arc<Vec<u8>>>> {
-    let mut files = Files::new();
-    add_tar(&mut files, bytes).map_err(|e| anyhow::anyhow!("{e}"))?;
-    Ok(files.into_iter().map(|(k, v)| (k, Arc::new(v))).collect())
+    let mut unpacker = Unpacker::new(Limits::unlimited());
+    unpacker.add_tar(bytes, "tar").map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok(unpacker.files.into_iter().map(|(k, v)| (k, Arc::new(v))).collect())
 }
 
 pub fn sha256_hex(bytes: &[u8]) -> String {

@@ -54,6 +54,16 @@ struct Cli {
     /// Largest accepted upload in MiB.
     #[arg(long, default_value_t = 1024, env = "TESSERA_MAX_UPLOAD_MB", value_name = "MIB")]
     max_upload_mb: usize,
+    /// Most bytes one upload may unpack to, in MiB: its files, and whatever its archives
+    /// decompress to (a zip bomb stops here, with a 413 that names this flag).
+    #[arg(long, default_value_t = 256, env = "TESSERA_MAX_UNPACKED_MB", value_name = "MIB")]
+    max_unpacked_mb: u64,
+    /// Largest single file of an upload, unpacked, in MiB.
+    #[arg(long, default_value_t = 256, env = "TESSERA_MAX_FILE_MB", value_name = "MIB")]
+    max_file_mb: u64,
+    /// Most files one upload may hold (loose or inside archives).
+    #[arg(long, default_value_t = 10_000, env = "TESSERA_MAX_BUNDLE_FILES", value_name = "N")]
+    max_bundle_files: usize,
     /// Longest one tile may render; past it the worker stops and the tile fails (a job whose
     /// tiles keep failing fails). Raise it, or submit with a larger tile count (smaller
     /// --tile-size) or fewer samples.
@@ -88,6 +98,9 @@ fn main() -> ExitCode {
         lease_seconds: cli.lease_seconds,
         heartbeat_seconds: cli.heartbeat_seconds,
         max_upload_mb: cli.max_upload_mb,
+        max_unpacked_mb: cli.max_unpacked_mb,
+        max_file_mb: cli.max_file_mb,
+        max_bundle_files: cli.max_bundle_files,
         max_tile_seconds: cli.max_tile_seconds,
         max_job_samples: cli.max_job_samples,
     };
