@@ -85,6 +85,64 @@ pub const TILE_FAILURE_TOTAL: i64 = 5;
 /// A worker that fails this many tiles of a job is kept off that job.
 pub const WORKER_FAILURES_PER_JOB: i64 = 3;
 
+/// What [`Store::expire_leases`] did.
+#[derive(Debug, Default)]
+pub struct Expired {
+    /// Leases that expired.
+    pub leases: usize,
+    /// Jobs failed because a tile kept crashing its workers: (job, message).
+    pub failed_jobs: Vec<(u64, String)>,
+}
+
+/// Records a failure of `tile` on `worker` inside `tx`: the tile goes back to the queue, or its
+/// job fails after [`TILE_FAILURE_WORKERS`] different workers, [`TILE_FAILURE_TOTAL`] attempts,
+/// or at once when `fatal`. A lease expiry is such a failure too (the worker crashed).
+fn record_failure(
+    tx: &rusqlite::Transaction<'_>,
+    (job, frame, tile): (i64, i64, i64),
+    worker: i64,
+    error: &str,
+    fatal: bool,
+    t: f64,
+) -> Result<FailOutcome> {
+    tx.execute(
+        "INSERT INTO tile_failures(job_id, frame, tile, worker_id, error, at) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+        params![job, frame, tile, worker, error, t],
+    )?;
+    tx.execute("UPDATE workers SET failures = failures + 1, rendering = NULL WHERE id = ?1", [worker])?;
+    tx.execute(
+        "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE job_id = ?1 AND frame = ?2 AND tile = ?3",
+        params![job, frame, tile],
+    )?;
+    let (workers, total, crashes): (i64, i64, i64) = tx.query_row(
+        "SELECT count(DISTINCT worker_id), count(*), sum(error LIKE '% stopped answering while rendering this tile %')
+         FROM tile_failures WHERE job_id = ?1 AND frame = ?2 AND tile = ?3",
+        params![job, frame, tile],
+        |r| Ok((r.get(0)?, r.get(1)?, r.get::<_, Option<i64>>(2)?.unwrap_or(0))),
+    )?;
+    if !(fatal || workers >= TILE_FAILURE_WORKERS || total >= TILE_FAILURE_TOTAL) {
+        return Ok(FailOutcome::Requeued);
+    }
+    let message = if crashes == total {
+        format!(
+            "tile {tile} of frame {frame} crashed its workers: {total} time(s), on {workers} worker(s), the worker \
+             rendering it stopped answering and its lease expired. The scene may make the renderer run out of \
+             memory or crash; render it with `tessera-worker render` to see the error, or report it with the scene"
+        )
+    } else {
+        format!("tile {tile} of frame {frame} failed on {workers} worker(s), {total} time(s); last error: {error}")
+    };
+    tx.execute(
+        "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3 WHERE id = ?1 AND state IN ('queued', 'running')",
+        params![job, message, t],
+    )?;
+    tx.execute(
+        "UPDATE tiles SET state = 'canceled', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE job_id = ?1 AND state IN ('queued', 'leased')",
+        [job],
+    )?;
+    Ok(FailOutcome::JobFailed { job: job as u64, message })
+}
+
 pub struct Store {
     conn: Mutex<Connection>,
     next_lease: Mutex<u64>,
@@ -558,14 +616,39 @@ impl Store {
         Ok(revoked)
     }
 
-    /// Puts tiles whose lease deadline passed back in the queue; returns how many.
-    pub fn expire_leases(&self) -> Result<usize> {
-        let conn = self.conn();
-        let n = conn.execute(
-            "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE state = 'leased' AND deadline < ?1",
-            [now()],
-        )?;
-        Ok(n)
+    /// Handles leases whose deadline passed: the worker stopped answering while it held the
+    /// tile (it crashed, was killed, or lost the network), which counts against the tile like a
+    /// reported failure. Each tile goes back to the queue, or fails its job once the tile has
+    /// crashed or failed on too many workers (see [`Store::fail_tile`]).
+    pub fn expire_leases(&self) -> Result<Expired> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        let t = now();
+        let expired: Vec<(i64, i64, i64, i64)> = {
+            let mut stmt = tx.prepare_cached(
+                "SELECT job_id, frame, tile, worker_id FROM tiles WHERE state = 'leased' AND deadline < ?1",
+            )?;
+            stmt.query_map([t], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?)))?
+                .collect::<rusqlite::Result<_>>()?
+        };
+        let mut out = Expired { leases: expired.len(), failed_jobs: Vec::new() };
+        for (job, frame, tile, worker) in expired {
+            let error = format!(
+                "worker {worker} stopped answering while rendering this tile (it crashed, was killed or lost \
+                 its connection) and its lease expired"
+            );
+            tx.execute(
+                "UPDATE workers SET rendering = NULL WHERE id = ?1 AND rendering IS NOT NULL",
+                [worker],
+            )?;
+            if let FailOutcome::JobFailed { job, message } =
+                record_failure(&tx, (job, frame, tile), worker, &error, false, t)?
+            {
+                out.failed_jobs.push((job, message));
+            }
+        }
+        tx.commit()?;
+        Ok(out)
     }
 
     /// Puts the tile of a live lease held by `worker` back in the queue (the worker is stopping
@@ -672,40 +755,7 @@ impl Store {
             )
             .optional()?;
         let Some((job, frame, tile)) = row else { return Ok(FailOutcome::Conflict) };
-        let t = now();
-        tx.execute(
-            "INSERT INTO tile_failures(job_id, frame, tile, worker_id, error, at) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
-            params![job, frame, tile, worker as i64, error, t],
-        )?;
-        tx.execute(
-            "UPDATE workers SET failures = failures + 1, rendering = NULL WHERE id = ?1",
-            [worker as i64],
-        )?;
-        tx.execute(
-            "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE job_id = ?1 AND frame = ?2 AND tile = ?3",
-            params![job, frame, tile],
-        )?;
-        let (workers, total): (i64, i64) = tx.query_row(
-            "SELECT count(DISTINCT worker_id), count(*) FROM tile_failures WHERE job_id = ?1 AND frame = ?2 AND tile = ?3",
-            params![job, frame, tile],
-            |r| Ok((r.get(0)?, r.get(1)?)),
-        )?;
-        let outcome = if fatal || workers >= TILE_FAILURE_WORKERS || total >= TILE_FAILURE_TOTAL {
-            let message = format!(
-                "tile {tile} of frame {frame} failed on {workers} worker(s), {total} time(s); last error: {error}"
-            );
-            tx.execute(
-                "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3 WHERE id = ?1 AND state IN ('queued', 'running')",
-                params![job, message, t],
-            )?;
-            tx.execute(
-                "UPDATE tiles SET state = 'canceled', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE job_id = ?1 AND state IN ('queued', 'leased')",
-                [job],
-            )?;
-            FailOutcome::JobFailed { job: job as u64, message }
-        } else {
-            FailOutcome::Requeued
-        };
+        let outcome = record_failure(&tx, (job, frame, tile), worker as i64, error, fatal, now())?;
         tx.commit()?;
         Ok(outcome)
     }

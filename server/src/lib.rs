@@ -23,6 +23,10 @@ use std::time::Duration;
 use anyhow::{Context, Result, bail};
 use tokio::process::Command;
 
+/// Uploads unpacked and validated at the same time. Each holds at most `--max-unpacked-mb` of
+/// files plus the canonical tar of them and the decoded scene; the rest wait their turn.
+pub const UNPACKING_AT_ONCE: usize = 2;
+
 /// Everything `tessera-server` can be told (flags and environment).
 #[derive(Clone, Debug)]
 pub struct Config {
@@ -39,6 +43,10 @@ pub struct Config {
     pub lease_seconds: f64,
     pub heartbeat_seconds: f64,
     pub max_upload_mb: usize,
+    /// Caps on what one upload unpacks to (total, per file, file count).
+    pub max_unpacked_mb: u64,
+    pub max_file_mb: u64,
+    pub max_bundle_files: usize,
     /// Longest one tile may render before its worker gives up and fails it.
     pub max_tile_seconds: f64,
     /// Most samples (pixels x samples per pixel, over every frame) one job may ask for.
@@ -80,6 +88,12 @@ pub fn check_config(config: &Config) -> Result<()> {
             "listening on {} for remote workers needs --worker-token (or TESSERA_WORKER_TOKEN) so that they can authenticate",
             config.bind
         );
+    }
+    if config.max_unpacked_mb == 0 || config.max_file_mb == 0 || config.max_bundle_files == 0 {
+        bail!("--max-unpacked-mb, --max-file-mb and --max-bundle-files must be at least 1");
+    }
+    if config.max_unpacked_mb > (1 << 20) || config.max_file_mb > (1 << 20) {
+        bail!("--max-unpacked-mb and --max-file-mb must be at most 1048576 (1 TiB)");
     }
     if config.tile_size == 0 || config.tile_size > 4096 {
         bail!("--tile-size must be between 1 and 4096 pixels, found {}", config.tile_size);
@@ -130,6 +144,8 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
         .with_context(|| format!("cannot create the data directory {}", config.data_dir.display()))?;
     let store = Arc::new(db::Store::open(&config.data_dir.join("tessera.db"))?);
     let blobs = bundle::BlobStore::new(&config.data_dir)?;
+    // Uploads spooled by requests that were cut off by a crash.
+    let _ = std::fs::remove_dir_all(config.data_dir.join("uploads"));
     let worker_token = config.worker_token.clone().unwrap_or_else(random_token);
     let settings = api::Settings {
         data_dir: config.data_dir.clone(),
@@ -140,6 +156,11 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
         heartbeat_seconds: config.heartbeat_seconds,
         max_wait_seconds: 20.0,
         max_upload_bytes: config.max_upload_mb << 20,
+        bundle_limits: bundle::Limits {
+            max_unpacked_bytes: config.max_unpacked_mb << 20,
+            max_files: config.max_bundle_files,
+            max_file_bytes: config.max_file_mb << 20,
+        },
         max_tile_seconds: config.max_tile_seconds,
         max_job_samples: config.max_job_samples,
     };
@@ -152,6 +173,7 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
         cameras: Arc::default(),
         events: tokio::sync::broadcast::channel(1024).0,
         shutting_down: Arc::default(),
+        unpacking: Arc::new(tokio::sync::Semaphore::new(UNPACKING_AT_ONCE)),
     };
 
     let listener = tokio::net::TcpListener::bind(config.bind)
@@ -175,10 +197,17 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
             loop {
                 tick.tick().await;
                 match state.store.expire_leases() {
-                    Ok(0) => {}
-                    Ok(n) => {
-                        tracing::warn!("{n} lease(s) expired; their tiles are queued again");
-                        state.counters.lease_expiries.fetch_add(n as u64, Ordering::Relaxed);
+                    Ok(e) if e.leases == 0 => {}
+                    Ok(e) => {
+                        tracing::warn!(
+                            "{} lease(s) expired (their workers stopped answering); the tiles count a failure each and are queued again",
+                            e.leases
+                        );
+                        state.counters.lease_expiries.fetch_add(e.leases as u64, Ordering::Relaxed);
+                        for (job, message) in e.failed_jobs {
+                            tracing::error!(job, "job failed: {message}");
+                            state.emit(tessera::protocol::ServerEvent::Job { job, state: tessera::protocol::JobState::Failed });
+                        }
                         state.work.notify_waiters();
                     }
                     Err(e) => tracing::error!("lease expiry: {e:#}"),
@@ -282,6 +311,15 @@ impl Signals {
     }
 }
 
+/// A local worker that ran this long before exiting was not crash-looping.
+const LOCAL_WORKER_STEADY: Duration = Duration::from_secs(60);
+
+/// The wait before restarting a local worker after `crashes` short runs in a row: 1 s, then
+/// doubling, at most 60 s.
+fn restart_delay(crashes: u32) -> Duration {
+    Duration::from_secs(1u64 << crashes.saturating_sub(1).min(6)).min(Duration::from_secs(60))
+}
+
 /// How to start local worker `k`.
 struct LocalWorker {
     k: usize,
@@ -295,7 +333,11 @@ struct LocalWorker {
 /// period, SIGKILL after that or on [`Stopping::Now`].
 async fn supervise_worker(w: LocalWorker, mut stopping: tokio::sync::watch::Receiver<Stopping>) {
     let k = w.k;
+    // Restarts that follow a short run back off: a worker that keeps crashing (a scene that
+    // kills it, a broken binary) is restarted after 1, 2, 4, ... up to 60 s, not every second.
+    let mut crashes_in_a_row = 0u32;
     loop {
+        let started = tokio::time::Instant::now();
         let mut cmd = Command::new(&w.bin);
         cmd.arg("work")
             .arg("--server")
@@ -324,9 +366,8 @@ async fn supervise_worker(w: LocalWorker, mut stopping: tokio::sync::watch::Rece
         tracing::info!(worker = k, pid = child.id(), "local worker started");
         let stop = tokio::select! {
             status = child.wait() => {
-                match status {
-                    Ok(status) => tracing::warn!(worker = k, %status, "local worker exited; restarting it"),
-                    Err(e) => tracing::error!(worker = k, "local worker: {e}"),
+                if let Err(e) = status {
+                    tracing::error!(worker = k, "local worker: {e}");
                 }
                 false
             }
@@ -336,8 +377,17 @@ async fn supervise_worker(w: LocalWorker, mut stopping: tokio::sync::watch::Rece
             stop_worker(k, &mut child, &mut stopping).await;
             return;
         }
+        let ran = started.elapsed();
+        crashes_in_a_row = if ran < LOCAL_WORKER_STEADY { crashes_in_a_row + 1 } else { 1 };
+        let delay = restart_delay(crashes_in_a_row);
+        tracing::warn!(
+            worker = k,
+            "local worker exited after {:.1} s ({crashes_in_a_row} short run(s) in a row); restarting it in {} s",
+            ran.as_secs_f64(),
+            delay.as_secs()
+        );
         tokio::select! {
-            _ = tokio::time::sleep(Duration::from_secs(1)) => {}
+            _ = tokio::time::sleep(delay) => {}
             _ = stopping.wait_for(|s| *s != Stopping::No) => return,
         }
     }
@@ -372,4 +422,16 @@ async fn stop_worker(
     }
     let _ = child.kill().await;
     tracing::warn!(worker = k, "local worker killed; its tiles are queued again");
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn restarts_back_off_doubling_up_to_a_minute() {
+        let secs: Vec<u64> = (1..=9).map(|n| restart_delay(n).as_secs()).collect();
+        assert_eq!(secs, [1, 2, 4, 8, 16, 32, 60, 60, 60]);
+        assert_eq!(restart_delay(u32::MAX).as_secs(), 60);
+    }
 }

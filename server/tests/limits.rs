@@ -130,3 +130,85 @@ fn a_hostile_recursion_depth_renders_on_the_farm() {
     let done = wait_job(&server, id, 120, |j| j["state"] == "done");
     assert_eq!(tiles_done(&done), 1, "{done}");
 }
+
+/// The processes whose parent is `pid` (from /proc).
+fn children_of(pid: u32) -> Vec<u32> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(child) = e.file_name().to_string_lossy().parse::<u32>() else { continue };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{child}/stat")) else { continue };
+        // The parent pid is the second field after the parenthesised command name.
+        let after = &stat[stat.rfind(')').map_or(0, |i| i + 1)..];
+        if after.split_whitespace().nth(1).and_then(|p| p.parse::<u32>().ok()) == Some(pid) {
+            out.push(child);
+        }
+    }
+    out
+}
+
+/// A worker that dies while rendering (here: SIGKILL, as the kernel's OOM killer or a crash
+/// would end it) leaves a lease that expires; each expiry counts against the tile like a reported
+/// failure, so after the failure limit the job fails with an error saying the tile crashed its
+/// workers, instead of being queued again for ever. The server restarts its local worker each
+/// time, backing off (1, 2, 4, 8 s), and the farm then renders the next job.
+#[test]
+fn a_tile_that_keeps_crashing_its_workers_fails_its_job_and_restarts_back_off() {
+    let _s = serial();
+    let data = temp_dir("limits-crash");
+    let server = Server::start(
+        &data,
+        &[
+            "--local-workers",
+            "1",
+            "--local-worker-threads",
+            "1",
+            "--lease-seconds",
+            "2",
+            "--heartbeat-seconds",
+            "0.5",
+        ],
+    );
+    let doomed = submit_environment(&server, "100000", "16");
+    let deadline = Instant::now() + Duration::from_secs(180);
+    let mut killed: Vec<u64> = Vec::new();
+    let job = loop {
+        let job = get_json(&server.url, &format!("/api/v1/jobs/{doomed}"));
+        if job["state"] == "failed" {
+            break job;
+        }
+        assert!(job["state"] == "queued" || job["state"] == "running", "{job}");
+        assert!(Instant::now() < deadline, "the job is still {} after {} kills\n{}", job["state"], killed.len(), server.log());
+        // Kill the worker process as soon as a worker we have not killed yet is rendering.
+        let list = get_json(&server.url, "/api/v1/workers");
+        let rendering: Vec<u64> = list["workers"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|w| w["state"] == "rendering")
+            .filter_map(|w| w["id"].as_u64())
+            .filter(|id| !killed.contains(id))
+            .collect();
+        let processes = children_of(server.child.id());
+        if let ([id], [pid]) = (rendering.as_slice(), processes.as_slice()) {
+            std::thread::sleep(Duration::from_millis(500));
+            // SAFETY: kill(2) has no memory effects; the pid is the server's worker child.
+            unsafe { libc::kill(*pid as libc::pid_t, libc::SIGKILL) };
+            killed.push(*id);
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let error = job["error"].as_str().unwrap_or_default();
+    let kills = killed.len();
+    eprintln!("after {kills} kills: {error}");
+    assert!(error.contains("crashed its workers") && error.contains("tessera-worker render"), "{job}");
+    // Each restarted worker registers anew, so three deaths on the tile are three workers, the
+    // limit; a restarted worker may first take another tile while the dead one's leases have
+    // not expired yet, so allow a death or two more.
+    assert!((3..=5).contains(&kills), "the job failed after {kills} worker deaths: {job}");
+    let log = server.log();
+    for delay in ["restarting it in 1 s", "restarting it in 2 s", "restarting it in 4 s"] {
+        assert!(log.contains(delay), "no \"{delay}\" in the log:\n{log}");
+    }
+    let next = submit_environment(&server, "1", "64");
+    wait_job(&server, next, 90, |j| j["state"] == "done");
+}
