@@ -44,6 +44,8 @@ pub struct Settings {
     pub max_upload_bytes: usize,
     /// Caps on what an upload unpacks to.
     pub bundle_limits: bundle::Limits,
+    /// Most tiles one job may be cut into.
+    pub max_job_tiles: u64,
     /// Longest one tile may render (sent with every lease).
     pub max_tile_seconds: f64,
     /// Most samples (pixels x samples per pixel over all frames) one job may ask for.
@@ -343,7 +345,9 @@ async fn read_fields(
                 if kind == SpoolKind::File && size > limits.max_file_bytes {
                     return Err(too_large(Unpacker::new(limits).file_too_large_error(&path)));
                 }
-                out.write_all(&chunk).await.map_err(|e| anyhow::anyhow!("cannot write {}: {e}", file.display()))?;
+                out.write_all(&chunk)
+                    .await
+                    .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", file.display()))?;
             }
             out.flush().await.map_err(|e| anyhow::anyhow!("cannot write {}: {e}", file.display()))?;
             spool.parts.push((kind, path, file));
@@ -427,11 +431,12 @@ async fn submit_job(
     let tile_size = opts.tile_size.unwrap_or(state.settings.tile_size);
     let wanted = opts.scene_path.clone().or(scene_field);
     let cameras_wanted = opts.cameras.clone();
+    let max_tiles = state.settings.max_job_tiles;
     let (scene_path, tar, cameras, frames, warnings) = tokio::task::spawn_blocking(move || {
         let mut unpacker = Unpacker::new(limits);
         for (kind, path, file) in &spool.parts {
-            let opened =
-                std::fs::File::open(file).map_err(|e| anyhow::anyhow!("cannot read {}: {e}", file.display()))?;
+            let opened = std::fs::File::open(file)
+                .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", file.display()))?;
             let added = match kind {
                 SpoolKind::File => unpacker.add_reader(path, opened),
                 SpoolKind::Archive => unpacker.add_archive(opened),
@@ -444,7 +449,8 @@ async fn submit_job(
         drop(spool);
         let files = unpacker.files;
         let scene_path = bundle::find_scene(&files, wanted.as_deref()).map_err(AppError::bad_request)?;
-        let (tar, cameras, frames, warnings) = validate(files, &scene_path, cameras_wanted, tile_size)?;
+        let (tar, cameras, frames, warnings) =
+            validate(files, &scene_path, cameras_wanted, tile_size, max_tiles)?;
         Ok::<_, AppError>((scene_path, tar, cameras, frames, warnings))
     })
     .await
@@ -499,6 +505,33 @@ fn check_sample_budget(
     Ok(())
 }
 
+/// Tiles of frames of `sizes` cut at `tile_size`.
+fn tile_count(sizes: &[(u32, u32)], tile_size: u32) -> u64 {
+    sizes.iter().map(|&(w, h)| u64::from(w.div_ceil(tile_size)) * u64::from(h.div_ceil(tile_size))).sum()
+}
+
+/// Refuses a job that would be cut into more than `max_tiles` tiles (a queue of hundreds of
+/// thousands of one-pixel tiles costs the farm more in bookkeeping than in rendering), naming
+/// the smallest tile size that fits.
+fn check_tile_count(sizes: &[(u32, u32)], tile_size: u32, max_tiles: u64) -> ApiResult<()> {
+    let n = tile_count(sizes, tile_size);
+    if n <= max_tiles {
+        return Ok(());
+    }
+    let fits = (tile_size..=4096).find(|&t| tile_count(sizes, t) <= max_tiles);
+    let advice = match fits {
+        Some(t) => format!("submit with tile_size={t} or more"),
+        None => "render fewer cameras per job".to_string(),
+    };
+    Err(AppError::new(
+        StatusCode::UNPROCESSABLE_ENTITY,
+        format!(
+            "the job would be cut into {n} tiles of {tile_size} pixels, more than this server's limit of \
+             {max_tiles} tiles per job (--max-job-tiles, TESSERA_MAX_JOB_TILES); {advice}"
+        ),
+    ))
+}
+
 /// An upload field that must be an integer between 1 and `max` (`unit` for the message).
 fn bounded(what: &str, value: i64, max: i64, unit: &str) -> ApiResult<u32> {
     if (1..=max).contains(&value) {
@@ -526,6 +559,7 @@ fn validate(
     scene_path: &str,
     cameras_wanted: Option<Vec<u32>>,
     tile_size: u32,
+    max_tiles: u64,
 ) -> ApiResult<(Vec<u8>, Vec<Camera>, Vec<crate::db::NewFrame>, Vec<String>)> {
     let tar = bundle::canonical_tar(&files);
     let text = std::str::from_utf8(&files[scene_path]).map_err(|e| {
@@ -566,6 +600,11 @@ fn validate(
             list.into_iter().map(|k| k - 1).collect()
         }
     };
+    let sizes: Vec<(u32, u32)> = selected
+        .iter()
+        .map(|&c| (scene.cameras[c as usize].width, scene.cameras[c as usize].height))
+        .collect();
+    check_tile_count(&sizes, tile_size, max_tiles)?;
     let frames = selected
         .iter()
         .map(|&c| {

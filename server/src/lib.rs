@@ -47,6 +47,8 @@ pub struct Config {
     pub max_unpacked_mb: u64,
     pub max_file_mb: u64,
     pub max_bundle_files: usize,
+    /// Most tiles one job may be cut into.
+    pub max_job_tiles: u64,
     /// Longest one tile may render before its worker gives up and fails it.
     pub max_tile_seconds: f64,
     /// Most samples (pixels x samples per pixel, over every frame) one job may ask for.
@@ -94,6 +96,9 @@ pub fn check_config(config: &Config) -> Result<()> {
     }
     if config.max_unpacked_mb > (1 << 20) || config.max_file_mb > (1 << 20) {
         bail!("--max-unpacked-mb and --max-file-mb must be at most 1048576 (1 TiB)");
+    }
+    if config.max_job_tiles == 0 {
+        bail!("--max-job-tiles must be at least 1");
     }
     if config.tile_size == 0 || config.tile_size > 4096 {
         bail!("--tile-size must be between 1 and 4096 pixels, found {}", config.tile_size);
@@ -163,6 +168,7 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
         },
         max_tile_seconds: config.max_tile_seconds,
         max_job_samples: config.max_job_samples,
+        max_job_tiles: config.max_job_tiles,
     };
     let state = api::AppState {
         store: store.clone(),
@@ -206,7 +212,10 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
                         state.counters.lease_expiries.fetch_add(e.leases as u64, Ordering::Relaxed);
                         for (job, message) in e.failed_jobs {
                             tracing::error!(job, "job failed: {message}");
-                            state.emit(tessera::protocol::ServerEvent::Job { job, state: tessera::protocol::JobState::Failed });
+                            state.emit(tessera::protocol::ServerEvent::Job {
+                                job,
+                                state: tessera::protocol::JobState::Failed,
+                            });
                         }
                         state.work.notify_waiters();
                     }

@@ -64,6 +64,10 @@ struct Cli {
     /// Most files one upload may hold (loose or inside archives).
     #[arg(long, default_value_t = 10_000, env = "TESSERA_MAX_BUNDLE_FILES", value_name = "N")]
     max_bundle_files: usize,
+    /// Most tiles one job may be cut into (a 4K frame in 16-pixel tiles is 32 400); a job over
+    /// it is refused with 422, naming the smallest tile_size that fits.
+    #[arg(long, default_value_t = 100_000, env = "TESSERA_MAX_JOB_TILES", value_name = "N")]
+    max_job_tiles: u64,
     /// Longest one tile may render; past it the worker stops and the tile fails (a job whose
     /// tiles keep failing fails). Raise it, or submit with a larger tile count (smaller
     /// --tile-size) or fewer samples.
@@ -101,6 +105,7 @@ fn main() -> ExitCode {
         max_unpacked_mb: cli.max_unpacked_mb,
         max_file_mb: cli.max_file_mb,
         max_bundle_files: cli.max_bundle_files,
+        max_job_tiles: cli.max_job_tiles,
         max_tile_seconds: cli.max_tile_seconds,
         max_job_samples: cli.max_job_samples,
     };
