@@ -552,15 +552,18 @@ fn upload_too_large(state: &AppState) -> AppError {
     )
 }
 
-/// Parses and builds the scene from the uploaded files; returns the canonical bundle, the
-/// cameras and the frames to render.
+/// What a valid upload becomes: the canonical bundle, the scene's cameras, the frames to render
+/// and the scene's warnings.
+type Validated = (Vec<u8>, Vec<Camera>, Vec<crate::db::NewFrame>, Vec<String>);
+
+/// Parses and builds the scene from the uploaded files.
 fn validate(
     files: Files,
     scene_path: &str,
     cameras_wanted: Option<Vec<u32>>,
     tile_size: u32,
     max_tiles: u64,
-) -> ApiResult<(Vec<u8>, Vec<Camera>, Vec<crate::db::NewFrame>, Vec<String>)> {
+) -> ApiResult<Validated> {
     let tar = bundle::canonical_tar(&files);
     let text = std::str::from_utf8(&files[scene_path]).map_err(|e| {
         AppError::new(
