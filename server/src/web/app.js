@@ -169,9 +169,13 @@ function renderFrame(entry, job, f) {
   }
 }
 
+// Pictures load asynchronously and can arrive out of order (a slow final PNG after a quick
+// re-tone-mapped one): only the one asked for last is drawn.
 function draw(fr, url) {
   const img = new Image();
+  const seq = (fr.drawSeq = (fr.drawSeq || 0) + 1);
   img.onload = () => {
+    if (seq !== fr.drawSeq) return;
     const c = $("canvas", fr.node);
     if (c.width !== img.naturalWidth) { c.width = img.naturalWidth; c.height = img.naturalHeight; }
     c.getContext("2d").drawImage(img, 0, 0);
@@ -181,7 +185,7 @@ function draw(fr, url) {
 }
 
 // The preview of a running frame: the server tone-maps what has arrived; at most every 400 ms.
-const refreshPreview = throttle((fr, url) => draw(fr, url), 400);
+const refreshPreview = throttle((fr, url) => { if (!fr.shown && !fr.toneActive) draw(fr, url); }, 400);
 
 function buildTone(fr, job, f) {
   fr.toneBuilt = true;
