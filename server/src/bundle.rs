@@ -210,7 +210,8 @@ impl Unpacker {
             .entries()
             .map_err(|e| BundleError::Archive(format!("the {what} bundle cannot be read: {e}")))?;
         for entry in entries {
-            let entry = entry.map_err(|e| BundleError::Archive(format!("the {what} bundle is damaged: {e}")))?;
+            let entry =
+                entry.map_err(|e| BundleError::Archive(format!("the {what} bundle is damaged: {e}")))?;
             let kind = entry.header().entry_type();
             if kind.is_dir() || kind.is_pax_global_extensions() || kind.is_pax_local_extensions() {
                 continue;

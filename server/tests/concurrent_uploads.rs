@@ -46,11 +46,7 @@ fn hundreds_of_identical_and_different_uploads_at_once_are_all_accepted_and_rend
             let barrier = barrier.clone();
             std::thread::spawn(move || {
                 barrier.wait();
-                submit(
-                    &url,
-                    None,
-                    &[("scene", Some("cornell_box.xml"), &scene[..]), ("samples", None, b"1")],
-                )
+                submit(&url, None, &[("scene", Some("cornell_box.xml"), &scene[..]), ("samples", None, b"1")])
             })
         })
         .collect();

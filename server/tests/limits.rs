@@ -177,7 +177,13 @@ fn a_tile_that_keeps_crashing_its_workers_fails_its_job_and_restarts_back_off() 
             break job;
         }
         assert!(job["state"] == "queued" || job["state"] == "running", "{job}");
-        assert!(Instant::now() < deadline, "the job is still {} after {} kills\n{}", job["state"], killed.len(), server.log());
+        assert!(
+            Instant::now() < deadline,
+            "the job is still {} after {} kills\n{}",
+            job["state"],
+            killed.len(),
+            server.log()
+        );
         // Kill the worker process as soon as a worker we have not killed yet is rendering.
         let list = get_json(&server.url, "/api/v1/workers");
         let rendering: Vec<u64> = list["workers"]
