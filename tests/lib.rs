@@ -13,10 +13,4 @@ pub fn repo_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).parent().map(PathBuf::from).unwrap_or_default()
 }
 
-/// `../shared/scenes` next to the repository, or `$TESSERA_SCENES` when set.
-pub fn shared_scenes() -> PathBuf {
-    match std::env::var_os("TESSERA_SCENES") {
-        Some(p) => PathBuf::from(p),
-        None => repo_root().join("../shared/scenes"),
-    }
-}
+pub use tessera_testkit::{corpus_has, missing, shared_scenes};

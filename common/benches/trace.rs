@@ -24,7 +24,7 @@ use tessera::math::{Ray, orthonormal_pair};
 use tessera::sampler::Sampler;
 
 fn load_head() -> (Vec<DVec3>, Vec<[u32; 3]>) {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes/xml/ply/head.ply");
+    let path = tessera_testkit::shared_scenes().join("xml/ply/head.ply");
     let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
     let ply = tessera::ply::parse_ply(&bytes).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let pos = ply.positions.iter().map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)).collect();
@@ -239,7 +239,7 @@ fn main() {
     println!("whole scenes, {threads} threads (load+build includes reading PLY files and building BVHs)");
     println!("| scene | triangles | load+build s | render s | total s | Msamples/s | Mrays/s |");
     println!("|---|---:|---:|---:|---:|---:|---:|");
-    let xml = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes/xml");
+    let xml = tessera_testkit::shared_scenes().join("xml");
     let big = big_head_scene(&pos1m, &tris1m);
     let mut names =
         vec!["bunny", "scienceTree", "cornellbox", "metal_glass_plates_hw2", "ton_Roosendaal_smooth"];

@@ -1711,8 +1711,6 @@ end_header
 
     // --- Real files -----------------------------------------------------------------------------
 
-    const SCENES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/scenes");
-
     fn collect_ply(dir: &std::path::Path, out: &mut Vec<std::path::PathBuf>) {
         let Ok(entries) = std::fs::read_dir(dir) else { return };
         for e in entries.flatten() {
@@ -1727,13 +1725,12 @@ end_header
 
     #[test]
     fn every_shipped_ply_parses() {
-        let root = std::path::Path::new(SCENES);
-        if !root.is_dir() {
-            eprintln!("skipping: {} is missing", root.display());
+        let root = tessera_testkit::shared_scenes();
+        if !tessera_testkit::corpus_has(&root) {
             return;
         }
         let mut files = Vec::new();
-        collect_ply(root, &mut files);
+        collect_ply(&root, &mut files);
         files.sort();
         assert!(!files.is_empty(), "no .ply files under {}", root.display());
         for path in &files {
@@ -1758,16 +1755,16 @@ end_header
 
     #[test]
     fn shipped_files_contents() {
-        let root = std::path::Path::new(SCENES);
-        let read = |rel: &str| std::fs::read(root.join(rel)).ok();
+        let root = tessera_testkit::shared_scenes();
+        let read = |rel: &str| {
+            tessera_testkit::corpus_has(&root.join(rel)).then(|| std::fs::read(root.join(rel)).unwrap())
+        };
         if let Some(bytes) = read("xml/ply/head.ply") {
             let m = parse_ok(&bytes);
             assert_eq!(m.positions.len(), 9223);
             assert_eq!(m.normals.as_ref().map(Vec::len), Some(9223));
             assert_eq!(m.uvs.as_ref().map(Vec::len), Some(9223));
             assert_eq!((m.triangles.len(), m.skipped_degenerate), (17_674, 0));
-        } else {
-            eprintln!("skipping head.ply: missing");
         }
         if let Some(bytes) = read("xml/ply/cube.ply") {
             let m = parse_ok(&bytes);
@@ -1777,8 +1774,6 @@ end_header
             let m = parse_ok(&bytes);
             // 39 660 triangles + 80 quads (each split in two).
             assert_eq!((m.triangles.len(), m.skipped_degenerate), (39_660 + 2 * 80, 0));
-        } else {
-            eprintln!("skipping tap_water_200.ply: missing");
         }
     }
 }

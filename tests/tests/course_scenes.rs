@@ -97,12 +97,7 @@ const MISSING_ASSET: &[(&str, &str)] = &[
 /// `../shared/scenes/xml`, or `None` (after saying so) when the corpus is absent.
 fn corpus_xml() -> Option<PathBuf> {
     let dir = tessera_tests::shared_scenes().join("xml");
-    if dir.is_dir() {
-        Some(dir)
-    } else {
-        eprintln!("skipping: the course corpus {} is absent", dir.display());
-        None
-    }
+    tessera_tests::corpus_has(&dir).then_some(dir)
 }
 
 /// A tile of at most `edge` x `edge` pixels centred in a `w` x `h` frame.

@@ -52,12 +52,7 @@ const LEGACY_MIRROR_TWINS: &[&str] =
 
 fn corpus() -> Option<PathBuf> {
     let c = tessera_tests::shared_scenes();
-    if c.join("json").is_dir() && c.join("xml").is_dir() {
-        Some(c)
-    } else {
-        eprintln!("skipping: the course corpus {} is absent", c.display());
-        None
-    }
+    (tessera_tests::corpus_has(&c.join("json")) && tessera_tests::corpus_has(&c.join("xml"))).then_some(c)
 }
 
 fn parse_file(path: &Path) -> SceneRecords {

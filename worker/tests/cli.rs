@@ -43,12 +43,7 @@ fn repo_scene(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes").join(name)
 }
 
-fn shared_scenes() -> PathBuf {
-    match std::env::var_os("TESSERA_SCENES") {
-        Some(p) => PathBuf::from(p),
-        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes"),
-    }
-}
+use tessera_testkit::shared_scenes;
 
 fn pngs_in(dir: &Path) -> Vec<PathBuf> {
     match std::fs::read_dir(dir) {
@@ -518,8 +513,7 @@ fn errors_are_reported_without_panicking() {
 #[test]
 fn course_scene_with_a_missing_ply_names_it() {
     let scene = shared_scenes().join("xml/trex_smooth.xml");
-    if !scene.exists() {
-        eprintln!("skipping: {} is absent (the course corpus is not checked out)", scene.display());
+    if !tessera_testkit::corpus_has(&scene) {
         return;
     }
     let missing = shared_scenes().join("xml/trex_smooth_ply/mesh_3.ply");

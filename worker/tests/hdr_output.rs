@@ -14,12 +14,7 @@ use tessera::render::{RenderSettings, render_camera};
 use tessera::scene::load_scene_file;
 use tessera::tonemap::tonemap;
 
-fn shared_scenes() -> PathBuf {
-    match std::env::var_os("TESSERA_SCENES") {
-        Some(p) => PathBuf::from(p),
-        None => PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes"),
-    }
-}
+use tessera_testkit::shared_scenes;
 
 fn temp_dir(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("tessera-hdr-{name}-{}", std::process::id()));

@@ -10,12 +10,7 @@ use support::run;
 use tessera::hdr_io::read_exr;
 use tessera::tonemap::{Operator, Photographic, tonemap_with};
 
-fn shared_scenes() -> PathBuf {
-    match std::env::var_os("TESSERA_SCENES") {
-        Some(p) => PathBuf::from(p),
-        None => PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes"),
-    }
-}
+use tessera_testkit::shared_scenes;
 
 fn temp_dir(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("tessera-json-{name}-{}", std::process::id()));
@@ -83,8 +78,7 @@ fn a_json_scene_renders_whatever_its_extension() {
 #[test]
 fn each_tonemap_of_a_json_scene_writes_its_png() {
     let scene = shared_scenes().join("json/hw5/cube_point_hdr.json");
-    if !scene.exists() {
-        eprintln!("skipping: {} is absent", scene.display());
+    if !tessera_testkit::corpus_has(&scene) {
         return;
     }
     let out = temp_dir("hdr");

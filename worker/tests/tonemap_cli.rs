@@ -37,23 +37,14 @@ impl Drop for TempDir {
 }
 
 fn reference_dir() -> PathBuf {
-    let scenes = match std::env::var_os("TESSERA_SCENES") {
-        Some(p) => PathBuf::from(p),
-        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes"),
-    };
-    scenes.join("reference")
+    tessera_testkit::shared_scenes().join("reference")
 }
 
 /// The official `NAME.exr` and `NAME.png`, or `None` (with a message) when the corpus is absent.
 fn official(name: &str) -> Option<(PathBuf, PathBuf)> {
     let dir = reference_dir();
     let (exr, png) = (dir.join(format!("{name}.exr")), dir.join(format!("{name}.png")));
-    if exr.exists() && png.exists() {
-        Some((exr, png))
-    } else {
-        println!("skipping {name}: {} or its .png absent", exr.display());
-        None
-    }
+    (tessera_testkit::corpus_has(&exr) && tessera_testkit::corpus_has(&png)).then_some((exr, png))
 }
 
 /// Largest per-channel difference and mean absolute difference.
@@ -151,8 +142,7 @@ fn each_operator_re_tone_maps_to_the_png_the_render_wrote() {
     // with its own PNG. Re-tone-mapping the rendered EXR with --scene and --operator must give
     // each of those PNGs back byte for byte, and the three must differ.
     let scene = reference_dir().join("../json/hw5/cube_point_hdr.json");
-    if !scene.exists() {
-        println!("skipping: {} absent", scene.display());
+    if !tessera_testkit::corpus_has(&scene) {
         return;
     }
     let dir = TempDir::new("operators");
