@@ -6,11 +6,4 @@
 pub mod conformance;
 pub mod envmaps;
 
-use std::path::PathBuf;
-
-/// The repository root (the workspace directory).
-pub fn repo_root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).parent().map(PathBuf::from).unwrap_or_default()
-}
-
-pub use tessera_testkit::{corpus_has, missing, shared_scenes};
+pub use tessera_testkit::{corpus_has, missing, repo_root, shared_scenes};

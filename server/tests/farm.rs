@@ -116,16 +116,10 @@ fn canceling_a_job_stops_it_and_revokes_its_tiles() {
     let server = Server::start(&data, &["--local-workers", "1", "--local-worker-threads", "1"]);
     let id = submit_environment(&server, "64", "16");
     wait_job(&server, id, 60, |j| j["state"] == "running");
-    let (code, job) = call(
-        ureq::post(&format!("{}/api/v1/jobs/{id}/cancel", server.url)),
-        Some(("text/plain".into(), vec![])),
-    );
+    let (code, job) = cancel(&server, id);
     assert_eq!(code, 200, "{job}");
     assert_eq!(job["state"], "canceled");
-    let (code, again) = call(
-        ureq::post(&format!("{}/api/v1/jobs/{id}/cancel", server.url)),
-        Some(("text/plain".into(), vec![])),
-    );
+    let (code, again) = cancel(&server, id);
     assert_eq!(code, 409, "{again}");
     // No outputs appear, and the worker is free for the next job.
     let id2 = submit_environment(&server, "1", "64");

@@ -8,14 +8,6 @@ use std::time::{Duration, Instant};
 
 use support::*;
 
-fn cancel(server: &Server, id: u64) {
-    let (code, job) = call(
-        ureq::post(&format!("{}/api/v1/jobs/{id}/cancel", server.url)),
-        Some(("text/plain".into(), vec![])),
-    );
-    assert_eq!(code, 200, "{job}");
-}
-
 /// A worker is rendering a tile of a million samples per pixel (hours of work); the job is
 /// cancelled, and the worker drops the tile at once: a small job submitted right after the
 /// cancel finishes in seconds. Before cancels reached the core the worker finished the
@@ -33,7 +25,8 @@ fn a_cancel_stops_the_tile_being_rendered() {
     // Let the worker fetch the scene and get into the tile's samples.
     std::thread::sleep(Duration::from_secs(2));
     let t0 = Instant::now();
-    cancel(&server, big);
+    let (code, answer) = cancel(&server, big);
+    assert_eq!(code, 200, "{answer}");
     let small = submit_environment(&server, "1", "64");
     wait_job(&server, small, 60, |j| j["state"] == "done");
     let took = t0.elapsed();

@@ -163,10 +163,7 @@ fn a_high_priority_job_overtakes_640000_queued_tiles() {
 
     // Cancelling the big job revokes it at once.
     let t3 = Instant::now();
-    let (code, body) = call(
-        ureq::post(&format!("{}/api/v1/jobs/{big}/cancel", server.url)),
-        Some(("text/plain".into(), vec![])),
-    );
+    let (code, body) = cancel(&server, big);
     eprintln!("cancelling the 640000-tile job took {:.3} s", t3.elapsed().as_secs_f64());
     assert_eq!(code, 200, "{body}");
     let j = get_json(&server.url, &format!("/api/v1/jobs/{big}"));

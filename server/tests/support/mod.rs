@@ -266,6 +266,11 @@ pub fn submit(url: &str, token: Option<&str>, parts: &[(&str, Option<&str>, &[u8
     call(req, Some(multipart(parts)))
 }
 
+/// `POST /api/v1/jobs/ID/cancel`: the status and the answer.
+pub fn cancel(server: &Server, id: u64) -> (u16, Value) {
+    call(ureq::post(&format!("{}/api/v1/jobs/{id}/cancel", server.url)), Some(("text/plain".into(), vec![])))
+}
+
 pub fn get_json(url: &str, path: &str) -> Value {
     let (code, v) = call(ureq::get(&format!("{url}{path}")), None);
     assert_eq!(code, 200, "GET {path}: {v}");

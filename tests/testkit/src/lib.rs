@@ -10,7 +10,9 @@ use std::path::{Path, PathBuf};
 
 /// The repository root.
 pub fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+    // This crate sits at tests/testkit.
+    let here = Path::new(env!("CARGO_MANIFEST_DIR"));
+    here.parent().and_then(Path::parent).unwrap_or(here).to_path_buf()
 }
 
 /// The course corpus: `$TESSERA_SCENES`, or `../shared/scenes` beside the repository.
