@@ -59,6 +59,11 @@ pub struct Tracer<'a> {
 /// scene costs bounded work per sample.
 pub const SECONDARY_RAY_BUDGET: u32 = 4096;
 
+/// How many back faces a camera ray may look past (2025 scenes cull them) before it takes the
+/// next one as its hit: each look is a whole traversal, and a hostile stack of back faces along
+/// one ray must not make a pixel cost without bound.
+pub const CULLED_HITS_LIMIT: u32 = 256;
+
 impl<'a> Tracer<'a> {
     pub fn new(scene: &'a Scene) -> Self {
         let env_sampler = scene.env_light.as_ref().and_then(|l| l.sampler).unwrap_or(EnvSampler::Uniform);
@@ -87,6 +92,7 @@ impl<'a> Tracer<'a> {
         let scene = self.scene;
         let cull = depth == 0 && scene.cull_camera_back_faces;
         let mut tmin = scene.intersection_test_epsilon;
+        let mut culled = 0;
         let hit = loop {
             let Some(hit) = scene.accel.intersect(ray, tmin, f64::INFINITY) else {
                 // Rays that miss see the environment (§5.6), else the background.
@@ -95,10 +101,17 @@ impl<'a> Tracer<'a> {
                     None => self.background,
                 };
             };
-            if cull && ray.dir.dot(hit.geo_normal) > 0.0 && scene.accel.is_triangle(hit.instance) {
-                // Culled: look again beyond it (a relative step, so f32 traversal cannot return
-                // the same triangle).
-                tmin = hit.t * (1.0 + 1e-6) + scene.intersection_test_epsilon;
+            if cull
+                && culled < CULLED_HITS_LIMIT
+                && ray.dir.dot(hit.geo_normal) > 0.0
+                && scene.accel.is_triangle(hit.instance)
+            {
+                // Culled: look again beyond it. The step is relative, and taken from the larger
+                // of the hit and the old bound: the f64 re-intersection may put a hit the f32
+                // traversal found just past `tmin` slightly before it, and stepping from such
+                // a hit once gave the same bound again, for ever.
+                culled += 1;
+                tmin = hit.t.max(tmin) * (1.0 + 1e-6) + scene.intersection_test_epsilon;
                 continue;
             }
             break hit;

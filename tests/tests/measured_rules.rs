@@ -240,3 +240,60 @@ fn json_scenes_cull_back_faces_for_camera_rays_only() {
     assert_eq!(xml_floor, 0.0);
     assert_eq!(json_floor, 0.0);
 }
+
+/// The ray that once looked past a back face for ever: in chessboard_arealight (2025 JSON, at
+/// 36 or more samples per pixel) one camera sample of pixel (611, 368) met a back face whose
+/// f64 re-intersection put it just before the search's lower bound, and stepping past it gave
+/// the same bound again. Its neighbourhood must now render, within a bound on the wait.
+#[test]
+fn the_camera_ray_that_once_culled_for_ever_finishes() {
+    let path = tessera_testkit::shared_scenes().join("json/hw3/ramazan_tokay/chessboard_arealight.json");
+    if !tessera_testkit::corpus_has(&path) {
+        return;
+    }
+    let scene = tessera::scene::load_scene_file(&path).expect("the course scene loads");
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let rect = TileRect { x0: 608, y0: 365, width: 8, height: 8 };
+        let settings = RenderSettings { samples: Some(40), ..RenderSettings::default() };
+        let _ = tx.send(render_tile(&scene, 0, rect, &settings).0);
+    });
+    // 64 pixels x 40 samples take a few milliseconds; the loop never ended.
+    let pixels = rx.recv_timeout(std::time::Duration::from_secs(60)).expect(
+        "pixels (608..616, 365..373) at 40 spp did not finish in 60 s: a camera ray is culling for ever",
+    );
+    assert!(pixels.iter().flatten().all(|c| c.is_finite() && *c >= 0.0));
+}
+
+/// A camera ray looks past at most `CULLED_HITS_LIMIT` back faces: behind a stack of more, it
+/// takes the next back face as its hit (bounded work per sample); behind fewer, it sees through.
+#[test]
+fn a_stack_of_back_faces_costs_bounded_work() {
+    use tessera::integrator::CULLED_HITS_LIMIT;
+    let wall_seen = |layers: u32| -> f32 {
+        // Back-facing triangles (front towards -z) at z = -2 - k/1000, a red sphere at z = -5
+        // behind them (ambient 1 0 0 · 30); the triangles' ambient is 0.5 · 30 = 15.
+        let mut vertices = String::from("0 0 -5");
+        let mut faces = String::new();
+        for k in 0..layers {
+            let z = -2.0 - k as f64 / 1000.0;
+            vertices.push_str(&format!("  -3 -3 {z}  0 3 {z}  3 -3 {z}"));
+            faces.push_str(&format!(" {} {} {}", 2 + 3 * k, 3 + 3 * k, 4 + 3 * k));
+        }
+        let json = format!(
+            r#"{{"Scene": {{
+  "Cameras": {{"Camera": {{"_id": "1", "Position": "0 0 0", "Gaze": "0 0 -1", "Up": "0 1 0",
+     "NearPlane": "-0.01 0.01 -0.01 0.01", "NearDistance": "1", "ImageResolution": "1 1", "ImageName": "a.png"}}}},
+  "Lights": {{"AmbientLight": "30 30 30"}},
+  "Materials": {{"Material": [{{"_id": "1", "AmbientReflectance": "0.5 0.5 0.5"}}, {{"_id": "2", "AmbientReflectance": "1 0 0"}}]}},
+  "VertexData": {{"_data": "{vertices}", "_type": "xyz"}},
+  "Objects": {{
+    "Mesh": {{"_id": "1", "Material": "1", "Faces": {{"_data": "{faces}", "_type": "triangle"}}}},
+    "Sphere": {{"_id": "1", "Material": "2", "Center": "1", "Radius": "1"}}}}}}}}"#
+        );
+        render(&load(&json, "stack.json"))[0]
+    };
+    assert_eq!(wall_seen(10), 30.0, "ten back faces are looked past");
+    assert_eq!(wall_seen(CULLED_HITS_LIMIT), 30.0, "as many as the limit are looked past");
+    assert_eq!(wall_seen(CULLED_HITS_LIMIT + 1), 15.0, "one more than the limit: the ray stops at it");
+}
