@@ -192,7 +192,7 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
     // Frames whose last tile arrived just before a crash.
     for f in store.frames_awaiting_merge()? {
         tracing::info!(job = f.job_id, frame = f.index, "merging a frame left from before the restart");
-        tokio::spawn(api::merge_frame(state.clone(), f.job_id, f.index));
+        tokio::spawn(merge::merge_frame(state.clone(), f.job_id, f.index));
     }
 
     // Lease expiry: tiles of silent workers go back to the queue.
