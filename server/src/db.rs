@@ -16,6 +16,8 @@ use anyhow::{Context, Result};
 use rusqlite::{Connection, OptionalExtension, params};
 use tessera::protocol::{JobState, Lease, Rect};
 
+use crate::scheduler::{self, TileFailures};
+
 const SCHEMA: &str = "
 CREATE TABLE IF NOT EXISTS jobs(
     id INTEGER PRIMARY KEY,
@@ -82,13 +84,6 @@ CREATE TABLE IF NOT EXISTS workers(
 );
 ";
 
-/// A tile that fails on this many different workers fails its job.
-pub const TILE_FAILURE_WORKERS: i64 = 3;
-/// ... or this many times in all (so that a farm with fewer workers still ends).
-pub const TILE_FAILURE_TOTAL: i64 = 5;
-/// A worker that fails this many tiles of a job is kept off that job.
-pub const WORKER_FAILURES_PER_JOB: i64 = 3;
-
 /// What [`Store::expire_leases`] did.
 #[derive(Debug, Default)]
 pub struct Expired {
@@ -99,8 +94,8 @@ pub struct Expired {
 }
 
 /// Records a failure of `tile` on `worker` inside `tx`: the tile goes back to the queue, or its
-/// job fails after [`TILE_FAILURE_WORKERS`] different workers, [`TILE_FAILURE_TOTAL`] attempts,
-/// or at once when `fatal`. A lease expiry is such a failure too (the worker crashed).
+/// job fails, as the failure rule ([`scheduler::tile_verdict`]) says. A lease expiry is such a
+/// failure too (the worker crashed).
 fn record_failure(
     tx: &rusqlite::Transaction<'_>,
     (job, frame, tile): (i64, i64, i64),
@@ -118,25 +113,20 @@ fn record_failure(
         "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE job_id = ?1 AND frame = ?2 AND tile = ?3",
         params![job, frame, tile],
     )?;
-    let (workers, total, crashes): (i64, i64, i64) = tx.query_row(
+    let failures = tx.query_row(
         "SELECT count(DISTINCT worker_id), count(*), sum(error LIKE '% stopped answering while rendering this tile %')
          FROM tile_failures WHERE job_id = ?1 AND frame = ?2 AND tile = ?3",
         params![job, frame, tile],
-        |r| Ok((r.get(0)?, r.get(1)?, r.get::<_, Option<i64>>(2)?.unwrap_or(0))),
+        |r| {
+            Ok(TileFailures {
+                workers: r.get(0)?,
+                total: r.get(1)?,
+                crashes: r.get::<_, Option<i64>>(2)?.unwrap_or(0),
+            })
+        },
     )?;
-    if !(fatal || workers >= TILE_FAILURE_WORKERS || total >= TILE_FAILURE_TOTAL) {
+    let Some(message) = scheduler::tile_verdict(frame, tile, failures, error, fatal) else {
         return Ok(FailOutcome::Requeued);
-    }
-    let message = if crashes == total {
-        format!(
-            "tile {tile} of frame {frame} crashed its workers: {total} time(s), on {workers} worker(s), the worker \
-             rendering it stopped answering and its lease expired. The scene may make the renderer run out of \
-             memory or crash; render it with `tessera-worker render` to see the error, or report it with the scene"
-        )
-    } else {
-        format!(
-            "tile {tile} of frame {frame} failed on {workers} worker(s), {total} time(s); last error: {error}"
-        )
     };
     tx.execute(
         "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3 WHERE id = ?1 AND state IN ('queued', 'running')",
@@ -527,9 +517,9 @@ impl Store {
         Ok(rows)
     }
 
-    /// Hands the next tile to `worker`: highest job priority first, then submission order; never
-    /// a tile of a job the worker has failed too often, nor a tile it failed before while other
-    /// workers could take it.
+    /// Hands the next tile to `worker`: highest job priority first, then submission order, then
+    /// frame and tile order; never a tile of a job the worker has failed
+    /// [`scheduler::WORKER_FAILURES_PER_JOB`] tiles of, nor a tile it failed before.
     pub fn lease(&self, worker: u64, lease_seconds: f64) -> Result<Option<Lease>> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
@@ -544,7 +534,7 @@ impl Store {
                    AND (SELECT count(*) FROM tile_failures x WHERE x.job_id = j.id AND x.worker_id = ?1) < ?2
                  ORDER BY j.priority DESC, j.id",
             )?;
-            stmt.query_map(params![w, WORKER_FAILURES_PER_JOB], |r| {
+            stmt.query_map(params![w, scheduler::WORKER_FAILURES_PER_JOB], |r| {
                 Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?))
             })?
             .collect::<rusqlite::Result<_>>()?
@@ -789,9 +779,9 @@ impl Store {
     }
 
     /// Records that `worker` could not render the tile of `lease`: the tile goes back to the
-    /// queue, or fails its job after [`TILE_FAILURE_WORKERS`] different workers (or
-    /// [`TILE_FAILURE_TOTAL`] attempts), or at once when the failure is `fatal` (the tile went
-    /// over the farm's render time limit: another worker would spend that time again).
+    /// queue, or fails its job ([`scheduler::tile_verdict`]: too many workers or attempts, or at
+    /// once when the failure is `fatal`, the tile having gone over the farm's render time limit
+    /// that another worker would spend again).
     pub fn fail_tile(&self, lease: u64, worker: u64, error: &str, fatal: bool) -> Result<FailOutcome> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;

@@ -12,12 +12,12 @@ pub mod api;
 pub mod bundle;
 pub mod db;
 pub mod merge;
+pub mod scheduler;
 pub mod web;
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
@@ -157,30 +157,22 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
         tile_size: config.tile_size,
         api_token: config.api_token.clone(),
         worker_token: worker_token.clone(),
-        lease_seconds: config.lease_seconds,
-        heartbeat_seconds: config.heartbeat_seconds,
-        max_wait_seconds: 20.0,
         max_upload_bytes: config.max_upload_mb << 20,
         bundle_limits: bundle::Limits {
             max_unpacked_bytes: config.max_unpacked_mb << 20,
             max_files: config.max_bundle_files,
             max_file_bytes: config.max_file_mb << 20,
         },
-        max_tile_seconds: config.max_tile_seconds,
         max_job_samples: config.max_job_samples,
         max_job_tiles: config.max_job_tiles,
     };
-    let state = api::AppState {
-        store: store.clone(),
-        blobs,
-        settings: Arc::new(settings),
-        work: Arc::new(tokio::sync::Notify::new()),
-        counters: Arc::new(api::Counters::default()),
-        cameras: Arc::default(),
-        events: tokio::sync::broadcast::channel(1024).0,
-        shutting_down: Arc::default(),
-        unpacking: Arc::new(tokio::sync::Semaphore::new(UNPACKING_AT_ONCE)),
+    let timing = scheduler::Timing {
+        lease_seconds: config.lease_seconds,
+        heartbeat_seconds: config.heartbeat_seconds,
+        max_wait_seconds: 20.0,
+        max_tile_seconds: config.max_tile_seconds,
     };
+    let state = api::AppState::new(store.clone(), blobs, settings, timing);
 
     let listener = tokio::net::TcpListener::bind(config.bind)
         .await
@@ -196,34 +188,7 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
     }
 
     // Lease expiry: tiles of silent workers go back to the queue.
-    {
-        let state = state.clone();
-        tokio::spawn(async move {
-            let mut tick = tokio::time::interval(Duration::from_millis(500));
-            loop {
-                tick.tick().await;
-                match state.store.expire_leases() {
-                    Ok(e) if e.leases == 0 => {}
-                    Ok(e) => {
-                        tracing::warn!(
-                            "{} lease(s) expired (their workers stopped answering); the tiles count a failure each and are queued again",
-                            e.leases
-                        );
-                        state.counters.lease_expiries.fetch_add(e.leases as u64, Ordering::Relaxed);
-                        for (job, message) in e.failed_jobs {
-                            tracing::error!(job, "job failed: {message}");
-                            state.emit(tessera::protocol::ServerEvent::Job {
-                                job,
-                                state: tessera::protocol::JobState::Failed,
-                            });
-                        }
-                        state.work.notify_waiters();
-                    }
-                    Err(e) => tracing::error!("lease expiry: {e:#}"),
-                }
-            }
-        });
-    }
+    state.scheduler.spawn_expiry();
 
     // Local workers: real processes over real HTTP, restarted if they die, stopped gracefully.
     let (stopping_tx, stopping_rx) = tokio::sync::watch::channel(Stopping::No);
@@ -256,8 +221,7 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
         // the leases they give back; a second signal stops them at once. Then end the long
         // polls, which can no longer bring anything but a lease to give back.
         let _ = stopping_tx.send(Stopping::Gracefully);
-        state.shutting_down.store(true, Ordering::SeqCst);
-        state.work.notify_waiters();
+        state.scheduler.begin_shutdown();
         let all_stopped = futures_util::future::join_all(supervisors);
         tokio::pin!(all_stopped);
         tokio::select! {

@@ -96,14 +96,12 @@ pub(super) async fn cancel_job(
     let Some(job) = state.store.job(id)? else {
         return Err(AppError::not_found(format!("there is no job {id}")));
     };
-    if !state.store.cancel_job(id)? {
+    if !state.scheduler.cancel(id)? {
         return Err(AppError::new(
             StatusCode::CONFLICT,
             format!("job {id} has already ended ({})", job.state.as_str()),
         ));
     }
-    tracing::info!(job = id, "job canceled");
-    state.emit(ServerEvent::Job { job: id, state: JobState::Canceled });
     Ok(Json(job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?))
 }
 

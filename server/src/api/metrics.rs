@@ -8,6 +8,7 @@ use axum::http::{HeaderValue, header};
 use axum::response::{IntoResponse, Response};
 
 use super::{ApiResult, AppState};
+use crate::scheduler::WorkerState;
 
 pub(super) async fn metrics(State(state): State<AppState>) -> ApiResult<Response> {
     let crate::db::StoreMetrics {
@@ -16,19 +17,10 @@ pub(super) async fn metrics(State(state): State<AppState>) -> ApiResult<Response
         render_seconds_sum: render_sum,
         render_seconds_count: render_count,
     } = state.store.metrics()?;
-    let workers = state.store.workers()?;
-    let lost_after = 3.0 * state.settings.heartbeat_seconds + 2.0;
     let t = crate::db::now();
-    let mut by_state: HashMap<&str, i64> = HashMap::new();
-    for w in &workers {
-        let s = if t - w.last_seen > lost_after {
-            "lost"
-        } else if w.rendering.is_some() {
-            "rendering"
-        } else {
-            "idle"
-        };
-        *by_state.entry(s).or_default() += 1;
+    let mut by_state: HashMap<WorkerState, i64> = HashMap::new();
+    for w in &state.store.workers()? {
+        *by_state.entry(state.scheduler.worker_state(w, t)).or_default() += 1;
     }
     let mut out = String::new();
     out += "# HELP tessera_jobs Jobs by state.\n# TYPE tessera_jobs gauge\n";
@@ -39,16 +31,19 @@ pub(super) async fn metrics(State(state): State<AppState>) -> ApiResult<Response
     out += "# HELP tessera_tiles_done_total Tiles rendered and accepted.\n# TYPE tessera_tiles_done_total counter\n";
     out += &format!("tessera_tiles_done_total {tiles_done}\n");
     out += "# HELP tessera_lease_expiries_total Leases that expired and went back to the queue.\n# TYPE tessera_lease_expiries_total counter\n";
-    out +=
-        &format!("tessera_lease_expiries_total {}\n", state.counters.lease_expiries.load(Ordering::Relaxed));
+    out += &format!(
+        "tessera_lease_expiries_total {}\n",
+        state.scheduler.counters().lease_expiries.load(Ordering::Relaxed)
+    );
     out += "# HELP tessera_results_refused_total Tile results refused (expired or revoked leases).\n# TYPE tessera_results_refused_total counter\n";
     out += &format!(
         "tessera_results_refused_total {}\n",
-        state.counters.results_refused.load(Ordering::Relaxed)
+        state.scheduler.counters().results_refused.load(Ordering::Relaxed)
     );
     out += "# HELP tessera_workers Registered workers by state.\n# TYPE tessera_workers gauge\n";
-    for s in ["idle", "rendering", "lost"] {
-        out += &format!("tessera_workers{{state=\"{s}\"}} {}\n", by_state.get(s).copied().unwrap_or(0));
+    for s in WorkerState::ALL {
+        let n = by_state.get(&s).copied().unwrap_or(0);
+        out += &format!("tessera_workers{{state=\"{}\"}} {n}\n", s.as_str());
     }
     out += "# HELP tessera_tile_render_seconds Time workers spent rendering tiles.\n# TYPE tessera_tile_render_seconds summary\n";
     out += &format!(

@@ -18,7 +18,6 @@ mod worker;
 use std::collections::HashMap;
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::AtomicU64;
 
 use axum::extract::{DefaultBodyLimit, Path};
 use axum::http::{HeaderValue, StatusCode, header};
@@ -28,12 +27,12 @@ use axum::{Json, Router};
 use tessera::camera::Camera;
 use tessera::protocol::*;
 use tessera::scene::parse_scene;
-use tokio::sync::Notify;
 
 use crate::bundle::{self, BlobStore};
 use crate::db::Store;
+use crate::scheduler::{Scheduler, Timing};
 
-/// Settings the handlers need.
+/// Settings the handlers need (the scheduler's are its [`Timing`]).
 #[derive(Clone, Debug)]
 pub struct Settings {
     pub data_dir: PathBuf,
@@ -41,26 +40,13 @@ pub struct Settings {
     /// `None`: the job API is open (loopback only; `main` enforces that).
     pub api_token: Option<String>,
     pub worker_token: String,
-    pub lease_seconds: f64,
-    pub heartbeat_seconds: f64,
-    /// Longest a lease request is held open.
-    pub max_wait_seconds: f64,
     pub max_upload_bytes: usize,
     /// Caps on what an upload unpacks to.
     pub bundle_limits: bundle::Limits,
     /// Most tiles one job may be cut into.
     pub max_job_tiles: u64,
-    /// Longest one tile may render (sent with every lease).
-    pub max_tile_seconds: f64,
     /// Most samples (pixels x samples per pixel over all frames) one job may ask for.
     pub max_job_samples: u64,
-}
-
-/// Counters that are not in the database.
-#[derive(Default)]
-pub struct Counters {
-    pub lease_expiries: AtomicU64,
-    pub results_refused: AtomicU64,
 }
 
 #[derive(Clone)]
@@ -68,22 +54,31 @@ pub struct AppState {
     pub store: Arc<Store>,
     pub blobs: BlobStore,
     pub settings: Arc<Settings>,
-    /// Woken when tiles become available (a job submitted, a lease expired, a tile failed).
-    pub work: Arc<Notify>,
-    pub counters: Arc<Counters>,
+    /// Leasing, failures, expiry and revocation: the scheduling rules.
+    pub scheduler: Scheduler,
     /// Built cameras per job (parsed once from the bundle), for merging and previews.
     pub cameras: Arc<std::sync::Mutex<HashMap<u64, Arc<Vec<Camera>>>>>,
     /// Pushed to the status page (server-sent events); nobody listening is fine.
     pub events: tokio::sync::broadcast::Sender<ServerEvent>,
-    /// Set when the server begins to shut down: no more leases, and long polls answer at once
-    /// with 503 (so stopping workers are not held up by a poll that could only bring a lease to
-    /// give back).
-    pub shutting_down: Arc<std::sync::atomic::AtomicBool>,
     /// Uploads being unpacked and validated at once (each holds its files in memory).
     pub unpacking: Arc<tokio::sync::Semaphore>,
 }
 
 impl AppState {
+    /// The state of a server over `store` and `blobs`; its scheduler runs on `timing`.
+    pub fn new(store: Arc<Store>, blobs: BlobStore, settings: Settings, timing: Timing) -> AppState {
+        let events = tokio::sync::broadcast::channel(1024).0;
+        AppState {
+            scheduler: Scheduler::new(store.clone(), timing, events.clone()),
+            store,
+            blobs,
+            settings: Arc::new(settings),
+            cameras: Arc::default(),
+            events,
+            unpacking: Arc::new(tokio::sync::Semaphore::new(crate::UNPACKING_AT_ONCE)),
+        }
+    }
+
     pub fn emit(&self, e: ServerEvent) {
         let _ = self.events.send(e);
     }

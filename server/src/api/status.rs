@@ -27,23 +27,16 @@ struct CurrentTile {
 }
 
 pub(super) async fn list_workers(State(state): State<AppState>) -> ApiResult<Json<serde_json::Value>> {
-    let lost_after = 3.0 * state.settings.heartbeat_seconds + 2.0;
     let t = crate::db::now();
     let workers: Vec<WorkerInfo> = state
         .store
         .workers()?
         .into_iter()
         .map(|w| WorkerInfo {
+            state: state.scheduler.worker_state(&w, t).as_str(),
             id: w.id,
             name: w.name,
             threads: w.threads,
-            state: if t - w.last_seen > lost_after {
-                "lost"
-            } else if w.rendering.is_some() {
-                "rendering"
-            } else {
-                "idle"
-            },
             current_tile: w.current_tile.map(|(job, frame, tile)| CurrentTile { job, frame, tile }),
             last_heartbeat: w.last_seen,
             tiles_done: w.tiles_done,

@@ -262,8 +262,7 @@ pub(super) async fn submit_job(
     };
     let id = state.store.insert_job(&job)?;
     state.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(id, Arc::new(cameras));
-    state.work.notify_waiters();
-    state.emit(ServerEvent::Job { job: id, state: JobState::Queued });
+    state.scheduler.job_submitted(id);
     tracing::info!(job = id, name = %job.name, "job accepted");
     let mut info = job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?;
     info.warnings = warnings;

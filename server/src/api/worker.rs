@@ -1,9 +1,6 @@
-//! The worker protocol over HTTP: register, lease (long poll), heartbeat, watch (long poll),
-//! result, fail, release and bundle download, each checking its request and answering with the
-//! status the protocol promises.
-
-use std::sync::atomic::Ordering;
-use std::time::Duration;
+//! The worker protocol over HTTP: register, lease, heartbeat, watch, result, fail, release and
+//! bundle download; each checks its request, leaves the rules to [`crate::scheduler`] and answers
+//! with the status the protocol promises.
 
 use axum::Json;
 use axum::body::Bytes;
@@ -15,6 +12,7 @@ use tessera::protocol::*;
 use super::{ApiResult, AppError, AppState};
 use crate::db::{FailOutcome, ResultOutcome};
 use crate::merge::merge_frame;
+use crate::scheduler::LeaseWait;
 
 pub(super) async fn register(
     State(state): State<AppState>,
@@ -23,14 +21,15 @@ pub(super) async fn register(
     let id = state.store.register_worker(&req.name, req.threads)?;
     tracing::info!(worker = id, name = %req.name, threads = req.threads, "worker registered");
     state.emit(ServerEvent::Workers);
+    let timing = state.scheduler.timing();
     Ok(Json(RegisterResponse {
         worker_id: id,
-        heartbeat_seconds: state.settings.heartbeat_seconds,
-        lease_seconds: state.settings.lease_seconds,
+        heartbeat_seconds: timing.heartbeat_seconds,
+        lease_seconds: timing.lease_seconds,
     }))
 }
 
-async fn known_worker(state: &AppState, id: u64) -> ApiResult<()> {
+fn known_worker(state: &AppState, id: u64) -> ApiResult<()> {
     if state.store.worker_exists(id)? {
         Ok(())
     } else {
@@ -43,14 +42,11 @@ pub(super) async fn lease(
     State(state): State<AppState>,
     Json(req): Json<LeaseRequest>,
 ) -> ApiResult<Response> {
-    known_worker(&state, req.worker_id).await?;
-    let wait = req.wait_seconds.clamp(0.0, state.settings.max_wait_seconds);
-    let deadline = tokio::time::Instant::now() + Duration::from_secs_f64(wait);
-    loop {
-        // Register interest before looking, so a notification between the look and the wait
-        // is not lost.
-        let notified = state.work.notified();
-        if state.shutting_down.load(Ordering::SeqCst) {
+    known_worker(&state, req.worker_id)?;
+    Ok(match state.scheduler.lease(req.worker_id, req.wait_seconds).await? {
+        LeaseWait::Granted(lease) => Json(lease).into_response(),
+        LeaseWait::NoWork => StatusCode::NO_CONTENT.into_response(),
+        LeaseWait::ShuttingDown => {
             // An error, not "no work": workers back off on errors, while they ask again at once
             // after a 204, which would spin until the server is gone.
             let mut response = AppError::new(
@@ -58,64 +54,30 @@ pub(super) async fn lease(
                 "the server is shutting down; ask again later",
             )
             .into_response();
+            response.headers_mut().insert(header::RETRY_AFTER, HeaderValue::from_static("5"));
             response
-                .headers_mut()
-                .insert(axum::http::header::RETRY_AFTER, axum::http::HeaderValue::from_static("5"));
-            return Ok(response);
         }
-        if let Some(mut lease) = state.store.lease(req.worker_id, state.settings.lease_seconds)? {
-            lease.max_render_seconds = Some(state.settings.max_tile_seconds);
-            state.emit(ServerEvent::Job { job: lease.job_id, state: JobState::Running });
-            state.emit(ServerEvent::Workers);
-            return Ok(Json(lease).into_response());
-        }
-        if tokio::time::timeout_at(deadline, notified).await.is_err() {
-            return Ok(StatusCode::NO_CONTENT.into_response());
-        }
-    }
+    })
 }
 
 pub(super) async fn heartbeat(
     State(state): State<AppState>,
     Json(req): Json<HeartbeatRequest>,
 ) -> ApiResult<Json<HeartbeatResponse>> {
-    known_worker(&state, req.worker_id).await?;
-    let revoked =
-        state.store.heartbeat(req.worker_id, &req.leases, req.rendering, state.settings.lease_seconds)?;
+    known_worker(&state, req.worker_id)?;
+    let revoked = state.scheduler.heartbeat(req.worker_id, &req.leases, req.rendering)?;
     Ok(Json(HeartbeatResponse { revoked }))
 }
 
 /// Long poll: answers as soon as one of the worker's listed leases is no longer its own (its
-/// job was cancelled or failed), else after the wait with nothing revoked. Reads only; the
-/// heartbeat still renews the leases.
+/// job was cancelled or failed), else after the wait with nothing revoked.
 pub(super) async fn watch(
     State(state): State<AppState>,
     Json(req): Json<WatchRequest>,
 ) -> ApiResult<Json<HeartbeatResponse>> {
-    known_worker(&state, req.worker_id).await?;
-    let wait = req.wait_seconds.clamp(0.0, state.settings.max_wait_seconds);
-    let deadline = tokio::time::Instant::now() + Duration::from_secs_f64(wait);
-    let leases: Vec<u64> = req.leases.into_iter().take(64).collect();
-    // Subscribe before looking, so a cancel between the look and the wait is not lost.
-    let mut events = state.events.subscribe();
-    loop {
-        let revoked = state.store.revoked_among(req.worker_id, &leases)?;
-        if !revoked.is_empty() || state.shutting_down.load(Ordering::SeqCst) {
-            return Ok(Json(HeartbeatResponse { revoked }));
-        }
-        loop {
-            match tokio::time::timeout_at(deadline, events.recv()).await {
-                Err(_) => return Ok(Json(HeartbeatResponse { revoked: Vec::new() })),
-                Ok(Ok(ServerEvent::Job { state: JobState::Canceled | JobState::Failed, .. })) => break,
-                // Missed events: look again.
-                Ok(Err(tokio::sync::broadcast::error::RecvError::Lagged(_))) => break,
-                Ok(Err(tokio::sync::broadcast::error::RecvError::Closed)) => {
-                    return Ok(Json(HeartbeatResponse { revoked: Vec::new() }));
-                }
-                Ok(Ok(_)) => {}
-            }
-        }
-    }
+    known_worker(&state, req.worker_id)?;
+    let revoked = state.scheduler.watch(req.worker_id, req.leases, req.wait_seconds).await?;
+    Ok(Json(HeartbeatResponse { revoked }))
 }
 
 pub(super) async fn result(
@@ -138,25 +100,18 @@ pub(super) async fn result(
     }
     let render_seconds =
         headers.get("x-tessera-render-seconds").and_then(|v| v.to_str().ok()).and_then(|v| v.parse().ok());
-    match state.store.submit_result(lease, worker, &body, render_seconds)? {
-        ResultOutcome::Accepted { job_id, frame, tile, rect, tiles_done, tiles_total, frame_complete } => {
-            state.emit(ServerEvent::Tile { job: job_id, frame, tile, rect, tiles_done, tiles_total });
-            state.emit(ServerEvent::Workers);
+    match state.scheduler.result(lease, worker, &body, render_seconds)? {
+        ResultOutcome::Accepted { job_id, frame, frame_complete, .. } => {
             if frame_complete {
                 let state = state.clone();
                 tokio::spawn(async move { merge_frame(state, job_id, frame).await });
             }
             Ok(StatusCode::NO_CONTENT)
         }
-        ResultOutcome::Conflict => {
-            state.counters.results_refused.fetch_add(1, Ordering::Relaxed);
-            Err(AppError::new(
-                StatusCode::CONFLICT,
-                format!(
-                    "lease {lease} is not yours any more (expired, revoked or already done); drop the tile"
-                ),
-            ))
-        }
+        ResultOutcome::Conflict => Err(AppError::new(
+            StatusCode::CONFLICT,
+            format!("lease {lease} is not yours any more (expired, revoked or already done); drop the tile"),
+        )),
         ResultOutcome::WrongSize { expected } => Err(AppError::bad_request(format!(
             "the tile holds {} bytes; its rectangle needs {expected} (width x height x 3 little-endian f32)",
             body.len()
@@ -169,17 +124,8 @@ pub(super) async fn fail(
     Path(lease): Path<u64>,
     Json(req): Json<FailRequest>,
 ) -> ApiResult<StatusCode> {
-    match state.store.fail_tile(lease, req.worker_id, &req.error, req.fatal)? {
-        FailOutcome::Requeued => {
-            tracing::warn!(lease, worker = req.worker_id, error = %req.error, "tile failed; queued again");
-            state.work.notify_waiters();
-            Ok(StatusCode::NO_CONTENT)
-        }
-        FailOutcome::JobFailed { job, message } => {
-            tracing::error!(lease, job, "job failed: {message}");
-            state.emit(ServerEvent::Job { job, state: JobState::Failed });
-            Ok(StatusCode::NO_CONTENT)
-        }
+    match state.scheduler.fail(lease, req.worker_id, &req.error, req.fatal)? {
+        FailOutcome::Requeued | FailOutcome::JobFailed { .. } => Ok(StatusCode::NO_CONTENT),
         FailOutcome::Conflict => {
             Err(AppError::new(StatusCode::CONFLICT, format!("lease {lease} is not yours any more")))
         }
@@ -192,10 +138,7 @@ pub(super) async fn release(
     Path(lease): Path<u64>,
     Json(req): Json<ReleaseRequest>,
 ) -> ApiResult<StatusCode> {
-    if state.store.release_lease(lease, req.worker_id)? {
-        tracing::info!(lease, worker = req.worker_id, "lease given back; its tile is queued again");
-        state.emit(ServerEvent::Workers);
-        state.work.notify_waiters();
+    if state.scheduler.release(lease, req.worker_id)? {
         Ok(StatusCode::NO_CONTENT)
     } else {
         Err(AppError::new(
