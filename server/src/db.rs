@@ -839,3 +839,241 @@ impl Store {
         })
     }
 }
+
+/// The rules the store applies inside its transactions, on a real SQLite file: no HTTP, no
+/// scene (a job here is rows with a made-up bundle).
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testutil::store;
+
+    /// Long enough for a lease not to expire during a test.
+    const LONG: f64 = 60.0;
+    /// A lease whose deadline has passed already.
+    const EXPIRED: f64 = -1.0;
+
+    /// A job of one frame cut into `tiles` one-pixel tiles.
+    fn job(s: &Store, priority: i64, tiles: u32) -> u64 {
+        s.insert_job(&NewJob {
+            name: "j".into(),
+            priority,
+            tile_size: 1,
+            samples: None,
+            bundle: "0".repeat(64),
+            scene_path: "scene.xml".into(),
+            frames: vec![NewFrame {
+                camera: 0,
+                image_name: "j.png".into(),
+                width: tiles,
+                height: 1,
+                tiles: (0..tiles).map(|x| Rect { x0: x, y0: 0, width: 1, height: 1 }).collect(),
+            }],
+        })
+        .unwrap()
+    }
+
+    fn worker(s: &Store) -> u64 {
+        s.register_worker("w", 1).unwrap()
+    }
+
+    fn lease(s: &Store, w: u64) -> Lease {
+        s.lease(w, LONG).unwrap().expect("a lease")
+    }
+
+    fn state(s: &Store, job: u64) -> JobState {
+        s.job(job).unwrap().unwrap().state
+    }
+
+    const PIXEL: [u8; 12] = [0; 12];
+
+    #[test]
+    fn leases_go_by_priority_then_submission_then_frame_and_tile() {
+        let (_d, s) = store("prio");
+        let low = job(&s, 0, 2);
+        let low2 = job(&s, 0, 1);
+        let high = job(&s, 5, 1);
+        let w = worker(&s);
+        let order: Vec<(u64, u32)> = (0..4).map(|_| lease(&s, w)).map(|l| (l.job_id, l.tile)).collect();
+        assert_eq!(order, [(high, 0), (low, 0), (low, 1), (low2, 0)]);
+        assert!(s.lease(w, LONG).unwrap().is_none());
+        // A job submitted later with a higher priority overtakes a running one.
+        let running = job(&s, 0, 3);
+        assert_eq!(lease(&s, w).job_id, running);
+        let urgent = job(&s, 1, 1);
+        assert_eq!(lease(&s, w).job_id, urgent);
+        assert_eq!(state(&s, running), JobState::Running);
+    }
+
+    #[test]
+    fn a_tile_failing_on_three_workers_fails_its_job() {
+        let (_d, s) = store("three");
+        let j = job(&s, 0, 2);
+        for k in 0..3 {
+            let w = worker(&s);
+            let l = lease(&s, w);
+            assert_eq!(l.tile, 0, "the failed tile goes to the next worker first");
+            let out = s.fail_tile(l.lease_id, w, &format!("boom {k}"), false).unwrap();
+            if k < 2 {
+                assert_eq!(out, FailOutcome::Requeued);
+                assert_eq!(state(&s, j), JobState::Running);
+            } else {
+                let FailOutcome::JobFailed { job, message } = out else { panic!("{out:?}") };
+                assert_eq!(job, j);
+                assert!(message.contains("3 worker(s), 3 time(s); last error: boom 2"), "{message}");
+            }
+        }
+        assert_eq!(state(&s, j), JobState::Failed);
+        assert!(s.lease(worker(&s), LONG).unwrap().is_none());
+    }
+
+    #[test]
+    fn a_tile_failing_five_times_fails_its_job_on_fewer_workers() {
+        // Leasing never gives a worker a tile it failed, so five failures on fewer than three
+        // workers only come from the history (written here directly): the limit still holds.
+        let (_d, s) = store("five");
+        let j = job(&s, 0, 1);
+        let (a, b) = (worker(&s), worker(&s));
+        for _ in 0..4 {
+            s.conn()
+                .execute(
+                    "INSERT INTO tile_failures(job_id, frame, tile, worker_id, error, at) VALUES (?1, 0, 0, ?2, 'old', 0)",
+                    params![j as i64, a as i64],
+                )
+                .unwrap();
+        }
+        let l = lease(&s, b);
+        let out = s.fail_tile(l.lease_id, b, "again", false).unwrap();
+        let FailOutcome::JobFailed { message, .. } = out else { panic!("{out:?}") };
+        assert!(message.contains("2 worker(s), 5 time(s); last error: again"), "{message}");
+        assert_eq!(state(&s, j), JobState::Failed);
+    }
+
+    #[test]
+    fn a_fatal_failure_fails_the_job_at_once_and_revokes_its_leases() {
+        let (_d, s) = store("fatal");
+        let j = job(&s, 0, 3);
+        let w = worker(&s);
+        let (l, other) = (lease(&s, w), lease(&s, w));
+        let out = s.fail_tile(l.lease_id, w, "over the render time limit", true).unwrap();
+        let FailOutcome::JobFailed { message, .. } = out else { panic!("{out:?}") };
+        assert!(
+            message.contains("1 worker(s), 1 time(s); last error: over the render time limit"),
+            "{message}"
+        );
+        assert_eq!(state(&s, j), JobState::Failed);
+        assert_eq!(s.revoked_among(w, &[other.lease_id]).unwrap(), [other.lease_id]);
+        assert!(s.lease(worker(&s), LONG).unwrap().is_none());
+    }
+
+    #[test]
+    fn a_worker_failing_three_tiles_of_a_job_is_kept_off_that_job_only() {
+        let (_d, s) = store("ban");
+        let j = job(&s, 1, 8);
+        let other = job(&s, 0, 1);
+        let w = worker(&s);
+        for t in 0..3 {
+            let l = lease(&s, w);
+            assert_eq!((l.job_id, l.tile), (j, t), "a worker is not given a tile it failed");
+            assert_eq!(s.fail_tile(l.lease_id, w, "boom", false).unwrap(), FailOutcome::Requeued);
+        }
+        assert_eq!(lease(&s, w).job_id, other, "3 failed tiles keep the worker off the job");
+        let good = worker(&s);
+        assert_eq!((lease(&s, good).job_id, state(&s, j)), (j, JobState::Running));
+        assert_eq!(s.workers().unwrap().iter().find(|x| x.id == w).unwrap().failures, 3);
+    }
+
+    #[test]
+    fn an_expired_lease_is_a_failure_and_three_fail_the_job_as_crashes() {
+        let (_d, s) = store("expiry");
+        let j = job(&s, 0, 1);
+        for k in 0..3 {
+            let w = worker(&s);
+            let l = s.lease(w, EXPIRED).unwrap().unwrap();
+            let e = s.expire_leases().unwrap();
+            assert_eq!(e.leases, 1);
+            assert_eq!(s.submit_result(l.lease_id, w, &PIXEL, None).unwrap(), ResultOutcome::Conflict);
+            assert_eq!(s.heartbeat(w, &[l.lease_id], Some(l.lease_id), LONG).unwrap(), [l.lease_id]);
+            let row = s.workers().unwrap().into_iter().find(|x| x.id == w).unwrap();
+            assert_eq!((row.failures, row.rendering), (1, None));
+            if k < 2 {
+                assert!(e.failed_jobs.is_empty());
+                assert_eq!(state(&s, j), JobState::Running);
+                assert!(s.recent_failures(j).unwrap()[0].contains("stopped answering"));
+            } else {
+                let [(job, message)] = &e.failed_jobs[..] else { panic!("{:?}", e.failed_jobs) };
+                assert_eq!(*job, j);
+                assert!(message.contains("crashed its workers: 3 time(s), on 3 worker(s)"), "{message}");
+            }
+        }
+        assert_eq!(state(&s, j), JobState::Failed);
+        assert_eq!(s.expire_leases().unwrap().leases, 0);
+    }
+
+    #[test]
+    fn a_result_is_stored_once_for_a_live_lease_of_its_worker() {
+        let (_d, s) = store("once");
+        let j = job(&s, 0, 2);
+        let (w, other) = (worker(&s), worker(&s));
+        let l = lease(&s, w);
+        assert_eq!(
+            s.submit_result(l.lease_id, w, &[0; 24], None).unwrap(),
+            ResultOutcome::WrongSize { expected: 12 }
+        );
+        assert_eq!(s.submit_result(l.lease_id, other, &PIXEL, None).unwrap(), ResultOutcome::Conflict);
+        let ResultOutcome::Accepted { job_id, tiles_done, tiles_total, frame_complete, .. } =
+            s.submit_result(l.lease_id, w, &PIXEL, Some(0.5)).unwrap()
+        else {
+            panic!("refused")
+        };
+        assert_eq!((job_id, tiles_done, tiles_total, frame_complete), (j, 1, 2, false));
+        assert_eq!(s.submit_result(l.lease_id, w, &PIXEL, None).unwrap(), ResultOutcome::Conflict);
+        // Past its deadline (not swept yet) a lease's result is refused too.
+        let late = s.lease(w, EXPIRED).unwrap().unwrap();
+        assert_eq!(s.submit_result(late.lease_id, w, &PIXEL, None).unwrap(), ResultOutcome::Conflict);
+        assert_eq!(s.frames(j).unwrap()[0].tiles_done, 1);
+    }
+
+    #[test]
+    fn cancel_revokes_the_live_leases_and_hands_out_no_more_tiles() {
+        let (_d, s) = store("cancel");
+        let j = job(&s, 0, 3);
+        let w = worker(&s);
+        let l = lease(&s, w);
+        assert!(s.cancel_job(j).unwrap());
+        assert_eq!(s.revoked_among(w, &[l.lease_id]).unwrap(), [l.lease_id]);
+        assert_eq!(s.heartbeat(w, &[l.lease_id], Some(l.lease_id), LONG).unwrap(), [l.lease_id]);
+        assert_eq!(s.submit_result(l.lease_id, w, &PIXEL, None).unwrap(), ResultOutcome::Conflict);
+        assert_eq!(s.fail_tile(l.lease_id, w, "x", false).unwrap(), FailOutcome::Conflict);
+        assert!(s.lease(w, LONG).unwrap().is_none());
+        assert!(!s.cancel_job(j).unwrap(), "an ended job cannot be cancelled again");
+    }
+
+    #[test]
+    fn a_released_lease_is_queued_again_once_without_a_failure() {
+        let (_d, s) = store("release");
+        let j = job(&s, 0, 1);
+        let (w, other) = (worker(&s), worker(&s));
+        let l = lease(&s, w);
+        assert!(!s.release_lease(l.lease_id, other).unwrap(), "only its holder gives a lease back");
+        assert!(s.release_lease(l.lease_id, w).unwrap());
+        assert!(!s.release_lease(l.lease_id, w).unwrap());
+        assert!(s.recent_failures(j).unwrap().is_empty());
+        assert_eq!(lease(&s, w).tile, 0, "a released tile is no failure: its worker may take it again");
+    }
+
+    #[test]
+    fn reopening_the_store_queues_leased_tiles_again_under_new_lease_ids() {
+        let (dir, s) = store("reopen");
+        let j = job(&s, 0, 1);
+        let w = worker(&s);
+        let l = lease(&s, w);
+        drop(s);
+        // Ids start past the clock in milliseconds: a restart takes longer than one.
+        std::thread::sleep(std::time::Duration::from_millis(5));
+        let s = Store::open(&dir.path().join("tessera.db")).unwrap();
+        assert_eq!(s.submit_result(l.lease_id, w, &PIXEL, None).unwrap(), ResultOutcome::Conflict);
+        let again = lease(&s, w);
+        assert_eq!((again.job_id, again.tile), (j, 0));
+        assert!(again.lease_id > l.lease_id, "lease ids repeat across a restart");
+    }
+}

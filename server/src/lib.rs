@@ -20,6 +20,9 @@ pub mod merge;
 pub mod scheduler;
 pub mod web;
 
+#[cfg(test)]
+mod testutil;
+
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -224,4 +227,56 @@ pub async fn serve(
         } => tracing::info!("stopped with requests still open"),
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[tokio::test]
+    async fn serve_answers_until_its_shutdown_stream_says_stop() {
+        let dir = testutil::TempDir::new("serve");
+        let config = Config {
+            bind: "127.0.0.1:0".parse().unwrap(),
+            data_dir: dir.path().join("data"),
+            local_workers: 0,
+            local_worker_threads: None,
+            worker_bin: None,
+            tile_size: 32,
+            api_token: None,
+            worker_token: Some("wtok".into()),
+            insecure: false,
+            lease_seconds: 30.0,
+            heartbeat_seconds: 5.0,
+            max_upload_mb: 16,
+            max_unpacked_mb: 16,
+            max_file_mb: 16,
+            max_bundle_files: 100,
+            max_job_tiles: 1000,
+            max_tile_seconds: 60.0,
+            max_job_samples: 1 << 30,
+        };
+        let (listening_tx, listening_rx) = tokio::sync::oneshot::channel();
+        let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+        let stop = futures_util::stream::once(async move {
+            let _ = stop_rx.await;
+        });
+        let server = tokio::spawn(serve(
+            config,
+            move |addr| {
+                let _ = listening_tx.send(addr);
+            },
+            stop,
+        ));
+        let addr = tokio::time::timeout(Duration::from_secs(10), listening_rx).await.unwrap().unwrap();
+        let health = tokio::task::spawn_blocking(move || {
+            ureq::get(&format!("http://{addr}/healthz")).call().unwrap().into_string().unwrap()
+        })
+        .await
+        .unwrap();
+        assert_eq!(health, "ok\n");
+        stop_tx.send(()).unwrap();
+        let stopped = tokio::time::timeout(Duration::from_secs(10), server).await;
+        stopped.expect("serve did not stop").unwrap().unwrap();
+    }
 }

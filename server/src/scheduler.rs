@@ -372,3 +372,54 @@ impl Scheduler {
         worker_state(w, now, self.timing.heartbeat_seconds)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn failures(workers: i64, total: i64, crashes: i64) -> TileFailures {
+        TileFailures { workers, total, crashes }
+    }
+
+    #[test]
+    fn a_tile_fails_its_job_on_three_workers_five_failures_or_one_fatal() {
+        let verdict = |f, fatal| tile_verdict(0, 7, f, "boom", fatal);
+        assert_eq!(verdict(failures(1, 1, 0), false), None);
+        assert_eq!(verdict(failures(2, 2, 0), false), None);
+        assert_eq!(verdict(failures(2, 4, 0), false), None);
+        let three = verdict(failures(3, 3, 0), false).expect("three workers");
+        assert_eq!(three, "tile 7 of frame 0 failed on 3 worker(s), 3 time(s); last error: boom");
+        assert!(verdict(failures(2, 5, 0), false).expect("five failures").contains("5 time(s)"));
+        assert!(verdict(failures(1, 1, 0), true).expect("fatal").contains("last error: boom"));
+    }
+
+    #[test]
+    fn a_tile_that_only_crashed_its_workers_says_so() {
+        let crashed = tile_verdict(1, 2, failures(3, 3, 3), "stopped answering", false).unwrap();
+        assert!(crashed.starts_with("tile 2 of frame 1 crashed its workers: 3 time(s), on 3 worker(s)"));
+        // One reported error among the crashes: the message quotes it.
+        let mixed = tile_verdict(1, 2, failures(3, 3, 2), "out of memory", false).unwrap();
+        assert!(mixed.ends_with("last error: out of memory"), "{mixed}");
+    }
+
+    #[test]
+    fn a_worker_silent_for_three_heartbeats_and_two_seconds_is_lost() {
+        let w = |last_seen, rendering| WorkerRow {
+            id: 1,
+            name: "w".into(),
+            threads: 1,
+            registered_at: 0.0,
+            last_seen,
+            tiles_done: 0,
+            failures: 0,
+            rendering,
+            current_tile: None,
+        };
+        // Heartbeats every 5 s: lost after 17 s of silence, whatever it was doing.
+        assert_eq!(lost_after(5.0), 17.0);
+        assert_eq!(worker_state(&w(100.0, None), 116.9, 5.0), WorkerState::Idle);
+        assert_eq!(worker_state(&w(100.0, Some(4)), 116.9, 5.0), WorkerState::Rendering);
+        assert_eq!(worker_state(&w(100.0, Some(4)), 117.1, 5.0), WorkerState::Lost);
+        assert_eq!(worker_state(&w(100.0, None), 117.1, 5.0), WorkerState::Lost);
+    }
+}

@@ -13,6 +13,8 @@ mod jobs;
 mod metrics;
 mod status;
 mod submit;
+#[cfg(test)]
+mod tests;
 mod worker;
 
 use std::collections::HashMap;
