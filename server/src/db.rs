@@ -16,6 +16,8 @@ use anyhow::{Context, Result};
 use rusqlite::{Connection, OptionalExtension, params};
 use tessera::protocol::{JobState, Lease, Rect};
 
+use crate::scheduler::{self, TileFailures};
+
 const SCHEMA: &str = "
 CREATE TABLE IF NOT EXISTS jobs(
     id INTEGER PRIMARY KEY,
@@ -82,13 +84,6 @@ CREATE TABLE IF NOT EXISTS workers(
 );
 ";
 
-/// A tile that fails on this many different workers fails its job.
-pub const TILE_FAILURE_WORKERS: i64 = 3;
-/// ... or this many times in all (so that a farm with fewer workers still ends).
-pub const TILE_FAILURE_TOTAL: i64 = 5;
-/// A worker that fails this many tiles of a job is kept off that job.
-pub const WORKER_FAILURES_PER_JOB: i64 = 3;
-
 /// What [`Store::expire_leases`] did.
 #[derive(Debug, Default)]
 pub struct Expired {
@@ -99,8 +94,8 @@ pub struct Expired {
 }
 
 /// Records a failure of `tile` on `worker` inside `tx`: the tile goes back to the queue, or its
-/// job fails after [`TILE_FAILURE_WORKERS`] different workers, [`TILE_FAILURE_TOTAL`] attempts,
-/// or at once when `fatal`. A lease expiry is such a failure too (the worker crashed).
+/// job fails, as the failure rule ([`scheduler::tile_verdict`]) says. A lease expiry is such a
+/// failure too (the worker crashed).
 fn record_failure(
     tx: &rusqlite::Transaction<'_>,
     (job, frame, tile): (i64, i64, i64),
@@ -118,25 +113,20 @@ fn record_failure(
         "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE job_id = ?1 AND frame = ?2 AND tile = ?3",
         params![job, frame, tile],
     )?;
-    let (workers, total, crashes): (i64, i64, i64) = tx.query_row(
+    let failures = tx.query_row(
         "SELECT count(DISTINCT worker_id), count(*), sum(error LIKE '% stopped answering while rendering this tile %')
          FROM tile_failures WHERE job_id = ?1 AND frame = ?2 AND tile = ?3",
         params![job, frame, tile],
-        |r| Ok((r.get(0)?, r.get(1)?, r.get::<_, Option<i64>>(2)?.unwrap_or(0))),
+        |r| {
+            Ok(TileFailures {
+                workers: r.get(0)?,
+                total: r.get(1)?,
+                crashes: r.get::<_, Option<i64>>(2)?.unwrap_or(0),
+            })
+        },
     )?;
-    if !(fatal || workers >= TILE_FAILURE_WORKERS || total >= TILE_FAILURE_TOTAL) {
+    let Some(message) = scheduler::tile_verdict(frame, tile, failures, error, fatal) else {
         return Ok(FailOutcome::Requeued);
-    }
-    let message = if crashes == total {
-        format!(
-            "tile {tile} of frame {frame} crashed its workers: {total} time(s), on {workers} worker(s), the worker \
-             rendering it stopped answering and its lease expired. The scene may make the renderer run out of \
-             memory or crash; render it with `tessera-worker render` to see the error, or report it with the scene"
-        )
-    } else {
-        format!(
-            "tile {tile} of frame {frame} failed on {workers} worker(s), {total} time(s); last error: {error}"
-        )
     };
     tx.execute(
         "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3 WHERE id = ?1 AND state IN ('queued', 'running')",
@@ -527,9 +517,9 @@ impl Store {
         Ok(rows)
     }
 
-    /// Hands the next tile to `worker`: highest job priority first, then submission order; never
-    /// a tile of a job the worker has failed too often, nor a tile it failed before while other
-    /// workers could take it.
+    /// Hands the next tile to `worker`: highest job priority first, then submission order, then
+    /// frame and tile order; never a tile of a job the worker has failed
+    /// [`scheduler::WORKER_FAILURES_PER_JOB`] tiles of, nor a tile it failed before.
     pub fn lease(&self, worker: u64, lease_seconds: f64) -> Result<Option<Lease>> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
@@ -544,7 +534,7 @@ impl Store {
                    AND (SELECT count(*) FROM tile_failures x WHERE x.job_id = j.id AND x.worker_id = ?1) < ?2
                  ORDER BY j.priority DESC, j.id",
             )?;
-            stmt.query_map(params![w, WORKER_FAILURES_PER_JOB], |r| {
+            stmt.query_map(params![w, scheduler::WORKER_FAILURES_PER_JOB], |r| {
                 Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?))
             })?
             .collect::<rusqlite::Result<_>>()?
@@ -789,9 +779,9 @@ impl Store {
     }
 
     /// Records that `worker` could not render the tile of `lease`: the tile goes back to the
-    /// queue, or fails its job after [`TILE_FAILURE_WORKERS`] different workers (or
-    /// [`TILE_FAILURE_TOTAL`] attempts), or at once when the failure is `fatal` (the tile went
-    /// over the farm's render time limit: another worker would spend that time again).
+    /// queue, or fails its job ([`scheduler::tile_verdict`]: too many workers or attempts, or at
+    /// once when the failure is `fatal`, the tile having gone over the farm's render time limit
+    /// that another worker would spend again).
     pub fn fail_tile(&self, lease: u64, worker: u64, error: &str, fatal: bool) -> Result<FailOutcome> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
@@ -847,5 +837,243 @@ impl Store {
             render_seconds_sum: sum.unwrap_or(0.0),
             render_seconds_count: count,
         })
+    }
+}
+
+/// The rules the store applies inside its transactions, on a real SQLite file: no HTTP, no
+/// scene (a job here is rows with a made-up bundle).
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testutil::store;
+
+    /// Long enough for a lease not to expire during a test.
+    const LONG: f64 = 60.0;
+    /// A lease whose deadline has passed already.
+    const EXPIRED: f64 = -1.0;
+
+    /// A job of one frame cut into `tiles` one-pixel tiles.
+    fn job(s: &Store, priority: i64, tiles: u32) -> u64 {
+        s.insert_job(&NewJob {
+            name: "j".into(),
+            priority,
+            tile_size: 1,
+            samples: None,
+            bundle: "0".repeat(64),
+            scene_path: "scene.xml".into(),
+            frames: vec![NewFrame {
+                camera: 0,
+                image_name: "j.png".into(),
+                width: tiles,
+                height: 1,
+                tiles: (0..tiles).map(|x| Rect { x0: x, y0: 0, width: 1, height: 1 }).collect(),
+            }],
+        })
+        .unwrap()
+    }
+
+    fn worker(s: &Store) -> u64 {
+        s.register_worker("w", 1).unwrap()
+    }
+
+    fn lease(s: &Store, w: u64) -> Lease {
+        s.lease(w, LONG).unwrap().expect("a lease")
+    }
+
+    fn state(s: &Store, job: u64) -> JobState {
+        s.job(job).unwrap().unwrap().state
+    }
+
+    const PIXEL: [u8; 12] = [0; 12];
+
+    #[test]
+    fn leases_go_by_priority_then_submission_then_frame_and_tile() {
+        let (_d, s) = store("prio");
+        let low = job(&s, 0, 2);
+        let low2 = job(&s, 0, 1);
+        let high = job(&s, 5, 1);
+        let w = worker(&s);
+        let order: Vec<(u64, u32)> = (0..4).map(|_| lease(&s, w)).map(|l| (l.job_id, l.tile)).collect();
+        assert_eq!(order, [(high, 0), (low, 0), (low, 1), (low2, 0)]);
+        assert!(s.lease(w, LONG).unwrap().is_none());
+        // A job submitted later with a higher priority overtakes a running one.
+        let running = job(&s, 0, 3);
+        assert_eq!(lease(&s, w).job_id, running);
+        let urgent = job(&s, 1, 1);
+        assert_eq!(lease(&s, w).job_id, urgent);
+        assert_eq!(state(&s, running), JobState::Running);
+    }
+
+    #[test]
+    fn a_tile_failing_on_three_workers_fails_its_job() {
+        let (_d, s) = store("three");
+        let j = job(&s, 0, 2);
+        for k in 0..3 {
+            let w = worker(&s);
+            let l = lease(&s, w);
+            assert_eq!(l.tile, 0, "the failed tile goes to the next worker first");
+            let out = s.fail_tile(l.lease_id, w, &format!("boom {k}"), false).unwrap();
+            if k < 2 {
+                assert_eq!(out, FailOutcome::Requeued);
+                assert_eq!(state(&s, j), JobState::Running);
+            } else {
+                let FailOutcome::JobFailed { job, message } = out else { panic!("{out:?}") };
+                assert_eq!(job, j);
+                assert!(message.contains("3 worker(s), 3 time(s); last error: boom 2"), "{message}");
+            }
+        }
+        assert_eq!(state(&s, j), JobState::Failed);
+        assert!(s.lease(worker(&s), LONG).unwrap().is_none());
+    }
+
+    #[test]
+    fn a_tile_failing_five_times_fails_its_job_on_fewer_workers() {
+        // Leasing never gives a worker a tile it failed, so five failures on fewer than three
+        // workers only come from the history (written here directly): the limit still holds.
+        let (_d, s) = store("five");
+        let j = job(&s, 0, 1);
+        let (a, b) = (worker(&s), worker(&s));
+        for _ in 0..4 {
+            s.conn()
+                .execute(
+                    "INSERT INTO tile_failures(job_id, frame, tile, worker_id, error, at) VALUES (?1, 0, 0, ?2, 'old', 0)",
+                    params![j as i64, a as i64],
+                )
+                .unwrap();
+        }
+        let l = lease(&s, b);
+        let out = s.fail_tile(l.lease_id, b, "again", false).unwrap();
+        let FailOutcome::JobFailed { message, .. } = out else { panic!("{out:?}") };
+        assert!(message.contains("2 worker(s), 5 time(s); last error: again"), "{message}");
+        assert_eq!(state(&s, j), JobState::Failed);
+    }
+
+    #[test]
+    fn a_fatal_failure_fails_the_job_at_once_and_revokes_its_leases() {
+        let (_d, s) = store("fatal");
+        let j = job(&s, 0, 3);
+        let w = worker(&s);
+        let (l, other) = (lease(&s, w), lease(&s, w));
+        let out = s.fail_tile(l.lease_id, w, "over the render time limit", true).unwrap();
+        let FailOutcome::JobFailed { message, .. } = out else { panic!("{out:?}") };
+        assert!(
+            message.contains("1 worker(s), 1 time(s); last error: over the render time limit"),
+            "{message}"
+        );
+        assert_eq!(state(&s, j), JobState::Failed);
+        assert_eq!(s.revoked_among(w, &[other.lease_id]).unwrap(), [other.lease_id]);
+        assert!(s.lease(worker(&s), LONG).unwrap().is_none());
+    }
+
+    #[test]
+    fn a_worker_failing_three_tiles_of_a_job_is_kept_off_that_job_only() {
+        let (_d, s) = store("ban");
+        let j = job(&s, 1, 8);
+        let other = job(&s, 0, 1);
+        let w = worker(&s);
+        for t in 0..3 {
+            let l = lease(&s, w);
+            assert_eq!((l.job_id, l.tile), (j, t), "a worker is not given a tile it failed");
+            assert_eq!(s.fail_tile(l.lease_id, w, "boom", false).unwrap(), FailOutcome::Requeued);
+        }
+        assert_eq!(lease(&s, w).job_id, other, "3 failed tiles keep the worker off the job");
+        let good = worker(&s);
+        assert_eq!((lease(&s, good).job_id, state(&s, j)), (j, JobState::Running));
+        assert_eq!(s.workers().unwrap().iter().find(|x| x.id == w).unwrap().failures, 3);
+    }
+
+    #[test]
+    fn an_expired_lease_is_a_failure_and_three_fail_the_job_as_crashes() {
+        let (_d, s) = store("expiry");
+        let j = job(&s, 0, 1);
+        for k in 0..3 {
+            let w = worker(&s);
+            let l = s.lease(w, EXPIRED).unwrap().unwrap();
+            let e = s.expire_leases().unwrap();
+            assert_eq!(e.leases, 1);
+            assert_eq!(s.submit_result(l.lease_id, w, &PIXEL, None).unwrap(), ResultOutcome::Conflict);
+            assert_eq!(s.heartbeat(w, &[l.lease_id], Some(l.lease_id), LONG).unwrap(), [l.lease_id]);
+            let row = s.workers().unwrap().into_iter().find(|x| x.id == w).unwrap();
+            assert_eq!((row.failures, row.rendering), (1, None));
+            if k < 2 {
+                assert!(e.failed_jobs.is_empty());
+                assert_eq!(state(&s, j), JobState::Running);
+                assert!(s.recent_failures(j).unwrap()[0].contains("stopped answering"));
+            } else {
+                let [(job, message)] = &e.failed_jobs[..] else { panic!("{:?}", e.failed_jobs) };
+                assert_eq!(*job, j);
+                assert!(message.contains("crashed its workers: 3 time(s), on 3 worker(s)"), "{message}");
+            }
+        }
+        assert_eq!(state(&s, j), JobState::Failed);
+        assert_eq!(s.expire_leases().unwrap().leases, 0);
+    }
+
+    #[test]
+    fn a_result_is_stored_once_for_a_live_lease_of_its_worker() {
+        let (_d, s) = store("once");
+        let j = job(&s, 0, 2);
+        let (w, other) = (worker(&s), worker(&s));
+        let l = lease(&s, w);
+        assert_eq!(
+            s.submit_result(l.lease_id, w, &[0; 24], None).unwrap(),
+            ResultOutcome::WrongSize { expected: 12 }
+        );
+        assert_eq!(s.submit_result(l.lease_id, other, &PIXEL, None).unwrap(), ResultOutcome::Conflict);
+        let ResultOutcome::Accepted { job_id, tiles_done, tiles_total, frame_complete, .. } =
+            s.submit_result(l.lease_id, w, &PIXEL, Some(0.5)).unwrap()
+        else {
+            panic!("refused")
+        };
+        assert_eq!((job_id, tiles_done, tiles_total, frame_complete), (j, 1, 2, false));
+        assert_eq!(s.submit_result(l.lease_id, w, &PIXEL, None).unwrap(), ResultOutcome::Conflict);
+        // Past its deadline (not swept yet) a lease's result is refused too.
+        let late = s.lease(w, EXPIRED).unwrap().unwrap();
+        assert_eq!(s.submit_result(late.lease_id, w, &PIXEL, None).unwrap(), ResultOutcome::Conflict);
+        assert_eq!(s.frames(j).unwrap()[0].tiles_done, 1);
+    }
+
+    #[test]
+    fn cancel_revokes_the_live_leases_and_hands_out_no_more_tiles() {
+        let (_d, s) = store("cancel");
+        let j = job(&s, 0, 3);
+        let w = worker(&s);
+        let l = lease(&s, w);
+        assert!(s.cancel_job(j).unwrap());
+        assert_eq!(s.revoked_among(w, &[l.lease_id]).unwrap(), [l.lease_id]);
+        assert_eq!(s.heartbeat(w, &[l.lease_id], Some(l.lease_id), LONG).unwrap(), [l.lease_id]);
+        assert_eq!(s.submit_result(l.lease_id, w, &PIXEL, None).unwrap(), ResultOutcome::Conflict);
+        assert_eq!(s.fail_tile(l.lease_id, w, "x", false).unwrap(), FailOutcome::Conflict);
+        assert!(s.lease(w, LONG).unwrap().is_none());
+        assert!(!s.cancel_job(j).unwrap(), "an ended job cannot be cancelled again");
+    }
+
+    #[test]
+    fn a_released_lease_is_queued_again_once_without_a_failure() {
+        let (_d, s) = store("release");
+        let j = job(&s, 0, 1);
+        let (w, other) = (worker(&s), worker(&s));
+        let l = lease(&s, w);
+        assert!(!s.release_lease(l.lease_id, other).unwrap(), "only its holder gives a lease back");
+        assert!(s.release_lease(l.lease_id, w).unwrap());
+        assert!(!s.release_lease(l.lease_id, w).unwrap());
+        assert!(s.recent_failures(j).unwrap().is_empty());
+        assert_eq!(lease(&s, w).tile, 0, "a released tile is no failure: its worker may take it again");
+    }
+
+    #[test]
+    fn reopening_the_store_queues_leased_tiles_again_under_new_lease_ids() {
+        let (dir, s) = store("reopen");
+        let j = job(&s, 0, 1);
+        let w = worker(&s);
+        let l = lease(&s, w);
+        drop(s);
+        // Ids start past the clock in milliseconds: a restart takes longer than one.
+        std::thread::sleep(std::time::Duration::from_millis(5));
+        let s = Store::open(&dir.path().join("tessera.db")).unwrap();
+        assert_eq!(s.submit_result(l.lease_id, w, &PIXEL, None).unwrap(), ResultOutcome::Conflict);
+        let again = lease(&s, w);
+        assert_eq!((again.job_id, again.tile), (j, 0));
+        assert!(again.lease_id > l.lease_id, "lease ids repeat across a restart");
     }
 }

@@ -1,27 +1,37 @@
 //! `tessera-server`: the farm's HTTP server.
 //!
 //! - [`api`]: the routes (job API, worker protocol, health, metrics) over an [`api::AppState`].
+//! - [`scheduler`]: the scheduling rules (priority, long polls and their wake-ups, failures and
+//!   bans, lease expiry, revocation, lost workers) between the handlers and the store.
 //! - [`db`]: the SQLite job store, the single source of truth (jobs, frames, tiles with their
 //!   pixels, leases, workers); a restart loses nothing that was acknowledged.
 //! - [`bundle`]: uploads into content-addressed tar bundles.
 //! - [`merge`]: tiles into frames, frames into `.exr` and tone-mapped `.png` files, once.
+//! - [`web`]: the status page.
 //! - [`serve`]: binds, starts the background tasks (lease expiry, merges left over from a crash)
-//!   and the local worker processes, and shuts down on Ctrl-C or SIGTERM.
+//!   and the local worker processes (`local_workers`), and stops when its shutdown stream says
+//!   so (the binary's: Ctrl-C or SIGTERM).
 
 pub mod api;
 pub mod bundle;
 pub mod db;
+mod local_workers;
 pub mod merge;
+pub mod scheduler;
 pub mod web;
+
+#[cfg(test)]
+mod testutil;
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
-use tokio::process::Command;
+use futures_util::{Stream, StreamExt};
+
+pub use local_workers::LOCAL_WORKER_GRACE;
 
 /// Uploads unpacked and validated at the same time. Each holds at most `--max-unpacked-mb` of
 /// files plus the canonical tar of them and the decoded scene; the rest wait their turn.
@@ -122,28 +132,19 @@ pub fn check_config(config: &Config) -> Result<()> {
     Ok(())
 }
 
-/// The `tessera-worker` binary the local workers run: `--worker-bin`, else next to this
-/// executable.
-fn worker_binary(config: &Config) -> Result<PathBuf> {
-    if let Some(p) = &config.worker_bin {
-        return Ok(p.clone());
-    }
-    let exe = std::env::current_exe().context("cannot find this executable's path")?;
-    let name = if cfg!(windows) { "tessera-worker.exe" } else { "tessera-worker" };
-    let candidate = exe.parent().map(|d| d.join(name)).unwrap_or_else(|| PathBuf::from(name));
-    if candidate.exists() {
-        Ok(candidate)
-    } else {
-        bail!(
-            "cannot find {} for the local workers; build it (cargo build --release builds both binaries), pass --worker-bin, or start with --local-workers 0",
-            candidate.display()
-        )
-    }
-}
-
-/// Runs the server until Ctrl-C or SIGTERM. `on_listening` gets the bound address (port 0
-/// picks a free one).
-pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Result<()> {
+/// Runs the server until `shutdown` asks it to stop. `on_listening` gets the bound address (port
+/// 0 picks a free one).
+///
+/// The first item of `shutdown` stops the server gracefully: the local workers get SIGTERM and
+/// up to [`LOCAL_WORKER_GRACE`] to finish their tiles while the server still takes their results,
+/// long polls answer 503 at once, then open requests get 3 s. A second item kills the local
+/// workers at once. The binary passes Ctrl-C and SIGTERM; a test can pass
+/// `futures_util::stream::once(..)` of anything. A stream that ends asks for nothing more.
+pub async fn serve(
+    config: Config,
+    on_listening: impl FnOnce(SocketAddr),
+    shutdown: impl Stream<Item = ()> + Send + 'static,
+) -> Result<()> {
     check_config(&config)?;
     std::fs::create_dir_all(&config.data_dir)
         .with_context(|| format!("cannot create the data directory {}", config.data_dir.display()))?;
@@ -157,30 +158,22 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
         tile_size: config.tile_size,
         api_token: config.api_token.clone(),
         worker_token: worker_token.clone(),
-        lease_seconds: config.lease_seconds,
-        heartbeat_seconds: config.heartbeat_seconds,
-        max_wait_seconds: 20.0,
         max_upload_bytes: config.max_upload_mb << 20,
         bundle_limits: bundle::Limits {
             max_unpacked_bytes: config.max_unpacked_mb << 20,
             max_files: config.max_bundle_files,
             max_file_bytes: config.max_file_mb << 20,
         },
-        max_tile_seconds: config.max_tile_seconds,
         max_job_samples: config.max_job_samples,
         max_job_tiles: config.max_job_tiles,
     };
-    let state = api::AppState {
-        store: store.clone(),
-        blobs,
-        settings: Arc::new(settings),
-        work: Arc::new(tokio::sync::Notify::new()),
-        counters: Arc::new(api::Counters::default()),
-        cameras: Arc::default(),
-        events: tokio::sync::broadcast::channel(1024).0,
-        shutting_down: Arc::default(),
-        unpacking: Arc::new(tokio::sync::Semaphore::new(UNPACKING_AT_ONCE)),
+    let timing = scheduler::Timing {
+        lease_seconds: config.lease_seconds,
+        heartbeat_seconds: config.heartbeat_seconds,
+        max_wait_seconds: 20.0,
+        max_tile_seconds: config.max_tile_seconds,
     };
+    let state = api::AppState::new(store.clone(), blobs, settings, timing);
 
     let listener = tokio::net::TcpListener::bind(config.bind)
         .await
@@ -192,82 +185,35 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
     // Frames whose last tile arrived just before a crash.
     for f in store.frames_awaiting_merge()? {
         tracing::info!(job = f.job_id, frame = f.index, "merging a frame left from before the restart");
-        tokio::spawn(api::merge_frame(state.clone(), f.job_id, f.index));
+        tokio::spawn(merge::merge_frame(state.clone(), f.job_id, f.index));
     }
 
     // Lease expiry: tiles of silent workers go back to the queue.
-    {
-        let state = state.clone();
-        tokio::spawn(async move {
-            let mut tick = tokio::time::interval(Duration::from_millis(500));
-            loop {
-                tick.tick().await;
-                match state.store.expire_leases() {
-                    Ok(e) if e.leases == 0 => {}
-                    Ok(e) => {
-                        tracing::warn!(
-                            "{} lease(s) expired (their workers stopped answering); the tiles count a failure each and are queued again",
-                            e.leases
-                        );
-                        state.counters.lease_expiries.fetch_add(e.leases as u64, Ordering::Relaxed);
-                        for (job, message) in e.failed_jobs {
-                            tracing::error!(job, "job failed: {message}");
-                            state.emit(tessera::protocol::ServerEvent::Job {
-                                job,
-                                state: tessera::protocol::JobState::Failed,
-                            });
-                        }
-                        state.work.notify_waiters();
-                    }
-                    Err(e) => tracing::error!("lease expiry: {e:#}"),
-                }
-            }
-        });
-    }
+    state.scheduler.spawn_expiry();
 
     // Local workers: real processes over real HTTP, restarted if they die, stopped gracefully.
-    let (stopping_tx, stopping_rx) = tokio::sync::watch::channel(Stopping::No);
-    let mut supervisors = Vec::new();
-    if config.local_workers > 0 {
-        let bin = worker_binary(&config)?;
-        let url = format!(
-            "http://{}",
-            if addr.ip().is_unspecified() { SocketAddr::from(([127, 0, 0, 1], addr.port())) } else { addr }
-        );
-        for k in 0..config.local_workers {
-            let local = LocalWorker {
-                k: k + 1,
-                bin: bin.clone(),
-                url: url.clone(),
-                token: worker_token.clone(),
-                threads: config.local_worker_threads,
-            };
-            supervisors.push(tokio::spawn(supervise_worker(local, stopping_rx.clone())));
-        }
-    }
+    let local = local_workers::LocalWorkers::start(&config, addr, &worker_token)?;
 
     let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
     let app = api::app(state.clone());
     let shutdown = async move {
-        let mut signals = Signals::new();
-        signals.next().await;
+        let mut shutdown = std::pin::pin!(shutdown);
+        if shutdown.next().await.is_none() {
+            return std::future::pending().await;
+        }
         tracing::info!("shutting down");
         // Stop the local workers first, while the server still takes their last results and
-        // the leases they give back; a second signal stops them at once. Then end the long
+        // the leases they give back; a second request stops them at once. Then end the long
         // polls, which can no longer bring anything but a lease to give back.
-        let _ = stopping_tx.send(Stopping::Gracefully);
-        state.shutting_down.store(true, Ordering::SeqCst);
-        state.work.notify_waiters();
-        let all_stopped = futures_util::future::join_all(supervisors);
-        tokio::pin!(all_stopped);
-        tokio::select! {
-            _ = &mut all_stopped => {}
-            _ = signals.next() => {
-                tracing::warn!("second signal: stopping the local workers now");
-                let _ = stopping_tx.send(Stopping::Now);
-                all_stopped.await;
-            }
-        }
+        local.stop_gracefully();
+        state.scheduler.begin_shutdown();
+        local
+            .stopped(async {
+                if shutdown.next().await.is_none() {
+                    std::future::pending::<()>().await;
+                }
+            })
+            .await;
         let _ = stop_tx.send(true);
     };
     let server = axum::serve(listener, app).with_graceful_shutdown(shutdown);
@@ -283,164 +229,54 @@ pub async fn serve(config: Config, on_listening: impl FnOnce(SocketAddr)) -> Res
     Ok(())
 }
 
-/// How long a local worker may take to stop after SIGTERM (it finishes and uploads the tile it
-/// is rendering, and gives back the one it fetched ahead) before it is killed.
-pub const LOCAL_WORKER_GRACE: Duration = Duration::from_secs(10);
-
-/// What the local workers' supervisors are told.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Stopping {
-    No,
-    /// SIGTERM, then up to [`LOCAL_WORKER_GRACE`] to finish.
-    Gracefully,
-    /// SIGKILL.
-    Now,
-}
-
-/// Ctrl-C and SIGTERM, as one stream.
-struct Signals {
-    #[cfg(unix)]
-    term: tokio::signal::unix::Signal,
-}
-
-impl Signals {
-    fn new() -> Signals {
-        Signals {
-            #[cfg(unix)]
-            term: tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-                .expect("SIGTERM handler"),
-        }
-    }
-
-    async fn next(&mut self) {
-        #[cfg(unix)]
-        tokio::select! { _ = tokio::signal::ctrl_c() => {}, _ = self.term.recv() => {} }
-        #[cfg(not(unix))]
-        let _ = tokio::signal::ctrl_c().await;
-    }
-}
-
-/// A local worker that ran this long before exiting was not crash-looping.
-const LOCAL_WORKER_STEADY: Duration = Duration::from_secs(60);
-
-/// The wait before restarting a local worker after `crashes` short runs in a row: 1 s, then
-/// doubling, at most 60 s.
-fn restart_delay(crashes: u32) -> Duration {
-    Duration::from_secs(1u64 << crashes.saturating_sub(1).min(6)).min(Duration::from_secs(60))
-}
-
-/// How to start local worker `k`.
-struct LocalWorker {
-    k: usize,
-    bin: PathBuf,
-    url: String,
-    token: String,
-    threads: Option<usize>,
-}
-
-/// Keeps a local worker running until the server stops, then stops it: SIGTERM and a grace
-/// period, SIGKILL after that or on [`Stopping::Now`].
-async fn supervise_worker(w: LocalWorker, mut stopping: tokio::sync::watch::Receiver<Stopping>) {
-    let k = w.k;
-    // Restarts that follow a short run back off: a worker that keeps crashing (a scene that
-    // kills it, a broken binary) is restarted after 1, 2, 4, ... up to 60 s, not every second.
-    let mut crashes_in_a_row = 0u32;
-    loop {
-        let started = tokio::time::Instant::now();
-        let mut cmd = Command::new(&w.bin);
-        cmd.arg("work")
-            .arg("--server")
-            .arg(&w.url)
-            .arg("--name")
-            .arg(format!("local-{k}"))
-            .arg("--exit-with-parent");
-        if let Some(t) = w.threads {
-            cmd.arg("--threads").arg(t.to_string());
-        }
-        // A process group of its own: a Ctrl-C in the terminal reaches the server only, which
-        // then stops its workers once and in order (a worker given two signals exits at once).
-        #[cfg(unix)]
-        cmd.process_group(0);
-        cmd.env("TESSERA_WORKER_TOKEN", &w.token).kill_on_drop(true);
-        let mut child = match cmd.spawn() {
-            Ok(child) => child,
-            Err(e) => {
-                tracing::error!(worker = k, "cannot start {}: {e}", w.bin.display());
-                tokio::select! {
-                    _ = tokio::time::sleep(Duration::from_secs(1)) => continue,
-                    _ = stopping.wait_for(|s| *s != Stopping::No) => return,
-                }
-            }
-        };
-        tracing::info!(worker = k, pid = child.id(), "local worker started");
-        let stop = tokio::select! {
-            status = child.wait() => {
-                if let Err(e) = status {
-                    tracing::error!(worker = k, "local worker: {e}");
-                }
-                false
-            }
-            _ = stopping.wait_for(|s| *s != Stopping::No) => true,
-        };
-        if stop {
-            stop_worker(k, &mut child, &mut stopping).await;
-            return;
-        }
-        let ran = started.elapsed();
-        crashes_in_a_row = if ran < LOCAL_WORKER_STEADY { crashes_in_a_row + 1 } else { 1 };
-        let delay = restart_delay(crashes_in_a_row);
-        tracing::warn!(
-            worker = k,
-            "local worker exited after {:.1} s ({crashes_in_a_row} short run(s) in a row); restarting it in {} s",
-            ran.as_secs_f64(),
-            delay.as_secs()
-        );
-        tokio::select! {
-            _ = tokio::time::sleep(delay) => {}
-            _ = stopping.wait_for(|s| *s != Stopping::No) => return,
-        }
-    }
-}
-
-async fn stop_worker(
-    k: usize,
-    child: &mut tokio::process::Child,
-    stopping: &mut tokio::sync::watch::Receiver<Stopping>,
-) {
-    if *stopping.borrow() == Stopping::Gracefully {
-        #[cfg(unix)]
-        if let Some(pid) = child.id() {
-            // SAFETY: kill(2) has no memory effects; `pid` is our own child, not yet reaped.
-            unsafe {
-                libc::kill(pid as libc::pid_t, libc::SIGTERM);
-            }
-        }
-        tokio::select! {
-            status = child.wait() => {
-                match status {
-                    Ok(status) => tracing::info!(worker = k, %status, "local worker stopped"),
-                    Err(e) => tracing::error!(worker = k, "local worker: {e}"),
-                }
-                return;
-            }
-            _ = tokio::time::sleep(LOCAL_WORKER_GRACE) => {
-                tracing::warn!(worker = k, "local worker still busy {} s after SIGTERM; killing it", LOCAL_WORKER_GRACE.as_secs());
-            }
-            _ = stopping.wait_for(|s| *s == Stopping::Now) => {}
-        }
-    }
-    let _ = child.kill().await;
-    tracing::warn!(worker = k, "local worker killed; its tiles are queued again");
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    #[test]
-    fn restarts_back_off_doubling_up_to_a_minute() {
-        let secs: Vec<u64> = (1..=9).map(|n| restart_delay(n).as_secs()).collect();
-        assert_eq!(secs, [1, 2, 4, 8, 16, 32, 60, 60, 60]);
-        assert_eq!(restart_delay(u32::MAX).as_secs(), 60);
+    #[tokio::test]
+    async fn serve_answers_until_its_shutdown_stream_says_stop() {
+        let dir = testutil::TempDir::new("serve");
+        let config = Config {
+            bind: "127.0.0.1:0".parse().unwrap(),
+            data_dir: dir.path().join("data"),
+            local_workers: 0,
+            local_worker_threads: None,
+            worker_bin: None,
+            tile_size: 32,
+            api_token: None,
+            worker_token: Some("wtok".into()),
+            insecure: false,
+            lease_seconds: 30.0,
+            heartbeat_seconds: 5.0,
+            max_upload_mb: 16,
+            max_unpacked_mb: 16,
+            max_file_mb: 16,
+            max_bundle_files: 100,
+            max_job_tiles: 1000,
+            max_tile_seconds: 60.0,
+            max_job_samples: 1 << 30,
+        };
+        let (listening_tx, listening_rx) = tokio::sync::oneshot::channel();
+        let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+        let stop = futures_util::stream::once(async move {
+            let _ = stop_rx.await;
+        });
+        let server = tokio::spawn(serve(
+            config,
+            move |addr| {
+                let _ = listening_tx.send(addr);
+            },
+            stop,
+        ));
+        let addr = tokio::time::timeout(Duration::from_secs(10), listening_rx).await.unwrap().unwrap();
+        let health = tokio::task::spawn_blocking(move || {
+            ureq::get(&format!("http://{addr}/healthz")).call().unwrap().into_string().unwrap()
+        })
+        .await
+        .unwrap();
+        assert_eq!(health, "ok\n");
+        stop_tx.send(()).unwrap();
+        let stopped = tokio::time::timeout(Duration::from_secs(10), server).await;
+        stopped.expect("serve did not stop").unwrap().unwrap();
     }
 }

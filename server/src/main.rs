@@ -116,16 +116,58 @@ fn main() -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    let result = runtime.block_on(serve(config, |addr| {
-        // One machine-readable line on stdout, for scripts and tests that bind port 0.
-        println!("listening on http://{addr}");
-        let _ = std::io::stdout().flush();
-    }));
+    let result = runtime.block_on(async {
+        // Handlers first, so that a signal is never the default's (which would kill the server
+        // without stopping its workers).
+        let signals = shutdown_signals();
+        serve(
+            config,
+            |addr| {
+                // One machine-readable line on stdout, for scripts and tests that bind port 0.
+                println!("listening on http://{addr}");
+                let _ = std::io::stdout().flush();
+            },
+            signals,
+        )
+        .await
+    });
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// Ctrl-C and SIGTERM as one stream, for [`serve`]: the first stops the server gracefully, a
+/// second stops its local workers at once. Call it inside the runtime.
+fn shutdown_signals() -> impl futures_util::Stream<Item = ()> + Send + 'static {
+    futures_util::stream::unfold(Signals::new(), |mut signals| async move {
+        signals.next().await;
+        Some(((), signals))
+    })
+}
+
+/// Ctrl-C and SIGTERM, as one stream.
+struct Signals {
+    #[cfg(unix)]
+    term: tokio::signal::unix::Signal,
+}
+
+impl Signals {
+    fn new() -> Signals {
+        Signals {
+            #[cfg(unix)]
+            term: tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+                .expect("SIGTERM handler"),
+        }
+    }
+
+    async fn next(&mut self) {
+        #[cfg(unix)]
+        tokio::select! { _ = tokio::signal::ctrl_c() => {}, _ = self.term.recv() => {} }
+        #[cfg(not(unix))]
+        let _ = tokio::signal::ctrl_c().await;
     }
 }

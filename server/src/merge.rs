@@ -3,7 +3,9 @@
 //! clamped `.png` plus the float frame as `.exr` for LDR ones. The photographic operator needs
 //! the whole image (log average, burn-out percentile), so it runs here and nowhere per tile.
 //!
-//! Everything here is CPU and file work: callers run it on `spawn_blocking`.
+//! [`merge_frame`] is the farm's entry point, called when a frame's last tile is accepted (and at
+//! startup for frames a crash left unmerged); the rest is CPU and file work that it runs on
+//! `spawn_blocking`.
 
 use std::path::{Path, PathBuf};
 
@@ -11,9 +13,11 @@ use anyhow::{Context, Result, bail};
 use tessera::camera::Camera;
 use tessera::image::Image;
 use tessera::output::{self, OutputFile, OutputKind};
-use tessera::protocol::{Rect, decode_tile};
+use tessera::protocol::{JobState, Rect, ServerEvent, decode_tile};
 use tessera::render::TileRect;
 use tessera::tonemap::{Operator, Photographic, tonemap_with};
+
+use crate::api::AppState;
 
 /// Assembles `tiles` into a `width` x `height` image; missing tiles stay black.
 pub fn assemble(width: u32, height: u32, tiles: &[(Rect, Vec<u8>)]) -> Result<Image> {
@@ -127,4 +131,44 @@ pub fn encode_png(width: u32, height: u32, rgb: &[u8]) -> Result<Vec<u8>> {
         .write_image(rgb, width, height, image::ExtendedColorType::Rgb8)
         .context("cannot encode the PNG")?;
     Ok(out)
+}
+
+/// Merges a complete frame off the executor; a failure fails the job with the reason.
+pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
+    let st = state.clone();
+    let outcome = tokio::task::spawn_blocking(move || -> anyhow::Result<bool> {
+        let job = st.store.job(job_id)?.ok_or_else(|| anyhow::anyhow!("job {job_id} vanished"))?;
+        let frames = st.store.frames(job_id)?;
+        let f = frames
+            .iter()
+            .find(|f| f.index == frame)
+            .ok_or_else(|| anyhow::anyhow!("frame {frame} vanished"))?;
+        if f.outputs.is_some() {
+            // Merged already (a second trigger of one frame): the outputs stand.
+            return Ok(frames.iter().all(|f| f.outputs.is_some()));
+        }
+        let cameras = st.job_cameras(&job)?;
+        let cam =
+            cameras.get(f.camera as usize).ok_or_else(|| anyhow::anyhow!("camera {} missing", f.camera))?;
+        let tiles = st.store.frame_tiles(job_id, frame)?;
+        let img = assemble(f.width, f.height, &tiles)?;
+        let names = write_outputs(&st.frame_dir(job_id, frame), cam, &img)?;
+        st.store.frame_merged(job_id, frame, &names)
+    })
+    .await;
+    match outcome {
+        Ok(Ok(done)) => {
+            tracing::info!(job = job_id, frame, done, "frame merged");
+            state.emit(ServerEvent::Frame { job: job_id, frame });
+            if done {
+                state.emit(ServerEvent::Job { job: job_id, state: JobState::Done });
+            }
+        }
+        Ok(Err(e)) => {
+            tracing::error!(job = job_id, frame, "merge failed: {e:#}");
+            let _ = state.store.fail_job(job_id, &format!("merging frame {frame} failed: {e:#}"));
+            state.emit(ServerEvent::Job { job: job_id, state: JobState::Failed });
+        }
+        Err(e) => tracing::error!(job = job_id, frame, "merge task panicked: {e}"),
+    }
 }

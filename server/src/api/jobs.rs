@@ -1,0 +1,249 @@
+//! The job API's views and controls: jobs listed, shown and cancelled, and each frame's output
+//! files, live preview and re-tone-mapped picture.
+
+use axum::Json;
+use axum::extract::{Path, State};
+use axum::http::{HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use tessera::camera::Camera;
+use tessera::protocol::*;
+
+use super::{ApiResult, AppError, AppState};
+use crate::merge;
+
+fn tone_params(p: &tessera::tonemap::Photographic) -> ToneParams {
+    ToneParams { key: p.key, burn: p.burn_percent, saturation: p.saturation, gamma: p.gamma.to_string() }
+}
+
+/// The parameters a camera's HDR output is tone-mapped with, if it is HDR.
+fn camera_tonemap(cam: &Camera) -> Option<tessera::tonemap::Photographic> {
+    merge::display_tonemap(cam).map(|(_, p)| p)
+}
+
+pub(super) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobInfo>> {
+    let Some(job) = state.store.job(id)? else { return Ok(None) };
+    let frames = state.store.frames(id)?;
+    let cameras = state.job_cameras(&job).ok();
+    let url = format!("/api/v1/jobs/{id}");
+    let mut error = job.error.clone();
+    if error.is_none() && !job.state.is_final() {
+        // Tile failures that have not failed the job yet are worth seeing too.
+        let recent = state.store.recent_failures(id)?;
+        if !recent.is_empty() {
+            error = Some(format!("retrying after tile failures: {}", recent.join("; ")));
+        }
+    }
+    Ok(Some(JobInfo {
+        id,
+        name: job.name.clone(),
+        state: job.state,
+        priority: job.priority,
+        tile_size: job.tile_size,
+        samples: job.samples,
+        submitted_at: job.submitted_at,
+        started_at: job.started_at,
+        finished_at: job.finished_at,
+        frames: frames
+            .iter()
+            .map(|f| FrameInfo {
+                index: f.index,
+                camera: f.camera,
+                image_name: f.image_name.clone(),
+                width: f.width,
+                height: f.height,
+                tiles_total: f.tiles_total,
+                tiles_done: f.tiles_done,
+                outputs: f
+                    .outputs
+                    .iter()
+                    .flatten()
+                    .map(|n| OutputInfo {
+                        name: n.clone(),
+                        url: format!("{url}/frames/{}/files/{n}", f.index),
+                    })
+                    .collect(),
+                preview_url: format!("{url}/frames/{}/preview.png", f.index),
+                tonemap: cameras
+                    .as_ref()
+                    .and_then(|c| c.get(f.camera as usize))
+                    .and_then(camera_tonemap)
+                    .map(|p| tone_params(&p)),
+            })
+            .collect(),
+        error,
+        warnings: Vec::new(),
+        url,
+    }))
+}
+
+pub(super) async fn list_jobs(State(state): State<AppState>) -> ApiResult<Json<JobList>> {
+    let ids: Vec<u64> = state.store.jobs()?.iter().map(|j| j.id).collect();
+    let mut jobs = Vec::new();
+    for id in ids {
+        jobs.extend(job_info(&state, id)?);
+    }
+    Ok(Json(JobList { jobs }))
+}
+
+pub(super) async fn show_job(State(state): State<AppState>, Path(id): Path<u64>) -> ApiResult<Json<JobInfo>> {
+    job_info(&state, id)?.map(Json).ok_or_else(|| AppError::not_found(format!("there is no job {id}")))
+}
+
+pub(super) async fn cancel_job(
+    State(state): State<AppState>,
+    Path(id): Path<u64>,
+) -> ApiResult<Json<JobInfo>> {
+    let Some(job) = state.store.job(id)? else {
+        return Err(AppError::not_found(format!("there is no job {id}")));
+    };
+    if !state.scheduler.cancel(id)? {
+        return Err(AppError::new(
+            StatusCode::CONFLICT,
+            format!("job {id} has already ended ({})", job.state.as_str()),
+        ));
+    }
+    Ok(Json(job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?))
+}
+
+/// Frame `frame` of job `id`, or a 404 naming what is missing.
+fn find_frame(state: &AppState, id: u64, frame: u32) -> ApiResult<crate::db::FrameRow> {
+    state
+        .store
+        .frames(id)?
+        .into_iter()
+        .find(|f| f.index == frame)
+        .ok_or_else(|| AppError::not_found(format!("job {id} has no frame {frame}")))
+}
+
+/// Job `id` and its frame `frame`, or a 404 naming the first that is missing.
+fn job_and_frame(
+    state: &AppState,
+    id: u64,
+    frame: u32,
+) -> ApiResult<(crate::db::JobRow, crate::db::FrameRow)> {
+    let job = state.store.job(id)?.ok_or_else(|| AppError::not_found(format!("there is no job {id}")))?;
+    Ok((job, find_frame(state, id, frame)?))
+}
+
+pub(super) async fn frame_file(
+    State(state): State<AppState>,
+    Path((id, frame, name)): Path<(u64, u32, String)>,
+) -> ApiResult<Response> {
+    let f = &find_frame(&state, id, frame)?;
+    let Some(outputs) = &f.outputs else {
+        return Err(AppError::new(
+            StatusCode::CONFLICT,
+            format!(
+                "frame {frame} of job {id} is not finished ({} of {} tiles); see preview.png meanwhile",
+                f.tiles_done, f.tiles_total
+            ),
+        ));
+    };
+    if !outputs.contains(&name) {
+        return Err(AppError::not_found(format!(
+            "frame {frame} of job {id} has no file {name}; it has {}",
+            outputs.join(", ")
+        )));
+    }
+    let path = state.frame_dir(id, frame).join(&name);
+    let bytes =
+        tokio::fs::read(&path).await.map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?;
+    let mime =
+        if name.to_ascii_lowercase().ends_with(".png") { "image/png" } else { "application/octet-stream" };
+    Ok((
+        [
+            (header::CONTENT_TYPE, HeaderValue::from_static(mime)),
+            (
+                header::CONTENT_DISPOSITION,
+                HeaderValue::from_str(&format!("attachment; filename=\"{name}\""))
+                    .unwrap_or(HeaderValue::from_static("attachment")),
+            ),
+        ],
+        bytes,
+    )
+        .into_response())
+}
+
+pub(super) async fn frame_preview(
+    State(state): State<AppState>,
+    Path((id, frame)): Path<(u64, u32)>,
+) -> ApiResult<Response> {
+    let (job, f) = job_and_frame(&state, id, frame)?;
+    let cameras = state.job_cameras(&job)?;
+    let cam = cameras
+        .get(f.camera as usize)
+        .cloned()
+        .ok_or_else(|| anyhow::anyhow!("camera {} missing", f.camera))?;
+    let store = state.store.clone();
+    let png = tokio::task::spawn_blocking(move || -> anyhow::Result<Vec<u8>> {
+        let tiles = store.frame_tiles(id, frame)?;
+        if tiles.is_empty() && f.outputs.is_some() {
+            // A finished job drops its tiles: show the stored float frame.
+            if let Some(path) = stored_exr(&state, &f) {
+                let img = tessera::hdr_io::read_exr(&path)?;
+                return merge::final_png(&cam, &img);
+            }
+        }
+        merge::preview_png(&cam, f.width, f.height, &tiles)
+    })
+    .await
+    .map_err(|e| anyhow::anyhow!("preview task: {e}"))??;
+    Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/png"))], png).into_response())
+}
+
+/// Where a merged frame's float image (`.exr` output) is stored, if it has one.
+fn stored_exr(state: &AppState, f: &crate::db::FrameRow) -> Option<std::path::PathBuf> {
+    let name = f.outputs.as_ref()?.iter().find(|n| n.to_ascii_lowercase().ends_with(".exr"))?;
+    Some(state.frame_dir(f.job_id, f.index).join(name))
+}
+
+/// Query of `tonemap.png`: any parameter left out takes the camera's value.
+#[derive(serde::Deserialize)]
+pub(super) struct ToneQuery {
+    key: Option<f64>,
+    burn: Option<f64>,
+    saturation: Option<f64>,
+    gamma: Option<String>,
+}
+
+/// A finished frame's float image tone-mapped again with other parameters, without rendering:
+/// `GET /api/v1/jobs/ID/frames/F/tonemap.png?key=0.3&burn=2&saturation=1&gamma=2.2`.
+pub(super) async fn frame_tonemap(
+    State(state): State<AppState>,
+    Path((id, frame)): Path<(u64, u32)>,
+    axum::extract::Query(q): axum::extract::Query<ToneQuery>,
+) -> ApiResult<Response> {
+    let (job, f) = job_and_frame(&state, id, frame)?;
+    if f.outputs.is_none() {
+        return Err(AppError::new(
+            StatusCode::CONFLICT,
+            format!("frame {frame} of job {id} is not finished yet"),
+        ));
+    }
+    let path = stored_exr(&state, &f)
+        .ok_or_else(|| AppError::not_found(format!("frame {frame} of job {id} has no .exr to tone-map")))?;
+    let cameras = state.job_cameras(&job)?;
+    let (operator, base) = cameras
+        .get(f.camera as usize)
+        .and_then(merge::display_tonemap)
+        .unwrap_or((tessera::tonemap::Operator::Photographic, Default::default()));
+    let gamma = match q.gamma.as_deref() {
+        Some(g) => g.parse().map_err(AppError::bad_request)?,
+        None => base.gamma,
+    };
+    let params = tessera::tonemap::Photographic {
+        key: q.key.unwrap_or(base.key),
+        burn_percent: q.burn.unwrap_or(base.burn_percent),
+        saturation: q.saturation.unwrap_or(base.saturation),
+        gamma,
+    };
+    params.validate().map_err(AppError::bad_request)?;
+    let png = tokio::task::spawn_blocking(move || -> anyhow::Result<Vec<u8>> {
+        let img = tessera::hdr_io::read_exr(&path)?;
+        let (rgb, _) = tessera::tonemap::tonemap_with(&img, operator, &params);
+        merge::encode_png(img.width, img.height, &rgb)
+    })
+    .await
+    .map_err(|e| anyhow::anyhow!("tone-map task: {e}"))??;
+    Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/png"))], png).into_response())
+}

@@ -1,0 +1,65 @@
+//! What the status page follows besides the jobs: the workers list and the server-sent event
+//! stream.
+
+use axum::Json;
+use axum::extract::State;
+use axum::response::{IntoResponse, Response};
+
+use super::{ApiResult, AppState};
+
+#[derive(serde::Serialize)]
+struct WorkerInfo {
+    id: u64,
+    name: String,
+    threads: u32,
+    state: &'static str,
+    current_tile: Option<CurrentTile>,
+    last_heartbeat: f64,
+    tiles_done: u64,
+    failures: u64,
+}
+
+#[derive(serde::Serialize)]
+struct CurrentTile {
+    job: u64,
+    frame: u32,
+    tile: u32,
+}
+
+pub(super) async fn list_workers(State(state): State<AppState>) -> ApiResult<Json<serde_json::Value>> {
+    let t = crate::db::now();
+    let workers: Vec<WorkerInfo> = state
+        .store
+        .workers()?
+        .into_iter()
+        .map(|w| WorkerInfo {
+            state: state.scheduler.worker_state(&w, t).as_str(),
+            id: w.id,
+            name: w.name,
+            threads: w.threads,
+            current_tile: w.current_tile.map(|(job, frame, tile)| CurrentTile { job, frame, tile }),
+            last_heartbeat: w.last_seen,
+            tiles_done: w.tiles_done,
+            failures: w.failures,
+        })
+        .collect();
+    Ok(Json(serde_json::json!({ "workers": workers })))
+}
+
+/// Server-sent events for the status page: every [`tessera::protocol::ServerEvent`] as it happens.
+pub(super) async fn events(State(state): State<AppState>) -> Response {
+    use axum::response::sse::{Event, KeepAlive, Sse};
+    let rx = state.events.subscribe();
+    let stream = futures_util::stream::unfold(rx, |mut rx| async move {
+        let ev = match rx.recv().await {
+            Ok(e) => Event::default().event(e.name()).data(serde_json::to_string(&e).unwrap_or_default()),
+            // A slow page missed some: tell it to reload everything.
+            Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {
+                Event::default().event("resync").data("{}")
+            }
+            Err(tokio::sync::broadcast::error::RecvError::Closed) => return None,
+        };
+        Some((Ok::<Event, std::convert::Infallible>(ev), rx))
+    });
+    Sse::new(stream).keep_alive(KeepAlive::default()).into_response()
+}

@@ -1,0 +1,421 @@
+//! Job submission: the multipart upload spooled to disk under the caps, unpacked, validated
+//! (parse and build the scene, check the tile and sample limits) and stored as a queued job.
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use axum::Json;
+use axum::extract::{Multipart, State};
+use axum::http::StatusCode;
+use tessera::assets::MemResolver;
+use tessera::camera::Camera;
+use tessera::protocol::*;
+use tessera::scene::build::build_scene;
+use tessera::scene::parse_scene;
+
+use super::jobs::job_info;
+use super::{ApiResult, AppError, AppState, Settings};
+use crate::bundle::{self, BundleError, Files, Unpacker};
+
+/// Options of a submission (multipart text fields).
+#[derive(Default)]
+struct SubmitOptions {
+    name: Option<String>,
+    priority: i64,
+    tile_size: Option<u32>,
+    samples: Option<u32>,
+    cameras: Option<Vec<u32>>,
+    scene_path: Option<String>,
+}
+
+fn problem_from(e: &tessera::SceneError) -> Problem {
+    Problem {
+        file: Some(e.file.display().to_string()),
+        line: e.loc.line,
+        element: e.loc.element.clone(),
+        message: e.message.clone(),
+    }
+}
+
+/// An upload's files on disk while its request is read: the multipart body is streamed into
+/// `<data>/uploads/<unique>/`, never held in memory, and the folder goes when the request ends.
+struct Spool {
+    dir: PathBuf,
+    /// (field kind, file name given, spooled file)
+    parts: Vec<(SpoolKind, String, PathBuf)>,
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum SpoolKind {
+    File,
+    Archive,
+}
+
+impl Spool {
+    fn new(data_dir: &std::path::Path) -> anyhow::Result<Spool> {
+        let dir = crate::bundle::unique_temp_name(&data_dir.join("uploads").join("upload"));
+        std::fs::create_dir_all(&dir).map_err(|e| anyhow::anyhow!("cannot create {}: {e}", dir.display()))?;
+        Ok(Spool { dir, parts: Vec::new() })
+    }
+}
+
+impl Drop for Spool {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+/// The longest a text field (name, priority, cameras, ...) may be.
+const MAX_TEXT_FIELD: usize = 64 << 10;
+
+/// Reads the multipart fields of a submission: files are streamed into `spool` under the
+/// caps, the options into `opts`.
+async fn read_fields(
+    state: &AppState,
+    multipart: &mut Multipart,
+    spool: &mut Spool,
+    opts: &mut SubmitOptions,
+    scene_field: &mut Option<String>,
+) -> ApiResult<()> {
+    use tokio::io::AsyncWriteExt;
+    let limits = state.settings.bundle_limits;
+    let too_big = |e: &axum::extract::multipart::MultipartError| e.status() == StatusCode::PAYLOAD_TOO_LARGE;
+    let too_large = |e: BundleError| AppError::new(StatusCode::PAYLOAD_TOO_LARGE, e.to_string());
+    loop {
+        let mut field = match multipart.next_field().await {
+            Ok(Some(f)) => f,
+            Ok(None) => break,
+            Err(e) if too_big(&e) => return Err(upload_too_large(state)),
+            Err(e) => {
+                return Err(AppError::bad_request(format!(
+                    "the upload is not valid multipart/form-data: {e}"
+                )));
+            }
+        };
+        let name = field.name().unwrap_or("").to_string();
+        let file_name = field.file_name().map(str::to_string);
+        let kind = match name.as_str() {
+            "scene" | "asset" | "file" | "assets" | "files" => Some(SpoolKind::File),
+            "bundle" => Some(SpoolKind::Archive),
+            _ => None,
+        };
+        let read_error = |e: axum::extract::multipart::MultipartError| {
+            if too_big(&e) {
+                upload_too_large(state)
+            } else {
+                AppError::bad_request(format!("cannot read the field \"{name}\": {e}"))
+            }
+        };
+        if let Some(kind) = kind {
+            let path = match (name.as_str(), file_name) {
+                ("scene", f) => {
+                    let f = f.unwrap_or_else(|| "scene.xml".into());
+                    *scene_field = tessera::assets::normalize_bundle_path(&f);
+                    f
+                }
+                ("bundle", f) => f.unwrap_or_else(|| "bundle".into()),
+                (_, Some(f)) => f,
+                (_, None) => {
+                    return Err(AppError::bad_request(format!(
+                        "the field \"{name}\" needs a file name: its path relative to the scene file"
+                    )));
+                }
+            };
+            if kind == SpoolKind::File && tessera::assets::normalize_bundle_path(&path).is_none() {
+                return Err(AppError::bad_request(BundleError::UnsafePath(path).to_string()));
+            }
+            if spool.parts.len() >= limits.max_files {
+                return Err(too_large(Unpacker::new(limits).too_many_files_error()));
+            }
+            let file = spool.dir.join(format!("part{}", spool.parts.len()));
+            let mut out = tokio::fs::File::create(&file)
+                .await
+                .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", file.display()))?;
+            let mut size = 0u64;
+            while let Some(chunk) = field.chunk().await.map_err(read_error)? {
+                size += chunk.len() as u64;
+                if kind == SpoolKind::File && size > limits.max_file_bytes {
+                    return Err(too_large(Unpacker::new(limits).file_too_large_error(&path)));
+                }
+                out.write_all(&chunk)
+                    .await
+                    .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", file.display()))?;
+            }
+            out.flush().await.map_err(|e| anyhow::anyhow!("cannot write {}: {e}", file.display()))?;
+            spool.parts.push((kind, path, file));
+            continue;
+        }
+        let mut data = Vec::new();
+        while let Some(chunk) = field.chunk().await.map_err(read_error)? {
+            data.extend_from_slice(&chunk);
+            if data.len() > MAX_TEXT_FIELD {
+                return Err(AppError::bad_request(format!(
+                    "the field \"{name}\" is longer than {} KiB; send files as scene, asset or bundle fields",
+                    MAX_TEXT_FIELD >> 10
+                )));
+            }
+        }
+        let text = || String::from_utf8_lossy(&data).trim().to_string();
+        let number = |what: &str| -> ApiResult<i64> {
+            text().parse::<i64>().map_err(|_| {
+                AppError::bad_request(format!("{what} must be an integer, found \"{}\"", text()))
+            })
+        };
+        match name.as_str() {
+            "name" => opts.name = Some(text()),
+            "priority" => opts.priority = number("priority")?,
+            "tile_size" => opts.tile_size = Some(bounded("tile_size", number("tile_size")?, 4096, "pixels")?),
+            "samples" => opts.samples = Some(bounded("samples", number("samples")?, 1_000_000, "")?),
+            "cameras" => {
+                let mut list = Vec::new();
+                for part in text().split([',', ' ']).filter(|p| !p.is_empty()) {
+                    let k: u32 = part.parse().ok().filter(|k| *k >= 1).ok_or_else(|| {
+                        AppError::bad_request(format!(
+                            "cameras must list camera numbers from 1, e.g. \"1,3\"; found \"{part}\""
+                        ))
+                    })?;
+                    list.push(k);
+                }
+                opts.cameras = Some(list);
+            }
+            "scene_path" => opts.scene_path = Some(text()),
+            other => {
+                return Err(AppError::bad_request(format!(
+                    "unknown field \"{other}\"; send scene, asset (one per file, named by its relative path), bundle, name, priority, tile_size, samples, cameras or scene_path"
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
+pub(super) async fn submit_job(
+    State(state): State<AppState>,
+    mut multipart: Multipart,
+) -> ApiResult<(StatusCode, Json<JobInfo>)> {
+    let limits = state.settings.bundle_limits;
+    let mut spool = Spool::new(&state.settings.data_dir)?;
+    let mut opts = SubmitOptions::default();
+    let mut scene_field: Option<String> = None;
+    if let Err(refusal) = read_fields(&state, &mut multipart, &mut spool, &mut opts, &mut scene_field).await {
+        // Read the rest of the body (bounded by --max-upload-mb, discarded) so that a client
+        // still sending gets the answer instead of a broken connection.
+        while let Ok(Some(mut field)) = multipart.next_field().await {
+            while let Ok(Some(_)) = field.chunk().await {}
+        }
+        return Err(refusal);
+    }
+    let too_large = |e: BundleError| AppError::new(StatusCode::PAYLOAD_TOO_LARGE, e.to_string());
+    if spool.parts.is_empty() {
+        return Err(AppError::bad_request(
+            "the upload holds no files; send the scene as the \"scene\" field (and its assets as \"asset\" fields) or a \"bundle\" archive",
+        ));
+    }
+
+    // Unpacking and validation hold the files in memory: a few uploads at a time, so the
+    // server's memory stays bounded however many arrive at once.
+    let _permit = state
+        .unpacking
+        .clone()
+        .acquire_owned()
+        .await
+        .map_err(|_| AppError::new(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping"))?;
+    let tile_size = opts.tile_size.unwrap_or(state.settings.tile_size);
+    let wanted = opts.scene_path.clone().or(scene_field);
+    let cameras_wanted = opts.cameras.clone();
+    let max_tiles = state.settings.max_job_tiles;
+    let (scene_path, tar, cameras, frames, warnings) = tokio::task::spawn_blocking(move || {
+        let mut unpacker = Unpacker::new(limits);
+        for (kind, path, file) in &spool.parts {
+            let opened = std::fs::File::open(file)
+                .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", file.display()))?;
+            let added = match kind {
+                SpoolKind::File => unpacker.add_reader(path, opened),
+                SpoolKind::Archive => unpacker.add_archive(opened),
+            };
+            added.map_err(|e| match e {
+                e @ BundleError::TooLarge(_) => too_large(e),
+                e => AppError::bad_request(e.to_string()),
+            })?;
+        }
+        drop(spool);
+        let files = unpacker.files;
+        let scene_path = bundle::find_scene(&files, wanted.as_deref()).map_err(AppError::bad_request)?;
+        let (tar, cameras, frames, warnings) =
+            validate(files, &scene_path, cameras_wanted, tile_size, max_tiles)?;
+        Ok::<_, AppError>((scene_path, tar, cameras, frames, warnings))
+    })
+    .await
+    .map_err(|e| anyhow::anyhow!("validation task: {e}"))??;
+    check_sample_budget(&state.settings, &cameras, &frames, opts.samples)?;
+    let hash = state.blobs.put(&tar)?;
+    let name = opts.name.unwrap_or_else(|| scene_path.rsplit('/').next().unwrap_or(&scene_path).to_string());
+    let job = crate::db::NewJob {
+        name,
+        priority: opts.priority,
+        tile_size,
+        samples: opts.samples,
+        bundle: hash,
+        scene_path,
+        frames,
+    };
+    let id = state.store.insert_job(&job)?;
+    state.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(id, Arc::new(cameras));
+    state.scheduler.job_submitted(id);
+    tracing::info!(job = id, name = %job.name, "job accepted");
+    let mut info = job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?;
+    info.warnings = warnings;
+    Ok((StatusCode::CREATED, Json(info)))
+}
+
+/// Refuses a job asking for more samples than the server's `--max-job-samples`: one that would
+/// keep the farm busy for days is a 422 that says the limit and how to get under it.
+fn check_sample_budget(
+    settings: &Settings,
+    cameras: &[Camera],
+    frames: &[crate::db::NewFrame],
+    samples: Option<u32>,
+) -> ApiResult<()> {
+    let mut total: u64 = 0;
+    for f in frames {
+        let spp = samples.unwrap_or(cameras[f.camera as usize].num_samples).max(1);
+        let n = u64::from(f.width) * u64::from(f.height) * u64::from(spp);
+        total = total.saturating_add(n);
+    }
+    if total > settings.max_job_samples {
+        return Err(AppError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!(
+                "the job asks for {total} samples (pixels x samples per pixel over its frames), more than this \
+                 server's limit of {}: lower NumSamples or ImageResolution, submit with samples=N, or start the \
+                 server with a larger --max-job-samples (TESSERA_MAX_JOB_SAMPLES)",
+                settings.max_job_samples
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Tiles of frames of `sizes` cut at `tile_size`.
+fn tile_count(sizes: &[(u32, u32)], tile_size: u32) -> u64 {
+    sizes.iter().map(|&(w, h)| u64::from(w.div_ceil(tile_size)) * u64::from(h.div_ceil(tile_size))).sum()
+}
+
+/// Refuses a job that would be cut into more than `max_tiles` tiles (a queue of hundreds of
+/// thousands of one-pixel tiles costs the farm more in bookkeeping than in rendering), naming
+/// the smallest tile size that fits.
+fn check_tile_count(sizes: &[(u32, u32)], tile_size: u32, max_tiles: u64) -> ApiResult<()> {
+    let n = tile_count(sizes, tile_size);
+    if n <= max_tiles {
+        return Ok(());
+    }
+    let fits = (tile_size..=4096).find(|&t| tile_count(sizes, t) <= max_tiles);
+    let advice = match fits {
+        Some(t) => format!("submit with tile_size={t} or more"),
+        None => "render fewer cameras per job".to_string(),
+    };
+    Err(AppError::new(
+        StatusCode::UNPROCESSABLE_ENTITY,
+        format!(
+            "the job would be cut into {n} tiles of {tile_size} pixels, more than this server's limit of \
+             {max_tiles} tiles per job (--max-job-tiles, TESSERA_MAX_JOB_TILES); {advice}"
+        ),
+    ))
+}
+
+/// An upload field that must be an integer between 1 and `max` (`unit` for the message).
+fn bounded(what: &str, value: i64, max: i64, unit: &str) -> ApiResult<u32> {
+    if (1..=max).contains(&value) {
+        Ok(value as u32)
+    } else {
+        let unit = if unit.is_empty() { String::new() } else { format!(" {unit}") };
+        Err(AppError::bad_request(format!("{what} must be between 1 and {max}{unit}, found {value}")))
+    }
+}
+
+fn upload_too_large(state: &AppState) -> AppError {
+    AppError::new(
+        StatusCode::PAYLOAD_TOO_LARGE,
+        format!(
+            "the upload is larger than this server accepts ({} MiB); start the server with a larger --max-upload-mb",
+            state.settings.max_upload_bytes >> 20
+        ),
+    )
+}
+
+/// What a valid upload becomes: the canonical bundle, the scene's cameras, the frames to render
+/// and the scene's warnings.
+type Validated = (Vec<u8>, Vec<Camera>, Vec<crate::db::NewFrame>, Vec<String>);
+
+/// Parses and builds the scene from the uploaded files.
+fn validate(
+    files: Files,
+    scene_path: &str,
+    cameras_wanted: Option<Vec<u32>>,
+    tile_size: u32,
+    max_tiles: u64,
+) -> ApiResult<Validated> {
+    let tar = bundle::canonical_tar(&files);
+    let text = std::str::from_utf8(&files[scene_path]).map_err(|e| {
+        AppError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!(
+                "{scene_path}: the scene file is not UTF-8 text (byte {}); save it as UTF-8",
+                e.valid_up_to()
+            ),
+        )
+    })?;
+    let invalid = |e: tessera::SceneError| AppError {
+        status: StatusCode::UNPROCESSABLE_ENTITY,
+        body: ApiError {
+            error: format!("the scene cannot be rendered: {e}"),
+            problems: vec![problem_from(&e)],
+        },
+    };
+    let records = parse_scene(text, std::path::Path::new(scene_path)).map_err(invalid)?;
+    let shared: HashMap<String, Arc<Vec<u8>>> = files.into_iter().map(|(k, v)| (k, Arc::new(v))).collect();
+    let resolver = MemResolver::for_scene(shared, scene_path);
+    let scene = build_scene(&records, &resolver).map_err(invalid)?;
+    if scene.cameras.is_empty() {
+        return Err(AppError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!("{scene_path}: the scene has no camera; add one under <Cameras>"),
+        ));
+    }
+    let selected: Vec<u32> = match cameras_wanted {
+        None => (0..scene.cameras.len() as u32).collect(),
+        Some(list) => {
+            let n = scene.cameras.len() as u32;
+            if let Some(bad) = list.iter().find(|k| **k > n) {
+                return Err(AppError::bad_request(format!(
+                    "camera {bad} does not exist: the scene has {n} camera(s), numbered from 1"
+                )));
+            }
+            list.into_iter().map(|k| k - 1).collect()
+        }
+    };
+    let sizes: Vec<(u32, u32)> = selected
+        .iter()
+        .map(|&c| (scene.cameras[c as usize].width, scene.cameras[c as usize].height))
+        .collect();
+    check_tile_count(&sizes, tile_size, max_tiles)?;
+    let frames = selected
+        .iter()
+        .map(|&c| {
+            let cam = &scene.cameras[c as usize];
+            crate::db::NewFrame {
+                camera: c,
+                image_name: cam.image_name.clone(),
+                width: cam.width,
+                height: cam.height,
+                tiles: tessera::render::tiles(cam.width, cam.height, tile_size)
+                    .into_iter()
+                    .map(|r| Rect { x0: r.x0, y0: r.y0, width: r.width, height: r.height })
+                    .collect(),
+            }
+        })
+        .collect();
+    let warnings = scene.warnings.iter().map(ToString::to_string).collect();
+    Ok((tar, scene.cameras, frames, warnings))
+}

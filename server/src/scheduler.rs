@@ -1,0 +1,425 @@
+//! The scheduling rules in one place: which tile a worker gets and when, what a failure or a
+//! silent worker does to a tile and its job, when a lease is taken back, when a worker is lost.
+//!
+//! The rules themselves come first, as constants and pure functions: the store ([`crate::db`])
+//! applies those that must hold inside one transaction (the failure limits through
+//! [`tile_verdict`], the per-worker ban through [`WORKER_FAILURES_PER_JOB`], priority order in
+//! its lease query). [`Scheduler`] does everything around the store: the long poll for a lease
+//! waits on one [`Notify`] woken by whatever can free a tile (a submission, a failed or released
+//! tile, an expired lease, shutdown), the watch long poll follows the event channel for
+//! revocations (a job cancelled or failed), and the lease-expiry task sweeps dead leases twice a
+//! second. The HTTP handlers (`api::worker`) only translate requests and outcomes.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::Duration;
+
+use anyhow::Result;
+use tessera::protocol::{JobState, Lease, ServerEvent};
+use tokio::sync::{Notify, broadcast};
+
+use crate::db::{FailOutcome, ResultOutcome, Store, WorkerRow};
+
+// ---------------------------------------------------------------------------------------------
+// The rules
+// ---------------------------------------------------------------------------------------------
+
+/// A tile that fails on this many different workers fails its job.
+pub const TILE_FAILURE_WORKERS: i64 = 3;
+/// ... or this many times in all (so that a farm with fewer workers still ends).
+pub const TILE_FAILURE_TOTAL: i64 = 5;
+/// A worker that fails this many tiles of a job is kept off that job.
+pub const WORKER_FAILURES_PER_JOB: i64 = 3;
+/// How often the lease-expiry task looks for leases past their deadline.
+pub const EXPIRY_SWEEP: Duration = Duration::from_millis(500);
+/// Most leases one watch request follows.
+const MAX_WATCHED_LEASES: usize = 64;
+
+/// A tile's failures so far, the latest included, as the store counts them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TileFailures {
+    /// Different workers it failed on.
+    pub workers: i64,
+    /// Failures in all.
+    pub total: i64,
+    /// Of those, leases that expired: the worker stopped answering while rendering the tile.
+    pub crashes: i64,
+}
+
+/// The failure rule. After a failure of tile `tile` of frame `frame` (`error`, and `fatal` when
+/// the tile went over the render time limit, which another worker would spend again): `None`
+/// when the tile goes back to the queue, or the message its job fails with once the tile has
+/// failed on [`TILE_FAILURE_WORKERS`] workers, [`TILE_FAILURE_TOTAL`] times, or fatally. A lease
+/// expiry is such a failure too (the worker crashed), and a tile that only ever crashed its
+/// workers says so.
+pub fn tile_verdict(frame: i64, tile: i64, f: TileFailures, error: &str, fatal: bool) -> Option<String> {
+    if !(fatal || f.workers >= TILE_FAILURE_WORKERS || f.total >= TILE_FAILURE_TOTAL) {
+        return None;
+    }
+    let TileFailures { workers, total, crashes } = f;
+    Some(if crashes == total {
+        format!(
+            "tile {tile} of frame {frame} crashed its workers: {total} time(s), on {workers} worker(s), the worker \
+             rendering it stopped answering and its lease expired. The scene may make the renderer run out of \
+             memory or crash; render it with `tessera-worker render` to see the error, or report it with the scene"
+        )
+    } else {
+        format!(
+            "tile {tile} of frame {frame} failed on {workers} worker(s), {total} time(s); last error: {error}"
+        )
+    })
+}
+
+/// What a registered worker is doing, as the workers list and `/metrics` show it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum WorkerState {
+    Idle,
+    Rendering,
+    /// Silent for longer than [`lost_after`].
+    Lost,
+}
+
+impl WorkerState {
+    pub const ALL: [WorkerState; 3] = [WorkerState::Idle, WorkerState::Rendering, WorkerState::Lost];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            WorkerState::Idle => "idle",
+            WorkerState::Rendering => "rendering",
+            WorkerState::Lost => "lost",
+        }
+    }
+}
+
+/// Seconds of silence after which a worker counts as lost: three missed heartbeats and two
+/// seconds of slack.
+pub fn lost_after(heartbeat_seconds: f64) -> f64 {
+    3.0 * heartbeat_seconds + 2.0
+}
+
+/// The worker-lost rule: a worker not seen for [`lost_after`] is lost, else it is rendering
+/// while it holds a tile, else idle.
+pub fn worker_state(w: &WorkerRow, now: f64, heartbeat_seconds: f64) -> WorkerState {
+    if now - w.last_seen > lost_after(heartbeat_seconds) {
+        WorkerState::Lost
+    } else if w.rendering.is_some() {
+        WorkerState::Rendering
+    } else {
+        WorkerState::Idle
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The scheduler
+// ---------------------------------------------------------------------------------------------
+
+/// The farm's clock settings.
+#[derive(Clone, Copy, Debug)]
+pub struct Timing {
+    /// A lease lives this long without a heartbeat.
+    pub lease_seconds: f64,
+    /// How often workers send heartbeats (told at registration).
+    pub heartbeat_seconds: f64,
+    /// Longest a long poll (lease, watch) is held open.
+    pub max_wait_seconds: f64,
+    /// Longest one tile may render (sent with every lease).
+    pub max_tile_seconds: f64,
+}
+
+/// Counters that are not in the database.
+#[derive(Default, Debug)]
+pub struct Counters {
+    pub lease_expiries: AtomicU64,
+    pub results_refused: AtomicU64,
+}
+
+/// What a lease request got.
+#[derive(Debug)]
+pub enum LeaseWait {
+    Granted(Lease),
+    /// Nothing became free within the wait.
+    NoWork,
+    /// The server is stopping: no more leases.
+    ShuttingDown,
+}
+
+/// The scheduling side of the farm: the store's leasing, failure and expiry operations with the
+/// wake-ups, events and counters that go with them. Cheap to clone (shared parts).
+#[derive(Clone)]
+pub struct Scheduler {
+    store: Arc<Store>,
+    timing: Timing,
+    /// Woken when tiles may have become available (a job submitted, a tile failed or given
+    /// back, a lease expired) and at shutdown.
+    work: Arc<Notify>,
+    events: broadcast::Sender<ServerEvent>,
+    /// Set when the server begins to shut down: no more leases, and long polls answer at once
+    /// (so stopping workers are not held up by a poll that could only bring a lease to give
+    /// back).
+    shutting_down: Arc<AtomicBool>,
+    counters: Arc<Counters>,
+}
+
+impl Scheduler {
+    pub fn new(store: Arc<Store>, timing: Timing, events: broadcast::Sender<ServerEvent>) -> Scheduler {
+        Scheduler {
+            store,
+            timing,
+            work: Arc::new(Notify::new()),
+            events,
+            shutting_down: Arc::default(),
+            counters: Arc::default(),
+        }
+    }
+
+    pub fn timing(&self) -> &Timing {
+        &self.timing
+    }
+
+    pub fn counters(&self) -> &Counters {
+        &self.counters
+    }
+
+    fn emit(&self, e: ServerEvent) {
+        let _ = self.events.send(e);
+    }
+
+    /// Wakes every waiting lease request to look again.
+    fn wake(&self) {
+        self.work.notify_waiters();
+    }
+
+    /// A job was stored: its tiles are free.
+    pub fn job_submitted(&self, job: u64) {
+        self.wake();
+        self.emit(ServerEvent::Job { job, state: JobState::Queued });
+    }
+
+    /// Cancels a job that has not ended, revoking its leases (watches of them answer at once);
+    /// false when it had ended or does not exist.
+    pub fn cancel(&self, job: u64) -> Result<bool> {
+        if !self.store.cancel_job(job)? {
+            return Ok(false);
+        }
+        tracing::info!(job, "job canceled");
+        self.emit(ServerEvent::Job { job, state: JobState::Canceled });
+        Ok(true)
+    }
+
+    /// The long poll for a lease: the next tile by priority as soon as one is free for
+    /// `worker`, waiting at most `wait_seconds` (capped by [`Timing::max_wait_seconds`]).
+    pub async fn lease(&self, worker: u64, wait_seconds: f64) -> Result<LeaseWait> {
+        let wait = wait_seconds.clamp(0.0, self.timing.max_wait_seconds);
+        let deadline = tokio::time::Instant::now() + Duration::from_secs_f64(wait);
+        loop {
+            // Register interest before looking, so a notification between the look and the
+            // wait is not lost.
+            let notified = self.work.notified();
+            if self.is_shutting_down() {
+                return Ok(LeaseWait::ShuttingDown);
+            }
+            if let Some(mut lease) = self.store.lease(worker, self.timing.lease_seconds)? {
+                lease.max_render_seconds = Some(self.timing.max_tile_seconds);
+                self.emit(ServerEvent::Job { job: lease.job_id, state: JobState::Running });
+                self.emit(ServerEvent::Workers);
+                return Ok(LeaseWait::Granted(lease));
+            }
+            if tokio::time::timeout_at(deadline, notified).await.is_err() {
+                return Ok(LeaseWait::NoWork);
+            }
+        }
+    }
+
+    /// Renews `worker`'s live leases among `leases`; returns those it no longer owns.
+    pub fn heartbeat(&self, worker: u64, leases: &[u64], rendering: Option<u64>) -> Result<Vec<u64>> {
+        self.store.heartbeat(worker, leases, rendering, self.timing.lease_seconds)
+    }
+
+    /// The long poll on leases being rendered: answers as soon as one of `leases` (the first
+    /// [`MAX_WATCHED_LEASES`]) is no longer `worker`'s (its job was cancelled or failed), else
+    /// after the wait with nothing revoked. Reads only; heartbeats still renew the leases.
+    pub async fn watch(&self, worker: u64, leases: Vec<u64>, wait_seconds: f64) -> Result<Vec<u64>> {
+        let wait = wait_seconds.clamp(0.0, self.timing.max_wait_seconds);
+        let deadline = tokio::time::Instant::now() + Duration::from_secs_f64(wait);
+        let leases: Vec<u64> = leases.into_iter().take(MAX_WATCHED_LEASES).collect();
+        // Subscribe before looking, so a cancel between the look and the wait is not lost.
+        let mut events = self.events.subscribe();
+        loop {
+            let revoked = self.store.revoked_among(worker, &leases)?;
+            if !revoked.is_empty() || self.is_shutting_down() {
+                return Ok(revoked);
+            }
+            loop {
+                match tokio::time::timeout_at(deadline, events.recv()).await {
+                    Err(_) => return Ok(Vec::new()),
+                    Ok(Ok(ServerEvent::Job { state: JobState::Canceled | JobState::Failed, .. })) => break,
+                    // Missed events: look again.
+                    Ok(Err(broadcast::error::RecvError::Lagged(_))) => break,
+                    Ok(Err(broadcast::error::RecvError::Closed)) => return Ok(Vec::new()),
+                    Ok(Ok(_)) => {}
+                }
+            }
+        }
+    }
+
+    /// Stores a tile's pixels for a live lease of `worker`, once: a second result, or one for a
+    /// lease that expired or was revoked, is a [`ResultOutcome::Conflict`] (and counted).
+    pub fn result(
+        &self,
+        lease: u64,
+        worker: u64,
+        pixels: &[u8],
+        render_seconds: Option<f64>,
+    ) -> Result<ResultOutcome> {
+        let outcome = self.store.submit_result(lease, worker, pixels, render_seconds)?;
+        match &outcome {
+            ResultOutcome::Accepted { job_id, frame, tile, rect, tiles_done, tiles_total, .. } => {
+                self.emit(ServerEvent::Tile {
+                    job: *job_id,
+                    frame: *frame,
+                    tile: *tile,
+                    rect: *rect,
+                    tiles_done: *tiles_done,
+                    tiles_total: *tiles_total,
+                });
+                self.emit(ServerEvent::Workers);
+            }
+            ResultOutcome::Conflict => {
+                self.counters.results_refused.fetch_add(1, Ordering::Relaxed);
+            }
+            ResultOutcome::WrongSize { .. } => {}
+        }
+        Ok(outcome)
+    }
+
+    /// `worker` could not render the tile of `lease`: the failure rule ([`tile_verdict`])
+    /// queues it again, waking the lease requests, or fails its job.
+    pub fn fail(&self, lease: u64, worker: u64, error: &str, fatal: bool) -> Result<FailOutcome> {
+        let outcome = self.store.fail_tile(lease, worker, error, fatal)?;
+        match &outcome {
+            FailOutcome::Requeued => {
+                tracing::warn!(lease, worker, error = %error, "tile failed; queued again");
+                self.wake();
+            }
+            FailOutcome::JobFailed { job, message } => {
+                tracing::error!(lease, job, "job failed: {message}");
+                self.emit(ServerEvent::Job { job: *job, state: JobState::Failed });
+            }
+            FailOutcome::Conflict => {}
+        }
+        Ok(outcome)
+    }
+
+    /// A stopping worker gives back a live lease it has not started: the tile is queued again
+    /// at once. False when it is not a live lease of `worker`.
+    pub fn release(&self, lease: u64, worker: u64) -> Result<bool> {
+        if !self.store.release_lease(lease, worker)? {
+            return Ok(false);
+        }
+        tracing::info!(lease, worker, "lease given back; its tile is queued again");
+        self.emit(ServerEvent::Workers);
+        self.wake();
+        Ok(true)
+    }
+
+    /// One sweep of the lease-expiry task: every lease past its deadline is a failure of its
+    /// tile (its worker stopped answering), which goes back to the queue or fails its job.
+    /// Returns how many leases expired.
+    pub fn expire_leases(&self) -> Result<usize> {
+        let e = self.store.expire_leases()?;
+        if e.leases == 0 {
+            return Ok(0);
+        }
+        tracing::warn!(
+            "{} lease(s) expired (their workers stopped answering); the tiles count a failure each and are queued again",
+            e.leases
+        );
+        self.counters.lease_expiries.fetch_add(e.leases as u64, Ordering::Relaxed);
+        for (job, message) in e.failed_jobs {
+            tracing::error!(job, "job failed: {message}");
+            self.emit(ServerEvent::Job { job, state: JobState::Failed });
+        }
+        self.wake();
+        Ok(e.leases)
+    }
+
+    /// Starts the lease-expiry task: [`Scheduler::expire_leases`] every [`EXPIRY_SWEEP`].
+    pub fn spawn_expiry(&self) -> tokio::task::JoinHandle<()> {
+        let scheduler = self.clone();
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(EXPIRY_SWEEP);
+            loop {
+                tick.tick().await;
+                if let Err(e) = scheduler.expire_leases() {
+                    tracing::error!("lease expiry: {e:#}");
+                }
+            }
+        })
+    }
+
+    /// The server begins to stop: no more leases, and waiting lease requests answer now.
+    pub fn begin_shutdown(&self) {
+        self.shutting_down.store(true, Ordering::SeqCst);
+        self.wake();
+    }
+
+    pub fn is_shutting_down(&self) -> bool {
+        self.shutting_down.load(Ordering::SeqCst)
+    }
+
+    /// [`worker_state`] with this farm's heartbeat interval.
+    pub fn worker_state(&self, w: &WorkerRow, now: f64) -> WorkerState {
+        worker_state(w, now, self.timing.heartbeat_seconds)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn failures(workers: i64, total: i64, crashes: i64) -> TileFailures {
+        TileFailures { workers, total, crashes }
+    }
+
+    #[test]
+    fn a_tile_fails_its_job_on_three_workers_five_failures_or_one_fatal() {
+        let verdict = |f, fatal| tile_verdict(0, 7, f, "boom", fatal);
+        assert_eq!(verdict(failures(1, 1, 0), false), None);
+        assert_eq!(verdict(failures(2, 2, 0), false), None);
+        assert_eq!(verdict(failures(2, 4, 0), false), None);
+        let three = verdict(failures(3, 3, 0), false).expect("three workers");
+        assert_eq!(three, "tile 7 of frame 0 failed on 3 worker(s), 3 time(s); last error: boom");
+        assert!(verdict(failures(2, 5, 0), false).expect("five failures").contains("5 time(s)"));
+        assert!(verdict(failures(1, 1, 0), true).expect("fatal").contains("last error: boom"));
+    }
+
+    #[test]
+    fn a_tile_that_only_crashed_its_workers_says_so() {
+        let crashed = tile_verdict(1, 2, failures(3, 3, 3), "stopped answering", false).unwrap();
+        assert!(crashed.starts_with("tile 2 of frame 1 crashed its workers: 3 time(s), on 3 worker(s)"));
+        // One reported error among the crashes: the message quotes it.
+        let mixed = tile_verdict(1, 2, failures(3, 3, 2), "out of memory", false).unwrap();
+        assert!(mixed.ends_with("last error: out of memory"), "{mixed}");
+    }
+
+    #[test]
+    fn a_worker_silent_for_three_heartbeats_and_two_seconds_is_lost() {
+        let w = |last_seen, rendering| WorkerRow {
+            id: 1,
+            name: "w".into(),
+            threads: 1,
+            registered_at: 0.0,
+            last_seen,
+            tiles_done: 0,
+            failures: 0,
+            rendering,
+            current_tile: None,
+        };
+        // Heartbeats every 5 s: lost after 17 s of silence, whatever it was doing.
+        assert_eq!(lost_after(5.0), 17.0);
+        assert_eq!(worker_state(&w(100.0, None), 116.9, 5.0), WorkerState::Idle);
+        assert_eq!(worker_state(&w(100.0, Some(4)), 116.9, 5.0), WorkerState::Rendering);
+        assert_eq!(worker_state(&w(100.0, Some(4)), 117.1, 5.0), WorkerState::Lost);
+        assert_eq!(worker_state(&w(100.0, None), 117.1, 5.0), WorkerState::Lost);
+    }
+}
