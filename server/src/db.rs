@@ -518,12 +518,15 @@ impl Store {
     }
 
     /// Hands the next tile to `worker`: highest job priority first, then submission order, then
-    /// frame and tile order; never a tile of a job the worker has failed
-    /// [`scheduler::WORKER_FAILURES_PER_JOB`] tiles of, nor a tile it failed before.
+    /// frame and tile order; not a tile of a job the worker has failed
+    /// [`scheduler::WORKER_FAILURES_PER_JOB`] tiles of, nor a tile it failed, until
+    /// [`scheduler::RETRY_FAILED_AFTER`] has passed since its latest failure there.
     pub fn lease(&self, worker: u64, lease_seconds: f64) -> Result<Option<Lease>> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         let w = worker as i64;
+        // Failures since this moment keep the worker off their tile (and job).
+        let recent = now() - scheduler::RETRY_FAILED_AFTER;
         // Two indexed steps instead of one join sorted over every queued tile: the live jobs in
         // priority order (a short list), then the first queued tile of each (an index seek on
         // `tiles_queue`), so a lease costs the same behind a million queued tiles as behind ten.
@@ -531,10 +534,11 @@ impl Store {
             let mut stmt = tx.prepare_cached(
                 "SELECT j.id, j.bundle, j.scene_path, j.samples FROM jobs j
                  WHERE j.state IN ('queued', 'running')
-                   AND (SELECT count(*) FROM tile_failures x WHERE x.job_id = j.id AND x.worker_id = ?1) < ?2
+                   AND NOT (SELECT count(*) >= ?2 AND max(x.at) > ?3
+                            FROM tile_failures x WHERE x.job_id = j.id AND x.worker_id = ?1)
                  ORDER BY j.priority DESC, j.id",
             )?;
-            stmt.query_map(params![w, scheduler::WORKER_FAILURES_PER_JOB], |r| {
+            stmt.query_map(params![w, scheduler::WORKER_FAILURES_PER_JOB, recent], |r| {
                 Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?))
             })?
             .collect::<rusqlite::Result<_>>()?
@@ -546,10 +550,10 @@ impl Store {
                     "SELECT t.frame, t.tile, t.x0, t.y0, t.w, t.h, f.camera
                      FROM tiles t JOIN frames f ON f.job_id = t.job_id AND f.idx = t.frame
                      WHERE t.job_id = ?1 AND t.state = 'queued'
-                       AND NOT EXISTS (SELECT 1 FROM tile_failures x WHERE x.job_id = t.job_id AND x.frame = t.frame AND x.tile = t.tile AND x.worker_id = ?2)
+                       AND NOT EXISTS (SELECT 1 FROM tile_failures x WHERE x.job_id = t.job_id AND x.frame = t.frame AND x.tile = t.tile AND x.worker_id = ?2 AND x.at > ?3)
                      ORDER BY t.frame, t.tile LIMIT 1",
                 )?
-                .query_row(params![job, w], |r| {
+                .query_row(params![job, w, recent], |r| {
                     Ok((
                         r.get::<_, i64>(0)?,
                         r.get::<_, i64>(1)?,
@@ -926,25 +930,34 @@ mod tests {
         assert!(s.lease(worker(&s), LONG).unwrap().is_none());
     }
 
+    /// Moves every recorded failure `seconds` into the past (the retry window is wall time).
+    fn age_failures(s: &Store, seconds: f64) {
+        s.conn().execute("UPDATE tile_failures SET at = at - ?1", params![seconds]).unwrap();
+    }
+
     #[test]
-    fn a_tile_failing_five_times_fails_its_job_on_fewer_workers() {
-        // Leasing never gives a worker a tile it failed, so five failures on fewer than three
-        // workers only come from the history (written here directly): the limit still holds.
+    fn a_farm_of_one_worker_retries_a_failed_tile_until_five_failures_fail_its_job() {
+        // The only worker fails the only tile: it is kept off it for the retry window (nobody
+        // else could take it), then gets it again, and the fifth failure fails the job instead
+        // of leaving the tile queued for ever.
         let (_d, s) = store("five");
         let j = job(&s, 0, 1);
-        let (a, b) = (worker(&s), worker(&s));
-        for _ in 0..4 {
-            s.conn()
-                .execute(
-                    "INSERT INTO tile_failures(job_id, frame, tile, worker_id, error, at) VALUES (?1, 0, 0, ?2, 'old', 0)",
-                    params![j as i64, a as i64],
-                )
-                .unwrap();
+        let w = worker(&s);
+        for k in 1..=5 {
+            let l = lease(&s, w);
+            assert_eq!((l.job_id, l.tile), (j, 0));
+            let out = s.fail_tile(l.lease_id, w, &format!("boom {k}"), false).unwrap();
+            if k < 5 {
+                assert_eq!(out, FailOutcome::Requeued);
+                assert!(s.lease(w, LONG).unwrap().is_none(), "kept off the tile it just failed");
+                age_failures(&s, scheduler::RETRY_FAILED_AFTER - 5.0);
+                assert!(s.lease(w, LONG).unwrap().is_none(), "still inside the retry window");
+                age_failures(&s, 6.0);
+            } else {
+                let FailOutcome::JobFailed { message, .. } = out else { panic!("{out:?}") };
+                assert!(message.contains("1 worker(s), 5 time(s); last error: boom 5"), "{message}");
+            }
         }
-        let l = lease(&s, b);
-        let out = s.fail_tile(l.lease_id, b, "again", false).unwrap();
-        let FailOutcome::JobFailed { message, .. } = out else { panic!("{out:?}") };
-        assert!(message.contains("2 worker(s), 5 time(s); last error: again"), "{message}");
         assert_eq!(state(&s, j), JobState::Failed);
     }
 
@@ -980,6 +993,11 @@ mod tests {
         let good = worker(&s);
         assert_eq!((lease(&s, good).job_id, state(&s, j)), (j, JobState::Running));
         assert_eq!(s.workers().unwrap().iter().find(|x| x.id == w).unwrap().failures, 3);
+        // For the retry window only: then it may take the job's tiles again, the ones it failed
+        // included (a farm of one worker must not wait for ever).
+        age_failures(&s, scheduler::RETRY_FAILED_AFTER + 1.0);
+        let again = lease(&s, w);
+        assert_eq!((again.job_id, again.tile), (j, 1), "back on the job (tile 0 is the good worker's)");
     }
 
     #[test]

@@ -28,8 +28,15 @@ use crate::db::{FailOutcome, ResultOutcome, Store, WorkerRow};
 pub const TILE_FAILURE_WORKERS: i64 = 3;
 /// ... or this many times in all (so that a farm with fewer workers still ends).
 pub const TILE_FAILURE_TOTAL: i64 = 5;
-/// A worker that fails this many tiles of a job is kept off that job.
+/// A worker that fails this many tiles of a job is kept off that job (for
+/// [`RETRY_FAILED_AFTER`]).
 pub const WORKER_FAILURES_PER_JOB: i64 = 3;
+/// How long a worker is kept off a tile it failed, and off a job whose tiles it failed
+/// [`WORKER_FAILURES_PER_JOB`] times, counted from its latest failure there. Long enough for
+/// another worker to take the tile on a farm that has one; finite, so that on a farm of one or
+/// two workers the tile is tried again until [`TILE_FAILURE_TOTAL`] fails its job, instead of
+/// staying queued for ever with nobody allowed to take it.
+pub const RETRY_FAILED_AFTER: f64 = 30.0;
 /// How often the lease-expiry task looks for leases past their deadline.
 pub const EXPIRY_SWEEP: Duration = Duration::from_millis(500);
 /// Most leases one watch request follows.
