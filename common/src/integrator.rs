@@ -482,7 +482,8 @@ mod tests {
         assert!(uv_footprint(&hit, DVec3::X, 0.1).is_finite());
         assert!(uv_footprint(&hit, DVec3::new(f64::NAN, 0.0, -1.0), 0.1).is_finite());
     }
-    use crate::render::{RenderSettings, TileRect, render_tile};
+    use crate::image::TileRect;
+    use crate::render::{RenderSettings, render_tile};
     use crate::scene::load_scene_str;
     use crate::scene::records::EnvSampler;
 

@@ -619,7 +619,7 @@ fn validate(
                 height: cam.height,
                 tiles: tessera::render::tiles(cam.width, cam.height, tile_size)
                     .into_iter()
-                    .map(|r| Rect { x0: r.x0, y0: r.y0, width: r.width, height: r.height })
+                    .map(Rect::from)
                     .collect(),
             }
         })

@@ -5,8 +5,8 @@
 use std::path::{Path, PathBuf};
 
 use tessera::assets::FsResolver;
-use tessera::image::Image;
-use tessera::render::{RenderSettings, TileRect, render_camera, render_tile};
+use tessera::image::{Image, TileRect};
+use tessera::render::{RenderSettings, render_camera, render_tile};
 use tessera::scene::{Scene, load_scene_file, load_scene_str};
 
 /// distribution.xml has every homework-3 effect: jittered multisampling, an area light, glossy

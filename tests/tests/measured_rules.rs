@@ -10,7 +10,8 @@
 //! * 2025 JSON scenes cull triangles seen from behind by camera rays, and nothing else culls.
 
 use tessera::assets::FsResolver;
-use tessera::render::{RenderSettings, TileRect, render_tile};
+use tessera::image::TileRect;
+use tessera::render::{RenderSettings, render_tile};
 use tessera::scene::{Scene, load_scene_str};
 
 fn load(text: &str, name: &str) -> Scene {

@@ -23,7 +23,8 @@ use std::path::PathBuf;
 
 use tessera::SceneError;
 use tessera::assets::FsResolver;
-use tessera::render::{RenderSettings, TileRect, render_tile};
+use tessera::image::TileRect;
+use tessera::render::{RenderSettings, render_tile};
 use tessera::scene::{Scene, load_scene_str};
 
 // ---------------------------------------------------------------------------------------------
