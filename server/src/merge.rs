@@ -12,7 +12,8 @@ use tessera::camera::Camera;
 use tessera::image::{Image, TileRect};
 use tessera::output::{self, OutputFile, OutputKind};
 use tessera::protocol::{Rect, decode_tile};
-use tessera::tonemap::{Operator, Photographic, tonemap_with};
+use tessera::tonemap::params::{Operator, Photographic};
+use tessera::tonemap::tonemap_with;
 
 /// Assembles `tiles` into a `width` x `height` image; missing tiles stay black.
 pub fn assemble(width: u32, height: u32, tiles: &[(Rect, Vec<u8>)]) -> Result<Image> {

@@ -208,7 +208,7 @@ fn json_only_elements_reach_the_records() {
     assert_eq!(r.planes[0].normal, [0.0, 1.0, 0.0]);
     let r = parse_file(&corpus.join("json/hw5/cube_point_hdr.json"));
     let t = &r.cameras[0].tonemaps;
-    use tessera::tonemap::Operator;
+    use tessera::tonemap::params::Operator;
     assert_eq!(
         t.iter().map(|t| (t.operator, t.extension.as_deref())).collect::<Vec<_>>(),
         [

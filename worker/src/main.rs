@@ -20,7 +20,8 @@ use tessera::render::{RenderSettings, render_camera};
 use tessera::scene::build::build_scene;
 use tessera::scene::parse_scene;
 use tessera::scene::records::EnvSampler;
-use tessera::tonemap::{Gamma, Operator, Photographic, tonemap_with};
+use tessera::tonemap::params::{Gamma, Operator, Photographic};
+use tessera::tonemap::tonemap_with;
 
 #[derive(Parser)]
 #[command(

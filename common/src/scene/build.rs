@@ -35,8 +35,8 @@ fn degamma_exponent(rec: &SceneRecords) -> f64 {
         .iter()
         .find_map(|c| c.tonemaps.first())
         .and_then(|t| match t.params.gamma {
-            crate::tonemap::Gamma::Power(g) => Some(g),
-            crate::tonemap::Gamma::Srgb => None,
+            crate::tonemap::params::Gamma::Power(g) => Some(g),
+            crate::tonemap::params::Gamma::Srgb => None,
         })
         .unwrap_or(2.2)
 }

@@ -30,7 +30,7 @@ use super::records::{
     TransformRef, TriangleRec, Vec3,
 };
 use crate::error::{Loc, SceneError, Warning};
-use crate::tonemap::{Operator, Photographic};
+use crate::tonemap::params::{Operator, Photographic};
 
 type Result<T> = std::result::Result<T, SceneError>;
 
@@ -2134,7 +2134,7 @@ mod tests {
                 key: 0.36,
                 burn_percent: 0.0,
                 saturation: 0.8,
-                gamma: crate::tonemap::Gamma::Srgb
+                gamma: crate::tonemap::params::Gamma::Srgb
             }
         );
         assert_eq!(t[0].extension, None);
