@@ -484,7 +484,7 @@ mod tests {
     }
     use crate::image::TileRect;
     use crate::render::{RenderSettings, render_tile};
-    use crate::scene::load_scene_str;
+    use crate::scene::load::load_scene_str;
     use crate::scene::records::EnvSampler;
 
     /// A white diffuse floor at y = 0 seen straight from above, lit only by `lights`.

@@ -201,7 +201,7 @@ pub fn render_camera(
 mod tests {
     use super::*;
     use crate::assets::FsResolver;
-    use crate::scene::load_scene_str;
+    use crate::scene::load::load_scene_str;
 
     /// A 4x4 diffuse triangle asking for `samples` samples per pixel.
     fn small_scene(samples: u32) -> Scene {

@@ -22,7 +22,7 @@ use tessera::assets::MemResolver;
 use tessera::camera::Camera;
 use tessera::protocol::*;
 use tessera::scene::build::build_scene;
-use tessera::scene::parse_scene;
+use tessera::scene::load::parse_scene;
 use tokio::sync::Notify;
 
 use crate::bundle::{self, BlobStore, BundleError, Files, Unpacker};

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use tessera::Loc;
 use tessera::scene::json::DEFAULT_MAX_RECURSION_DEPTH;
-use tessera::scene::parse_scene;
+use tessera::scene::load::parse_scene;
 use tessera::scene::records::{MaterialKind, SceneRecords};
 
 /// (XML scene under `xml/`, its 2025 JSON twin under `json/`), for the scenes MANIFEST.md lists

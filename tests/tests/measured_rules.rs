@@ -12,7 +12,8 @@
 use tessera::assets::FsResolver;
 use tessera::image::TileRect;
 use tessera::render::{RenderSettings, render_tile};
-use tessera::scene::{Scene, load_scene_str};
+use tessera::scene::Scene;
+use tessera::scene::load::load_scene_str;
 
 fn load(text: &str, name: &str) -> Scene {
     let dir = std::env::temp_dir();

@@ -39,7 +39,7 @@ use tessera::protocol::*;
 use tessera::render::{RenderSettings, Stop, Stopped, render_tile_until};
 use tessera::scene::Scene;
 use tessera::scene::build::build_scene;
-use tessera::scene::parse_scene;
+use tessera::scene::load::parse_scene;
 
 /// What `work` was told.
 pub struct WorkOptions {
