@@ -50,7 +50,7 @@ impl Ctx<'_> {
     /// An error about the scene, in the words of its dialect.
     fn err(&self, loc: &Loc, msg: impl Into<String>) -> SceneError {
         let msg = msg.into();
-        let msg = if self.rec.json { super::json::json_words(&msg) } else { msg };
+        let msg = if self.rec.json { super::tree::json_words(&msg) } else { msg };
         SceneError::new(&self.rec.source, loc.clone(), msg)
     }
 
@@ -877,7 +877,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
     if rec.json {
         // The parser's warnings are in JSON words already; this makes the build's match them.
         for w in &mut warnings {
-            w.message = super::json::json_words(&w.message);
+            w.message = super::tree::json_words(&w.message);
         }
     }
     Ok(Scene {
