@@ -1,5 +1,4 @@
-//! Float images and their pixel rectangles ([`TileRect`]), LDR output and image comparison
-//! metrics.
+//! Float images, their pixel rectangles ([`TileRect`]), LDR output and comparison metrics.
 
 use std::path::Path;
 

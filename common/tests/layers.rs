@@ -1,5 +1,6 @@
-//! The layering of `common` (docs/ARCHITECTURE.md, "Layers"): no module imports a module of its
-//! own layer or of a higher one, so there are no import circles.
+//! The layering check: no module of `common` imports one of its own or of a higher layer.
+//!
+//! The layers are docs/ARCHITECTURE.md's, "Layers"; keeping to them means no import circles.
 //!
 //! Reads every `.rs` file under `common/src`, finds the crate-internal modules each one names in
 //! its code (`use crate::…`, `use super::…`, `use self::…`, a child module's name, groups

@@ -1,8 +1,9 @@
-//! JSON front end: the 2025 CENG795 dialect (scene-format.md §14), a mechanical XML→JSON
-//! encoding of the same element tree.
+//! JSON front end: the 2025 CENG795 dialect (scene-format.md §14) into the shared element tree.
 //!
-//! The JSON text is turned into the very [`Node`] tree the XML front end builds, and then walked
-//! by the same [`parse_tree`] (module [`super::tree`]), so every element rule, default, warning
+//! The dialect is a mechanical XML→JSON encoding of the same element tree.
+//!
+//! The JSON text is turned into the very `Node` tree the XML front end builds, and then walked
+//! by the same `parse_tree` (module [`super::tree`]), so every element rule, default, warning
 //! and error is shared and a JSON scene gives exactly the records of its XML twin. The mapping (§14.1):
 //!
 //! - the root is an object with the single key `"Scene"`;
@@ -22,7 +23,7 @@
 //!
 //! One default differs from XML files:
 //! [`DEFAULT_MAX_RECURSION_DEPTH`](super::tree::DEFAULT_MAX_RECURSION_DEPTH), applied by the
-//! walk; messages use JSON words ([`Dialect::Json`]).
+//! walk; messages use JSON words (`Dialect::Json`).
 
 use std::path::Path;
 

@@ -1,5 +1,7 @@
-//! Loading: scene text or a scene file to a [`Scene`], through the front end its content picks
-//! ([`parse_scene`]) and [`build_scene`].
+//! Loading a scene: text or a file, through the front end its content picks, to a [`Scene`].
+//!
+//! [`parse_scene`] picks the front end ([`detect_format`]); [`load_scene_str`] and
+//! [`load_scene_file`] parse and then [`build_scene`].
 
 use std::path::Path;
 

@@ -1,12 +1,14 @@
-//! The element tree both front ends build ([`Node`]) and its walk into records
-//! ([`parse_tree`]): every element rule, default, warning and error of the scene format, shared
-//! by the XML ([`super::xml`]) and JSON ([`super::json`]) front ends.
+//! The element tree both front ends build, and its walk into scene records.
 //!
-//! [`parse_tree`] walks a `<Scene>` tree and fills [`SceneRecords`]. Because it looks children
+//! The tree is `Node`s; the walk, `parse_tree`, holds every element rule, default, warning
+//! and error of the scene format, shared by the XML ([`super::xml`]) and JSON ([`super::json`])
+//! front ends.
+//!
+//! `parse_tree` walks a `<Scene>` tree and fills [`SceneRecords`]. Because it looks children
 //! up by name, the order of elements inside `<Scene>` (and anywhere else) does not matter. The
 //! 2019 legacy rules for materials (scene-format.md §6.1, §6.9) and the 2019 `<Texture>` /
 //! `<BackgroundTexture>` elements (translated into 2020 texture maps, §11.11) apply to XML trees
-//! only. The [`Dialect`] of a tree changes how messages name elements ([`json_words`]) and one
+//! only. The `Dialect` of a tree changes how messages name elements (`json_words`) and one
 //! default ([`DEFAULT_MAX_RECURSION_DEPTH`]), nothing else.
 //!
 //! Nothing is resolved here: ids stay strings, PLY files are not opened. Elements we do not know

@@ -2,9 +2,9 @@
 //!
 //! Parsing happens in two steps:
 //!
-//! 1. [`read_tree`] turns the text into the element tree ([`Node`]) with line numbers, using
+//! 1. `read_tree` turns the text into the element tree (`Node`) with line numbers, using
 //!    `quick-xml`. Everything about well-formedness is decided here.
-//! 2. [`parse_tree`] (module [`super::tree`], shared with the JSON front end) walks the tree and
+//! 2. `parse_tree` (module [`super::tree`], shared with the JSON front end) walks the tree and
 //!    fills [`SceneRecords`], with the 2019 legacy rules for materials (scene-format.md §6.1,
 //!    §6.9) and the 2019 `<Texture>` / `<BackgroundTexture>` elements, translated into 2020
 //!    texture maps (§11.11), when the file is of that dialect.

@@ -1,5 +1,6 @@
-//! Tests of the XML front end ([`super`]) and, through it, of the shared element walk
-//! ([`super::super::tree`]): records, errors and warnings for hand-written scenes.
+//! Tests of the XML front end and, through it, of the shared element walk (`scene/tree.rs`).
+//!
+//! Records, errors and warnings for hand-written scenes.
 
 use super::*;
 use crate::error::Loc;

@@ -1,5 +1,7 @@
-//! Tone mapping: the course's photographic operator (Reinhard et al. 2002, global version), from
-//! a linear float [`Image`] to 8-bit RGB.
+//! The tone mapper: a linear float [`Image`] to 8-bit RGB, by the course's photographic operator.
+//!
+//! The operator is Reinhard et al. 2002, global version; the 2025 Filmic and ACES curves are
+//! below. Its parameters are [`params`].
 //!
 //! Implements scene-format.md §12.3 as measured against the official outputs. Over the N finite
 //! pixels of the image:

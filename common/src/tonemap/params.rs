@@ -1,6 +1,8 @@
-//! What a `<Tonemap>` asks for (operator, key, burn, saturation, gamma) and the Rec. 709
-//! luminance they are defined over: plain parameter types, low enough in the crate for the scene
-//! records (and the environment light's importance sampling) to use without the tone mapper.
+//! Tone-mapping parameters: what a `<Tonemap>` asks for, and the Rec. 709 luminance.
+//!
+//! Operator, key, burn, saturation and gamma, and the luminance they are defined over: plain
+//! parameter types, low enough in the crate for the scene records (and the environment light's
+//! importance sampling) to use without the tone mapper.
 //!
 //! The operator that applies them is [`crate::tonemap`].
 
