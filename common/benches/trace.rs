@@ -164,7 +164,7 @@ struct SceneTimes {
 /// Load + build and render time of every camera of a scene file, with all threads.
 fn whole_scene(path: &std::path::Path) -> Result<SceneTimes, String> {
     let t = Instant::now();
-    let scene = tessera::scene::load_scene_file(path).map_err(|e| e.to_string())?;
+    let scene = tessera::scene::load::load_scene_file(path).map_err(|e| e.to_string())?;
     let load = t.elapsed().as_secs_f64();
     let t = Instant::now();
     let (mut samples, mut rays) = (0u64, 0u64);

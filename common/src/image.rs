@@ -1,8 +1,31 @@
-//! Float images, LDR output and image comparison metrics.
+//! Float images, their pixel rectangles ([`TileRect`]), LDR output and comparison metrics.
 
 use std::path::Path;
 
-use crate::render::TileRect;
+use crate::protocol::Rect;
+
+/// A rectangle of pixels, `x0, y0` from the top-left corner of the frame: what
+/// [`render_tile`](crate::render::render_tile) renders and [`Image::put_tile`] puts in place.
+/// The farm's wire twin is [`Rect`]; they convert both ways with `From`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct TileRect {
+    pub x0: u32,
+    pub y0: u32,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl From<Rect> for TileRect {
+    fn from(r: Rect) -> Self {
+        TileRect { x0: r.x0, y0: r.y0, width: r.width, height: r.height }
+    }
+}
+
+impl From<TileRect> for Rect {
+    fn from(r: TileRect) -> Self {
+        Rect { x0: r.x0, y0: r.y0, width: r.width, height: r.height }
+    }
+}
 
 /// A linear float RGB image, row-major from the top-left pixel.
 #[derive(Clone, Debug, PartialEq)]

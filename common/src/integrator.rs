@@ -495,8 +495,9 @@ mod tests {
         assert!(uv_footprint(&hit, DVec3::X, 0.1).is_finite());
         assert!(uv_footprint(&hit, DVec3::new(f64::NAN, 0.0, -1.0), 0.1).is_finite());
     }
-    use crate::render::{RenderSettings, TileRect, render_tile};
-    use crate::scene::load_scene_str;
+    use crate::image::TileRect;
+    use crate::render::{RenderSettings, render_tile};
+    use crate::scene::load::load_scene_str;
     use crate::scene::records::EnvSampler;
 
     /// A white diffuse floor at y = 0 seen straight from above, lit only by `lights`.

@@ -3,9 +3,14 @@
 //! Pure computation: scene bytes and an [`assets::AssetResolver`] in, linear float images out.
 //! No network, no async runtime, no database: the worker and the server bring those.
 //!
-//! Pipeline: [`scene::xml`] parses a file into [`scene::records`] (plain data with source
-//! locations), [`scene::build`] turns records into a render-ready [`scene::Scene`] (meshes, BVHs,
-//! instances, materials, lights), and [`render`] traces tiles of it with [`integrator`].
+//! Pipeline: a front end ([`scene::xml`] or [`scene::json`], both walking [`scene::tree`])
+//! parses a file into [`scene::records`] (plain data with source locations), [`scene::build`]
+//! turns records into a render-ready [`scene::Scene`] (meshes, BVHs, instances, materials,
+//! lights), [`scene::load`] does both for scene text or a file, and [`render`] traces tiles of
+//! it with [`integrator`].
+//!
+//! The modules are layered one way, each importing only lower layers (docs/ARCHITECTURE.md,
+//! "Layers"; checked by `tests/layers.rs`).
 
 pub mod assets;
 pub mod camera;

@@ -15,7 +15,7 @@ use crate::math::orthonormal_pair;
 use crate::sampler::Sampler;
 use crate::scene::records::{EnvMapping, EnvSampler};
 use crate::texture::image::TextureImage;
-use crate::tonemap::luminance;
+use crate::tonemap::params::luminance;
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct PointLight {

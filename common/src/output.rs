@@ -15,7 +15,8 @@ use std::path::{Path, PathBuf};
 use crate::camera::Camera;
 use crate::hdr_io::{HdrError, write_exr, write_hdr, write_png_rgb8};
 use crate::image::Image;
-use crate::tonemap::{Operator, Photographic, TonemapStats, tonemap_with};
+use crate::tonemap::params::{Operator, Photographic};
+use crate::tonemap::{TonemapStats, tonemap_with};
 
 /// One file to write for a camera.
 #[derive(Clone, Debug, PartialEq)]

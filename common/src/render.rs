@@ -9,20 +9,11 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use crate::image::Image;
+use crate::image::{Image, TileRect};
 use crate::integrator::{RayStats, Tracer};
 use crate::sampler::{Sampler, frame_seed};
 use crate::scene::Scene;
 use crate::scene::records::EnvSampler;
-
-/// A rectangle of pixels, `x0, y0` from the top-left corner of the frame.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub struct TileRect {
-    pub x0: u32,
-    pub y0: u32,
-    pub width: u32,
-    pub height: u32,
-}
 
 /// Knobs that change what is rendered (not how fast).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -210,7 +201,7 @@ pub fn render_camera(
 mod tests {
     use super::*;
     use crate::assets::FsResolver;
-    use crate::scene::load_scene_str;
+    use crate::scene::load::load_scene_str;
 
     /// A 4x4 diffuse triangle asking for `samples` samples per pixel.
     fn small_scene(samples: u32) -> Scene {

@@ -11,11 +11,11 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use tessera::camera::Camera;
-use tessera::image::Image;
+use tessera::image::{Image, TileRect};
 use tessera::output::{self, OutputFile, OutputKind};
 use tessera::protocol::{JobState, Rect, ServerEvent, decode_tile};
-use tessera::render::TileRect;
-use tessera::tonemap::{Operator, Photographic, tonemap_with};
+use tessera::tonemap::params::{Operator, Photographic};
+use tessera::tonemap::tonemap_with;
 
 use crate::api::AppState;
 
@@ -29,7 +29,7 @@ pub fn assemble(width: u32, height: u32, tiles: &[(Rect, Vec<u8>)]) -> Result<Im
         let px = decode_tile(bytes, (r.width * r.height) as usize).with_context(|| {
             format!("tile {r:?} holds {} bytes, not {}", bytes.len(), r.width * r.height * 12)
         })?;
-        img.put_tile(TileRect { x0: r.x0, y0: r.y0, width: r.width, height: r.height }, &px);
+        img.put_tile(TileRect::from(*r), &px);
     }
     Ok(img)
 }

@@ -10,7 +10,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use tessera::image::{Comparison, Rgb8, compare};
 use tessera::render::{RenderSettings, render_camera};
-use tessera::scene::load_scene_file;
+use tessera::scene::load::load_scene_file;
 
 /// One row of the table.
 #[derive(Clone, Debug, PartialEq)]

@@ -3,8 +3,9 @@
 
 use std::path::PathBuf;
 
-use tessera::render::{RenderSettings, TileRect, render_tile};
-use tessera::scene::load_scene_file;
+use tessera::image::TileRect;
+use tessera::render::{RenderSettings, render_tile};
+use tessera::scene::load::load_scene_file;
 
 /// HW1 and HW2 scenes (file names under xml/ without `.xml`) whose assets are all present.
 const LOADABLE: &[&str] = &[

@@ -5,9 +5,10 @@
 use std::path::{Path, PathBuf};
 
 use tessera::assets::FsResolver;
-use tessera::image::Image;
-use tessera::render::{RenderSettings, TileRect, render_camera, render_tile};
-use tessera::scene::{Scene, load_scene_file, load_scene_str};
+use tessera::image::{Image, TileRect};
+use tessera::render::{RenderSettings, render_camera, render_tile};
+use tessera::scene::Scene;
+use tessera::scene::load::{load_scene_file, load_scene_str};
 
 /// distribution.xml has every homework-3 effect: jittered multisampling, an area light, glossy
 /// reflection, a thin lens and motion blur (checked by `the_distribution_scene_exercises_every_effect`);

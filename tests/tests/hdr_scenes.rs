@@ -3,7 +3,7 @@
 
 use tessera::image::Image;
 use tessera::render::{RenderSettings, render_camera};
-use tessera::scene::load_scene_file;
+use tessera::scene::load::load_scene_file;
 use tessera::scene::records::{EnvSampler, SceneRecords};
 use tessera_tests::envmaps::{ENV_SCENES, load_substituted};
 use tessera_tests::shared_scenes;

@@ -6,9 +6,9 @@
 use std::path::{Path, PathBuf};
 
 use tessera::Loc;
-use tessera::scene::json::DEFAULT_MAX_RECURSION_DEPTH;
-use tessera::scene::parse_scene;
+use tessera::scene::load::parse_scene;
 use tessera::scene::records::{MaterialKind, SceneRecords};
+use tessera::scene::tree::DEFAULT_MAX_RECURSION_DEPTH;
 
 /// (XML scene under `xml/`, its 2025 JSON twin under `json/`), for the scenes MANIFEST.md lists
 /// with the 2025 JSON as an equal witness (`B=J2025`, `O2021=J2025`, ...). Left out: scenes it
@@ -155,7 +155,7 @@ fn xml_and_json_twins_give_the_same_records() {
                 xm.kind = jm.kind;
             }
         }
-        // The one default the dialects do not share (json::DEFAULT_MAX_RECURSION_DEPTH).
+        // The one default the dialects do not share (tree::DEFAULT_MAX_RECURSION_DEPTH).
         if !std::fs::read_to_string(&xml_path).unwrap().contains("<MaxRecursionDepth") {
             assert_eq!(x.max_recursion_depth, 0, "{xml}");
             assert_eq!(j.max_recursion_depth, DEFAULT_MAX_RECURSION_DEPTH, "{json}");
@@ -208,7 +208,7 @@ fn json_only_elements_reach_the_records() {
     assert_eq!(r.planes[0].normal, [0.0, 1.0, 0.0]);
     let r = parse_file(&corpus.join("json/hw5/cube_point_hdr.json"));
     let t = &r.cameras[0].tonemaps;
-    use tessera::tonemap::Operator;
+    use tessera::tonemap::params::Operator;
     assert_eq!(
         t.iter().map(|t| (t.operator, t.extension.as_deref())).collect::<Vec<_>>(),
         [

@@ -10,8 +10,10 @@
 //! * 2025 JSON scenes cull triangles seen from behind by camera rays, and nothing else culls.
 
 use tessera::assets::FsResolver;
-use tessera::render::{RenderSettings, TileRect, render_tile};
-use tessera::scene::{Scene, load_scene_str};
+use tessera::image::TileRect;
+use tessera::render::{RenderSettings, render_tile};
+use tessera::scene::Scene;
+use tessera::scene::load::load_scene_str;
 
 fn load(text: &str, name: &str) -> Scene {
     let dir = std::env::temp_dir();
@@ -251,7 +253,7 @@ fn the_camera_ray_that_once_culled_for_ever_finishes() {
     if !tessera_testkit::corpus_has(&path) {
         return;
     }
-    let scene = tessera::scene::load_scene_file(&path).expect("the course scene loads");
+    let scene = tessera::scene::load::load_scene_file(&path).expect("the course scene loads");
     let (tx, rx) = std::sync::mpsc::channel();
     std::thread::spawn(move || {
         let rect = TileRect { x0: 608, y0: 365, width: 8, height: 8 };

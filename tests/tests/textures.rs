@@ -23,8 +23,10 @@ use std::path::PathBuf;
 
 use tessera::SceneError;
 use tessera::assets::FsResolver;
-use tessera::render::{RenderSettings, TileRect, render_tile};
-use tessera::scene::{Scene, load_scene_str};
+use tessera::image::TileRect;
+use tessera::render::{RenderSettings, render_tile};
+use tessera::scene::Scene;
+use tessera::scene::load::load_scene_str;
 
 // ---------------------------------------------------------------------------------------------
 // A small 3-vector (the tests crate does not depend on glam).

@@ -31,7 +31,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use rayon::prelude::*;
 use tessera::hdr_io::{read_exr, write_exr};
 use tessera::image::Rgb8;
-use tessera::tonemap::{Gamma, Photographic, tonemap};
+use tessera::tonemap::params::{Gamma, Photographic};
+use tessera::tonemap::tonemap;
 
 /// References whose PNG does not follow the operator (module docs: how far off and why).
 const EXCLUDED: &[&str] = &[

@@ -34,11 +34,12 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, anyhow, bail};
 use rayon::prelude::*;
 use tessera::assets::MemResolver;
+use tessera::image::TileRect;
 use tessera::protocol::*;
-use tessera::render::{RenderSettings, Stop, Stopped, TileRect, render_tile_until};
+use tessera::render::{RenderSettings, Stop, Stopped, render_tile_until};
 use tessera::scene::Scene;
 use tessera::scene::build::build_scene;
-use tessera::scene::parse_scene;
+use tessera::scene::load::parse_scene;
 
 /// What `work` was told.
 pub struct WorkOptions {
@@ -513,7 +514,7 @@ fn render_lease(
         (r.y0..r.y0 + r.height)
             .into_par_iter()
             .map(|y| {
-                let row = TileRect { x0: r.x0, y0: y, width: r.width, height: 1 };
+                let row = TileRect { y0: y, height: 1, ..TileRect::from(r) };
                 render_tile_until(&scene, camera, row, &settings, stop).map(|(px, _)| px)
             })
             .collect::<Result<Vec<Vec<[f32; 3]>>, Stopped>>()

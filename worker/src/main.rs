@@ -18,9 +18,10 @@ use tessera::hdr_io::{read_float_image, write_png_rgb8};
 use tessera::output;
 use tessera::render::{RenderSettings, render_camera};
 use tessera::scene::build::build_scene;
-use tessera::scene::parse_scene;
+use tessera::scene::load::parse_scene;
 use tessera::scene::records::EnvSampler;
-use tessera::tonemap::{Gamma, Operator, Photographic, tonemap_with};
+use tessera::tonemap::params::{Gamma, Operator, Photographic};
+use tessera::tonemap::tonemap_with;
 
 #[derive(Parser)]
 #[command(

@@ -11,7 +11,7 @@ use support::run;
 use tessera::hdr_io::{read_exr, read_hdr};
 use tessera::image::Image;
 use tessera::render::{RenderSettings, render_camera};
-use tessera::scene::load_scene_file;
+use tessera::scene::load::load_scene_file;
 use tessera::tonemap::tonemap;
 
 use tessera_testkit::shared_scenes;

@@ -8,7 +8,8 @@ use std::path::PathBuf;
 
 use support::run;
 use tessera::hdr_io::read_exr;
-use tessera::tonemap::{Operator, Photographic, tonemap_with};
+use tessera::tonemap::params::{Operator, Photographic};
+use tessera::tonemap::tonemap_with;
 
 use tessera_testkit::shared_scenes;
 

@@ -10,7 +10,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use tessera::hdr_io::{read_hdr, write_hdr};
 use tessera::image::{Image, Rgb8};
-use tessera::tonemap::{Photographic, tonemap};
+use tessera::tonemap::params::Photographic;
+use tessera::tonemap::tonemap;
 
 /// A scratch directory under the system temp dir, removed on drop.
 struct TempDir(PathBuf);
@@ -227,7 +228,7 @@ fn tonemap_reads_radiance_hdr_and_reports_non_finite_pixels() {
     assert_eq!(r.code, Some(0), "{}", r.describe());
     assert!(r.stdout.contains("gamma sRGB") && r.stdout.contains("0 non-finite"), "{}", r.describe());
     // Exactly what the library gives for the same file.
-    let params = Photographic { gamma: tessera::tonemap::Gamma::Srgb, ..Photographic::default() };
+    let params = Photographic { gamma: tessera::tonemap::params::Gamma::Srgb, ..Photographic::default() };
     let (expected, _) = tonemap(&read_hdr(&input).unwrap(), &params);
     assert_eq!(Rgb8::read_png(&out).unwrap().data, expected);
 

@@ -11,12 +11,14 @@ use glam::{DAffine3, DMat3, DMat4, DVec2, DVec3};
 use rayon::prelude::*;
 
 use super::records::*;
-use super::{AreaLight, DirectionalLight, EnvLight, PointLight, Scene, SceneStats, SpotLight};
+use super::tree::json_words;
+use super::{Scene, SceneStats};
 use crate::assets::AssetResolver;
 use crate::camera::Camera;
 use crate::error::{Loc, SceneError, Warning};
 use crate::geometry::mesh::{MeshGeom, area_weighted_normals, drop_degenerate, grouped_normals};
 use crate::geometry::{Accel, Instance, ObjectTextures, Shape};
+use crate::lights::{AreaLight, DirectionalLight, EnvLight, PointLight, SpotLight};
 use crate::material::Material;
 use crate::math::{Transform, v3};
 use crate::texture::image::TextureImage;
@@ -35,8 +37,8 @@ fn degamma_exponent(rec: &SceneRecords) -> f64 {
         .iter()
         .find_map(|c| c.tonemaps.first())
         .and_then(|t| match t.params.gamma {
-            crate::tonemap::Gamma::Power(g) => Some(g),
-            crate::tonemap::Gamma::Srgb => None,
+            crate::tonemap::params::Gamma::Power(g) => Some(g),
+            crate::tonemap::params::Gamma::Srgb => None,
         })
         .unwrap_or(2.2)
 }
@@ -50,8 +52,14 @@ impl Ctx<'_> {
     /// An error about the scene, in the words of its dialect.
     fn err(&self, loc: &Loc, msg: impl Into<String>) -> SceneError {
         let msg = msg.into();
-        let msg = if self.rec.json { super::json::json_words(&msg) } else { msg };
+        let msg = if self.rec.json { json_words(&msg) } else { msg };
         SceneError::new(&self.rec.source, loc.clone(), msg)
+    }
+
+    /// The one way every step reports a warning about the scene: at `loc` of the scene file.
+    /// ([`build_scene`] puts them all in the words of the scene's dialect at the end.)
+    fn warn(&self, warnings: &mut Vec<Warning>, loc: &Loc, message: impl Into<String>) {
+        warnings.push(Warning { file: self.rec.source.clone(), loc: loc.clone(), message: message.into() });
     }
 
     fn material(&self, ids: &HashMap<&str, u32>, id: &str, loc: &Loc) -> Result<u32, SceneError> {
@@ -379,7 +387,8 @@ struct BuiltTextures<'a> {
     env_light: Option<EnvLight>,
 }
 
-/// Decodes every image a texture map uses (each file once, in parallel) and builds the maps.
+/// Step 4: decodes every image a texture map or the environment light uses (each file once, in
+/// parallel), builds the maps and the environment light.
 fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<BuiltTextures<'a>, SceneError> {
     let rec = ctx.rec;
     let image_recs: HashMap<&str, &ImageRec> = rec.images.iter().rev().map(|i| (i.id.as_str(), i)).collect();
@@ -409,11 +418,7 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
         want(img, format!("environment light {}", l.id).trim_end().to_string());
     }
     for l in rec.env_lights.iter().skip(1) {
-        warnings.push(Warning {
-            file: rec.source.clone(),
-            loc: l.loc.clone(),
-            message: "only one environment light is supported; this one is ignored".into(),
-        });
+        ctx.warn(warnings, &l.loc, "only one environment light is supported; this one is ignored");
     }
     let decoded: Vec<Result<(String, Arc<TextureImage>), SceneError>> = wanted
         .par_iter()
@@ -486,14 +491,11 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
             }
         };
         if out.ids.contains_key(m.id.as_str()) {
-            warnings.push(Warning {
-                file: rec.source.clone(),
-                loc: m.loc.clone(),
-                message: format!(
-                    "texture map id \"{}\" is defined again; references use the first definition",
-                    m.id
-                ),
-            });
+            ctx.warn(
+                warnings,
+                &m.loc,
+                format!("texture map id \"{}\" is defined again; references use the first definition", m.id),
+            );
         } else {
             out.ids.insert(m.id.as_str(), out.maps.len() as u32);
         }
@@ -536,29 +538,20 @@ impl BuiltTextures<'_> {
                     }
                 }
                 DecalMode::ReplaceBackground => {
-                    warnings.push(Warning {
-                        file: ctx.rec.source.clone(),
-                        loc: loc.clone(),
-                        message: format!("texture {id} is a replace_background map; it applies to the background, not to this object"),
-                    });
+                    ctx.warn(warnings, loc, format!("texture {id} is a replace_background map; it applies to the background, not to this object"));
                     continue;
                 }
                 _ => t.colour.iter_mut().find(|c| c.is_none()),
             };
             match slot {
                 Some(slot) => *slot = Some(k),
-                None => warnings.push(Warning {
-                    file: ctx.rec.source.clone(),
-                    loc: loc.clone(),
-                    message: format!("texture {id}: an object takes one normal map and two colour maps; this one is ignored"),
-                }),
+                None => ctx.warn(warnings, loc, format!("texture {id}: an object takes one normal map and two colour maps; this one is ignored")),
             }
         }
         Ok(t)
     }
 }
 
-/// Builds the render scene. `resolver` supplies PLY files named by the scene.
 /// The scene's cameras, placed by their `Transformations` (§10.4) and checked (size limits, a
 /// valid frame), without loading any asset: what the farm server needs to name and size frames.
 pub fn build_cameras(rec: &SceneRecords) -> Result<Vec<Camera>, SceneError> {
@@ -573,6 +566,8 @@ fn transform_table(rec: &SceneRecords) -> HashMap<(char, &str), TransformOp> {
     rec.transformations.iter().map(|t| ((t.op.letter(), t.id.as_str()), t.op)).collect()
 }
 
+/// Step 2 (and all of [`build_cameras`]): the cameras, placed by their `Transformations`
+/// (§10.4) and checked: an image size within the limits, a valid camera frame.
 fn placed_cameras(
     ctx: &Ctx,
     transforms: &HashMap<(char, &str), TransformOp>,
@@ -607,25 +602,78 @@ fn placed_cameras(
     Ok(cameras)
 }
 
+/// Builds the render scene. `resolver` supplies the PLY files and images named by the scene.
+///
+/// The steps run in this order (each one's errors before the next one's): materials, cameras,
+/// lights, texture maps and their images, meshes (PLY files, mesh instances, normals, BVHs),
+/// then every object placed as an [`Instance`]. Warnings come out in that order too, after the
+/// parser's.
 pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<Scene, SceneError> {
     let started = Instant::now();
     let ctx = Ctx { rec, resolver };
     let mut warnings: Vec<Warning> = rec.warnings.clone();
 
-    // Materials.
+    let (materials, mat_ids) = build_materials(&ctx, &mut warnings);
+    let transforms = transform_table(rec);
+    let cameras = placed_cameras(&ctx, &transforms)?;
+    if cameras.is_empty() {
+        ctx.warn(&mut warnings, &Loc::default(), "the scene has no <Camera>; nothing will be rendered");
+    }
+    let lights = placed_lights(&ctx, &transforms)?;
+    let textures = build_textures(&ctx, &mut warnings)?;
+    let meshes = build_meshes(&ctx, &transforms, &mat_ids, &mut warnings)?;
+    let objects = Objects { ctx: &ctx, transforms: &transforms, mat_ids: &mat_ids, textures: &textures };
+    let (geoms, instances) = objects.place(meshes, &mut warnings)?;
+
+    let accel = Accel::new(geoms, instances);
+    let stats = SceneStats {
+        triangles: accel.instanced_triangle_count(),
+        instances: accel.instances.len(),
+        build_seconds: started.elapsed().as_secs_f64(),
+    };
+    if rec.json {
+        // The parser's warnings are in JSON words already; this makes the build's match them.
+        for w in &mut warnings {
+            w.message = json_words(&w.message);
+        }
+    }
+    Ok(Scene {
+        source: rec.source.clone(),
+        background: v3(rec.background_color),
+        shadow_ray_epsilon: rec.shadow_ray_epsilon,
+        intersection_test_epsilon: rec.intersection_test_epsilon,
+        max_recursion_depth: rec.max_recursion_depth.min(MAX_RECURSION_DEPTH_LIMIT),
+        cull_camera_back_faces: rec.json,
+        ambient_light: v3(rec.ambient_light),
+        area_lights: lights.area,
+        point_lights: lights.point,
+        directional_lights: lights.directional,
+        spot_lights: lights.spot,
+        env_light: textures.env_light,
+        materials,
+        cameras,
+        accel,
+        textures: textures.maps,
+        background_texture: textures.background,
+        warnings,
+        stats,
+    })
+}
+
+/// Step 1: the materials, by position, and how the scene's ids find them (a repeated id keeps
+/// its first definition, with a warning). `degamma` materials are linearised here (§6.6).
+fn build_materials<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> (Vec<Material>, HashMap<&'a str, u32>) {
+    let rec = ctx.rec;
     let mut mat_ids: HashMap<&str, u32> = HashMap::new();
     let mut materials = Vec::with_capacity(rec.materials.len());
     let degamma = degamma_exponent(rec);
     for m in &rec.materials {
         if mat_ids.contains_key(m.id.as_str()) {
-            warnings.push(Warning {
-                file: rec.source.clone(),
-                loc: m.loc.clone(),
-                message: format!(
-                    "material id \"{}\" is defined again; references use the first definition",
-                    m.id
-                ),
-            });
+            ctx.warn(
+                warnings,
+                &m.loc,
+                format!("material id \"{}\" is defined again; references use the first definition", m.id),
+            );
         }
         mat_ids.entry(m.id.as_str()).or_insert(materials.len() as u32);
         let lin = |c: Vec3| -> DVec3 {
@@ -648,44 +696,46 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
             roughness: m.roughness,
         });
     }
+    (materials, mat_ids)
+}
 
-    let transforms = transform_table(rec);
+/// The scene's point, area, directional and spot lights (the environment light is built with
+/// the textures, whose image it shares).
+struct Lights {
+    point: Vec<PointLight>,
+    area: Vec<AreaLight>,
+    directional: Vec<DirectionalLight>,
+    spot: Vec<SpotLight>,
+}
 
-    let cameras = placed_cameras(&ctx, &transforms)?;
-    if cameras.is_empty() {
-        warnings.push(Warning {
-            file: rec.source.clone(),
-            loc: Loc::default(),
-            message: "the scene has no <Camera>; nothing will be rendered".into(),
-        });
-    }
-
-    // Lights, each placed by its own Transformations (§10.4). An area light keeps its Size: the
-    // record is a square of side `size`, which a non-uniform scale could not keep square, and
-    // the course gives no rule for scaling it.
-    let mut point_lights = Vec::with_capacity(rec.point_lights.len());
+/// Step 3: the lights, each placed by its own Transformations (§10.4). An area light keeps its
+/// Size: the record is a square of side `size`, which a non-uniform scale could not keep square,
+/// and the course gives no rule for scaling it.
+fn placed_lights(ctx: &Ctx, transforms: &HashMap<(char, &str), TransformOp>) -> Result<Lights, SceneError> {
+    let rec = ctx.rec;
+    let mut point = Vec::with_capacity(rec.point_lights.len());
     for l in &rec.point_lights {
-        let placement = ctx.placement(&transforms, &l.transforms, &l.loc)?;
+        let placement = ctx.placement(transforms, &l.transforms, &l.loc)?;
         let position = placed_point(placement.as_ref(), l.position);
-        point_lights.push(PointLight { position, intensity: v3(l.intensity) });
+        point.push(PointLight { position, intensity: v3(l.intensity) });
     }
-    let mut area_lights = Vec::with_capacity(rec.area_lights.len());
+    let mut area = Vec::with_capacity(rec.area_lights.len());
     for l in &rec.area_lights {
-        let placement = ctx.placement(&transforms, &l.transforms, &l.loc)?;
+        let placement = ctx.placement(transforms, &l.transforms, &l.loc)?;
         let center = placed_point(placement.as_ref(), l.position);
         let normal = placed_normal(placement.as_ref(), l.normal);
-        area_lights.push(AreaLight::new(center, normal, l.size, v3(l.radiance)));
+        area.push(AreaLight::new(center, normal, l.size, v3(l.radiance)));
     }
-    let mut directional_lights = Vec::with_capacity(rec.directional_lights.len());
+    let mut directional = Vec::with_capacity(rec.directional_lights.len());
     for l in &rec.directional_lights {
-        let placement = ctx.placement(&transforms, &l.transforms, &l.loc)?;
+        let placement = ctx.placement(transforms, &l.transforms, &l.loc)?;
         let direction = placed_vector(placement.as_ref(), l.direction);
-        directional_lights.push(DirectionalLight::new(direction, v3(l.radiance)));
+        directional.push(DirectionalLight::new(direction, v3(l.radiance)));
     }
-    let mut spot_lights = Vec::with_capacity(rec.spot_lights.len());
+    let mut spot = Vec::with_capacity(rec.spot_lights.len());
     for l in &rec.spot_lights {
-        let placement = ctx.placement(&transforms, &l.transforms, &l.loc)?;
-        spot_lights.push(SpotLight::new(
+        let placement = ctx.placement(transforms, &l.transforms, &l.loc)?;
+        spot.push(SpotLight::new(
             placed_point(placement.as_ref(), l.position),
             placed_vector(placement.as_ref(), l.direction),
             v3(l.intensity),
@@ -693,10 +743,31 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
             l.falloff_angle,
         ));
     }
+    Ok(Lights { point, area, directional, spot })
+}
 
-    let textures = build_textures(&ctx, &mut warnings)?;
+/// The geometry of every Mesh record (by record position) and what instances them.
+struct Meshes {
+    geoms: Vec<Arc<MeshGeom>>,
+    /// Each Mesh record's own world transform.
+    world: Vec<DAffine3>,
+    /// Every MeshInstance record, resolved down to its Mesh.
+    instances: Vec<ResolvedInstance>,
+}
 
-    // PLY files, each read and parsed once even when several meshes name it; in parallel.
+/// Step 5: the meshes. PLY files are read and parsed once each even when several meshes name
+/// them, in parallel; mesh instances are resolved through their chains (a MeshInstance may name
+/// another MeshInstance as its base, as grass_desert and marching_dragons do) before any
+/// geometry is built, because a flat mesh needs vertex normals when a smooth instance shows it;
+/// then degenerate triangles are dropped, normals computed and BVHs built, in parallel (and
+/// obvhs parallelises each build).
+fn build_meshes(
+    ctx: &Ctx,
+    transforms: &HashMap<(char, &str), TransformOp>,
+    mat_ids: &HashMap<&str, u32>,
+    warnings: &mut Vec<Warning>,
+) -> Result<Meshes, SceneError> {
+    let rec = ctx.rec;
     let mut ply_paths: Vec<(&str, &Loc)> = Vec::new();
     for m in &rec.meshes {
         if let FacesRec::Ply { path } = &m.faces
@@ -706,29 +777,26 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         }
     }
     let ply_cache: HashMap<String, Result<Arc<MeshData>, SceneError>> =
-        ply_paths.par_iter().map(|(p, loc)| (p.to_string(), load_ply(&ctx, p, loc))).collect();
+        ply_paths.par_iter().map(|(p, loc)| (p.to_string(), load_ply(ctx, p, loc))).collect();
 
-    // Mesh instances, resolved through chains (a MeshInstance may name another MeshInstance as
-    // its base, as grass_desert and marching_dragons do), before any geometry is built.
-    let mesh_world: Vec<DAffine3> = rec
+    let world: Vec<DAffine3> = rec
         .meshes
         .iter()
-        .map(|m| ctx.transform(&transforms, &m.transforms, &m.loc))
+        .map(|m| ctx.transform(transforms, &m.transforms, &m.loc))
         .collect::<Result<_, _>>()?;
-    let resolved = resolve_instances(&ctx, &mat_ids, &transforms, &mesh_world)?;
+    let instances = resolve_instances(ctx, mat_ids, transforms, &world)?;
     // Which meshes need vertex normals: smooth themselves or smooth through an instance.
     let mut needs_smooth: Vec<bool> = rec.meshes.iter().map(|m| m.shading == ShadingMode::Smooth).collect();
-    for r in &resolved {
+    for r in &instances {
         needs_smooth[r.mesh] |= r.smooth;
     }
 
-    // Mesh geometry + BVHs, built in parallel (and obvhs parallelises each build).
-    let geoms: Vec<Result<(Arc<MeshGeom>, usize), SceneError>> = rec
+    let built: Vec<Result<(Arc<MeshGeom>, usize), SceneError>> = rec
         .meshes
         .par_iter()
         .enumerate()
         .map(|(i, m)| {
-            let data = load_mesh_data(&ctx, m, &ply_cache)?;
+            let data = load_mesh_data(ctx, m, &ply_cache)?;
             let mut indices = data.indices.clone();
             let dropped = drop_degenerate(&data.positions, &mut indices);
             let normals = if needs_smooth[i] {
@@ -744,60 +812,92 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
             Ok((Arc::new(geom), dropped))
         })
         .collect();
-    let mut meshes: Vec<Arc<MeshGeom>> = Vec::with_capacity(geoms.len());
-    for (g, m) in geoms.into_iter().zip(&rec.meshes) {
+    let mut geoms: Vec<Arc<MeshGeom>> = Vec::with_capacity(built.len());
+    for (g, m) in built.into_iter().zip(&rec.meshes) {
         let (geom, dropped) = g?;
         if dropped > 0 {
-            warnings.push(Warning {
-                file: rec.source.clone(),
-                loc: m.faces_loc.clone(),
-                message: format!("skipped {dropped} degenerate triangle(s)"),
-            });
+            ctx.warn(warnings, &m.faces_loc, format!("skipped {dropped} degenerate triangle(s)"));
         }
         if geom.triangle_count() == 0 {
-            warnings.push(Warning {
-                file: rec.source.clone(),
-                loc: m.loc.clone(),
-                message: "mesh has no triangles".into(),
+            ctx.warn(warnings, &m.loc, "mesh has no triangles");
+        }
+        geoms.push(geom);
+    }
+    Ok(Meshes { geoms, world, instances })
+}
+
+/// What step 6 reads: the id tables and the built texture maps.
+struct Objects<'c, 'a> {
+    ctx: &'c Ctx<'a>,
+    transforms: &'c HashMap<(char, &'a str), TransformOp>,
+    mat_ids: &'c HashMap<&'a str, u32>,
+    textures: &'c BuiltTextures<'a>,
+}
+
+impl Objects<'_, '_> {
+    /// Step 6: every object as an [`Instance`] with its material, transform, motion and texture
+    /// maps: meshes themselves, mesh instances, single triangles (each a one-triangle mesh of its
+    /// own, added to `meshes.geoms`), spheres and planes, in that order. Returns all the mesh
+    /// geometry and the instances.
+    fn place(
+        &self,
+        meshes: Meshes,
+        warnings: &mut Vec<Warning>,
+    ) -> Result<(Vec<Arc<MeshGeom>>, Vec<Instance>), SceneError> {
+        let (ctx, rec) = (self.ctx, self.ctx.rec);
+        let Meshes { mut geoms, world, instances: resolved } = meshes;
+        let mut instances = Vec::new();
+        let mut mesh_textures = Vec::with_capacity(rec.meshes.len());
+        for m in &rec.meshes {
+            mesh_textures.push(self.textures.for_object(ctx, &m.textures, &m.loc, warnings)?);
+        }
+        for (i, m) in rec.meshes.iter().enumerate() {
+            let material = ctx.material(self.mat_ids, &m.material, &m.loc)?;
+            if uses_image(&self.textures.maps, &mesh_textures[i]) && geoms[i].uvs.is_none() {
+                ctx.warn(warnings, &m.loc, "an image texture is applied but the mesh has no texture coordinates (TexCoordData or PLY u v); it is sampled at the barycentric coordinates");
+            }
+            instances.push(Instance {
+                shape: Shape::Mesh { mesh: i as u32, smooth: m.shading == ShadingMode::Smooth },
+                material,
+                transform: ctx.make_transform(world[i], &m.loc)?,
+                motion: motion(m.motion_blur),
+                textures: mesh_textures[i],
             });
         }
-        meshes.push(geom);
+        for (r, inst) in resolved.iter().zip(&rec.instances) {
+            instances.push(Instance {
+                shape: Shape::Mesh { mesh: r.mesh as u32, smooth: r.smooth },
+                material: r.material,
+                transform: ctx.make_transform(r.world, &inst.loc)?,
+                motion: motion(inst.motion_blur),
+                textures: mesh_textures[r.mesh],
+            });
+        }
+        for t in &rec.triangles {
+            if let Some((geom, instance)) = self.triangle(t, geoms.len() as u32, warnings)? {
+                geoms.push(geom);
+                instances.push(instance);
+            }
+        }
+        for s in &rec.spheres {
+            instances.push(self.sphere(s, warnings)?);
+        }
+        for p in &rec.planes {
+            instances.push(self.plane(p, warnings)?);
+        }
+        Ok((geoms, instances))
     }
 
-    // Instances: meshes themselves, mesh instances, single triangles, spheres.
-    let mut instances = Vec::new();
-    let mut mesh_textures = Vec::with_capacity(rec.meshes.len());
-    for m in &rec.meshes {
-        mesh_textures.push(textures.for_object(&ctx, &m.textures, &m.loc, &mut warnings)?);
-    }
-    for (i, m) in rec.meshes.iter().enumerate() {
-        let material = ctx.material(&mat_ids, &m.material, &m.loc)?;
-        if uses_image(&textures.maps, &mesh_textures[i]) && meshes[i].uvs.is_none() {
-            warnings.push(Warning {
-                file: rec.source.clone(),
-                loc: m.loc.clone(),
-                message: "an image texture is applied but the mesh has no texture coordinates (TexCoordData or PLY u v); it is sampled at the barycentric coordinates".into(),
-            });
-        }
-        instances.push(Instance {
-            shape: Shape::Mesh { mesh: i as u32, smooth: m.shading == ShadingMode::Smooth },
-            material,
-            transform: ctx.make_transform(mesh_world[i], &m.loc)?,
-            motion: m.motion_blur.map(v3).filter(|v| *v != DVec3::ZERO),
-            textures: mesh_textures[i],
-        });
-    }
-    for (r, inst) in resolved.iter().zip(&rec.instances) {
-        instances.push(Instance {
-            shape: Shape::Mesh { mesh: r.mesh as u32, smooth: r.smooth },
-            material: r.material,
-            transform: ctx.make_transform(r.world, &inst.loc)?,
-            motion: inst.motion_blur.map(v3).filter(|v| *v != DVec3::ZERO),
-            textures: mesh_textures[r.mesh],
-        });
-    }
-    for t in &rec.triangles {
-        let material = ctx.material(&mat_ids, &t.material, &t.loc)?;
+    /// A `<Triangle>` as a one-triangle mesh (the mesh index `mesh` in the scene) and its
+    /// instance; `None` (with a warning) when it is degenerate.
+    fn triangle(
+        &self,
+        t: &TriangleRec,
+        mesh: u32,
+        warnings: &mut Vec<Warning>,
+    ) -> Result<Option<(Arc<MeshGeom>, Instance)>, SceneError> {
+        let (ctx, rec) = (self.ctx, self.ctx.rec);
+        let material = ctx.material(self.mat_ids, &t.material, &t.loc)?;
         let mut ids = [0u32; 3];
         for (id, &index) in ids.iter_mut().zip(&t.indices) {
             *id = ctx.vertex(index, &t.loc, "<Indices>")?;
@@ -805,102 +905,69 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         let positions: Vec<DVec3> = ids.iter().map(|&g| v3(rec.vertices[g as usize])).collect();
         let mut indices = vec![[0, 1, 2]];
         if drop_degenerate(&positions, &mut indices) > 0 {
-            warnings.push(Warning {
-                file: rec.source.clone(),
-                loc: t.loc.clone(),
-                message: "degenerate triangle skipped".into(),
-            });
-            continue;
+            ctx.warn(warnings, &t.loc, "degenerate triangle skipped");
+            return Ok(None);
         }
-        let world = ctx.transform(&transforms, &t.transforms, &t.loc)?;
+        let world = ctx.transform(self.transforms, &t.transforms, &t.loc)?;
         // Texture coordinates are parallel to the vertex list (§8.2).
         let uvs = ids
             .iter()
             .map(|&g| rec.tex_coords.get(g as usize).map(|t| DVec2::from_array(*t)))
             .collect::<Option<Vec<_>>>();
-        let object_textures = textures.for_object(&ctx, &t.textures, &t.loc, &mut warnings)?;
-        if uvs.is_none() && uses_image(&textures.maps, &object_textures) {
-            warnings.push(Warning {
-                file: rec.source.clone(),
-                loc: t.loc.clone(),
-                message: "an image texture is applied but <TexCoordData> has no entry for its vertices; it is sampled at the barycentric coordinates".into(),
-            });
+        let object_textures = self.textures.for_object(ctx, &t.textures, &t.loc, warnings)?;
+        if uvs.is_none() && uses_image(&self.textures.maps, &object_textures) {
+            ctx.warn(warnings, &t.loc, "an image texture is applied but <TexCoordData> has no entry for its vertices; it is sampled at the barycentric coordinates");
         }
-        meshes.push(Arc::new(MeshGeom::with_uvs(positions, indices, None, uvs)));
-        instances.push(Instance {
-            shape: Shape::Mesh { mesh: (meshes.len() - 1) as u32, smooth: false },
+        let geom = Arc::new(MeshGeom::with_uvs(positions, indices, None, uvs));
+        let instance = Instance {
+            shape: Shape::Mesh { mesh, smooth: false },
             material,
             transform: ctx.make_transform(world, &t.loc)?,
             motion: None,
             textures: object_textures,
-        });
+        };
+        Ok(Some((geom, instance)))
     }
-    for s in &rec.spheres {
-        let material = ctx.material(&mat_ids, &s.material, &s.loc)?;
+
+    fn sphere(&self, s: &SphereRec, warnings: &mut Vec<Warning>) -> Result<Instance, SceneError> {
+        let (ctx, rec) = (self.ctx, self.ctx.rec);
+        let material = ctx.material(self.mat_ids, &s.material, &s.loc)?;
         let c = ctx.vertex(s.center, &s.loc, "<Center>")?;
         if !(s.radius > 0.0 && s.radius.is_finite()) {
             return Err(ctx.err(&s.loc, format!("<Radius> must be a positive number, found {}", s.radius)));
         }
-        let world = ctx.transform(&transforms, &s.transforms, &s.loc)?;
-        instances.push(Instance {
+        let world = ctx.transform(self.transforms, &s.transforms, &s.loc)?;
+        Ok(Instance {
             shape: Shape::Sphere { center: v3(rec.vertices[c as usize]), radius: s.radius },
             material,
             transform: ctx.make_transform(world, &s.loc)?,
-            motion: s.motion_blur.map(v3).filter(|v| *v != DVec3::ZERO),
-            textures: textures.for_object(&ctx, &s.textures, &s.loc, &mut warnings)?,
-        });
+            motion: motion(s.motion_blur),
+            textures: self.textures.for_object(ctx, &s.textures, &s.loc, warnings)?,
+        })
     }
 
-    for p in &rec.planes {
-        let material = ctx.material(&mat_ids, &p.material, &p.loc)?;
+    fn plane(&self, p: &PlaneRec, warnings: &mut Vec<Warning>) -> Result<Instance, SceneError> {
+        let (ctx, rec) = (self.ctx, self.ctx.rec);
+        let material = ctx.material(self.mat_ids, &p.material, &p.loc)?;
         let point = ctx.vertex(p.point, &p.loc, "<Point>")?;
         let normal = v3(p.normal).normalize_or_zero();
         if normal == DVec3::ZERO || !normal.is_finite() {
             return Err(ctx.err(&p.loc, "<Normal> must be a non-zero direction"));
         }
-        let world = ctx.transform(&transforms, &p.transforms, &p.loc)?;
-        instances.push(Instance {
+        let world = ctx.transform(self.transforms, &p.transforms, &p.loc)?;
+        Ok(Instance {
             shape: Shape::Plane { point: v3(rec.vertices[point as usize]), normal },
             material,
             transform: ctx.make_transform(world, &p.loc)?,
-            motion: p.motion_blur.map(v3).filter(|v| *v != DVec3::ZERO),
-            textures: textures.for_object(&ctx, &p.textures, &p.loc, &mut warnings)?,
-        });
+            motion: motion(p.motion_blur),
+            textures: self.textures.for_object(ctx, &p.textures, &p.loc, warnings)?,
+        })
     }
+}
 
-    let accel = Accel::new(meshes, instances);
-    let stats = SceneStats {
-        triangles: accel.instanced_triangle_count(),
-        instances: accel.instances.len(),
-        build_seconds: started.elapsed().as_secs_f64(),
-    };
-    if rec.json {
-        // The parser's warnings are in JSON words already; this makes the build's match them.
-        for w in &mut warnings {
-            w.message = super::json::json_words(&w.message);
-        }
-    }
-    Ok(Scene {
-        source: rec.source.clone(),
-        background: v3(rec.background_color),
-        shadow_ray_epsilon: rec.shadow_ray_epsilon,
-        intersection_test_epsilon: rec.intersection_test_epsilon,
-        max_recursion_depth: rec.max_recursion_depth.min(super::records::MAX_RECURSION_DEPTH_LIMIT),
-        cull_camera_back_faces: rec.json,
-        ambient_light: v3(rec.ambient_light),
-        area_lights,
-        point_lights,
-        directional_lights,
-        spot_lights,
-        env_light: textures.env_light,
-        materials,
-        cameras,
-        accel,
-        textures: textures.maps,
-        background_texture: textures.background,
-        warnings,
-        stats,
-    })
+/// An object's `<MotionBlur>` velocity; none when absent or zero.
+fn motion(motion_blur: Option<Vec3>) -> Option<DVec3> {
+    motion_blur.map(v3).filter(|v| *v != DVec3::ZERO)
 }
 
 #[cfg(test)]

@@ -1,9 +1,10 @@
-//! JSON front end: the 2025 CENG795 dialect (scene-format.md §14), a mechanical XML→JSON
-//! encoding of the same element tree.
+//! JSON front end: the 2025 CENG795 dialect (scene-format.md §14) into the shared element tree.
 //!
-//! The JSON text is turned into the very [`Node`] tree the XML front end builds, and then walked
-//! by the same [`xml::parse_tree`], so every element rule, default, warning and error is shared
-//! and a JSON scene gives exactly the records of its XML twin. The mapping (§14.1):
+//! The dialect is a mechanical XML→JSON encoding of the same element tree.
+//!
+//! The JSON text is turned into the very `Node` tree the XML front end builds, and then walked
+//! by the same `parse_tree` (module [`super::tree`]), so every element rule, default, warning
+//! and error is shared and a JSON scene gives exactly the records of its XML twin. The mapping (§14.1):
 //!
 //! - the root is an object with the single key `"Scene"`;
 //! - a key is an element; a string (or, leniently, a number or boolean) is its text;
@@ -20,22 +21,17 @@
 //! `Scene.Objects.Mesh[3].Faces` (array indices 0-based), so an error reads
 //! `scene.json:42: <Scene.Objects.Mesh[3]>: …`. No input makes this module panic.
 //!
-//! One default differs from XML files: [`DEFAULT_MAX_RECURSION_DEPTH`].
+//! One default differs from XML files:
+//! [`DEFAULT_MAX_RECURSION_DEPTH`](super::tree::DEFAULT_MAX_RECURSION_DEPTH), applied by the
+//! walk; messages use JSON words (`Dialect::Json`).
 
 use std::path::Path;
 
 use super::records::SceneRecords;
-use super::xml::{self, Dialect, Node};
+use super::tree::{Dialect, Node, parse_tree};
 use crate::error::{Loc, SceneError};
 
 type Result<T> = std::result::Result<T, SceneError>;
-
-/// `MaxRecursionDepth` of a JSON scene that does not give one. The course parser's default is
-/// 0 (§3) and the 2022 references follow it, but the 2025 references do not: bunny_with_plane
-/// (mirror floor and wall, no MaxRecursionDepth) is 17.6 dB (PSNR after the 4x4 box) from its
-/// reference with 0 and 52.3 dB with any depth from 2 up (1: 52.0 dB). 6 is what 30 of the 34
-/// shipped JSON scenes that give a depth give.
-pub const DEFAULT_MAX_RECURSION_DEPTH: u32 = 6;
 
 /// Parses a scene file of the 2025 JSON dialect into plain records (the same records the XML
 /// front end gives for the same scene).
@@ -54,7 +50,7 @@ pub fn parse_json(text: &str, source: &Path) -> Result<SceneRecords> {
     let mut scanner = Scanner { text, bytes: text.as_bytes(), pos: 0, line: 1, file: source, depth: 0 };
     let root = scanner.value()?;
     let root = scene_node(root, source)?;
-    xml::parse_tree(&root, source, Dialect::Json)
+    parse_tree(&root, source, Dialect::Json)
 }
 
 fn syntax_error(e: &serde_json::Error, file: &Path) -> SceneError {
@@ -73,59 +69,6 @@ fn syntax_error(e: &serde_json::Error, file: &Path) -> SceneError {
         Loc { line: Some(line), element: None },
         format!("malformed JSON: {e}. Hint: {hint}"),
     )
-}
-
-/// Rewrites a message of the shared element rules in JSON words: `<Faces>` → `"Faces"`,
-/// `attribute id` → `key "_id"`.
-/// ` key="value">` at the start of `s`: (key, value, what follows the `>`).
-fn one_attribute(s: &str) -> Option<(&str, &str, &str)> {
-    let s = s.strip_prefix(' ')?;
-    let (key, s) = s.split_once("=\"")?;
-    if key.is_empty() || !key.bytes().all(|b| b.is_ascii_alphanumeric()) {
-        return None;
-    }
-    let (value, s) = s.split_once('"')?;
-    let tail = s.strip_prefix('>')?;
-    (!value.contains(['<', '>'])).then_some((key, value, tail))
-}
-
-pub(super) fn json_words(message: &str) -> String {
-    let mut out = String::with_capacity(message.len() + 8);
-    let mut rest = message;
-    while !rest.is_empty() {
-        if let Some(after) = rest.strip_prefix('<') {
-            let name_len = after.bytes().take_while(|b| b.is_ascii_alphanumeric()).count();
-            if name_len > 0 && after.as_bytes().get(name_len) == Some(&b'>') {
-                out.push('"');
-                out.push_str(&after[..name_len]);
-                out.push('"');
-                rest = &after[name_len + 1..];
-                continue;
-            }
-            // `<Name key="value">` (what to add, in build messages): `"Name" with "_key": "value"`.
-            if let Some((key, value, tail)) = one_attribute(&after[name_len..]).filter(|_| name_len > 0) {
-                out.push_str(&format!("\"{}\" with \"_{key}\": \"{value}\"", &after[..name_len]));
-                rest = tail;
-                continue;
-            }
-        }
-        if let Some(after) = rest.strip_prefix("attribute ") {
-            let name_len = after.bytes().take_while(|b| b.is_ascii_alphanumeric()).count();
-            if name_len > 0 {
-                out.push_str("key \"_");
-                out.push_str(&after[..name_len]);
-                out.push('"');
-                rest = &after[name_len..];
-                continue;
-            }
-        }
-        let mut chars = rest.chars();
-        if let Some(c) = chars.next() {
-            out.push(c);
-        }
-        rest = chars.as_str();
-    }
-    out
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -451,6 +394,8 @@ fn element(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scene::tree::DEFAULT_MAX_RECURSION_DEPTH;
+    use crate::scene::xml;
 
     const FILE: &str = "scene.json";
 
@@ -468,26 +413,6 @@ mod tests {
     const CAMERA: &str = r#""Cameras": {"Camera": {"_id": "1", "Position": "0 0 0", "Gaze": "0 0 -1",
         "Up": "0 1 0", "NearPlane": "-1 1 -1 1", "NearDistance": "1", "ImageResolution": "8 8",
         "ImageName": "a.png"}}"#;
-
-    #[test]
-    fn words_are_translated_to_json() {
-        assert_eq!(json_words("missing <Faces>"), "missing \"Faces\"");
-        assert_eq!(
-            json_words("attribute type must be latlong or probe"),
-            "key \"_type\" must be latlong or probe"
-        );
-        assert_eq!(json_words("a < b and <x y>"), "a < b and <x y>");
-        assert_eq!(json_words("ünïcode <Ä>"), "ünïcode <Ä>");
-        assert_eq!(
-            json_words(r#"add <Material id="7"> under <Materials> or use an existing id"#),
-            r#"add "Material" with "_id": "7" under "Materials" or use an existing id"#
-        );
-        // Not one plain attribute: left as written.
-        assert_eq!(
-            json_words(r#"<A b="1" c="2">, <A b=1>, <A b="1""#),
-            r#"<A b="1" c="2">, <A b=1>, <A b="1""#
-        );
-    }
 
     #[test]
     fn objects_arrays_attributes_data_and_null() {

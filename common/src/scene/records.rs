@@ -141,9 +141,9 @@ pub struct CameraRec {
 pub struct TonemapRec {
     pub loc: Loc,
     /// `<TMO>`: Photographic (default), or the 2025 Filmic / ACES.
-    pub operator: crate::tonemap::Operator,
+    pub operator: crate::tonemap::params::Operator,
     /// `TMOOptions`, `Saturation`, `Gamma`: used by every operator.
-    pub params: crate::tonemap::Photographic,
+    pub params: crate::tonemap::params::Photographic,
     /// [JSON 2025] the PNG's name suffix replacing `.exr` (e.g. `_phot.png`); `None`: `.png`.
     pub extension: Option<String>,
 }

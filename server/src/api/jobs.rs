@@ -11,12 +11,12 @@ use tessera::protocol::*;
 use super::{ApiResult, AppError, AppState};
 use crate::merge;
 
-fn tone_params(p: &tessera::tonemap::Photographic) -> ToneParams {
+fn tone_params(p: &tessera::tonemap::params::Photographic) -> ToneParams {
     ToneParams { key: p.key, burn: p.burn_percent, saturation: p.saturation, gamma: p.gamma.to_string() }
 }
 
 /// The parameters a camera's HDR output is tone-mapped with, if it is HDR.
-fn camera_tonemap(cam: &Camera) -> Option<tessera::tonemap::Photographic> {
+fn camera_tonemap(cam: &Camera) -> Option<tessera::tonemap::params::Photographic> {
     merge::display_tonemap(cam).map(|(_, p)| p)
 }
 
@@ -226,12 +226,12 @@ pub(super) async fn frame_tonemap(
     let (operator, base) = cameras
         .get(f.camera as usize)
         .and_then(merge::display_tonemap)
-        .unwrap_or((tessera::tonemap::Operator::Photographic, Default::default()));
+        .unwrap_or((tessera::tonemap::params::Operator::Photographic, Default::default()));
     let gamma = match q.gamma.as_deref() {
         Some(g) => g.parse().map_err(AppError::bad_request)?,
         None => base.gamma,
     };
-    let params = tessera::tonemap::Photographic {
+    let params = tessera::tonemap::params::Photographic {
         key: q.key.unwrap_or(base.key),
         burn_percent: q.burn.unwrap_or(base.burn_percent),
         saturation: q.saturation.unwrap_or(base.saturation),

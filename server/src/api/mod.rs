@@ -28,7 +28,7 @@ use axum::routing::{get, post, put};
 use axum::{Json, Router};
 use tessera::camera::Camera;
 use tessera::protocol::*;
-use tessera::scene::parse_scene;
+use tessera::scene::load::parse_scene;
 
 use crate::bundle::{self, BlobStore};
 use crate::db::Store;

@@ -12,7 +12,7 @@ use tessera::assets::MemResolver;
 use tessera::camera::Camera;
 use tessera::protocol::*;
 use tessera::scene::build::build_scene;
-use tessera::scene::parse_scene;
+use tessera::scene::load::parse_scene;
 
 use super::jobs::job_info;
 use super::{ApiResult, AppError, AppState, Settings};
@@ -411,7 +411,7 @@ fn validate(
                 height: cam.height,
                 tiles: tessera::render::tiles(cam.width, cam.height, tile_size)
                     .into_iter()
-                    .map(|r| Rect { x0: r.x0, y0: r.y0, width: r.width, height: r.height })
+                    .map(Rect::from)
                     .collect(),
             }
         })
