@@ -1,7 +1,8 @@
-//! Where scene assets (PLY files, later images) come from.
+//! Where scene assets (PLY models, texture and environment images) come from.
 //!
 //! `common` never decides on its own where bytes live: the CLI reads the file system next to the
-//! scene, the farm worker reads an uploaded bundle. Both implement [`AssetResolver`].
+//! scene ([`FsResolver`]); the server's validation and the farm worker read an uploaded bundle
+//! ([`MemResolver`]). Both implement [`AssetResolver`].
 
 use std::io;
 use std::path::{Component, Path, PathBuf};

@@ -70,10 +70,6 @@ impl Transform {
     pub fn normal_to_world(&self, n: DVec3) -> DVec3 {
         (self.normal_matrix * n).normalize()
     }
-
-    pub fn is_identity(&self) -> bool {
-        self.to_world == DAffine3::IDENTITY
-    }
 }
 
 /// Mirror direction of `d` about the unit normal `n`.

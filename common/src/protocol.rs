@@ -267,6 +267,44 @@ pub struct JobList {
     pub jobs: Vec<JobInfo>,
 }
 
+/// Query of `GET /api/v1/jobs/ID/frames/F/tonemap.png`: any parameter left out takes the
+/// camera's value (`gamma`: a number or "sRGB").
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ToneQuery {
+    pub key: Option<f64>,
+    pub burn: Option<f64>,
+    pub saturation: Option<f64>,
+    pub gamma: Option<String>,
+}
+
+/// The tile a worker is rendering, as the workers list shows it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WorkerTile {
+    pub job: u64,
+    pub frame: u32,
+    pub tile: u32,
+}
+
+/// One registered worker in `GET /api/v1/workers`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WorkerInfo {
+    pub id: u64,
+    pub name: String,
+    pub threads: u32,
+    /// `idle`, `rendering` or `lost` (silent for longer than three heartbeats).
+    pub state: String,
+    pub current_tile: Option<WorkerTile>,
+    /// Unix seconds.
+    pub last_heartbeat: f64,
+    pub tiles_done: u64,
+    pub failures: u64,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WorkerList {
+    pub workers: Vec<WorkerInfo>,
+}
+
 /// A tile's pixels on the wire: width·height RGB triples of little-endian `f32`, row-major.
 pub fn encode_tile(px: &[[f32; 3]]) -> Vec<u8> {
     let mut out = Vec::with_capacity(px.len() * 12);

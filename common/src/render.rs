@@ -1,4 +1,4 @@
-//! Tile rendering: the unit of work for the CLI (rayon over tiles) and, later, for farm workers.
+//! Tile rendering: the unit of work of the farm (one tile per lease) and of the CLI (rayon over tiles).
 //!
 //! Invariant: a pixel's value depends only on (scene, camera, pixel, seed). Tiles share nothing
 //! mutable, samples draw from a [`Sampler`] keyed by pixel and sample index, and samples are

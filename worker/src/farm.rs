@@ -1,7 +1,7 @@
 //! `tessera-worker work`: pulls tiles from a `tessera-server` and renders them
 //! (the worker side of `tessera::protocol`).
 //!
-//! Three threads share the work:
+//! Five threads share the work:
 //! - the **fetcher** long-polls for the next lease and hands it over through a channel of one,
 //!   so while a tile renders the next one is already here and the cores never wait on the
 //!   network;
@@ -16,7 +16,10 @@
 //!   scene once per bundle (cached by its hash), renders the tile with the same
 //!   `render_tile` as `tessera-worker render` (same bits), and uploads it with a checksum.
 //!   A tile that is still rendering after the lease's `max_render_seconds` (the server's
-//!   `--max-tile-seconds`) is stopped and reported failed with a message naming that limit.
+//!   `--max-tile-seconds`) is stopped and reported failed with a message naming that limit;
+//! - the **uploader** sends each finished tile while the main thread renders the next one;
+//! - and, for a local worker of `tessera-server` (`--exit-with-parent`), a **parent-watch**
+//!   thread that ends the process when its parent is gone.
 //!
 //! **Stopping.** SIGTERM or Ctrl-C (SIGINT) sets a flag: the worker takes no new lease, finishes
 //! and uploads the tile it is rendering, gives back (`.../release`) the lease it fetched ahead and

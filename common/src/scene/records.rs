@@ -1,7 +1,7 @@
 //! Plain scene records: what a scene file *says*, before anything is built from it.
 //!
-//! The XML front end (and later the 2025 JSON front end) produce exactly these types; everything
-//! after parsing (id resolution, PLY loading, BVH building) reads only these. They carry no XML
+//! The XML and 2025 JSON front ends produce exactly these types; everything after parsing (id
+//! resolution, PLY and image loading, BVH building) reads only these. They carry no XML
 //! and no render structures, and each record keeps the [`Loc`] of the element it came from so
 //! that the build step can report errors precisely.
 //!

@@ -197,15 +197,6 @@ fn stored_exr(state: &AppState, f: &crate::db::FrameRow) -> Option<std::path::Pa
     Some(state.frame_dir(f.job_id, f.index).join(name))
 }
 
-/// Query of `tonemap.png`: any parameter left out takes the camera's value.
-#[derive(serde::Deserialize)]
-pub(super) struct ToneQuery {
-    key: Option<f64>,
-    burn: Option<f64>,
-    saturation: Option<f64>,
-    gamma: Option<String>,
-}
-
 /// A finished frame's float image tone-mapped again with other parameters, without rendering:
 /// `GET /api/v1/jobs/ID/frames/F/tonemap.png?key=0.3&burn=2&saturation=1&gamma=2.2`.
 pub(super) async fn frame_tonemap(

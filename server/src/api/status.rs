@@ -5,45 +5,28 @@ use axum::Json;
 use axum::extract::State;
 use axum::response::{IntoResponse, Response};
 
+use tessera::protocol::{WorkerInfo, WorkerList, WorkerTile};
+
 use super::{ApiResult, AppState};
 
-#[derive(serde::Serialize)]
-struct WorkerInfo {
-    id: u64,
-    name: String,
-    threads: u32,
-    state: &'static str,
-    current_tile: Option<CurrentTile>,
-    last_heartbeat: f64,
-    tiles_done: u64,
-    failures: u64,
-}
-
-#[derive(serde::Serialize)]
-struct CurrentTile {
-    job: u64,
-    frame: u32,
-    tile: u32,
-}
-
-pub(super) async fn list_workers(State(state): State<AppState>) -> ApiResult<Json<serde_json::Value>> {
+pub(super) async fn list_workers(State(state): State<AppState>) -> ApiResult<Json<WorkerList>> {
     let t = crate::db::now();
     let workers: Vec<WorkerInfo> = state
         .store
         .workers()?
         .into_iter()
         .map(|w| WorkerInfo {
-            state: state.scheduler.worker_state(&w, t).as_str(),
+            state: state.scheduler.worker_state(&w, t).as_str().to_string(),
             id: w.id,
             name: w.name,
             threads: w.threads,
-            current_tile: w.current_tile.map(|(job, frame, tile)| CurrentTile { job, frame, tile }),
+            current_tile: w.current_tile.map(|(job, frame, tile)| WorkerTile { job, frame, tile }),
             last_heartbeat: w.last_seen,
             tiles_done: w.tiles_done,
             failures: w.failures,
         })
         .collect();
-    Ok(Json(serde_json::json!({ "workers": workers })))
+    Ok(Json(WorkerList { workers }))
 }
 
 /// Server-sent events for the status page: every [`tessera::protocol::ServerEvent`] as it happens.
