@@ -454,8 +454,7 @@ mod tests {
     /// blob holds its bytes, and no temporary file is left behind.
     #[test]
     fn concurrent_puts_of_equal_and_different_bytes_all_succeed() {
-        let dir = std::env::temp_dir().join(format!("tessera-blobs-race-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
+        let dir = tessera_testkit::TempDir::new("blobs-race");
         let store = BlobStore::new(&dir).unwrap();
         let threads: Vec<_> = (0..64)
             .map(|i| {
@@ -476,7 +475,6 @@ mod tests {
             .collect();
         assert_eq!(names.len(), 17, "{names:?}");
         assert!(names.iter().all(|n| n.ends_with(".tar") && !n.starts_with('.')), "{names:?}");
-        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]
