@@ -13,12 +13,14 @@
 //!   [`TextureImage::decode`](crate::texture::image::TextureImage::decode), the same decoder the
 //!   textures use; the first two also insist that the file *is* the format their name says.
 //!
-//! Every error names the file ([`HdrError`]).
+//! Every file is encoded in memory and then written in place with
+//! [`write_atomic`](crate::atomic_write::write_atomic): never half a file under its name. Every
+//! error names the file ([`HdrError`]).
 
-use std::fs::File;
-use std::io::{BufWriter, Write};
+use std::io::Cursor;
 use std::path::{Path, PathBuf};
 
+use crate::atomic_write::{WriteError, WriteStep, write_atomic};
 use crate::image::Image;
 use crate::texture::image::TextureImage;
 
@@ -94,21 +96,13 @@ pub fn write_exr(path: &Path, img: &Image) -> Result<(), HdrError> {
         Encoding::SMALL_LOSSLESS,
         channels,
     );
-    let file = File::create(path).map_err(|error| HdrError::Io {
-        path: path.to_owned(),
-        action: "cannot create",
-        error,
-    })?;
-    let mut out = BufWriter::new(file);
-    exr::prelude::Image::from_layer(layer).write().non_parallel().to_buffered(&mut out).map_err(
-        |e| match e {
-            exr::error::Error::Io(error) => {
-                HdrError::Io { path: path.to_owned(), action: "cannot write", error }
-            }
-            other => HdrError::Encode { path: path.to_owned(), message: format!("OpenEXR encoder: {other}") },
-        },
-    )?;
-    out.flush().map_err(|error| HdrError::Io { path: path.to_owned(), action: "cannot write", error })
+    let mut out = Cursor::new(Vec::new());
+    exr::prelude::Image::from_layer(layer)
+        .write()
+        .non_parallel()
+        .to_buffered(&mut out)
+        .map_err(|e| HdrError::Encode { path: path.to_owned(), message: format!("OpenEXR encoder: {e}") })?;
+    write_atomic(path, out.get_ref()).map_err(|e| written(e, "cannot create"))
 }
 
 /// Writes `img` as a Radiance `.hdr` (RGBE, run-length encoded scanlines, `-Y H +X W`).
@@ -130,42 +124,43 @@ pub fn write_hdr(path: &Path, img: &Image) -> Result<(), HdrError> {
             if c[0].max(c[1]).max(c[2]) < f32::MIN_POSITIVE { Rgb([0.0; 3]) } else { Rgb(c) }
         })
         .collect();
-    let file = File::create(path).map_err(|error| HdrError::Io {
-        path: path.to_owned(),
-        action: "cannot create",
-        error,
+    let mut out = Vec::new();
+    HdrEncoder::new(&mut out).encode(&rgb, img.width as usize, img.height as usize).map_err(|e| {
+        HdrError::Encode { path: path.to_owned(), message: format!("Radiance HDR encoder: {e}") }
     })?;
-    let mut out = BufWriter::new(file);
-    HdrEncoder::new(&mut out).encode(&rgb, img.width as usize, img.height as usize).map_err(|e| match e {
-        ::image::ImageError::IoError(error) => {
-            HdrError::Io { path: path.to_owned(), action: "cannot write", error }
-        }
-        other => {
-            HdrError::Encode { path: path.to_owned(), message: format!("Radiance HDR encoder: {other}") }
-        }
-    })?;
-    out.flush().map_err(|error| HdrError::Io { path: path.to_owned(), action: "cannot write", error })
+    write_atomic(path, &out).map_err(|e| written(e, "cannot create"))
 }
 
 /// Writes 8-bit RGB bytes (`width * height * 3`, row-major from the top-left pixel; e.g. the
-/// output of [`crate::tonemap::tonemap`]) as a PNG, whatever the file name's extension.
+/// output of [`crate::tonemap::tonemap`]) as a PNG ([`encode_png_rgb8`]), whatever the file
+/// name's extension.
 pub fn write_png_rgb8(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<(), HdrError> {
+    let png = encode_png_rgb8(width, height, rgb)
+        .map_err(|message| HdrError::Encode { path: path.to_owned(), message })?;
+    // A PNG that cannot be created is reported as "cannot write", as it always was.
+    write_atomic(path, &png).map_err(|e| written(e, "cannot write"))
+}
+
+/// 8-bit RGB bytes (`width * height * 3`, row-major from the top-left pixel) as a PNG file in
+/// memory: what [`write_png_rgb8`] writes, and what the farm serves as previews. The error says
+/// why the bytes are not an image.
+pub fn encode_png_rgb8(width: u32, height: u32, rgb: &[u8]) -> Result<Vec<u8>, String> {
     let expected = width as u64 * height as u64 * 3;
     if width == 0 || height == 0 || rgb.len() as u64 != expected {
-        return Err(HdrError::Encode {
-            path: path.to_owned(),
-            message: format!("{} bytes do not make a {width}x{height} RGB image", rgb.len()),
-        });
+        return Err(format!("{} bytes do not make a {width}x{height} RGB image", rgb.len()));
     }
-    let png = ::image::ImageFormat::Png;
-    ::image::save_buffer_with_format(path, rgb, width, height, ::image::ExtendedColorType::Rgb8, png).map_err(
-        |e| match e {
-            ::image::ImageError::IoError(error) => {
-                HdrError::Io { path: path.to_owned(), action: "cannot write", error }
-            }
-            other => HdrError::Encode { path: path.to_owned(), message: format!("PNG encoder: {other}") },
-        },
-    )
+    let mut out = Cursor::new(Vec::new());
+    let (png, rgb8) = (::image::ImageFormat::Png, ::image::ExtendedColorType::Rgb8);
+    ::image::write_buffer_with_format(&mut out, rgb, width, height, rgb8, png)
+        .map_err(|e| format!("PNG encoder: {e}"))?;
+    Ok(out.into_inner())
+}
+
+/// A failed [`write_atomic`] as an [`HdrError::Io`]: `create` names a file that could not be
+/// created, every other step is "cannot write".
+fn written(e: WriteError, create: &'static str) -> HdrError {
+    let action = if e.step == WriteStep::Create { create } else { "cannot write" };
+    HdrError::Io { path: e.path, action, error: e.error }
 }
 
 fn read_bytes(path: &Path) -> Result<Vec<u8>, HdrError> {

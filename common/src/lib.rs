@@ -13,6 +13,7 @@
 //! "Layers"; checked by `tests/layers.rs`).
 
 pub mod assets;
+pub mod atomic_write;
 pub mod camera;
 pub mod error;
 pub mod geometry;

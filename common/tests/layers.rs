@@ -26,6 +26,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "math",
             "sampler",
             "assets",
+            "atomic_write",
             "ply",
             "tonemap::params",
             "texture::image",

@@ -5,7 +5,8 @@
 //! paths that would leave the bundle. [`canonical_tar`] writes that map as a tar with sorted
 //! entries and fixed metadata, so the same files always give the same bytes, and the SHA-256 of
 //! those bytes names the bundle (`blobs/<hash>.tar` in the data directory). Workers fetch a
-//! bundle once per hash and cache the scene built from it.
+//! bundle once per hash and cache the scene built from it. Blobs are written with
+//! [`write_atomic`].
 
 use std::collections::{BTreeMap, HashMap};
 use std::io::{Read, Seek, SeekFrom};
@@ -15,6 +16,7 @@ use std::sync::Arc;
 use anyhow::{Context, Result};
 use sha2::{Digest, Sha256};
 use tessera::assets::normalize_bundle_path;
+use tessera::atomic_write::write_atomic;
 
 /// Files of a bundle by normalised path.
 pub type Files = BTreeMap<String, Vec<u8>>;
@@ -331,21 +333,9 @@ impl BlobStore {
     }
 }
 
-/// A name beside `path` that no other writer in this or any other process uses: the process
-/// id, a per-process counter and the clock. Concurrent writers of one file each get their own.
-pub fn unique_temp_name(path: &Path) -> PathBuf {
-    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-    let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.subsec_nanos())
-        .unwrap_or(0);
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    path.with_file_name(format!(".{name}.{}-{n}-{nanos}.tmp", std::process::id()))
-}
-
-/// Removes temporary files a killed writer left in `dir`, once they are an hour old (a live
-/// writer finishes long before; another server sharing the folder may be writing newer ones).
+/// Removes temporary files a killed writer left in `dir` (`.<name>.<...>.tmp`, the names of
+/// [`tessera::atomic_write::unique_temp_name`]), once they are an hour old (a live writer
+/// finishes long before; another server sharing the folder may be writing newer ones).
 fn remove_stale_temp_files(dir: &Path) {
     let Ok(entries) = std::fs::read_dir(dir) else { return };
     for e in entries.flatten() {
@@ -360,27 +350,6 @@ fn remove_stale_temp_files(dir: &Path) {
             let _ = std::fs::remove_file(e.path());
         }
     }
-}
-
-/// Writes `bytes` to `path` through a synced temporary file of its own and a rename (which
-/// replaces an existing file atomically), so readers see the old or the new file, never half
-/// of one, and concurrent writers never trip over each other's temporary files.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    use std::io::Write;
-    let tmp = unique_temp_name(path);
-    let write = || -> Result<()> {
-        let mut f =
-            std::fs::File::create(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
-        f.write_all(bytes).with_context(|| format!("cannot write {}", tmp.display()))?;
-        f.sync_all().with_context(|| format!("cannot sync {}", tmp.display()))?;
-        drop(f);
-        std::fs::rename(&tmp, path).with_context(|| format!("cannot move {} into place", path.display()))
-    };
-    let result = write();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
 }
 
 /// The scene file of a bundle: `wanted` if given, else the only `.xml` (or `.json`) file at the

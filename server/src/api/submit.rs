@@ -54,7 +54,7 @@ enum SpoolKind {
 
 impl Spool {
     fn new(data_dir: &std::path::Path) -> anyhow::Result<Spool> {
-        let dir = crate::bundle::unique_temp_name(&data_dir.join("uploads").join("upload"));
+        let dir = tessera::atomic_write::unique_temp_name(&data_dir.join("uploads").join("upload"));
         std::fs::create_dir_all(&dir).map_err(|e| anyhow::anyhow!("cannot create {}: {e}", dir.display()))?;
         Ok(Spool { dir, parts: Vec::new() })
     }
