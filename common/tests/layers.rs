@@ -53,6 +53,7 @@ const LAYERS: &[(&str, &[&str])] = &[
     ("scene", &["scene"]),
     ("build", &["scene::build"]),
     ("load", &["scene::load"]),
+    ("bundle", &["bundle"]),
     ("integrator", &["integrator"]),
     ("render", &["render"]),
     ("output", &["output"]),
