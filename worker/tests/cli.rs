@@ -127,7 +127,7 @@ fn output_does_not_depend_on_threads_or_tile_size() {
 #[test]
 fn unknown_element_warns_and_still_renders() {
     let tmp = TempDir::new("cli-unknown");
-    let scene = tmp.write("unknown.xml", &small_scene(TRIANGLE, "<Frobnicate>1 2 3</Frobnicate>"));
+    let scene = tmp.write("unknown.xml", small_scene(TRIANGLE, "<Frobnicate>1 2 3</Frobnicate>"));
     let out = tmp.path().join("out");
     let r = run(&["render".as_ref(), scene.as_os_str(), "--out".as_ref(), out.as_os_str(), "-q".as_ref()]);
     assert_eq!(r.code, Some(0), "{}", r.describe());
