@@ -151,14 +151,13 @@ mod tests {
 
     #[test]
     fn strips_leading_components_when_path_was_rewritten() {
-        let dir = std::env::temp_dir().join(format!("tessera-assets-{}", std::process::id()));
+        let dir = tessera_testkit::TempDir::new("assets");
         std::fs::create_dir_all(dir.join("ply")).unwrap();
         std::fs::write(dir.join("ply/x.ply"), b"abc").unwrap();
-        let r = FsResolver { base_dir: dir.clone() };
+        let r = FsResolver { base_dir: dir.to_path_buf() };
         assert_eq!(r.read("ply/x.ply").unwrap().0, b"abc");
         assert_eq!(r.read("assets/ply/x.ply").unwrap().0, b"abc");
         assert!(r.read("ply/missing.ply").is_err());
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

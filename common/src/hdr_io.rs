@@ -13,12 +13,14 @@
 //!   [`TextureImage::decode`](crate::texture::image::TextureImage::decode), the same decoder the
 //!   textures use; the first two also insist that the file *is* the format their name says.
 //!
-//! Every error names the file ([`HdrError`]).
+//! Every file is encoded in memory and then written in place with
+//! [`write_atomic`](crate::atomic_write::write_atomic): never half a file under its name. Every
+//! error names the file ([`HdrError`]).
 
-use std::fs::File;
-use std::io::{BufWriter, Write};
+use std::io::Cursor;
 use std::path::{Path, PathBuf};
 
+use crate::atomic_write::{WriteError, WriteStep, write_atomic};
 use crate::image::Image;
 use crate::texture::image::TextureImage;
 
@@ -94,21 +96,13 @@ pub fn write_exr(path: &Path, img: &Image) -> Result<(), HdrError> {
         Encoding::SMALL_LOSSLESS,
         channels,
     );
-    let file = File::create(path).map_err(|error| HdrError::Io {
-        path: path.to_owned(),
-        action: "cannot create",
-        error,
-    })?;
-    let mut out = BufWriter::new(file);
-    exr::prelude::Image::from_layer(layer).write().non_parallel().to_buffered(&mut out).map_err(
-        |e| match e {
-            exr::error::Error::Io(error) => {
-                HdrError::Io { path: path.to_owned(), action: "cannot write", error }
-            }
-            other => HdrError::Encode { path: path.to_owned(), message: format!("OpenEXR encoder: {other}") },
-        },
-    )?;
-    out.flush().map_err(|error| HdrError::Io { path: path.to_owned(), action: "cannot write", error })
+    let mut out = Cursor::new(Vec::new());
+    exr::prelude::Image::from_layer(layer)
+        .write()
+        .non_parallel()
+        .to_buffered(&mut out)
+        .map_err(|e| HdrError::Encode { path: path.to_owned(), message: format!("OpenEXR encoder: {e}") })?;
+    write_atomic(path, out.get_ref()).map_err(|e| written(e, "cannot create"))
 }
 
 /// Writes `img` as a Radiance `.hdr` (RGBE, run-length encoded scanlines, `-Y H +X W`).
@@ -130,42 +124,43 @@ pub fn write_hdr(path: &Path, img: &Image) -> Result<(), HdrError> {
             if c[0].max(c[1]).max(c[2]) < f32::MIN_POSITIVE { Rgb([0.0; 3]) } else { Rgb(c) }
         })
         .collect();
-    let file = File::create(path).map_err(|error| HdrError::Io {
-        path: path.to_owned(),
-        action: "cannot create",
-        error,
+    let mut out = Vec::new();
+    HdrEncoder::new(&mut out).encode(&rgb, img.width as usize, img.height as usize).map_err(|e| {
+        HdrError::Encode { path: path.to_owned(), message: format!("Radiance HDR encoder: {e}") }
     })?;
-    let mut out = BufWriter::new(file);
-    HdrEncoder::new(&mut out).encode(&rgb, img.width as usize, img.height as usize).map_err(|e| match e {
-        ::image::ImageError::IoError(error) => {
-            HdrError::Io { path: path.to_owned(), action: "cannot write", error }
-        }
-        other => {
-            HdrError::Encode { path: path.to_owned(), message: format!("Radiance HDR encoder: {other}") }
-        }
-    })?;
-    out.flush().map_err(|error| HdrError::Io { path: path.to_owned(), action: "cannot write", error })
+    write_atomic(path, &out).map_err(|e| written(e, "cannot create"))
 }
 
 /// Writes 8-bit RGB bytes (`width * height * 3`, row-major from the top-left pixel; e.g. the
-/// output of [`crate::tonemap::tonemap`]) as a PNG, whatever the file name's extension.
+/// output of [`crate::tonemap::tonemap`]) as a PNG ([`encode_png_rgb8`]), whatever the file
+/// name's extension.
 pub fn write_png_rgb8(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<(), HdrError> {
+    let png = encode_png_rgb8(width, height, rgb)
+        .map_err(|message| HdrError::Encode { path: path.to_owned(), message })?;
+    // A PNG that cannot be created is reported as "cannot write", as it always was.
+    write_atomic(path, &png).map_err(|e| written(e, "cannot write"))
+}
+
+/// 8-bit RGB bytes (`width * height * 3`, row-major from the top-left pixel) as a PNG file in
+/// memory: what [`write_png_rgb8`] writes, and what the farm serves as previews. The error says
+/// why the bytes are not an image.
+pub fn encode_png_rgb8(width: u32, height: u32, rgb: &[u8]) -> Result<Vec<u8>, String> {
     let expected = width as u64 * height as u64 * 3;
     if width == 0 || height == 0 || rgb.len() as u64 != expected {
-        return Err(HdrError::Encode {
-            path: path.to_owned(),
-            message: format!("{} bytes do not make a {width}x{height} RGB image", rgb.len()),
-        });
+        return Err(format!("{} bytes do not make a {width}x{height} RGB image", rgb.len()));
     }
-    let png = ::image::ImageFormat::Png;
-    ::image::save_buffer_with_format(path, rgb, width, height, ::image::ExtendedColorType::Rgb8, png).map_err(
-        |e| match e {
-            ::image::ImageError::IoError(error) => {
-                HdrError::Io { path: path.to_owned(), action: "cannot write", error }
-            }
-            other => HdrError::Encode { path: path.to_owned(), message: format!("PNG encoder: {other}") },
-        },
-    )
+    let mut out = Cursor::new(Vec::new());
+    let (png, rgb8) = (::image::ImageFormat::Png, ::image::ExtendedColorType::Rgb8);
+    ::image::write_buffer_with_format(&mut out, rgb, width, height, rgb8, png)
+        .map_err(|e| format!("PNG encoder: {e}"))?;
+    Ok(out.into_inner())
+}
+
+/// A failed [`write_atomic`] as an [`HdrError::Io`]: `create` names a file that could not be
+/// created, every other step is "cannot write".
+fn written(e: WriteError, create: &'static str) -> HdrError {
+    let action = if e.step == WriteStep::Create { create } else { "cannot write" };
+    HdrError::Io { path: e.path, action, error: e.error }
 }
 
 fn read_bytes(path: &Path) -> Result<Vec<u8>, HdrError> {
@@ -242,27 +237,7 @@ pub fn read_float_image(path: &Path) -> Result<Image, HdrError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::sync::atomic::{AtomicUsize, Ordering};
-
-    /// A scratch directory under the system temp dir, removed on drop.
-    struct TempDir(PathBuf);
-
-    impl TempDir {
-        fn new(tag: &str) -> TempDir {
-            static COUNTER: AtomicUsize = AtomicUsize::new(0);
-            let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-            let dir = std::env::temp_dir().join(format!("tessera-hdr-io-{tag}-{}-{n}", std::process::id()));
-            let _ = std::fs::remove_dir_all(&dir);
-            std::fs::create_dir_all(&dir).expect("create temp dir");
-            TempDir(dir)
-        }
-    }
-
-    impl Drop for TempDir {
-        fn drop(&mut self) {
-            let _ = std::fs::remove_dir_all(&self.0);
-        }
-    }
+    use tessera_testkit::TempDir;
 
     /// xorshift64: deterministic pseudo-random bits for the tests.
     struct Bits(u64);
@@ -335,12 +310,12 @@ mod tests {
 
     #[test]
     fn exr_round_trip_is_bit_exact() {
-        let dir = TempDir::new("exr");
+        let dir = TempDir::new("hdr-io-exr");
         // Odd sizes (partial 16-line ZIP blocks), a single pixel, a single row and column.
         for (k, (w, h)) in [(37u32, 23u32), (1, 1), (64, 1), (1, 40), (200, 50)].into_iter().enumerate() {
             let img = random_image(w, h, 0x9e37_79b9_7f4a_7c15 ^ k as u64);
             assert!(img.pixels.iter().flatten().all(|v| v.is_finite()));
-            let path = dir.0.join(format!("round{k}.exr"));
+            let path = dir.join(format!("round{k}.exr"));
             write_exr(&path, &img).unwrap();
             let back = read_exr(&path).unwrap();
             assert!(same_bits(&img, &back), "{w}x{h}: EXR round trip changed some value");
@@ -351,21 +326,21 @@ mod tests {
 
     #[test]
     fn exr_keeps_non_finite_values() {
-        let dir = TempDir::new("exr-nan");
+        let dir = TempDir::new("hdr-io-exr-nan");
         let img = Image {
             width: 2,
             height: 1,
             pixels: vec![[f32::NAN, f32::INFINITY, f32::NEG_INFINITY], [1.0, -2.0, 3.5]],
         };
-        let path = dir.0.join("nan.exr");
+        let path = dir.join("nan.exr");
         write_exr(&path, &img).unwrap();
         assert!(same_bits(&img, &read_exr(&path).unwrap()));
     }
 
     #[test]
     fn exr_file_is_float_rgb_zip() {
-        let dir = TempDir::new("exr-meta");
-        let path = dir.0.join("meta.exr");
+        let dir = TempDir::new("hdr-io-exr-meta");
+        let path = dir.join("meta.exr");
         write_exr(&path, &random_image(8, 8, 7)).unwrap();
         let meta = exr::meta::MetaData::read_from_file(&path, false).unwrap();
         let header = &meta.headers[0];
@@ -378,13 +353,13 @@ mod tests {
 
     #[test]
     fn hdr_round_trip_within_rgbe_precision() {
-        let dir = TempDir::new("hdr");
+        let dir = TempDir::new("hdr-io-hdr");
         let mut bits = Bits(42);
         let pixels: Vec<[f32; 3]> = (0..40 * 30)
             .map(|_| std::array::from_fn(|_| (bits.next() % 1_000_000) as f32 / 1000.0))
             .collect();
         let img = Image { width: 40, height: 30, pixels };
-        let path = dir.0.join("round.hdr");
+        let path = dir.join("round.hdr");
         write_hdr(&path, &img).unwrap();
         let back = read_hdr(&path).unwrap();
         assert_eq!((back.width, back.height), (40, 30));
@@ -400,7 +375,7 @@ mod tests {
 
     #[test]
     fn hdr_writes_unrepresentable_values_safely() {
-        let dir = TempDir::new("hdr-odd");
+        let dir = TempDir::new("hdr-io-hdr-odd");
         let img = Image {
             width: 4,
             height: 1,
@@ -411,7 +386,7 @@ mod tests {
                 [f32::MAX, 1.0, 0.0],
             ],
         };
-        let path = dir.0.join("odd.hdr");
+        let path = dir.join("odd.hdr");
         write_hdr(&path, &img).unwrap();
         let back = read_hdr(&path).unwrap();
         assert_eq!(back.pixels[0], [0.0, 0.0, 2.0]);
@@ -422,15 +397,15 @@ mod tests {
 
     #[test]
     fn errors_name_the_file() {
-        let dir = TempDir::new("errors");
-        let missing = dir.0.join("missing.exr");
+        let dir = TempDir::new("hdr-io-errors");
+        let missing = dir.join("missing.exr");
         let err = read_exr(&missing).unwrap_err();
         assert!(matches!(err, HdrError::Io { .. }));
         assert_eq!(err.path(), missing);
         let msg = err.to_string();
         assert!(msg.contains("missing.exr") && msg.contains("cannot read"), "{msg}");
 
-        let png = dir.0.join("picture.exr");
+        let png = dir.join("picture.exr");
         std::fs::write(&png, b"\x89PNG\r\n\x1a\n....").unwrap();
         let msg = read_exr(&png).unwrap_err().to_string();
         assert!(
@@ -440,7 +415,7 @@ mod tests {
         let msg = read_float_image(&png).unwrap_err().to_string();
         assert!(msg.contains("picture.exr") && msg.contains("not an OpenEXR or Radiance HDR"), "{msg}");
 
-        let exr = dir.0.join("real.exr");
+        let exr = dir.join("real.exr");
         write_exr(&exr, &random_image(2, 2, 3)).unwrap();
         let msg = read_hdr(&exr).unwrap_err().to_string();
         assert!(
@@ -448,40 +423,40 @@ mod tests {
             "{msg}"
         );
 
-        let empty = dir.0.join("empty.exr");
+        let empty = dir.join("empty.exr");
         std::fs::write(&empty, b"").unwrap();
         let msg = read_exr(&empty).unwrap_err().to_string();
         assert!(msg.contains("empty.exr") && msg.contains("empty"), "{msg}");
 
         // Truncated EXR: malformed, named.
         let bytes = std::fs::read(&exr).unwrap();
-        let cut = dir.0.join("cut.exr");
+        let cut = dir.join("cut.exr");
         std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
         let msg = read_exr(&cut).unwrap_err().to_string();
         assert!(msg.contains("cut.exr") && msg.contains("OpenEXR"), "{msg}");
 
         // Writing into a folder that does not exist, and an inconsistent image.
-        let nowhere = dir.0.join("no/such/dir/out.exr");
+        let nowhere = dir.join("no/such/dir/out.exr");
         let msg = write_exr(&nowhere, &random_image(2, 2, 3)).unwrap_err().to_string();
         assert!(msg.contains("out.exr") && msg.contains("cannot create"), "{msg}");
         let msg = write_hdr(&nowhere.with_extension("hdr"), &random_image(2, 2, 3)).unwrap_err().to_string();
         assert!(msg.contains("out.hdr"), "{msg}");
         let bad = Image { width: 3, height: 3, pixels: vec![[0.0; 3]; 4] };
-        let msg = write_exr(&dir.0.join("bad.exr"), &bad).unwrap_err().to_string();
+        let msg = write_exr(&dir.join("bad.exr"), &bad).unwrap_err().to_string();
         assert!(msg.contains("bad.exr") && msg.contains("4 pixels"), "{msg}");
         let empty_img = Image { width: 0, height: 5, pixels: vec![] };
-        assert!(write_hdr(&dir.0.join("e.hdr"), &empty_img).is_err());
-        let msg = write_png_rgb8(&dir.0.join("x.png"), 2, 2, &[0; 5]).unwrap_err().to_string();
+        assert!(write_hdr(&dir.join("e.hdr"), &empty_img).is_err());
+        let msg = write_png_rgb8(&dir.join("x.png"), 2, 2, &[0; 5]).unwrap_err().to_string();
         assert!(msg.contains("x.png"), "{msg}");
     }
 
     #[test]
     fn png_rgb8_round_trip() {
-        let dir = TempDir::new("png");
-        let path = dir.0.join("t.png");
+        let dir = TempDir::new("hdr-io-png");
+        let path = dir.join("t.png");
         let data: Vec<u8> = (0..3 * 4 * 3).map(|k| (k * 7) as u8).collect();
         write_png_rgb8(&path, 3, 4, &data).unwrap();
-        let back = crate::image::Rgb8::read_png(&path).unwrap();
+        let back = tessera_testkit::rgb8::Rgb8::read_png(&path).unwrap();
         assert_eq!((back.width, back.height), (3, 4));
         assert_eq!(back.data, data);
     }

@@ -634,10 +634,7 @@ mod tests {
     /// the sphere); `spp` samples with `sampler`.
     fn furnace_pixel(l: f32, gaze_z: f64, material: &str, spp: u32, sampler: EnvSampler) -> [f32; 3] {
         use crate::image::Image;
-        // One directory per process and radiance: tests run in parallel.
-        let dir =
-            std::env::temp_dir().join(format!("tessera-furnace-{}-{}", std::process::id(), l.to_bits()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = tessera_testkit::TempDir::new("furnace");
         let map = Image { width: 8, height: 4, pixels: vec![[l; 3]; 32] };
         crate::hdr_io::write_exr(&dir.join("const.exr"), &map).unwrap();
         let xml = format!(
@@ -652,7 +649,8 @@ mod tests {
             <Objects><Sphere id="1"><Material>1</Material><Center>1</Center><Radius>1</Radius></Sphere></Objects>
             </Scene>"#
         );
-        let scene = load_scene_str(&xml, &dir.join("t.xml"), &FsResolver { base_dir: dir.clone() }).unwrap();
+        let scene =
+            load_scene_str(&xml, &dir.join("t.xml"), &FsResolver { base_dir: dir.to_path_buf() }).unwrap();
         let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
         let settings = RenderSettings { env_sampling: Some(sampler), ..RenderSettings::default() };
         render_tile(&scene, 0, rect, &settings).0[0]

@@ -6,13 +6,15 @@
 //! Pipeline: a front end ([`scene::xml`] or [`scene::json`], both walking [`scene::tree`])
 //! parses a file into [`scene::records`] (plain data with source locations), [`scene::build`]
 //! turns records into a render-ready [`scene::Scene`] (meshes, BVHs, instances, materials,
-//! lights), [`scene::load`] does both for scene text or a file, and [`render`] traces tiles of
-//! it with [`integrator`].
+//! lights), [`scene::load`] does both for scene text or a file, [`bundle`] for a farm job's tar
+//! bundle, and [`render`] traces tiles of it with [`integrator`].
 //!
 //! The modules are layered one way, each importing only lower layers (docs/ARCHITECTURE.md,
 //! "Layers"; checked by `tests/layers.rs`).
 
 pub mod assets;
+pub mod atomic_write;
+pub mod bundle;
 pub mod camera;
 pub mod error;
 pub mod geometry;

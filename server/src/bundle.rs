@@ -4,17 +4,20 @@
 //! either way they become a map from normalised relative paths to bytes ([`Files`]), checked for
 //! paths that would leave the bundle. [`canonical_tar`] writes that map as a tar with sorted
 //! entries and fixed metadata, so the same files always give the same bytes, and the SHA-256 of
-//! those bytes names the bundle (`blobs/<hash>.tar` in the data directory). Workers fetch a
-//! bundle once per hash and cache the scene built from it.
+//! those bytes names the bundle (`blobs/<hash>.tar` in the data directory). Tars are read by
+//! common's reader (`tessera::bundle`), which also turns a bundle into a scene, for the server's
+//! validation and camera lookup as for the workers, which fetch a bundle once per hash and cache
+//! the scene built from it. Blobs are written with [`write_atomic`].
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use sha2::{Digest, Sha256};
 use tessera::assets::normalize_bundle_path;
+use tessera::atomic_write::write_atomic;
+use tessera::bundle::{TarError, for_each_tar_file};
 
 /// Files of a bundle by normalised path.
 pub type Files = BTreeMap<String, Vec<u8>>;
@@ -39,13 +42,6 @@ impl Default for Limits {
     }
 }
 
-impl Limits {
-    /// No caps: for bundles the server wrote itself.
-    pub fn unlimited() -> Self {
-        Limits { max_unpacked_bytes: u64::MAX, max_files: usize::MAX, max_file_bytes: u64::MAX }
-    }
-}
-
 /// Why an upload is not a usable bundle (a 400 for the client, a 413 for [`BundleError::TooLarge`]).
 #[derive(Debug)]
 pub enum BundleError {
@@ -60,6 +56,12 @@ pub enum BundleError {
 }
 
 impl std::error::Error for BundleError {}
+
+impl From<TarError> for BundleError {
+    fn from(e: TarError) -> Self {
+        BundleError::Archive(e.0)
+    }
+}
 
 impl std::fmt::Display for BundleError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -204,29 +206,12 @@ impl Unpacker {
         Ok(())
     }
 
+    /// Unpacks a tar (common's reader, `what` naming it in messages), every file through the caps.
     fn add_tar(&mut self, source: impl Read, what: &str) -> Result<(), BundleError> {
-        let mut archive = tar::Archive::new(source);
-        let entries = archive
-            .entries()
-            .map_err(|e| BundleError::Archive(format!("the {what} bundle cannot be read: {e}")))?;
-        for entry in entries {
-            let entry =
-                entry.map_err(|e| BundleError::Archive(format!("the {what} bundle is damaged: {e}")))?;
-            let kind = entry.header().entry_type();
-            if kind.is_dir() || kind.is_pax_global_extensions() || kind.is_pax_local_extensions() {
-                continue;
-            }
-            let path = entry.path_bytes().into_owned();
-            let path = String::from_utf8_lossy(&path).into_owned();
-            if !kind.is_file() {
-                return Err(BundleError::Archive(format!(
-                    "the {what} bundle holds \"{path}\", which is not a regular file (links are not accepted)"
-                )));
-            }
-            self.check_claim(&path, entry.size())?;
-            self.add_reader(&path, entry)?;
-        }
-        Ok(())
+        for_each_tar_file(source, what, |path, size, data| {
+            self.check_claim(path, size)?;
+            self.add_reader(path, data)
+        })
     }
 }
 
@@ -280,13 +265,6 @@ pub fn canonical_tar(files: &Files) -> Vec<u8> {
     builder.into_inner().expect("writing a tar into memory cannot fail")
 }
 
-/// Reads a tar written by [`canonical_tar`] back into shared buffers (for the resolver).
-pub fn read_tar(bytes: &[u8]) -> Result<HashMap<String, Arc<Vec<u8>>>> {
-    let mut unpacker = Unpacker::new(Limits::unlimited());
-    unpacker.add_tar(bytes, "tar").map_err(|e| anyhow::anyhow!("{e}"))?;
-    Ok(unpacker.files.into_iter().map(|(k, v)| (k, Arc::new(v))).collect())
-}
-
 pub fn sha256_hex(bytes: &[u8]) -> String {
     let digest = Sha256::digest(bytes);
     digest.iter().map(|b| format!("{b:02x}")).collect()
@@ -331,21 +309,9 @@ impl BlobStore {
     }
 }
 
-/// A name beside `path` that no other writer in this or any other process uses: the process
-/// id, a per-process counter and the clock. Concurrent writers of one file each get their own.
-pub fn unique_temp_name(path: &Path) -> PathBuf {
-    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-    let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.subsec_nanos())
-        .unwrap_or(0);
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    path.with_file_name(format!(".{name}.{}-{n}-{nanos}.tmp", std::process::id()))
-}
-
-/// Removes temporary files a killed writer left in `dir`, once they are an hour old (a live
-/// writer finishes long before; another server sharing the folder may be writing newer ones).
+/// Removes temporary files a killed writer left in `dir` (`.<name>.<...>.tmp`, the names of
+/// [`tessera::atomic_write::unique_temp_name`]), once they are an hour old (a live writer
+/// finishes long before; another server sharing the folder may be writing newer ones).
 fn remove_stale_temp_files(dir: &Path) {
     let Ok(entries) = std::fs::read_dir(dir) else { return };
     for e in entries.flatten() {
@@ -360,27 +326,6 @@ fn remove_stale_temp_files(dir: &Path) {
             let _ = std::fs::remove_file(e.path());
         }
     }
-}
-
-/// Writes `bytes` to `path` through a synced temporary file of its own and a rename (which
-/// replaces an existing file atomically), so readers see the old or the new file, never half
-/// of one, and concurrent writers never trip over each other's temporary files.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    use std::io::Write;
-    let tmp = unique_temp_name(path);
-    let write = || -> Result<()> {
-        let mut f =
-            std::fs::File::create(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
-        f.write_all(bytes).with_context(|| format!("cannot write {}", tmp.display()))?;
-        f.sync_all().with_context(|| format!("cannot sync {}", tmp.display()))?;
-        drop(f);
-        std::fs::rename(&tmp, path).with_context(|| format!("cannot move {} into place", path.display()))
-    };
-    let result = write();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
 }
 
 /// The scene file of a bundle: `wanted` if given, else the only `.xml` (or `.json`) file at the
@@ -431,7 +376,7 @@ mod tests {
         add_file(&mut b, "scene.xml", b"<Scene/>".to_vec()).unwrap();
         let (ta, tb) = (canonical_tar(&a), canonical_tar(&b));
         assert_eq!(ta, tb);
-        let back = read_tar(&ta).unwrap();
+        let back = tessera::bundle::read_tar(&ta).unwrap();
         assert_eq!(back.len(), 2);
         assert_eq!(back["ply/x.ply"].as_slice(), &[1, 2, 3]);
         // An uploaded tar is read like our own.
@@ -454,8 +399,7 @@ mod tests {
     /// blob holds its bytes, and no temporary file is left behind.
     #[test]
     fn concurrent_puts_of_equal_and_different_bytes_all_succeed() {
-        let dir = std::env::temp_dir().join(format!("tessera-blobs-race-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
+        let dir = tessera_testkit::TempDir::new("blobs-race");
         let store = BlobStore::new(&dir).unwrap();
         let threads: Vec<_> = (0..64)
             .map(|i| {
@@ -476,7 +420,6 @@ mod tests {
             .collect();
         assert_eq!(names.len(), 17, "{names:?}");
         assert!(names.iter().all(|n| n.ends_with(".tar") && !n.starts_with('.')), "{names:?}");
-        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

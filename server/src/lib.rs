@@ -235,7 +235,7 @@ mod tests {
 
     #[tokio::test]
     async fn serve_answers_until_its_shutdown_stream_says_stop() {
-        let dir = testutil::TempDir::new("serve");
+        let dir = tessera_testkit::TempDir::new("unit-serve");
         let config = Config {
             bind: "127.0.0.1:0".parse().unwrap(),
             data_dir: dir.path().join("data"),

@@ -7,7 +7,7 @@
 //! startup for frames a crash left unmerged); the rest is CPU and file work that it runs on
 //! `spawn_blocking`.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use anyhow::{Context, Result, bail};
 use tessera::camera::Camera;
@@ -51,26 +51,15 @@ pub fn farm_outputs(cam: &Camera) -> Vec<OutputFile> {
     files
 }
 
-/// Writes the frame's outputs into `dir` (created), each through a temporary file and a rename
-/// so that a crash never leaves half a file under the final name. Returns the file names.
+/// Writes the frame's outputs into `dir` (created). `output::write` puts each file in place
+/// atomically (a synced temporary file of its own, renamed), so a crash never leaves half a file
+/// under the final name, and two merges of one frame (a restart's recovery and a late trigger)
+/// never write into each other's files. Returns the file names.
 pub fn write_outputs(dir: &Path, cam: &Camera, img: &Image) -> Result<Vec<String>> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let files = farm_outputs(cam);
-    // A staging folder of this merge's own: two merges of one frame (a restart's recovery and a
-    // late trigger) never write into each other's files.
-    let tmp = crate::bundle::unique_temp_name(&dir.join("merge"));
-    std::fs::create_dir_all(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
-    output::write(&tmp, img, &files).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let mut names = Vec::new();
-    for f in &files {
-        let from: PathBuf = tmp.join(&f.name);
-        std::fs::File::open(&from)?.sync_all()?;
-        std::fs::rename(&from, dir.join(&f.name))
-            .with_context(|| format!("cannot move {} into place", f.name))?;
-        names.push(f.name.clone());
-    }
-    let _ = std::fs::remove_dir_all(&tmp);
-    Ok(names)
+    output::write(dir, img, &files).map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok(files.into_iter().map(|f| f.name).collect())
 }
 
 /// The operator of a camera's first tone-mapped PNG, if its image name is HDR.
@@ -123,14 +112,10 @@ pub fn final_png(cam: &Camera, img: &Image) -> Result<Vec<u8>> {
     encode_png(img.width, img.height, &rgb)
 }
 
-/// 8-bit RGB bytes as a PNG file in memory.
+/// 8-bit RGB bytes as a PNG file in memory (the same encoding as the written PNGs).
 pub fn encode_png(width: u32, height: u32, rgb: &[u8]) -> Result<Vec<u8>> {
-    use image::ImageEncoder;
-    let mut out = Vec::new();
-    image::codecs::png::PngEncoder::new(&mut out)
-        .write_image(rgb, width, height, image::ExtendedColorType::Rgb8)
-        .context("cannot encode the PNG")?;
-    Ok(out)
+    tessera::hdr_io::encode_png_rgb8(width, height, rgb)
+        .map_err(|m| anyhow::anyhow!("cannot encode the PNG: {m}"))
 }
 
 /// Merges a complete frame off the executor; a failure fails the job with the reason.

@@ -1,37 +1,12 @@
 //! What the in-process tests share: a temporary data directory, a store in it, a tiny scene.
 
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use tessera_testkit::TempDir;
 
 use crate::db::Store;
 
-/// A directory under the system's temporary one, removed with everything in it on drop.
-pub struct TempDir(PathBuf);
-
-impl TempDir {
-    pub fn new(tag: &str) -> TempDir {
-        static NEXT: AtomicU64 = AtomicU64::new(0);
-        let n = NEXT.fetch_add(1, Ordering::Relaxed);
-        let dir = std::env::temp_dir().join(format!("tessera-unit-{tag}-{}-{n}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        TempDir(dir)
-    }
-
-    pub fn path(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 /// A job store on a real SQLite file in a directory of its own.
 pub fn store(tag: &str) -> (TempDir, Store) {
-    let dir = TempDir::new(tag);
+    let dir = TempDir::new(&format!("unit-{tag}"));
     let store = Store::open(&dir.path().join("tessera.db")).unwrap();
     (dir, store)
 }

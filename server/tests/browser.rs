@@ -178,8 +178,8 @@ const CANVAS_SUM: &str = "(() => { const c = document.querySelector('.frame canv
 fn the_page_follows_a_render_live_and_retonemaps_it() {
     let _s = serial();
     let Some(browser) = Browser::start() else { return };
-    let server = Server::start(
-        &temp_dir("browser"),
+    let server = Server::start_temp(
+        "farm-browser",
         &["--local-workers", "1", "--local-worker-threads", "2", "--tile-size", "32"],
     );
     browser.goto(&server.url);
@@ -253,8 +253,8 @@ fn the_page_follows_a_render_live_and_retonemaps_it() {
 fn a_bad_upload_shows_its_error_on_the_page() {
     let _s = serial();
     let Some(browser) = Browser::start() else { return };
-    let server = Server::start(&temp_dir("browser-bad"), &["--local-workers", "0"]);
-    let dir = temp_dir("browser-bad-scene");
+    let server = Server::start_temp("farm-browser-bad", &["--local-workers", "0"]);
+    let dir = TempDir::new("farm-browser-bad-scene");
     let bad = dir.canonicalize().unwrap().join("broken.xml");
     std::fs::write(
         &bad,

@@ -24,7 +24,7 @@ fn cornell(size: u32) -> Vec<u8> {
 #[test]
 fn hundreds_of_identical_and_different_uploads_at_once_are_all_accepted_and_rendered() {
     let _s = serial();
-    let data = temp_dir("concurrent-uploads");
+    let data = TempDir::new("farm-concurrent-uploads");
     let server = Server::start(&data, &["--local-workers", "1", "--local-worker-threads", "1"]);
 
     const SAME: usize = 200;

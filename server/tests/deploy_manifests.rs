@@ -299,7 +299,7 @@ fn ports_and_health_paths_match_the_server() {
     let bind = cmd.iter().position(|a| a == "--bind").map(|i| cmd[i + 1].clone());
     assert_eq!(bind.as_deref(), Some(&*format!("0.0.0.0:{PORT}")), "{cmd:?}");
     // The real server answers those paths.
-    let data = temp_dir("deploy-health");
+    let data = TempDir::new("farm-deploy-health");
     let server = Server::start(&data, &["--local-workers", "0"]);
     for p in &health_paths {
         assert_eq!(get_bytes(&server.url, p), b"ok\n", "{p}");
@@ -313,7 +313,7 @@ fn every_command_line_in_deploy_runs() {
     let _s = serial();
     let commands = command_lines();
     assert!(commands.len() >= 7, "{commands:?}");
-    let data = temp_dir("deploy-cmd-worker-target");
+    let data = TempDir::new("farm-deploy-cmd-worker-target");
     let target = Server::start(&data, &["--local-workers", "0", "--worker-token", "wtok"]);
     for (n, (file, argv)) in commands.iter().enumerate() {
         let mut args: Vec<String> = argv[1..].to_vec();
@@ -326,7 +326,7 @@ fn every_command_line_in_deploy_runs() {
         args = name;
         match program(argv) {
             "tessera-server" => {
-                let dir = temp_dir(&format!("deploy-cmd-{n}"));
+                let dir = TempDir::new(&format!("farm-deploy-cmd-{n}"));
                 set(&mut args, "--bind", "127.0.0.1:0");
                 set(&mut args, "--data-dir", dir.to_str().unwrap());
                 let mut child = Command::new(server_bin())

@@ -29,7 +29,7 @@ fn assert_outputs_equal_cli(server: &Server, id: u64, samples: &str) {
 #[test]
 fn a_job_renders_on_two_local_workers_exactly_like_the_cli() {
     let _s = serial();
-    let data = temp_dir("two");
+    let data = TempDir::new("farm-two");
     let server = Server::start(&data, &["--local-workers", "2", "--local-worker-threads", "1"]);
     assert_eq!(get_bytes(&server.url, "/healthz"), b"ok\n");
     let id = submit_environment(&server, "4", "16");
@@ -62,7 +62,7 @@ const SHORT_LEASES: [&str; 8] =
 #[test]
 fn a_worker_killed_mid_job_loses_nothing() {
     let _s = serial();
-    let data = temp_dir("killworker");
+    let data = TempDir::new("farm-killworker");
     let server = Server::start(&data, &SHORT_LEASES);
     let mut a = Worker::start(&server.url, "wtok", "a");
     let _b = Worker::start(&server.url, "wtok", "b");
@@ -90,7 +90,7 @@ fn a_worker_killed_mid_job_loses_nothing() {
 #[test]
 fn a_server_killed_mid_job_resumes_after_restart() {
     let _s = serial();
-    let data = temp_dir("killserver");
+    let data = TempDir::new("farm-killserver");
     let args = SHORT_LEASES;
     let mut server = Server::start(&data, &args);
     let port = server.url.rsplit(':').next().unwrap().to_string();
@@ -112,7 +112,7 @@ fn a_server_killed_mid_job_resumes_after_restart() {
 #[test]
 fn canceling_a_job_stops_it_and_revokes_its_tiles() {
     let _s = serial();
-    let data = temp_dir("cancel");
+    let data = TempDir::new("farm-cancel");
     let server = Server::start(&data, &["--local-workers", "1", "--local-worker-threads", "1"]);
     let id = submit_environment(&server, "64", "16");
     wait_job(&server, id, 60, |j| j["state"] == "running");
@@ -156,7 +156,7 @@ fn raw_tar(name: &str, data: &[u8]) -> Vec<u8> {
 #[test]
 fn bad_requests_get_clear_errors_and_the_server_keeps_serving() {
     let _s = serial();
-    let data = temp_dir("bad");
+    let data = TempDir::new("farm-bad");
     let server =
         Server::start(&data, &["--local-workers", "1", "--api-token", "sekret", "--max-upload-mb", "1"]);
     let tori = std::fs::read(repo().join("scenes/tori.xml")).unwrap();
@@ -254,16 +254,16 @@ fn a_json_scene_renders_on_the_farm_like_on_the_cli() {
         return;
     }
     let scene = std::fs::read(&scene_path).unwrap();
-    let data = temp_dir("json");
+    let data = TempDir::new("farm-json");
     let server = Server::start(&data, &["--local-workers", "1"]);
     let (code, job) = submit(&server.url, None, &[("scene", Some("spheres_with_plane.json"), &scene)]);
     assert_eq!(code, 201, "{job}");
     let id = job["id"].as_u64().unwrap();
     let job = wait_job(&server, id, 120, |j| j["state"] == "done");
-    let out = temp_dir("json-cli");
+    let out = TempDir::new("farm-json-cli");
     let status = Command::new(worker_bin())
         .args(["render", scene_path.to_str().unwrap(), "--quiet", "--out"])
-        .arg(&out)
+        .arg(out.path())
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .status()
@@ -285,7 +285,7 @@ fn a_json_scene_renders_on_the_farm_like_on_the_cli() {
 fn listening_beyond_loopback_needs_a_token() {
     let out = Command::new(server_bin())
         .args(["--bind", "0.0.0.0:0", "--local-workers", "0", "--data-dir"])
-        .arg(temp_dir("open"))
+        .arg(TempDir::new("farm-open").path())
         .env_remove("TESSERA_API_TOKEN")
         .output()
         .unwrap();

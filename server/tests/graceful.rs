@@ -37,7 +37,7 @@ fn wait_until(server: &Server, what: &str, secs: u64, mut f: impl FnMut() -> boo
 #[test]
 fn release_gives_a_live_lease_back_to_the_queue_once() {
     let _s = serial();
-    let data = temp_dir("release");
+    let data = TempDir::new("farm-release");
     let server = Server::start(&data, &["--local-workers", "0", "--worker-token", TOKEN]);
     submit_environment(&server, "1", "64");
     let (_, reg) = post(&server.url, "/api/v1/worker/register", json!({"name": "h", "threads": 1}));
@@ -74,7 +74,7 @@ fn release_gives_a_live_lease_back_to_the_queue_once() {
 #[test]
 fn a_worker_given_sigterm_mid_job_finishes_its_tile_gives_back_the_next_and_exits_0() {
     let _s = serial();
-    let data = temp_dir("sigterm");
+    let data = TempDir::new("farm-sigterm");
     // Leases live ten minutes: a tile that was not given back would hold the job up far longer
     // than this test waits.
     let server = Server::start(
@@ -169,7 +169,7 @@ fn a_worker_given_sigterm_mid_job_finishes_its_tile_gives_back_the_next_and_exit
 #[test]
 fn a_server_given_sigterm_lets_its_local_worker_finish_then_resumes_the_job_after_restart() {
     let _s = serial();
-    let data = temp_dir("server-sigterm");
+    let data = TempDir::new("farm-server-sigterm");
     let args = ["--local-workers", "1", "--local-worker-threads", "1", "--worker-token", TOKEN];
     let mut server = Server::start(&data, &args);
     let id = submit_environment(&server, SAMPLES, "32");

@@ -15,7 +15,7 @@ use support::*;
 #[test]
 fn a_cancel_stops_the_tile_being_rendered() {
     let _s = serial();
-    let data = temp_dir("limits-cancel");
+    let data = TempDir::new("farm-limits-cancel");
     let server = Server::start(
         &data,
         &["--local-workers", "1", "--local-worker-threads", "1", "--max-job-samples", "1000000000000"],
@@ -44,7 +44,7 @@ fn a_cancel_stops_the_tile_being_rendered() {
 #[test]
 fn a_tile_over_the_render_time_limit_fails_its_job_with_the_limit_named() {
     let _s = serial();
-    let data = temp_dir("limits-deadline");
+    let data = TempDir::new("farm-limits-deadline");
     let server = Server::start(
         &data,
         &["--local-workers", "1", "--local-worker-threads", "1", "--max-tile-seconds", "1"],
@@ -69,7 +69,7 @@ fn a_tile_over_the_render_time_limit_fails_its_job_with_the_limit_named() {
 #[test]
 fn a_job_over_the_sample_limit_is_refused_with_the_limit_named() {
     let _s = serial();
-    let data = temp_dir("limits-samples");
+    let data = TempDir::new("farm-limits-samples");
     let server = Server::start(&data, &["--local-workers", "0"]);
     let scene = std::fs::read_to_string(repo().join("scenes/environment.xml")).unwrap();
     let huge = scene
@@ -103,7 +103,7 @@ fn a_job_over_the_sample_limit_is_refused_with_the_limit_named() {
 #[test]
 fn a_hostile_recursion_depth_renders_on_the_farm() {
     let _s = serial();
-    let data = temp_dir("limits-depth");
+    let data = TempDir::new("farm-limits-depth");
     let server = Server::start(&data, &["--local-workers", "1", "--local-worker-threads", "1"]);
     let scene = r#"<Scene>
   <MaxRecursionDepth>1000000</MaxRecursionDepth>
@@ -147,7 +147,7 @@ fn children_of(pid: u32) -> Vec<u32> {
 #[test]
 fn a_tile_that_keeps_crashing_its_workers_fails_its_job_and_restarts_back_off() {
     let _s = serial();
-    let data = temp_dir("limits-crash");
+    let data = TempDir::new("farm-limits-crash");
     let server = Server::start(
         &data,
         &[

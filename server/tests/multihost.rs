@@ -150,14 +150,14 @@ fn a_farm_across_three_hosts_survives_a_worker_host_losing_its_link() {
     }
 
     // The server on its host's address: tokens required off loopback; no local workers.
-    let data = temp_dir("multihost");
+    let data = TempDir::new("farm-multihost");
     let log = data.with_extension(format!("log{}", std::process::id()));
     let mut server = Proc(
         Command::new("ip")
             .args(["netns", "exec", &srv])
             .arg(server_bin())
             .args(["--bind", "10.77.0.1:0", "--data-dir"])
-            .arg(&data)
+            .arg(data.path())
             .args(["--local-workers", "0", "--api-token", API, "--worker-token", WORKER])
             .args(["--lease-seconds", "2", "--heartbeat-seconds", "0.5"])
             .stdout(Stdio::piped())
@@ -271,7 +271,7 @@ fn a_farm_across_three_hosts_survives_a_worker_host_losing_its_link() {
         assert!(bytes == cli, "the farm's {name} differs from the CLI's");
     }
     drop(server);
-    let _ = std::fs::remove_dir_all(&data);
+    drop(data);
     drop(namespaces);
     assert!(!Path::new(&format!("/var/run/netns/{srv}")).exists(), "namespace {srv} left behind");
 }

@@ -72,8 +72,8 @@ fn submit_tiny(url: &str, w: u32, h: u32, tile: u32, priority: i64) -> u64 {
 }
 
 fn start() -> Server {
-    Server::start(
-        &temp_dir(&format!("proto-{}", std::thread::current().name().unwrap_or("t").replace("::", "-"))),
+    Server::start_temp(
+        &format!("farm-proto-{}", std::thread::current().name().unwrap_or("t").replace("::", "-")),
         &[
             "--local-workers",
             "0",

@@ -62,7 +62,7 @@ fn submit_big(server: &Server, tile_size: &str) -> (u16, serde_json::Value) {
 #[test]
 fn a_job_of_more_tiles_than_the_limit_is_refused_with_a_tile_size_that_fits() {
     let _s = serial();
-    let server = Server::start(&temp_dir("queue-refused"), &["--local-workers", "0"]);
+    let server = Server::start_temp("farm-queue-refused", &["--local-workers", "0"]);
     let (code, body) = submit_big(&server, "1");
     assert_eq!(code, 422, "{body}");
     let msg = body["error"].as_str().unwrap_or_default();
@@ -80,8 +80,8 @@ fn a_job_of_more_tiles_than_the_limit_is_refused_with_a_tile_size_that_fits() {
 #[test]
 fn a_high_priority_job_overtakes_640000_queued_tiles() {
     let _s = serial();
-    let server = Server::start(
-        &temp_dir("queue-big"),
+    let server = Server::start_temp(
+        "farm-queue-big",
         &["--local-workers", "1", "--local-worker-threads", "1", "--max-job-tiles", "1000000"],
     );
     let t0 = Instant::now();

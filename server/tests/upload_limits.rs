@@ -88,7 +88,7 @@ fn uploads_left(data: &std::path::Path) -> usize {
 #[test]
 fn decompression_bombs_are_refused_and_the_server_stays_small() {
     let _s = serial();
-    let data = temp_dir("upload-bombs");
+    let data = TempDir::new("farm-upload-bombs");
     let server = Server::start(&data, &["--local-workers", "1", "--local-worker-threads", "1"]);
 
     let zip = zip_bomb();
@@ -117,7 +117,7 @@ fn decompression_bombs_are_refused_and_the_server_stays_small() {
 #[test]
 fn too_many_files_and_too_large_files_are_refused_with_the_cap_named() {
     let _s = serial();
-    let data = temp_dir("upload-caps");
+    let data = TempDir::new("farm-upload-caps");
     let server = Server::start(
         &data,
         &["--local-workers", "0", "--max-bundle-files", "20", "--max-file-mb", "1", "--max-unpacked-mb", "3"],

@@ -8,9 +8,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use tessera::image::{Comparison, Rgb8, compare};
 use tessera::render::{RenderSettings, render_camera};
 use tessera::scene::load::load_scene_file;
+use tessera_testkit::rgb8::{Comparison, Rgb8, compare};
 
 /// One row of the table.
 #[derive(Clone, Debug, PartialEq)]
@@ -143,17 +143,14 @@ fn render_one(row: &Row, out_dir: &Path) -> Result<Comparison> {
         .with_context(|| format!("cannot read reference {}", row.reference_path().display()))?;
     // A difference picture beside the render: |ours - reference| x 8, to see where they differ.
     if ours.width == reference.width && ours.height == reference.height {
-        let diff = tessera::image::Image {
-            width: ours.width,
-            height: ours.height,
-            pixels: ours
-                .data
-                .chunks_exact(3)
-                .zip(reference.data.chunks_exact(3))
-                .map(|(a, b)| std::array::from_fn(|c| (a[c] as f32 - b[c] as f32).abs() * 8.0))
-                .collect(),
-        };
-        let _ = diff.write_png(&out.with_extension("diff.png"));
+        let diff: Vec<u8> = ours
+            .data
+            .iter()
+            .zip(&reference.data)
+            .map(|(a, b)| (u32::from(a.abs_diff(*b)) * 8).min(255) as u8)
+            .collect();
+        let _ =
+            tessera::hdr_io::write_png_rgb8(&out.with_extension("diff.png"), ours.width, ours.height, &diff);
     }
     compare(&ours, &reference).with_context(|| {
         format!(
@@ -175,7 +172,7 @@ pub fn display_image(cam: &tessera::camera::Camera, img: &tessera::image::Image)
             let (data, _) = tessera::tonemap::tonemap_with(img, operator, &params);
             Rgb8 { width: img.width, height: img.height, data }
         }
-        None => Rgb8::from_image(img),
+        None => Rgb8 { width: img.width, height: img.height, data: img.to_ldr() },
     }
 }
 

@@ -27,6 +27,7 @@ use tessera::image::TileRect;
 use tessera::render::{RenderSettings, render_tile};
 use tessera::scene::Scene;
 use tessera::scene::load::load_scene_str;
+use tessera_testkit::TempDir;
 
 // ---------------------------------------------------------------------------------------------
 // A small 3-vector (the tests crate does not depend on glam).
@@ -189,14 +190,12 @@ fn the_test_png_encoder_matches_known_checksums() {
 
 /// A per-test directory for PNGs; the scene "file" lives there too (it is never written).
 struct Stage {
-    dir: PathBuf,
+    dir: TempDir,
 }
 
 impl Stage {
     fn new(test: &str) -> Stage {
-        let dir = std::env::temp_dir().join(format!("tessera-textures-{}-{test}", std::process::id()));
-        std::fs::create_dir_all(&dir).expect("create temp dir");
-        Stage { dir }
+        Stage { dir: TempDir::new(&format!("textures-{test}")) }
     }
 
     fn write(&self, name: &str, bytes: &[u8]) {
@@ -212,7 +211,7 @@ impl Stage {
     }
 
     fn load(&self, xml: &str) -> Result<Scene, SceneError> {
-        load_scene_str(xml, &self.source(), &FsResolver { base_dir: self.dir.clone() })
+        load_scene_str(xml, &self.source(), &FsResolver { base_dir: self.dir.to_path_buf() })
     }
 
     fn scene(&self, xml: &str) -> Scene {
@@ -224,12 +223,6 @@ impl Stage {
             Ok(_) => panic!("the scene loads but should fail:\n{xml}"),
             Err(e) => e,
         }
-    }
-}
-
-impl Drop for Stage {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.dir);
     }
 }
 

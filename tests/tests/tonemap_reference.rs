@@ -26,13 +26,13 @@
 //! same scene with next-event estimation, do.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rayon::prelude::*;
 use tessera::hdr_io::{read_exr, write_exr};
-use tessera::image::Rgb8;
 use tessera::tonemap::params::{Gamma, Photographic};
 use tessera::tonemap::tonemap;
+use tessera_testkit::TempDir;
+use tessera_testkit::rgb8::Rgb8;
 
 /// References whose PNG does not follow the operator (module docs: how far off and why).
 const EXCLUDED: &[&str] = &[
@@ -235,18 +235,11 @@ fn official_exr_round_trips_through_write_exr() {
     if !tessera_tests::corpus_has(&path) {
         return;
     }
-    static COUNTER: AtomicUsize = AtomicUsize::new(0);
-    let dir = std::env::temp_dir().join(format!(
-        "tessera-tonemap-ref-{}-{}",
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    ));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = TempDir::new("tonemap-ref");
     let img = read_exr(&path).unwrap();
     let copy = dir.join("copy.exr");
     write_exr(&copy, &img).unwrap();
     let back = read_exr(&copy).unwrap();
-    let _ = std::fs::remove_dir_all(&dir);
     assert_eq!((back.width, back.height), (img.width, img.height));
     assert!(
         img.pixels

@@ -36,13 +36,11 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
 use rayon::prelude::*;
-use tessera::assets::MemResolver;
+use tessera::bundle::{load_bundle_scene, read_tar};
 use tessera::image::TileRect;
 use tessera::protocol::*;
 use tessera::render::{RenderSettings, Stop, Stopped, render_tile_until};
 use tessera::scene::Scene;
-use tessera::scene::build::build_scene;
-use tessera::scene::load::parse_scene;
 
 /// What `work` was told.
 pub struct WorkOptions {
@@ -487,7 +485,7 @@ fn render_lease(
     let scene = match scenes.get(&key) {
         Some(s) => s.clone(),
         None => {
-            let s = Arc::new(load_bundle_scene(client, &lease.bundle, &lease.scene_path)?);
+            let s = Arc::new(fetch_bundle_scene(client, &lease.bundle, &lease.scene_path)?);
             // Keep a few scenes; jobs rarely interleave more.
             if scenes.len() >= 4 {
                 scenes.clear();
@@ -552,7 +550,9 @@ impl std::fmt::Display for OutOfTime {
 
 impl std::error::Error for OutOfTime {}
 
-fn load_bundle_scene(client: &Client, bundle: &str, scene_path: &str) -> Result<Scene> {
+/// Fetches the bundle `bundle` and builds its scene `scene_path` (the server's validation built
+/// it the same way).
+fn fetch_bundle_scene(client: &Client, bundle: &str, scene_path: &str) -> Result<Scene> {
     let resp = client
         .agent
         .get(&client.url(&format!("/api/v1/worker/bundles/{bundle}")))
@@ -561,31 +561,8 @@ fn load_bundle_scene(client: &Client, bundle: &str, scene_path: &str) -> Result<
         .map_err(|e| anyhow!("fetching bundle {bundle}: {}", describe(e)))?;
     let mut tar = Vec::new();
     resp.into_reader().read_to_end(&mut tar).context("downloading the bundle")?;
-    let files = read_tar(&tar)?;
-    let text = files.get(scene_path).ok_or_else(|| anyhow!("the bundle has no {scene_path}"))?;
-    let text = String::from_utf8_lossy(text).into_owned();
-    let records = parse_scene(&text, std::path::Path::new(scene_path))?;
-    let resolver = MemResolver::for_scene(files, scene_path);
-    Ok(build_scene(&records, &resolver)?)
-}
-
-/// The files of a bundle (a tar of regular files with normalised paths).
-fn read_tar(bytes: &[u8]) -> Result<HashMap<String, Arc<Vec<u8>>>> {
-    let mut out = HashMap::new();
-    let mut archive = tar::Archive::new(bytes);
-    for entry in archive.entries().context("reading the bundle")? {
-        let mut entry = entry.context("reading the bundle")?;
-        if !entry.header().entry_type().is_file() {
-            continue;
-        }
-        let path = String::from_utf8_lossy(&entry.path_bytes()).into_owned();
-        let mut data = Vec::new();
-        entry.read_to_end(&mut data).context("reading the bundle")?;
-        if let Some(p) = tessera::assets::normalize_bundle_path(&path) {
-            out.insert(p, Arc::new(data));
-        }
-    }
-    Ok(out)
+    let files = read_tar(&tar).context("reading the bundle")?;
+    Ok(load_bundle_scene(files, scene_path)?)
 }
 
 /// Uploads a tile, retrying transport errors; a 409 means the lease is gone: drop the tile.

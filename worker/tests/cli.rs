@@ -5,45 +5,13 @@ mod support;
 use support::*;
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
-
-use tessera::image::Rgb8;
-
-/// A scratch directory under the system temp dir, removed on drop.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(tag: &str) -> TempDir {
-        static COUNTER: AtomicUsize = AtomicUsize::new(0);
-        let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-        let dir = std::env::temp_dir().join(format!("tessera-cli-{tag}-{}-{n}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("create temp dir");
-        TempDir(dir)
-    }
-
-    fn path(&self) -> &Path {
-        &self.0
-    }
-
-    fn write(&self, name: &str, text: &str) -> PathBuf {
-        let p = self.0.join(name);
-        std::fs::write(&p, text).expect("write temp file");
-        p
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 fn repo_scene(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes").join(name)
 }
 
-use tessera_testkit::shared_scenes;
+use tessera_testkit::rgb8::Rgb8;
+use tessera_testkit::{TempDir, shared_scenes};
 
 fn pngs_in(dir: &Path) -> Vec<PathBuf> {
     match std::fs::read_dir(dir) {
@@ -93,7 +61,7 @@ fn renders_the_repository_scenes() {
         ("environment.xml", "environment.png", 480, 270),
     ];
     for (scene, image, w, h) in cases {
-        let tmp = TempDir::new("render");
+        let tmp = TempDir::new("cli-render");
         let out = tmp.path().join("out");
         let r = run(&[
             "render".as_ref(),
@@ -131,7 +99,7 @@ fn renders_the_repository_scenes() {
 
 #[test]
 fn output_does_not_depend_on_threads_or_tile_size() {
-    let tmp = TempDir::new("threads");
+    let tmp = TempDir::new("cli-threads");
     let mut images = Vec::new();
     for (threads, tile) in [("1", "16"), ("2", "64")] {
         let out = tmp.path().join(format!("out-{threads}-{tile}"));
@@ -158,8 +126,8 @@ fn output_does_not_depend_on_threads_or_tile_size() {
 
 #[test]
 fn unknown_element_warns_and_still_renders() {
-    let tmp = TempDir::new("unknown");
-    let scene = tmp.write("unknown.xml", &small_scene(TRIANGLE, "<Frobnicate>1 2 3</Frobnicate>"));
+    let tmp = TempDir::new("cli-unknown");
+    let scene = tmp.write("unknown.xml", small_scene(TRIANGLE, "<Frobnicate>1 2 3</Frobnicate>"));
     let out = tmp.path().join("out");
     let r = run(&["render".as_ref(), scene.as_os_str(), "--out".as_ref(), out.as_os_str(), "-q".as_ref()]);
     assert_eq!(r.code, Some(0), "{}", r.describe());
@@ -179,7 +147,7 @@ fn unknown_element_warns_and_still_renders() {
 /// render thread's stack (a mirror) or splitting rays for ever (glass, 2^depth rays a sample).
 #[test]
 fn hostile_recursion_depth_is_capped_with_a_warning() {
-    let tmp = TempDir::new("depth");
+    let tmp = TempDir::new("cli-depth");
     for (kind, material) in [
         (
             "mirror",
@@ -465,7 +433,7 @@ fn error_cases() -> Vec<ErrorCase> {
 fn errors_are_reported_without_panicking() {
     let mut failures = Vec::new();
     for case in error_cases() {
-        let tmp = TempDir::new(case.name);
+        let tmp = TempDir::new(&format!("cli-{}", case.name));
         let file = format!("{}.xml", case.name);
         let scene = match &case.scene {
             Some(text) => tmp.write(&file, text),
@@ -524,7 +492,7 @@ fn course_scene_with_a_missing_ply_names_it() {
         );
         return;
     }
-    let tmp = TempDir::new("trex");
+    let tmp = TempDir::new("cli-trex");
     let out = tmp.path().join("out");
     let r = run(&["render".as_ref(), scene.as_os_str(), "--out".as_ref(), out.as_os_str(), "-q".as_ref()]);
     assert!(r.code.is_some_and(|c| c != 0), "{}", r.describe());

@@ -4,7 +4,7 @@
 
 mod support;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 use support::run;
@@ -14,14 +14,8 @@ use tessera::render::{RenderSettings, render_camera};
 use tessera::scene::load::load_scene_file;
 use tessera::tonemap::tonemap;
 
-use tessera_testkit::shared_scenes;
-
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("tessera-hdr-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
+use tessera_testkit::rgb8::Rgb8;
+use tessera_testkit::{TempDir, shared_scenes};
 
 /// The library's render of camera 0 of `scene`, for comparison with the files.
 fn library_render(scene: &Path) -> Image {
@@ -30,13 +24,13 @@ fn library_render(scene: &Path) -> Image {
 }
 
 fn png_bytes(path: &Path) -> Vec<u8> {
-    tessera::image::Rgb8::read_png(path).unwrap().data
+    Rgb8::read_png(path).unwrap().data
 }
 
 #[test]
 fn exr_image_name_writes_the_linear_exr_and_the_tone_mapped_png() {
     let scene = shared_scenes().join("xml/cube_point_hdr.xml");
-    let out = temp_dir("exr");
+    let out = TempDir::new("hdr-exr");
     let r =
         run(&["render".as_ref(), scene.as_os_str(), "--quiet".as_ref(), "--out".as_ref(), out.as_os_str()]);
     assert_eq!(r.code, Some(0), "{}", r.describe());
@@ -60,7 +54,7 @@ fn exr_image_name_writes_the_linear_exr_and_the_tone_mapped_png() {
 
 #[test]
 fn hdr_image_name_writes_radiance_rgbe_and_png() {
-    let dir = temp_dir("rgbe");
+    let dir = TempDir::new("hdr-rgbe");
     let scene_text = std::fs::read_to_string(shared_scenes().join("xml/cube_point_hdr.xml"))
         .unwrap()
         .replace("cube_point_hdr.exr", "cube.hdr")
@@ -135,7 +129,7 @@ sys.stdout.write(rgb.view(np.uint32).ravel().tobytes().hex())
 #[test]
 fn the_exr_opens_bit_exact_in_an_independent_reader() {
     let scene = shared_scenes().join("xml/cube_point_hdr.xml");
-    let out = temp_dir("python");
+    let out = TempDir::new("hdr-python");
     let r =
         run(&["render".as_ref(), scene.as_os_str(), "--quiet".as_ref(), "--out".as_ref(), out.as_os_str()]);
     assert_eq!(r.code, Some(0), "{}", r.describe());
@@ -163,7 +157,7 @@ fn a_scene_whose_environment_map_is_missing_fails_naming_the_file() {
         scene.as_os_str(),
         "--quiet".as_ref(),
         "--out".as_ref(),
-        temp_dir("missing").as_os_str(),
+        TempDir::new("hdr-missing").as_os_str(),
     ]);
     assert_eq!(r.code, Some(1), "{}", r.describe());
     assert!(

@@ -4,21 +4,13 @@
 
 mod support;
 
-use std::path::PathBuf;
-
 use support::run;
 use tessera::hdr_io::read_exr;
 use tessera::tonemap::params::{Operator, Photographic};
 use tessera::tonemap::tonemap_with;
 
-use tessera_testkit::shared_scenes;
-
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("tessera-json-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
+use tessera_testkit::rgb8::Rgb8;
+use tessera_testkit::{TempDir, shared_scenes};
 
 /// A small version of the 2025 simple.json: a triangle, a sphere and a plane under a point light.
 const TINY: &str = r#"{"Scene": {
@@ -37,14 +29,14 @@ const TINY: &str = r#"{"Scene": {
 
 #[test]
 fn a_json_scene_renders_whatever_its_extension() {
-    let dir = temp_dir("tiny");
+    let dir = TempDir::new("json-tiny");
     let scene = dir.join("tiny.scene");
     std::fs::write(&scene, TINY).unwrap();
     let out = dir.join("out");
     let r =
         run(&["render".as_ref(), scene.as_os_str(), "--quiet".as_ref(), "--out".as_ref(), out.as_os_str()]);
     assert_eq!(r.code, Some(0), "{}", r.describe());
-    let png = tessera::image::Rgb8::read_png(&out.join("tiny.png")).unwrap();
+    let png = Rgb8::read_png(&out.join("tiny.png")).unwrap();
     assert_eq!((png.width, png.height), (16, 16));
     // The plane (y = -1) fills the bottom rows: lit, not background.
     let bottom = &png.data[(15 * 16 + 8) * 3..(15 * 16 + 8) * 3 + 3];
@@ -71,7 +63,6 @@ fn a_json_scene_renders_whatever_its_extension() {
     let r = run(&["render".as_ref(), bad.as_os_str(), "--quiet".as_ref(), "--out".as_ref(), out.as_os_str()]);
     assert_ne!(r.code, Some(0), "{}", r.describe());
     assert!(r.stderr.contains("malformed JSON") && r.stderr.contains("column"), "{}", r.describe());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The 2025 cube_point_hdr.json has three Tonemaps (Photographic, ACES, Filmic) with
@@ -82,7 +73,7 @@ fn each_tonemap_of_a_json_scene_writes_its_png() {
     if !tessera_testkit::corpus_has(&scene) {
         return;
     }
-    let out = temp_dir("hdr");
+    let out = TempDir::new("json-hdr");
     let r =
         run(&["render".as_ref(), scene.as_os_str(), "--quiet".as_ref(), "--out".as_ref(), out.as_os_str()]);
     assert_eq!(r.code, Some(0), "{}", r.describe());
@@ -93,9 +84,8 @@ fn each_tonemap_of_a_json_scene_writes_its_png() {
         ("_aces.png", Operator::Aces),
         ("_film.png", Operator::Filmic),
     ] {
-        let png = tessera::image::Rgb8::read_png(&out.join(format!("cube_point_hdr{ext}"))).unwrap();
+        let png = Rgb8::read_png(&out.join(format!("cube_point_hdr{ext}"))).unwrap();
         assert_eq!(png.data, tonemap_with(&exr, op, &params).0, "{ext}");
     }
     assert!(!out.join("cube_point_hdr.png").exists());
-    let _ = std::fs::remove_dir_all(&out);
 }

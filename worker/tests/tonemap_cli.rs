@@ -5,37 +5,14 @@
 mod support;
 use support::*;
 
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::path::PathBuf;
 
 use tessera::hdr_io::{read_hdr, write_hdr};
-use tessera::image::{Image, Rgb8};
+use tessera::image::Image;
 use tessera::tonemap::params::Photographic;
 use tessera::tonemap::tonemap;
-
-/// A scratch directory under the system temp dir, removed on drop.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(tag: &str) -> TempDir {
-        static COUNTER: AtomicUsize = AtomicUsize::new(0);
-        let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-        let dir = std::env::temp_dir().join(format!("tessera-tonemap-cli-{tag}-{}-{n}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("create temp dir");
-        TempDir(dir)
-    }
-
-    fn path(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
+use tessera_testkit::TempDir;
+use tessera_testkit::rgb8::Rgb8;
 
 fn reference_dir() -> PathBuf {
     tessera_testkit::shared_scenes().join("reference")
@@ -59,7 +36,7 @@ fn difference(a: &Rgb8, b: &Rgb8) -> (u8, f64) {
 /// Runs `tonemap` on the official EXR with `args` and checks the PNG against the official one.
 fn check_reference(name: &str, args: &[&str]) {
     let Some((exr, png)) = official(name) else { return };
-    let dir = TempDir::new(name);
+    let dir = TempDir::new(&format!("tonemap-cli-{name}"));
     let out = dir.path().join(format!("{name}.png"));
     let mut argv: Vec<std::ffi::OsString> = vec!["tonemap".into(), exr.clone().into()];
     argv.extend(args.iter().map(Into::into));
@@ -98,7 +75,7 @@ fn tonemap_takes_its_defaults_from_a_scene() {
     check_reference("sphere_point_hdr_texture", &["--scene", s]);
     // An explicit option still wins over the scene's.
     let Some((exr, _)) = official("sphere_point_hdr_texture") else { return };
-    let dir = TempDir::new("scene");
+    let dir = TempDir::new("tonemap-cli-scene");
     let out = dir.path().join("o.png");
     let r = run(&[
         OsArg::from("tonemap"),
@@ -146,7 +123,7 @@ fn each_operator_re_tone_maps_to_the_png_the_render_wrote() {
     if !tessera_testkit::corpus_has(&scene) {
         return;
     }
-    let dir = TempDir::new("operators");
+    let dir = TempDir::new("tonemap-cli-operators");
     let r = run(&[
         OsArg::from("render"),
         scene.clone().into(),
@@ -194,7 +171,7 @@ fn each_operator_re_tone_maps_to_the_png_the_render_wrote() {
 #[test]
 fn tonemap_defaults_are_the_course_defaults() {
     let Some((exr, _)) = official("sphere_env_light") else { return };
-    let dir = TempDir::new("defaults");
+    let dir = TempDir::new("tonemap-cli-defaults");
     let (plain, explicit) = (dir.path().join("plain.png"), dir.path().join("explicit.png"));
     let r = run(&[OsArg::from("tonemap"), exr.clone().into(), "-o".into(), plain.clone().into()]);
     assert_eq!(r.code, Some(0), "{}", r.describe());
@@ -211,7 +188,7 @@ type OsArg = std::ffi::OsString;
 
 #[test]
 fn tonemap_reads_radiance_hdr_and_reports_non_finite_pixels() {
-    let dir = TempDir::new("hdr");
+    let dir = TempDir::new("tonemap-cli-hdr");
     let pixels: Vec<[f32; 3]> =
         (0..8 * 6).map(|k| [k as f32 * 0.3, 1.0 + (k % 5) as f32, 0.25 * (k % 7) as f32]).collect();
     let input = dir.path().join("gradient.hdr");
@@ -250,7 +227,7 @@ fn tonemap_reads_radiance_hdr_and_reports_non_finite_pixels() {
 
 #[test]
 fn tonemap_errors_name_the_file_and_exit_non_zero() {
-    let dir = TempDir::new("errors");
+    let dir = TempDir::new("tonemap-cli-errors");
     let out = dir.path().join("out.png");
 
     let missing = dir.path().join("missing.exr");

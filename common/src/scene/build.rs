@@ -1022,8 +1022,7 @@ mod tests {
 
     #[test]
     fn an_image_used_by_several_maps_is_decoded_once() {
-        let dir = std::env::temp_dir().join(format!("tessera-build-img-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = tessera_testkit::TempDir::new("build-img");
         // A 1x1 grey PNG from the image crate.
         let png = dir.join("g.png");
         image::save_buffer(&png, &[9, 9, 9], 1, 1, image::ExtendedColorType::Rgb8).unwrap();
@@ -1033,7 +1032,7 @@ mod tests {
             <TextureMap id="3" type="image"><ImageId>2</ImageId><DecalMode>replace_ks</DecalMode></TextureMap>
             </Textures></Scene>"#;
         let rec = crate::scene::xml::parse_xml(xml, &dir.join("s.xml")).unwrap();
-        let scene = build_scene(&rec, &FsResolver { base_dir: dir.clone() }).unwrap();
+        let scene = build_scene(&rec, &FsResolver { base_dir: dir.to_path_buf() }).unwrap();
         let img = |k: usize| match &scene.textures[k].source {
             Source::Image { image, .. } => image.clone(),
             _ => panic!("not an image map"),
@@ -1044,10 +1043,11 @@ mod tests {
         // A missing image names the file, the image id and the map that uses it.
         let missing = xml.replace("<Image id=\"1\">g.png", "<Image id=\"1\">nope.png");
         let rec = crate::scene::xml::parse_xml(&missing, &dir.join("s.xml")).unwrap();
-        let e =
-            build_scene(&rec, &FsResolver { base_dir: dir.clone() }).err().expect("must fail").to_string();
+        let e = build_scene(&rec, &FsResolver { base_dir: dir.to_path_buf() })
+            .err()
+            .expect("must fail")
+            .to_string();
         assert!(e.contains("nope.png") && e.contains("image id 1") && e.contains("texture map 1"), "{e}");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

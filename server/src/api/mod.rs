@@ -28,7 +28,6 @@ use axum::routing::{get, post, put};
 use axum::{Json, Router};
 use tessera::camera::Camera;
 use tessera::protocol::*;
-use tessera::scene::load::parse_scene;
 
 use crate::bundle::{self, BlobStore};
 use crate::db::Store;
@@ -99,14 +98,8 @@ impl AppState {
             .blobs
             .get(&job.bundle)
             .ok_or_else(|| anyhow::anyhow!("bundle {} of job {} is missing", job.bundle, job.id))?;
-        let files = bundle::read_tar(&tar)?;
-        let text = files
-            .get(&job.scene_path)
-            .ok_or_else(|| anyhow::anyhow!("scene {} missing from its bundle", job.scene_path))?;
-        let records = parse_scene(&String::from_utf8_lossy(text), std::path::Path::new(&job.scene_path))
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
-        let cameras =
-            Arc::new(tessera::scene::build::build_cameras(&records).map_err(|e| anyhow::anyhow!("{e}"))?);
+        let files = tessera::bundle::read_tar(&tar)?;
+        let cameras = Arc::new(tessera::bundle::bundle_cameras(&files, &job.scene_path)?);
         self.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(job.id, cameras.clone());
         Ok(cameras)
     }

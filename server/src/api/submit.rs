@@ -1,18 +1,15 @@
 //! Job submission: the multipart upload spooled to disk under the caps, unpacked, validated
 //! (parse and build the scene, check the tile and sample limits) and stored as a queued job.
 
-use std::collections::HashMap;
 use std::path::PathBuf;
 use std::sync::Arc;
 
 use axum::Json;
 use axum::extract::{Multipart, State};
 use axum::http::StatusCode;
-use tessera::assets::MemResolver;
+use tessera::bundle::{BundleFiles, BundleSceneError, load_bundle_scene};
 use tessera::camera::Camera;
 use tessera::protocol::*;
-use tessera::scene::build::build_scene;
-use tessera::scene::load::parse_scene;
 
 use super::jobs::job_info;
 use super::{ApiResult, AppError, AppState, Settings};
@@ -54,7 +51,7 @@ enum SpoolKind {
 
 impl Spool {
     fn new(data_dir: &std::path::Path) -> anyhow::Result<Spool> {
-        let dir = crate::bundle::unique_temp_name(&data_dir.join("uploads").join("upload"));
+        let dir = tessera::atomic_write::unique_temp_name(&data_dir.join("uploads").join("upload"));
         std::fs::create_dir_all(&dir).map_err(|e| anyhow::anyhow!("cannot create {}: {e}", dir.display()))?;
         Ok(Spool { dir, parts: Vec::new() })
     }
@@ -357,26 +354,18 @@ fn validate(
     max_tiles: u64,
 ) -> ApiResult<Validated> {
     let tar = bundle::canonical_tar(&files);
-    let text = std::str::from_utf8(&files[scene_path]).map_err(|e| {
-        AppError::new(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            format!(
-                "{scene_path}: the scene file is not UTF-8 text (byte {}); save it as UTF-8",
-                e.valid_up_to()
-            ),
-        )
-    })?;
-    let invalid = |e: tessera::SceneError| AppError {
-        status: StatusCode::UNPROCESSABLE_ENTITY,
-        body: ApiError {
-            error: format!("the scene cannot be rendered: {e}"),
-            problems: vec![problem_from(&e)],
+    let shared: BundleFiles = files.into_iter().map(|(k, v)| (k, Arc::new(v))).collect();
+    let scene = load_bundle_scene(shared, scene_path).map_err(|e| match e {
+        // The scene file is not text: said as it is ("<file>: the scene file is not UTF-8 text ...").
+        BundleSceneError::Unreadable(e) => AppError::new(StatusCode::UNPROCESSABLE_ENTITY, e.to_string()),
+        BundleSceneError::Invalid(e) => AppError {
+            status: StatusCode::UNPROCESSABLE_ENTITY,
+            body: ApiError {
+                error: format!("the scene cannot be rendered: {e}"),
+                problems: vec![problem_from(&e)],
+            },
         },
-    };
-    let records = parse_scene(text, std::path::Path::new(scene_path)).map_err(invalid)?;
-    let shared: HashMap<String, Arc<Vec<u8>>> = files.into_iter().map(|(k, v)| (k, Arc::new(v))).collect();
-    let resolver = MemResolver::for_scene(shared, scene_path);
-    let scene = build_scene(&records, &resolver).map_err(invalid)?;
+    })?;
     if scene.cameras.is_empty() {
         return Err(AppError::new(
             StatusCode::UNPROCESSABLE_ENTITY,

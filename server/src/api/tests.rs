@@ -10,13 +10,14 @@ use axum::body::Body;
 use axum::http::{HeaderMap, Method, Request, StatusCode, header};
 use serde_json::{Value, json};
 use tessera::protocol::{CHECKSUM_HEADER, checksum, encode_tile};
+use tessera_testkit::TempDir;
 use tower::ServiceExt;
 
 use super::{AppState, Settings, app};
 use crate::bundle::{BlobStore, Limits};
 use crate::db::Store;
 use crate::scheduler::Timing;
-use crate::testutil::{TempDir, tiny_scene};
+use crate::testutil::tiny_scene;
 
 const TOKEN: &str = "wtok";
 
@@ -30,7 +31,7 @@ struct Farm {
 impl Farm {
     /// Leases live `lease_seconds` without a heartbeat.
     fn new(lease_seconds: f64) -> Farm {
-        let dir = TempDir::new("api");
+        let dir = TempDir::new("unit-api");
         let store = Arc::new(Store::open(&dir.path().join("tessera.db")).unwrap());
         let blobs = BlobStore::new(dir.path()).unwrap();
         let settings = Settings {

@@ -9,6 +9,7 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
+pub use tessera_testkit::TempDir;
 
 /// Farm tests start several processes that each want every core: run them one at a time.
 pub static SERIAL: Mutex<()> = Mutex::new(());
@@ -137,17 +138,13 @@ pub fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-pub fn temp_dir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("tessera-farm-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
 pub struct Server {
     pub child: Child,
     pub url: String,
     pub log: PathBuf,
+    /// The data directory when the server owns it ([`Server::start_temp`]); removed after the
+    /// server stops.
+    data: Option<TempDir>,
 }
 
 impl Server {
@@ -174,7 +171,16 @@ impl Server {
             .strip_prefix("listening on ")
             .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
             .to_string();
-        Server { child, url, log }
+        Server { child, url, log, data: None }
+    }
+
+    /// Starts `tessera-server` with `args` on a data directory of its own (`TempDir::new(tag)`),
+    /// removed when the server is dropped.
+    pub fn start_temp(tag: &str, args: &[&str]) -> Server {
+        let data = TempDir::new(tag);
+        let mut server = Server::start(&data, args);
+        server.data = Some(data);
+        server
     }
 
     pub fn log(&self) -> String {
@@ -332,7 +338,7 @@ pub fn submit_environment(server: &Server, samples: &str, tile: &str) -> u64 {
 /// What `tessera-worker render` writes for the environment scene at `samples` spp: the bytes of
 /// its `.exr` and `.png`.
 pub fn cli_render_environment(samples: &str) -> (Vec<u8>, Vec<u8>) {
-    let out = temp_dir(&format!("cli-{samples}"));
+    let out = TempDir::new(&format!("farm-cli-{samples}"));
     let status = Command::new(worker_bin())
         .args([
             "render",
@@ -342,7 +348,7 @@ pub fn cli_render_environment(samples: &str) -> (Vec<u8>, Vec<u8>) {
             samples,
         ])
         .arg("--out")
-        .arg(&out)
+        .arg(out.path())
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .status()

@@ -5,8 +5,14 @@
 //! the repository, or from `$TESSERA_SCENES`. A test that needs it and finds it missing skips,
 //! saying so, unless `TESSERA_REQUIRE_SCENES` is set (`.ci/run` sets it): then it fails, so CI
 //! can never pass by skipping the corpus tests.
+//!
+//! Tests write into a [`TempDir`] of their own, removed when it drops, and judge 8-bit pictures
+//! with [`rgb8`] (PNG reading and the comparison metrics).
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+pub mod rgb8;
 
 /// The repository root.
 pub fn repo_root() -> PathBuf {
@@ -49,4 +55,53 @@ pub fn missing(what: &str) {
     eprintln!(
         "skipping: {what} (the course corpus is not checked out; TESSERA_REQUIRE_SCENES makes this a failure)"
     );
+}
+
+/// A directory of its own under the system's temporary one, created empty and removed with
+/// everything in it on drop: `tessera-<tag>-<pid>-<n>`, with `n` counted per process, so no two
+/// tests (of this process or another) share one, whatever tags they pass. It dereferences to its
+/// [`Path`]: keep it alive (bound to a name) for as long as the directory is used.
+#[derive(Debug)]
+pub struct TempDir(PathBuf);
+
+impl TempDir {
+    pub fn new(tag: &str) -> TempDir {
+        static NEXT: AtomicU64 = AtomicU64::new(0);
+        let n = NEXT.fetch_add(1, Ordering::Relaxed);
+        let dir = std::env::temp_dir().join(format!("tessera-{tag}-{}-{n}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("cannot create {}: {e}", dir.display()));
+        TempDir(dir)
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.0
+    }
+
+    /// Writes `contents` to the file `name` in the directory and returns its path.
+    pub fn write(&self, name: &str, contents: impl AsRef<[u8]>) -> PathBuf {
+        let p = self.0.join(name);
+        std::fs::write(&p, contents).unwrap_or_else(|e| panic!("cannot write {}: {e}", p.display()));
+        p
+    }
+}
+
+impl std::ops::Deref for TempDir {
+    type Target = Path;
+
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for TempDir {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
 }
