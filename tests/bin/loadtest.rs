@@ -155,6 +155,8 @@ fn submitter(url: &str, jobs: usize, opts: &Options, tally: &Tally, stop: &Atomi
     }
 }
 
+// ureq's own error, passed through unboxed: the callers only read its status code.
+#[allow(clippy::result_large_err)]
 fn post(url: &str, path: &str, body: Value) -> Result<ureq::Response, ureq::Error> {
     ureq::post(&format!("{url}{path}"))
         .timeout(Duration::from_secs(30))
