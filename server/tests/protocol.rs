@@ -45,19 +45,8 @@ fn pixels_for(lease: &Value) -> Vec<[f32; 3]> {
     vec![[1.0, 2.0, 3.0]; (r["width"].as_u64().unwrap() * r["height"].as_u64().unwrap()) as usize]
 }
 
-/// A tiny scene: `w` x `h` pixels, nothing to load.
-fn tiny_scene(w: u32, h: u32) -> Vec<u8> {
-    format!(
-        r#"<Scene><Cameras><Camera id="1"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
-<NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>{w} {h}</ImageResolution>
-<ImageName>tiny.png</ImageName></Camera></Cameras><Materials><Material id="1"><DiffuseReflectance>1 1 1</DiffuseReflectance></Material></Materials>
-<VertexData>0 0 -5</VertexData><Objects><Sphere id="1"><Material>1</Material><Center>1</Center><Radius>1</Radius></Sphere></Objects></Scene>"#
-    )
-    .into_bytes()
-}
-
 fn submit_tiny(url: &str, w: u32, h: u32, tile: u32, priority: i64) -> u64 {
-    let scene = tiny_scene(w, h);
+    let scene = tessera_testkit::tiny_scene(w, h);
     let (code, v) = submit(
         url,
         None,

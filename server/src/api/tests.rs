@@ -17,7 +17,7 @@ use super::{AppState, Settings, app};
 use crate::bundle::{BlobStore, Limits};
 use crate::db::Store;
 use crate::scheduler::Timing;
-use crate::testutil::tiny_scene;
+use tessera_testkit::tiny_scene;
 
 const TOKEN: &str = "wtok";
 
