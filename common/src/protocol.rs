@@ -267,6 +267,39 @@ pub struct JobList {
     pub jobs: Vec<JobInfo>,
 }
 
+/// One entry of a job's event log (`GET /api/v1/jobs/ID/log`), oldest first.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JobEvent {
+    /// Position in the job's log, from 1: a client that has seen up to `seq` asks for more
+    /// with `?after=seq`.
+    pub seq: u64,
+    /// Unix seconds.
+    pub at: f64,
+    /// What happened: `accepted`, `warning`, `tile_done`, `tile_failed`, `tile_retried`,
+    /// `lease_expired`, `frame_merged`, `frame_tonemapped`, `job_done`, `job_failed`,
+    /// `job_cancelled`.
+    pub kind: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tile: Option<u32>,
+    /// The worker's name, for tile events.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub worker: Option<String>,
+    /// Seconds the step took (a tile's render, a merge, a tone map), where it has a duration.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seconds: Option<f64>,
+    /// A sentence for people: the warning's or the failure's text, or a summary.
+    pub message: String,
+}
+
+/// `GET /api/v1/jobs/ID/log`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JobLog {
+    pub job: u64,
+    pub events: Vec<JobEvent>,
+}
+
 /// Query of `GET /api/v1/jobs/ID/frames/F/tonemap.png`: any parameter left out takes the
 /// camera's value (`gamma`: a number or "sRGB").
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
