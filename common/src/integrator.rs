@@ -246,7 +246,7 @@ impl<'a> Tracer<'a> {
         for light in &scene.point_lights {
             if let Some(wi) = self.visible(ray, x, n, origin, light.position) {
                 let e = light.intensity / (light.position - x).length_squared();
-                l += blinn_phong(mat, n, wi, wo) * e;
+                l += mat.reflectance(n, wi, wo) * e;
             }
         }
         for light in &scene.area_lights {
@@ -256,12 +256,12 @@ impl<'a> Tracer<'a> {
             if let Some(wi) = self.visible(ray, x, n, origin, q) {
                 let d2 = (q - x).length_squared();
                 let e = light.radiance * (light.size * light.size * light.normal.dot(wi).abs() / d2);
-                l += blinn_phong(mat, n, wi, wo) * e;
+                l += mat.reflectance(n, wi, wo) * e;
             }
         }
         for light in &scene.directional_lights {
             if self.unblocked(ray, n, origin, light.to_light) {
-                l += blinn_phong(mat, n, light.to_light, wo) * light.radiance;
+                l += mat.reflectance(n, light.to_light, wo) * light.radiance;
             }
         }
         for light in &scene.spot_lights {
@@ -270,7 +270,7 @@ impl<'a> Tracer<'a> {
                 && let Some(wi) = self.visible(ray, x, n, origin, light.position)
             {
                 let e = light.intensity * (s / (light.position - x).length_squared());
-                l += blinn_phong(mat, n, wi, wo) * e;
+                l += mat.reflectance(n, wi, wo) * e;
             }
         }
         if let Some(env) = &scene.env_light
@@ -278,7 +278,7 @@ impl<'a> Tracer<'a> {
             && s.weight != DVec3::ZERO
             && self.unblocked(ray, n, origin, s.wi)
         {
-            l += blinn_phong(mat, n, s.wi, wo) * s.weight;
+            l += mat.reflectance(n, s.wi, wo) * s.weight;
         }
         l
     }
@@ -422,20 +422,6 @@ fn tangent_basis(n: DVec3, dpdu: DVec3, dpdv: DVec3) -> Option<(DVec3, DVec3)> {
     let t = (dpdu - n * n.dot(dpdu)).try_normalize()?;
     let b = (dpdv - n * n.dot(dpdv) - t * t.dot(dpdv)).try_normalize()?;
     Some((t, b))
-}
-
-/// The bracket of §6.2: diffuse cosine plus the Blinn-Phong lobe, for unit `n`, `wi`, `wo`.
-#[inline]
-fn blinn_phong(mat: &Material, n: DVec3, wi: DVec3, wo: DVec3) -> DVec3 {
-    let h = (wi + wo).normalize();
-    let c = n.dot(h).max(0.0);
-    // Integer exponents (nearly all course materials) by repeated squaring: several times
-    // cheaper than powf.
-    let lobe = match mat.phong_exponent_int {
-        Some(k) => c.powi(k),
-        None => c.powf(mat.phong_exponent),
-    };
-    mat.diffuse * n.dot(wi) + mat.specular * lobe
 }
 
 /// Glossy perturbation of a reflection direction (§6.7); identity for roughness 0.

@@ -19,7 +19,7 @@ use crate::error::{Loc, SceneError, Warning};
 use crate::geometry::mesh::{MeshGeom, area_weighted_normals, drop_degenerate, grouped_normals};
 use crate::geometry::{Accel, Instance, ObjectTextures, Shape};
 use crate::lights::{AreaLight, DirectionalLight, EnvLight, PointLight, SpotLight};
-use crate::material::Material;
+use crate::material::{Brdf, Material};
 use crate::math::{Transform, v3};
 use crate::texture::image::TextureImage;
 use crate::texture::maps::{Source, TextureMap};
@@ -613,7 +613,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
     let ctx = Ctx { rec, resolver };
     let mut warnings: Vec<Warning> = rec.warnings.clone();
 
-    let (materials, mat_ids) = build_materials(&ctx, &mut warnings);
+    let (materials, mat_ids) = build_materials(&ctx, &mut warnings)?;
     let transforms = transform_table(rec);
     let cameras = placed_cameras(&ctx, &transforms)?;
     if cameras.is_empty() {
@@ -661,9 +661,25 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
 }
 
 /// Step 1: the materials, by position, and how the scene's ids find them (a repeated id keeps
-/// its first definition, with a warning). `degamma` materials are linearised here (§6.6).
-fn build_materials<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> (Vec<Material>, HashMap<&'a str, u32>) {
+/// its first definition, with a warning). `degamma` materials are linearised here (§6.6). A
+/// material's `BRDF` attribute finds its `<BRDFs>` entry (§7), whose Exponent replaces the
+/// material's PhongExponent.
+fn build_materials<'a>(
+    ctx: &Ctx<'a>,
+    warnings: &mut Vec<Warning>,
+) -> Result<(Vec<Material>, HashMap<&'a str, u32>), SceneError> {
     let rec = ctx.rec;
+    let mut brdfs: HashMap<&str, &BrdfRec> = HashMap::new();
+    for b in &rec.brdfs {
+        if brdfs.contains_key(b.id.as_str()) {
+            ctx.warn(
+                warnings,
+                &b.loc,
+                format!("BRDF id \"{}\" is defined again; materials use the first definition", b.id),
+            );
+        }
+        brdfs.entry(b.id.as_str()).or_insert(b);
+    }
     let mut mat_ids: HashMap<&str, u32> = HashMap::new();
     let mut materials = Vec::with_capacity(rec.materials.len());
     let degamma = degamma_exponent(rec);
@@ -680,23 +696,38 @@ fn build_materials<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> (Vec<Mater
             let c = v3(c);
             if m.degamma { c.max(DVec3::ZERO).powf(degamma) } else { c }
         };
+        let brdf = match &m.brdf {
+            None => None,
+            Some(id) => Some(*brdfs.get(id.as_str()).ok_or_else(|| {
+                ctx.err(
+                    &m.loc,
+                    format!("BRDF \"{id}\" is not defined; add an entry with id=\"{id}\" under <BRDFs> or use an existing id"),
+                )
+            })?),
+        };
+        let exponent = brdf.map_or(m.phong_exponent, |b| b.exponent);
         materials.push(Material {
             kind: m.kind,
             ambient: lin(m.ambient),
             diffuse: lin(m.diffuse),
             specular: lin(m.specular),
             mirror: lin(m.mirror),
-            phong_exponent: m.phong_exponent,
-            phong_exponent_int: (m.phong_exponent.fract() == 0.0
-                && (0.0..=4096.0).contains(&m.phong_exponent))
-            .then_some(m.phong_exponent as i32),
+            phong_exponent: exponent,
+            phong_exponent_int: (exponent.fract() == 0.0 && (0.0..=4096.0).contains(&exponent))
+                .then_some(exponent as i32),
             refraction_index: m.refraction_index,
             absorption_index: m.absorption_index,
             absorption: v3(m.absorption_coefficient),
             roughness: m.roughness,
+            brdf: brdf.map(|b| Brdf {
+                kind: b.kind,
+                normalized: b.normalized,
+                kd_fresnel: b.kd_fresnel,
+                refractive_index: b.refractive_index,
+            }),
         });
     }
-    (materials, mat_ids)
+    Ok((materials, mat_ids))
 }
 
 /// The scene's point, area, directional and spot lights (the environment light is built with

@@ -41,6 +41,8 @@ pub struct SceneRecords {
     /// `SphericalDirectionalLight`s (HW5 environment lights).
     pub env_lights: Vec<EnvLightRec>,
     pub materials: Vec<MaterialRec>,
+    /// `<BRDFs>` entries (HW6, §7), selected by a material's `BRDF` attribute.
+    pub brdfs: Vec<BrdfRec>,
     /// Global vertex list; vertex id `k` (1-based) is `vertices[k - 1]`.
     pub vertices: Vec<Vec3>,
     /// Global texture coordinates (`TexCoordData`), parallel to `vertices`: id `k` is
@@ -79,6 +81,7 @@ impl SceneRecords {
             spot_lights: Vec::new(),
             env_lights: Vec::new(),
             materials: Vec::new(),
+            brdfs: Vec::new(),
             vertices: Vec::new(),
             tex_coords: Vec::new(),
             images: Vec::new(),
@@ -134,6 +137,29 @@ pub struct CameraRec {
     /// `<Tonemap>` blocks (HW5): how an HDR `ImageName` (`.exr`, `.hdr`) is also written as PNG.
     /// Empty: the photographic defaults of §12.2.
     pub tonemaps: Vec<TonemapRec>,
+    /// `<Renderer>` and `<RendererParams>` (§13.1): classic ray tracing unless `PathTracing`.
+    pub renderer: Renderer,
+}
+
+/// How a camera's pixels are computed (§13.1).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Renderer {
+    /// The course's recursive ray tracer (§6, §16.2): direct lighting plus specular recursion.
+    #[default]
+    Classic,
+    /// Monte Carlo path tracing (§13.2) with the camera's `RendererParams`.
+    Path(PathParams),
+}
+
+/// The switches of `<RendererParams>` (§13.1).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PathParams {
+    /// `NextEventEstimation`: diffuse and glossy vertices sample the lights.
+    pub next_event: bool,
+    /// `ImportanceSampling`: bounce directions from the cosine lobe instead of uniformly.
+    pub importance: bool,
+    /// `RussianRoulette`: paths end at random (by their throughput) instead of at the depth limit.
+    pub russian_roulette: bool,
 }
 
 /// One `<Tonemap>` of a camera (§12.2).
@@ -266,6 +292,8 @@ pub struct MaterialRec {
     pub roughness: f64,
     /// `degamma="true"`: reflectances are display-referred (applied at build time).
     pub degamma: bool,
+    /// The `BRDF` attribute: the id of a `<BRDFs>` entry (§7); `None` is the classic shading.
+    pub brdf: Option<String>,
 }
 
 impl MaterialRec {
@@ -285,11 +313,37 @@ impl MaterialRec {
             absorption_coefficient: [0.0; 3],
             roughness: 0.0,
             degamma: false,
+            brdf: None,
         }
     }
 }
 
 /// An image file named by `<Image id="k">path</Image>` (or by a 2019 `<Texture>`).
+/// The reflectance models of `<BRDFs>` (§7).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BrdfKind {
+    OriginalPhong,
+    ModifiedPhong,
+    OriginalBlinnPhong,
+    ModifiedBlinnPhong,
+    TorranceSparrow,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct BrdfRec {
+    pub id: String,
+    pub loc: Loc,
+    pub kind: BrdfKind,
+    /// `<Exponent>`: replaces the material's PhongExponent.
+    pub exponent: f64,
+    /// `normalized="true"` (Modified variants only).
+    pub normalized: bool,
+    /// `kdfresnel="true"` (TorranceSparrow only): the diffuse term is scaled by `1 − F`.
+    pub kd_fresnel: bool,
+    /// The 2019 `<RefractiveIndex>` of a TorranceSparrow BRDF (Schlick's Fresnel), if given.
+    pub refractive_index: Option<f64>,
+}
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct ImageRec {
     pub id: String,
@@ -419,6 +473,8 @@ pub struct MeshRec {
     pub motion_blur: Option<Vec3>,
     /// `Textures`: ids of texture maps, as written (at most one colour map and one normal map).
     pub textures: Vec<String>,
+    /// `Some` for a `<LightMesh>` (§9.6): the radiance its front side emits.
+    pub radiance: Option<Vec3>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -444,6 +500,8 @@ pub struct SphereRec {
     /// `MotionBlur` (2019 dialect on spheres).
     pub motion_blur: Option<Vec3>,
     pub textures: Vec<String>,
+    /// `Some` for a `<LightSphere>` (§9.7): the radiance its outside emits.
+    pub radiance: Option<Vec3>,
 }
 
 /// An infinite plane `{x : (x − P)·N = 0}` (2025, §9.8).

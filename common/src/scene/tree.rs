@@ -19,9 +19,9 @@
 use std::path::Path;
 
 use super::records::{
-    AreaLightRec, CameraRec, DecalMode, DirectionalLightRec, EnvLightRec, EnvMapping, EnvSampler, FacesRec,
+    AreaLightRec, BrdfKind, BrdfRec, CameraRec, DecalMode, DirectionalLightRec, EnvLightRec, EnvMapping, EnvSampler, FacesRec,
     Handedness, ImageRec, InstanceRec, Interpolation, LensRec, MAX_RECURSION_DEPTH_LIMIT, MaterialKind,
-    MaterialRec, MeshRec, NoiseConversion, PlaneRec, PointLightRec, Projection, SceneRecords, ShadingMode,
+    MaterialRec, MeshRec, NoiseConversion, PathParams, Renderer, PlaneRec, PointLightRec, Projection, SceneRecords, ShadingMode,
     SphereRec, SpotLightRec, TextureMapRec, TextureSource, TonemapRec, TransformOp, TransformRec,
     TransformRef, TriangleRec, Vec3,
 };
@@ -245,8 +245,8 @@ const SCENE: Schema = Schema {
         "TexCoordData",
         "BackgroundTexture",
     ],
-    many: &["Cameras", "Lights", "Materials", "Transformations", "Objects", "Textures"],
-    unsupported: &["BRDFs", "BackfaceCulling", "ZeroBasedIndexing"],
+    many: &["Cameras", "Lights", "Materials", "Transformations", "Objects", "Textures", "BRDFs"],
+    unsupported: &["BackfaceCulling", "ZeroBasedIndexing"],
     ..Schema::EMPTY
 };
 const CAMERAS: Schema = Schema { many: &["Camera"], ..Schema::EMPTY };
@@ -265,9 +265,11 @@ const CAMERA: Schema = Schema {
         "FocusDistance",
         "ApertureSize",
         "Transformations",
+        "Renderer",
+        "RendererParams",
     ],
     many: &["Tonemap"],
-    unsupported: &["Renderer", "RendererParams", "ClampSamples"],
+    unsupported: &["ClampSamples"],
     attrs: &["id", "type", "handedness"],
     ..Schema::EMPTY
 };
@@ -317,17 +319,32 @@ const MATERIAL: Schema = Schema {
         "Roughness",
         "Transparency",
     ],
-    attrs: &["id", "type", "degamma"],
-    unsupported_attrs: &["BRDF"],
+    attrs: &["id", "type", "degamma", "BRDF"],
     ..Schema::EMPTY
 };
+const BRDFS: Schema = Schema {
+    many: &["OriginalPhong", "ModifiedPhong", "OriginalBlinnPhong", "ModifiedBlinnPhong", "TorranceSparrow"],
+    ..Schema::EMPTY
+};
+const BRDF_KINDS: &[(&str, BrdfKind)] = &[
+    ("OriginalPhong", BrdfKind::OriginalPhong),
+    ("ModifiedPhong", BrdfKind::ModifiedPhong),
+    ("OriginalBlinnPhong", BrdfKind::OriginalBlinnPhong),
+    ("ModifiedBlinnPhong", BrdfKind::ModifiedBlinnPhong),
+    ("TorranceSparrow", BrdfKind::TorranceSparrow),
+];
+const BRDF_PLAIN: Schema = Schema { single: &["Exponent"], attrs: &["id"], ..Schema::EMPTY };
+const BRDF_MODIFIED: Schema = Schema { single: &["Exponent"], attrs: &["id", "normalized"], ..Schema::EMPTY };
+const BRDF_TORRANCE_SPARROW: Schema =
+    Schema { single: &["Exponent", "RefractiveIndex"], attrs: &["id", "kdfresnel"], ..Schema::EMPTY };
+/// The words of `<RendererParams>` (§13.1).
+const RENDERER_PARAMS: &[&str] = &["NextEventEstimation", "ImportanceSampling", "RussianRoulette"];
 const TRANSFORMATIONS: Schema =
     Schema { many: &["Translation", "Scaling", "Rotation", "Composite"], ..Schema::EMPTY };
 const TRANSFORMATION: Schema = Schema { attrs: &["id"], ..Schema::EMPTY };
 const OBJECTS: Schema = Schema {
     // Plane only exists in the 2025 JSON dialect so far (§9.8); XML files may use it too.
-    many: &["Mesh", "Triangle", "Sphere", "MeshInstance", "Plane"],
-    unsupported: &["LightMesh", "LightSphere"],
+    many: &["Mesh", "Triangle", "Sphere", "MeshInstance", "Plane", "LightMesh", "LightSphere"],
     ..Schema::EMPTY
 };
 // `Texture` is the 2019 spelling of an object's `Textures`. Both are read (and their repeats
@@ -336,6 +353,18 @@ const MESH: Schema = Schema {
     single: &["Material", "Faces", "Transformations", "MotionBlur"],
     many: &["Textures", "Texture"],
     attrs: &["id", "shadingMode"],
+    ..Schema::EMPTY
+};
+/// Object lights (§9.6, §9.7): a mesh or a sphere that also emits `Radiance`. They do not move
+/// (no MotionBlur) and carry no textures.
+const LIGHT_MESH: Schema = Schema {
+    single: &["Material", "Faces", "Transformations", "Radiance"],
+    attrs: &["id", "shadingMode"],
+    ..Schema::EMPTY
+};
+const LIGHT_SPHERE: Schema = Schema {
+    single: &["Material", "Center", "Radius", "Transformations", "Radiance"],
+    attrs: &["id"],
     ..Schema::EMPTY
 };
 const TRIANGLE: Schema = Schema {
@@ -817,6 +846,14 @@ impl Parser<'_> {
                     }
                 }
                 "Objects" => self.objects(block)?,
+                "BRDFs" => {
+                    self.check(block, &BRDFS);
+                    for b in &block.children {
+                        if let Some(b) = self.brdf(b)? {
+                            self.out.brdfs.push(b);
+                        }
+                    }
+                }
                 _ => {}
             }
         }
@@ -913,6 +950,7 @@ impl Parser<'_> {
         for t in n.children_named("Tonemap") {
             tonemaps.push(self.tonemap(t)?);
         }
+        let renderer = self.renderer(n)?;
         Ok(CameraRec {
             id: self.id(n, false)?,
             loc: n.loc(),
@@ -929,7 +967,91 @@ impl Parser<'_> {
             num_samples,
             lens,
             tonemaps,
+            renderer,
         })
+    }
+
+    /// A camera's `<Renderer>` and `<RendererParams>` (§13.1).
+    fn renderer(&mut self, n: &Node) -> Result<Renderer> {
+        let params = n.child("RendererParams");
+        let path = match n.child("Renderer") {
+            None => false,
+            Some(r) => match r.text.trim() {
+                "PathTracing" => true,
+                // Some parsers accept the classic tracer's name explicitly.
+                "" | "DirectLighting" | "RayTracing" => false,
+                other => {
+                    return Err(self.err(
+                        r,
+                        format!(
+                            "unknown renderer \"{}\" (expected PathTracing, or DirectLighting for the classic ray tracer)",
+                            excerpt(other)
+                        ),
+                    ));
+                }
+            },
+        };
+        if !path {
+            if let Some(p) = params
+                && !p.text.trim().is_empty()
+            {
+                self.warn(p, "<RendererParams> only applies to <Renderer>PathTracing</Renderer>; it is ignored");
+            }
+            return Ok(Renderer::Classic);
+        }
+        let mut out = PathParams::default();
+        for word in params.map(|p| p.text.split_ascii_whitespace()).into_iter().flatten() {
+            match word {
+                "NextEventEstimation" => out.next_event = true,
+                "ImportanceSampling" => out.importance = true,
+                "RussianRoulette" => out.russian_roulette = true,
+                other => {
+                    let p = params.expect("words come from it");
+                    return Err(self.err(
+                        p,
+                        format!(
+                            "unknown renderer parameter \"{}\" (expected any of {})",
+                            excerpt(other),
+                            RENDERER_PARAMS.join(", ")
+                        ),
+                    ));
+                }
+            }
+        }
+        Ok(Renderer::Path(out))
+    }
+
+    /// One entry of `<BRDFs>` (§7); `None` for elements that are not BRDFs (already warned
+    /// about by the caller's check).
+    fn brdf(&mut self, n: &Node) -> Result<Option<BrdfRec>> {
+        let Some(&(_, kind)) = BRDF_KINDS.iter().find(|(name, _)| *name == n.name) else { return Ok(None) };
+        let schema = match kind {
+            BrdfKind::ModifiedPhong | BrdfKind::ModifiedBlinnPhong => &BRDF_MODIFIED,
+            BrdfKind::TorranceSparrow => &BRDF_TORRANCE_SPARROW,
+            BrdfKind::OriginalPhong | BrdfKind::OriginalBlinnPhong => &BRDF_PLAIN,
+        };
+        self.check(n, schema);
+        let exponent: f64 = self.required_number(n, "Exponent")?;
+        if !(exponent >= 0.0 && exponent <= 1e6) {
+            let e = n.child("Exponent").unwrap_or(n);
+            return Err(self.err(e, format!("Exponent must be between 0 and 1000000, found {exponent}")));
+        }
+        let refractive_index: Option<f64> = self.optional_number(n, "RefractiveIndex")?;
+        if let Some(eta) = refractive_index
+            && !(eta > 0.0)
+        {
+            let e = n.child("RefractiveIndex").unwrap_or(n);
+            return Err(self.err(e, format!("RefractiveIndex must be positive, found {eta}")));
+        }
+        Ok(Some(BrdfRec {
+            id: self.id(n, true)?,
+            loc: n.loc(),
+            kind,
+            exponent,
+            normalized: self.bool_attr(n, "normalized")?.unwrap_or(false),
+            kd_fresnel: self.bool_attr(n, "kdfresnel")?.unwrap_or(false),
+            refractive_index,
+        }))
     }
 
     /// A camera's `<Tonemap>` (§12.2); absent children take the student-parser defaults.
@@ -1111,6 +1233,11 @@ impl Parser<'_> {
             }
         };
         m.degamma = self.bool_attr(n, "degamma")?.unwrap_or(false);
+        m.brdf = match n.attr("BRDF").map(str::trim) {
+            None => None,
+            Some("") => return Err(self.err(n, "attribute BRDF is empty; give the id of a <BRDFs> entry")),
+            Some(id) => Some(id.to_string()),
+        };
 
         let colours: [(&str, &mut Vec3); 5] = [
             ("AmbientReflectance", &mut m.ambient),
@@ -1467,7 +1594,7 @@ impl Parser<'_> {
         self.check(objects, &OBJECTS);
         for n in &objects.children {
             match n.name.as_str() {
-                "Mesh" => {
+                "Mesh" | "LightMesh" => {
                     if let Some(mesh) = self.mesh(n)? {
                         self.out.meshes.push(mesh);
                     }
@@ -1476,7 +1603,7 @@ impl Parser<'_> {
                     let triangle = self.triangle(n)?;
                     self.out.triangles.push(triangle);
                 }
-                "Sphere" => {
+                "Sphere" | "LightSphere" => {
                     let sphere = self.sphere(n)?;
                     self.out.spheres.push(sphere);
                 }
@@ -1525,7 +1652,8 @@ impl Parser<'_> {
 
     /// `None` when the mesh cannot be read yet (2019 binary faces); a warning says so.
     fn mesh(&mut self, n: &Node) -> Result<Option<MeshRec>> {
-        self.check(n, &MESH);
+        let light = n.name == "LightMesh";
+        self.check(n, if light { &LIGHT_MESH } else { &MESH });
         let id = self.id(n, true)?;
         let faces = self.required(n, "Faces")?;
         self.check_attrs(faces, FACES_ATTRS, FACES_UNSUPPORTED_ATTRS);
@@ -1556,9 +1684,20 @@ impl Parser<'_> {
             faces_loc: faces.loc(),
             shading: self.shading_attr(n)?.unwrap_or(ShadingMode::Flat),
             transforms: self.transform_refs(n)?,
-            motion_blur: self.optional_numbers(n, "MotionBlur")?,
-            textures: self.object_textures(n)?,
+            motion_blur: if light { None } else { self.optional_numbers(n, "MotionBlur")? },
+            textures: if light { Vec::new() } else { self.object_textures(n)? },
+            radiance: if light { Some(self.radiance(n)?) } else { None },
         }))
+    }
+
+    /// The `<Radiance>` of an object light: three non-negative numbers.
+    fn radiance(&self, n: &Node) -> Result<Vec3> {
+        let r = self.required(n, "Radiance")?;
+        let v: Vec3 = self.numbers(r)?;
+        if v.iter().any(|c| !(*c >= 0.0 && c.is_finite())) {
+            return Err(self.err(r, format!("Radiance must be three non-negative numbers, found {}", quoted(&r.text))));
+        }
+        Ok(v)
     }
 
     fn triangle(&mut self, n: &Node) -> Result<TriangleRec> {
@@ -1574,7 +1713,8 @@ impl Parser<'_> {
     }
 
     fn sphere(&mut self, n: &Node) -> Result<SphereRec> {
-        self.check(n, &SPHERE);
+        let light = n.name == "LightSphere";
+        self.check(n, if light { &LIGHT_SPHERE } else { &SPHERE });
         Ok(SphereRec {
             id: self.id(n, false)?,
             loc: n.loc(),
@@ -1582,8 +1722,9 @@ impl Parser<'_> {
             center: self.required_number(n, "Center")?,
             radius: self.required_number(n, "Radius")?,
             transforms: self.transform_refs(n)?,
-            motion_blur: self.optional_numbers(n, "MotionBlur")?,
-            textures: self.object_textures(n)?,
+            motion_blur: if light { None } else { self.optional_numbers(n, "MotionBlur")? },
+            textures: if light { Vec::new() } else { self.object_textures(n)? },
+            radiance: if light { Some(self.radiance(n)?) } else { None },
         })
     }
 
