@@ -135,6 +135,7 @@ mod tests {
             num_samples: 1,
             lens: None,
             tonemaps: Vec::new(),
+            renderer: Default::default(),
         }
     }
 

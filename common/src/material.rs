@@ -75,7 +75,9 @@ impl Material {
                 (self.diffuse / PI + self.specular * ((p + 2.0) / (2.0 * PI) * self.lobe(cos_r()))) * cos_i
             }
             (BrdfKind::OriginalBlinnPhong, _) => self.diffuse * cos_i + self.specular * self.lobe(cos_h()),
-            (BrdfKind::ModifiedBlinnPhong, false) => (self.diffuse + self.specular * self.lobe(cos_h())) * cos_i,
+            (BrdfKind::ModifiedBlinnPhong, false) => {
+                (self.diffuse + self.specular * self.lobe(cos_h())) * cos_i
+            }
             (BrdfKind::ModifiedBlinnPhong, true) => {
                 (self.diffuse / PI + self.specular * ((p + 8.0) / (8.0 * PI) * self.lobe(cos_h()))) * cos_i
             }
@@ -84,7 +86,8 @@ impl Material {
                 let h = (wi + wo).normalize();
                 let cos_beta = wo.dot(h);
                 let f = self.torrance_sparrow_fresnel(brdf, cos_beta);
-                let diffuse = if brdf.kd_fresnel { self.diffuse * ((1.0 - f) / PI) } else { self.diffuse / PI };
+                let diffuse =
+                    if brdf.kd_fresnel { self.diffuse * ((1.0 - f) / PI) } else { self.diffuse / PI };
                 if !(cos_o > 0.0 && cos_beta > 0.0) {
                     return diffuse * cos_i;
                 }
@@ -186,5 +189,104 @@ mod tests {
         assert!((fresnel_conductor(1.0, n, k) - expect).abs() < 1e-12);
         // Grazing incidence reflects everything.
         assert!((fresnel_conductor(0.0, n, k) - 1.0).abs() < 1e-12);
+    }
+
+    /// A material with kd 0.5, ks 0.25, exponent 10 and the given BRDF.
+    fn with_brdf(kind: BrdfKind, normalized: bool) -> Material {
+        Material {
+            kind: MaterialKind::Plain,
+            ambient: DVec3::ZERO,
+            diffuse: DVec3::splat(0.5),
+            specular: DVec3::splat(0.25),
+            mirror: DVec3::ZERO,
+            phong_exponent: 10.0,
+            phong_exponent_int: Some(10),
+            refraction_index: 1.5,
+            absorption_index: 0.0,
+            absorption: DVec3::ZERO,
+            roughness: 0.0,
+            brdf: Some(Brdf { kind, normalized, kd_fresnel: false, refractive_index: None }),
+        }
+    }
+
+    /// A unit vector in the xz plane at `deg` degrees from +z towards +x.
+    fn at(deg: f64) -> DVec3 {
+        let r = deg.to_radians();
+        DVec3::new(r.sin(), 0.0, r.cos())
+    }
+
+    /// Worked angles: n = +z, wi 60° on one side, wo 40° on the other. Then α_r (wo against wi
+    /// mirrored, at −60°) is 20°, α_h (the half vector, at 10°) is 10°, β (wo against the half
+    /// vector) is 50° and θ_o is 40°. Each expected value is §7's formula written out with
+    /// those angles, times cos θ_i.
+    #[test]
+    fn every_brdf_has_its_value_at_worked_angles() {
+        use std::f64::consts::PI;
+        let (n, wi, wo) = (DVec3::Z, at(60.0), at(-40.0));
+        let c = |deg: f64| deg.to_radians().cos();
+        let (kd, ks, p) = (0.5, 0.25, 10.0);
+        let cos_i = c(60.0);
+        let lobe_r = c(20.0).powi(10);
+        let lobe_h = c(10.0).powi(10);
+        let cases = [
+            (BrdfKind::OriginalPhong, false, kd * cos_i + ks * lobe_r),
+            (BrdfKind::ModifiedPhong, false, (kd + ks * lobe_r) * cos_i),
+            (BrdfKind::ModifiedPhong, true, (kd / PI + ks * (p + 2.0) / (2.0 * PI) * lobe_r) * cos_i),
+            (BrdfKind::OriginalBlinnPhong, false, kd * cos_i + ks * lobe_h),
+            (BrdfKind::ModifiedBlinnPhong, false, (kd + ks * lobe_h) * cos_i),
+            (BrdfKind::ModifiedBlinnPhong, true, (kd / PI + ks * (p + 8.0) / (8.0 * PI) * lobe_h) * cos_i),
+        ];
+        for (kind, normalized, want) in cases {
+            let got = with_brdf(kind, normalized).reflectance(n, wi, wo);
+            assert!(
+                (got - DVec3::splat(want)).abs().max_element() < 1e-12,
+                "{kind:?} {normalized}: {got} vs {want}"
+            );
+        }
+        // Torrance–Sparrow with Schlick's Fresnel (η 1.5: R0 0.04). G = min(1, 2·cos10·cos40/cos50,
+        // 2·cos10·cos60/cos50) = 1 here.
+        let f = 0.04 + 0.96 * (1.0 - c(50.0)).powi(5);
+        let d = (p + 2.0) / (2.0 * PI) * lobe_h;
+        let spec = ks * d * f / (4.0 * cos_i * c(40.0));
+        let ts = with_brdf(BrdfKind::TorranceSparrow, false);
+        let got = ts.reflectance(n, wi, wo);
+        assert!((got.x - (kd / PI + spec) * cos_i).abs() < 1e-12, "{got}");
+        // kdfresnel scales the diffuse term by 1 − F.
+        let mut ts_kd = ts.clone();
+        ts_kd.brdf.as_mut().unwrap().kd_fresnel = true;
+        let got = ts_kd.reflectance(n, wi, wo);
+        assert!((got.x - (kd * (1.0 - f) / PI + spec) * cos_i).abs() < 1e-12, "{got}");
+        // A material with an absorption index takes the conductor's Fresnel at cos β instead.
+        let mut gold = ts.clone();
+        gold.refraction_index = 0.37;
+        gold.absorption_index = 2.82;
+        let fc = fresnel_conductor(c(50.0), 0.37, 2.82);
+        let got = gold.reflectance(n, wi, wo);
+        let want = (kd / PI + ks * d * fc / (4.0 * cos_i * c(40.0))) * cos_i;
+        assert!((got.x - want).abs() < 1e-12, "{got} vs {want}");
+        assert!(fc > 0.5 && f < 0.1, "gold reflects far more than glass at 50°");
+    }
+
+    #[test]
+    fn brdfs_are_zero_for_light_from_below_and_classic_shading_is_unchanged() {
+        let (n, wo) = (DVec3::Z, at(-40.0));
+        let below = DVec3::new(0.3, 0.0, -0.9539392014169456);
+        for kind in [
+            BrdfKind::OriginalPhong,
+            BrdfKind::ModifiedPhong,
+            BrdfKind::OriginalBlinnPhong,
+            BrdfKind::ModifiedBlinnPhong,
+            BrdfKind::TorranceSparrow,
+        ] {
+            for normalized in [false, true] {
+                assert_eq!(with_brdf(kind, normalized).reflectance(n, below, wo), DVec3::ZERO, "{kind:?}");
+            }
+        }
+        // No BRDF: kd·cos θ_i + ks·cos^p α_h (§6.2), which OriginalBlinnPhong equals.
+        let mut classic = with_brdf(BrdfKind::OriginalBlinnPhong, false);
+        let blinn = classic.reflectance(n, at(60.0), wo);
+        classic.brdf = None;
+        let plain = classic.reflectance(n, at(60.0), wo);
+        assert!((plain - blinn).abs().max_element() < 1e-15, "{plain} vs {blinn}");
     }
 }

@@ -154,6 +154,7 @@ mod tests {
             num_samples: 1,
             lens: None,
             tonemaps,
+            renderer: Default::default(),
         };
         Camera::from_record(&rec).unwrap()
     }

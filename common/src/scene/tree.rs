@@ -19,11 +19,11 @@
 use std::path::Path;
 
 use super::records::{
-    AreaLightRec, BrdfKind, BrdfRec, CameraRec, DecalMode, DirectionalLightRec, EnvLightRec, EnvMapping, EnvSampler, FacesRec,
-    Handedness, ImageRec, InstanceRec, Interpolation, LensRec, MAX_RECURSION_DEPTH_LIMIT, MaterialKind,
-    MaterialRec, MeshRec, NoiseConversion, PathParams, Renderer, PlaneRec, PointLightRec, Projection, SceneRecords, ShadingMode,
-    SphereRec, SpotLightRec, TextureMapRec, TextureSource, TonemapRec, TransformOp, TransformRec,
-    TransformRef, TriangleRec, Vec3,
+    AreaLightRec, BrdfKind, BrdfRec, CameraRec, DecalMode, DirectionalLightRec, EnvLightRec, EnvMapping,
+    EnvSampler, FacesRec, Handedness, ImageRec, InstanceRec, Interpolation, LensRec,
+    MAX_RECURSION_DEPTH_LIMIT, MaterialKind, MaterialRec, MeshRec, NoiseConversion, PathParams, PlaneRec,
+    PointLightRec, Projection, Renderer, SceneRecords, ShadingMode, SphereRec, SpotLightRec, TextureMapRec,
+    TextureSource, TonemapRec, TransformOp, TransformRec, TransformRef, TriangleRec, Vec3,
 };
 use crate::error::{Loc, SceneError, Warning};
 use crate::tonemap::params::{Operator, Photographic};
@@ -995,7 +995,10 @@ impl Parser<'_> {
             if let Some(p) = params
                 && !p.text.trim().is_empty()
             {
-                self.warn(p, "<RendererParams> only applies to <Renderer>PathTracing</Renderer>; it is ignored");
+                self.warn(
+                    p,
+                    "<RendererParams> only applies to <Renderer>PathTracing</Renderer>; it is ignored",
+                );
             }
             return Ok(Renderer::Classic);
         }
@@ -1695,7 +1698,8 @@ impl Parser<'_> {
         let r = self.required(n, "Radiance")?;
         let v: Vec3 = self.numbers(r)?;
         if v.iter().any(|c| !(*c >= 0.0 && c.is_finite())) {
-            return Err(self.err(r, format!("Radiance must be three non-negative numbers, found {}", quoted(&r.text))));
+            return Err(self
+                .err(r, format!("Radiance must be three non-negative numbers, found {}", quoted(&r.text))));
         }
         Ok(v)
     }
