@@ -2,6 +2,8 @@
 //! point lights with shadow rays, then mirror, conductor and dielectric recursion bounded by
 //! `MaxRecursionDepth`, with Beer's law inside dielectrics.
 
+use std::borrow::Cow;
+
 use glam::{DVec2, DVec3};
 
 use crate::geometry::Instance;
@@ -90,17 +92,30 @@ impl<'a> Tracer<'a> {
     /// by `spread` per unit of distance (curved mirrors and lenses are not modelled).
     fn trace(&mut self, ray: &Ray, depth: u32, medium: Option<DVec3>, cone: f64, rng: &mut Sampler) -> DVec3 {
         let scene = self.scene;
+        let Some(hit) = self.closest(ray, depth) else {
+            // Rays that miss see the environment (§5.6), else the background.
+            return match &scene.env_light {
+                Some(env) => env.radiance(ray.dir),
+                None => self.background,
+            };
+        };
+        let cone = cone + self.spread * hit.t;
+        let l = self.shade(ray, &hit, depth, medium.is_some(), cone, rng);
+        match medium {
+            Some(c) if c != DVec3::ZERO => l * (-c * hit.t).exp(),
+            _ => l,
+        }
+    }
+
+    /// The surface a ray at `depth` (0: a camera ray) sees first, if any. Camera rays of 2025
+    /// scenes look past triangles seen from behind (`Scene::cull_camera_back_faces`).
+    fn closest(&self, ray: &Ray, depth: u32) -> Option<SurfaceHit> {
+        let scene = self.scene;
         let cull = depth == 0 && scene.cull_camera_back_faces;
         let mut tmin = scene.intersection_test_epsilon;
         let mut culled = 0;
-        let hit = loop {
-            let Some(hit) = scene.accel.intersect(ray, tmin, f64::INFINITY) else {
-                // Rays that miss see the environment (§5.6), else the background.
-                return match &scene.env_light {
-                    Some(env) => env.radiance(ray.dir),
-                    None => self.background,
-                };
-            };
+        loop {
+            let hit = scene.accel.intersect(ray, tmin, f64::INFINITY)?;
             if cull
                 && culled < CULLED_HITS_LIMIT
                 && ray.dir.dot(hit.geo_normal) > 0.0
@@ -114,14 +129,54 @@ impl<'a> Tracer<'a> {
                 tmin = hit.t.max(tmin) * (1.0 + 1e-6) + scene.intersection_test_epsilon;
                 continue;
             }
-            break hit;
-        };
-        let cone = cone + self.spread * hit.t;
-        let l = self.shade(ray, &hit, depth, medium.is_some(), cone, rng);
-        match medium {
-            Some(c) if c != DVec3::ZERO => l * (-c * hit.t).exp(),
-            _ => l,
+            return Some(hit);
         }
+    }
+
+    /// The radiance an object light emits towards the ray that hit it: its `Radiance` on its
+    /// front side (a mesh's counter-clockwise side, a sphere's outside; §9.6, §13.3), else 0.
+    #[inline]
+    fn emitted(&self, ray: &Ray, hit: &SurfaceHit) -> Option<DVec3> {
+        let le = (*self.scene.instance_emission.get(hit.instance as usize)?)?;
+        (ray.dir.dot(hit.geo_normal) < 0.0).then_some(le)
+    }
+
+    /// The material and shading normal at a hit after its texture maps (§11.6): the normal or
+    /// bump map first, then up to two colour maps on a copy of the material. `Err` holds the
+    /// texel of a `replace_all` map, which is the surface's radiance (no lights, no recursion).
+    fn surface(&self, ray: &Ray, hit: &SurfaceHit, cone: f64) -> Result<(Cow<'a, Material>, DVec3), DVec3> {
+        let scene = self.scene;
+        let mat = &scene.materials[hit.material as usize];
+        let instance = &scene.accel.instances[hit.instance as usize];
+        let textures = instance.textures;
+        let mut shading_normal = hit.shading_normal;
+        let textured_hit = textures.normal.is_some() || textures.colour[0].is_some();
+        if !textured_hit {
+            return Ok((Cow::Borrowed(mat), shading_normal));
+        }
+        let d = ray.dir;
+        let footprint = if self.spread > 0.0 { uv_footprint(hit, d, cone) } else { DVec2::ZERO };
+        let object = instance.object_point(hit.point, ray.time);
+        let p = TexturePoint { uv: hit.uv, object, footprint };
+        if let Some(k) = textures.normal {
+            shading_normal = perturbed_normal(&scene.textures[k as usize], hit, instance, &p, shading_normal);
+        }
+        if textures.colour[0].is_none() {
+            return Ok((Cow::Borrowed(mat), shading_normal));
+        }
+        let mut m = mat.clone();
+        for k in textures.colour.into_iter().flatten() {
+            let map = &scene.textures[k as usize];
+            let t = map.value(&p);
+            match map.decal {
+                DecalMode::ReplaceAll => return Err(t),
+                DecalMode::ReplaceKd => m.diffuse = t,
+                DecalMode::BlendKd => m.diffuse = (m.diffuse + t) / 2.0,
+                DecalMode::ReplaceKs => m.specular = t,
+                _ => {}
+            }
+        }
+        Ok((Cow::Owned(m), shading_normal))
     }
 
     fn shade(
@@ -134,40 +189,15 @@ impl<'a> Tracer<'a> {
         rng: &mut Sampler,
     ) -> DVec3 {
         let scene = self.scene;
-        let mut mat = &scene.materials[hit.material as usize];
         let d = ray.dir;
         let entering = d.dot(hit.geo_normal) < 0.0;
-
-        // Textures (§11.6): the normal map first, then the colour map on a copy of the material.
-        let instance = &scene.accel.instances[hit.instance as usize];
-        let textures = instance.textures;
-        let mut shading_normal = hit.shading_normal;
-        let textured_hit = textures.normal.is_some() || textures.colour[0].is_some();
-        let footprint =
-            if textured_hit && self.spread > 0.0 { uv_footprint(hit, d, cone) } else { DVec2::ZERO };
-        let object = if textured_hit { instance.object_point(hit.point, ray.time) } else { hit.point };
-        let p = TexturePoint { uv: hit.uv, object, footprint };
-        if let Some(k) = textures.normal {
-            shading_normal = perturbed_normal(&scene.textures[k as usize], hit, instance, &p, shading_normal);
-        }
-        let textured;
-        if textures.colour[0].is_some() {
-            let mut m = mat.clone();
-            for k in textures.colour.into_iter().flatten() {
-                let map = &scene.textures[k as usize];
-                let t = map.value(&p);
-                match map.decal {
-                    // The texture is the surface's radiance: no lights, no recursion.
-                    DecalMode::ReplaceAll => return t,
-                    DecalMode::ReplaceKd => m.diffuse = t,
-                    DecalMode::BlendKd => m.diffuse = (m.diffuse + t) / 2.0,
-                    DecalMode::ReplaceKs => m.specular = t,
-                    _ => {}
-                }
-            }
-            textured = m;
-            mat = &textured;
-        }
+        // An object light seen directly or through mirrors and glass shows its radiance.
+        let emitted = self.emitted(ray, hit).unwrap_or(DVec3::ZERO);
+        let (mat, shading_normal) = match self.surface(ray, hit, cone) {
+            Ok(s) => s,
+            Err(texel) => return texel,
+        };
+        let mat = mat.as_ref();
         // Shading normal facing the incoming ray: where reflected rays start, and the normal
         // dielectrics shade and refract with (they track entering and leaving).
         let n = if entering { shading_normal } else { -shading_normal };
@@ -185,11 +215,12 @@ impl<'a> Tracer<'a> {
         // surfaces are lit with their normal as given, never turned towards the viewer (§6.8,
         // measured on grass_desert): one seen from behind is lit by the lights on its front
         // side, and its shadow rays start on that side.
-        let mut l = match mat.kind {
-            MaterialKind::Dielectric if inside => DVec3::ZERO,
-            MaterialKind::Dielectric => self.direct(ray, hit.point, n, mat, rng),
-            _ => self.direct(ray, hit.point, shading_normal, mat, rng),
-        };
+        let mut l = emitted
+            + match mat.kind {
+                MaterialKind::Dielectric if inside => DVec3::ZERO,
+                MaterialKind::Dielectric => self.direct(ray, hit.point, n, mat, rng),
+                _ => self.direct(ray, hit.point, shading_normal, mat, rng),
+            };
 
         match mat.kind {
             MaterialKind::Plain => {}
@@ -236,8 +267,15 @@ impl<'a> Tracer<'a> {
     /// directional and spot lights exactly, one sample of every area light and one direction of
     /// the environment light. `n` faces the incoming `ray`.
     fn direct(&mut self, ray: &Ray, x: DVec3, n: DVec3, mat: &Material, rng: &mut Sampler) -> DVec3 {
+        mat.ambient * self.scene.ambient_light + self.lights(ray, x, n, mat, true, rng)
+    }
+
+    /// Light reflected towards the viewer of `ray` at `x` from one sample of every light: point,
+    /// directional and spot lights exactly, one point of every area and object light, and (when
+    /// `env`) one direction of the environment light. `n` is the normal to shade with.
+    fn lights(&mut self, ray: &Ray, x: DVec3, n: DVec3, mat: &Material, env: bool, rng: &mut Sampler) -> DVec3 {
         let scene = self.scene;
-        let mut l = mat.ambient * scene.ambient_light;
+        let mut l = DVec3::ZERO;
         if mat.diffuse == DVec3::ZERO && mat.specular == DVec3::ZERO {
             return l;
         }
@@ -273,7 +311,20 @@ impl<'a> Tracer<'a> {
                 l += mat.reflectance(n, wi, wo) * e;
             }
         }
-        if let Some(env) = &scene.env_light
+        for light in &scene.object_lights {
+            // One point per shading event (§13.3); the random numbers are drawn whatever the
+            // outcome, so later dimensions keep their places.
+            let u = rng.next_1d();
+            let (u1, u2) = rng.next_2d();
+            if let Some(s) = light.sample(x, u, u1, u2)
+                && n.dot(s.wi) > 0.0
+                && self.clear(ray, origin, x + s.wi * s.dist)
+            {
+                l += mat.reflectance(n, s.wi, wo) * s.irradiance;
+            }
+        }
+        if env
+            && let Some(env) = &scene.env_light
             && let Some(s) = env.sample(n, self.env_sampler, rng)
             && s.weight != DVec3::ZERO
             && self.unblocked(ray, n, origin, s.wi)
@@ -292,6 +343,19 @@ impl<'a> Tracer<'a> {
         self.stats.shadow += 1;
         let shadow = ray.spawn(origin, wi);
         !self.scene.accel.occluded(&shadow, self.scene.intersection_test_epsilon, f64::INFINITY)
+    }
+
+    /// Whether nothing blocks the segment from `origin` to `p`, a point on an object light: the
+    /// shadow ray stops just short of `p`, so the light's own surface does not block it.
+    fn clear(&mut self, ray: &Ray, origin: DVec3, p: DVec3) -> bool {
+        self.stats.shadow += 1;
+        let to_light = p - origin;
+        let len = to_light.length();
+        if !(len > 0.0) {
+            return false;
+        }
+        let shadow = ray.spawn(origin, to_light / len);
+        !self.scene.accel.occluded(&shadow, self.scene.intersection_test_epsilon, len * (1.0 - 1e-6))
     }
 
     /// The unit direction from `x` to the light point `p` if it is above the surface and no

@@ -9,7 +9,7 @@
 use std::f64::consts::{PI, TAU};
 use std::sync::Arc;
 
-use glam::DVec3;
+use glam::{DAffine3, DMat3, DVec3};
 
 use crate::math::orthonormal_pair;
 use crate::sampler::Sampler;
@@ -380,6 +380,169 @@ impl EnvDistribution {
         }
         self.prob[y * self.width + x] * (self.width * self.height) as f64 / (2.0 * PI * PI * sin)
     }
+}
+
+/// An emitting object (`LightMesh`, `LightSphere`; §9.6, §9.7, §13.3): visible geometry that
+/// emits `radiance` from its front (a mesh's counter-clockwise side, a sphere's outside), sampled
+/// by points on its surface for direct lighting.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ObjectLight {
+    pub radiance: DVec3,
+    /// The index of the object's instance in the scene's geometry.
+    pub instance: u32,
+    pub shape: EmitterShape,
+}
+
+/// The world-space surface an [`ObjectLight`] samples.
+#[derive(Clone, Debug, PartialEq)]
+pub enum EmitterShape {
+    /// Triangles in world space; a triangle is picked with probability proportional to its
+    /// area (`cdf` holds the running sums, its last entry the total area).
+    Triangles { tris: Vec<[DVec3; 3]>, cdf: Vec<f64> },
+    /// A sphere that is a sphere in world space too (no transformation, or a uniform scale with
+    /// rotations and translations): sampled by the cone of directions it subtends.
+    Sphere { center: DVec3, radius: f64 },
+    /// Any other transformed sphere (an ellipsoid): uniform points of the object-space sphere
+    /// carried to world space, with the area density of the carried points.
+    Ellipsoid { center: DVec3, radius: f64, to_world: DAffine3, normal_matrix: DMat3, det: f64 },
+}
+
+/// One sampled point of an object light as seen from a shading point `x`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EmitterSample {
+    /// Unit direction from `x` towards the point.
+    pub wi: DVec3,
+    /// Distance from `x` to the point.
+    pub dist: f64,
+    /// `L_e · cos θ_y / (d² · p_A)`: irradiance at normal incidence that one sample
+    /// contributes (zero never returned: a point whose back faces `x` gives `None`).
+    pub irradiance: DVec3,
+}
+
+impl ObjectLight {
+    /// A triangle mesh light from world-space triangles; `None` when their area is zero.
+    pub fn triangles(tris: Vec<[DVec3; 3]>, radiance: DVec3, instance: u32) -> Option<Self> {
+        let mut cdf = Vec::with_capacity(tris.len());
+        let mut total = 0.0;
+        for t in &tris {
+            total += 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length();
+            cdf.push(total);
+        }
+        (total > 0.0 && total.is_finite())
+            .then_some(ObjectLight { radiance, instance, shape: EmitterShape::Triangles { tris, cdf } })
+    }
+
+    /// A sphere light: object-space `center` and `radius`, placed by `to_world` (if any).
+    pub fn sphere(center: DVec3, radius: f64, to_world: Option<DAffine3>, radiance: DVec3, instance: u32) -> Self {
+        let shape = match to_world {
+            None => EmitterShape::Sphere { center, radius },
+            Some(m) => {
+                // A similarity (rotation and uniform scale) keeps the sphere a sphere.
+                let a = m.matrix3;
+                let g = a.transpose() * a;
+                let s2 = g.x_axis.x;
+                let off = g.x_axis.y.abs() + g.x_axis.z.abs() + g.y_axis.z.abs();
+                let uniform = (g.y_axis.y - s2).abs() <= 1e-9 * s2
+                    && (g.z_axis.z - s2).abs() <= 1e-9 * s2
+                    && off <= 1e-9 * s2;
+                if uniform {
+                    EmitterShape::Sphere { center: m.transform_point3(center), radius: radius * s2.sqrt() }
+                } else {
+                    EmitterShape::Ellipsoid {
+                        center,
+                        radius,
+                        to_world: m,
+                        normal_matrix: a.inverse().transpose(),
+                        det: a.determinant().abs(),
+                    }
+                }
+            }
+        };
+        ObjectLight { radiance, instance, shape }
+    }
+
+    /// World-space area of the emitting surface (for triangles and spheres; an ellipsoid's is
+    /// not needed and not computed).
+    pub fn area(&self) -> Option<f64> {
+        match &self.shape {
+            EmitterShape::Triangles { cdf, .. } => cdf.last().copied(),
+            EmitterShape::Sphere { radius, .. } => Some(4.0 * PI * radius * radius),
+            EmitterShape::Ellipsoid { .. } => None,
+        }
+    }
+
+    /// One point of the light seen from `x` (§13.3), from three uniform numbers: `u` picks a
+    /// triangle (ignored by spheres), `(u1, u2)` the point. `None` when the sampled point faces
+    /// away from `x` (one-sided emission) or `x` is inside a sphere light.
+    pub fn sample(&self, x: DVec3, u: f64, u1: f64, u2: f64) -> Option<EmitterSample> {
+        let (y, n_y, pdf_area) = match &self.shape {
+            EmitterShape::Triangles { tris, cdf } => {
+                let total = *cdf.last()?;
+                let target = u * total;
+                let k = cdf.partition_point(|&c| c <= target).min(tris.len() - 1);
+                let [p0, p1, p2] = tris[k];
+                let s = u1.sqrt();
+                let y = (1.0 - s) * p0 + s * (1.0 - u2) * p1 + s * u2 * p2;
+                let n = (p1 - p0).cross(p2 - p0).normalize();
+                (y, n, 1.0 / total)
+            }
+            EmitterShape::Sphere { center, radius } => return sample_sphere_cone(x, *center, *radius, self.radiance, u1, u2),
+            EmitterShape::Ellipsoid { center, radius, to_world, normal_matrix, det } => {
+                let n_o = uniform_sphere(u1, u2);
+                let y = to_world.transform_point3(*center + *radius * n_o);
+                let m = *normal_matrix * n_o;
+                let len = m.length();
+                // p_A = 1 / (4π r² |det M| |M^-T n_o|) (§13.3).
+                (y, m / len, 1.0 / (4.0 * PI * radius * radius * det * len))
+            }
+        };
+        let to = y - x;
+        let d2 = to.length_squared();
+        let dist = d2.sqrt();
+        let wi = to / dist;
+        let cos_y = -n_y.dot(wi);
+        if !(cos_y > 0.0) || !(d2 > 0.0) || !pdf_area.is_finite() {
+            return None;
+        }
+        Some(EmitterSample { wi, dist, irradiance: self.radiance * (cos_y / (d2 * pdf_area)) })
+    }
+}
+
+/// A direction on the unit sphere, uniform in area, from two uniform numbers.
+fn uniform_sphere(u1: f64, u2: f64) -> DVec3 {
+    let z = 1.0 - 2.0 * u1;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let phi = TAU * u2;
+    DVec3::new(r * phi.cos(), r * phi.sin(), z)
+}
+
+/// Cone sampling of a world-space sphere light from `x` (§13.3 (b)): a direction uniform in the
+/// solid angle the sphere subtends, `p_ω = 1 / (2π(1 − cos θ_max))`, the point where it meets the
+/// sphere, and `E = L_e / p_ω`. `None` when `x` is inside the sphere.
+fn sample_sphere_cone(x: DVec3, c: DVec3, r: f64, radiance: DVec3, u1: f64, u2: f64) -> Option<EmitterSample> {
+    let to_c = c - x;
+    let d2 = to_c.length_squared();
+    if !(d2 > r * r) {
+        return None;
+    }
+    let d = d2.sqrt();
+    let axis = to_c / d;
+    let sin2_max = r * r / d2;
+    let cos_max = (1.0 - sin2_max).max(0.0).sqrt();
+    let cos_t = 1.0 - u1 * (1.0 - cos_max);
+    let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
+    let phi = TAU * u2;
+    let (a, b) = orthonormal_pair(axis);
+    let wi = (cos_t * axis + sin_t * (phi.cos() * a + phi.sin() * b)).normalize();
+    // Nearest intersection with the sphere along wi (clamped at the tangent for rounding).
+    let proj = to_c.dot(wi);
+    let disc = (r * r - (d2 - proj * proj)).max(0.0);
+    let dist = proj - disc.sqrt();
+    let solid_angle = TAU * (1.0 - cos_max);
+    if !(solid_angle > 0.0) || !(dist > 0.0) {
+        return None;
+    }
+    Some(EmitterSample { wi, dist, irradiance: radiance * solid_angle })
 }
 
 #[cfg(test)]

@@ -18,7 +18,7 @@ use crate::camera::Camera;
 use crate::error::{Loc, SceneError, Warning};
 use crate::geometry::mesh::{MeshGeom, area_weighted_normals, drop_degenerate, grouped_normals};
 use crate::geometry::{Accel, Instance, ObjectTextures, Shape};
-use crate::lights::{AreaLight, DirectionalLight, EnvLight, PointLight, SpotLight};
+use crate::lights::{AreaLight, DirectionalLight, EnvLight, ObjectLight, PointLight, SpotLight};
 use crate::material::{Brdf, Material};
 use crate::math::{Transform, v3};
 use crate::texture::image::TextureImage;
@@ -623,9 +623,10 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
     let textures = build_textures(&ctx, &mut warnings)?;
     let meshes = build_meshes(&ctx, &transforms, &mat_ids, &mut warnings)?;
     let objects = Objects { ctx: &ctx, transforms: &transforms, mat_ids: &mat_ids, textures: &textures };
-    let (geoms, instances) = objects.place(meshes, &mut warnings)?;
+    let (geoms, instances, emitters) = objects.place(meshes, &mut warnings)?;
 
     let accel = Accel::new(geoms, instances);
+    let (object_lights, instance_emission) = object_lights(&ctx, &accel, &emitters, &mut warnings);
     let stats = SceneStats {
         triangles: accel.instanced_triangle_count(),
         instances: accel.instances.len(),
@@ -649,6 +650,8 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         point_lights: lights.point,
         directional_lights: lights.directional,
         spot_lights: lights.spot,
+        object_lights,
+        instance_emission,
         env_light: textures.env_light,
         materials,
         cameras,
@@ -869,15 +872,18 @@ impl Objects<'_, '_> {
     /// Step 6: every object as an [`Instance`] with its material, transform, motion and texture
     /// maps: meshes themselves, mesh instances, single triangles (each a one-triangle mesh of its
     /// own, added to `meshes.geoms`), spheres and planes, in that order. Returns all the mesh
-    /// geometry and the instances.
+    /// geometry, the instances, and which of them emit (LightMesh, LightSphere) with their
+    /// radiance and the record's location.
+    #[allow(clippy::type_complexity)]
     fn place(
         &self,
         meshes: Meshes,
         warnings: &mut Vec<Warning>,
-    ) -> Result<(Vec<Arc<MeshGeom>>, Vec<Instance>), SceneError> {
+    ) -> Result<(Vec<Arc<MeshGeom>>, Vec<Instance>, Vec<Emitter>), SceneError> {
         let (ctx, rec) = (self.ctx, self.ctx.rec);
         let Meshes { mut geoms, world, instances: resolved } = meshes;
         let mut instances = Vec::new();
+        let mut emitters = Vec::new();
         let mut mesh_textures = Vec::with_capacity(rec.meshes.len());
         for m in &rec.meshes {
             mesh_textures.push(self.textures.for_object(ctx, &m.textures, &m.loc, warnings)?);
@@ -886,6 +892,9 @@ impl Objects<'_, '_> {
             let material = ctx.material(self.mat_ids, &m.material, &m.loc)?;
             if uses_image(&self.textures.maps, &mesh_textures[i]) && geoms[i].uvs.is_none() {
                 ctx.warn(warnings, &m.loc, "an image texture is applied but the mesh has no texture coordinates (TexCoordData or PLY u v); it is sampled at the barycentric coordinates");
+            }
+            if let Some(r) = m.radiance {
+                emitters.push(Emitter { instance: instances.len() as u32, radiance: v3(r), loc: m.loc.clone() });
             }
             instances.push(Instance {
                 shape: Shape::Mesh { mesh: i as u32, smooth: m.shading == ShadingMode::Smooth },
@@ -911,12 +920,15 @@ impl Objects<'_, '_> {
             }
         }
         for s in &rec.spheres {
+            if let Some(r) = s.radiance {
+                emitters.push(Emitter { instance: instances.len() as u32, radiance: v3(r), loc: s.loc.clone() });
+            }
             instances.push(self.sphere(s, warnings)?);
         }
         for p in &rec.planes {
             instances.push(self.plane(p, warnings)?);
         }
-        Ok((geoms, instances))
+        Ok((geoms, instances, emitters))
     }
 
     /// A `<Triangle>` as a one-triangle mesh (the mesh index `mesh` in the scene) and its
@@ -994,6 +1006,52 @@ impl Objects<'_, '_> {
             textures: self.textures.for_object(ctx, &p.textures, &p.loc, warnings)?,
         })
     }
+}
+
+/// An emitting object found by [`Objects::place`].
+struct Emitter {
+    instance: u32,
+    radiance: DVec3,
+    loc: Loc,
+}
+
+/// Step 7: the object lights (§13.3), each a world-space copy of its surface for sampling, and
+/// the radiance of every instance by index (`None` for objects that do not emit). A light with
+/// no area (every triangle degenerate) still shows where it is seen but lights nothing, with a
+/// warning.
+fn object_lights(
+    ctx: &Ctx,
+    accel: &Accel,
+    emitters: &[Emitter],
+    warnings: &mut Vec<Warning>,
+) -> (Vec<ObjectLight>, Vec<Option<DVec3>>) {
+    let mut emission = vec![None; if emitters.is_empty() { 0 } else { accel.instances.len() }];
+    let mut lights = Vec::with_capacity(emitters.len());
+    for e in emitters {
+        emission[e.instance as usize] = Some(e.radiance);
+        if e.radiance == DVec3::ZERO {
+            continue;
+        }
+        let inst = &accel.instances[e.instance as usize];
+        let to_world = inst.transform.as_ref().map(|t| t.to_world);
+        let light = match &inst.shape {
+            Shape::Mesh { mesh, .. } => {
+                let g = &accel.meshes[*mesh as usize];
+                let place = |p: DVec3| to_world.map_or(p, |m| m.transform_point3(p));
+                let tris = g.indices.iter().map(|t| t.map(|k| place(g.positions[k as usize]))).collect();
+                ObjectLight::triangles(tris, e.radiance, e.instance)
+            }
+            Shape::Sphere { center, radius } => {
+                Some(ObjectLight::sphere(*center, *radius, to_world, e.radiance, e.instance))
+            }
+            Shape::Plane { .. } => None,
+        };
+        match light {
+            Some(l) => lights.push(l),
+            None => ctx.warn(warnings, &e.loc, "the light has no area; it is visible but lights nothing"),
+        }
+    }
+    (lights, emission)
 }
 
 /// An object's `<MotionBlur>` velocity; none when absent or zero.

@@ -22,7 +22,7 @@ use crate::error::Warning;
 use crate::geometry::Accel;
 use crate::material::Material;
 
-pub use crate::lights::{AreaLight, DirectionalLight, EnvLight, PointLight, SpotLight};
+pub use crate::lights::{AreaLight, DirectionalLight, EnvLight, ObjectLight, PointLight, SpotLight};
 
 /// Size and cost of a built scene, for logs and summaries.
 #[derive(Clone, Debug, PartialEq)]
@@ -51,6 +51,11 @@ pub struct Scene {
     pub area_lights: Vec<AreaLight>,
     pub directional_lights: Vec<DirectionalLight>,
     pub spot_lights: Vec<SpotLight>,
+    /// LightMesh and LightSphere objects (§9.6, §9.7), sampled for direct lighting (§13.3).
+    pub object_lights: Vec<ObjectLight>,
+    /// The radiance each instance emits from its front, by instance index: `None` for objects
+    /// that are not lights. Empty when the scene has no object lights.
+    pub instance_emission: Vec<Option<DVec3>>,
     /// The environment light (HW5), if any: lights the scene and is what rays that miss see.
     /// (A second `SphericalDirectionalLight` is warned about and ignored.)
     pub env_light: Option<EnvLight>,
