@@ -31,6 +31,8 @@ pub struct Camera {
     pub lens: Option<LensRec>,
     /// How an HDR output is also written as PNG (empty: the photographic defaults).
     pub tonemaps: Vec<TonemapRec>,
+    /// Classic ray tracing or path tracing (§13.1).
+    pub renderer: crate::scene::records::Renderer,
 }
 
 impl Camera {
@@ -86,6 +88,7 @@ impl Camera {
             num_samples: c.num_samples.max(1),
             lens: c.lens,
             tonemaps: c.tonemaps.clone(),
+            renderer: c.renderer,
         })
     }
 

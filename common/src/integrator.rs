@@ -12,7 +12,7 @@ use crate::material::{Material, MaterialKind, Refraction, fresnel_conductor, ref
 use crate::math::{Ray, orthonormal_pair, reflect};
 use crate::sampler::Sampler;
 use crate::scene::Scene;
-use crate::scene::records::{DecalMode, EnvSampler};
+use crate::scene::records::{DecalMode, EnvSampler, MAX_RECURSION_DEPTH_LIMIT, PathParams, Renderer};
 use crate::texture::maps::{
     Source, TextureMap, TexturePoint, bump_by_gradient, image_height, perlin_gradient,
 };
@@ -53,6 +53,8 @@ pub struct Tracer<'a> {
     pub spread: f64,
     /// Rays the current camera sample may still trace (see [`SECONDARY_RAY_BUDGET`]).
     budget: u32,
+    /// The camera's renderer: the recursive tracer or a path tracer (§13.1).
+    pub renderer: Renderer,
 }
 
 /// Most rays traced for one camera sample. Glass splits every ray in two, so the tree of a
@@ -66,6 +68,10 @@ pub const SECONDARY_RAY_BUDGET: u32 = 4096;
 /// one ray must not make a pixel cost without bound.
 pub const CULLED_HITS_LIMIT: u32 = 256;
 
+/// Most bounces of a path under Russian roulette, which otherwise has no depth limit: a safety
+/// cap (a path this long carries a negligible share of any pixel in the course's scenes).
+pub const PATH_DEPTH_LIMIT: u32 = MAX_RECURSION_DEPTH_LIMIT;
+
 impl<'a> Tracer<'a> {
     pub fn new(scene: &'a Scene) -> Self {
         let env_sampler = scene.env_light.as_ref().and_then(|l| l.sampler).unwrap_or(EnvSampler::Uniform);
@@ -76,14 +82,191 @@ impl<'a> Tracer<'a> {
             env_sampler,
             spread: 0.0,
             budget: 0,
+            renderer: Renderer::Classic,
         }
     }
 
     /// Radiance along a camera ray.
     pub fn trace_primary(&mut self, ray: &Ray, rng: &mut Sampler) -> DVec3 {
         self.stats.primary += 1;
-        self.budget = SECONDARY_RAY_BUDGET;
-        self.trace(ray, 0, None, 0.0, rng)
+        match self.renderer {
+            Renderer::Classic => {
+                self.budget = SECONDARY_RAY_BUDGET;
+                self.trace(ray, 0, None, 0.0, rng)
+            }
+            Renderer::Path(params) => self.trace_path(ray, params, rng),
+        }
+    }
+
+    /// Monte Carlo path tracing (§13.2): one path per camera sample. At each diffuse or glossy
+    /// vertex the lights are sampled (with `NextEventEstimation`) and one direction is drawn
+    /// (uniform, or from the cosine lobe with `ImportanceSampling`) with the throughput
+    /// multiplied by `f·cos θ / pdf`; mirrors, conductors and dielectrics continue along their
+    /// specular directions (a dielectric chooses reflection with probability `F`, refraction
+    /// otherwise, which weighs each by exactly its Fresnel factor on average). Object lights
+    /// and the environment count when a path reaches them unless the previous vertex already
+    /// sampled them. Paths end after `MaxRecursionDepth` bounces, or with `RussianRoulette` at
+    /// random (survival probability the throughput's largest channel, capped at 1, with the
+    /// throughput divided by it) and after [`PATH_DEPTH_LIMIT`] bounces at the latest.
+    ///
+    /// Measured against the course's references (cornellbox_jaroslav_path_*): virtual lights
+    /// (point, area, spot, directional) are sampled only with `NextEventEstimation` — without
+    /// it they add nothing, since no path can hit them — and Russian roulette replaces the
+    /// depth limit rather than adding to it.
+    fn trace_path(&mut self, camera_ray: &Ray, params: PathParams, rng: &mut Sampler) -> DVec3 {
+        let scene = self.scene;
+        let nee = params.next_event;
+        let max_bounces = if params.russian_roulette { PATH_DEPTH_LIMIT } else { scene.max_recursion_depth };
+        let eps = scene.shadow_ray_epsilon;
+        let mut ray = *camera_ray;
+        let mut l = DVec3::ZERO;
+        let mut beta = DVec3::ONE;
+        // The absorption of the dielectric the path is inside (Beer's law per segment).
+        let mut medium: Option<DVec3> = None;
+        // Whether the last vertex was the camera or a specular one: lights reached now were
+        // not sampled there, so they count.
+        let mut specular = true;
+        let mut cone = 0.0;
+        let mut bounce = 0;
+        loop {
+            let Some(hit) = self.closest(&ray, bounce) else {
+                if let Some(env) = &scene.env_light {
+                    if specular || !nee {
+                        l += beta * env.radiance(ray.dir);
+                    }
+                } else {
+                    l += beta * self.background;
+                }
+                break;
+            };
+            if let Some(c) = medium
+                && c != DVec3::ZERO
+            {
+                beta *= (-c * hit.t).exp();
+            }
+            cone += self.spread * hit.t;
+            if let Some(le) = self.emitted(&ray, &hit)
+                && (specular || !nee)
+            {
+                l += beta * le;
+            }
+            let (mat, shading_normal) = match self.surface(&ray, &hit, cone) {
+                Ok(s) => s,
+                Err(texel) => {
+                    l += beta * texel;
+                    break;
+                }
+            };
+            let mat = mat.as_ref();
+            let d = ray.dir;
+            let entering = d.dot(hit.geo_normal) < 0.0;
+            // The shading normal on the side the path arrives from.
+            let n = if entering { shading_normal } else { -shading_normal };
+            if bounce == 0 {
+                l += beta * mat.ambient * scene.ambient_light;
+            }
+            // Light sampled at this vertex: every light with NEE (virtual lights have no other
+            // way in), nothing without; dielectrics only on their outside (§15 #20).
+            let shaded = !(mat.kind == MaterialKind::Dielectric && medium.is_some());
+            if nee && shaded {
+                l += beta * self.lights(&ray, hit.point, n, mat, true, rng);
+            }
+            if bounce >= max_bounces {
+                break;
+            }
+            self.stats.secondary += 1;
+            let wo = -d;
+            match mat.kind {
+                MaterialKind::Dielectric => {
+                    let eta = mat.refraction_index;
+                    let (n1, n2) = if entering { (1.0, eta) } else { (eta, 1.0) };
+                    let reflected = glossy(reflect(d, n), mat.roughness, rng);
+                    let xi = rng.next_1d();
+                    ray = match refract(d, n, n1, n2) {
+                        Refraction::Split { fr, dir } if xi >= fr => {
+                            medium = if entering { Some(mat.absorption) } else { None };
+                            ray.spawn(hit.point - eps * n, glossy(dir, mat.roughness, rng))
+                        }
+                        _ => ray.spawn(hit.point + eps * n, reflected),
+                    };
+                    specular = true;
+                }
+                MaterialKind::Mirror | MaterialKind::Conductor => {
+                    let weight = if mat.kind == MaterialKind::Conductor {
+                        mat.mirror * fresnel_conductor(-d.dot(n), mat.refraction_index, mat.absorption_index)
+                    } else {
+                        mat.mirror
+                    };
+                    // The mirror lobe or the material's BRDF, chosen by their largest channels;
+                    // the chosen one's weight is divided by its probability.
+                    let w_spec = weight.max_element();
+                    let w_brdf = (mat.diffuse + mat.specular).max_element();
+                    let p_spec = if w_brdf > 0.0 { w_spec / (w_spec + w_brdf) } else { 1.0 };
+                    let xi = rng.next_1d();
+                    if xi < p_spec {
+                        if w_spec <= 0.0 {
+                            break;
+                        }
+                        beta *= weight / p_spec;
+                        ray = ray.spawn(hit.point + eps * n, glossy(reflect(d, n), mat.roughness, rng));
+                        specular = true;
+                    } else {
+                        let Some((wi, f)) = self.bounce(n, wo, mat, params.importance, rng) else { break };
+                        beta *= f / (1.0 - p_spec);
+                        ray = ray.spawn(hit.point + eps * n, wi);
+                        specular = false;
+                    }
+                }
+                MaterialKind::Plain => {
+                    let Some((wi, f)) = self.bounce(n, wo, mat, params.importance, rng) else { break };
+                    beta *= f;
+                    ray = ray.spawn(hit.point + eps * n, wi);
+                    specular = false;
+                }
+            }
+            bounce += 1;
+            if params.russian_roulette {
+                let q = beta.max_element().min(1.0);
+                if !(rng.next_1d() < q) {
+                    break;
+                }
+                beta /= q;
+            }
+            if beta == DVec3::ZERO || !beta.is_finite() {
+                break;
+            }
+        }
+        l
+    }
+
+    /// One bounce direction at a diffuse or glossy vertex: uniform in the hemisphere of `n`
+    /// (pdf 1/2π) or cosine-distributed (pdf cos θ/π), and the throughput factor
+    /// `f(wi, wo)·cos θ / pdf`. `None` when the material reflects nothing that way.
+    fn bounce(
+        &mut self,
+        n: DVec3,
+        wo: DVec3,
+        mat: &Material,
+        importance: bool,
+        rng: &mut Sampler,
+    ) -> Option<(DVec3, DVec3)> {
+        let (u1, u2) = rng.next_2d();
+        let (t, b) = orthonormal_pair(n);
+        let phi = std::f64::consts::TAU * u2;
+        let (cos_t, pdf_over_cos) = if importance {
+            let c = (1.0 - u1).sqrt();
+            (c, 1.0 / std::f64::consts::PI)
+        } else {
+            (u1, 0.0)
+        };
+        let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
+        let wi = (sin_t * phi.cos()) * t + (sin_t * phi.sin()) * b + cos_t * n;
+        if !(cos_t > 0.0) {
+            return None;
+        }
+        let pdf = if importance { cos_t * pdf_over_cos } else { 1.0 / std::f64::consts::TAU };
+        let f = mat.reflectance(n, wi, wo) / pdf;
+        (f != DVec3::ZERO && f.is_finite()).then_some((wi, f))
     }
 
     /// Radiance arriving along `ray`. `medium` is the absorption coefficient of the dielectric
@@ -273,7 +456,15 @@ impl<'a> Tracer<'a> {
     /// Light reflected towards the viewer of `ray` at `x` from one sample of every light: point,
     /// directional and spot lights exactly, one point of every area and object light, and (when
     /// `env`) one direction of the environment light. `n` is the normal to shade with.
-    fn lights(&mut self, ray: &Ray, x: DVec3, n: DVec3, mat: &Material, env: bool, rng: &mut Sampler) -> DVec3 {
+    fn lights(
+        &mut self,
+        ray: &Ray,
+        x: DVec3,
+        n: DVec3,
+        mat: &Material,
+        env: bool,
+        rng: &mut Sampler,
+    ) -> DVec3 {
         let scene = self.scene;
         let mut l = DVec3::ZERO;
         if mat.diffuse == DVec3::ZERO && mat.specular == DVec3::ZERO {

@@ -428,12 +428,21 @@ impl ObjectLight {
             total += 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length();
             cdf.push(total);
         }
-        (total > 0.0 && total.is_finite())
-            .then_some(ObjectLight { radiance, instance, shape: EmitterShape::Triangles { tris, cdf } })
+        (total > 0.0 && total.is_finite()).then_some(ObjectLight {
+            radiance,
+            instance,
+            shape: EmitterShape::Triangles { tris, cdf },
+        })
     }
 
     /// A sphere light: object-space `center` and `radius`, placed by `to_world` (if any).
-    pub fn sphere(center: DVec3, radius: f64, to_world: Option<DAffine3>, radiance: DVec3, instance: u32) -> Self {
+    pub fn sphere(
+        center: DVec3,
+        radius: f64,
+        to_world: Option<DAffine3>,
+        radiance: DVec3,
+        instance: u32,
+    ) -> Self {
         let shape = match to_world {
             None => EmitterShape::Sphere { center, radius },
             Some(m) => {
@@ -486,7 +495,9 @@ impl ObjectLight {
                 let n = (p1 - p0).cross(p2 - p0).normalize();
                 (y, n, 1.0 / total)
             }
-            EmitterShape::Sphere { center, radius } => return sample_sphere_cone(x, *center, *radius, self.radiance, u1, u2),
+            EmitterShape::Sphere { center, radius } => {
+                return sample_sphere_cone(x, *center, *radius, self.radiance, u1, u2);
+            }
             EmitterShape::Ellipsoid { center, radius, to_world, normal_matrix, det } => {
                 let n_o = uniform_sphere(u1, u2);
                 let y = to_world.transform_point3(*center + *radius * n_o);
@@ -519,7 +530,14 @@ fn uniform_sphere(u1: f64, u2: f64) -> DVec3 {
 /// Cone sampling of a world-space sphere light from `x` (§13.3 (b)): a direction uniform in the
 /// solid angle the sphere subtends, `p_ω = 1 / (2π(1 − cos θ_max))`, the point where it meets the
 /// sphere, and `E = L_e / p_ω`. `None` when `x` is inside the sphere.
-fn sample_sphere_cone(x: DVec3, c: DVec3, r: f64, radiance: DVec3, u1: f64, u2: f64) -> Option<EmitterSample> {
+fn sample_sphere_cone(
+    x: DVec3,
+    c: DVec3,
+    r: f64,
+    radiance: DVec3,
+    u1: f64,
+    u2: f64,
+) -> Option<EmitterSample> {
     let to_c = c - x;
     let d2 = to_c.length_squared();
     if !(d2 > r * r) {

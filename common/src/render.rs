@@ -120,6 +120,7 @@ pub fn render_tile_until(
     let n = settings.samples.unwrap_or(cam.num_samples).max(1);
     let moving = scene.accel.instances.iter().any(|i| i.motion.is_some());
     let mut tracer = Tracer::new(scene);
+    tracer.renderer = cam.renderer;
     if let Some(s) = settings.env_sampling {
         tracer.env_sampler = s;
     }

@@ -894,7 +894,11 @@ impl Objects<'_, '_> {
                 ctx.warn(warnings, &m.loc, "an image texture is applied but the mesh has no texture coordinates (TexCoordData or PLY u v); it is sampled at the barycentric coordinates");
             }
             if let Some(r) = m.radiance {
-                emitters.push(Emitter { instance: instances.len() as u32, radiance: v3(r), loc: m.loc.clone() });
+                emitters.push(Emitter {
+                    instance: instances.len() as u32,
+                    radiance: v3(r),
+                    loc: m.loc.clone(),
+                });
             }
             instances.push(Instance {
                 shape: Shape::Mesh { mesh: i as u32, smooth: m.shading == ShadingMode::Smooth },
@@ -921,7 +925,11 @@ impl Objects<'_, '_> {
         }
         for s in &rec.spheres {
             if let Some(r) = s.radiance {
-                emitters.push(Emitter { instance: instances.len() as u32, radiance: v3(r), loc: s.loc.clone() });
+                emitters.push(Emitter {
+                    instance: instances.len() as u32,
+                    radiance: v3(r),
+                    loc: s.loc.clone(),
+                });
             }
             instances.push(self.sphere(s, warnings)?);
         }
