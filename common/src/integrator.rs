@@ -926,4 +926,75 @@ mod tests {
         let p = furnace_pixel(0.25, -1.0, mirror, 1, EnvSampler::Uniform);
         assert!((p[0] - 0.125).abs() < 1e-7, "{p:?}");
     }
+
+    /// A closed box (inward-facing, normalized ModifiedPhong walls of reflectance 0.5) with a
+    /// small emitting square on its ceiling, seen by one pixel looking at the floor, path
+    /// traced with `params` at `max_depth`; `k` renders with different seeds, each of `spp`
+    /// samples: the mean pixel (red channel) of each render.
+    fn box_path_means(params: &str, max_depth: u32, spp: u32, k: u64) -> (Vec<f64>, u64) {
+        let xml = format!(
+            r#"<Scene><MaxRecursionDepth>{max_depth}</MaxRecursionDepth>
+            <Cameras><Camera id="1"><Position>0 0.5 0</Position><Gaze>0 -1 0</Gaze><Up>0 0 -1</Up>
+              <NearPlane>-0.1 0.1 -0.1 0.1</NearPlane><NearDistance>1</NearDistance>
+              <ImageResolution>1 1</ImageResolution><ImageName>a.exr</ImageName><NumSamples>{spp}</NumSamples>
+              <Renderer>PathTracing</Renderer><RendererParams>{params}</RendererParams></Camera></Cameras>
+            <BRDFs><ModifiedPhong id="1" normalized="true"><Exponent>1</Exponent></ModifiedPhong></BRDFs>
+            <Materials><Material id="1" BRDF="1"><DiffuseReflectance>0.5 0.5 0.5</DiffuseReflectance></Material>
+              <Material id="2"></Material></Materials>
+            <VertexData>-1 -1 -1  1 -1 -1  1 1 -1  -1 1 -1  -1 -1 1  1 -1 1  1 1 1  -1 1 1
+              -0.5 0.99 -0.5  0.5 0.99 -0.5  0.5 0.99 0.5  -0.5 0.99 0.5</VertexData>
+            <Objects><Mesh id="1"><Material>1</Material><Faces>
+              1 2 6  1 6 5  4 8 7  4 7 3  1 5 8  1 8 4  2 3 7  2 7 6  1 4 3  1 3 2  5 6 7  5 7 8</Faces></Mesh>
+              <LightMesh id="2"><Material>2</Material><Radiance>4 4 4</Radiance><Faces>9 10 11  9 11 12</Faces></LightMesh>
+            </Objects></Scene>"#
+        );
+        let scene = load_scene_str(&xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() })
+            .unwrap();
+        assert!(scene.warnings.is_empty(), "{:?}", scene.warnings);
+        let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
+        let mut rays = 0;
+        let means = (0..k)
+            .map(|seed| {
+                let settings = RenderSettings { seed, ..RenderSettings::default() };
+                let (px, stats) = render_tile(&scene, 0, rect, &settings);
+                rays += stats.secondary;
+                px[0][0] as f64
+            })
+            .collect();
+        (means, rays)
+    }
+
+    fn mean_and_error(xs: &[f64]) -> (f64, f64) {
+        let n = xs.len() as f64;
+        let m = xs.iter().sum::<f64>() / n;
+        let var = xs.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0);
+        (m, (var / n).sqrt())
+    }
+
+    /// Russian roulette changes which paths are traced, not what they average to: with the
+    /// walls reflecting half the light, 64 bounces (the cap) and roulette agree within noise,
+    /// while roulette traces far fewer rays. A roulette that forgot to divide by the survival
+    /// probability, or a depth limit of 2, would each be many standard errors off.
+    #[test]
+    fn russian_roulette_is_unbiased() {
+        // Without NEE only paths that reach the light count: noisier, so more samples.
+        for (params, spp) in [("NextEventEstimation ImportanceSampling", 512), ("ImportanceSampling", 4096)] {
+            let (full, full_rays) = box_path_means(params, 64, spp, 16);
+            let (rr, rr_rays) = box_path_means(&format!("{params} RussianRoulette"), 64, spp, 16);
+            let (short, _) = box_path_means(params, 1, spp, 16);
+            let (mf, ef) = mean_and_error(&full);
+            let (mr, er) = mean_and_error(&rr);
+            let (ms, _) = mean_and_error(&short);
+            let tolerance = 4.0 * (ef * ef + er * er).sqrt();
+            assert!((mf - mr).abs() < tolerance, "{params}: full depth {mf} ± {ef}, roulette {mr} ± {er}");
+            assert!(
+                mf - ms > 3.0 * tolerance,
+                "{params}: the later bounces matter: {ms} at depth 1 vs {mf} (tolerance {tolerance})"
+            );
+            assert!(
+                rr_rays * 2 < full_rays,
+                "{params}: roulette traced {rr_rays} rays, full depth {full_rays}"
+            );
+        }
+    }
 }
