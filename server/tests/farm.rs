@@ -281,6 +281,43 @@ fn a_json_scene_renders_on_the_farm_like_on_the_cli() {
     assert!(farm == cli, "the farm's {png} differs from the CLI's");
 }
 
+/// Homework 6 through the farm: object lights, BRDFs and path-traced cameras (every new random
+/// dimension) give the CLI's bytes for every output of every camera, with tiles spread over two
+/// workers.
+#[test]
+fn a_path_traced_scene_renders_on_the_farm_like_on_the_cli() {
+    let _s = serial();
+    let scene_path = repo().join("scenes/path_traced.xml");
+    let scene = std::fs::read(&scene_path).unwrap();
+    let data = TempDir::new("farm-path");
+    let server = Server::start(&data, &["--local-workers", "2", "--local-worker-threads", "1"]);
+    let (code, job) =
+        submit(&server.url, None, &[("scene", Some("path_traced.xml"), &scene), ("tile_size", None, b"16")]);
+    assert_eq!(code, 201, "{job}");
+    let id = job["id"].as_u64().unwrap();
+    let job = wait_job(&server, id, 180, |j| j["state"] == "done");
+    let out = TempDir::new("farm-path-cli");
+    let status = Command::new(worker_bin())
+        .args(["render", scene_path.to_str().unwrap(), "--quiet", "--out"])
+        .arg(out.path())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let frames = job["frames"].as_array().unwrap();
+    assert_eq!(frames.len(), 3, "{job}");
+    for (k, frame) in frames.iter().enumerate() {
+        for o in frame["outputs"].as_array().unwrap() {
+            let name = o["name"].as_str().unwrap();
+            let farm = get_bytes(&server.url, &format!("/api/v1/jobs/{id}/frames/{k}/files/{name}"));
+            let cli =
+                std::fs::read(out.join(name)).unwrap_or_else(|e| panic!("the CLI wrote no {name}: {e}"));
+            assert!(farm == cli, "frame {k}: the farm's {name} differs from the CLI's");
+        }
+    }
+}
+
 #[test]
 fn listening_beyond_loopback_needs_a_token() {
     let out = Command::new(server_bin())

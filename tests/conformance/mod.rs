@@ -40,7 +40,7 @@ impl Row {
         }
     }
 
-    /// `reference/<scene>.png`, or `reference/<scene>__<image>` for multi-camera scenes; for a
+    /// `reference/<scene>.png`, or `reference/<scene>__<image>.png` for multi-camera scenes; for a
     /// JSON row `json/<dir>/<name>`, the 2025 reference `reference/json2025/<dir>/<image>`.
     pub fn reference_path(&self) -> PathBuf {
         let dir = crate::shared_scenes().join("reference");
@@ -49,7 +49,9 @@ impl Row {
             return dir.join("json2025").join(sub).join(&self.image);
         }
         let single = dir.join(format!("{}.png", self.scene));
-        let multi = dir.join(format!("{}__{}", self.scene, self.image));
+        // An HDR camera (`x.exr`) is judged by the tone-mapped PNG beside its reference.
+        let stem = Path::new(&self.image).with_extension("png");
+        let multi = dir.join(format!("{}__{}", self.scene, stem.display()));
         if multi.exists() { multi } else { single }
     }
 }

@@ -13,9 +13,16 @@ use tessera::scene::load::{load_scene_file, load_scene_str};
 /// distribution.xml has every homework-3 effect: jittered multisampling, an area light, glossy
 /// reflection, a thin lens and motion blur (checked by `the_distribution_scene_exercises_every_effect`);
 /// environment.xml importance-samples an environment map, spotlights.xml has spot and directional
-/// lights.
-const SCENES: [&str; 6] =
-    ["cornell_box.xml", "tori.xml", "distribution.xml", "textures.xml", "environment.xml", "spotlights.xml"];
+/// lights, path_traced.xml has object lights, BRDFs and path-traced cameras (homework 6).
+const SCENES: [&str; 7] = [
+    "cornell_box.xml",
+    "tori.xml",
+    "distribution.xml",
+    "textures.xml",
+    "environment.xml",
+    "spotlights.xml",
+    "path_traced.xml",
+];
 
 fn scenes_dir() -> PathBuf {
     tessera_tests::repo_root().join("scenes")
