@@ -94,7 +94,7 @@ function jobNode(id) {
       el("ol", { class: "log-lines" })));
   entry = { data: null, node, frames: new Map(), logSeq: 0, logBusy: false, logAgain: false };
   jobs.set(id, entry);
-  refreshLog(id, id);
+  $(".log", node).addEventListener("toggle", () => refreshLog(id, id));
   const list = $("#jobs");
   $(".empty", list)?.remove();
   // Newest first.
@@ -103,8 +103,15 @@ function jobNode(id) {
   return entry;
 }
 
-function renderJob(job) {
+// `listed`: the job comes from the page's first listing. Jobs that had ended by then show their
+// log closed and fetch it when opened, so a page over many old jobs does not fetch every log.
+function renderJob(job, listed = false) {
   const entry = jobNode(job.id);
+  if (!entry.data) {
+    const ended = job.state === "done" || job.state === "failed" || job.state === "canceled";
+    if (listed && ended) $(".log", entry.node).open = false;
+    refreshLog(job.id, job.id);
+  }
   // Answers can overtake each other: progress only ever grows.
   if (entry.data) {
     for (const f of job.frames) {
@@ -249,7 +256,7 @@ function logLine(e) {
 
 async function loadLog(id) {
   const entry = jobs.get(id);
-  if (!entry) return;
+  if (!entry || !$(".log", entry.node).open) return;
   // One request at a time per job; a refresh asked for meanwhile runs after it.
   if (entry.logBusy) { entry.logAgain = true; return; }
   entry.logBusy = true;
@@ -336,7 +343,7 @@ function connect() {
 async function loadAll() {
   try {
     const list = await apiJson("/api/v1/jobs");
-    for (const job of list.jobs.slice().reverse()) renderJob(job);
+    for (const job of list.jobs.slice().reverse()) renderJob(job, true);
   } catch (e) { console.warn(e); }
   loadWorkers();
 }
