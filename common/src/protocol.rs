@@ -2,6 +2,9 @@
 //! (`/api/v1/worker/...`), serialised as JSON, plus the binary tile format.
 //!
 //! Only these types derive `Serialize`/`Deserialize`; the tracer's own types never travel.
+//! With the `openapi` feature (the server's) they also derive utoipa's `ToSchema`, so the
+//! server's OpenAPI description (`/api/v1/openapi.json`) is made from these very types and their
+//! doc comments; the worker builds without it.
 //!
 //! Worker protocol, in order:
 //! 1. `POST /api/v1/worker/register` [`RegisterRequest`] → [`RegisterResponse`].
@@ -30,7 +33,12 @@ use serde::{Deserialize, Serialize};
 /// Header carrying the checksum of a tile upload.
 pub const CHECKSUM_HEADER: &str = "x-tessera-checksum";
 
+/// Optional header of a tile upload: the seconds the worker spent rendering the tile, as it
+/// measured them (a decimal number). The job log's `tile_done` events and `/metrics` show it.
+pub const RENDER_SECONDS_HEADER: &str = "x-tessera-render-seconds";
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct RegisterRequest {
     /// A name for logs and the status page (host name and process id by default).
     pub name: String,
@@ -39,6 +47,7 @@ pub struct RegisterRequest {
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct RegisterResponse {
     pub worker_id: u64,
     /// How often to send heartbeats.
@@ -48,6 +57,7 @@ pub struct RegisterResponse {
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct LeaseRequest {
     pub worker_id: u64,
     /// How long the server may hold the request open waiting for work (it caps this).
@@ -56,6 +66,7 @@ pub struct LeaseRequest {
 
 /// A pixel rectangle of a frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct Rect {
     pub x0: u32,
     pub y0: u32,
@@ -65,6 +76,7 @@ pub struct Rect {
 
 /// One tile to render, owned by one worker until its deadline.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct Lease {
     pub lease_id: u64,
     pub job_id: u64,
@@ -88,6 +100,7 @@ pub struct Lease {
 
 /// A long poll for revocations of the leases a worker is rendering.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct WatchRequest {
     pub worker_id: u64,
     pub leases: Vec<u64>,
@@ -96,6 +109,7 @@ pub struct WatchRequest {
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct HeartbeatRequest {
     pub worker_id: u64,
     /// The leases the worker holds (rendering or prefetched).
@@ -105,6 +119,7 @@ pub struct HeartbeatRequest {
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct HeartbeatResponse {
     /// Leases the worker no longer owns (expired, cancelled job): drop their work.
     pub revoked: Vec<u64>,
@@ -112,11 +127,13 @@ pub struct HeartbeatResponse {
 
 /// Gives a lease back unrendered (the worker is stopping).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct ReleaseRequest {
     pub worker_id: u64,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct FailRequest {
     pub worker_id: u64,
     pub error: String,
@@ -129,6 +146,7 @@ pub struct FailRequest {
 
 /// A problem with a submitted scene or bundle, as precise as the parser knows it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct Problem {
     pub file: Option<String>,
     pub line: Option<u32>,
@@ -138,6 +156,7 @@ pub struct Problem {
 
 /// Every error response of the API: `{"error": ..., "problems": [...]}`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct ApiError {
     pub error: String,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -145,6 +164,7 @@ pub struct ApiError {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(rename_all = "lowercase")]
 pub enum JobState {
     Queued,
@@ -184,6 +204,7 @@ impl JobState {
 
 /// A frame (one camera) of a job.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct FrameInfo {
     pub index: u32,
     pub camera: u32,
@@ -202,6 +223,7 @@ pub struct FrameInfo {
 
 /// Photographic operator parameters as the API shows them (`gamma`: a number or "sRGB").
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct ToneParams {
     pub key: f64,
     pub burn: f64,
@@ -212,6 +234,7 @@ pub struct ToneParams {
 /// What the server pushes to the status page (`GET /api/v1/events`, server-sent events; the
 /// event name is the variant, the data this JSON).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(tag = "type", rename_all = "lowercase")]
 pub enum ServerEvent {
     /// A job was submitted or changed state.
@@ -236,12 +259,14 @@ impl ServerEvent {
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct OutputInfo {
     pub name: String,
     pub url: String,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct JobInfo {
     pub id: u64,
     pub name: String,
@@ -263,12 +288,14 @@ pub struct JobInfo {
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct JobList {
     pub jobs: Vec<JobInfo>,
 }
 
 /// One entry of a job's event log (`GET /api/v1/jobs/ID/log`), oldest first.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct JobEvent {
     /// Position in the job's log, from 1: a client that has seen up to `seq` asks for more
     /// with `?after=seq`.
@@ -277,7 +304,8 @@ pub struct JobEvent {
     pub at: f64,
     /// What happened: `accepted`, `warning`, `tile_done`, `tile_failed`, `tile_retried`,
     /// `lease_expired`, `frame_merged`, `frame_tonemapped`, `job_done`, `job_failed`,
-    /// `job_cancelled`.
+    /// `job_cancelled`, and `log_truncated`: the log is bounded (the server keeps a fixed number
+    /// of events per job), this event says it is full, and only the job's end follows it.
     pub kind: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub frame: Option<u32>,
@@ -287,6 +315,9 @@ pub struct JobEvent {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub worker: Option<String>,
     /// Seconds the step took (a tile's render, a merge, a tone map), where it has a duration.
+    /// A tile's is the worker's own measurement of its render, sent with the result
+    /// ([`RENDER_SECONDS_HEADER`]; absent when the worker sent none), not the time between
+    /// lease and result, which includes waiting in the worker's prefetch queue and the upload.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub seconds: Option<f64>,
     /// A sentence for people: the warning's or the failure's text, or a summary.
@@ -295,14 +326,26 @@ pub struct JobEvent {
 
 /// `GET /api/v1/jobs/ID/log`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct JobLog {
     pub job: u64,
     pub events: Vec<JobEvent>,
 }
 
+/// Query of `GET /api/v1/jobs/ID/log`: only the events after `after` (a `seq`; default 0, the
+/// whole log).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema, utoipa::IntoParams))]
+#[cfg_attr(feature = "openapi", into_params(parameter_in = Query))]
+pub struct LogQuery {
+    pub after: Option<u64>,
+}
+
 /// Query of `GET /api/v1/jobs/ID/frames/F/tonemap.png`: any parameter left out takes the
 /// camera's value (`gamma`: a number or "sRGB").
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema, utoipa::IntoParams))]
+#[cfg_attr(feature = "openapi", into_params(parameter_in = Query))]
 pub struct ToneQuery {
     pub key: Option<f64>,
     pub burn: Option<f64>,
@@ -312,6 +355,7 @@ pub struct ToneQuery {
 
 /// The tile a worker is rendering, as the workers list shows it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct WorkerTile {
     pub job: u64,
     pub frame: u32,
@@ -320,6 +364,7 @@ pub struct WorkerTile {
 
 /// One registered worker in `GET /api/v1/workers`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct WorkerInfo {
     pub id: u64,
     pub name: String,
@@ -334,6 +379,7 @@ pub struct WorkerInfo {
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct WorkerList {
     pub workers: Vec<WorkerInfo>,
 }

@@ -14,7 +14,7 @@ use std::sync::Mutex;
 
 use anyhow::{Context, Result};
 use rusqlite::{Connection, OptionalExtension, params};
-use tessera::protocol::{JobState, Lease, Rect};
+use tessera::protocol::{JobEvent, JobState, Lease, Rect};
 
 use crate::scheduler::{self, TileFailures};
 
@@ -82,7 +82,86 @@ CREATE TABLE IF NOT EXISTS workers(
     failures INTEGER NOT NULL DEFAULT 0,
     rendering INTEGER
 );
+CREATE TABLE IF NOT EXISTS job_events(
+    job_id INTEGER NOT NULL,
+    seq INTEGER NOT NULL,
+    at REAL NOT NULL,
+    kind TEXT NOT NULL,
+    frame INTEGER,
+    tile INTEGER,
+    worker TEXT,
+    seconds REAL,
+    message TEXT NOT NULL,
+    PRIMARY KEY(job_id, seq)
+) WITHOUT ROWID;
 ";
+
+/// Most events a job's log keeps: a job of a million tiles must not write a million rows of
+/// log. The event after the last one kept says the log
+/// is full (`log_truncated`); the job's end (done, failed, cancelled) is still recorded, so a
+/// log holds at most this many events plus two.
+pub const MAX_JOB_EVENTS: i64 = 10_000;
+
+/// The kinds that end a job: recorded whatever the length of its log.
+pub const JOB_EVENT_KINDS_FINAL: [&str; 3] = ["job_done", "job_failed", "job_cancelled"];
+
+/// One entry of a job's log to record ([`log_event`]).
+struct Event<'a> {
+    kind: &'static str,
+    frame: Option<i64>,
+    tile: Option<i64>,
+    /// The worker's id; the log keeps its name.
+    worker: Option<i64>,
+    seconds: Option<f64>,
+    message: &'a str,
+}
+
+impl<'a> Event<'a> {
+    fn new(kind: &'static str, message: &'a str) -> Event<'a> {
+        Event { kind, frame: None, tile: None, worker: None, seconds: None, message }
+    }
+    fn tile(self, frame: i64, tile: i64) -> Self {
+        Event { frame: Some(frame), tile: Some(tile), ..self }
+    }
+    fn worker(self, worker: i64) -> Self {
+        Event { worker: Some(worker), ..self }
+    }
+}
+
+/// Appends `e` to the log of `job` inside the caller's transaction, so an event is recorded
+/// exactly when what it tells of is. Past [`MAX_JOB_EVENTS`] only the job's end is kept (and
+/// once, a `log_truncated` event saying so).
+fn log_event(tx: &Connection, job: i64, e: Event<'_>) -> Result<()> {
+    let last: i64 = tx
+        .prepare_cached("SELECT coalesce(max(seq), 0) FROM job_events WHERE job_id = ?1")?
+        .query_row([job], |r| r.get(0))?;
+    let mut insert = tx.prepare_cached(
+        "INSERT INTO job_events(job_id, seq, at, kind, frame, tile, worker, seconds, message)
+         VALUES (?1, ?2, ?3, ?4, ?5, ?6, (SELECT name FROM workers WHERE id = ?7), ?8, ?9)",
+    )?;
+    if last >= MAX_JOB_EVENTS && !JOB_EVENT_KINDS_FINAL.contains(&e.kind) {
+        if last == MAX_JOB_EVENTS {
+            let message = format!(
+                "the log is full ({MAX_JOB_EVENTS} events): later tile and frame events of this job are not \
+                 recorded; its end still is"
+            );
+            insert.execute(params![
+                job,
+                last + 1,
+                now(),
+                "log_truncated",
+                None::<i64>,
+                None::<i64>,
+                None::<i64>,
+                None::<f64>,
+                message
+            ])?;
+        }
+        return Ok(());
+    }
+    insert.execute(params![job, last + 1, now(), e.kind, e.frame, e.tile, e.worker, e.seconds, e.message])?;
+    Ok(())
+}
 
 /// What [`Store::expire_leases`] did.
 #[derive(Debug, Default)]
@@ -100,10 +179,14 @@ fn record_failure(
     tx: &rusqlite::Transaction<'_>,
     (job, frame, tile): (i64, i64, i64),
     worker: i64,
-    error: &str,
-    fatal: bool,
+    failure: Failure<'_>,
     t: f64,
 ) -> Result<FailOutcome> {
+    let (kind, error, fatal) = match failure {
+        Failure::Reported { error, fatal } => ("tile_failed", error, fatal),
+        Failure::LeaseExpired { error } => ("lease_expired", error, false),
+    };
+    log_event(tx, job, Event::new(kind, error).tile(frame, tile).worker(worker))?;
     tx.execute(
         "INSERT INTO tile_failures(job_id, frame, tile, worker_id, error, at) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
         params![job, frame, tile, worker, error, t],
@@ -128,12 +211,21 @@ fn record_failure(
     let Some(message) = scheduler::tile_verdict(frame, tile, failures, error, fatal) else {
         return Ok(FailOutcome::Requeued);
     };
-    tx.execute(
+    let ended = tx.execute(
         "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3 WHERE id = ?1 AND state IN ('queued', 'running')",
         params![job, message, t],
     )?;
+    if ended > 0 {
+        log_event(tx, job, Event::new("job_failed", &message))?;
+    }
     revoke_leases(tx, job)?;
     Ok(FailOutcome::JobFailed { job: job as u64, message })
+}
+
+/// What [`record_failure`] records: a failure the worker reported, or a lease that expired.
+enum Failure<'a> {
+    Reported { error: &'a str, fatal: bool },
+    LeaseExpired { error: &'a str },
 }
 
 /// Takes back the live leases of a job that has ended: heartbeats and watches report them
@@ -162,6 +254,8 @@ pub struct NewJob {
     pub bundle: String,
     pub scene_path: String,
     pub frames: Vec<NewFrame>,
+    /// The scene's warnings, one `warning` event each in the job's log.
+    pub warnings: Vec<String>,
 }
 
 pub struct NewFrame {
@@ -241,6 +335,14 @@ pub enum FailOutcome {
     Requeued,
     JobFailed { job: u64, message: String },
     Conflict,
+}
+
+/// How long a frame's merge took, for its log: assembling the tiles and writing the files
+/// that need no tone mapping, and tone mapping (with its PNG) where the frame has one.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct MergeTiming {
+    pub merge_seconds: f64,
+    pub tonemap_seconds: Option<f64>,
 }
 
 /// What /metrics reads from the store.
@@ -363,6 +465,17 @@ impl Store {
                 stmt.execute(rusqlite::params_from_iter(values))?;
             }
         }
+        let tiles: usize = job.frames.iter().map(|f| f.tiles.len()).sum();
+        let accepted = format!(
+            "accepted: {} frame(s), {tiles} tile(s) of {} px, scene {}",
+            job.frames.len(),
+            job.tile_size,
+            job.scene_path
+        );
+        log_event(&tx, id, Event::new("accepted", &accepted))?;
+        for w in &job.warnings {
+            log_event(&tx, id, Event::new("warning", w))?;
+        }
         tx.commit()?;
         Ok(id as u64)
     }
@@ -422,15 +535,37 @@ impl Store {
         Ok(rows)
     }
 
-    /// Records a merged frame's outputs; when it was the job's last frame the job is done.
-    /// Returns whether the job is now done.
-    pub fn frame_merged(&self, job: u64, frame: u32, outputs: &[String]) -> Result<bool> {
+    /// Records a merged frame's outputs (and in the job's log, how long merging and tone
+    /// mapping took); when it was the job's last frame the job is done. Returns whether the job
+    /// is now done.
+    pub fn frame_merged(
+        &self,
+        job: u64,
+        frame: u32,
+        outputs: &[String],
+        timing: MergeTiming,
+    ) -> Result<bool> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         tx.execute(
             "UPDATE frames SET outputs = ?3 WHERE job_id = ?1 AND idx = ?2",
             params![job as i64, frame, serde_json::to_string(outputs)?],
         )?;
+        let merged = format!("frame {frame} merged and written: {}", outputs.join(", "));
+        let f = Some(i64::from(frame));
+        log_event(
+            &tx,
+            job as i64,
+            Event { frame: f, seconds: Some(timing.merge_seconds), ..Event::new("frame_merged", &merged) },
+        )?;
+        if let Some(seconds) = timing.tonemap_seconds {
+            let tonemapped = format!("frame {frame} tone-mapped to PNG");
+            log_event(
+                &tx,
+                job as i64,
+                Event { frame: f, seconds: Some(seconds), ..Event::new("frame_tonemapped", &tonemapped) },
+            )?;
+        }
         let left: i64 = tx.query_row(
             "SELECT count(*) FROM frames WHERE job_id = ?1 AND outputs IS NULL",
             [job as i64],
@@ -438,10 +573,13 @@ impl Store {
         )?;
         let done = left == 0;
         if done {
-            tx.execute(
+            let ended = tx.execute(
                 "UPDATE jobs SET state = 'done', finished_at = ?2 WHERE id = ?1 AND state IN ('queued', 'running')",
                 params![job as i64, now()],
             )?;
+            if ended > 0 {
+                log_event(&tx, job as i64, Event::new("job_done", "done: every frame is merged"))?;
+            }
             // The pixels live on in the outputs; keep the database small.
             tx.execute("UPDATE tiles SET pixels = NULL WHERE job_id = ?1", [job as i64])?;
         }
@@ -450,10 +588,16 @@ impl Store {
     }
 
     pub fn fail_job(&self, job: u64, error: &str) -> Result<()> {
-        self.conn().execute(
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        let ended = tx.execute(
             "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3 WHERE id = ?1 AND state IN ('queued', 'running')",
             params![job as i64, error, now()],
         )?;
+        if ended > 0 {
+            log_event(&tx, job as i64, Event::new("job_failed", error))?;
+        }
+        tx.commit()?;
         Ok(())
     }
 
@@ -466,6 +610,7 @@ impl Store {
             params![job as i64, now()],
         )?;
         if n > 0 {
+            log_event(&tx, job as i64, Event::new("job_cancelled", "cancelled"))?;
             revoke_leases(&tx, job as i64)?;
         }
         tx.commit()?;
@@ -588,6 +733,15 @@ impl Store {
             "UPDATE tiles SET state = 'leased', lease_id = ?4, worker_id = ?5, deadline = ?6 WHERE job_id = ?1 AND frame = ?2 AND tile = ?3",
             params![job, frame, tile, lease_id as i64, w, t + lease_seconds],
         )?;
+        let failures: i64 = tx
+            .prepare_cached(
+                "SELECT count(*) FROM tile_failures WHERE job_id = ?1 AND frame = ?2 AND tile = ?3",
+            )?
+            .query_row(params![job, frame, tile], |r| r.get(0))?;
+        if failures > 0 {
+            let message = format!("tile {tile} of frame {frame} tried again after {failures} failure(s)");
+            log_event(&tx, job, Event::new("tile_retried", &message).tile(frame, tile).worker(w))?;
+        }
         tx.execute(
             "UPDATE jobs SET state = 'running', started_at = ?2 WHERE id = ?1 AND state = 'queued'",
             params![job, t],
@@ -684,7 +838,7 @@ impl Store {
                 [worker],
             )?;
             if let FailOutcome::JobFailed { job, message } =
-                record_failure(&tx, (job, frame, tile), worker, &error, false, t)?
+                record_failure(&tx, (job, frame, tile), worker, Failure::LeaseExpired { error: &error }, t)?
             {
                 out.failed_jobs.push((job, message));
             }
@@ -761,6 +915,18 @@ impl Store {
             "UPDATE frames SET tiles_done = tiles_done + 1 WHERE job_id = ?1 AND idx = ?2",
             params![job, frame],
         )?;
+        let message = match render_seconds {
+            Some(s) => format!("tile {tile} of frame {frame} rendered in {s:.3} s"),
+            None => format!("tile {tile} of frame {frame} rendered"),
+        };
+        log_event(
+            &tx,
+            job,
+            Event {
+                seconds: render_seconds,
+                ..Event::new("tile_done", &message).tile(frame, tile).worker(worker as i64)
+            },
+        )?;
         tx.execute(
             "UPDATE workers SET tiles_done = tiles_done + 1, last_seen = ?2, rendering = NULL WHERE id = ?1",
             params![worker as i64, now()],
@@ -797,9 +963,46 @@ impl Store {
             )
             .optional()?;
         let Some((job, frame, tile)) = row else { return Ok(FailOutcome::Conflict) };
-        let outcome = record_failure(&tx, (job, frame, tile), worker as i64, error, fatal, now())?;
+        let outcome = record_failure(
+            &tx,
+            (job, frame, tile),
+            worker as i64,
+            Failure::Reported { error, fatal },
+            now(),
+        )?;
         tx.commit()?;
         Ok(outcome)
+    }
+
+    /// The log of `job` after event `after` (0: from the start), oldest first; `None` when
+    /// there is no such job.
+    pub fn job_log(&self, job: u64, after: u64) -> Result<Option<Vec<JobEvent>>> {
+        let conn = self.conn();
+        let exists: i64 =
+            conn.query_row("SELECT count(*) FROM jobs WHERE id = ?1", [job as i64], |r| r.get(0))?;
+        if exists == 0 {
+            return Ok(None);
+        }
+        let mut stmt = conn.prepare_cached(
+            "SELECT seq, at, kind, frame, tile, worker, seconds, message FROM job_events
+             WHERE job_id = ?1 AND seq > ?2 ORDER BY seq",
+        )?;
+        let after = i64::try_from(after).unwrap_or(i64::MAX);
+        let events = stmt
+            .query_map(params![job as i64, after], |r| {
+                Ok(JobEvent {
+                    seq: r.get::<_, i64>(0)? as u64,
+                    at: r.get(1)?,
+                    kind: r.get(2)?,
+                    frame: r.get::<_, Option<i64>>(3)?.map(|f| f as u32),
+                    tile: r.get::<_, Option<i64>>(4)?.map(|t| t as u32),
+                    worker: r.get(5)?,
+                    seconds: r.get(6)?,
+                    message: r.get(7)?,
+                })
+            })?
+            .collect::<rusqlite::Result<Vec<_>>>()?;
+        Ok(Some(events))
     }
 
     /// The most recent failure messages of a job's tiles (for the job view).
@@ -872,6 +1075,7 @@ mod tests {
                 height: 1,
                 tiles: (0..tiles).map(|x| Rect { x0: x, y0: 0, width: 1, height: 1 }).collect(),
             }],
+            warnings: Vec::new(),
         })
         .unwrap()
     }
@@ -1077,6 +1281,123 @@ mod tests {
         assert!(!s.release_lease(l.lease_id, w).unwrap());
         assert!(s.recent_failures(j).unwrap().is_empty());
         assert_eq!(lease(&s, w).tile, 0, "a released tile is no failure: its worker may take it again");
+    }
+
+    fn kinds(s: &Store, job: u64, after: u64) -> Vec<String> {
+        s.job_log(job, after).unwrap().expect("a log").into_iter().map(|e| e.kind).collect()
+    }
+
+    #[test]
+    fn a_jobs_log_tells_its_tiles_failures_retries_expiries_and_end_in_order() {
+        let (_d, s) = store("log");
+        let j = job(&s, 0, 2);
+        let (a, b) = (s.register_worker("alpha", 1).unwrap(), s.register_worker("beta", 1).unwrap());
+        let l = lease(&s, a);
+        assert_eq!(s.fail_tile(l.lease_id, a, "out of memory", false).unwrap(), FailOutcome::Requeued);
+        let again = lease(&s, b);
+        assert_eq!(again.tile, 0);
+        assert!(matches!(
+            s.submit_result(again.lease_id, b, &PIXEL, Some(0.25)).unwrap(),
+            ResultOutcome::Accepted { .. }
+        ));
+        let late = s.lease(a, EXPIRED).unwrap().unwrap();
+        assert_eq!(late.tile, 1);
+        assert_eq!(s.expire_leases().unwrap().leases, 1);
+        assert!(s.cancel_job(j).unwrap());
+        let log = s.job_log(j, 0).unwrap().unwrap();
+        let got: Vec<_> = log.iter().map(|e| (e.kind.as_str(), e.tile, e.worker.as_deref())).collect();
+        assert_eq!(
+            got,
+            [
+                ("accepted", None, None),
+                ("tile_failed", Some(0), Some("alpha")),
+                ("tile_retried", Some(0), Some("beta")),
+                ("tile_done", Some(0), Some("beta")),
+                ("lease_expired", Some(1), Some("alpha")),
+                ("job_cancelled", None, None),
+            ]
+        );
+        assert_eq!(log.iter().map(|e| e.seq).collect::<Vec<_>>(), [1, 2, 3, 4, 5, 6]);
+        assert!(log.windows(2).all(|w| w[0].at <= w[1].at), "events out of time order");
+        assert_eq!(log[1].message, "out of memory");
+        assert_eq!(log[3].seconds, Some(0.25));
+        assert!(log[4].message.contains("stopped answering"), "{}", log[4].message);
+        // `after` returns only the newer events; past the end, none.
+        assert_eq!(kinds(&s, j, 4), ["lease_expired", "job_cancelled"]);
+        assert!(kinds(&s, j, 6).is_empty());
+        assert!(kinds(&s, j, u64::MAX).is_empty());
+        assert!(s.job_log(j + 1, 0).unwrap().is_none(), "an unknown job has no log");
+    }
+
+    #[test]
+    fn a_failed_job_logs_the_failure_that_failed_it_once() {
+        let (_d, s) = store("log-fail");
+        let j = job(&s, 0, 2);
+        let w = worker(&s);
+        let (l, other) = (lease(&s, w), lease(&s, w));
+        s.fail_tile(l.lease_id, w, "over the limit", true).unwrap();
+        // Its other lease was revoked: no more events from it, and failing the job again
+        // (a merge failure racing) records nothing.
+        assert_eq!(s.fail_tile(other.lease_id, w, "late", false).unwrap(), FailOutcome::Conflict);
+        s.fail_job(j, "merging failed").unwrap();
+        assert_eq!(kinds(&s, j, 0), ["accepted", "tile_failed", "job_failed"]);
+        let log = s.job_log(j, 0).unwrap().unwrap();
+        assert!(log[2].message.contains("last error: over the limit"), "{}", log[2].message);
+    }
+
+    #[test]
+    fn a_job_log_is_bounded_and_says_so_but_keeps_the_jobs_end() {
+        let (_d, s) = store("log-cap");
+        // A scene with more warnings than the log holds (a hostile job could as well have a
+        // million tiles: each would be an event).
+        let warnings: Vec<String> = (0..MAX_JOB_EVENTS + 50).map(|k| format!("warning {k}")).collect();
+        let j = s
+            .insert_job(&NewJob {
+                name: "noisy".into(),
+                priority: 0,
+                tile_size: 1,
+                samples: None,
+                bundle: "0".repeat(64),
+                scene_path: "scene.xml".into(),
+                frames: vec![NewFrame {
+                    camera: 0,
+                    image_name: "n.png".into(),
+                    width: 1,
+                    height: 1,
+                    tiles: vec![Rect { x0: 0, y0: 0, width: 1, height: 1 }],
+                }],
+                warnings,
+            })
+            .unwrap();
+        let w = worker(&s);
+        let l = lease(&s, w);
+        assert!(matches!(
+            s.submit_result(l.lease_id, w, &PIXEL, Some(1.0)).unwrap(),
+            ResultOutcome::Accepted { .. }
+        ));
+        assert!(s.frame_merged(j, 0, &["n.png".into()], MergeTiming::default()).unwrap());
+        let log = s.job_log(j, 0).unwrap().unwrap();
+        assert_eq!(log.len() as i64, MAX_JOB_EVENTS + 2);
+        let last = &log[log.len() - 2..];
+        assert_eq!((last[0].kind.as_str(), last[1].kind.as_str()), ("log_truncated", "job_done"));
+        assert!(last[0].message.contains("full"), "{}", last[0].message);
+        assert_eq!(log[log.len() - 3].message, format!("warning {}", MAX_JOB_EVENTS - 2));
+        let rows: i64 = s.conn().query_row("SELECT count(*) FROM job_events", [], |r| r.get(0)).unwrap();
+        assert_eq!(rows, MAX_JOB_EVENTS + 2, "the table grew past the cap");
+    }
+
+    #[test]
+    fn a_database_from_before_the_log_opens_and_logs_from_then_on() {
+        let (dir, s) = store("log-migrate");
+        let j = job(&s, 0, 1);
+        // What a database written by a server without job logs looks like: no job_events.
+        s.conn().execute_batch("DROP TABLE job_events").unwrap();
+        drop(s);
+        let s = Store::open(&dir.path().join("tessera.db")).unwrap();
+        assert_eq!(s.job_log(j, 0).unwrap().unwrap(), Vec::new(), "an old job has an empty log");
+        assert_eq!(s.job(j).unwrap().unwrap().state, JobState::Queued, "its job survived");
+        assert!(s.cancel_job(j).unwrap());
+        assert_eq!(kinds(&s, j, 0), ["job_cancelled"]);
     }
 
     #[test]

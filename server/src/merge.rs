@@ -8,6 +8,7 @@
 //! `spawn_blocking`.
 
 use std::path::Path;
+use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use tessera::camera::Camera;
@@ -18,6 +19,7 @@ use tessera::tonemap::params::{Operator, Photographic};
 use tessera::tonemap::tonemap_with;
 
 use crate::api::AppState;
+use crate::db::MergeTiming;
 
 /// Assembles `tiles` into a `width` x `height` image; missing tiles stay black.
 pub fn assemble(width: u32, height: u32, tiles: &[(Rect, Vec<u8>)]) -> Result<Image> {
@@ -54,12 +56,23 @@ pub fn farm_outputs(cam: &Camera) -> Vec<OutputFile> {
 /// Writes the frame's outputs into `dir` (created). `output::write` puts each file in place
 /// atomically (a synced temporary file of its own, renamed), so a crash never leaves half a file
 /// under the final name, and two merges of one frame (a restart's recovery and a late trigger)
-/// never write into each other's files. Returns the file names.
-pub fn write_outputs(dir: &Path, cam: &Camera, img: &Image) -> Result<Vec<String>> {
+/// never write into each other's files. Returns the file names, and the seconds spent on the
+/// tone-mapped PNGs (tone mapping and encoding; `None` when there are none) and on the rest.
+/// The files are written one `output::write` call each, only so that they can be timed apart.
+pub fn write_outputs(dir: &Path, cam: &Camera, img: &Image) -> Result<(Vec<String>, f64, Option<f64>)> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let files = farm_outputs(cam);
-    output::write(dir, img, &files).map_err(|e| anyhow::anyhow!("{e}"))?;
-    Ok(files.into_iter().map(|f| f.name).collect())
+    let (mut plain, mut tonemapped) = (0.0, None::<f64>);
+    for f in &files {
+        let started = Instant::now();
+        output::write(dir, img, std::slice::from_ref(f)).map_err(|e| anyhow::anyhow!("{e}"))?;
+        let took = started.elapsed().as_secs_f64();
+        match f.kind {
+            OutputKind::Tonemapped(..) => *tonemapped.get_or_insert(0.0) += took,
+            _ => plain += took,
+        }
+    }
+    Ok((files.into_iter().map(|f| f.name).collect(), plain, tonemapped))
 }
 
 /// The operator of a camera's first tone-mapped PNG, if its image name is HDR.
@@ -135,10 +148,13 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
         let cameras = st.job_cameras(&job)?;
         let cam =
             cameras.get(f.camera as usize).ok_or_else(|| anyhow::anyhow!("camera {} missing", f.camera))?;
+        let started = Instant::now();
         let tiles = st.store.frame_tiles(job_id, frame)?;
         let img = assemble(f.width, f.height, &tiles)?;
-        let names = write_outputs(&st.frame_dir(job_id, frame), cam, &img)?;
-        st.store.frame_merged(job_id, frame, &names)
+        let assembled = started.elapsed().as_secs_f64();
+        let (names, written, tonemap_seconds) = write_outputs(&st.frame_dir(job_id, frame), cam, &img)?;
+        let timing = MergeTiming { merge_seconds: assembled + written, tonemap_seconds };
+        st.store.frame_merged(job_id, frame, &names, timing)
     })
     .await;
     match outcome {

@@ -277,3 +277,46 @@ fn a_bad_upload_shows_its_error_on_the_page() {
     // No job was created.
     assert_eq!(browser.exec("return document.querySelectorAll('.job').length;"), json!(0));
 }
+
+#[test]
+fn a_jobs_log_shows_its_tiles_as_a_worker_renders_them() {
+    let _s = serial();
+    let Some(browser) = Browser::start() else { return };
+    let server = Server::start_temp(
+        "farm-browser-log",
+        &["--local-workers", "1", "--local-worker-threads", "1", "--tile-size", "8"],
+    );
+    browser.goto(&server.url);
+    browser.wait("the live connection", 20, "document.querySelector('#live').textContent === 'live'");
+    // Submitted over the API, not the page: the page learns of it from the event stream.
+    let scene = tessera_testkit::tiny_scene(16, 8);
+    let (code, job) = submit(&server.url, None, &[("scene", Some("tiny.xml"), &scene)]);
+    assert_eq!(code, 201, "{job}");
+    let id = job["id"].as_u64().unwrap();
+    let lines = format!("document.querySelectorAll('.job[data-job-id=\"{id}\"] .log-lines li')");
+    browser.wait(
+        "the accepted line",
+        30,
+        &format!("{lines}.length >= 1 && {lines}[0].innerText.includes('accepted')"),
+    );
+    // The tiles' lines arrive as the worker renders them, with its name and render time, and
+    // the job's end after them.
+    let tile_line = browser.wait(
+        "a tile_done line",
+        60,
+        &format!("[...{lines}].map(l => l.innerText).find(t => t.includes('tile_done'))"),
+    );
+    let tile_line = tile_line.as_str().unwrap();
+    assert!(tile_line.contains("on local-1") && tile_line.contains(" s"), "{tile_line}");
+    browser.wait(
+        "the job_done line",
+        60,
+        &format!("[...{lines}].some(l => l.innerText.includes('job_done'))"),
+    );
+    // Each event once, in order, though the page asked for the log many times.
+    let seqs = browser.exec(&format!("return [...{lines}].map(l => Number(l.dataset.seq));"));
+    let n = seqs.as_array().unwrap().len() as u64;
+    assert_eq!(seqs, json!((1..=n).collect::<Vec<u64>>()));
+    let served = get_json(&server.url, &format!("/api/v1/jobs/{id}/log"));
+    assert_eq!(served["events"].as_array().unwrap().len() as u64, n, "{served}");
+}

@@ -577,7 +577,7 @@ fn upload(client: &Client, worker_id: u64, lease: u64, px: &[[f32; 3]], seconds:
             .set("Authorization", &format!("Bearer {}", client.token))
             .set("x-tessera-worker", &worker_id.to_string())
             .set(CHECKSUM_HEADER, &sum)
-            .set("x-tessera-render-seconds", &format!("{seconds:.6}"))
+            .set(RENDER_SECONDS_HEADER, &format!("{seconds:.6}"))
             .set("Content-Type", "application/octet-stream")
             .send_bytes(&body);
         match res {

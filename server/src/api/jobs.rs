@@ -76,6 +76,8 @@ pub(super) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobIn
     }))
 }
 
+#[utoipa::path(get, path = "/api/v1/jobs", tag = "jobs", security((), ("api_token" = [])),
+    responses((status = 200, description = "Every job, newest first", body = JobList), (status = 401, description = "The server needs an API token", body = ApiError)))]
 pub(super) async fn list_jobs(State(state): State<AppState>) -> ApiResult<Json<JobList>> {
     let ids: Vec<u64> = state.store.jobs()?.iter().map(|j| j.id).collect();
     let mut jobs = Vec::new();
@@ -85,10 +87,17 @@ pub(super) async fn list_jobs(State(state): State<AppState>) -> ApiResult<Json<J
     Ok(Json(JobList { jobs }))
 }
 
+#[utoipa::path(get, path = "/api/v1/jobs/{id}", tag = "jobs", security((), ("api_token" = [])), params(("id" = u64, Path, description = "The job's id")),
+    responses((status = 200, description = "The job", body = JobInfo), (status = 400, description = "A path parameter or query does not parse", body = ApiError), (status = 401, description = "The server needs an API token", body = ApiError), (status = 404, description = "No such job", body = ApiError)))]
 pub(super) async fn show_job(State(state): State<AppState>, Path(id): Path<u64>) -> ApiResult<Json<JobInfo>> {
     job_info(&state, id)?.map(Json).ok_or_else(|| AppError::not_found(format!("there is no job {id}")))
 }
 
+#[utoipa::path(post, path = "/api/v1/jobs/{id}/cancel", tag = "jobs", security((), ("api_token" = [])), params(("id" = u64, Path, description = "The job's id")),
+    responses(
+        (status = 200, description = "Cancelled: its leases are revoked, no more tiles are handed out", body = JobInfo),
+        (status = 400, description = "A path parameter or query does not parse", body = ApiError), (status = 401, description = "The server needs an API token", body = ApiError), (status = 404, description = "No such job", body = ApiError),
+        (status = 409, description = "The job has already ended", body = ApiError)))]
 pub(super) async fn cancel_job(
     State(state): State<AppState>,
     Path(id): Path<u64>,
@@ -103,6 +112,23 @@ pub(super) async fn cancel_job(
         ));
     }
     Ok(Json(job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?))
+}
+
+/// The job's event log, or the part of it after `?after=SEQ`.
+#[utoipa::path(get, path = "/api/v1/jobs/{id}/log", tag = "jobs", security((), ("api_token" = [])), params(("id" = u64, Path, description = "The job's id"), LogQuery),
+    responses(
+        (status = 200, description = "The job's events, oldest first (only those after `after`)", body = JobLog),
+        (status = 400, description = "A path parameter or query does not parse", body = ApiError), (status = 401, description = "The server needs an API token", body = ApiError), (status = 404, description = "No such job", body = ApiError)))]
+pub(super) async fn job_log(
+    State(state): State<AppState>,
+    Path(id): Path<u64>,
+    axum::extract::Query(q): axum::extract::Query<LogQuery>,
+) -> ApiResult<Json<JobLog>> {
+    let events = state
+        .store
+        .job_log(id, q.after.unwrap_or(0))?
+        .ok_or_else(|| AppError::not_found(format!("there is no job {id}")))?;
+    Ok(Json(JobLog { job: id, events }))
 }
 
 /// Frame `frame` of job `id`, or a 404 naming what is missing.
@@ -125,6 +151,13 @@ fn job_and_frame(
     Ok((job, find_frame(state, id, frame)?))
 }
 
+#[utoipa::path(get, path = "/api/v1/jobs/{id}/frames/{frame}/files/{name}", tag = "jobs", security((), ("api_token" = [])),
+    params(("id" = u64, Path, description = "The job's id"), ("frame" = u32, Path, description = "The frame's index in the job (0-based)"), ("name" = String, Path, description = "An output file's name, as the frame's `outputs` list it")),
+    responses(
+        (status = 200, description = "The file (PNG, OpenEXR or Radiance HDR)", content_type = "application/octet-stream", body = super::openapi::Binary),
+        (status = 400, description = "A path parameter or query does not parse", body = ApiError), (status = 401, description = "The server needs an API token", body = ApiError),
+        (status = 404, description = "No such job, frame or file", body = ApiError),
+        (status = 409, description = "The frame is not finished", body = ApiError)))]
 pub(super) async fn frame_file(
     State(state): State<AppState>,
     Path((id, frame, name)): Path<(u64, u32, String)>,
@@ -164,6 +197,12 @@ pub(super) async fn frame_file(
         .into_response())
 }
 
+#[utoipa::path(get, path = "/api/v1/jobs/{id}/frames/{frame}/preview.png", tag = "jobs", security((), ("api_token" = [])),
+    params(("id" = u64, Path, description = "The job's id"), ("frame" = u32, Path, description = "The frame's index in the job (0-based)")),
+    responses(
+        (status = 200, description = "The tiles that have arrived, tone-mapped over themselves (black elsewhere); the final picture once merged", content_type = "image/png", body = super::openapi::Binary),
+        (status = 400, description = "A path parameter or query does not parse", body = ApiError), (status = 401, description = "The server needs an API token", body = ApiError),
+        (status = 404, description = "No such job or frame", body = ApiError)))]
 pub(super) async fn frame_preview(
     State(state): State<AppState>,
     Path((id, frame)): Path<(u64, u32)>,
@@ -199,6 +238,14 @@ fn stored_exr(state: &AppState, f: &crate::db::FrameRow) -> Option<std::path::Pa
 
 /// A finished frame's float image tone-mapped again with other parameters, without rendering:
 /// `GET /api/v1/jobs/ID/frames/F/tonemap.png?key=0.3&burn=2&saturation=1&gamma=2.2`.
+#[utoipa::path(get, path = "/api/v1/jobs/{id}/frames/{frame}/tonemap.png", tag = "jobs", security((), ("api_token" = [])),
+    params(("id" = u64, Path, description = "The job's id"), ("frame" = u32, Path, description = "The frame's index in the job (0-based)"), ToneQuery),
+    responses(
+        (status = 200, description = "The stored float frame tone-mapped with these parameters", content_type = "image/png", body = super::openapi::Binary),
+        (status = 400, description = "A path parameter or query does not parse, or a parameter is out of range", body = ApiError),
+        (status = 401, description = "The server needs an API token", body = ApiError),
+        (status = 404, description = "No such job or frame, or the frame has no .exr", body = ApiError),
+        (status = 409, description = "The frame is not finished", body = ApiError)))]
 pub(super) async fn frame_tonemap(
     State(state): State<AppState>,
     Path((id, frame)): Path<(u64, u32)>,

@@ -10,6 +10,8 @@ use axum::response::{IntoResponse, Response};
 use super::{ApiResult, AppState};
 use crate::scheduler::WorkerState;
 
+#[utoipa::path(get, path = "/metrics", tag = "server",
+    responses((status = 200, description = "Prometheus text format: jobs by state, tiles, lease expiries, refused results, workers by state, render seconds", content_type = "text/plain", body = String)))]
 pub(super) async fn metrics(State(state): State<AppState>) -> ApiResult<Response> {
     let crate::db::StoreMetrics {
         jobs_by_state: states,

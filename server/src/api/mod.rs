@@ -11,6 +11,7 @@
 mod auth;
 mod jobs;
 mod metrics;
+mod openapi;
 mod status;
 mod submit;
 #[cfg(test)]
@@ -24,10 +25,12 @@ use std::sync::Arc;
 use axum::extract::{DefaultBodyLimit, Path};
 use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
-use axum::routing::{get, post, put};
 use axum::{Json, Router};
 use tessera::camera::Camera;
 use tessera::protocol::*;
+use utoipa::OpenApi;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
 
 use crate::bundle::{self, BlobStore};
 use crate::db::Store;
@@ -146,41 +149,129 @@ type ApiResult<T> = Result<T, AppError>;
 // Router
 // ---------------------------------------------------------------------------------------------
 
-pub fn app(state: AppState) -> Router {
-    let job_api = Router::new()
-        .route("/api/v1/jobs", post(submit::submit_job).get(jobs::list_jobs))
-        .route("/api/v1/jobs/{id}", get(jobs::show_job))
-        .route("/api/v1/jobs/{id}/cancel", post(jobs::cancel_job))
-        .route("/api/v1/jobs/{id}/frames/{frame}/preview.png", get(jobs::frame_preview))
-        .route("/api/v1/jobs/{id}/frames/{frame}/files/{name}", get(jobs::frame_file))
-        .route("/api/v1/jobs/{id}/frames/{frame}/tonemap.png", get(jobs::frame_tonemap))
-        .route("/api/v1/workers", get(status::list_workers))
-        .route("/api/v1/events", get(status::events))
+/// The server's routes, each with its OpenAPI operation: `routes!` takes a route's path and
+/// method from the handler's `#[utoipa::path]`, so the router and the description are made from
+/// the same attribute and cannot list different paths.
+fn routes(state: &AppState) -> OpenApiRouter<AppState> {
+    let job_api = OpenApiRouter::new()
+        .routes(routes!(submit::submit_job, jobs::list_jobs))
+        .routes(routes!(jobs::show_job))
+        .routes(routes!(jobs::cancel_job))
+        .routes(routes!(jobs::job_log))
+        .routes(routes!(jobs::frame_preview))
+        .routes(routes!(jobs::frame_file))
+        .routes(routes!(jobs::frame_tonemap))
+        .routes(routes!(status::list_workers))
+        .routes(routes!(status::events))
         .route_layer(axum::middleware::from_fn_with_state(state.clone(), auth::require_api_token));
-    let worker_api = Router::new()
-        .route("/api/v1/worker/register", post(worker::register))
-        .route("/api/v1/worker/lease", post(worker::lease))
-        .route("/api/v1/worker/heartbeat", post(worker::heartbeat))
-        .route("/api/v1/worker/watch", post(worker::watch))
-        .route("/api/v1/worker/leases/{lease}/result", put(worker::result))
-        .route("/api/v1/worker/leases/{lease}/fail", post(worker::fail))
-        .route("/api/v1/worker/leases/{lease}/release", post(worker::release))
-        .route("/api/v1/worker/bundles/{hash}", get(worker::get_bundle))
+    let worker_api = OpenApiRouter::new()
+        .routes(routes!(worker::register))
+        .routes(routes!(worker::lease))
+        .routes(routes!(worker::heartbeat))
+        .routes(routes!(worker::watch))
+        .routes(routes!(worker::result))
+        .routes(routes!(worker::fail))
+        .routes(routes!(worker::release))
+        .routes(routes!(worker::get_bundle))
         .route_layer(axum::middleware::from_fn_with_state(state.clone(), auth::require_worker_token));
-    let limit = state.settings.max_upload_bytes;
-    Router::new()
-        .route("/healthz", get(|| async { "ok\n" }))
-        .route("/", get(|| async { crate::web::page("index.html") }))
-        .route("/static/{name}", get(|Path(name): Path<String>| async move { crate::web::page(&name) }))
-        .route("/metrics", get(metrics::metrics))
+    OpenApiRouter::with_openapi(openapi::ApiDoc::openapi())
+        .routes(routes!(healthz))
+        .routes(routes!(index))
+        .routes(routes!(static_file))
+        .routes(routes!(metrics::metrics))
+        .routes(routes!(openapi::openapi_json))
         .merge(job_api)
         .merge(worker_api)
+}
+
+pub fn app(state: AppState) -> Router {
+    // `Router::layer` puts a layer inside each route, around its handlers and its 405 answer
+    // but under the code that adds the 405's `Allow` header: the layers that must see finished
+    // answers wrap the whole router as one service instead.
+    Router::new()
+        .fallback_service(routed(state))
+        .layer(axum::middleware::from_fn(json_errors))
+        .layer(axum::middleware::map_response(no_store))
+}
+
+/// The routes with their state, fallback and per-route layers: what [`app`] wraps.
+pub(crate) fn routed(state: AppState) -> Router {
+    let limit = state.settings.max_upload_bytes;
+    let (router, spec) = routes(&state).split_for_parts();
+    router
         .fallback(|| async {
             AppError::not_found("no such endpoint; the API lives under /api/v1 (see the README)")
         })
+        .layer(axum::Extension(openapi::Spec::new(spec)))
         .layer(DefaultBodyLimit::max(limit))
-        .layer(axum::middleware::map_response(no_store))
         .with_state(state)
+}
+
+/// The description of the API as `app` serves it (for tests and tools).
+pub fn openapi_description(state: &AppState) -> utoipa::openapi::OpenApi {
+    routes(state).into_openapi()
+}
+
+#[utoipa::path(get, path = "/healthz", tag = "server",
+    responses((status = 200, description = "The server is up", content_type = "text/plain", body = String)))]
+async fn healthz() -> &'static str {
+    "ok\n"
+}
+
+#[utoipa::path(get, path = "/", tag = "server",
+    responses((status = 200, description = "The status page", content_type = "text/html", body = String)))]
+async fn index() -> Response {
+    crate::web::page("index.html")
+}
+
+#[utoipa::path(get, path = "/static/{name}", tag = "server",
+    params(("name" = String, Path, description = "app.js or style.css")),
+    responses(
+        (status = 200, description = "The status page's script or style sheet", content_type = "text/plain", body = String),
+        (status = 404, description = "No such file", body = ApiError)))]
+async fn static_file(Path(name): Path<String>) -> Response {
+    crate::web::page(&name)
+}
+
+/// Longest plain-text error body [`json_errors`] reads (axum's rejections are one line).
+const MAX_PLAIN_ERROR: usize = 64 << 10;
+
+/// One error shape everywhere: an error answer that is not JSON already is rewritten as the
+/// documented [`ApiError`], keeping its status and headers (a 405's `Allow`). These come from
+/// axum itself, before any handler runs: a path parameter that does not parse
+/// (`/api/v1/jobs/abc`), a bad query string, a JSON body that is missing, malformed or of the
+/// wrong shape, a body over `--max-upload-mb`, a method the route does not answer (405, empty
+/// body), a multipart body without its boundary. Their text becomes `error`.
+async fn json_errors(req: axum::extract::Request, next: axum::middleware::Next) -> Response {
+    let method = req.method().clone();
+    let path = req.uri().path().to_string();
+    let resp = next.run(req).await;
+    let status = resp.status();
+    let is_json = resp
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.starts_with("application/json"));
+    if !(status.is_client_error() || status.is_server_error()) || is_json {
+        return resp;
+    }
+    let (mut parts, body) = resp.into_parts();
+    let text = match axum::body::to_bytes(body, MAX_PLAIN_ERROR).await {
+        Ok(b) => String::from_utf8_lossy(&b).trim().to_string(),
+        Err(_) => String::new(),
+    };
+    let error = if status == StatusCode::METHOD_NOT_ALLOWED {
+        let allow = parts.headers.get(header::ALLOW).and_then(|v| v.to_str().ok()).unwrap_or("");
+        format!("{path} does not answer {method}; it answers {allow}")
+    } else if text.is_empty() {
+        status.canonical_reason().unwrap_or("error").to_string()
+    } else {
+        text
+    };
+    parts.headers.remove(header::CONTENT_LENGTH);
+    parts.headers.insert(header::CONTENT_TYPE, HeaderValue::from_static("application/json"));
+    let body = serde_json::to_vec(&ApiError { error, problems: Vec::new() }).unwrap_or_default();
+    Response::from_parts(parts, axum::body::Body::from(body))
 }
 
 /// Answers change from one moment to the next: browsers must not reuse them.

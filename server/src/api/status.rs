@@ -5,10 +5,12 @@ use axum::Json;
 use axum::extract::State;
 use axum::response::{IntoResponse, Response};
 
-use tessera::protocol::{WorkerInfo, WorkerList, WorkerTile};
+use tessera::protocol::{ApiError, ServerEvent, WorkerInfo, WorkerList, WorkerTile};
 
 use super::{ApiResult, AppState};
 
+#[utoipa::path(get, path = "/api/v1/workers", tag = "status", security((), ("api_token" = [])),
+    responses((status = 200, description = "Every registered worker", body = WorkerList), (status = 401, description = "The server needs an API token", body = ApiError)))]
 pub(super) async fn list_workers(State(state): State<AppState>) -> ApiResult<Json<WorkerList>> {
     let t = crate::db::now();
     let workers: Vec<WorkerInfo> = state
@@ -30,6 +32,11 @@ pub(super) async fn list_workers(State(state): State<AppState>) -> ApiResult<Jso
 }
 
 /// Server-sent events for the status page: every [`tessera::protocol::ServerEvent`] as it happens.
+/// The stream's events are named by `ServerEvent`'s `type` (plus `resync`: reload everything).
+#[utoipa::path(get, path = "/api/v1/events", tag = "status", security((), ("api_token" = [])),
+    responses(
+        (status = 200, description = "Server-sent events, each one a ServerEvent as JSON", content_type = "text/event-stream", body = ServerEvent),
+        (status = 401, description = "The server needs an API token", body = ApiError)))]
 pub(super) async fn events(State(state): State<AppState>) -> Response {
     use axum::response::sse::{Event, KeepAlive, Sse};
     let rx = state.events.subscribe();

@@ -15,6 +15,35 @@ use super::jobs::job_info;
 use super::{ApiResult, AppError, AppState, Settings};
 use crate::bundle::{self, BundleError, Files, Unpacker};
 
+/// The multipart form of a submission, for the OpenAPI description only (the handler reads the
+/// fields as they stream in, see [`read_fields`]). Files are named by their path relative to the
+/// scene file (the part's file name).
+#[derive(utoipa::ToSchema)]
+#[allow(dead_code)]
+pub(super) struct SubmitForm {
+    /// The scene file (.xml or .json).
+    #[schema(value_type = Option<String>, format = Binary)]
+    scene: Option<Vec<u8>>,
+    /// Its assets (PLY models, textures), one part each; also accepted as `file`, `assets`, `files`.
+    #[schema(value_type = Option<Vec<String>>)]
+    asset: Option<Vec<Vec<u8>>>,
+    /// Or everything in one .tar, .tar.gz or .zip archive.
+    #[schema(value_type = Option<String>, format = Binary)]
+    bundle: Option<Vec<u8>>,
+    /// The job's name (default: the scene file's name).
+    name: Option<String>,
+    /// Higher runs first (default 0).
+    priority: Option<i64>,
+    /// Tile edge in pixels, 1 to 4096 (default: the server's --tile-size).
+    tile_size: Option<u32>,
+    /// Samples per pixel instead of each camera's NumSamples.
+    samples: Option<u32>,
+    /// Which cameras to render, 1-based, e.g. "1,3" (default: all).
+    cameras: Option<String>,
+    /// Which file of a bundle is the scene, when it holds several.
+    scene_path: Option<String>,
+}
+
 /// Options of a submission (multipart text fields).
 #[derive(Default)]
 struct SubmitOptions {
@@ -187,6 +216,14 @@ async fn read_fields(
     Ok(())
 }
 
+#[utoipa::path(post, path = "/api/v1/jobs", tag = "jobs", security((), ("api_token" = [])),
+    request_body(content = SubmitForm, content_type = "multipart/form-data"),
+    responses(
+        (status = 201, description = "Accepted and queued (with the scene's warnings)", body = JobInfo),
+        (status = 400, description = "Not valid multipart, a bad field, or a scene that does not parse or build (`problems` says where)", body = ApiError),
+        (status = 401, description = "The server needs an API token", body = ApiError),
+        (status = 413, description = "Over the upload or unpacking limits", body = ApiError),
+        (status = 422, description = "Over the tile or sample limits", body = ApiError)))]
 pub(super) async fn submit_job(
     State(state): State<AppState>,
     mut multipart: Multipart,
@@ -256,6 +293,7 @@ pub(super) async fn submit_job(
         bundle: hash,
         scene_path,
         frames,
+        warnings: warnings.clone(),
     };
     let id = state.store.insert_job(&job)?;
     state.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(id, Arc::new(cameras));

@@ -438,3 +438,275 @@ async fn each_api_needs_its_token() {
     let (status, v) = farm.post("/api/v1/worker/lease", json!({"worker_id": 999, "wait_seconds": 0.0})).await;
     assert_eq!(status, StatusCode::NOT_FOUND, "{v}");
 }
+
+/// One bad request of the error-shape table: what is sent and the status it must get.
+struct Bad {
+    method: Method,
+    uri: &'static str,
+    /// Send the worker token.
+    worker: bool,
+    content_type: Option<&'static str>,
+    body: Vec<u8>,
+    status: StatusCode,
+    /// A word the message must hold (it says what was wrong).
+    says: &'static str,
+}
+
+fn bad(method: Method, uri: &'static str, status: StatusCode, says: &'static str) -> Bad {
+    Bad { method, uri, worker: false, content_type: None, body: Vec::new(), status, says }
+}
+
+fn bad_worker(
+    uri: &'static str,
+    content_type: Option<&'static str>,
+    body: &[u8],
+    status: StatusCode,
+    says: &'static str,
+) -> Bad {
+    Bad { method: Method::POST, uri, worker: true, content_type, body: body.to_vec(), status, says }
+}
+
+#[tokio::test]
+async fn every_error_is_the_documented_json_error() {
+    let farm = Farm::new(LONG);
+    let job = farm.submit(8, 8, 4, 0).await;
+    assert_eq!(job, 1, "the table's URIs name job 1");
+    let json = Some("application/json");
+    let over_limit = vec![b' '; (16 << 20) + 1];
+    let table = vec![
+        // Path parameters that do not parse.
+        bad(Method::GET, "/api/v1/jobs/abc", StatusCode::BAD_REQUEST, "abc"),
+        bad(Method::GET, "/api/v1/jobs/-1", StatusCode::BAD_REQUEST, "-1"),
+        bad(
+            Method::GET,
+            "/api/v1/jobs/99999999999999999999999",
+            StatusCode::BAD_REQUEST,
+            "99999999999999999999999",
+        ),
+        bad(Method::GET, "/api/v1/jobs/1/frames/x/preview.png", StatusCode::BAD_REQUEST, "x"),
+        bad(Method::GET, "/api/v1/jobs/abc/log", StatusCode::BAD_REQUEST, "abc"),
+        bad(Method::POST, "/api/v1/jobs/abc/cancel", StatusCode::BAD_REQUEST, "abc"),
+        // Query strings.
+        bad(Method::GET, "/api/v1/jobs/1/frames/0/tonemap.png?key=x", StatusCode::BAD_REQUEST, "key"),
+        bad(Method::GET, "/api/v1/jobs/1/frames/0/tonemap.png?burn=1e999x", StatusCode::BAD_REQUEST, "burn"),
+        bad(Method::GET, "/api/v1/jobs/1/log?after=soon", StatusCode::BAD_REQUEST, "after"),
+        // The handlers' own refusals (already JSON; they stay so).
+        bad(Method::GET, "/api/v1/jobs/7", StatusCode::NOT_FOUND, "no job 7"),
+        bad(Method::GET, "/api/v1/jobs/7/log", StatusCode::NOT_FOUND, "no job 7"),
+        bad(Method::GET, "/api/v1/jobs/1/frames/0/tonemap.png?key=2", StatusCode::CONFLICT, "not finished"),
+        // Unknown routes and wrong methods.
+        bad(Method::GET, "/api/v1/nothing", StatusCode::NOT_FOUND, "no such endpoint"),
+        bad(Method::GET, "/static/nothing.js", StatusCode::NOT_FOUND, "no such file"),
+        bad(Method::DELETE, "/api/v1/jobs", StatusCode::METHOD_NOT_ALLOWED, "GET"),
+        bad(Method::PUT, "/healthz", StatusCode::METHOD_NOT_ALLOWED, "GET"),
+        bad(Method::GET, "/api/v1/jobs/1/cancel", StatusCode::METHOD_NOT_ALLOWED, "POST"),
+        Bad {
+            worker: true,
+            ..bad(Method::GET, "/api/v1/worker/lease", StatusCode::METHOD_NOT_ALLOWED, "POST")
+        },
+        // Submissions that are not multipart.
+        bad(Method::POST, "/api/v1/jobs", StatusCode::BAD_REQUEST, "boundary"),
+        // Worker bodies: no content type, not JSON, the wrong shape, too large.
+        bad_worker(
+            "/api/v1/worker/register",
+            None,
+            br#"{"name": "w", "threads": 1}"#,
+            StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            "application/json",
+        ),
+        bad_worker("/api/v1/worker/register", json, b"{", StatusCode::BAD_REQUEST, "EOF"),
+        bad_worker(
+            "/api/v1/worker/register",
+            json,
+            br#"{"name": "w"}"#,
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "threads",
+        ),
+        bad_worker(
+            "/api/v1/worker/register",
+            json,
+            br#"{"name": "w", "threads": -1}"#,
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "threads",
+        ),
+        bad_worker(
+            "/api/v1/worker/lease",
+            json,
+            br#"{"worker_id": "one", "wait_seconds": 0}"#,
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "worker_id",
+        ),
+        bad_worker(
+            "/api/v1/worker/leases/abc/fail",
+            json,
+            br#"{"worker_id": 1, "error": "x"}"#,
+            StatusCode::BAD_REQUEST,
+            "abc",
+        ),
+        bad_worker(
+            "/api/v1/worker/leases/5/release",
+            json,
+            b"[]",
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "ReleaseRequest",
+        ),
+        bad_worker("/api/v1/worker/heartbeat", json, &over_limit, StatusCode::PAYLOAD_TOO_LARGE, "limit"),
+        Bad {
+            method: Method::PUT,
+            uri: "/api/v1/worker/leases/abc/result",
+            worker: true,
+            content_type: None,
+            body: vec![0; 12],
+            status: StatusCode::BAD_REQUEST,
+            says: "abc",
+        },
+        Bad {
+            method: Method::GET,
+            uri: "/api/v1/worker/bundles/abc",
+            worker: false,
+            content_type: None,
+            body: Vec::new(),
+            status: StatusCode::UNAUTHORIZED,
+            says: "token",
+        },
+    ];
+    for case in table {
+        let mut req = Request::builder().method(case.method.clone()).uri(case.uri);
+        if case.worker {
+            req = req.header(header::AUTHORIZATION, format!("Bearer {TOKEN}"));
+        }
+        if let Some(t) = case.content_type {
+            req = req.header(header::CONTENT_TYPE, t);
+        }
+        let (status, headers, v) = farm.send(req.body(Body::from(case.body)).unwrap()).await;
+        let what = format!("{} {}", case.method, case.uri);
+        assert_eq!(status, case.status, "{what}: {v}");
+        assert_eq!(headers[header::CONTENT_TYPE], "application/json", "{what}");
+        let e: tessera::protocol::ApiError = serde_json::from_value(v.clone())
+            .unwrap_or_else(|err| panic!("{what}: not an ApiError ({err}): {v}"));
+        assert!(e.error.contains(case.says), "{what}: the message does not say {:?}: {}", case.says, e.error);
+        if status == StatusCode::METHOD_NOT_ALLOWED {
+            assert!(headers.contains_key(header::ALLOW), "{what}: a 405 keeps its Allow header");
+        }
+    }
+}
+
+/// The paths the router itself holds. axum has no API to list routes, but its `Debug` output
+/// names each path (`RouteId(n): "/path"`); this reads them from there, so the list comes from
+/// the router that serves, not from a copy. Should axum change that output, the checks below
+/// fail (they demand the health check among the paths found), not pass over nothing.
+fn router_paths(app: &Router) -> std::collections::BTreeSet<String> {
+    let dump = format!("{app:?}");
+    let mut paths = std::collections::BTreeSet::new();
+    for (at, _) in dump.match_indices("RouteId(") {
+        let rest = &dump[at + "RouteId(".len()..];
+        let digits = rest.chars().take_while(char::is_ascii_digit).count();
+        let Some(quoted) = rest[digits..].strip_prefix("): \"") else { continue };
+        let path = &quoted[..quoted.find('"').unwrap()];
+        if !path.contains("__private__") {
+            paths.insert(path.to_string());
+        }
+    }
+    paths
+}
+
+#[tokio::test]
+async fn every_route_of_the_router_is_in_the_openapi_description_and_nothing_else() {
+    let farm = Farm::new(LONG);
+    // The routes as `app` holds them, under its outer layers.
+    let paths = router_paths(&super::routed(farm.state.clone()));
+    assert!(paths.contains("/healthz") && paths.contains("/api/v1/jobs/{id}/log"), "{paths:?}");
+    // Each path's methods, as the router answers them: a method no route has gets a 405 whose
+    // Allow header lists the path's methods.
+    let probe = Method::from_bytes(b"PROBE").unwrap();
+    let mut routed = std::collections::BTreeSet::new();
+    for path in &paths {
+        let uri: String = path
+            .split('/')
+            .map(|seg| if seg.starts_with('{') { "1" } else { seg })
+            .collect::<Vec<_>>()
+            .join("/");
+        let req = Request::builder()
+            .method(probe.clone())
+            .uri(&uri)
+            .header(header::AUTHORIZATION, format!("Bearer {TOKEN}"))
+            .body(Body::empty())
+            .unwrap();
+        let (status, headers, v) = farm.send(req).await;
+        assert_eq!(status, StatusCode::METHOD_NOT_ALLOWED, "PROBE {uri}: {v}");
+        let allow = headers[header::ALLOW].to_str().unwrap();
+        for m in allow.split(',').map(str::trim).filter(|m| *m != "HEAD") {
+            routed.insert((path.clone(), m.to_string()));
+        }
+    }
+    // What the server describes, as it serves it.
+    let (status, headers, spec) =
+        farm.send(Request::get("/api/v1/openapi.json").body(Body::empty()).unwrap()).await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(headers[header::CONTENT_TYPE], "application/json");
+    let mut described = std::collections::BTreeSet::new();
+    for (path, item) in spec["paths"].as_object().expect("paths") {
+        for method in ["get", "put", "post", "delete", "patch", "options", "head", "trace"] {
+            if item.get(method).is_some() {
+                described.insert((path.clone(), method.to_ascii_uppercase()));
+            }
+        }
+    }
+    let undocumented: Vec<_> = routed.difference(&described).collect();
+    let phantom: Vec<_> = described.difference(&routed).collect();
+    assert!(undocumented.is_empty(), "routes missing from /api/v1/openapi.json: {undocumented:?}");
+    assert!(phantom.is_empty(), "described but not routed: {phantom:?}");
+    assert!(routed.len() >= 22, "only {} routes found: {routed:?}", routed.len());
+    // The description served is the one the code makes.
+    assert_eq!(spec, serde_json::to_value(super::openapi_description(&farm.state)).unwrap());
+}
+
+#[tokio::test]
+async fn the_log_endpoint_serves_a_jobs_events_and_only_the_new_ones_after_seq() {
+    let farm = Farm::new(LONG);
+    let job = farm.submit(8, 4, 4, 0).await; // two tiles
+    let w = farm.register("w-log").await;
+    let l = farm.lease(w).await.unwrap();
+    let body = encode_tile(&[[0.5, 0.5, 0.5]; 16]);
+    let req = Request::put(format!("/api/v1/worker/leases/{}/result", l["lease_id"]))
+        .header(header::AUTHORIZATION, format!("Bearer {TOKEN}"))
+        .header("x-tessera-worker", w.to_string())
+        .header(CHECKSUM_HEADER, checksum(&body))
+        .header(tessera::protocol::RENDER_SECONDS_HEADER, "0.25")
+        .body(Body::from(body))
+        .unwrap();
+    assert_eq!(farm.send(req).await.0, StatusCode::NO_CONTENT);
+    let l2 = farm.lease(w).await.unwrap();
+    // A nonsense render time is not recorded.
+    let body = encode_tile(&[[0.5, 0.5, 0.5]; 16]);
+    let req = Request::put(format!("/api/v1/worker/leases/{}/result", l2["lease_id"]))
+        .header(header::AUTHORIZATION, format!("Bearer {TOKEN}"))
+        .header("x-tessera-worker", w.to_string())
+        .header(CHECKSUM_HEADER, checksum(&body))
+        .header(tessera::protocol::RENDER_SECONDS_HEADER, "NaN")
+        .body(Body::from(body))
+        .unwrap();
+    assert_eq!(farm.send(req).await.0, StatusCode::NO_CONTENT);
+    // The merge runs in the background: wait (boundedly) for the job's end in its log.
+    let mut log = Value::Null;
+    for _ in 0..100 {
+        let (status, v) = farm.get(&format!("/api/v1/jobs/{job}/log")).await;
+        assert_eq!(status, StatusCode::OK, "{v}");
+        log = v;
+        if log["events"].as_array().unwrap().iter().any(|e| e["kind"] == "job_done") {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let log: tessera::protocol::JobLog = serde_json::from_value(log).unwrap();
+    assert_eq!(log.job, job);
+    let kinds: Vec<&str> = log.events.iter().map(|e| e.kind.as_str()).collect();
+    assert_eq!(kinds, ["accepted", "tile_done", "tile_done", "frame_merged", "job_done"]);
+    assert_eq!((log.events[1].tile, log.events[1].worker.as_deref()), (Some(0), Some("w-log")));
+    assert_eq!(log.events[1].seconds, Some(0.25));
+    assert_eq!(log.events[2].seconds, None);
+    let (status, rest) = farm.get(&format!("/api/v1/jobs/{job}/log?after=2")).await;
+    assert_eq!(status, StatusCode::OK);
+    let rest: tessera::protocol::JobLog = serde_json::from_value(rest).unwrap();
+    assert_eq!(rest.events, log.events[2..]);
+}

@@ -14,6 +14,8 @@ use crate::db::{FailOutcome, ResultOutcome};
 use crate::merge::merge_frame;
 use crate::scheduler::LeaseWait;
 
+#[utoipa::path(post, path = "/api/v1/worker/register", tag = "worker", security(("worker_token" = [])), request_body = RegisterRequest,
+    responses((status = 200, description = "The worker's id and the farm's clock", body = RegisterResponse), (status = 400, description = "The body is not JSON", body = ApiError), (status = 415, description = "The body is not sent as application/json", body = ApiError), (status = 422, description = "The JSON does not have the request's shape", body = ApiError), (status = 401, description = "Missing or wrong worker token", body = ApiError)))]
 pub(super) async fn register(
     State(state): State<AppState>,
     Json(req): Json<RegisterRequest>,
@@ -38,6 +40,12 @@ fn known_worker(state: &AppState, id: u64) -> ApiResult<()> {
 }
 
 /// Long poll: a lease as soon as a tile is free, or 204 after the wait.
+#[utoipa::path(post, path = "/api/v1/worker/lease", tag = "worker", security(("worker_token" = [])), request_body = LeaseRequest,
+    responses(
+        (status = 200, description = "A tile to render", body = Lease),
+        (status = 204, description = "Nothing became free within the wait"),
+        (status = 400, description = "The body is not JSON", body = ApiError), (status = 415, description = "The body is not sent as application/json", body = ApiError), (status = 422, description = "The JSON does not have the request's shape", body = ApiError), (status = 401, description = "Missing or wrong worker token", body = ApiError), (status = 404, description = "Unknown worker: register again", body = ApiError),
+        (status = 503, description = "The server is shutting down (with Retry-After)", body = ApiError)))]
 pub(super) async fn lease(
     State(state): State<AppState>,
     Json(req): Json<LeaseRequest>,
@@ -60,6 +68,8 @@ pub(super) async fn lease(
     })
 }
 
+#[utoipa::path(post, path = "/api/v1/worker/heartbeat", tag = "worker", security(("worker_token" = [])), request_body = HeartbeatRequest,
+    responses((status = 200, description = "The leases renewed; those no longer the worker's", body = HeartbeatResponse), (status = 400, description = "The body is not JSON", body = ApiError), (status = 415, description = "The body is not sent as application/json", body = ApiError), (status = 422, description = "The JSON does not have the request's shape", body = ApiError), (status = 401, description = "Missing or wrong worker token", body = ApiError), (status = 404, description = "Unknown worker: register again", body = ApiError)))]
 pub(super) async fn heartbeat(
     State(state): State<AppState>,
     Json(req): Json<HeartbeatRequest>,
@@ -71,6 +81,8 @@ pub(super) async fn heartbeat(
 
 /// Long poll: answers as soon as one of the worker's listed leases is no longer its own (its
 /// job was cancelled or failed), else after the wait with nothing revoked.
+#[utoipa::path(post, path = "/api/v1/worker/watch", tag = "worker", security(("worker_token" = [])), request_body = WatchRequest,
+    responses((status = 200, description = "Leases revoked (as soon as one is), or none after the wait", body = HeartbeatResponse), (status = 400, description = "The body is not JSON", body = ApiError), (status = 415, description = "The body is not sent as application/json", body = ApiError), (status = 422, description = "The JSON does not have the request's shape", body = ApiError), (status = 401, description = "Missing or wrong worker token", body = ApiError), (status = 404, description = "Unknown worker: register again", body = ApiError)))]
 pub(super) async fn watch(
     State(state): State<AppState>,
     Json(req): Json<WatchRequest>,
@@ -80,6 +92,19 @@ pub(super) async fn watch(
     Ok(Json(HeartbeatResponse { revoked }))
 }
 
+#[utoipa::path(put, path = "/api/v1/worker/leases/{lease}/result", tag = "worker", security(("worker_token" = [])),
+    params(
+        ("lease" = u64, Path, description = "The lease's id"),
+        ("x-tessera-worker" = u64, Header, description = "The worker's id"),
+        ("x-tessera-checksum" = String, Header, description = "FNV-1a 64 of the body, 16 hex digits"),
+        ("x-tessera-render-seconds" = Option<f64>, Header, description = "Seconds the worker spent rendering the tile (shown in the job's log)")),
+    request_body(content = super::openapi::Binary, content_type = "application/octet-stream", description = "The tile: width x height RGB triples of little-endian f32, row-major"),
+    responses(
+        (status = 204, description = "Stored (committed before this answer)"),
+        (status = 400, description = "A missing header, a checksum that does not match, or the wrong size", body = ApiError),
+        (status = 401, description = "Missing or wrong worker token", body = ApiError),
+        (status = 409, description = "The lease is not the worker's any more: drop the tile", body = ApiError),
+        (status = 413, description = "The body is over the server's upload limit", body = ApiError)))]
 pub(super) async fn result(
     State(state): State<AppState>,
     Path(lease): Path<u64>,
@@ -98,8 +123,11 @@ pub(super) async fn result(
     if sum != checksum(&body) {
         return Err(AppError::bad_request("the tile's checksum does not match its bytes; send it again"));
     }
-    let render_seconds =
-        headers.get("x-tessera-render-seconds").and_then(|v| v.to_str().ok()).and_then(|v| v.parse().ok());
+    let render_seconds = headers
+        .get(RENDER_SECONDS_HEADER)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.trim().parse::<f64>().ok())
+        .filter(|s| s.is_finite() && *s >= 0.0);
     match state.scheduler.result(lease, worker, &body, render_seconds)? {
         ResultOutcome::Accepted { job_id, frame, frame_complete, .. } => {
             if frame_complete {
@@ -119,6 +147,11 @@ pub(super) async fn result(
     }
 }
 
+#[utoipa::path(post, path = "/api/v1/worker/leases/{lease}/fail", tag = "worker", security(("worker_token" = [])), params(("lease" = u64, Path, description = "The lease's id")), request_body = FailRequest,
+    responses(
+        (status = 204, description = "Recorded: the tile is queued again or its job failed"),
+        (status = 400, description = "The body is not JSON", body = ApiError), (status = 415, description = "The body is not sent as application/json", body = ApiError), (status = 422, description = "The JSON does not have the request's shape", body = ApiError), (status = 401, description = "Missing or wrong worker token", body = ApiError),
+        (status = 409, description = "The lease is not the worker's any more", body = ApiError)))]
 pub(super) async fn fail(
     State(state): State<AppState>,
     Path(lease): Path<u64>,
@@ -133,6 +166,11 @@ pub(super) async fn fail(
 }
 
 /// A stopping worker gives back a lease it has not started: the tile is queued again at once.
+#[utoipa::path(post, path = "/api/v1/worker/leases/{lease}/release", tag = "worker", security(("worker_token" = [])), params(("lease" = u64, Path, description = "The lease's id")), request_body = ReleaseRequest,
+    responses(
+        (status = 204, description = "The tile is queued again"),
+        (status = 400, description = "The body is not JSON", body = ApiError), (status = 415, description = "The body is not sent as application/json", body = ApiError), (status = 422, description = "The JSON does not have the request's shape", body = ApiError), (status = 401, description = "Missing or wrong worker token", body = ApiError),
+        (status = 409, description = "Not a live lease of this worker", body = ApiError)))]
 pub(super) async fn release(
     State(state): State<AppState>,
     Path(lease): Path<u64>,
@@ -148,6 +186,12 @@ pub(super) async fn release(
     }
 }
 
+#[utoipa::path(get, path = "/api/v1/worker/bundles/{hash}", tag = "worker", security(("worker_token" = [])),
+    params(("hash" = String, Path, description = "SHA-256 of the bundle, as the lease names it")),
+    responses(
+        (status = 200, description = "The job's files as a tar archive", content_type = "application/x-tar", body = super::openapi::Binary),
+        (status = 401, description = "Missing or wrong worker token", body = ApiError),
+        (status = 404, description = "No such bundle", body = ApiError)))]
 pub(super) async fn get_bundle(
     State(state): State<AppState>,
     Path(hash): Path<String>,

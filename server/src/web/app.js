@@ -88,9 +88,13 @@ function jobNode(id) {
       el("span", { class: "spacer" }),
       el("button", { class: "secondary cancel", text: "Cancel", onclick: () => cancelJob(id) })),
     el("div", { class: "error job-error", hidden: "" }),
-    el("div", { class: "frames" }));
-  entry = { data: null, node, frames: new Map() };
+    el("div", { class: "frames" }),
+    el("details", { class: "log", open: "" },
+      el("summary", { text: "Log" }),
+      el("ol", { class: "log-lines" })));
+  entry = { data: null, node, frames: new Map(), logSeq: 0, logBusy: false, logAgain: false };
   jobs.set(id, entry);
+  $(".log", node).addEventListener("toggle", () => refreshLog(id, id));
   const list = $("#jobs");
   $(".empty", list)?.remove();
   // Newest first.
@@ -99,8 +103,15 @@ function jobNode(id) {
   return entry;
 }
 
-function renderJob(job) {
+// `listed`: the job comes from the page's first listing. Jobs that had ended by then show their
+// log closed and fetch it when opened, so a page over many old jobs does not fetch every log.
+function renderJob(job, listed = false) {
   const entry = jobNode(job.id);
+  if (!entry.data) {
+    const ended = job.state === "done" || job.state === "failed" || job.state === "canceled";
+    if (listed && ended) $(".log", entry.node).open = false;
+    refreshLog(job.id, job.id);
+  }
   // Answers can overtake each other: progress only ever grows.
   if (entry.data) {
     for (const f of job.frames) {
@@ -226,8 +237,47 @@ function debounce(fn, ms) {
 
 async function loadJob(id) {
   try { renderJob(await apiJson("/api/v1/jobs/" + id)); } catch (e) { console.warn(e); }
+  refreshLog(id, id);
 }
 const refreshJob = throttle((id) => loadJob(id), 700);
+
+// --- Job logs (GET /api/v1/jobs/ID/log?after=SEQ: only the new lines) -------------------------
+
+function logLine(e) {
+  const where = [e.frame != null ? "frame " + e.frame : null, e.tile != null ? "tile " + e.tile : null,
+    e.worker ? "on " + e.worker : null, e.seconds != null ? e.seconds.toFixed(3) + " s" : null]
+    .filter(Boolean).join(" · ");
+  return el("li", { class: "log-" + e.kind, "data-seq": String(e.seq) },
+    el("span", { class: "log-at", text: fmtTime(e.at) }),
+    el("span", { class: "log-kind", text: e.kind }),
+    el("span", { class: "log-where", text: where }),
+    el("span", { class: "log-message", text: e.message }));
+}
+
+async function loadLog(id) {
+  const entry = jobs.get(id);
+  if (!entry || !$(".log", entry.node).open) return;
+  // One request at a time per job; a refresh asked for meanwhile runs after it.
+  if (entry.logBusy) { entry.logAgain = true; return; }
+  entry.logBusy = true;
+  try {
+    const log = await apiJson("/api/v1/jobs/" + id + "/log?after=" + entry.logSeq);
+    const list = $(".log-lines", entry.node);
+    const atBottom = list.scrollTop + list.clientHeight >= list.scrollHeight - 4;
+    const fresh = log.events.filter((e) => e.seq > entry.logSeq);
+    if (fresh.length) {
+      list.append(...fresh.map(logLine));
+      entry.logSeq = fresh[fresh.length - 1].seq;
+      if (atBottom) list.scrollTop = list.scrollHeight;
+    }
+  } catch (e) {
+    console.warn(e);
+  } finally {
+    entry.logBusy = false;
+    if (entry.logAgain) { entry.logAgain = false; refreshLog(id, id); }
+  }
+}
+const refreshLog = throttle((id) => loadLog(id), 500);
 
 async function cancelJob(id) {
   const resp = await api("/api/v1/jobs/" + id + "/cancel", { method: "POST" });
@@ -293,7 +343,7 @@ function connect() {
 async function loadAll() {
   try {
     const list = await apiJson("/api/v1/jobs");
-    for (const job of list.jobs.slice().reverse()) renderJob(job);
+    for (const job of list.jobs.slice().reverse()) renderJob(job, true);
   } catch (e) { console.warn(e); }
   loadWorkers();
 }
