@@ -98,8 +98,9 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
             let Some(bar) = frame_bars.get(i) else { continue };
             bar.set_length(u64::from(f.tiles_total));
             bar.set_position(u64::from(f.tiles_done));
-            if !f.outputs.is_empty() && !frames_reported[i] {
-                frames_reported[i] = true;
+            let Some(reported) = frames_reported.get_mut(i) else { continue };
+            if !f.outputs.is_empty() && !*reported {
+                *reported = true;
                 bar.finish_with_message("merged");
                 if text {
                     let names: Vec<&str> = f.outputs.iter().map(|o| o.name.as_str()).collect();

@@ -206,6 +206,12 @@ fn run(cli: Cli) -> Result<ExitCode> {
             let opts = SubmitOptions { priority, samples, tile_size, cameras, name, quiet };
             // Everything local first: a scene that cannot be packed never reaches the network.
             let bundle = pack::pack(&scene)?;
+            if bundle.cameras.is_empty() {
+                bail!(
+                    "{}: the scene has no camera, so nothing to render; add one under <Cameras>",
+                    scene.display()
+                );
+            }
             let cameras = check_cameras(opts.cameras.as_deref(), bundle.cameras.len())?;
             if dry_run {
                 print_bundle(&bundle);
@@ -399,7 +405,7 @@ fn finish(api: &Api, id: u64, out: &Path, float_exr: bool, quiet: bool) -> Resul
             bail!("job {id} ({}) failed: {}", job.name, job.error.as_deref().unwrap_or("no reason given"))
         }
         JobState::Canceled => bail!("job {id} ({}) was cancelled; nothing to download", job.name),
-        JobState::Queued | JobState::Running => unreachable!("follow returns finished jobs only"),
+        JobState::Queued | JobState::Running => bail!("job {id} has not ended ({})", job.state.as_str()),
     }
 }
 

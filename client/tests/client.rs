@@ -173,6 +173,17 @@ fn client_refuses_a_scene_with_a_missing_asset_before_uploading() {
         assert!(!stderr.contains("cannot reach"), "no network before the scene is checked: {stderr}");
         assert!(out.stdout.is_empty());
     }
+    // Other scenes that cannot be rendered are refused the same way, before any upload.
+    let no_camera = dir.write("no_camera.xml", "<Scene><Objects></Objects></Scene>");
+    let broken = dir.write("broken.xml", "<Scene>\n<Cameras>\n</Scene>\n");
+    for (scene, says) in [
+        (&no_camera, "no_camera.xml: the scene has no camera, so nothing to render; add one under <Cameras>"),
+        (&broken, "broken.xml:3"),
+    ] {
+        let out = run(client(&home).args(["--server", &server.url, "submit"]).arg(scene), MINUTE);
+        assert_eq!(out.status.code(), Some(1));
+        assert!(text(&out.stderr).contains(says), "{}", text(&out.stderr));
+    }
     let jobs = server.get_json("/api/v1/jobs", None);
     assert_eq!(jobs["jobs"], Value::Array(vec![]), "the server got no job");
     assert!(server.blobs().is_empty(), "the server stored no bundle");
