@@ -437,17 +437,15 @@ fn print_jobs(jobs: &[JobInfo], base: &str) {
 fn print_job(job: &JobInfo) {
     let (done, total) = job_tiles(job);
     println!("job {}: {}", job.id, job.name);
-    let mut state = format!("state: {} ({done}/{total} tiles)", job.state.as_str());
-    if let Some(s) = job.started_at {
-        let end = job.finished_at.unwrap_or_else(|| {
-            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(s, |d| d.as_secs_f64())
-        });
-        state.push_str(&format!(", {:.1} s since it started", end - s));
-        if job.finished_at.is_some() {
-            state = format!("state: {} ({done}/{total} tiles) in {:.1} s", job.state.as_str(), end - s);
-        }
-    }
-    println!("{state}");
+    let now = || {
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64())
+    };
+    let took = match (job.started_at, job.finished_at) {
+        (Some(s), Some(e)) => format!(" in {:.1} s", e - s),
+        (Some(s), None) => format!(", {:.1} s since it started", now() - s),
+        (None, _) => String::new(),
+    };
+    println!("state: {} ({done}/{total} tiles){took}", job.state.as_str());
     println!("submitted: {} UTC", follow::utc(job.submitted_at));
     let samples = job.samples.map_or("the scene's".to_string(), |s| s.to_string());
     println!("priority {}, tile size {}, samples per pixel: {samples}", job.priority, job.tile_size);
