@@ -116,16 +116,78 @@ impl MemResolver {
     }
 
     fn candidates(&self, rel: &str) -> Vec<String> {
-        let joined = if self.base.is_empty() { rel.to_string() } else { format!("{}/{rel}", self.base) };
-        let mut out: Vec<String> = normalize_bundle_path(&joined).into_iter().collect();
-        out.extend(normalize_bundle_path(rel));
-        let parts: Vec<&str> = rel.split(['/', '\\']).filter(|p| !p.is_empty()).collect();
-        for skip in 1..parts.len() {
-            let tail = parts[skip..].join("/");
-            let joined = if self.base.is_empty() { tail } else { format!("{}/{tail}", self.base) };
-            out.extend(normalize_bundle_path(&joined));
-        }
-        out
+        bundle_candidates(&self.base, rel)
+    }
+}
+
+/// Where a [`MemResolver`] for a scene whose directory in the bundle is `base` looks for `rel`,
+/// in order.
+fn bundle_candidates(base: &str, rel: &str) -> Vec<String> {
+    let joined = if base.is_empty() { rel.to_string() } else { format!("{base}/{rel}") };
+    let mut out: Vec<String> = normalize_bundle_path(&joined).into_iter().collect();
+    out.extend(normalize_bundle_path(rel));
+    let parts: Vec<&str> = rel.split(['/', '\\']).filter(|p| !p.is_empty()).collect();
+    for skip in 1..parts.len() {
+        let tail = parts[skip..].join("/");
+        let joined = if base.is_empty() { tail } else { format!("{base}/{tail}") };
+        out.extend(normalize_bundle_path(&joined));
+    }
+    out
+}
+
+/// Where to pack the asset a scene names `rel` in a bundle whose scene file lies in the
+/// directory `base` ("" for the top): the first place a [`MemResolver`] looks for it, so the
+/// farm reads exactly that file. `None` when no place inside the bundle is looked at (a path
+/// that is nothing but `..`s and `/`s).
+pub fn bundle_path_for(base: &str, rel: &str) -> Option<String> {
+    bundle_candidates(base, rel).into_iter().next()
+}
+
+/// One asset a [`RecordingResolver`] served: the path as the scene wrote it, where it was
+/// found and its bytes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ServedAsset {
+    pub requested: String,
+    pub found_at: PathBuf,
+    pub bytes: std::sync::Arc<Vec<u8>>,
+}
+
+/// Wraps a resolver and records every asset it serves, in the order of the requests: loading a
+/// scene through it lists exactly the files the renderer reads (the client packs those into a
+/// job's bundle, and nothing else). Failed requests are not recorded: they fail the load with
+/// an error that names the file and the element.
+#[derive(Debug)]
+pub struct RecordingResolver<R> {
+    pub inner: R,
+    served: std::sync::Mutex<Vec<ServedAsset>>,
+}
+
+impl<R: AssetResolver> RecordingResolver<R> {
+    pub fn new(inner: R) -> Self {
+        RecordingResolver { inner, served: std::sync::Mutex::new(Vec::new()) }
+    }
+
+    /// Every asset served so far, in the order of the requests (an asset asked for twice is
+    /// listed twice).
+    pub fn served(&self) -> Vec<ServedAsset> {
+        self.served.lock().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+}
+
+impl<R: AssetResolver> AssetResolver for RecordingResolver<R> {
+    fn read(&self, rel: &str) -> io::Result<(Vec<u8>, PathBuf)> {
+        let (bytes, found_at) = self.inner.read(rel)?;
+        let served = ServedAsset {
+            requested: rel.to_string(),
+            found_at: found_at.clone(),
+            bytes: std::sync::Arc::new(bytes.clone()),
+        };
+        self.served.lock().unwrap_or_else(|e| e.into_inner()).push(served);
+        Ok((bytes, found_at))
+    }
+
+    fn display_path(&self, rel: &str) -> PathBuf {
+        self.inner.display_path(rel)
     }
 }
 
@@ -180,5 +242,46 @@ mod tests {
         assert!(r.read("../../etc/passwd").is_err());
         assert!(r.read("ply/missing.ply").is_err());
         assert_eq!(r.display_path("ply/missing.ply"), PathBuf::from("scenes/ply/missing.ply"));
+    }
+
+    #[test]
+    fn bundle_path_for_is_where_the_bundle_resolver_looks_first() {
+        assert_eq!(bundle_path_for("", "ply/x.ply").as_deref(), Some("ply/x.ply"));
+        assert_eq!(bundle_path_for("xml", "../ply/x.ply").as_deref(), Some("ply/x.ply"));
+        assert_eq!(bundle_path_for("a/b", "c\\d.png").as_deref(), Some("a/b/c/d.png"));
+        // Climbing above the top: the first place looked at is the stripped path.
+        assert_eq!(bundle_path_for("", "../ply/x.ply").as_deref(), Some("ply/x.ply"));
+        // An absolute path is looked for below the scene's directory.
+        assert_eq!(bundle_path_for("s", "/home/u/x.ply").as_deref(), Some("s/home/u/x.ply"));
+        assert_eq!(bundle_path_for("", "/home/u/x.ply").as_deref(), Some("u/x.ply"));
+        assert_eq!(bundle_path_for("", "../.."), None);
+        // A file packed there is what the resolver finds, before any fallback.
+        for (base, rel) in
+            [("", "ply/x.ply"), ("xml", "../ply/x.ply"), ("s", "/home/u/x.ply"), ("", "/home/u/x.ply")]
+        {
+            let at = bundle_path_for(base, rel).unwrap();
+            let mut files = std::collections::HashMap::new();
+            files.insert(at.clone(), std::sync::Arc::new(b"right".to_vec()));
+            files.insert("x.ply".to_string(), std::sync::Arc::new(b"wrong".to_vec()));
+            let scene = if base.is_empty() { "a.xml".to_string() } else { format!("{base}/a.xml") };
+            let r = MemResolver::for_scene(files, &scene);
+            assert_eq!(r.read(rel).unwrap(), (b"right".to_vec(), PathBuf::from(at)), "{base} {rel}");
+        }
+    }
+
+    #[test]
+    fn recording_resolver_lists_what_it_served() {
+        let dir = tessera_testkit::TempDir::new("assets-rec");
+        std::fs::create_dir_all(dir.join("ply")).unwrap();
+        std::fs::write(dir.join("ply/x.ply"), b"abc").unwrap();
+        let r = RecordingResolver::new(FsResolver { base_dir: dir.to_path_buf() });
+        assert_eq!(r.read("assets/ply/x.ply").unwrap().0, b"abc");
+        assert!(r.read("ply/missing.ply").is_err());
+        assert_eq!(r.display_path("ply/missing.ply"), dir.join("ply/missing.ply"));
+        let served = r.served();
+        assert_eq!(served.len(), 1);
+        assert_eq!(served[0].requested, "assets/ply/x.ply");
+        assert_eq!(served[0].found_at, dir.join("ply/x.ply"));
+        assert_eq!(served[0].bytes.as_slice(), b"abc");
     }
 }

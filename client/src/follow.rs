@@ -1,0 +1,282 @@
+//! Following a job until it ends (a progress bar per frame on a terminal, a line per change
+//! otherwise) and downloading its outputs.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{Result, bail};
+use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
+use tessera::protocol::{FrameInfo, JobInfo, JobState, OutputInfo};
+
+use crate::api::{Api, CallError, is_transient};
+
+/// How often the job is looked at while it runs.
+const POLL: Duration = Duration::from_millis(400);
+/// How long the server may be unreachable (a restart) before following gives up.
+const RETRY_FOR: Duration = Duration::from_secs(120);
+/// Without a terminal, a progress line at most this often.
+const TEXT_PROGRESS_EVERY: Duration = Duration::from_secs(10);
+
+/// Whether progress bars can be drawn (stderr is a terminal and not `--quiet`).
+pub fn bars_wanted(quiet: bool) -> bool {
+    !quiet && std::io::stderr().is_terminal()
+}
+
+/// `f` retried while the server is unreachable (it may be restarting), for up to
+/// [`RETRY_FOR`]; other errors at once.
+pub fn with_retries<T>(quiet: bool, mut f: impl FnMut() -> Result<T, CallError>) -> Result<T> {
+    let start = Instant::now();
+    let mut said = false;
+    loop {
+        match f() {
+            Ok(v) => return Ok(v),
+            Err(e) if is_transient(&e) && start.elapsed() < RETRY_FOR => {
+                if !said && !quiet {
+                    eprintln!("{e}\n  retrying for up to {} s", RETRY_FOR.as_secs());
+                    said = true;
+                }
+                std::thread::sleep(Duration::from_secs(1));
+            }
+            Err(e) => return Err(e.into()),
+        }
+    }
+}
+
+fn frame_label(f: &FrameInfo) -> String {
+    format!("frame {} {} ({}x{})", f.index, f.image_name, f.width, f.height)
+}
+
+/// Follows job `id` until it ends and returns it as it ended. `bars`: progress bars on stderr;
+/// otherwise (unless `quiet`) a line on stderr per change of state, per finished frame, and on
+/// progress at most every 10 s.
+pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
+    let multi = MultiProgress::with_draw_target(if bars {
+        ProgressDrawTarget::stderr()
+    } else {
+        ProgressDrawTarget::hidden()
+    });
+    let style = ProgressStyle::with_template(
+        "{prefix} [{bar:30}] {pos}/{len} tiles, {elapsed} elapsed, ETA {eta} {msg}",
+    )
+    .unwrap_or_else(|_| ProgressStyle::default_bar())
+    .progress_chars("=> ");
+    let mut frame_bars: Vec<ProgressBar> = Vec::new();
+    let mut last_state: Option<JobState> = None;
+    let mut frames_reported: Vec<bool> = Vec::new();
+    let mut last_error: Option<String> = None;
+    let mut last_text = Instant::now();
+    let text = !bars && !quiet;
+    loop {
+        let job = with_retries(quiet, || api.job(id))?;
+        if frame_bars.is_empty() {
+            for f in &job.frames {
+                let bar = multi.add(ProgressBar::new(u64::from(f.tiles_total)));
+                bar.set_style(style.clone());
+                bar.set_prefix(frame_label(f));
+                frame_bars.push(bar);
+            }
+            frames_reported = vec![false; job.frames.len()];
+        }
+        // The end has a line of its own below.
+        if last_state != Some(job.state) && text && !job.state.is_final() {
+            eprintln!("job {id} ({}): {}", job.name, job.state.as_str());
+        }
+        last_state = Some(job.state);
+        if job.error != last_error {
+            if let Some(e) = &job.error
+                && !job.state.is_final()
+            {
+                let _ = multi.println(format!("job {id}: {e}"));
+                if text {
+                    eprintln!("job {id}: {e}");
+                }
+            }
+            last_error = job.error.clone();
+        }
+        for (i, f) in job.frames.iter().enumerate() {
+            let Some(bar) = frame_bars.get(i) else { continue };
+            bar.set_length(u64::from(f.tiles_total));
+            bar.set_position(u64::from(f.tiles_done));
+            let Some(reported) = frames_reported.get_mut(i) else { continue };
+            if !f.outputs.is_empty() && !*reported {
+                *reported = true;
+                bar.finish_with_message("merged");
+                if text {
+                    let names: Vec<&str> = f.outputs.iter().map(|o| o.name.as_str()).collect();
+                    eprintln!("job {id}: {} done: {}", frame_label(f), names.join(", "));
+                }
+            }
+        }
+        if job.state.is_final() {
+            for bar in &frame_bars {
+                if !bar.is_finished() {
+                    bar.abandon_with_message(job.state.as_str().to_string());
+                }
+            }
+            if text || bars {
+                let secs = match (job.started_at, job.finished_at) {
+                    (Some(s), Some(e)) => format!(" in {:.1} s", e - s),
+                    _ => String::new(),
+                };
+                eprintln!("job {id} ({}): {}{secs}", job.name, job.state.as_str());
+            }
+            return Ok(job);
+        }
+        if text && last_text.elapsed() >= TEXT_PROGRESS_EVERY {
+            last_text = Instant::now();
+            let done: u32 = job.frames.iter().map(|f| f.tiles_done).sum();
+            let total: u32 = job.frames.iter().map(|f| f.tiles_total).sum();
+            eprintln!("job {id}: {done}/{total} tiles");
+        }
+        std::thread::sleep(POLL);
+    }
+}
+
+/// Whether `name` is the float frame the farm keeps beside an LDR image (`<stem>.exr` for an
+/// `ImageName` that is not `.exr` or `.hdr`): a file `tessera-worker render` does not write.
+pub fn is_farm_extra(frame: &FrameInfo, name: &str) -> bool {
+    let image = Path::new(&frame.image_name);
+    let ext = image.extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
+    if matches!(ext.as_deref(), Some("exr" | "hdr")) {
+        return false;
+    }
+    let stem = image.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    name == format!("{stem}.exr")
+}
+
+/// The outputs of `frame` to download: what `tessera-worker render` writes, and with `float`
+/// the farm's float `.exr` of LDR frames too.
+pub fn wanted_outputs(frame: &FrameInfo, float: bool) -> Vec<&OutputInfo> {
+    frame.outputs.iter().filter(|o| float || !is_farm_extra(frame, &o.name)).collect()
+}
+
+/// Downloads the outputs of every finished frame of `job` into `out` (created), each file
+/// written atomically. Frames not finished are an error after the others are downloaded.
+pub fn download(api: &Api, job: &JobInfo, out: &Path, float: bool, quiet: bool) -> Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(out)
+        .map_err(|e| anyhow::anyhow!("cannot create the output directory {}: {e}", out.display()))?;
+    let mut written = Vec::new();
+    let mut unfinished = Vec::new();
+    for f in &job.frames {
+        if f.outputs.is_empty() {
+            unfinished.push(format!("{} ({}/{} tiles)", frame_label(f), f.tiles_done, f.tiles_total));
+            continue;
+        }
+        for o in wanted_outputs(f, float) {
+            // A file name, never a path: the server's names must not write elsewhere.
+            if Path::new(&o.name).file_name().map(|n| n.to_string_lossy() != o.name.as_str()).unwrap_or(true)
+            {
+                bail!(
+                    "job {}: the server lists an output named {:?}, which is not a plain file name",
+                    job.id,
+                    o.name
+                );
+            }
+            let what = format!("downloading {} of job {}", o.name, job.id);
+            let url = format!("/api/v1/jobs/{}/frames/{}/files/{}", job.id, f.index, percent_encode(&o.name));
+            let bytes = with_retries(quiet, || api.download(&what, &url))?;
+            let path = out.join(&o.name);
+            tessera::atomic_write::write_atomic(&path, &bytes)
+                .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
+            if !quiet {
+                println!("{}", path.display());
+            }
+            written.push(path);
+        }
+    }
+    if !unfinished.is_empty() {
+        bail!(
+            "job {} ({}) has frames without outputs: {}; wait for them with: tessera fetch {} --wait --out {}",
+            job.id,
+            job.state.as_str(),
+            unfinished.join(", "),
+            job.id,
+            out.display()
+        );
+    }
+    Ok(written)
+}
+
+/// `s` as one URL path segment: every byte but the unreserved ones (RFC 3986) percent-encoded.
+fn percent_encode(s: &str) -> String {
+    let mut out = String::new();
+    for b in s.bytes() {
+        if b.is_ascii_alphanumeric() || b"-._~".contains(&b) {
+            out.push(b as char);
+        } else {
+            out.push_str(&format!("%{b:02X}"));
+        }
+    }
+    out
+}
+
+/// Unix seconds as `YYYY-MM-DD HH:MM:SS` (UTC).
+pub fn utc(secs: f64) -> String {
+    let secs = secs.max(0.0) as i64;
+    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // Howard Hinnant's civil_from_days.
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!("{y:04}-{m:02}-{d:02} {:02}:{:02}:{:02}", rem / 3600, rem % 3600 / 60, rem % 60)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(image_name: &str, outputs: &[&str]) -> FrameInfo {
+        FrameInfo {
+            index: 0,
+            camera: 0,
+            image_name: image_name.into(),
+            width: 1,
+            height: 1,
+            tiles_total: 1,
+            tiles_done: 1,
+            outputs: outputs
+                .iter()
+                .map(|n| OutputInfo { name: n.to_string(), url: format!("/x/{n}") })
+                .collect(),
+            preview_url: String::new(),
+            tonemap: None,
+        }
+    }
+
+    #[test]
+    fn the_cli_files_leave_out_only_the_farms_float_frame() {
+        let names = |f: &FrameInfo, float| {
+            wanted_outputs(f, float).iter().map(|o| o.name.clone()).collect::<Vec<_>>()
+        };
+        let ldr = frame("out/a.png", &["a.png", "a.exr"]);
+        assert_eq!(names(&ldr, false), ["a.png"]);
+        assert_eq!(names(&ldr, true), ["a.png", "a.exr"]);
+        let hdr = frame("a.exr", &["a.exr", "a.png", "a_aces.png"]);
+        assert_eq!(names(&hdr, false), ["a.exr", "a.png", "a_aces.png"]);
+        let rgbe = frame("a.HDR", &["a.HDR", "a.png"]);
+        assert_eq!(names(&rgbe, false), ["a.HDR", "a.png"]);
+        let odd = frame("a.ppm", &["a.png", "a.exr"]);
+        assert_eq!(names(&odd, false), ["a.png"]);
+    }
+
+    #[test]
+    fn file_names_are_one_path_segment() {
+        assert_eq!(percent_encode("a b/c%.png"), "a%20b%2Fc%25.png");
+        assert_eq!(percent_encode("VeachAjar_1-2~x.exr"), "VeachAjar_1-2~x.exr");
+        assert_eq!(percent_encode("ü"), "%C3%BC");
+    }
+
+    #[test]
+    fn utc_dates() {
+        assert_eq!(utc(0.0), "1970-01-01 00:00:00");
+        assert_eq!(utc(951_782_400.0), "2000-02-29 00:00:00");
+        assert_eq!(utc(1_795_000_000.5), "2026-11-18 11:06:40");
+    }
+}

@@ -1,0 +1,582 @@
+//! `tessera`: the command-line client of a Tessera render farm.
+//!
+//! `submit` loads a scene as the renderer does (`pack.rs`: the library's parser and builder
+//! through a recording resolver), packs it with exactly the files it read into one bundle,
+//! submits it, and with `--wait` follows the job (`follow.rs`) and downloads its outputs, the
+//! files `tessera-worker render` would write. `status`, `cancel`, `fetch` and `logs` speak the
+//! job API (`api.rs`). The server and token come from flags, the environment or a config file
+//! (`config.rs`).
+
+mod api;
+mod config;
+mod follow;
+mod pack;
+
+use std::io::Read;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::{Result, bail};
+use clap::{Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use tessera::protocol::{JobEvent, JobInfo, JobState};
+
+use crate::api::{Api, CallError};
+
+#[derive(Parser)]
+#[command(
+    name = "tessera",
+    version,
+    about = "Submit CENG795 scenes to a Tessera render farm, follow them and fetch the images",
+    long_about = "Submit CENG795 scenes (XML or 2025 JSON) to a Tessera render farm (tessera-server), follow the jobs and fetch the images.\n\n\
+The server and the API token come from --server and --token, else the environment (TESSERA_SERVER, TESSERA_TOKEN), \
+else the config file ($XDG_CONFIG_HOME/tessera/client.toml, or ~/.config/tessera/client.toml, or --config), whose lines are\n  \
+server = \"http://farm.example:8080\"\n  token = \"...\"\n\
+and otherwise http://127.0.0.1:8080 without a token (a tessera-server started with no options).",
+    after_help = "Examples:\n  \
+tessera submit scenes/tori.xml --wait --out out/       # render on the farm; out/ gets what tessera-worker render writes\n  \
+tessera submit big.xml --priority 5 --samples 4        # a quick preview, ahead of priority-0 jobs\n  \
+tessera status                                         # every job\n  \
+tessera status 7                                       # one job, frame by frame\n  \
+tessera logs 7 --follow                                # its events as they happen\n  \
+tessera fetch 7 --out out/                             # download the outputs of a finished job\n  \
+tessera cancel 7\n\n\
+See 'tessera help submit' (and the other commands) for every option."
+)]
+struct Cli {
+    /// The farm's URL [default: the config file's server, else http://127.0.0.1:8080].
+    #[arg(long, short = 's', global = true, env = "TESSERA_SERVER", value_name = "URL")]
+    server: Option<String>,
+    /// The farm's API token (tessera-server --api-token), sent as "Authorization: Bearer TOKEN"
+    /// [default: the config file's token, else none].
+    #[arg(long, global = true, env = "TESSERA_TOKEN", value_name = "TOKEN", hide_env_values = true)]
+    token: Option<String>,
+    /// The config file to read instead of $XDG_CONFIG_HOME/tessera/client.toml
+    /// (~/.config/tessera/client.toml).
+    #[arg(long, global = true, env = "TESSERA_CONFIG", value_name = "FILE")]
+    config: Option<PathBuf>,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Pack a scene with the files it uses, submit it, and optionally wait for the images.
+    ///
+    /// The scene is loaded here first, exactly as tessera-worker render loads it: every PLY model,
+    /// texture and environment map it names is read (relative to the scene file, with the
+    /// course's path fallbacks), and exactly those files are packed with the scene into one
+    /// bundle. A scene that cannot be loaded (a missing asset, a broken element) is reported with
+    /// its file, line and element, and nothing is uploaded.
+    ///
+    /// With --wait the job is followed with a progress bar per frame, and its outputs are
+    /// downloaded into --out: the same files, byte for byte, as
+    /// `tessera-worker render SCENE --out DIR` writes (--float-exr adds the float frame the farm
+    /// keeps for .png images).
+    ///
+    /// Example: tessera submit scenes/tori.xml --wait --out out/
+    Submit {
+        /// The scene file (CENG795 XML or 2025 JSON; told apart by content).
+        scene: PathBuf,
+        /// Priority: jobs with a higher one are rendered first (negative allowed).
+        #[arg(long, short, default_value_t = 0, allow_negative_numbers = true, value_name = "N")]
+        priority: i64,
+        /// Samples per pixel for every camera instead of its <NumSamples> (as tessera-worker render
+        /// --samples).
+        #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
+        samples: Option<u32>,
+        /// Tile edge in pixels (the farm's unit of work; does not change the image) [default: the
+        /// server's].
+        #[arg(long, value_name = "PX", value_parser = clap::value_parser!(u32).range(1..=4096))]
+        tile_size: Option<u32>,
+        /// Render only these cameras (numbered from 1 in the file), e.g. 1,3.
+        #[arg(long, value_name = "K,K,...")]
+        cameras: Option<String>,
+        /// A name for the job [default: the scene's file name].
+        #[arg(long, value_name = "NAME")]
+        name: Option<String>,
+        /// Follow the job until it ends and download its outputs into --out.
+        #[arg(long, short)]
+        wait: bool,
+        /// Where --wait puts the outputs (created if missing; implies --wait) [default: the current
+        /// directory, as tessera-worker render].
+        #[arg(long, short, value_name = "DIR")]
+        out: Option<PathBuf>,
+        /// With --wait: also download the float frame (.exr) the farm keeps beside each .png image.
+        #[arg(long)]
+        float_exr: bool,
+        /// Load and pack the scene and list the bundle's files, without submitting anything.
+        #[arg(long)]
+        dry_run: bool,
+        /// No progress bars or messages: print only the job id (and with --wait the files
+        /// written); errors still go to stderr.
+        #[arg(long, short)]
+        quiet: bool,
+    },
+    /// Show one job (state, frames, tiles, files) or, without an id, list every job.
+    Status {
+        /// The job; omit it to list every job, newest first.
+        id: Option<u64>,
+        /// Print the server's JSON answer instead (for scripts).
+        #[arg(long)]
+        json: bool,
+    },
+    /// Cancel a job: its queued tiles are dropped and tiles being rendered stop within a moment.
+    Cancel {
+        /// The job to cancel.
+        id: u64,
+    },
+    /// Download the outputs of a job's finished frames into a directory.
+    ///
+    /// The files are those tessera-worker render writes (--float-exr adds the float frame the farm
+    /// keeps for .png images). A frame not finished yet is an error after the others are
+    /// downloaded; --wait follows the job to its end first.
+    Fetch {
+        /// The job.
+        id: u64,
+        /// Where to put the files (created if missing).
+        #[arg(long, short, default_value = ".", value_name = "DIR")]
+        out: PathBuf,
+        /// Follow the job until it ends first (progress bars on a terminal).
+        #[arg(long, short)]
+        wait: bool,
+        /// Also download the float frame (.exr) the farm keeps beside each .png image.
+        #[arg(long)]
+        float_exr: bool,
+        /// No progress bars or messages; the files written still go to stdout.
+        #[arg(long, short)]
+        quiet: bool,
+    },
+    /// Print a job's event log: acceptance, warnings, tiles done or failed, merges, the end.
+    Logs {
+        /// The job.
+        id: u64,
+        /// Keep printing new events until the job ends.
+        #[arg(long, short)]
+        follow: bool,
+        /// Print only events after this sequence number.
+        #[arg(long, default_value_t = 0, value_name = "SEQ")]
+        after: u64,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// The API client for the server and token the flags, environment or config file name.
+fn connect(cli_server: Option<&str>, cli_token: Option<&str>, config: Option<&Path>) -> Result<Api> {
+    let default = config::default_config_path(
+        std::env::var("XDG_CONFIG_HOME").ok().as_deref(),
+        std::env::var("HOME").ok().as_deref(),
+    );
+    let hint = config
+        .map(Path::to_path_buf)
+        .or_else(|| default.clone())
+        .map_or("the config file".to_string(), |p| p.display().to_string());
+    let r = config::resolve(cli_server, cli_token, config, default)?;
+    Ok(Api::new(r.server, r.token, hint))
+}
+
+fn run(cli: Cli) -> Result<ExitCode> {
+    let Cli { server, token, config, command } = cli;
+    let connect = || connect(server.as_deref(), token.as_deref(), config.as_deref());
+    match command {
+        Command::Submit {
+            scene,
+            priority,
+            samples,
+            tile_size,
+            cameras,
+            name,
+            wait,
+            out,
+            float_exr,
+            dry_run,
+            quiet,
+        } => {
+            let opts = SubmitOptions { priority, samples, tile_size, cameras, name, quiet };
+            // Everything local first: a scene that cannot be packed never reaches the network.
+            let bundle = pack::pack(&scene)?;
+            if bundle.cameras.is_empty() {
+                bail!(
+                    "{}: the scene has no camera, so nothing to render; add one under <Cameras>",
+                    scene.display()
+                );
+            }
+            let cameras = check_cameras(opts.cameras.as_deref(), bundle.cameras.len())?;
+            if dry_run {
+                print_bundle(&bundle);
+                return Ok(ExitCode::SUCCESS);
+            }
+            let api = connect()?;
+            let job = submit(&api, &bundle, cameras, &opts)?;
+            if !(wait || out.is_some()) {
+                return Ok(ExitCode::SUCCESS);
+            }
+            let out = out.unwrap_or_else(|| PathBuf::from("."));
+            finish(&api, job.id, &out, float_exr, quiet)
+        }
+        Command::Status { id, json } => {
+            let api = connect()?;
+            match id {
+                Some(id) => {
+                    let job = api.job(id)?;
+                    if json {
+                        println!("{}", serde_json::to_string_pretty(&job)?);
+                    } else {
+                        print_job(&job);
+                    }
+                }
+                None => {
+                    let list = api.jobs()?;
+                    if json {
+                        println!("{}", serde_json::to_string_pretty(&list)?);
+                    } else {
+                        print_jobs(&list.jobs, &api.base);
+                    }
+                }
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Cancel { id } => {
+            let api = connect()?;
+            let job = api.cancel(id)?;
+            println!("job {id} ({}): {}", job.name, job.state.as_str());
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Fetch { id, out, wait, float_exr, quiet } => {
+            let api = connect()?;
+            if wait {
+                return finish(&api, id, &out, float_exr, quiet);
+            }
+            let job = api.job(id)?;
+            follow::download(&api, &job, &out, float_exr, quiet)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Logs { id, follow, after } => {
+            let api = connect()?;
+            logs(&api, id, follow, after)?;
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}
+
+struct SubmitOptions {
+    priority: i64,
+    samples: Option<u32>,
+    tile_size: Option<u32>,
+    cameras: Option<String>,
+    name: Option<String>,
+    quiet: bool,
+}
+
+/// `--cameras` checked against the scene's cameras (before anything is uploaded), as the
+/// server's field (`1,3`).
+fn check_cameras(list: Option<&str>, count: usize) -> Result<Option<String>> {
+    let Some(list) = list else { return Ok(None) };
+    let mut ks = Vec::new();
+    for part in list.split([',', ' ']).filter(|p| !p.is_empty()) {
+        let k: usize = part.parse().ok().filter(|k| *k >= 1).ok_or_else(|| {
+            anyhow::anyhow!(
+                "--cameras: {part:?} is not a camera number (1, 2, ...); write e.g. --cameras 1,3"
+            )
+        })?;
+        if k > count {
+            bail!("--cameras: camera {k} does not exist; the scene has {count} camera(s), numbered from 1");
+        }
+        ks.push(k.to_string());
+    }
+    if ks.is_empty() {
+        bail!("--cameras is empty; write e.g. --cameras 1,3, or leave it out to render every camera");
+    }
+    Ok(Some(ks.join(",")))
+}
+
+fn human_bytes(n: u64) -> String {
+    if n >= 1 << 20 {
+        format!("{:.1} MiB", n as f64 / f64::from(1 << 20))
+    } else if n >= 1 << 10 {
+        format!("{:.1} KiB", n as f64 / f64::from(1 << 10))
+    } else {
+        format!("{n} B")
+    }
+}
+
+/// `--dry-run`: the warnings, then each file of the bundle with its size and source.
+fn print_bundle(bundle: &pack::Bundle) {
+    for w in &bundle.warnings {
+        eprintln!("{w}");
+    }
+    for (path, f) in &bundle.files {
+        let role = if f.requested.is_none() { "scene" } else { "asset" };
+        println!("{path}\t{}\t{role}\t{}", f.bytes.len(), f.source.display());
+    }
+    eprintln!(
+        "{} file(s), {}; nothing was submitted (--dry-run)",
+        bundle.files.len(),
+        human_bytes(bundle.total_bytes())
+    );
+}
+
+/// Uploads the bundle and prints what the server accepted.
+fn submit(
+    api: &Api,
+    bundle: &pack::Bundle,
+    cameras: Option<String>,
+    opts: &SubmitOptions,
+) -> Result<JobInfo> {
+    let tar = bundle.tar_gz()?;
+    let mut fields = vec![("scene_path", bundle.scene_path.clone()), ("priority", opts.priority.to_string())];
+    if let Some(n) = &opts.name {
+        fields.push(("name", n.clone()));
+    }
+    if let Some(s) = opts.samples {
+        fields.push(("samples", s.to_string()));
+    }
+    if let Some(t) = opts.tile_size {
+        fields.push(("tile_size", t.to_string()));
+    }
+    if let Some(c) = cameras {
+        fields.push(("cameras", c));
+    }
+    let (content_type, head, tail) = api::multipart_frame(&fields, "bundle", "bundle.tar.gz");
+    let length = (head.len() + tar.len() + tail.len()) as u64;
+    if !opts.quiet {
+        eprintln!(
+            "packed {} with {} asset(s): {} ({} to upload)",
+            bundle.scene_path,
+            bundle.files.len() - 1,
+            human_bytes(bundle.total_bytes()),
+            human_bytes(length)
+        );
+    }
+    let body = std::io::Cursor::new(head).chain(std::io::Cursor::new(tar)).chain(std::io::Cursor::new(tail));
+    let job = if follow::bars_wanted(opts.quiet) {
+        let bar = ProgressBar::new(length);
+        bar.set_style(
+            ProgressStyle::with_template("uploading [{bar:30}] {bytes}/{total_bytes}, {bytes_per_sec}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> "),
+        );
+        let job = api.submit(&content_type, length, bar.wrap_read(body));
+        bar.finish_and_clear();
+        job?
+    } else {
+        api.submit(&content_type, length, body)?
+    };
+    for w in &job.warnings {
+        eprintln!("{w}");
+    }
+    if opts.quiet {
+        println!("{}", job.id);
+    } else {
+        let tiles: u32 = job.frames.iter().map(|f| f.tiles_total).sum();
+        println!(
+            "submitted job {} ({}): {} frame(s), {tiles} tiles; follow it with `tessera status {}` or at {}/",
+            job.id,
+            job.name,
+            job.frames.len(),
+            job.id,
+            api.base
+        );
+    }
+    Ok(job)
+}
+
+/// Follows a job to its end and downloads its outputs; a job that failed or was cancelled is
+/// an error (exit status 1).
+fn finish(api: &Api, id: u64, out: &Path, float_exr: bool, quiet: bool) -> Result<ExitCode> {
+    let job = follow::follow(api, id, follow::bars_wanted(quiet), quiet)?;
+    match job.state {
+        JobState::Done => {
+            follow::download(api, &job, out, float_exr, quiet)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        JobState::Failed => {
+            bail!("job {id} ({}) failed: {}", job.name, job.error.as_deref().unwrap_or("no reason given"))
+        }
+        JobState::Canceled => bail!("job {id} ({}) was cancelled; nothing to download", job.name),
+        JobState::Queued | JobState::Running => bail!("job {id} has not ended ({})", job.state.as_str()),
+    }
+}
+
+fn job_tiles(job: &JobInfo) -> (u32, u32) {
+    (job.frames.iter().map(|f| f.tiles_done).sum(), job.frames.iter().map(|f| f.tiles_total).sum())
+}
+
+fn print_jobs(jobs: &[JobInfo], base: &str) {
+    if jobs.is_empty() {
+        println!("no jobs on {base}");
+        return;
+    }
+    println!("{:>5}  {:<8}  {:>4}  {:>15}  {:<19}  NAME", "ID", "STATE", "PRI", "TILES", "SUBMITTED (UTC)");
+    for j in jobs {
+        let (done, total) = job_tiles(j);
+        let pct = if total > 0 { 100 * u64::from(done) / u64::from(total) } else { 0 };
+        println!(
+            "{:>5}  {:<8}  {:>4}  {:>15}  {:<19}  {}",
+            j.id,
+            j.state.as_str(),
+            j.priority,
+            format!("{done}/{total} {pct:>3}%"),
+            follow::utc(j.submitted_at),
+            j.name
+        );
+    }
+}
+
+fn print_job(job: &JobInfo) {
+    let (done, total) = job_tiles(job);
+    println!("job {}: {}", job.id, job.name);
+    let now = || {
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64())
+    };
+    let took = match (job.started_at, job.finished_at) {
+        (Some(s), Some(e)) => format!(" in {:.1} s", e - s),
+        (Some(s), None) => format!(", {:.1} s since it started", now() - s),
+        (None, _) => String::new(),
+    };
+    println!("state: {} ({done}/{total} tiles){took}", job.state.as_str());
+    println!("submitted: {} UTC", follow::utc(job.submitted_at));
+    let samples = job.samples.map_or("the scene's".to_string(), |s| s.to_string());
+    println!("priority {}, tile size {}, samples per pixel: {samples}", job.priority, job.tile_size);
+    for f in &job.frames {
+        println!(
+            "frame {}: camera {}, {} ({}x{}), {}/{} tiles",
+            f.index,
+            f.camera + 1,
+            f.image_name,
+            f.width,
+            f.height,
+            f.tiles_done,
+            f.tiles_total
+        );
+        if !f.outputs.is_empty() {
+            let names: Vec<&str> = f.outputs.iter().map(|o| o.name.as_str()).collect();
+            println!("  files: {}", names.join(", "));
+        }
+    }
+    if let Some(e) = &job.error {
+        println!("error: {e}");
+    }
+}
+
+/// One log event on one line: time, kind, where (frame, tile, worker, seconds), message.
+fn format_event(e: &JobEvent) -> String {
+    let mut place = Vec::new();
+    if let Some(f) = e.frame {
+        place.push(format!("frame {f}"));
+    }
+    if let Some(t) = e.tile {
+        place.push(format!("tile {t}"));
+    }
+    if let Some(w) = &e.worker {
+        place.push(format!("worker {w}"));
+    }
+    if let Some(s) = e.seconds {
+        place.push(format!("{s:.2} s"));
+    }
+    let place = if place.is_empty() { String::new() } else { format!("{}: ", place.join(", ")) };
+    format!("{:>4} {} {:<16} {place}{}", e.seq, follow::utc(e.at), e.kind, e.message)
+}
+
+/// The event kinds after which a job's log has nothing more to say.
+fn is_last_event(kind: &str) -> bool {
+    matches!(kind, "job_done" | "job_failed" | "job_cancelled" | "job_canceled")
+}
+
+/// `logs`: prints the events after `after`; with `follow`, polls for more until the job ends.
+fn logs(api: &Api, id: u64, follow: bool, mut after: u64) -> Result<()> {
+    let fetch = |after: u64| -> Result<Vec<JobEvent>> {
+        match api.log(id, after) {
+            Ok(log) => Ok(log.events),
+            Err(CallError::Status { code: 404, message }) if message.contains("no such endpoint") => bail!(
+                "the server at {} has no job log (GET /api/v1/jobs/{id}/log): it is older than this client; use `tessera status {id}`",
+                api.base
+            ),
+            Err(e) => Err(e.into()),
+        }
+    };
+    let print = |events: Vec<JobEvent>, after: &mut u64| -> bool {
+        let mut ended = false;
+        for e in events {
+            if e.seq <= *after {
+                continue;
+            }
+            println!("{}", format_event(&e));
+            *after = e.seq;
+            ended |= is_last_event(&e.kind);
+        }
+        ended
+    };
+    let events = fetch(after)?;
+    if print(events, &mut after) || !follow {
+        return Ok(());
+    }
+    loop {
+        std::thread::sleep(Duration::from_secs(1));
+        let events = follow::with_retries(false, || api.log(id, after).map(|l| l.events))?;
+        if print(events, &mut after) {
+            return Ok(());
+        }
+        // A job that ended without a last event in its log: one more look, then stop.
+        let job = follow::with_retries(false, || api.job(id))?;
+        if job.state.is_final() {
+            let events = fetch(after)?;
+            print(events, &mut after);
+            return Ok(());
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    #[test]
+    fn the_command_line_is_consistent() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn cameras_are_checked_against_the_scene() {
+        assert_eq!(check_cameras(None, 2).unwrap(), None);
+        assert_eq!(check_cameras(Some("2, 1"), 2).unwrap().as_deref(), Some("2,1"));
+        let e = check_cameras(Some("3"), 2).unwrap_err().to_string();
+        assert!(e.contains("camera 3 does not exist; the scene has 2 camera(s)"), "{e}");
+        let e = check_cameras(Some("0"), 2).unwrap_err().to_string();
+        assert!(e.contains("\"0\" is not a camera number"), "{e}");
+        assert!(check_cameras(Some(","), 2).is_err());
+    }
+
+    #[test]
+    fn events_read_as_one_line() {
+        let e = JobEvent {
+            seq: 12,
+            at: 0.0,
+            kind: "tile_done".into(),
+            frame: Some(0),
+            tile: Some(3),
+            worker: Some("w1".into()),
+            seconds: Some(0.4213),
+            message: "tile 3 rendered".into(),
+        };
+        assert_eq!(
+            format_event(&e),
+            "  12 1970-01-01 00:00:00 tile_done        frame 0, tile 3, worker w1, 0.42 s: tile 3 rendered"
+        );
+        let e =
+            JobEvent { frame: None, tile: None, worker: None, seconds: None, kind: "accepted".into(), ..e };
+        assert_eq!(format_event(&e), "  12 1970-01-01 00:00:00 accepted         tile 3 rendered");
+    }
+}
