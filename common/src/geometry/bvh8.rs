@@ -364,10 +364,10 @@ impl Builder<'_> {
             let mut p = Tri4 { v0: [[0.0; 4]; 3], e1: [[0.0; 4]; 3], e2: [[0.0; 4]; 3], id: [u32::MAX; 4] };
             for (lane, &prim) in chunk.iter().enumerate() {
                 let t = &self.tris[prim as usize];
-                for a in 0..3 {
-                    p.v0[a][lane] = t[0][a];
-                    p.e1[a][lane] = t[1][a];
-                    p.e2[a][lane] = t[2][a];
+                for (a, ((v0, e1), e2)) in p.v0.iter_mut().zip(&mut p.e1).zip(&mut p.e2).enumerate() {
+                    v0[lane] = t[0][a];
+                    e1[lane] = t[1][a];
+                    e2[lane] = t[2][a];
                 }
                 p.id[lane] = self.ids[prim as usize];
             }

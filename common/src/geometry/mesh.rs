@@ -1,4 +1,4 @@
-//! Triangle meshes in object space, each with its own CWBVH (obvhs).
+//! Triangle meshes in object space, each with its own 8-wide BVH (`bvh8`, built from obvhs's PLOC).
 //!
 //! Triangles are stored twice on purpose: an `f32` copy in BVH order for the traversal's hot
 //! loop (one cache line per few triangles, no indirection), and the indexed vertex arrays for the
