@@ -111,15 +111,17 @@ impl Bvh8 {
         if tris.is_empty() {
             return Bvh8::default();
         }
-        // obvhs's `fast_build` parameters, without its leaf collapse: leaves are ours.
+        // obvhs's `medium_build` PLOC and reinsertion parameters, without its leaf collapse
+        // (leaves are ours): on the 1.13M-triangle head it traces diffuse rays about 8 %
+        // faster than `fast_build`'s and still builds in about 0.6x Embree's time.
         let mut bvh2 = PlocBuilder::with_capacity(aabbs.len()).build(
-            PlocSearchDistance::Low,
+            PlocSearchDistance::Medium,
             aabbs,
             (0..aabbs.len() as u32).collect(),
             SortPrecision::U64,
-            2,
+            3,
         );
-        ReinsertionOptimizer::default().run(&mut bvh2, 0.02, None);
+        ReinsertionOptimizer::default().run(&mut bvh2, 0.05, None);
         let mut count = vec![0u32; bvh2.nodes.len()];
         fill_counts(&bvh2, 0, &mut count);
         let mut b = Builder { bvh2: &bvh2, tris, ids, count, out: Bvh8::default() };
