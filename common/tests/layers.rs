@@ -31,6 +31,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "tonemap::params",
             "texture::image",
             "texture",
+            "geometry::bvh8",
         ],
     ),
     ("pixels and records", &["image", "scene::records", "texture::mip"]),

@@ -1,13 +1,13 @@
-//! Triangle meshes in object space, each with its own CWBVH (obvhs).
+//! Triangle meshes in object space, each with its own 8-wide BVH (`bvh8`, built from obvhs's PLOC).
 //!
 //! Triangles are stored twice on purpose: an `f32` copy in BVH order for the traversal's hot
 //! loop (one cache line per few triangles, no indirection), and the indexed vertex arrays for the
 //! exact `f64` re-intersection of the closest hit and for smooth normals.
 
-use std::time::Duration;
-
 use glam::{DVec2, DVec3, Vec3A};
-use obvhs::{BvhBuildParams, aabb::Aabb, cwbvh::CwBvh, cwbvh::builder::build_cwbvh, ray::RayHit};
+use obvhs::aabb::Aabb;
+
+use super::bvh8::{Bvh8, Ray8, Tri};
 
 /// Largest coordinate a box may reach to go into a BVH: the builder's surface areas (products
 /// of extents) stay finite in `f32` below it.
@@ -19,47 +19,6 @@ pub fn is_sane(b: &Aabb) -> bool {
     inside(b.min) && inside(b.max) && b.min.cmple(b.max).all()
 }
 
-/// A triangle prepared for the `f32` Möller–Trumbore test.
-#[derive(Clone, Copy, Debug)]
-pub struct TriAccel {
-    pub v0: Vec3A,
-    pub e1: Vec3A,
-    pub e2: Vec3A,
-}
-
-impl TriAccel {
-    fn new(p0: Vec3A, p1: Vec3A, p2: Vec3A) -> Self {
-        TriAccel { v0: p0, e1: p1 - p0, e2: p2 - p0 }
-    }
-
-    /// Distance along the ray, or +inf for a miss. Two-sided (no culling).
-    #[inline(always)]
-    pub fn intersect(&self, ray: &obvhs::ray::Ray) -> f32 {
-        let p = ray.direction.cross(self.e2);
-        let det = self.e1.dot(p);
-        if det.abs() < 1e-20 {
-            return f32::INFINITY;
-        }
-        let inv = 1.0 / det;
-        let s = ray.origin - self.v0;
-        let u = s.dot(p) * inv;
-        if !(0.0..=1.0).contains(&u) {
-            return f32::INFINITY;
-        }
-        let q = s.cross(self.e1);
-        let v = ray.direction.dot(q) * inv;
-        if v < 0.0 || u + v > 1.0 {
-            return f32::INFINITY;
-        }
-        let t = self.e2.dot(q) * inv;
-        if t > ray.tmin && t < ray.tmax { t } else { f32::INFINITY }
-    }
-}
-
-/// Meshes with at most this many triangles (walls, boxes, single triangles) are tested one by
-/// one: cheaper than setting up a traversal.
-const LINEAR_MAX: usize = 12;
-
 /// A mesh ready for tracing.
 pub struct MeshGeom {
     /// Object-space vertex positions.
@@ -70,10 +29,8 @@ pub struct MeshGeom {
     pub vertex_normals: Option<Vec<DVec3>>,
     /// Per-vertex texture coordinates, when the mesh has them (TexCoordData or PLY u v).
     pub uvs: Option<Vec<DVec2>>,
-    /// `accel[i]` is triangle `accel_tri[i]`, in the BVH's primitive order.
-    accel: Vec<TriAccel>,
-    accel_tri: Vec<u32>,
-    pub bvh: CwBvh,
+    /// The 8-wide BVH over the `f32` triangles (vertex 0 and edges, in packets of four).
+    bvh: Bvh8,
     pub bounds: Aabb,
 }
 
@@ -100,11 +57,11 @@ impl MeshGeom {
         vertex_normals: Option<Vec<DVec3>>,
         uvs: Option<Vec<DVec2>>,
     ) -> Self {
-        let tris: Vec<TriAccel> = indices
+        let tris: Vec<Tri> = indices
             .iter()
             .map(|&[a, b, c]| {
                 let p = |i: u32| positions[i as usize].as_vec3a();
-                TriAccel::new(p(a), p(b), p(c))
+                [p(a), p(b) - p(a), p(c) - p(a)]
             })
             .collect();
         // Triangles whose box is not finite and within `MAX_COORDINATE` (a vertex beyond f32's
@@ -112,23 +69,24 @@ impl MeshGeom {
         // of the BVH and can never be hit.
         let (mut aabbs, mut kept) = (Vec::with_capacity(tris.len()), Vec::with_capacity(tris.len()));
         for (i, t) in tris.iter().enumerate() {
-            let b = Aabb::from_points(&[t.v0, t.v0 + t.e1, t.v0 + t.e2]);
+            let b = Aabb::from_points(&[t[0], t[0] + t[1], t[0] + t[2]]);
             if is_sane(&b) {
                 aabbs.push(b);
                 kept.push(i as u32);
             }
         }
-        // `fast_build` traces as fast as the slower presets on the course meshes (measured with
-        // the trace bench) and builds a 1M-triangle mesh about twice as fast as `medium_build`.
-        let bvh = if aabbs.is_empty() {
-            CwBvh::default()
-        } else {
-            build_cwbvh(&aabbs, BvhBuildParams::fast_build(), &mut Duration::default())
-        };
-        let accel_tri: Vec<u32> = bvh.primitive_indices.iter().map(|&k| kept[k as usize]).collect();
-        let accel = accel_tri.iter().map(|&i| tris[i as usize]).collect();
-        let bounds = if aabbs.is_empty() { Aabb::empty() } else { bvh.total_aabb };
-        MeshGeom { positions, indices, vertex_normals, uvs, accel, accel_tri, bvh, bounds }
+        let kept_tris: Vec<Tri> = kept.iter().map(|&i| tris[i as usize]).collect();
+        let bvh = Bvh8::build(&kept_tris, &aabbs, &kept);
+        let mut bounds = Aabb::empty();
+        for b in &aabbs {
+            bounds = bounds.union(b);
+        }
+        MeshGeom { positions, indices, vertex_normals, uvs, bvh, bounds }
+    }
+
+    /// Whether no triangle is in the BVH (the mesh can never be hit).
+    pub fn is_empty(&self) -> bool {
+        self.bvh.is_empty()
     }
 
     pub fn triangle_count(&self) -> usize {
@@ -137,33 +95,14 @@ impl MeshGeom {
 
     /// Closest hit of an object-space `f32` ray; returns (t, triangle) with `f32` precision.
     #[inline]
-    pub fn intersect_f32(&self, mut ray: obvhs::ray::Ray) -> Option<(f32, u32)> {
-        if self.accel.len() <= LINEAR_MAX {
-            let mut found = None;
-            for (i, tri) in self.accel.iter().enumerate() {
-                let t = tri.intersect(&ray);
-                if t < ray.tmax {
-                    ray.tmax = t;
-                    found = Some((t, self.accel_tri[i]));
-                }
-            }
-            return found;
-        }
-        let mut hit = RayHit::none();
-        if self.bvh.ray_traverse(ray, &mut hit, |r, i| self.accel[i].intersect(r)) {
-            Some((hit.t, self.accel_tri[hit.primitive_id as usize]))
-        } else {
-            None
-        }
+    pub fn intersect_f32(&self, ray: obvhs::ray::Ray) -> Option<(f32, u32)> {
+        self.bvh.intersect(&Ray8::new(ray.origin, ray.direction, ray.tmin, ray.tmax))
     }
 
     /// True if anything is hit in (tmin, tmax).
     #[inline]
     pub fn occluded_f32(&self, ray: obvhs::ray::Ray) -> bool {
-        if self.accel.len() <= LINEAR_MAX {
-            return self.accel.iter().any(|tri| tri.intersect(&ray) < ray.tmax);
-        }
-        !self.bvh.ray_traverse_miss(ray, |r, i| self.accel[i].intersect(r))
+        self.bvh.occluded(&Ray8::new(ray.origin, ray.direction, ray.tmin, ray.tmax))
     }
 
     /// Exact `f64` intersection of a triangle already known to be hit: distance and barycentrics

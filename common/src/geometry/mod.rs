@@ -6,6 +6,7 @@
 //! object space (direction not renormalised, so `t` carries over) and traverses the mesh's BVH.
 //! A plain (untransformed) mesh is simply an instance with no transform.
 
+pub mod bvh8;
 pub mod mesh;
 
 use std::sync::Arc;
@@ -236,8 +237,7 @@ impl Accel {
         for (i, inst) in instances.iter().enumerate() {
             match instance_bounds(inst, &meshes) {
                 // A mesh with no triangle in its BVH can never be hit.
-                _ if matches!(inst.shape, Shape::Mesh { mesh, .. } if meshes[mesh as usize].bvh.nodes.is_empty()) =>
-                    {}
+                _ if matches!(inst.shape, Shape::Mesh { mesh, .. } if meshes[mesh as usize].is_empty()) => {}
                 // Bounds the builder cannot take (beyond f32, or astronomically large): tested
                 // on every ray instead, in f64.
                 Some(b) if !mesh::is_sane(&b) => unbounded.push(i as u32),
