@@ -227,7 +227,7 @@ impl<'a> Tracer<'a> {
             bounce += 1;
             if params.russian_roulette {
                 let q = beta.max_element().min(1.0);
-                if !(rng.next_1d() < q) {
+                if rng.next_1d() >= q {
                     break;
                 }
                 beta /= q;
@@ -261,7 +261,7 @@ impl<'a> Tracer<'a> {
         };
         let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
         let wi = (sin_t * phi.cos()) * t + (sin_t * phi.sin()) * b + cos_t * n;
-        if !(cos_t > 0.0) {
+        if cos_t <= 0.0 {
             return None;
         }
         let pdf = if importance { cos_t * pdf_over_cos } else { 1.0 / std::f64::consts::TAU };
@@ -542,7 +542,7 @@ impl<'a> Tracer<'a> {
         self.stats.shadow += 1;
         let to_light = p - origin;
         let len = to_light.length();
-        if !(len > 0.0) {
+        if len.is_nan() || len <= 0.0 {
             return false;
         }
         let shadow = ray.spawn(origin, to_light / len);

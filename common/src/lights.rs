@@ -512,7 +512,7 @@ impl ObjectLight {
         let dist = d2.sqrt();
         let wi = to / dist;
         let cos_y = -n_y.dot(wi);
-        if !(cos_y > 0.0) || !(d2 > 0.0) || !pdf_area.is_finite() {
+        if cos_y.is_nan() || cos_y <= 0.0 || d2.is_nan() || d2 <= 0.0 || !pdf_area.is_finite() {
             return None;
         }
         Some(EmitterSample { wi, dist, irradiance: self.radiance * (cos_y / (d2 * pdf_area)) })
@@ -540,7 +540,7 @@ fn sample_sphere_cone(
 ) -> Option<EmitterSample> {
     let to_c = c - x;
     let d2 = to_c.length_squared();
-    if !(d2 > r * r) {
+    if d2.is_nan() || d2 <= r * r {
         return None;
     }
     let d = d2.sqrt();
@@ -557,7 +557,7 @@ fn sample_sphere_cone(
     let disc = (r * r - (d2 - proj * proj)).max(0.0);
     let dist = proj - disc.sqrt();
     let solid_angle = TAU * (1.0 - cos_max);
-    if !(solid_angle > 0.0) || !(dist > 0.0) {
+    if solid_angle.is_nan() || solid_angle <= 0.0 || dist.is_nan() || dist <= 0.0 {
         return None;
     }
     Some(EmitterSample { wi, dist, irradiance: radiance * solid_angle })

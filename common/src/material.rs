@@ -59,7 +59,7 @@ impl Material {
             return self.diffuse * n.dot(wi) + self.specular * self.lobe(n.dot(h).max(0.0));
         };
         let cos_i = n.dot(wi);
-        if !(cos_i > 0.0) {
+        if cos_i.is_nan() || cos_i <= 0.0 {
             return DVec3::ZERO;
         }
         use std::f64::consts::PI;

@@ -1035,13 +1035,13 @@ impl Parser<'_> {
         };
         self.check(n, schema);
         let exponent: f64 = self.required_number(n, "Exponent")?;
-        if !(exponent >= 0.0 && exponent <= 1e6) {
+        if !(0.0..=1e6).contains(&exponent) {
             let e = n.child("Exponent").unwrap_or(n);
             return Err(self.err(e, format!("Exponent must be between 0 and 1000000, found {exponent}")));
         }
         let refractive_index: Option<f64> = self.optional_number(n, "RefractiveIndex")?;
         if let Some(eta) = refractive_index
-            && !(eta > 0.0)
+            && (eta.is_nan() || eta <= 0.0)
         {
             let e = n.child("RefractiveIndex").unwrap_or(n);
             return Err(self.err(e, format!("RefractiveIndex must be positive, found {eta}")));
