@@ -31,7 +31,8 @@ CREATE TABLE IF NOT EXISTS jobs(
     submitted_at REAL NOT NULL,
     started_at REAL,
     finished_at REAL,
-    error TEXT
+    error TEXT,
+    allow_unsupported INTEGER NOT NULL DEFAULT 0
 );
 CREATE TABLE IF NOT EXISTS frames(
     job_id INTEGER NOT NULL,
@@ -162,6 +163,8 @@ pub struct NewJob {
     pub bundle: String,
     pub scene_path: String,
     pub frames: Vec<NewFrame>,
+    /// Render the scene without its unsupported elements (`allow_unsupported=true`).
+    pub allow_unsupported: bool,
 }
 
 pub struct NewFrame {
@@ -293,6 +296,25 @@ fn frame_from_row(r: &rusqlite::Row) -> rusqlite::Result<FrameRow> {
 const FRAME_COLUMNS: &str =
     "job_id, idx, camera, image_name, width, height, tiles_total, tiles_done, outputs";
 
+/// Adds what later versions added to the tables of an older database (CREATE TABLE IF NOT
+/// EXISTS leaves an existing table as it is).
+fn migrate(conn: &Connection) -> Result<()> {
+    let has_column = |table: &str, column: &str| -> Result<bool> {
+        let n: i64 = conn.query_row(
+            "SELECT count(*) FROM pragma_table_info(?1) WHERE name = ?2",
+            params![table, column],
+            |r| r.get(0),
+        )?;
+        Ok(n > 0)
+    };
+    if !has_column("jobs", "allow_unsupported")? {
+        // Jobs accepted before the column existed were accepted with their unsupported elements
+        // (older servers only warned about them): they keep rendering that way.
+        conn.execute("ALTER TABLE jobs ADD COLUMN allow_unsupported INTEGER NOT NULL DEFAULT 1", [])?;
+    }
+    Ok(())
+}
+
 impl Store {
     /// Opens (creating if needed) the database at `path`, and returns every tile that was
     /// leased when the server stopped to the queue.
@@ -303,6 +325,7 @@ impl Store {
         conn.pragma_update(None, "synchronous", "NORMAL")?;
         conn.busy_timeout(std::time::Duration::from_secs(5))?;
         conn.execute_batch(SCHEMA).context("cannot create the job store's tables")?;
+        migrate(&conn).context("cannot bring the job store's tables up to date")?;
         conn.execute(
             "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE state = 'leased'",
             [],
@@ -326,8 +349,17 @@ impl Store {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         tx.execute(
-            "INSERT INTO jobs(name, state, priority, tile_size, samples, bundle, scene_path, submitted_at) VALUES (?1, 'queued', ?2, ?3, ?4, ?5, ?6, ?7)",
-            params![job.name, job.priority, job.tile_size, job.samples, job.bundle, job.scene_path, now()],
+            "INSERT INTO jobs(name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, allow_unsupported) VALUES (?1, 'queued', ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+            params![
+                job.name,
+                job.priority,
+                job.tile_size,
+                job.samples,
+                job.bundle,
+                job.scene_path,
+                now(),
+                job.allow_unsupported
+            ],
         )?;
         let id = tx.last_insert_rowid();
         for (i, f) in job.frames.iter().enumerate() {
@@ -530,21 +562,21 @@ impl Store {
         // Two indexed steps instead of one join sorted over every queued tile: the live jobs in
         // priority order (a short list), then the first queued tile of each (an index seek on
         // `tiles_queue`), so a lease costs the same behind a million queued tiles as behind ten.
-        let jobs: Vec<(i64, String, String, Option<i64>)> = {
+        let jobs: Vec<(i64, String, String, Option<i64>, bool)> = {
             let mut stmt = tx.prepare_cached(
-                "SELECT j.id, j.bundle, j.scene_path, j.samples FROM jobs j
+                "SELECT j.id, j.bundle, j.scene_path, j.samples, j.allow_unsupported FROM jobs j
                  WHERE j.state IN ('queued', 'running')
                    AND NOT (SELECT count(*) >= ?2 AND max(x.at) > ?3
                             FROM tile_failures x WHERE x.job_id = j.id AND x.worker_id = ?1)
                  ORDER BY j.priority DESC, j.id",
             )?;
             stmt.query_map(params![w, scheduler::WORKER_FAILURES_PER_JOB, recent], |r| {
-                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?))
+                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?))
             })?
             .collect::<rusqlite::Result<_>>()?
         };
         let mut candidate = None;
-        for (job, bundle, scene_path, samples) in jobs {
+        for (job, bundle, scene_path, samples, allow_unsupported) in jobs {
             let tile = tx
                 .prepare_cached(
                     "SELECT t.frame, t.tile, t.x0, t.y0, t.w, t.h, f.camera
@@ -568,11 +600,14 @@ impl Store {
                 })
                 .optional()?;
             if let Some((frame, tile, rect, camera)) = tile {
-                candidate = Some((job, frame, tile, rect, bundle, scene_path, samples, camera));
+                candidate =
+                    Some((job, frame, tile, rect, bundle, scene_path, samples, camera, allow_unsupported));
                 break;
             }
         }
-        let Some((job, frame, tile, rect, bundle, scene_path, samples, camera)) = candidate else {
+        let Some((job, frame, tile, rect, bundle, scene_path, samples, camera, allow_unsupported)) =
+            candidate
+        else {
             tx.execute("UPDATE workers SET last_seen = ?2 WHERE id = ?1", params![w, now()])?;
             tx.commit()?;
             return Ok(None);
@@ -609,6 +644,7 @@ impl Store {
             samples: samples.map(|s| s as u32),
             lease_seconds,
             max_render_seconds: None,
+            allow_unsupported,
         }))
     }
 
@@ -865,6 +901,7 @@ mod tests {
             samples: None,
             bundle: "0".repeat(64),
             scene_path: "scene.xml".into(),
+            allow_unsupported: false,
             frames: vec![NewFrame {
                 camera: 0,
                 image_name: "j.png".into(),

@@ -1,7 +1,9 @@
 //! Loading a scene: text or a file, through the front end its content picks, to a [`Scene`].
 //!
 //! [`parse_scene`] picks the front end ([`detect_format`]); [`load_scene_str`] and
-//! [`load_scene_file`] parse and then [`build_scene`].
+//! [`load_scene_file`] parse and then [`build_scene`], and refuse a scene with elements that
+//! change the picture but are not implemented ([`Warning::unsupported`]) unless
+//! [`LoadOptions::allow_unsupported`] (the `_with` forms take the options).
 
 use std::path::Path;
 
@@ -10,7 +12,48 @@ use super::build::build_scene;
 use super::records::SceneRecords;
 use super::{json, xml};
 use crate::assets::{AssetResolver, FsResolver};
-use crate::error::SceneError;
+use crate::error::{SceneError, Warning, unsupported_errors};
+
+/// How strictly a scene is loaded.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LoadOptions {
+    /// Render a scene that uses elements Tessera does not implement and whose absence changes the
+    /// picture (each one is then a warning). Off by default: such a scene is refused, naming
+    /// every such element, so that no picture is silently wrong.
+    pub allow_unsupported: bool,
+}
+
+impl LoadOptions {
+    /// Unsupported elements are errors (the default).
+    pub const STRICT: LoadOptions = LoadOptions { allow_unsupported: false };
+    /// Unsupported elements are warnings, and the scene is rendered without them.
+    pub const ALLOW_UNSUPPORTED: LoadOptions = LoadOptions { allow_unsupported: true };
+
+    /// `Err` with every unsupported element among `warnings`, in order, unless they are
+    /// allowed or there are none.
+    pub fn check(&self, warnings: &[Warning]) -> Result<(), Vec<SceneError>> {
+        if self.allow_unsupported {
+            return Ok(());
+        }
+        let errors = unsupported_errors(warnings);
+        if errors.is_empty() { Ok(()) } else { Err(errors) }
+    }
+}
+
+/// Several errors as one, for callers that take a single [`SceneError`]: the first, its message
+/// followed by the others, each on a line of its own in the same `file:line: <Element>: message`
+/// form. `None` when there are none.
+pub fn join_errors(mut errors: Vec<SceneError>) -> Option<SceneError> {
+    if errors.is_empty() {
+        return None;
+    }
+    let rest = errors.split_off(1);
+    let mut first = errors.pop().expect("one is left");
+    for e in rest {
+        first.message.push_str(&format!("\n{e}"));
+    }
+    Some(first)
+}
 
 /// Which front end reads a scene text, chosen by content, not by file name.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -39,14 +82,36 @@ pub fn parse_scene(text: &str, source: &Path) -> Result<SceneRecords, SceneError
     }
 }
 
-/// Parses and builds a scene from text, with assets from `resolver`.
+/// Parses and builds a scene from text, with assets from `resolver`; unsupported elements are
+/// errors ([`LoadOptions::STRICT`]).
 pub fn load_scene_str(text: &str, source: &Path, resolver: &dyn AssetResolver) -> Result<Scene, SceneError> {
+    load_scene_str_with(text, source, resolver, LoadOptions::STRICT)
+}
+
+/// [`load_scene_str`] with options. Unsupported elements the parser finds are refused before
+/// any asset is read; those only the build finds (an object's texture too many), after it.
+pub fn load_scene_str_with(
+    text: &str,
+    source: &Path,
+    resolver: &dyn AssetResolver,
+    options: LoadOptions,
+) -> Result<Scene, SceneError> {
+    let refuse = |errors: Vec<SceneError>| join_errors(errors).expect("check errs with some");
     let rec = parse_scene(text, source)?;
-    build_scene(&rec, resolver)
+    options.check(&rec.warnings).map_err(refuse)?;
+    let scene = build_scene(&rec, resolver)?;
+    options.check(&scene.warnings).map_err(refuse)?;
+    Ok(scene)
 }
 
 /// Reads, parses and builds the scene file at `path`; assets resolve relative to its directory.
+/// Unsupported elements are errors ([`LoadOptions::STRICT`]).
 pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
+    load_scene_file_with(path, LoadOptions::STRICT)
+}
+
+/// [`load_scene_file`] with options.
+pub fn load_scene_file_with(path: &Path, options: LoadOptions) -> Result<Scene, SceneError> {
     let bytes = std::fs::read(path)
         .map_err(|e| SceneError::file(path, format!("cannot read the scene file: {e}")))?;
     let text = String::from_utf8(bytes).map_err(|e| {
@@ -58,5 +123,5 @@ pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
             ),
         )
     })?;
-    load_scene_str(&text, path, &FsResolver::for_scene(path))
+    load_scene_str_with(&text, path, &FsResolver::for_scene(path), options)
 }
