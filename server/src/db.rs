@@ -913,6 +913,42 @@ mod tests {
         .unwrap()
     }
 
+    #[test]
+    fn an_older_database_gains_allow_unsupported_and_its_jobs_keep_rendering_as_accepted() {
+        let dir = tessera_testkit::TempDir::new("db-migrate");
+        let path = dir.path().join("tessera.db");
+        {
+            // The jobs table before the column, with a job accepted then.
+            let conn = Connection::open(&path).unwrap();
+            conn.execute_batch(&SCHEMA.replace(",\n    allow_unsupported INTEGER NOT NULL DEFAULT 0", ""))
+                .unwrap();
+            conn.execute(
+                "INSERT INTO jobs(name, state, priority, tile_size, bundle, scene_path, submitted_at) VALUES ('old', 'queued', 0, 1, 'b', 's.xml', 0)",
+                [],
+            )
+            .unwrap();
+            conn.execute(
+                "INSERT INTO frames(job_id, idx, camera, image_name, width, height, tiles_total) VALUES (1, 0, 0, 'o.png', 1, 1, 1)",
+                [],
+            )
+            .unwrap();
+            conn.execute(
+                "INSERT INTO tiles(job_id, frame, tile, x0, y0, w, h, state) VALUES (1, 0, 0, 0, 0, 1, 1, 'queued')",
+                [],
+            )
+            .unwrap();
+        }
+        let s = Store::open(&path).unwrap();
+        let new = job(&s, -1, 1);
+        let w = worker(&s);
+        let old = lease(&s, w);
+        assert_eq!((old.job_id, old.allow_unsupported), (1, true));
+        let fresh = lease(&s, w);
+        assert_eq!((fresh.job_id, fresh.allow_unsupported), (new, false));
+        drop(s);
+        Store::open(&path).unwrap();
+    }
+
     fn worker(s: &Store) -> u64 {
         s.register_worker("w", 1).unwrap()
     }
