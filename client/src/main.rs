@@ -96,6 +96,10 @@ enum Command {
         /// A name for the job [default: the scene's file name].
         #[arg(long, value_name = "NAME")]
         name: Option<String>,
+        /// Render even if the scene uses elements Tessera does not implement and whose absence
+        /// changes the picture (the server refuses such a scene otherwise, naming each element).
+        #[arg(long)]
+        allow_unsupported: bool,
         /// Follow the job until it ends and download its outputs into --out.
         #[arg(long, short)]
         wait: bool,
@@ -197,13 +201,14 @@ fn run(cli: Cli) -> Result<ExitCode> {
             tile_size,
             cameras,
             name,
+            allow_unsupported,
             wait,
             out,
             float_exr,
             dry_run,
             quiet,
         } => {
-            let opts = SubmitOptions { priority, samples, tile_size, cameras, name, quiet };
+            let opts = SubmitOptions { priority, samples, tile_size, cameras, name, allow_unsupported, quiet };
             // Everything local first: a scene that cannot be packed never reaches the network.
             let bundle = pack::pack(&scene)?;
             if bundle.cameras.is_empty() {
@@ -276,6 +281,7 @@ struct SubmitOptions {
     tile_size: Option<u32>,
     cameras: Option<String>,
     name: Option<String>,
+    allow_unsupported: bool,
     quiet: bool,
 }
 
@@ -347,6 +353,9 @@ fn submit(
     }
     if let Some(c) = cameras {
         fields.push(("cameras", c));
+    }
+    if opts.allow_unsupported {
+        fields.push(("allow_unsupported", "true".to_string()));
     }
     let (content_type, head, tail) = api::multipart_frame(&fields, "bundle", "bundle.tar.gz");
     let length = (head.len() + tar.len() + tail.len()) as u64;

@@ -20,7 +20,7 @@ use crate::camera::Camera;
 use crate::error::SceneError;
 use crate::scene::Scene;
 use crate::scene::build::{build_cameras, build_scene};
-use crate::scene::load::parse_scene;
+use crate::scene::load::{LoadOptions, parse_scene};
 use crate::scene::records::SceneRecords;
 
 /// A bundle's files by normalised path, shared (what a [`MemResolver`] reads).
@@ -91,12 +91,19 @@ pub enum BundleSceneError {
     /// The scene text cannot be parsed or built: file, line and element.
     #[error("{0}")]
     Invalid(SceneError),
+    /// The scene uses elements that change the picture but are not implemented, and they were
+    /// not allowed ([`LoadOptions::allow_unsupported`]): every one of them, in file order, each
+    /// with its file, line and element. Never empty.
+    #[error("{}", .0.iter().map(ToString::to_string).collect::<Vec<_>>().join("\n"))]
+    Unsupported(Vec<SceneError>),
 }
 
 impl BundleSceneError {
+    /// The error, or the first unsupported element.
     pub fn scene_error(&self) -> &SceneError {
         match self {
             BundleSceneError::Unreadable(e) | BundleSceneError::Invalid(e) => e,
+            BundleSceneError::Unsupported(errors) => &errors[0],
         }
     }
 }
@@ -113,11 +120,19 @@ fn parse_bundle_scene(files: &BundleFiles, scene_path: &str) -> Result<SceneReco
 
 /// Parses and builds the scene at `scene_path` (a normalised path of the bundle), with its
 /// assets from `files`: the farm's one way from a bundle to a [`Scene`] (its warnings in
-/// [`Scene::warnings`]).
-pub fn load_bundle_scene(files: BundleFiles, scene_path: &str) -> Result<Scene, BundleSceneError> {
+/// [`Scene::warnings`]). Unsupported elements are refused as in [`crate::scene::load`] unless
+/// `options` allow them: those the parser finds before any asset is read.
+pub fn load_bundle_scene(
+    files: BundleFiles,
+    scene_path: &str,
+    options: LoadOptions,
+) -> Result<Scene, BundleSceneError> {
     let records = parse_bundle_scene(&files, scene_path)?;
+    options.check(&records.warnings).map_err(BundleSceneError::Unsupported)?;
     let resolver = MemResolver::for_scene(files, scene_path);
-    build_scene(&records, &resolver).map_err(BundleSceneError::Invalid)
+    let scene = build_scene(&records, &resolver).map_err(BundleSceneError::Invalid)?;
+    options.check(&scene.warnings).map_err(BundleSceneError::Unsupported)?;
+    Ok(scene)
 }
 
 /// The cameras of the scene at `scene_path` of `files`, as [`load_bundle_scene`] would build
@@ -164,7 +179,7 @@ property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_he
         assert_eq!(names, ["scenes/a.xml", "scenes/ply/tri.ply"]);
         let cameras = bundle_cameras(&files, "scenes/a.xml").unwrap();
         assert_eq!((cameras.len(), cameras[0].width, cameras[0].height), (1, 4, 3));
-        let scene = load_bundle_scene(files, "scenes/a.xml").unwrap();
+        let scene = load_bundle_scene(files, "scenes/a.xml", LoadOptions::STRICT).unwrap();
         assert_eq!(scene.cameras, cameras);
         assert_eq!(scene.stats.triangles, 1);
     }
@@ -174,7 +189,9 @@ property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_he
         let mut files = BundleFiles::new();
         files.insert("s.xml".into(), Arc::new(SCENE.as_bytes().to_vec()));
         files.insert("bad.xml".into(), Arc::new(b"<Scene>\xff</Scene>".to_vec()));
-        let Err(e) = load_bundle_scene(files.clone(), "s.xml") else { panic!("the PLY is missing") };
+        let Err(e) = load_bundle_scene(files.clone(), "s.xml", LoadOptions::STRICT) else {
+            panic!("the PLY is missing")
+        };
         assert!(matches!(e, BundleSceneError::Invalid(_)), "{e:?}");
         assert!(e.to_string().contains("ply/tri.ply"), "{e}");
         let e = bundle_cameras(&files, "bad.xml").unwrap_err();

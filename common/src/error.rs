@@ -69,6 +69,40 @@ pub struct Warning {
     pub file: PathBuf,
     pub loc: Loc,
     pub message: String,
+    /// An element of the format that Tessera does not implement and whose absence changes the
+    /// picture (a mesh left out, a texture repeated instead of clamped). The loaders refuse a
+    /// scene with any of these unless unsupported elements are allowed
+    /// (`scene::load::LoadOptions`); then it is a warning like the others.
+    pub unsupported: bool,
+}
+
+impl Warning {
+    /// A warning about something that does not change the picture (or that the format itself
+    /// says to ignore).
+    pub fn new(file: impl AsRef<Path>, loc: Loc, message: impl Into<String>) -> Self {
+        Warning { file: file.as_ref().to_path_buf(), loc, message: message.into(), unsupported: false }
+    }
+
+    /// An element Tessera does not implement whose absence changes the picture: `message` says
+    /// what is not supported and what the picture would lack.
+    pub fn unsupported(file: impl AsRef<Path>, loc: Loc, message: impl Into<String>) -> Self {
+        Warning { unsupported: true, ..Warning::new(file, loc, message) }
+    }
+
+    /// This unsupported element as the error it is when unsupported elements are not allowed:
+    /// same file, line and element, and what to do about it.
+    pub fn to_error(&self) -> SceneError {
+        SceneError::new(&self.file, self.loc.clone(), format!("{}; {UNSUPPORTED_HINT}", self.message))
+    }
+}
+
+/// What an unsupported element's error tells the user to do.
+pub const UNSUPPORTED_HINT: &str = "remove it, or allow unsupported elements (tessera-worker render --allow-unsupported, a farm \
+     upload's allow_unsupported=true) to render without it";
+
+/// The unsupported elements among `warnings` (see [`Warning::unsupported`]) as errors, in order.
+pub fn unsupported_errors(warnings: &[Warning]) -> Vec<SceneError> {
+    warnings.iter().filter(|w| w.unsupported).map(Warning::to_error).collect()
 }
 
 impl fmt::Display for Warning {

@@ -96,6 +96,10 @@ pub struct Lease {
     /// stops and reports the tile failed. Absent from older servers: no limit.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_render_seconds: Option<f64>,
+    /// The job was submitted with `allow_unsupported=true`: build its scene without the elements
+    /// Tessera does not implement instead of refusing it. Absent: false.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub allow_unsupported: bool,
 }
 
 /// A long poll for revocations of the leases a worker is rendering.

@@ -31,7 +31,8 @@ CREATE TABLE IF NOT EXISTS jobs(
     submitted_at REAL NOT NULL,
     started_at REAL,
     finished_at REAL,
-    error TEXT
+    error TEXT,
+    allow_unsupported INTEGER NOT NULL DEFAULT 0
 );
 CREATE TABLE IF NOT EXISTS frames(
     job_id INTEGER NOT NULL,
@@ -256,6 +257,8 @@ pub struct NewJob {
     pub frames: Vec<NewFrame>,
     /// The scene's warnings, one `warning` event each in the job's log.
     pub warnings: Vec<String>,
+    /// Render the scene without its unsupported elements (`allow_unsupported=true`).
+    pub allow_unsupported: bool,
 }
 
 pub struct NewFrame {
@@ -395,6 +398,25 @@ fn frame_from_row(r: &rusqlite::Row) -> rusqlite::Result<FrameRow> {
 const FRAME_COLUMNS: &str =
     "job_id, idx, camera, image_name, width, height, tiles_total, tiles_done, outputs";
 
+/// Adds what later versions added to the tables of an older database (CREATE TABLE IF NOT
+/// EXISTS leaves an existing table as it is).
+fn migrate(conn: &Connection) -> Result<()> {
+    let has_column = |table: &str, column: &str| -> Result<bool> {
+        let n: i64 = conn.query_row(
+            "SELECT count(*) FROM pragma_table_info(?1) WHERE name = ?2",
+            params![table, column],
+            |r| r.get(0),
+        )?;
+        Ok(n > 0)
+    };
+    if !has_column("jobs", "allow_unsupported")? {
+        // Jobs accepted before the column existed were accepted with their unsupported elements
+        // (older servers only warned about them): they keep rendering that way.
+        conn.execute("ALTER TABLE jobs ADD COLUMN allow_unsupported INTEGER NOT NULL DEFAULT 1", [])?;
+    }
+    Ok(())
+}
+
 impl Store {
     /// Opens (creating if needed) the database at `path`, and returns every tile that was
     /// leased when the server stopped to the queue.
@@ -405,6 +427,7 @@ impl Store {
         conn.pragma_update(None, "synchronous", "NORMAL")?;
         conn.busy_timeout(std::time::Duration::from_secs(5))?;
         conn.execute_batch(SCHEMA).context("cannot create the job store's tables")?;
+        migrate(&conn).context("cannot bring the job store's tables up to date")?;
         conn.execute(
             "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE state = 'leased'",
             [],
@@ -428,8 +451,17 @@ impl Store {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         tx.execute(
-            "INSERT INTO jobs(name, state, priority, tile_size, samples, bundle, scene_path, submitted_at) VALUES (?1, 'queued', ?2, ?3, ?4, ?5, ?6, ?7)",
-            params![job.name, job.priority, job.tile_size, job.samples, job.bundle, job.scene_path, now()],
+            "INSERT INTO jobs(name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, allow_unsupported) VALUES (?1, 'queued', ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+            params![
+                job.name,
+                job.priority,
+                job.tile_size,
+                job.samples,
+                job.bundle,
+                job.scene_path,
+                now(),
+                job.allow_unsupported
+            ],
         )?;
         let id = tx.last_insert_rowid();
         for (i, f) in job.frames.iter().enumerate() {
@@ -675,21 +707,21 @@ impl Store {
         // Two indexed steps instead of one join sorted over every queued tile: the live jobs in
         // priority order (a short list), then the first queued tile of each (an index seek on
         // `tiles_queue`), so a lease costs the same behind a million queued tiles as behind ten.
-        let jobs: Vec<(i64, String, String, Option<i64>)> = {
+        let jobs: Vec<(i64, String, String, Option<i64>, bool)> = {
             let mut stmt = tx.prepare_cached(
-                "SELECT j.id, j.bundle, j.scene_path, j.samples FROM jobs j
+                "SELECT j.id, j.bundle, j.scene_path, j.samples, j.allow_unsupported FROM jobs j
                  WHERE j.state IN ('queued', 'running')
                    AND NOT (SELECT count(*) >= ?2 AND max(x.at) > ?3
                             FROM tile_failures x WHERE x.job_id = j.id AND x.worker_id = ?1)
                  ORDER BY j.priority DESC, j.id",
             )?;
             stmt.query_map(params![w, scheduler::WORKER_FAILURES_PER_JOB, recent], |r| {
-                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?))
+                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?))
             })?
             .collect::<rusqlite::Result<_>>()?
         };
         let mut candidate = None;
-        for (job, bundle, scene_path, samples) in jobs {
+        for (job, bundle, scene_path, samples, allow_unsupported) in jobs {
             let tile = tx
                 .prepare_cached(
                     "SELECT t.frame, t.tile, t.x0, t.y0, t.w, t.h, f.camera
@@ -713,11 +745,14 @@ impl Store {
                 })
                 .optional()?;
             if let Some((frame, tile, rect, camera)) = tile {
-                candidate = Some((job, frame, tile, rect, bundle, scene_path, samples, camera));
+                candidate =
+                    Some((job, frame, tile, rect, bundle, scene_path, samples, camera, allow_unsupported));
                 break;
             }
         }
-        let Some((job, frame, tile, rect, bundle, scene_path, samples, camera)) = candidate else {
+        let Some((job, frame, tile, rect, bundle, scene_path, samples, camera, allow_unsupported)) =
+            candidate
+        else {
             tx.execute("UPDATE workers SET last_seen = ?2 WHERE id = ?1", params![w, now()])?;
             tx.commit()?;
             return Ok(None);
@@ -763,6 +798,7 @@ impl Store {
             samples: samples.map(|s| s as u32),
             lease_seconds,
             max_render_seconds: None,
+            allow_unsupported,
         }))
     }
 
@@ -1068,6 +1104,7 @@ mod tests {
             samples: None,
             bundle: "0".repeat(64),
             scene_path: "scene.xml".into(),
+            allow_unsupported: false,
             frames: vec![NewFrame {
                 camera: 0,
                 image_name: "j.png".into(),
@@ -1078,6 +1115,42 @@ mod tests {
             warnings: Vec::new(),
         })
         .unwrap()
+    }
+
+    #[test]
+    fn an_older_database_gains_allow_unsupported_and_its_jobs_keep_rendering_as_accepted() {
+        let dir = tessera_testkit::TempDir::new("db-migrate");
+        let path = dir.path().join("tessera.db");
+        {
+            // The jobs table before the column, with a job accepted then.
+            let conn = Connection::open(&path).unwrap();
+            conn.execute_batch(&SCHEMA.replace(",\n    allow_unsupported INTEGER NOT NULL DEFAULT 0", ""))
+                .unwrap();
+            conn.execute(
+                "INSERT INTO jobs(name, state, priority, tile_size, bundle, scene_path, submitted_at) VALUES ('old', 'queued', 0, 1, 'b', 's.xml', 0)",
+                [],
+            )
+            .unwrap();
+            conn.execute(
+                "INSERT INTO frames(job_id, idx, camera, image_name, width, height, tiles_total) VALUES (1, 0, 0, 'o.png', 1, 1, 1)",
+                [],
+            )
+            .unwrap();
+            conn.execute(
+                "INSERT INTO tiles(job_id, frame, tile, x0, y0, w, h, state) VALUES (1, 0, 0, 0, 0, 1, 1, 'queued')",
+                [],
+            )
+            .unwrap();
+        }
+        let s = Store::open(&path).unwrap();
+        let new = job(&s, -1, 1);
+        let w = worker(&s);
+        let old = lease(&s, w);
+        assert_eq!((old.job_id, old.allow_unsupported), (1, true));
+        let fresh = lease(&s, w);
+        assert_eq!((fresh.job_id, fresh.allow_unsupported), (new, false));
+        drop(s);
+        Store::open(&path).unwrap();
     }
 
     fn worker(s: &Store) -> u64 {
@@ -1367,6 +1440,7 @@ mod tests {
                     tiles: vec![Rect { x0: 0, y0: 0, width: 1, height: 1 }],
                 }],
                 warnings,
+                allow_unsupported: false,
             })
             .unwrap();
         let w = worker(&s);

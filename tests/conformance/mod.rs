@@ -9,7 +9,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use tessera::render::{RenderSettings, render_camera};
-use tessera::scene::load::load_scene_file;
+use tessera::scene::load::{LoadOptions, load_scene_file_with};
 use tessera_testkit::rgb8::{Comparison, Rgb8, compare};
 
 /// One row of the table.
@@ -126,7 +126,10 @@ impl RowResult {
 }
 
 fn render_one(row: &Row, out_dir: &Path) -> Result<Comparison> {
-    let scene = load_scene_file(&row.scene_path()).map_err(|e| anyhow::anyhow!("{e}"))?;
+    // A row whose note says `--allow-unsupported` renders its scene without the unsupported
+    // elements the note names (as `tessera-worker render --allow-unsupported` would).
+    let options = LoadOptions { allow_unsupported: row.note.contains("--allow-unsupported") };
+    let scene = load_scene_file_with(&row.scene_path(), options).map_err(|e| anyhow::anyhow!("{e}"))?;
     let cam = scene
         .cameras
         .iter()

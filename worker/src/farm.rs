@@ -36,11 +36,12 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
 use rayon::prelude::*;
-use tessera::bundle::{load_bundle_scene, read_tar};
+use tessera::bundle::{BundleSceneError, load_bundle_scene, read_tar};
 use tessera::image::TileRect;
 use tessera::protocol::*;
 use tessera::render::{RenderSettings, Stop, Stopped, render_tile_until};
 use tessera::scene::Scene;
+use tessera::scene::load::LoadOptions;
 
 /// What `work` was told.
 pub struct WorkOptions {
@@ -481,11 +482,17 @@ fn render_lease(
     if cancel.load(Ordering::SeqCst) {
         return Ok(None);
     }
+    // As the server validated the job: unsupported elements only if its submission allowed them.
+    let options = LoadOptions { allow_unsupported: lease.allow_unsupported };
     let key = (lease.bundle.clone(), lease.scene_path.clone());
     let scene = match scenes.get(&key) {
-        Some(s) => s.clone(),
+        Some(s) => {
+            // Built for another job of the same bundle, which may have allowed what this one does not.
+            options.check(&s.warnings).map_err(BundleSceneError::Unsupported)?;
+            s.clone()
+        }
         None => {
-            let s = Arc::new(fetch_bundle_scene(client, &lease.bundle, &lease.scene_path)?);
+            let s = Arc::new(fetch_bundle_scene(client, &lease.bundle, &lease.scene_path, options)?);
             // Keep a few scenes; jobs rarely interleave more.
             if scenes.len() >= 4 {
                 scenes.clear();
@@ -552,7 +559,12 @@ impl std::error::Error for OutOfTime {}
 
 /// Fetches the bundle `bundle` and builds its scene `scene_path` (the server's validation built
 /// it the same way).
-fn fetch_bundle_scene(client: &Client, bundle: &str, scene_path: &str) -> Result<Scene> {
+fn fetch_bundle_scene(
+    client: &Client,
+    bundle: &str,
+    scene_path: &str,
+    options: LoadOptions,
+) -> Result<Scene> {
     let resp = client
         .agent
         .get(&client.url(&format!("/api/v1/worker/bundles/{bundle}")))
@@ -562,7 +574,7 @@ fn fetch_bundle_scene(client: &Client, bundle: &str, scene_path: &str) -> Result
     let mut tar = Vec::new();
     resp.into_reader().read_to_end(&mut tar).context("downloading the bundle")?;
     let files = read_tar(&tar).context("reading the bundle")?;
-    Ok(load_bundle_scene(files, scene_path)?)
+    Ok(load_bundle_scene(files, scene_path, options)?)
 }
 
 /// Uploads a tile, retrying transport errors; a 409 means the lease is gone: drop the tile.

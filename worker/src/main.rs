@@ -18,7 +18,7 @@ use tessera::hdr_io::{read_float_image, write_png_rgb8};
 use tessera::output;
 use tessera::render::{RenderSettings, render_camera};
 use tessera::scene::build::build_scene;
-use tessera::scene::load::parse_scene;
+use tessera::scene::load::{LoadOptions, parse_scene};
 use tessera::scene::records::EnvSampler;
 use tessera::tonemap::params::{Gamma, Operator, Photographic};
 use tessera::tonemap::tonemap_with;
@@ -45,7 +45,9 @@ enum Command {
     /// tone-mapped with the camera's <Tonemap> (photographic, key 0.18, burn 1 %, gamma 2.2 when
     /// it has none); .hdr the same with Radiance RGBE. Assets (PLY files, images) are found
     /// relative to the scene file. Warnings about the scene go to stderr; a summary line per
-    /// camera goes to stdout.
+    /// camera goes to stdout. A scene that uses elements Tessera does not implement and that
+    /// would change the picture (binary faces, 0-based indices, a clamped texture, ...) is
+    /// refused, every such element named with its line, unless --allow-unsupported.
     ///
     /// Example: tessera-worker render scenes/cornell_box.xml --out out/
     Render {
@@ -77,6 +79,11 @@ enum Command {
         /// Do not draw a progress bar.
         #[arg(long, short)]
         quiet: bool,
+        /// Render a scene that uses elements Tessera does not implement although they change the
+        /// picture (each one is then a warning, and the image is rendered without it). Without
+        /// this option such a scene is an error that names every one of them.
+        #[arg(long)]
+        allow_unsupported: bool,
     },
     /// Pull tiles from a tessera-server and render them, until stopped.
     ///
@@ -193,9 +200,20 @@ impl From<EnvSampling> for EnvSampler {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Render { scene, out, threads, camera, tile_size, samples, env_sampling, quiet } => {
+        Command::Render {
+            scene,
+            out,
+            threads,
+            camera,
+            tile_size,
+            samples,
+            env_sampling,
+            quiet,
+            allow_unsupported,
+        } => {
             let env_sampling = env_sampling.map(EnvSampling::into);
-            render(&scene, &out, &Options { threads, camera, tile_size, samples, env_sampling, quiet })
+            let load = LoadOptions { allow_unsupported };
+            render(&scene, &out, &Options { threads, camera, tile_size, samples, env_sampling, quiet, load })
         }
         Command::Work { server, token, name, threads, max_tiles, exit_with_parent } => {
             if exit_with_parent {
@@ -237,10 +255,30 @@ struct Options {
     samples: Option<u32>,
     env_sampling: Option<EnvSampler>,
     quiet: bool,
+    load: LoadOptions,
+}
+
+/// Prints `warnings` (unsupported elements too when they are allowed), then refuses the scene
+/// if it has unsupported elements that are not: each one is printed as an error with its line.
+fn report_warnings(scene_path: &Path, warnings: &[tessera::Warning], load: LoadOptions) -> Result<()> {
+    for w in warnings.iter().filter(|w| load.allow_unsupported || !w.unsupported) {
+        eprintln!("{w}");
+    }
+    if let Err(errors) = load.check(warnings) {
+        for e in &errors {
+            eprintln!("error: {e}");
+        }
+        bail!(
+            "{}: {} element(s) that change the picture are not supported (listed above); nothing was rendered",
+            scene_path.display(),
+            errors.len()
+        );
+    }
+    Ok(())
 }
 
 fn render(scene_path: &Path, out: &Path, opts: &Options) -> Result<()> {
-    let &Options { threads, camera, tile_size, samples, env_sampling, quiet } = opts;
+    let &Options { threads, camera, tile_size, samples, env_sampling, quiet, load } = opts;
     if samples == Some(0) {
         bail!("--samples must be at least 1");
     }
@@ -261,13 +299,10 @@ fn render(scene_path: &Path, out: &Path, opts: &Options) -> Result<()> {
         let text = std::fs::read_to_string(scene_path)
             .map_err(|e| anyhow::anyhow!("{}: cannot read the scene file: {e}", scene_path.display()))?;
         let records = parse_scene(&text, scene_path)?;
-        for w in &records.warnings {
-            eprintln!("{w}");
-        }
+        // Unsupported elements the parser finds are refused before any asset is read.
+        report_warnings(scene_path, &records.warnings, load)?;
         let scene = build_scene(&records, &FsResolver::for_scene(scene_path))?;
-        for w in &scene.warnings[records.warnings.len()..] {
-            eprintln!("{w}");
-        }
+        report_warnings(scene_path, &scene.warnings[records.warnings.len()..], load)?;
         eprintln!(
             "loaded {} in {:.2} s: {} triangles, {} objects, {} camera(s)",
             scene_path.display(),

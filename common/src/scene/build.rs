@@ -59,7 +59,13 @@ impl Ctx<'_> {
     /// The one way every step reports a warning about the scene: at `loc` of the scene file.
     /// ([`build_scene`] puts them all in the words of the scene's dialect at the end.)
     fn warn(&self, warnings: &mut Vec<Warning>, loc: &Loc, message: impl Into<String>) {
-        warnings.push(Warning { file: self.rec.source.clone(), loc: loc.clone(), message: message.into() });
+        warnings.push(Warning::new(&self.rec.source, loc.clone(), message));
+    }
+
+    /// The same for something the scene asks for that is not implemented and whose absence
+    /// changes the picture ([`Warning::unsupported`]: the loaders refuse it unless allowed).
+    fn unsupported(&self, warnings: &mut Vec<Warning>, loc: &Loc, message: impl Into<String>) {
+        warnings.push(Warning::unsupported(&self.rec.source, loc.clone(), message));
     }
 
     fn material(&self, ids: &HashMap<&str, u32>, id: &str, loc: &Loc) -> Result<u32, SceneError> {
@@ -417,9 +423,7 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
         })?;
         want(img, format!("environment light {}", l.id).trim_end().to_string());
     }
-    for l in rec.env_lights.iter().skip(1) {
-        ctx.warn(warnings, &l.loc, "only one environment light is supported; this one is ignored");
-    }
+    // Environment lights after the first are reported by the parser (unsupported).
     let decoded: Vec<Result<(String, Arc<TextureImage>), SceneError>> = wanted
         .par_iter()
         .map(|(img, user)| {
@@ -545,7 +549,14 @@ impl BuiltTextures<'_> {
             };
             match slot {
                 Some(slot) => *slot = Some(k),
-                None => ctx.warn(warnings, loc, format!("texture {id}: an object takes one normal map and two colour maps; this one is ignored")),
+                None => ctx.unsupported(
+                    warnings,
+                    loc,
+                    format!(
+                        "texture {id} is one texture too many: an object takes one normal map and two \
+                         colour maps (§11.1); without it, the object has the first ones"
+                    ),
+                ),
             }
         }
         Ok(t)

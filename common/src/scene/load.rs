@@ -1,7 +1,9 @@
 //! Loading a scene: text or a file, through the front end its content picks, to a [`Scene`].
 //!
 //! [`parse_scene`] picks the front end ([`detect_format`]); [`load_scene_str`] and
-//! [`load_scene_file`] parse and then [`build_scene`].
+//! [`load_scene_file`] parse and then [`build_scene`], and refuse a scene with elements that
+//! change the picture but are not implemented ([`Warning::unsupported`]) unless
+//! [`LoadOptions::allow_unsupported`] (the `_with` forms take the options).
 
 use std::path::Path;
 
@@ -10,7 +12,48 @@ use super::build::build_scene;
 use super::records::SceneRecords;
 use super::{json, xml};
 use crate::assets::{AssetResolver, FsResolver};
-use crate::error::SceneError;
+use crate::error::{SceneError, Warning, unsupported_errors};
+
+/// How strictly a scene is loaded.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LoadOptions {
+    /// Render a scene that uses elements Tessera does not implement and whose absence changes the
+    /// picture (each one is then a warning). Off by default: such a scene is refused, naming
+    /// every such element, so that no picture is silently wrong.
+    pub allow_unsupported: bool,
+}
+
+impl LoadOptions {
+    /// Unsupported elements are errors (the default).
+    pub const STRICT: LoadOptions = LoadOptions { allow_unsupported: false };
+    /// Unsupported elements are warnings, and the scene is rendered without them.
+    pub const ALLOW_UNSUPPORTED: LoadOptions = LoadOptions { allow_unsupported: true };
+
+    /// `Err` with every unsupported element among `warnings`, in order, unless they are
+    /// allowed or there are none.
+    pub fn check(&self, warnings: &[Warning]) -> Result<(), Vec<SceneError>> {
+        if self.allow_unsupported {
+            return Ok(());
+        }
+        let errors = unsupported_errors(warnings);
+        if errors.is_empty() { Ok(()) } else { Err(errors) }
+    }
+}
+
+/// Several errors as one, for callers that take a single [`SceneError`]: the first, its message
+/// followed by the others, each on a line of its own in the same `file:line: <Element>: message`
+/// form. `None` when there are none.
+pub fn join_errors(mut errors: Vec<SceneError>) -> Option<SceneError> {
+    if errors.is_empty() {
+        return None;
+    }
+    let rest = errors.split_off(1);
+    let mut first = errors.pop().expect("one is left");
+    for e in rest {
+        first.message.push_str(&format!("\n{e}"));
+    }
+    Some(first)
+}
 
 /// Which front end reads a scene text, chosen by content, not by file name.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -39,14 +82,36 @@ pub fn parse_scene(text: &str, source: &Path) -> Result<SceneRecords, SceneError
     }
 }
 
-/// Parses and builds a scene from text, with assets from `resolver`.
+/// Parses and builds a scene from text, with assets from `resolver`; unsupported elements are
+/// errors ([`LoadOptions::STRICT`]).
 pub fn load_scene_str(text: &str, source: &Path, resolver: &dyn AssetResolver) -> Result<Scene, SceneError> {
+    load_scene_str_with(text, source, resolver, LoadOptions::STRICT)
+}
+
+/// [`load_scene_str`] with options. Unsupported elements the parser finds are refused before
+/// any asset is read; those only the build finds (an object's texture too many), after it.
+pub fn load_scene_str_with(
+    text: &str,
+    source: &Path,
+    resolver: &dyn AssetResolver,
+    options: LoadOptions,
+) -> Result<Scene, SceneError> {
+    let refuse = |errors: Vec<SceneError>| join_errors(errors).expect("check errs with some");
     let rec = parse_scene(text, source)?;
-    build_scene(&rec, resolver)
+    options.check(&rec.warnings).map_err(refuse)?;
+    let scene = build_scene(&rec, resolver)?;
+    options.check(&scene.warnings).map_err(refuse)?;
+    Ok(scene)
 }
 
 /// Reads, parses and builds the scene file at `path`; assets resolve relative to its directory.
+/// Unsupported elements are errors ([`LoadOptions::STRICT`]).
 pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
+    load_scene_file_with(path, LoadOptions::STRICT)
+}
+
+/// [`load_scene_file`] with options.
+pub fn load_scene_file_with(path: &Path, options: LoadOptions) -> Result<Scene, SceneError> {
     let bytes = std::fs::read(path)
         .map_err(|e| SceneError::file(path, format!("cannot read the scene file: {e}")))?;
     let text = String::from_utf8(bytes).map_err(|e| {
@@ -58,5 +123,181 @@ pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
             ),
         )
     })?;
-    load_scene_str(&text, path, &FsResolver::for_scene(path))
+    load_scene_str_with(&text, path, &FsResolver::for_scene(path), options)
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::HashMap;
+
+    use super::*;
+    use crate::assets::MemResolver;
+
+    fn camera(id: u32, extra: &str) -> String {
+        format!(
+            "<Cameras><Camera id=\"{id}\"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>\
+             <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>4 3</ImageResolution>\
+             <ImageName>c{id}.png</ImageName>{extra}</Camera></Cameras>"
+        )
+    }
+
+    /// A one-sphere scene with `extra` from line 2 (each extra block on a line of its own).
+    fn scene(extra: &str) -> String {
+        format!(
+            "<Scene>\n{extra}\n{}\n<Materials><Material id=\"1\"><DiffuseReflectance>1 1 1</DiffuseReflectance></Material></Materials>\n\
+             <VertexData>0 0 -2 1 0 -2 0 1 -2</VertexData>\n\
+             <Objects><Sphere id=\"4\"><Material>1</Material><Center>1</Center><Radius>0.5</Radius></Sphere></Objects>\n</Scene>\n",
+            camera(1, "")
+        )
+    }
+
+    fn load(text: &str, options: LoadOptions) -> Result<Scene, SceneError> {
+        let no_assets = MemResolver { files: HashMap::new(), base: String::new() };
+        load_scene_str_with(text, Path::new("s.xml"), &no_assets, options)
+    }
+
+    const TEXTURE_MAPS: &str = "<Textures><TextureMap id=\"c1\" type=\"checkerboard\"><DecalMode>replace_kd</DecalMode></TextureMap>\
+        <TextureMap id=\"c2\" type=\"checkerboard\"><DecalMode>replace_ks</DecalMode></TextureMap>\
+        <TextureMap id=\"c3\" type=\"checkerboard\"><DecalMode>blend_kd</DecalMode></TextureMap></Textures>";
+
+    /// (extra scene text, the element the error names, whether the scene builds without assets
+    /// once allowed).
+    fn unsupported_cases() -> Vec<(String, &'static str, bool)> {
+        vec![
+            ("<ZeroBasedIndexing>true</ZeroBasedIndexing>".into(), "ZeroBasedIndexing", true),
+            (camera(2, "<ClampSamples>5</ClampSamples>"), "Camera id=\"2\"> / <ClampSamples", true),
+            (camera(3, "<Tonemap><TMO>Drago</TMO></Tonemap>"), "Camera id=\"3\"> / <Tonemap> / <TMO", true),
+            ("<TexCoordData binaryFile=\"uv.bin\"/>".into(), "TexCoordData", true),
+            (
+                "<Objects><Mesh id=\"9\"><Material>1</Material><Faces binaryFile=\"f.bin\"/></Mesh></Objects>".into(),
+                "Mesh id=\"9\"> / <Faces",
+                true,
+            ),
+            (
+                "<Objects><Triangle id=\"9\"><Material>1</Material><Indices>1 2 3</Indices><MotionBlur>1 0 0</MotionBlur></Triangle></Objects>"
+                    .into(),
+                "Triangle id=\"9\"> / <MotionBlur",
+                true,
+            ),
+            (
+                "<Objects><Mesh id=\"5\"><Material>1</Material><Faces>1 2 3</Faces></Mesh>\
+                 <MeshInstance id=\"6\" baseMeshId=\"5\"><Textures>c1</Textures></MeshInstance></Objects>"
+                    .into(),
+                "MeshInstance id=\"6\"> / <Textures",
+                true,
+            ),
+            (
+                "<Textures><TextureMap id=\"p\" type=\"perlin\"><DecalMode>replace_kd</DecalMode><NumOctaves>3</NumOctaves></TextureMap></Textures>"
+                    .into(),
+                "TextureMap id=\"p\"> / <NumOctaves",
+                true,
+            ),
+            (
+                "<Textures><Texture id=\"7\"><ImageName>a.png</ImageName><Appearance>clamp</Appearance></Texture></Textures>".into(),
+                "Texture id=\"7\"> / <Appearance",
+                false,
+            ),
+            (
+                "<Textures><Texture id=\"8\"><ImageName>checkerboard</ImageName><Dimension3>false</Dimension3></Texture></Textures>"
+                    .into(),
+                "Texture id=\"8\"> / <Dimension3",
+                true,
+            ),
+            (
+                "<Lights><SphericalDirectionalLight id=\"1\"><ImageId>1</ImageId></SphericalDirectionalLight>\n\
+                 <SphericalDirectionalLight id=\"2\"><ImageId>1</ImageId></SphericalDirectionalLight></Lights>"
+                    .into(),
+                "SphericalDirectionalLight id=\"2\"",
+                false,
+            ),
+            // Found by the build, which sorts an object's maps by their decal mode.
+            (
+                format!(
+                    "{TEXTURE_MAPS}\n<Objects><Sphere id=\"5\"><Material>1</Material><Center>2</Center><Radius>1</Radius>\
+                     <Textures>c1 c2 c3</Textures></Sphere></Objects>"
+                ),
+                "Sphere id=\"5\"",
+                true,
+            ),
+        ]
+    }
+
+    #[test]
+    fn each_unsupported_element_is_an_error_naming_its_line_and_element() {
+        for (extra, element, _) in unsupported_cases() {
+            let text = scene(&extra);
+            let Err(e) = load(&text, LoadOptions::STRICT) else { panic!("loaded strictly:\n{text}") };
+            let line =
+                2 + extra.lines().take_while(|l| !l.contains(element.rsplit('<').next().unwrap())).count();
+            assert_eq!(e.loc.element.as_deref(), Some(element), "{e}");
+            assert_eq!(e.loc.line, Some(line as u32), "{e}");
+            assert!(e.message.contains("not supported") || e.message.contains("too many"), "{e}");
+            assert!(e.message.contains("--allow-unsupported"), "{e}");
+            // The default of load_scene_str is strict too.
+            let no_assets = MemResolver { files: HashMap::new(), base: String::new() };
+            assert_eq!(load_scene_str(&text, Path::new("s.xml"), &no_assets).err(), Some(e));
+        }
+    }
+
+    #[test]
+    fn allowed_unsupported_elements_are_warnings() {
+        for (extra, element, builds) in unsupported_cases() {
+            let text = scene(&extra);
+            let records = parse_scene(&text, Path::new("s.xml")).unwrap();
+            let w: Vec<&Warning> = records.warnings.iter().filter(|w| w.unsupported).collect();
+            if !extra.contains("c1 c2 c3") {
+                assert_eq!(w.len(), 1, "{:?}", records.warnings);
+                assert_eq!(w[0].loc.element.as_deref(), Some(element));
+            }
+            if builds {
+                let scene = load(&text, LoadOptions::ALLOW_UNSUPPORTED).unwrap_or_else(|e| panic!("{e}"));
+                let w: Vec<&Warning> = scene.warnings.iter().filter(|w| w.unsupported).collect();
+                assert_eq!(w.len(), 1, "{:?}", scene.warnings);
+                assert_eq!(w[0].loc.element.as_deref(), Some(element));
+                assert!(w[0].to_string().starts_with("warning: s.xml:"), "{}", w[0]);
+            }
+        }
+    }
+
+    #[test]
+    fn several_unsupported_elements_are_all_named() {
+        let text = scene(&format!(
+            "<ZeroBasedIndexing>true</ZeroBasedIndexing>\n{}\n<TexCoordData binaryFile=\"uv.bin\"/>",
+            camera(2, "<ClampSamples>5</ClampSamples>")
+        ));
+        let records = parse_scene(&text, Path::new("s.xml")).unwrap();
+        let errors = LoadOptions::STRICT.check(&records.warnings).unwrap_err();
+        let lines: Vec<Option<u32>> = errors.iter().map(|e| e.loc.line).collect();
+        assert_eq!(lines, [Some(2), Some(3), Some(4)]);
+        let Err(e) = load(&text, LoadOptions::STRICT) else { panic!("loaded") };
+        let shown = e.to_string();
+        assert_eq!(shown.lines().count(), 3, "{shown}");
+        assert!(shown.starts_with("s.xml:2: <ZeroBasedIndexing>: <ZeroBasedIndexing>"), "{shown}");
+        assert!(shown.contains("\ns.xml:3: <Camera id=\"2\"> / <ClampSamples>: "), "{shown}");
+        assert!(shown.contains("\ns.xml:4: <TexCoordData>: attribute binaryFile"), "{shown}");
+        assert_eq!(LoadOptions::ALLOW_UNSUPPORTED.check(&records.warnings), Ok(()));
+    }
+
+    #[test]
+    fn what_does_not_change_the_picture_stays_a_warning_or_is_accepted() {
+        for (extra, warned) in [
+            // An optimisation hint: not culling is the correct image.
+            ("<BackfaceCulling>true</BackfaceCulling>", true),
+            ("<BackfaceCulling>false</BackfaceCulling>", false),
+            ("<ZeroBasedIndexing>false</ZeroBasedIndexing>", false),
+            (
+                "<Textures><TextureMap id=\"p\" type=\"perlin\"><DecalMode>replace_kd</DecalMode><NumOctaves>1</NumOctaves></TextureMap></Textures>",
+                false,
+            ),
+            (
+                "<Textures><Texture id=\"8\"><ImageName>checkerboard</ImageName><Dimension3>true</Dimension3></Texture></Textures>",
+                false,
+            ),
+            ("<Foo>1</Foo>", true),
+        ] {
+            let scene = load(&scene(extra), LoadOptions::STRICT).unwrap_or_else(|e| panic!("{extra}: {e}"));
+            assert!(scene.warnings.iter().all(|w| !w.unsupported), "{:?}", scene.warnings);
+            assert_eq!(!scene.warnings.is_empty(), warned, "{extra}: {:?}", scene.warnings);
+        }
+    }
 }

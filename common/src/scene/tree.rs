@@ -13,8 +13,9 @@
 //!
 //! Nothing is resolved here: ids stay strings, PLY files are not opened. Elements we do not know
 //! become warnings, elements of the format that are not implemented yet become "not supported
-//! yet" warnings, and everything a user can get wrong is a [`SceneError`] naming the file, the
-//! line and the element. No input makes this module panic.
+//! yet" warnings marked [`Warning::unsupported`] when leaving them out changes the picture (the
+//! loaders refuse those unless allowed), and everything a user can get wrong is a [`SceneError`]
+//! naming the file, the line and the element. No input makes this module panic.
 
 use std::path::Path;
 
@@ -206,16 +207,21 @@ fn expected<T: Token>(n: usize) -> String {
 // Step 2: tree -> records
 // ---------------------------------------------------------------------------------------------
 
+/// An element or attribute of the format that is not implemented, with what the picture lacks
+/// without it ("without it, ..."): [`Parser::check`] reports it as [`Warning::unsupported`].
+type Unsupported = (&'static str, &'static str);
+
 /// What an element may contain, for the unknown / not-supported-yet warnings.
 struct Schema {
     /// Children read by the parser, at most one of each (later copies are warned about).
     single: &'static [&'static str],
     /// Children read by the parser that may repeat (list entries and containers).
     many: &'static [&'static str],
-    /// Children that belong to the format but are not implemented yet.
-    unsupported: &'static [&'static str],
+    /// Children that belong to the format but are not implemented yet; each changes the
+    /// picture (elements that would not are read and warned about where they are read).
+    unsupported: &'static [Unsupported],
     attrs: &'static [&'static str],
-    unsupported_attrs: &'static [&'static str],
+    unsupported_attrs: &'static [Unsupported],
     /// Children that belong to a sibling variant (another kind of texture) and mean nothing
     /// here; warned about with `inapplicable_why` ("does not apply to ...").
     inapplicable: &'static [&'static str],
@@ -235,7 +241,8 @@ impl Schema {
 }
 
 const SCENE: Schema = Schema {
-    // BackgroundTexture, BackfaceCulling and ZeroBasedIndexing are 2019 elements.
+    // BackgroundTexture, BackfaceCulling and ZeroBasedIndexing are 2019 elements, the last two
+    // read by `Parser::legacy_hints`.
     single: &[
         "BackgroundColor",
         "ShadowRayEpsilon",
@@ -244,9 +251,10 @@ const SCENE: Schema = Schema {
         "VertexData",
         "TexCoordData",
         "BackgroundTexture",
+        "BackfaceCulling",
+        "ZeroBasedIndexing",
     ],
     many: &["Cameras", "Lights", "Materials", "Transformations", "Objects", "Textures", "BRDFs"],
-    unsupported: &["BackfaceCulling", "ZeroBasedIndexing"],
     ..Schema::EMPTY
 };
 const CAMERAS: Schema = Schema { many: &["Camera"], ..Schema::EMPTY };
@@ -269,7 +277,11 @@ const CAMERA: Schema = Schema {
         "RendererParams",
     ],
     many: &["Tonemap"],
-    unsupported: &["ClampSamples"],
+    // 2019 path tracing (§4.1: commented out in sponza_path.xml).
+    unsupported: &[(
+        "ClampSamples",
+        "without it, sample values are not clamped and bright outliers (fireflies) stay in the image",
+    )],
     attrs: &["id", "type", "handedness"],
     ..Schema::EMPTY
 };
@@ -370,7 +382,10 @@ const LIGHT_SPHERE: Schema = Schema {
 const TRIANGLE: Schema = Schema {
     single: &["Material", "Indices", "Transformations"],
     many: &["Textures", "Texture"],
-    unsupported: &["MotionBlur"],
+    unsupported: &[(
+        "MotionBlur",
+        "without it, the triangle stands still (meshes, mesh instances, spheres and planes move)",
+    )],
     attrs: &["id"],
     ..Schema::EMPTY
 };
@@ -388,17 +403,23 @@ const PLANE: Schema = Schema {
 };
 const MESH_INSTANCE: Schema = Schema {
     single: &["Material", "Transformations", "MotionBlur"],
-    unsupported: &["Textures", "Texture"],
+    unsupported: &[
+        ("Textures", "without it, the instance has its base mesh's textures"),
+        ("Texture", "without it, the instance has its base mesh's textures"),
+    ],
     attrs: &["id", "baseMeshId", "resetTransform", "shadingMode"],
     ..Schema::EMPTY
 };
 // Also used for `TexCoordData`.
 // `type` is the 2025 JSON `_type` (`xyz`, `uv`), checked by `Parser::data_type`.
 const VERTEX_DATA_ATTRS: &[&str] = &["type"];
-const VERTEX_DATA_UNSUPPORTED_ATTRS: &[&str] = &["binaryFile"];
-// `binaryFile` is known here but handled by `Parser::mesh` (the mesh is skipped).
+const VERTEX_DATA_UNSUPPORTED_ATTRS: &[Unsupported] = &[(
+    "binaryFile",
+    "without it, these values are read from the element's text (2019 binary data is not read)",
+)];
+// `binaryFile` is known here but handled by `Parser::mesh` (the mesh is left out).
 const FACES_ATTRS: &[&str] = &["vertexOffset", "textureOffset", "plyFile", "binaryFile", "type"];
-const FACES_UNSUPPORTED_ATTRS: &[&str] = &[];
+const FACES_UNSUPPORTED_ATTRS: &[Unsupported] = &[];
 
 // --- textures (HW4, scene-format.md §11) ---
 
@@ -422,9 +443,9 @@ const IMAGE_MAP: Schema = Schema {
     ..Schema::EMPTY
 };
 const PERLIN_MAP: Schema = Schema {
-    single: &["DecalMode", "NoiseConversion", "NoiseScale", "BumpFactor"],
-    // 2025 scenes: fractal sum of octaves.
-    unsupported: &["NumOctaves"],
+    // `NumOctaves` (2025: a fractal sum of octaves) is read by `Parser::num_octaves`: only 1 is
+    // supported.
+    single: &["DecalMode", "NoiseConversion", "NoiseScale", "BumpFactor", "NumOctaves"],
     attrs: TEXTURE_MAP_ATTRS,
     inapplicable: &["ImageId", "Interpolation", "Normalizer", "BlackColor", "WhiteColor", "Scale", "Offset"],
     inapplicable_why: "does not apply to perlin texture maps",
@@ -453,7 +474,8 @@ const LEGACY_PERLIN_TEXTURE: Schema = Schema {
     inapplicable_why: "does not apply to perlin textures",
     ..Schema::EMPTY
 };
-// `Dimension3` is accepted and ignored: the 2020 checkerboard is always 3-D.
+// `Dimension3` is read by `Parser::legacy_texture`: the 2020 checkerboard is always 3-D, so
+// only `true` is supported.
 const LEGACY_CHECKERBOARD_TEXTURE: Schema = Schema {
     single: &[
         "ImageName",
@@ -541,7 +563,15 @@ impl Parser<'_> {
 
     fn warn(&mut self, node: &Node, message: impl Into<String>) {
         let message = self.say(message.into());
-        self.out.warnings.push(Warning { file: self.file.to_path_buf(), loc: node.loc(), message });
+        self.out.warnings.push(Warning::new(self.file, node.loc(), message));
+    }
+
+    /// Something of the format that is not implemented and whose absence changes the picture:
+    /// `message` says what and, after "without it, ", what the picture lacks. The loaders refuse
+    /// the scene unless unsupported elements are allowed ([`Warning::unsupported`]).
+    fn unsupported(&mut self, node: &Node, message: impl Into<String>) {
+        let message = self.say(message.into());
+        self.out.warnings.push(Warning::unsupported(self.file, node.loc(), message));
     }
 
     /// A message in the words of the file's dialect (see [`json_words`]).
@@ -566,8 +596,8 @@ impl Parser<'_> {
                 for grandchild in &child.children {
                     self.warn(grandchild, format!("unknown element <{}>; it is ignored", grandchild.name));
                 }
-            } else if schema.unsupported.contains(&name) {
-                self.warn(child, format!("<{name}> is not supported yet; it is ignored"));
+            } else if let Some((_, without)) = schema.unsupported.iter().find(|(n, _)| *n == name) {
+                self.unsupported(child, format!("<{name}> is not supported yet; {without}"));
             } else if schema.inapplicable.contains(&name) {
                 self.warn(child, format!("<{name}> {}; it is ignored", schema.inapplicable_why));
             } else if !schema.many.contains(&name) {
@@ -576,10 +606,10 @@ impl Parser<'_> {
         }
     }
 
-    fn check_attrs(&mut self, node: &Node, known: &[&str], unsupported: &[&str]) {
+    fn check_attrs(&mut self, node: &Node, known: &[&str], unsupported: &[Unsupported]) {
         for (key, _) in &node.attrs {
-            if unsupported.contains(&key.as_str()) {
-                self.warn(node, format!("attribute {key} is not supported yet; it is ignored"));
+            if let Some((_, without)) = unsupported.iter().find(|(k, _)| k == key) {
+                self.unsupported(node, format!("attribute {key} is not supported yet; {without}"));
             } else if !known.contains(&key.as_str()) {
                 self.warn(node, format!("unknown attribute {key}; it is ignored"));
             }
@@ -784,6 +814,7 @@ impl Parser<'_> {
 
     fn scene(&mut self, scene: &Node) -> Result<()> {
         self.check(scene, &SCENE);
+        self.legacy_hints(scene);
         if let Some(c) = self.optional_numbers(scene, "BackgroundColor")? {
             self.out.background_color = c;
         }
@@ -858,6 +889,31 @@ impl Parser<'_> {
             }
         }
         Ok(())
+    }
+
+    /// The 2019 scene-level `<BackfaceCulling>` and `<ZeroBasedIndexing>` (§3). Culling is an
+    /// optimisation hint that never changes the correct image, so not culling is only worth a
+    /// warning; 0-based vertex ids are not supported, and reading them 1-based moves every face.
+    /// `false` is what Tessera does anyway: accepted without a word.
+    fn legacy_hints(&mut self, scene: &Node) {
+        if let Some(b) = scene.child("BackfaceCulling")
+            && b.text.trim() != "false"
+        {
+            self.warn(
+                b,
+                "<BackfaceCulling> is an optimisation hint that Tessera does not take: it never culls, \
+                 which gives the correct image (§3); it is ignored",
+            );
+        }
+        if let Some(z) = scene.child("ZeroBasedIndexing")
+            && z.text.trim() != "false"
+        {
+            self.unsupported(
+                z,
+                "<ZeroBasedIndexing> (0-based vertex ids) is not supported yet; without it, every vertex id \
+                 is read 1-based and the faces join the wrong vertices",
+            );
+        }
     }
 
     fn camera(&mut self, n: &Node) -> Result<CameraRec> {
@@ -1065,10 +1121,11 @@ impl Parser<'_> {
         if let Some(t) = n.child("TMO") {
             match t.text.parse::<Operator>() {
                 Ok(op) => operator = op,
-                Err(_) => self.warn(
+                Err(_) => self.unsupported(
                     t,
                     format!(
-                        "tone-mapping operator {} is not supported (Photographic, Filmic or ACES); the photographic operator is used",
+                        "tone-mapping operator {} is not supported (Photographic, Filmic or ACES); without it, \
+                         the photographic operator is used",
                         quoted(t.text.trim())
                     ),
                 ),
@@ -1182,6 +1239,13 @@ impl Parser<'_> {
         }
         for n in lights.children_named("SphericalDirectionalLight") {
             self.check(n, &ENV_LIGHT);
+            if !self.out.env_lights.is_empty() {
+                self.unsupported(
+                    n,
+                    "a second environment light is not supported; without it, only the first \
+                     <SphericalDirectionalLight> lights the scene and is seen behind it",
+                );
+            }
             let id = self.id(n, false)?;
             let image = match (n.child("ImageId"), n.child("EnvMapName")) {
                 (Some(i), _) => self.id_ref(i, "an image id")?,
@@ -1412,12 +1476,15 @@ impl Parser<'_> {
                     normalizer: self.normalizer(n)?.unwrap_or(255.0),
                 }
             }
-            MapKind::Perlin => TextureSource::Perlin {
-                conversion: self
-                    .optional_keyword(n, "NoiseConversion", NOISE_CONVERSIONS)?
-                    .unwrap_or(NoiseConversion::Linear),
-                scale: self.optional_number(n, "NoiseScale")?.unwrap_or(1.0),
-            },
+            MapKind::Perlin => {
+                self.num_octaves(n);
+                TextureSource::Perlin {
+                    conversion: self
+                        .optional_keyword(n, "NoiseConversion", NOISE_CONVERSIONS)?
+                        .unwrap_or(NoiseConversion::Linear),
+                    scale: self.optional_number(n, "NoiseScale")?.unwrap_or(1.0),
+                }
+            }
             MapKind::Checkerboard => TextureSource::Checkerboard {
                 black: self.optional_numbers(n, "BlackColor")?.unwrap_or([0.0; 3]),
                 white: self.optional_numbers(n, "WhiteColor")?.unwrap_or([1.0; 3]),
@@ -1433,6 +1500,23 @@ impl Parser<'_> {
             bump_factor: self.optional_number(n, "BumpFactor")?.unwrap_or(1.0),
             degamma: self.bool_attr(n, "degamma")?.unwrap_or(false),
         })
+    }
+
+    /// A perlin map's `<NumOctaves>` (2025, §11.9: a fractal sum of octaves): one octave is
+    /// what Tessera renders, so only 1 is supported.
+    fn num_octaves(&mut self, n: &Node) {
+        if let Some(o) = n.child("NumOctaves")
+            && o.text.trim() != "1"
+        {
+            self.unsupported(
+                o,
+                format!(
+                    "<NumOctaves> {} (a fractal sum of noise octaves) is not supported yet; without it, \
+                     the noise has one octave",
+                    quoted(&o.text)
+                ),
+            );
+        }
     }
 
     /// A 2019 `<Texture>` (scene-format.md §11.11), translated into one texture map, or two
@@ -1462,9 +1546,10 @@ impl Parser<'_> {
                 if let Some(a) = n.child("Appearance")
                     && self.keyword(a, LEGACY_IMAGE_APPEARANCES)?
                 {
-                    self.warn(
+                    self.unsupported(
                         a,
-                        "<Appearance>clamp</Appearance> is not supported yet; the texture is repeated instead",
+                        "<Appearance>clamp</Appearance> is not supported yet; without it, the texture \
+                         repeats past its edges instead of stretching its border texels",
                     );
                 }
                 let image = format!("2019:{id}");
@@ -1491,6 +1576,18 @@ impl Parser<'_> {
             }
             MapKind::Checkerboard => {
                 self.legacy_unused_normalizer(n, "checkerboard")?;
+                if let Some(d) = n.child("Dimension3")
+                    && d.text.trim() != "true"
+                {
+                    self.unsupported(
+                        d,
+                        format!(
+                            "<Dimension3> {} (a checkerboard that is not 3-D) is not supported yet; \
+                             without it, the checkerboard is 3-D",
+                            quoted(&d.text)
+                        ),
+                    );
+                }
                 TextureSource::Checkerboard {
                     black: self.optional_numbers(n, "BlackColor")?.unwrap_or([0.0; 3]),
                     white: self.optional_numbers(n, "WhiteColor")?.unwrap_or([1.0; 3]),
@@ -1653,7 +1750,8 @@ impl Parser<'_> {
             .collect()
     }
 
-    /// `None` when the mesh cannot be read yet (2019 binary faces); a warning says so.
+    /// `None` when the mesh cannot be read yet (2019 binary faces); an unsupported-element
+    /// warning says so.
     fn mesh(&mut self, n: &Node) -> Result<Option<MeshRec>> {
         let light = n.name == "LightMesh";
         self.check(n, if light { &LIGHT_MESH } else { &MESH });
@@ -1667,9 +1765,10 @@ impl Parser<'_> {
                 path => FacesRec::Ply { path: path.to_string() },
             }
         } else if faces.attr("binaryFile").is_some() {
-            self.warn(
+            self.unsupported(
                 faces,
-                "<Faces binaryFile> (2019 binary faces) is not supported yet; the mesh is ignored",
+                "<Faces binaryFile> (2019 binary faces) is not supported yet; without it, the mesh is \
+                 left out of the picture",
             );
             return Ok(None);
         } else {

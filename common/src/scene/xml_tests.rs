@@ -810,6 +810,9 @@ fn entities_and_cdata_are_text() {
     assert_eq!((c.width, c.height, c.image_name.as_str()), (2, 1, "a&b.png"));
 }
 
+const BINARY_DATA: &str =
+    "without it, these values are read from the element's text (2019 binary data is not read)";
+
 #[test]
 fn unknown_and_unsupported_elements_are_warnings() {
     let w = |line: u32, element: &str, message: &str| {
@@ -828,7 +831,7 @@ fn unknown_and_unsupported_elements_are_warnings() {
                 &w(
                     6,
                     r#"MeshInstance id="2"> / <Textures"#,
-                    "<Textures> is not supported yet; it is ignored",
+                    "<Textures> is not supported yet; without it, the instance has its base mesh's textures",
                 ),
             ],
         ),
@@ -865,8 +868,8 @@ fn unknown_and_unsupported_elements_are_warnings() {
                 "<VertexData binaryFile=\"geometry/vertices.bin\"/>\n<TexCoordData binaryFile=\"geometry/uvs.bin\"/>",
             ),
             &[
-                &w(2, "VertexData", "attribute binaryFile is not supported yet; it is ignored"),
-                &w(3, "TexCoordData", "attribute binaryFile is not supported yet; it is ignored"),
+                &w(2, "VertexData", &format!("attribute binaryFile is not supported yet; {BINARY_DATA}")),
+                &w(3, "TexCoordData", &format!("attribute binaryFile is not supported yet; {BINARY_DATA}")),
             ],
         ),
         (
@@ -876,7 +879,7 @@ fn unknown_and_unsupported_elements_are_warnings() {
             &[&w(
                 3,
                 r#"Mesh id="1"> / <Faces"#,
-                "<Faces binaryFile> (2019 binary faces) is not supported yet; the mesh is ignored",
+                "<Faces binaryFile> (2019 binary faces) is not supported yet; without it, the mesh is left out of the picture",
             )],
         ),
         (
@@ -900,7 +903,7 @@ fn unknown_and_unsupported_elements_are_warnings() {
                 &w(
                     5,
                     r#"Camera id="1"> / <Tonemap> / <TMO"#,
-                    "tone-mapping operator \"Drago\" is not supported (Photographic, Filmic or ACES); the photographic operator is used",
+                    "tone-mapping operator \"Drago\" is not supported (Photographic, Filmic or ACES); without it, the photographic operator is used",
                 ),
             ],
         ),
@@ -1479,7 +1482,7 @@ fn texture_warnings() {
                 &w(
                     4,
                     r#"TextureMap id="1"> / <NumOctaves"#,
-                    "<NumOctaves> is not supported yet; it is ignored",
+                    "<NumOctaves> \"4\" (a fractal sum of noise octaves) is not supported yet; without it, the noise has one octave",
                 ),
                 &w(
                     5,
@@ -1530,7 +1533,7 @@ fn texture_warnings() {
                 &w(
                     7,
                     r#"Texture id="1"> / <Appearance"#,
-                    "<Appearance>clamp</Appearance> is not supported yet; the texture is repeated instead",
+                    "<Appearance>clamp</Appearance> is not supported yet; without it, the texture repeats past its edges instead of stretching its border texels",
                 ),
                 &w(
                     8,

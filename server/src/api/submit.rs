@@ -10,6 +10,7 @@ use axum::http::StatusCode;
 use tessera::bundle::{BundleFiles, BundleSceneError, load_bundle_scene};
 use tessera::camera::Camera;
 use tessera::protocol::*;
+use tessera::scene::load::LoadOptions;
 
 use super::jobs::job_info;
 use super::{ApiResult, AppError, AppState, Settings};
@@ -53,6 +54,8 @@ struct SubmitOptions {
     samples: Option<u32>,
     cameras: Option<Vec<u32>>,
     scene_path: Option<String>,
+    /// Render the scene without the elements Tessera does not implement instead of refusing it.
+    allow_unsupported: bool,
 }
 
 fn problem_from(e: &tessera::SceneError) -> Problem {
@@ -206,9 +209,20 @@ async fn read_fields(
                 opts.cameras = Some(list);
             }
             "scene_path" => opts.scene_path = Some(text()),
+            "allow_unsupported" => {
+                opts.allow_unsupported = match text().as_str() {
+                    "true" | "1" => true,
+                    "false" | "0" => false,
+                    other => {
+                        return Err(AppError::bad_request(format!(
+                            "allow_unsupported must be true or false, found \"{other}\""
+                        )));
+                    }
+                }
+            }
             other => {
                 return Err(AppError::bad_request(format!(
-                    "unknown field \"{other}\"; send scene, asset (one per file, named by its relative path), bundle, name, priority, tile_size, samples, cameras or scene_path"
+                    "unknown field \"{other}\"; send scene, asset (one per file, named by its relative path), bundle, name, priority, tile_size, samples, cameras, scene_path or allow_unsupported"
                 )));
             }
         }
@@ -259,6 +273,7 @@ pub(super) async fn submit_job(
     let wanted = opts.scene_path.clone().or(scene_field);
     let cameras_wanted = opts.cameras.clone();
     let max_tiles = state.settings.max_job_tiles;
+    let load = LoadOptions { allow_unsupported: opts.allow_unsupported };
     let (scene_path, tar, cameras, frames, warnings) = tokio::task::spawn_blocking(move || {
         let mut unpacker = Unpacker::new(limits);
         for (kind, path, file) in &spool.parts {
@@ -277,7 +292,7 @@ pub(super) async fn submit_job(
         let files = unpacker.files;
         let scene_path = bundle::find_scene(&files, wanted.as_deref()).map_err(AppError::bad_request)?;
         let (tar, cameras, frames, warnings) =
-            validate(files, &scene_path, cameras_wanted, tile_size, max_tiles)?;
+            validate(files, &scene_path, load, cameras_wanted, tile_size, max_tiles)?;
         Ok::<_, AppError>((scene_path, tar, cameras, frames, warnings))
     })
     .await
@@ -294,6 +309,7 @@ pub(super) async fn submit_job(
         scene_path,
         frames,
         warnings: warnings.clone(),
+        allow_unsupported: opts.allow_unsupported,
     };
     let id = state.store.insert_job(&job)?;
     state.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(id, Arc::new(cameras));
@@ -387,13 +403,14 @@ type Validated = (Vec<u8>, Vec<Camera>, Vec<crate::db::NewFrame>, Vec<String>);
 fn validate(
     files: Files,
     scene_path: &str,
+    load: LoadOptions,
     cameras_wanted: Option<Vec<u32>>,
     tile_size: u32,
     max_tiles: u64,
 ) -> ApiResult<Validated> {
     let tar = bundle::canonical_tar(&files);
     let shared: BundleFiles = files.into_iter().map(|(k, v)| (k, Arc::new(v))).collect();
-    let scene = load_bundle_scene(shared, scene_path).map_err(|e| match e {
+    let scene = load_bundle_scene(shared, scene_path, load).map_err(|e| match e {
         // The scene file is not text: said as it is ("<file>: the scene file is not UTF-8 text ...").
         BundleSceneError::Unreadable(e) => AppError::new(StatusCode::UNPROCESSABLE_ENTITY, e.to_string()),
         BundleSceneError::Invalid(e) => AppError {
@@ -401,6 +418,18 @@ fn validate(
             body: ApiError {
                 error: format!("the scene cannot be rendered: {e}"),
                 problems: vec![problem_from(&e)],
+            },
+        },
+        // One problem per element.
+        BundleSceneError::Unsupported(errors) => AppError {
+            status: StatusCode::UNPROCESSABLE_ENTITY,
+            body: ApiError {
+                error: format!(
+                    "{scene_path}: the scene uses {} element(s) that change the picture but are not supported; \
+                     remove them, or submit with allow_unsupported=true to render without them",
+                    errors.len()
+                ),
+                problems: errors.iter().map(problem_from).collect(),
             },
         },
     })?;
