@@ -174,7 +174,6 @@ impl<'a> Tracer<'a> {
             if bounce >= max_bounces {
                 break;
             }
-            self.stats.secondary += 1;
             let wo = -d;
             match mat.kind {
                 MaterialKind::Dielectric => {
@@ -224,6 +223,7 @@ impl<'a> Tracer<'a> {
                     specular = false;
                 }
             }
+            self.stats.secondary += 1;
             bounce += 1;
             if params.russian_roulette {
                 let q = beta.max_element().min(1.0);

@@ -1101,6 +1101,37 @@ mod tests {
         <MeshInstance id="4" baseMeshId="3" resetTransform="true"><Transformations>t2</Transformations></MeshInstance>
       </Objects></Scene>"#;
 
+    /// A material's BRDF must exist; a LightMesh and a LightSphere become object lights with
+    /// their instances' radiance, in file order; a light of no area shows but does not light.
+    #[test]
+    fn brdf_references_and_object_lights() {
+        let err = build(r#"<Scene><Materials><Material id="1" BRDF="9"></Material></Materials></Scene>"#)
+            .err()
+            .expect("an unknown BRDF is an error");
+        assert!(err.to_string().contains(r#"BRDF "9" is not defined"#), "{err}");
+        let scene = build(
+            r#"<Scene><BRDFs><ModifiedPhong id="b"><Exponent>20</Exponent></ModifiedPhong></BRDFs>
+            <Materials><Material id="1" BRDF="b"><PhongExponent>3</PhongExponent></Material></Materials>
+            <VertexData>0 0 0  1 0 0  0 1 0  0 0 0</VertexData>
+            <Objects><Mesh id="1"><Material>1</Material><Faces>1 2 3</Faces></Mesh>
+              <LightMesh id="2"><Material>1</Material><Radiance>2 2 2</Radiance><Faces>1 2 3</Faces></LightMesh>
+              <LightMesh id="3"><Material>1</Material><Radiance>2 2 2</Radiance><Faces>1 1 2</Faces></LightMesh>
+              <LightSphere id="4"><Material>1</Material><Center>4</Center><Radius>2</Radius><Radiance>1 2 3</Radiance></LightSphere>
+            </Objects></Scene>"#,
+        )
+        .unwrap();
+        assert_eq!(scene.materials[0].phong_exponent, 20.0, "the BRDF's Exponent replaces PhongExponent");
+        assert_eq!(scene.materials[0].brdf.map(|b| b.kind), Some(BrdfKind::ModifiedPhong));
+        let emission: Vec<Option<DVec3>> = scene.instance_emission.clone();
+        assert_eq!(emission.len(), scene.accel.instances.len());
+        assert_eq!(emission.iter().filter(|e| e.is_some()).count(), 3);
+        let lit: Vec<u32> = scene.object_lights.iter().map(|l| l.instance).collect();
+        assert_eq!(lit.len(), 2, "the degenerate light mesh lights nothing");
+        assert_eq!(emission[lit[0] as usize], Some(DVec3::splat(2.0)));
+        assert_eq!(emission[lit[1] as usize], Some(DVec3::new(1.0, 2.0, 3.0)));
+        assert_eq!(scene.object_lights[1].area(), Some(16.0 * std::f64::consts::PI));
+    }
+
     #[test]
     fn instances_chain_through_other_instances() {
         let scene = build(CHAIN).unwrap();

@@ -371,14 +371,22 @@ const MESH: Schema = Schema {
 /// (no MotionBlur) and carry no textures.
 const LIGHT_MESH: Schema = Schema {
     single: &["Material", "Faces", "Transformations", "Radiance"],
+    unsupported: LIGHT_UNSUPPORTED,
     attrs: &["id", "shadingMode"],
     ..Schema::EMPTY
 };
 const LIGHT_SPHERE: Schema = Schema {
     single: &["Material", "Center", "Radius", "Transformations", "Radiance"],
+    unsupported: LIGHT_UNSUPPORTED,
     attrs: &["id"],
     ..Schema::EMPTY
 };
+/// What other objects have and object lights do not (yet): each changes the picture.
+const LIGHT_UNSUPPORTED: &[Unsupported] = &[
+    ("MotionBlur", "without it, the light stands still"),
+    ("Textures", "without them, the light's surface is untextured"),
+    ("Texture", "without it, the light's surface is untextured"),
+];
 const TRIANGLE: Schema = Schema {
     single: &["Material", "Indices", "Transformations"],
     many: &["Textures", "Texture"],

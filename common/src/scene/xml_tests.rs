@@ -1667,3 +1667,102 @@ fn all_course_scenes_parse() {
     }
     assert!(failures.is_empty(), "{} scenes failed:\n{}", failures.len(), failures.join("\n"));
 }
+
+/// Homework 6 elements: BRDFs, a material's BRDF, renderers, object lights.
+#[test]
+fn homework_6_elements() {
+    let r = parse(&scene(
+        "<BRDFs><ModifiedPhong id=\"1\" normalized=\"true\"><Exponent>90</Exponent></ModifiedPhong>\
+         <TorranceSparrow id=\"2\" kdfresnel=\"true\"><Exponent>50</Exponent><RefractiveIndex>1.5</RefractiveIndex></TorranceSparrow>\
+         <OriginalPhong id=\"3\"><Exponent>7</Exponent></OriginalPhong></BRDFs>\
+         <Materials><Material id=\"1\" BRDF=\"2\"><DiffuseReflectance>1 1 1</DiffuseReflectance></Material></Materials>",
+    ));
+    assert!(r.warnings.is_empty(), "{:?}", r.warnings);
+    let kinds: Vec<_> =
+        r.brdfs.iter().map(|b| (b.id.as_str(), b.kind, b.exponent, b.normalized, b.kd_fresnel)).collect();
+    assert_eq!(
+        kinds,
+        [
+            ("1", BrdfKind::ModifiedPhong, 90.0, true, false),
+            ("2", BrdfKind::TorranceSparrow, 50.0, false, true),
+            ("3", BrdfKind::OriginalPhong, 7.0, false, false)
+        ]
+    );
+    assert_eq!(r.brdfs[1].refractive_index, Some(1.5));
+    assert_eq!(r.materials[0].brdf.as_deref(), Some("2"));
+
+    let cam = |inner: &str| {
+        format!(
+            "<Camera id=\"1\"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>\
+             <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>2 2</ImageResolution>\
+             <ImageName>a.exr</ImageName>{inner}</Camera>"
+        )
+    };
+    assert_eq!(camera(&cam("")).renderer, Renderer::Classic);
+    assert_eq!(
+        camera(&cam("<Renderer>PathTracing</Renderer><RendererParams>RussianRoulette NextEventEstimation</RendererParams>"))
+            .renderer,
+        Renderer::Path(PathParams { next_event: true, importance: false, russian_roulette: true })
+    );
+    assert_eq!(
+        camera(&cam("<Renderer>PathTracing</Renderer><RendererParams></RendererParams>")).renderer,
+        Renderer::Path(PathParams::default())
+    );
+
+    let r = objects(
+        "<LightMesh id=\"1\"><Material>1</Material><Radiance>31.8 31.8 31.8</Radiance><Faces>1 2 3</Faces></LightMesh>\n\
+         <LightSphere id=\"2\"><Material>1</Material><Center>1</Center><Radius>0.5</Radius><Radiance>5 4 3</Radiance>\
+         <Transformations>s1</Transformations></LightSphere>",
+        "<VertexData>0 0 0 1 0 0 0 1 0</VertexData>",
+    );
+    assert!(r.warnings.is_empty(), "{:?}", r.warnings);
+    assert_eq!(r.meshes[0].radiance, Some([31.8; 3]));
+    assert_eq!(r.spheres[0].radiance, Some([5.0, 4.0, 3.0]));
+    assert_eq!(r.spheres[0].transforms, refs(&[('s', "1")]));
+
+    // A light that would move, unlike every other light, is flagged as unsupported.
+    let r = objects(
+        "<LightSphere id=\"2\"><Material>1</Material><Center>1</Center><Radius>0.5</Radius><Radiance>5 4 3</Radiance>\
+         <MotionBlur>1 0 0</MotionBlur></LightSphere>",
+        "<VertexData>0 0 0</VertexData>",
+    );
+    assert!(r.warnings.len() == 1 && r.warnings[0].unsupported, "{:?}", r.warnings);
+}
+
+#[test]
+fn homework_6_errors() {
+    let s = |body: &str| scene(body);
+    let lights = s(
+        "<Objects>\n<LightMesh id=\"1\"><Material>1</Material><Faces>1 2 3</Faces></LightMesh>\n</Objects>",
+    );
+    let negative = s(
+        "<Objects>\n<LightSphere id=\"1\"><Material>1</Material><Center>1</Center><Radius>1</Radius><Radiance>1 -1 1</Radiance></LightSphere>\n</Objects>",
+    );
+    let renderer =
+        s("<Cameras>\n<Camera id=\"1\"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>\
+         <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>2 2</ImageResolution>\
+         <ImageName>a.exr</ImageName><Renderer>PhotonMapping</Renderer></Camera>\n</Cameras>");
+    let params = s("<Cameras>\n<Camera id=\"1\"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>\
+         <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>2 2</ImageResolution>\
+         <ImageName>a.exr</ImageName><Renderer>PathTracing</Renderer>\n<RendererParams>NextEvent</RendererParams></Camera>\n</Cameras>");
+    let exponent = s("<BRDFs>\n<ModifiedPhong id=\"1\"><Exponent>-3</Exponent></ModifiedPhong>\n</BRDFs>");
+    check_errors(&[
+        (&lights, "scene.xml:3: <LightMesh id=\"1\">: missing <Radiance>"),
+        (
+            &negative,
+            "scene.xml:3: <LightSphere id=\"1\"> / <Radiance>: Radiance must be three non-negative numbers, found \"1 -1 1\"",
+        ),
+        (
+            &renderer,
+            "scene.xml:3: <Camera id=\"1\"> / <Renderer>: unknown renderer \"PhotonMapping\" (expected PathTracing, or DirectLighting for the classic ray tracer)",
+        ),
+        (
+            &params,
+            "scene.xml:4: <Camera id=\"1\"> / <RendererParams>: unknown renderer parameter \"NextEvent\" (expected any of NextEventEstimation, ImportanceSampling, RussianRoulette)",
+        ),
+        (
+            &exponent,
+            "scene.xml:3: <ModifiedPhong id=\"1\"> / <Exponent>: Exponent must be between 0 and 1000000, found -3",
+        ),
+    ]);
+}
