@@ -198,6 +198,12 @@ impl EnvLight {
     /// the texels as stored (negative ones were set to 0).
     pub fn radiance(&self, d: DVec3) -> DVec3 {
         let (u, v) = env_uv(self.mapping, d);
+        self.radiance_uv(u, v)
+    }
+
+    /// [`Self::radiance`] at the map coordinates `(u, v)` of a direction.
+    #[inline]
+    fn radiance_uv(&self, u: f64, v: f64) -> DVec3 {
         let img = &*self.image;
         let (w, h) = (img.width as f64, img.height as f64);
         let i = u * w;
@@ -245,8 +251,15 @@ impl EnvLight {
                 if cos <= 0.0 {
                     return None;
                 }
-                let pdf = 0.5 * self.distribution.pdf(wi) + 0.5 * cos / PI;
-                (pdf > 0.0 && pdf.is_finite()).then(|| EnvSample { wi, weight: self.radiance(wi) / pdf })
+                // The map coordinates of `wi` serve both the pdf and the lookup (for lat-long
+                // maps the distribution's grid is the map's).
+                let (u, v) = env_uv(self.mapping, wi);
+                let map_pdf = match self.mapping {
+                    EnvMapping::LatLong => self.distribution.pdf_uv(u, v),
+                    EnvMapping::Probe => self.distribution.pdf(wi),
+                };
+                let pdf = 0.5 * map_pdf + 0.5 * cos / PI;
+                (pdf > 0.0 && pdf.is_finite()).then(|| EnvSample { wi, weight: self.radiance_uv(u, v) / pdf })
             }
         }
     }
@@ -278,6 +291,34 @@ pub struct EnvDistribution {
     cells: Vec<f64>,
     /// Each cell's probability (not cumulative), for the pdf.
     prob: Vec<f64>,
+    /// Guide tables (cut points) for the searches of [`Self::sample`]: `row_guide[k]` is the
+    /// first row whose cumulative weight exceeds `k / GUIDE`, so a search for `xi` starts at
+    /// `row_guide[⌊xi·GUIDE⌋]` and ends before `row_guide[⌊xi·GUIDE⌋ + 1] + 1`: the same index as
+    /// a search over the whole table, in a few steps. `cell_guide` holds one table per row.
+    row_guide: Vec<u32>,
+    cell_guide: Vec<u32>,
+}
+
+/// Buckets per guide table of [`EnvDistribution`].
+const GUIDE: usize = 64;
+
+/// `guide[k]` = the number of entries of the non-decreasing `cdf` that are `<= k / GUIDE`, for
+/// k in 0..=GUIDE (so `guide[GUIDE] = len` when the last entry is 1).
+fn guide_table(cdf: &[f64], out: &mut Vec<u32>) {
+    for k in 0..=GUIDE {
+        let t = k as f64 / GUIDE as f64;
+        out.push(cdf.partition_point(|&c| c <= t) as u32);
+    }
+}
+
+/// `cdf.partition_point(|&c| c <= xi)` for `xi` in [0, 1), searched between the guide's bounds:
+/// every entry before `guide[k]` is `<= k / GUIDE <= xi`, and entry `guide[k + 1]` onwards is
+/// `> (k + 1) / GUIDE > xi`, so the answer lies in `guide[k]..=guide[k + 1]`.
+#[inline]
+fn guided_search(cdf: &[f64], guide: &[u32], xi: f64) -> usize {
+    let k = ((xi * GUIDE as f64) as usize).min(GUIDE - 1);
+    let (lo, hi) = (guide[k] as usize, (guide[k + 1] as usize).min(cdf.len()));
+    lo + cdf[lo..hi].partition_point(|&c| c <= xi)
 }
 
 impl EnvDistribution {
@@ -342,18 +383,25 @@ impl EnvDistribution {
         if let Some(last) = rows.last_mut() {
             *last = 1.0;
         }
-        EnvDistribution { width, height, rows, cells, prob }
+        let mut row_guide = Vec::with_capacity(GUIDE + 1);
+        guide_table(&rows, &mut row_guide);
+        let mut cell_guide = Vec::with_capacity(height * (GUIDE + 1));
+        for cdf in cells.chunks(width) {
+            guide_table(cdf, &mut cell_guide);
+        }
+        EnvDistribution { width, height, rows, cells, prob, row_guide, cell_guide }
     }
 
     /// A direction and its pdf with respect to solid angle, from two uniform numbers.
     pub fn sample(&self, xi1: f64, xi2: f64) -> Option<(DVec3, f64)> {
-        let y = self.rows.partition_point(|&c| c <= xi1).min(self.height - 1);
+        let y = guided_search(&self.rows, &self.row_guide, xi1).min(self.height - 1);
         let row_lo = if y == 0 { 0.0 } else { self.rows[y - 1] };
         let row_p = self.rows[y] - row_lo;
         // Reuse xi1 inside the row: its position within the row's interval is uniform.
         let fy = if row_p > 0.0 { ((xi1 - row_lo) / row_p).clamp(0.0, 1.0 - 1e-12) } else { 0.5 };
         let cdf = &self.cells[y * self.width..(y + 1) * self.width];
-        let x = cdf.partition_point(|&c| c <= xi2).min(self.width - 1);
+        let guide = &self.cell_guide[y * (GUIDE + 1)..(y + 1) * (GUIDE + 1)];
+        let x = guided_search(cdf, guide, xi2).min(self.width - 1);
         let lo = if x == 0 { 0.0 } else { cdf[x - 1] };
         let cell_p = cdf[x] - lo;
         let fx = if cell_p > 0.0 { ((xi2 - lo) / cell_p).clamp(0.0, 1.0 - 1e-12) } else { 0.5 };
@@ -367,6 +415,12 @@ impl EnvDistribution {
     /// The solid-angle pdf of unit direction `d` (for tests and for combining estimators).
     pub fn pdf(&self, d: DVec3) -> f64 {
         let (u, v) = env_uv(EnvMapping::LatLong, d);
+        self.pdf_uv(u, v)
+    }
+
+    /// [`Self::pdf`] at the lat-long coordinates `(u, v)` of a direction.
+    #[inline]
+    fn pdf_uv(&self, u: f64, v: f64) -> f64 {
         let x = ((u * self.width as f64) as usize).min(self.width - 1);
         let y = ((v * self.height as f64) as usize).min(self.height - 1);
         self.pdf_cell(x, y, v)
@@ -652,6 +706,46 @@ mod tests {
         let ring = image(2, 1, |x, _| if x == 0 { [-4.0; 3] } else { [8.0; 3] });
         let env = EnvLight::new(ring, EnvMapping::LatLong, None);
         assert!((env.radiance(latlong_direction(0.75, 0.5)).x - 4.0).abs() < 1e-9);
+    }
+
+    /// The guide tables change no answer: the guided search finds the index the plain binary
+    /// search over the whole table finds, on a map with a sun, black rows and ties.
+    #[test]
+    fn guided_search_finds_what_the_full_search_finds() {
+        let img = image(97, 40, |x, y| {
+            let v = if y < 5 {
+                0.0
+            } else if (x, y) == (60, 20) {
+                5e4
+            } else {
+                (x % 7) as f32
+            };
+            [v, v, v]
+        });
+        let d = EnvDistribution::new(&img, EnvMapping::LatLong);
+        let mut state = 12345u64;
+        for i in 0..200_000u32 {
+            state = fmix(state);
+            let xi =
+                if i < 1000 { f64::from(i) / 1000.0 } else { (state >> 11) as f64 / (1u64 << 53) as f64 };
+            let y = d.rows.partition_point(|&c| c <= xi);
+            assert_eq!(guided_search(&d.rows, &d.row_guide, xi), y, "rows, xi {xi}");
+            let row = y.min(d.height - 1);
+            let cdf = &d.cells[row * d.width..(row + 1) * d.width];
+            let guide = &d.cell_guide[row * (GUIDE + 1)..(row + 1) * (GUIDE + 1)];
+            assert_eq!(
+                guided_search(cdf, guide, xi),
+                cdf.partition_point(|&c| c <= xi),
+                "row {row}, xi {xi}"
+            );
+        }
+    }
+
+    fn fmix(mut k: u64) -> u64 {
+        k ^= k >> 33;
+        k = k.wrapping_mul(0xff51_afd7_ed55_8ccd);
+        k ^= k >> 33;
+        k
     }
 
     /// The distribution's pdf integrates to 1 over the sphere and follows the map.

@@ -141,11 +141,12 @@ pub fn render_tile_until(
                 tracer.background = scene.textures[k as usize].background(uv, pixel_uv);
             }
             let mut sum = glam::DVec3::ZERO;
+            let pixel_sampler = Sampler::new(seed, x, y, 0);
             for s in 0..n {
                 if s % STOP_CHECK_EVERY == 0 {
                     stop.check()?;
                 }
-                let mut sampler = Sampler::new(seed, x, y, s);
+                let mut sampler = pixel_sampler.with_sample(s);
                 // One sample goes through the pixel centre (§4.5); several are stratified over
                 // the pixel by the sampler, like every other dimension.
                 let (dx, dy) = if n == 1 { (0.5, 0.5) } else { sampler.next_2d() };

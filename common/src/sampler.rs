@@ -89,6 +89,13 @@ impl Sampler {
         Sampler { key: k, index: sample, dim: 0 }
     }
 
+    /// The sampler of camera sample `sample` of the same pixel: `Sampler::new(seed, x, y,
+    /// sample)` without hashing the pixel again.
+    #[inline]
+    pub fn with_sample(&self, sample: u32) -> Self {
+        Sampler { key: self.key, index: sample, dim: 0 }
+    }
+
     /// The next request's point of the scrambled (0, 2)-sequence, as fixed-point values.
     #[inline]
     fn next_bits(&mut self) -> (u32, u32) {
@@ -98,7 +105,8 @@ impl Sampler {
         // Shuffle the index (an Owen scramble of it: within each block of 2^k samples a
         // permutation), then scramble each coordinate with its own seed.
         let i = owen_scramble(self.index, h as u32);
-        let a = owen_scramble(i.reverse_bits(), (h >> 32) as u32);
+        // owen_scramble(i.reverse_bits(), ..) with the two reversals of `i` cancelled.
+        let a = laine_karras(i, (h >> 32) as u32).reverse_bits();
         let b = owen_scramble(sobol_dim1(i), h2 as u32);
         (a, b)
     }
@@ -149,6 +157,8 @@ mod tests {
         assert_eq!(draw(3, 4, 5), draw(3, 4, 5));
         assert_ne!(draw(3, 4, 5), draw(4, 3, 5));
         assert_ne!(draw(3, 4, 5), draw(3, 4, 6));
+        let mut r = Sampler::new(7, 3, 4, 0).with_sample(5);
+        assert_eq!((0..8).map(|_| r.next_1d()).collect::<Vec<f64>>(), draw(3, 4, 5));
     }
 
     #[test]

@@ -4,7 +4,19 @@
 //! ```text
 //! cargo run --release -p tessera-tests --bin envbench -- [--samples N] [--width W] [--only SCENE]
 //!     [--noise-only] [--scenes-only] [--threads N]
+//! cargo run --release -p tessera-tests --bin envbench -- --mitsuba [--rounds N]
+//!     [--samples N] [--variant llvm_ad_rgb] [--threads N]
 //! ```
+//! `--mitsuba` is issue #18's whole-render bench: the head_env_light workload
+//! (`/work/shared/bench/head_env_park.xml`: head.ply, park.exr, 800x450, importance-sampled
+//! environment, one shadow ray per hit) rendered by Tessera in this process and by Mitsuba 3
+//! (`mitsuba_head_env.py` beside it, run with `$TESSERA_ANCHOR_PYTHON`, default
+//! `~/.cache/anchors/bin/python`), alternately, `--rounds` times; prints Msamples/s of each
+//! round, the best and the median of each, and their ratios. Both time the render only (not
+//! loading, not writing). The script's `dr.set_thread_count` hangs with drjit 1.5.0 (and so
+//! does the llvm variant pinned to one core with `taskset -c 0`), so the bench runs a copy of the
+//! script without that call: Mitsuba uses one thread per core, and `--threads` should match it
+//! (2 on the 2-vCPU bench machine).
 //! Pictures go to `target/envbench/`. `--samples` and `--width` shrink the work (the figures say
 //! so); without them every scene renders at its own resolution and NumSamples.
 
@@ -26,10 +38,23 @@ struct Args {
     noise: bool,
     scenes: bool,
     threads: Option<usize>,
+    mitsuba: bool,
+    rounds: usize,
+    variant: String,
 }
 
 fn parse_args() -> Result<Args> {
-    let mut a = Args { samples: None, width: None, only: None, noise: true, scenes: true, threads: None };
+    let mut a = Args {
+        samples: None,
+        width: None,
+        only: None,
+        noise: true,
+        scenes: true,
+        threads: None,
+        mitsuba: false,
+        rounds: 5,
+        variant: "llvm_ad_rgb".into(),
+    };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
         let mut value = |name: &str| it.next().with_context(|| format!("{name} needs a value"));
@@ -39,11 +64,15 @@ fn parse_args() -> Result<Args> {
             "--only" => a.only = Some(value("--only")?),
             "--threads" => a.threads = Some(value("--threads")?.parse().context("--threads: a number")?),
             "--noise-only" => a.scenes = false,
+            "--mitsuba" => a.mitsuba = true,
+            "--rounds" => a.rounds = value("--rounds")?.parse().context("--rounds: a number")?,
+            "--variant" => a.variant = value("--variant")?,
             "--scenes-only" => a.noise = false,
             "-h" | "--help" => {
                 println!(
                     "envbench: environment-light timings and importance-vs-uniform noise\n\n\
-                     options: --samples N  --width W  --only SCENE  --noise-only  --scenes-only  --threads N"
+                     options: --samples N  --width W  --only SCENE  --noise-only  --scenes-only  --threads N\n         \
+                     --mitsuba [--rounds N] [--variant V]: head_env_light against Mitsuba 3"
                 );
                 std::process::exit(0);
             }
@@ -76,6 +105,9 @@ fn main() -> Result<()> {
     let out = tessera_tests::repo_root().join("target/envbench");
     std::fs::create_dir_all(&out)?;
     println!("threads: {}", rayon::current_num_threads());
+    if args.mitsuba {
+        return mitsuba_figures(&args, &out);
+    }
     if args.scenes {
         for &(name, map) in ENV_SCENES {
             if args.only.as_deref().is_some_and(|o| o != name) {
@@ -205,5 +237,74 @@ fn noise_figures(out: &std::path::Path) -> Result<()> {
         println!("{line}");
         let _ = out;
     }
+    Ok(())
+}
+
+/// Issue #18's whole-render bench: Tessera and Mitsuba 3 on head_env_light, alternately.
+fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
+    let bench = std::path::Path::new("/work/shared/bench");
+    let scenes = std::path::Path::new("/work/shared/scenes");
+    let spp = args.samples.unwrap_or(16);
+    let dir = out.join("head_env");
+    for sub in ["ply", "textures"] {
+        std::fs::create_dir_all(dir.join(sub))?;
+    }
+    let ply = dir.join("ply/head.ply");
+    let hdri = dir.join("textures/park.exr");
+    std::fs::copy(scenes.join("xml/ply/head.ply"), &ply).context("head.ply")?;
+    let park = [scenes.join("textures/park.exr"), scenes.join("hdri/park.exr")];
+    let park = park.iter().find(|p| p.exists()).context("park.exr not found")?;
+    std::fs::copy(park, &hdri)?;
+    let xml = std::fs::read_to_string(bench.join("head_env_park.xml"))?.replace("SPP", &spp.to_string());
+    let scene_path = dir.join("head_env_park.xml");
+    std::fs::write(&scene_path, xml)?;
+    let script = std::fs::read_to_string(bench.join("mitsuba_head_env.py"))?;
+    let script: String =
+        script.lines().filter(|l| !l.starts_with("dr.set_thread_count")).map(|l| format!("{l}\n")).collect();
+    let script_path = dir.join("mitsuba_head_env.py");
+    std::fs::write(&script_path, script)?;
+    let python = std::env::var("TESSERA_ANCHOR_PYTHON").unwrap_or_else(|_| {
+        format!("{}/.cache/anchors/bin/python", std::env::var("HOME").unwrap_or_default())
+    });
+    let scene = tessera::scene::load::load_scene_file(&scene_path)?;
+    let settings = RenderSettings {
+        samples: Some(spp),
+        env_sampling: Some(EnvSampler::Importance),
+        ..RenderSettings::default()
+    };
+    let samples = 800.0 * 450.0 * spp as f64;
+    println!("head_env_light, 800x450, {spp} spp, Mitsuba variant {}, {} rounds", args.variant, args.rounds);
+    let (mut ours, mut theirs) = (Vec::new(), Vec::new());
+    for round in 0..args.rounds {
+        let (_, secs, _) = render(&scene, &settings);
+        ours.push(samples / secs / 1e6);
+        let mut cmd = std::process::Command::new(&python);
+        cmd.arg(&script_path).arg(&ply).arg(&hdri).arg(spp.to_string()).arg(&args.variant);
+        let llvm = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so";
+        if std::env::var_os("DRJIT_LIBLLVM_PATH").is_none() && std::path::Path::new(llvm).exists() {
+            cmd.env("DRJIT_LIBLLVM_PATH", llvm);
+        }
+        let o = cmd.stderr(std::process::Stdio::null()).output().context("running Mitsuba")?;
+        let text = String::from_utf8_lossy(&o.stdout);
+        let m: f64 = text
+            .lines()
+            .last()
+            .and_then(|l| l.split_whitespace().next())
+            .and_then(|v| v.parse().ok())
+            .with_context(|| format!("Mitsuba printed no figure: {text}"))?;
+        theirs.push(m);
+        println!(
+            "  round {round}: Tessera {:.3} Msamples/s, Mitsuba {m:.3} Msamples/s, ratio {:.3}",
+            ours[round],
+            ours[round] / m
+        );
+    }
+    let stats = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        (v[v.len() - 1], v[v.len() / 2])
+    };
+    let ((ob, om), (tb, tm)) = (stats(&mut ours), stats(&mut theirs));
+    println!("  best:   Tessera {ob:.3}, Mitsuba {tb:.3} Msamples/s, ratio {:.3}", ob / tb);
+    println!("  median: Tessera {om:.3}, Mitsuba {tm:.3} Msamples/s, ratio {:.3}", om / tm);
     Ok(())
 }
