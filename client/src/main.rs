@@ -208,7 +208,8 @@ fn run(cli: Cli) -> Result<ExitCode> {
             dry_run,
             quiet,
         } => {
-            let opts = SubmitOptions { priority, samples, tile_size, cameras, name, allow_unsupported, quiet };
+            let opts =
+                SubmitOptions { priority, samples, tile_size, cameras, name, allow_unsupported, quiet };
             // Everything local first: a scene that cannot be packed never reaches the network.
             let bundle = pack::pack(&scene)?;
             if bundle.cameras.is_empty() {

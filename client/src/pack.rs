@@ -263,8 +263,12 @@ element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 -2\n1 0 
         std::io::Read::read_to_end(&mut flate2::read::GzDecoder::new(gz.as_slice()), &mut raw).unwrap();
         let files = tessera::bundle::read_tar(&raw).unwrap();
         assert_eq!(files.len(), 5);
-        let farm = tessera::bundle::load_bundle_scene(files.clone(), &bundle.scene_path, tessera::scene::load::LoadOptions::default())
-            .unwrap();
+        let farm = tessera::bundle::load_bundle_scene(
+            files.clone(),
+            &bundle.scene_path,
+            tessera::scene::load::LoadOptions::default(),
+        )
+        .unwrap();
         let cli = tessera::scene::load::load_scene_file(&scene).unwrap();
         assert_eq!(farm.stats.triangles, cli.stats.triangles);
         assert_eq!(farm.stats.triangles, 4);
