@@ -6,4 +6,4 @@
 pub mod conformance;
 pub mod envmaps;
 
-pub use tessera_testkit::{corpus_has, missing, repo_root, shared_scenes};
+pub use tessera_testkit::{anchor_python, corpus_has, missing, repo_root, shared_bench, shared_scenes};

@@ -4,7 +4,7 @@
 //!
 //! For head.ply (17,674 triangles) and for the same head subdivided 1-to-4 three times (1.13M
 //! triangles, written with `ply::write_ply_binary_le`), it generates three ray sets once:
-//! - primary: a 1920x1080 pinhole camera, the anchor's (`/work/shared/bench/head_primary.xml`)
+//! - primary: a 1920x1080 pinhole camera, the anchor's (`../shared/bench/head_primary.xml`)
 //!   (closest hit),
 //! - shadow: from each primary hit point (offset along the normal facing the camera) to a point
 //!   light above the front right of the mesh (any hit, tmax = the distance to the light),
@@ -24,7 +24,7 @@
 //! Run it under `taskset -c 0`: Embree's build then uses one core like Tessera's.
 
 use std::io::{BufRead, BufReader, Write};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
 use std::sync::Arc;
 use std::time::Instant;
@@ -119,7 +119,7 @@ fn make_rays(accel: &Accel, pos: &[DVec3], w: u32, h: u32) -> Vec<RaySet> {
     }
     let center = (lo + hi) * 0.5;
     let radius = (hi - lo).length() * 0.5;
-    // The anchor's camera (/work/shared/bench/head_primary.xml): lookAt, up +y, FovY 30.
+    // The anchor's camera (../shared/bench/head_primary.xml): lookAt, up +y, FovY 30.
     let eye = DVec3::new(0.322839, 0.0534825, 0.504299);
     let gaze = (DVec3::new(-0.140808, -0.162727, -0.35493) - eye).normalize();
     let cu = gaze.cross(DVec3::Y).normalize();
@@ -191,9 +191,7 @@ struct Embree {
 
 impl Embree {
     fn start(mesh: &Path, dir: &Path) -> Embree {
-        let python = std::env::var_os("TESSERA_ANCHORS_PY").map(PathBuf::from).unwrap_or_else(|| {
-            PathBuf::from(std::env::var_os("HOME").expect("HOME")).join(".cache/anchors/bin/python")
-        });
+        let python = tessera_testkit::anchor_python();
         let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/embree_rays.py");
         let mut child = Command::new(&python)
             .arg(&script)

@@ -6,8 +6,6 @@
 
 mod support;
 
-use std::process::{Command, Stdio};
-
 use support::*;
 use tessera_testkit::TempDir;
 
@@ -54,25 +52,5 @@ fn unsupported_elements_are_a_422_unless_allowed_and_then_the_job_renders() {
     // The same image as the CLI's with --allow-unsupported.
     let dir = TempDir::new("farm-unsupported-cli");
     std::fs::write(dir.join("u.xml"), SCENE).unwrap();
-    let status = Command::new(worker_bin())
-        .args(["render", "--allow-unsupported", "--quiet", "--out"])
-        .arg(dir.join("out"))
-        .arg(dir.join("u.xml"))
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .unwrap();
-    assert!(status.success());
-    let png = job["frames"][0]["outputs"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|o| o["name"].as_str().unwrap().to_string())
-        .find(|n| n.ends_with(".png"))
-        .unwrap();
-    let farm = get_bytes(&server.url, &format!("/api/v1/jobs/{id}/frames/0/files/{png}"));
-    assert!(
-        farm == std::fs::read(dir.join("out").join(&png)).unwrap(),
-        "the farm's {png} differs from the CLI's"
-    );
+    assert_job_outputs_equal_cli(&server, &job, &cli_render(&dir.join("u.xml"), &["--allow-unsupported"]));
 }

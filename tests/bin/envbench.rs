@@ -8,9 +8,9 @@
 //!     [--samples N] [--variant llvm_ad_rgb] [--threads N]
 //! ```
 //! `--mitsuba` is issue #18's whole-render bench: the head_env_light workload
-//! (`/work/shared/bench/head_env_park.xml`: head.ply, park.exr, 800x450, importance-sampled
+//! (`../shared/bench/head_env_park.xml`: head.ply, park.exr, 800x450, importance-sampled
 //! environment, one shadow ray per hit) rendered by Tessera in this process and by Mitsuba 3
-//! (`mitsuba_head_env.py` beside it, run with `$TESSERA_ANCHOR_PYTHON`, default
+//! (`mitsuba_head_env.py` beside it, run with `$TESSERA_ANCHORS_PY`, default
 //! `~/.cache/anchors/bin/python`), alternately, `--rounds` times; prints Msamples/s of each
 //! round, the best and the median of each, and their ratios. Both time the render only (not
 //! loading, not writing). The script's `dr.set_thread_count` hangs with drjit 1.5.0 (and so
@@ -242,8 +242,15 @@ fn noise_figures(out: &std::path::Path) -> Result<()> {
 
 /// Issue #18's whole-render bench: Tessera and Mitsuba 3 on head_env_light, alternately.
 fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
-    let bench = std::path::Path::new("/work/shared/bench");
-    let scenes = std::path::Path::new("/work/shared/scenes");
+    let bench = tessera_tests::shared_bench();
+    let scenes = tessera_tests::shared_scenes();
+    if args.variant.starts_with("llvm") && std::env::var_os("DRJIT_LIBLLVM_PATH").is_none() {
+        bail!(
+            "Mitsuba's {} variant needs DRJIT_LIBLLVM_PATH, the path of libLLVM (Debian: apt install libllvm19; \
+             see ../shared/bench/README.md), or pass --variant scalar_rgb",
+            args.variant
+        );
+    }
     let spp = args.samples.unwrap_or(16);
     let dir = out.join("head_env");
     for sub in ["ply", "textures"] {
@@ -263,9 +270,7 @@ fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
         script.lines().filter(|l| !l.starts_with("dr.set_thread_count")).map(|l| format!("{l}\n")).collect();
     let script_path = dir.join("mitsuba_head_env.py");
     std::fs::write(&script_path, script)?;
-    let python = std::env::var("TESSERA_ANCHOR_PYTHON").unwrap_or_else(|_| {
-        format!("{}/.cache/anchors/bin/python", std::env::var("HOME").unwrap_or_default())
-    });
+    let python = tessera_tests::anchor_python();
     let scene = tessera::scene::load::load_scene_file(&scene_path)?;
     let settings = RenderSettings {
         samples: Some(spp),
@@ -280,10 +285,6 @@ fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
         ours.push(samples / secs / 1e6);
         let mut cmd = std::process::Command::new(&python);
         cmd.arg(&script_path).arg(&ply).arg(&hdri).arg(spp.to_string()).arg(&args.variant);
-        let llvm = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so";
-        if std::env::var_os("DRJIT_LIBLLVM_PATH").is_none() && std::path::Path::new(llvm).exists() {
-            cmd.env("DRJIT_LIBLLVM_PATH", llvm);
-        }
         let o = cmd.stderr(std::process::Stdio::null()).output().context("running Mitsuba")?;
         let text = String::from_utf8_lossy(&o.stdout);
         let m: f64 = text

@@ -338,23 +338,50 @@ pub fn submit_environment(server: &Server, samples: &str, tile: &str) -> u64 {
 /// What `tessera-worker render` writes for the environment scene at `samples` spp: the bytes of
 /// its `.exr` and `.png`.
 pub fn cli_render_environment(samples: &str) -> (Vec<u8>, Vec<u8>) {
-    let out = TempDir::new(&format!("farm-cli-{samples}"));
+    let out = cli_render(&repo().join("scenes/environment.xml"), &["--samples", samples]);
+    (std::fs::read(out.join("environment.exr")).unwrap(), std::fs::read(out.join("environment.png")).unwrap())
+}
+
+/// `tessera-worker render SCENE --quiet --out DIR` with `extra` options, which must succeed;
+/// the directory of its outputs.
+pub fn cli_render(scene: &Path, extra: &[&str]) -> TempDir {
+    let out = TempDir::new("farm-cli");
     let status = Command::new(worker_bin())
-        .args([
-            "render",
-            repo().join("scenes/environment.xml").to_str().unwrap(),
-            "--quiet",
-            "--samples",
-            samples,
-        ])
-        .arg("--out")
+        .arg("render")
+        .arg(scene)
+        .args(extra)
+        .args(["--quiet", "--out"])
         .arg(out.path())
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .status()
         .unwrap();
-    assert!(status.success(), "tessera-worker render environment.xml failed");
-    (std::fs::read(out.join("environment.exr")).unwrap(), std::fs::read(out.join("environment.png")).unwrap())
+    assert!(status.success(), "tessera-worker render {} {extra:?} failed", scene.display());
+    out
+}
+
+/// Every file the CLI wrote into `cli_out` is an output of the finished job `job` (its JSON),
+/// with the same bytes. (The farm may keep more: a float `.exr` beside a `.png` camera's image.)
+pub fn assert_job_outputs_equal_cli(server: &Server, job: &Value, cli_out: &Path) {
+    let id = job["id"].as_u64().unwrap();
+    let mut farm_files = std::collections::HashMap::new();
+    for (k, frame) in job["frames"].as_array().unwrap().iter().enumerate() {
+        for o in frame["outputs"].as_array().unwrap() {
+            farm_files.insert(o["name"].as_str().unwrap().to_string(), k);
+        }
+    }
+    let mut compared = 0;
+    for entry in std::fs::read_dir(cli_out).unwrap() {
+        let name = entry.unwrap().file_name().into_string().unwrap();
+        let k = farm_files.get(&name).unwrap_or_else(|| panic!("the farm has no {name}: {job}"));
+        let farm = get_bytes(&server.url, &format!("/api/v1/jobs/{id}/frames/{k}/files/{name}"));
+        assert!(
+            farm == std::fs::read(cli_out.join(&name)).unwrap(),
+            "frame {k}: the farm's {name} differs from the CLI's"
+        );
+        compared += 1;
+    }
+    assert!(compared > 0, "the CLI wrote nothing into {}", cli_out.display());
 }
 
 /// A worker-protocol POST with the worker token `token`.

@@ -29,6 +29,20 @@ pub fn shared_scenes() -> PathBuf {
     }
 }
 
+/// The speed anchors' workloads and scripts (`../shared/bench`): beside the course corpus.
+pub fn shared_bench() -> PathBuf {
+    shared_scenes().join("../bench")
+}
+
+/// The Python that runs the speed anchors (embreex, Mitsuba 3): `$TESSERA_ANCHORS_PY`, or the
+/// venv `~/.cache/anchors` that ../shared/bench/README.md sets up.
+pub fn anchor_python() -> PathBuf {
+    match std::env::var_os("TESSERA_ANCHORS_PY") {
+        Some(p) if !p.is_empty() => PathBuf::from(p),
+        _ => PathBuf::from(std::env::var_os("HOME").unwrap_or_default()).join(".cache/anchors/bin/python"),
+    }
+}
+
 /// Whether `TESSERA_REQUIRE_SCENES` asks for the corpus (set, and neither empty nor `0`).
 pub fn scenes_required() -> bool {
     std::env::var_os("TESSERA_REQUIRE_SCENES").is_some_and(|v| !v.is_empty() && v != "0")
