@@ -8,49 +8,17 @@
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
-use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
 pub use tessera_testkit::TempDir;
 
-/// These tests start processes that want every core: one test at a time.
-static SERIAL: Mutex<()> = Mutex::new(());
-
 /// How long one test may run before its test binary is stopped (a hang fails with a name).
 const HANG_LIMIT: Duration = Duration::from_secs(600);
 
-pub struct Serial {
-    _lock: std::sync::MutexGuard<'static, ()>,
-    done: std::sync::Arc<std::sync::atomic::AtomicBool>,
-}
-
-impl Drop for Serial {
-    fn drop(&mut self) {
-        self.done.store(true, std::sync::atomic::Ordering::SeqCst);
-    }
-}
-
 /// Takes the lock that runs these tests one at a time, and starts the hang watchdog.
-pub fn serial() -> Serial {
-    let lock = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-    let flag = done.clone();
-    let test = std::thread::current().name().unwrap_or("a client test").to_string();
-    std::thread::spawn(move || {
-        let start = Instant::now();
-        while start.elapsed() < HANG_LIMIT {
-            std::thread::sleep(Duration::from_millis(200));
-            if flag.load(std::sync::atomic::Ordering::SeqCst) {
-                return;
-            }
-        }
-        use std::io::Write;
-        let _ =
-            writeln!(std::io::stderr(), "{test} is still running after {} s: it hangs", HANG_LIMIT.as_secs());
-        std::process::abort();
-    });
-    Serial { _lock: lock, done }
+pub fn serial() -> tessera_testkit::Serial {
+    tessera_testkit::serial(HANG_LIMIT)
 }
 
 pub fn client_bin() -> PathBuf {

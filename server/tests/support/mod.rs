@@ -5,55 +5,19 @@
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
 pub use tessera_testkit::TempDir;
-
-/// Farm tests start several processes that each want every core: run them one at a time.
-pub static SERIAL: Mutex<()> = Mutex::new(());
 
 /// How long one farm test may run before the whole test binary is stopped: a hang (a child that
 /// never exits, a pipe that never closes) must fail CI with the test's name, not eat its clock.
 /// Generous, and never an assertion about speed: the slowest test takes about a minute here.
 const HANG_LIMIT: Duration = Duration::from_secs(600);
 
-/// The lock that runs farm tests one at a time, and the hang watchdog of the test holding it.
-pub struct Serial {
-    _lock: std::sync::MutexGuard<'static, ()>,
-    done: std::sync::Arc<std::sync::atomic::AtomicBool>,
-}
-
-impl Drop for Serial {
-    fn drop(&mut self) {
-        self.done.store(true, std::sync::atomic::Ordering::SeqCst);
-    }
-}
-
-pub fn serial() -> Serial {
-    let lock = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-    let flag = done.clone();
-    let test = std::thread::current().name().unwrap_or("a farm test").to_string();
-    std::thread::spawn(move || {
-        let start = Instant::now();
-        while start.elapsed() < HANG_LIMIT {
-            std::thread::sleep(Duration::from_millis(200));
-            if flag.load(std::sync::atomic::Ordering::SeqCst) {
-                return;
-            }
-        }
-        // Straight to file descriptor 2: the harness captures eprintln! and would lose it.
-        use std::io::Write;
-        let _ = writeln!(
-            std::io::stderr(),
-            "{test} is still running after {} s: it hangs; stopping this test binary",
-            HANG_LIMIT.as_secs()
-        );
-        std::process::abort();
-    });
-    Serial { _lock: lock, done }
+/// Takes the lock that runs these tests one at a time, and starts the hang watchdog.
+pub fn serial() -> tessera_testkit::Serial {
+    tessera_testkit::serial(HANG_LIMIT)
 }
 
 /// Sends `sig` to a child process (no `kill` program needed: minimal machines lack procps).

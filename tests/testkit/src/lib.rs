@@ -10,7 +10,9 @@
 //! with [`rgb8`] (PNG reading and the comparison metrics).
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
 
 pub mod rgb8;
 
@@ -129,4 +131,47 @@ pub fn tiny_scene(w: u32, h: u32) -> Vec<u8> {
 <VertexData>0 0 -5</VertexData><Objects><Sphere id="1"><Material>1</Material><Center>1</Center><Radius>1</Radius></Sphere></Objects></Scene>"#
     )
     .into_bytes()
+}
+
+/// The lock that runs a test binary's process-heavy tests one at a time (each wants every core),
+/// and the hang watchdog of the test holding it: see [`serial`].
+pub struct Serial {
+    _lock: MutexGuard<'static, ()>,
+    done: Arc<AtomicBool>,
+}
+
+impl Drop for Serial {
+    fn drop(&mut self) {
+        self.done.store(true, Ordering::SeqCst);
+    }
+}
+
+/// Takes this test binary's serial lock and starts a watchdog: a test still holding it after
+/// `limit` (a child that never exits, a pipe that never closes) stops the whole binary with the
+/// test's name, so a hang fails CI by name instead of eating its clock. Never an assertion about
+/// speed: the limit is far above any test's time.
+pub fn serial(limit: Duration) -> Serial {
+    static SERIAL: Mutex<()> = Mutex::new(());
+    let lock = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let done = Arc::new(AtomicBool::new(false));
+    let flag = done.clone();
+    let test = std::thread::current().name().unwrap_or("a test").to_string();
+    std::thread::spawn(move || {
+        let start = Instant::now();
+        while start.elapsed() < limit {
+            std::thread::sleep(Duration::from_millis(200));
+            if flag.load(Ordering::SeqCst) {
+                return;
+            }
+        }
+        // Straight to file descriptor 2: the harness captures eprintln! and would lose it.
+        use std::io::Write;
+        let _ = writeln!(
+            std::io::stderr(),
+            "{test} is still running after {} s: it hangs; stopping this test binary",
+            limit.as_secs()
+        );
+        std::process::abort();
+    });
+    Serial { _lock: lock, done }
 }
