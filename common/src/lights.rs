@@ -9,7 +9,7 @@
 use std::f64::consts::{PI, TAU};
 use std::sync::Arc;
 
-use glam::{DAffine3, DMat3, DVec3};
+use glam::{DAffine3, DVec3};
 
 use crate::math::orthonormal_pair;
 use crate::sampler::Sampler;
@@ -456,9 +456,10 @@ pub enum EmitterShape {
     /// A sphere that is a sphere in world space too (no transformation, or a uniform scale with
     /// rotations and translations): sampled by the cone of directions it subtends.
     Sphere { center: DVec3, radius: f64 },
-    /// Any other transformed sphere (an ellipsoid): uniform points of the object-space sphere
-    /// carried to world space, with the area density of the carried points.
-    Ellipsoid { center: DVec3, radius: f64, to_world: DAffine3, normal_matrix: DMat3, det: f64 },
+    /// Any other transformed sphere (an ellipsoid): sampled as the course's renderer does, by
+    /// the cone the object-space sphere subtends from the shading point carried into object
+    /// space, weighted by that object-space solid angle (see [`ObjectLight::sample`]).
+    Ellipsoid { center: DVec3, radius: f64, to_world: DAffine3, to_object: DAffine3 },
 }
 
 /// One sampled point of an object light as seen from a shading point `x`.
@@ -511,13 +512,7 @@ impl ObjectLight {
                 if uniform {
                     EmitterShape::Sphere { center: m.transform_point3(center), radius: radius * s2.sqrt() }
                 } else {
-                    EmitterShape::Ellipsoid {
-                        center,
-                        radius,
-                        to_world: m,
-                        normal_matrix: a.inverse().transpose(),
-                        det: a.determinant().abs(),
-                    }
+                    EmitterShape::Ellipsoid { center, radius, to_world: m, to_object: m.inverse() }
                 }
             }
         };
@@ -537,6 +532,15 @@ impl ObjectLight {
     /// One point of the light seen from `x` (§13.3), from three uniform numbers: `u` picks a
     /// triangle (ignored by spheres), `(u1, u2)` the point. `None` when the sampled point faces
     /// away from `x` (one-sided emission) or `x` is inside a sphere light.
+    ///
+    /// A non-uniformly scaled sphere is sampled in its object space: `x` is carried there, a
+    /// direction is drawn in the cone the untransformed sphere subtends, the point it meets is
+    /// carried back to world space, and the sample carries `L_e` times the object-space solid
+    /// angle. That is not the ellipsoid's true irradiance (the scaling's Jacobian is left out),
+    /// but it is what the course's renderer does: on cornellbox_jaroslav_glossy_area_ellipsoid
+    /// (a sphere scaled 5 1 1) it reproduces the official image's mean within 0.1 % and its
+    /// 4x4 region means within 0.3 %, where the exact area density of §13.3 lit the floor 4.5x
+    /// brighter and the side walls 1.2-3.8x.
     pub fn sample(&self, x: DVec3, u: f64, u1: f64, u2: f64) -> Option<EmitterSample> {
         let (y, n_y, pdf_area) = match &self.shape {
             EmitterShape::Triangles { tris, cdf } => {
@@ -552,13 +556,15 @@ impl ObjectLight {
             EmitterShape::Sphere { center, radius } => {
                 return sample_sphere_cone(x, *center, *radius, self.radiance, u1, u2);
             }
-            EmitterShape::Ellipsoid { center, radius, to_world, normal_matrix, det } => {
-                let n_o = uniform_sphere(u1, u2);
-                let y = to_world.transform_point3(*center + *radius * n_o);
-                let m = *normal_matrix * n_o;
-                let len = m.length();
-                // p_A = 1 / (4π r² |det M| |M^-T n_o|) (§13.3).
-                (y, m / len, 1.0 / (4.0 * PI * radius * radius * det * len))
+            EmitterShape::Ellipsoid { center, radius, to_world, to_object } => {
+                let x_o = to_object.transform_point3(x);
+                let s = sample_sphere_cone(x_o, *center, *radius, self.radiance, u1, u2)?;
+                let to = to_world.transform_point3(x_o + s.dist * s.wi) - x;
+                let dist = to.length();
+                if dist.is_nan() || dist <= 0.0 || dist.is_infinite() {
+                    return None;
+                }
+                return Some(EmitterSample { wi: to / dist, dist, irradiance: s.irradiance });
             }
         };
         let to = y - x;
@@ -571,14 +577,6 @@ impl ObjectLight {
         }
         Some(EmitterSample { wi, dist, irradiance: self.radiance * (cos_y / (d2 * pdf_area)) })
     }
-}
-
-/// A direction on the unit sphere, uniform in area, from two uniform numbers.
-fn uniform_sphere(u1: f64, u2: f64) -> DVec3 {
-    let z = 1.0 - 2.0 * u1;
-    let r = (1.0 - z * z).max(0.0).sqrt();
-    let phi = TAU * u2;
-    DVec3::new(r * phi.cos(), r * phi.sin(), z)
 }
 
 /// Cone sampling of a world-space sphere light from `x` (§13.3 (b)): a direction uniform in the
@@ -826,7 +824,7 @@ mod tests {
     /// A sphere of radiance L, radius r, its centre at distance D straight above a surface:
     /// E = π·L·(r/D)² exactly (the sphere is a Lambertian emitter that subtends a cone).
     #[test]
-    fn a_sphere_light_gives_the_analytic_irradiance_by_cone_and_by_area_sampling() {
+    fn a_sphere_light_gives_the_analytic_irradiance_by_its_cone_in_world_and_object_space() {
         let (l, r, d) = (3.0, 0.5, 2.0);
         let want = std::f64::consts::PI * l * (r / d) * (r / d);
         let (x, n) = (DVec3::ZERO, DVec3::Z);
@@ -843,9 +841,8 @@ mod tests {
         );
         let scaled = ObjectLight::sphere(DVec3::ZERO, r / 2.0, Some(m), DVec3::splat(l), 0);
         assert_eq!(scaled.shape, EmitterShape::Sphere { center: DVec3::new(0.0, 0.0, d), radius: r });
-        // Forced through the ellipsoid path (area sampling with the carried density): the same
-        // answer, with more noise.
-        let a = m.matrix3;
+        // Forced through the ellipsoid path (the cone in object space): a uniform scale keeps
+        // angles, so the object-space cone is the world cone and the answer is the same.
         let ellipsoid = ObjectLight {
             radiance: DVec3::splat(l),
             instance: 0,
@@ -853,20 +850,23 @@ mod tests {
                 center: DVec3::ZERO,
                 radius: r / 2.0,
                 to_world: m,
-                normal_matrix: a.inverse().transpose(),
-                det: a.determinant().abs(),
+                to_object: m.inverse(),
             },
         };
-        let got = sampled_irradiance(&ellipsoid, x, n, 65536);
-        assert!((got / want - 1.0).abs() < 0.02, "area: {got} vs {want}");
+        let got = sampled_irradiance(&ellipsoid, x, n, 4096);
+        assert!((got / want - 1.0).abs() < 0.01, "object-space cone: {got} vs {want}");
     }
 
     /// A non-uniformly scaled sphere (an ellipsoid, as in cornellbox_jaroslav_glossy_area_
-    /// ellipsoid): area sampling with `p_A = 1/(4πr²·|det M|·|M⁻ᵀn|)` against an independent
-    /// estimate that shoots uniform directions over the hemisphere and intersects the
-    /// ellipsoid analytically: `E = ∫ L cos θ dω`.
+    /// ellipsoid) follows the course's renderer: `E = ∫ L·cos θ(w(ω_o)) dω_o` over the solid
+    /// angle of the untransformed sphere seen from the point carried into object space, where
+    /// `w(ω_o)` is the world direction to where `ω_o` meets the sphere. Checked against an
+    /// independent estimate of that integral (uniform object-space directions over the whole
+    /// sphere, analytic intersection); and the geometry is chosen so that the true irradiance
+    /// of the ellipsoid (uniform world directions) differs from it by far more than the
+    /// tolerance, so exact area sampling would fail here.
     #[test]
-    fn an_ellipsoid_light_matches_brute_force_direction_sampling() {
+    fn an_ellipsoid_light_is_sampled_by_its_object_space_cone() {
         let l = 2.0;
         let m = DAffine3::from_scale_rotation_translation(
             DVec3::new(3.0, 1.0, 0.5),
@@ -876,25 +876,40 @@ mod tests {
         let light = ObjectLight::sphere(DVec3::ZERO, 1.0, Some(m), DVec3::splat(l), 0);
         assert!(matches!(light.shape, EmitterShape::Ellipsoid { .. }));
         let (x, n) = (DVec3::ZERO, DVec3::Z);
-        let got = sampled_irradiance(&light, x, n, 1 << 17);
+        let got = sampled_irradiance(&light, x, n, 1 << 16);
         let inv = m.inverse();
+        let x_o = inv.transform_point3(x);
         let count = 1u32 << 18;
-        let mut sum = 0.0;
+        let (mut rule, mut exact) = (0.0, 0.0);
         for i in 0..count {
             let mut rng = Sampler::new(11, 0, 0, i);
             let (u1, u2) = rng.next_2d();
-            // Uniform over the upper hemisphere: cos θ = u1, pdf 1/(2π).
+            // The rule: uniform over the object-space sphere of directions, pdf 1/(4π).
+            let z = 1.0 - 2.0 * u1;
+            let s = (1.0 - z * z).max(0.0).sqrt();
+            let d = DVec3::new(s * (TAU * u2).cos(), s * (TAU * u2).sin(), z);
+            let (b, c) = (x_o.dot(d), x_o.dot(x_o) - 1.0);
+            if b * b - c >= 0.0 && -b > 0.0 {
+                let t = -b - (b * b - c).sqrt();
+                let w = (m.transform_point3(x_o + t * d) - x).normalize();
+                rule += l * n.dot(w).max(0.0) * 2.0 * TAU;
+            }
+            // The physics: uniform over the world upper hemisphere (cos θ = u1, pdf 1/(2π)).
             let sin = (1.0 - u1 * u1).sqrt();
             let w = DVec3::new(sin * (TAU * u2).cos(), sin * (TAU * u2).sin(), u1);
-            let (o, d) = (inv.transform_point3(x), inv.transform_vector3(w));
-            let (a, b, c) = (d.dot(d), o.dot(d), o.dot(o) - 1.0);
+            let dv = inv.transform_vector3(w);
+            let (a, b, c) = (dv.dot(dv), x_o.dot(dv), x_o.dot(x_o) - 1.0);
             if b * b - a * c >= 0.0 && -b > 0.0 {
-                sum += l * u1 * TAU;
+                exact += l * u1 * TAU;
             }
         }
-        let want = sum / count as f64;
-        assert!(want > 0.1, "the ellipsoid is above the point: {want}");
-        assert!((got / want - 1.0).abs() < 0.02, "area sampling {got} vs directions {want}");
+        let (rule, exact) = (rule / count as f64, exact / count as f64);
+        assert!(rule > 0.1, "the ellipsoid is above the point: {rule}");
+        assert!((got / rule - 1.0).abs() < 0.02, "object-space cone {got} vs the rule's integral {rule}");
+        assert!(
+            (exact / rule - 1.0).abs() > 0.2,
+            "the geometry tells the rule from the physics: {rule} vs {exact}"
+        );
     }
 
     fn light_tris(light: &ObjectLight) -> &[[DVec3; 3]] {
