@@ -51,18 +51,52 @@ fn owen_scramble(x: u32, seed: u32) -> u32 {
 
 /// Sobol dimension 1 (the Pascal matrix mod 2); dimension 0 is the van der Corput sequence,
 /// `index.reverse_bits()`. Together they form a (0, 2)-sequence in base 2.
+///
+/// The generator is linear over GF(2): the value is the XOR of one direction number per set bit
+/// of `index`. The scrambled indices the sampler feeds it have all 32 bits in play, so instead of
+/// a loop over the bits it XORs four entries of [`SOBOL_DIM1_BYTES`], one per byte of `index`
+/// (the same value, bit for bit; `sobol_dim1_bit_loop` in the tests is the loop).
 #[inline]
-fn sobol_dim1(mut index: u32) -> u32 {
-    let mut v: u32 = 1 << 31;
-    let mut r = 0;
-    while index != 0 {
-        if index & 1 != 0 {
-            r ^= v;
-        }
-        index >>= 1;
-        v ^= v >> 1;
+fn sobol_dim1(index: u32) -> u32 {
+    let t = &SOBOL_DIM1_BYTES;
+    t[0][(index & 0xff) as usize]
+        ^ t[1][((index >> 8) & 0xff) as usize]
+        ^ t[2][((index >> 16) & 0xff) as usize]
+        ^ t[3][(index >> 24) as usize]
+}
+
+/// `SOBOL_DIM1_BYTES[k][b]`: the XOR of the direction numbers of Sobol dimension 1 for the set
+/// bits of byte value `b` at byte position `k` of the index (bit `8k + j`'s direction number is
+/// `v_{8k+j}`, with `v_0 = 2^31` and `v_{n+1} = v_n ^ (v_n >> 1)`).
+static SOBOL_DIM1_BYTES: [[u32; 256]; 4] = sobol_dim1_byte_tables();
+
+const fn sobol_dim1_byte_tables() -> [[u32; 256]; 4] {
+    let mut v = [0u32; 32];
+    v[0] = 1 << 31;
+    let mut n = 1;
+    while n < 32 {
+        v[n] = v[n - 1] ^ (v[n - 1] >> 1);
+        n += 1;
     }
-    r
+    let mut t = [[0u32; 256]; 4];
+    let mut k = 0;
+    while k < 4 {
+        let mut b = 0;
+        while b < 256 {
+            let mut r = 0;
+            let mut j = 0;
+            while j < 8 {
+                if b & (1 << j) != 0 {
+                    r ^= v[8 * k + j];
+                }
+                j += 1;
+            }
+            t[k][b] = r;
+            b += 1;
+        }
+        k += 1;
+    }
+    t
 }
 
 /// 32-bit fixed point to a float in [0, 1).
@@ -146,6 +180,38 @@ mod tests {
                 p
             })
             .collect()
+    }
+
+    /// Sobol dimension 1 the direct way: one direction number per set bit of the index.
+    fn sobol_dim1_bit_loop(mut index: u32) -> u32 {
+        let mut v: u32 = 1 << 31;
+        let mut r = 0;
+        while index != 0 {
+            if index & 1 != 0 {
+                r ^= v;
+            }
+            index >>= 1;
+            v ^= v >> 1;
+        }
+        r
+    }
+
+    #[test]
+    fn the_byte_tables_give_the_bit_loops_sobol_values() {
+        // Every single bit, the first 2^16 indices, and hashed (all-bits) indices.
+        for b in 0..32 {
+            assert_eq!(sobol_dim1(1 << b), sobol_dim1_bit_loop(1 << b), "bit {b}");
+        }
+        for i in 0..1u32 << 16 {
+            assert_eq!(sobol_dim1(i), sobol_dim1_bit_loop(i), "index {i}");
+        }
+        for k in 0..1u64 << 16 {
+            let i = fmix64(k) as u32;
+            assert_eq!(sobol_dim1(i), sobol_dim1_bit_loop(i), "index {i:#x}");
+        }
+        // Its first values in index (not Gray-code) order: 0, 1/2, 3/4, 1/4, 5/8, 1/8, 3/8, 7/8.
+        let first: Vec<u32> = (0..8).map(|i| sobol_dim1(i) >> 29).collect();
+        assert_eq!(first, [0, 4, 6, 2, 5, 1, 3, 7]);
     }
 
     #[test]
