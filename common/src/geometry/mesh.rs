@@ -84,6 +84,31 @@ impl MeshGeom {
         MeshGeom { positions, indices, vertex_normals, uvs, bvh, bounds }
     }
 
+    /// The triangles its BVH holds (the ones whose box the builder can take, see `with_uvs`)
+    /// carried by `to_world` (if any), as (triangle index, `f32` vertex 0 and edges); a
+    /// triangle whose carried box the builder cannot take is left out.
+    pub fn bvh_triangles<'a>(
+        &'a self,
+        to_world: Option<&'a glam::DAffine3>,
+    ) -> impl Iterator<Item = (u32, Tri)> + 'a {
+        self.indices.iter().enumerate().filter_map(move |(i, &[a, b, c])| {
+            let p = |i: u32| self.positions[i as usize].as_vec3a();
+            let own = [p(a), p(b) - p(a), p(c) - p(a)];
+            if !is_sane(&Aabb::from_points(&[own[0], own[0] + own[1], own[0] + own[2]])) {
+                return None;
+            }
+            let t = match to_world {
+                None => own,
+                Some(m) => {
+                    let w = |i: u32| m.transform_point3(self.positions[i as usize]);
+                    let (w0, w1, w2) = (w(a), w(b), w(c));
+                    [w0.as_vec3a(), (w1 - w0).as_vec3a(), (w2 - w0).as_vec3a()]
+                }
+            };
+            is_sane(&Aabb::from_points(&[t[0], t[0] + t[1], t[0] + t[2]])).then_some((i as u32, t))
+        })
+    }
+
     /// Whether no triangle is in the BVH (the mesh can never be hit).
     pub fn is_empty(&self) -> bool {
         self.bvh.is_empty()

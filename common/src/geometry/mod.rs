@@ -4,7 +4,10 @@
 //! obvhs has no instancing, so the two levels are ours: the top-level CWBVH is built over the
 //! world-space bounds of [`Instance`]s; its leaf test transforms the ray into the instance's
 //! object space (direction not renormalised, so `t` carries over) and traverses the mesh's BVH.
-//! A plain (untransformed) mesh is simply an instance with no transform.
+//! A plain (untransformed) mesh is simply an instance with no transform. Static mesh instances
+//! (no motion; up to `MERGED_TRIANGLES_MAX` triangles in all) are also carried to world space
+//! into one merged 8-wide tree, walked before the top level, so a scene of many meshes costs one
+//! traversal instead of one per overlapping instance.
 
 pub mod bvh8;
 pub mod mesh;
@@ -16,6 +19,7 @@ use glam::{DVec2, DVec3, Vec3A};
 use obvhs::{BvhBuildParams, aabb::Aabb, cwbvh::CwBvh, cwbvh::builder::build_cwbvh, ray::RayHit};
 
 use crate::math::{Ray, Transform};
+use bvh8::{Bvh8, Ray8};
 pub use mesh::MeshGeom;
 
 /// What an instance is made of.
@@ -133,6 +137,13 @@ pub struct Accel {
     bounded: Vec<u32>,
     /// Unbounded instances (planes), tested linearly before the bounded ones.
     unbounded: Vec<u32>,
+    /// One BVH over the triangles of every static world-space mesh instance (no transformation,
+    /// no motion) when there are two or more: a ray walks one tree instead of the top level and
+    /// then each mesh's tree in turn. Its hits report an index into `merged_prims`. Those
+    /// instances are in neither `bounded` nor `unbounded`.
+    merged: Bvh8,
+    /// (instance, triangle of its mesh) of each triangle of `merged`.
+    merged_prims: Vec<(u32, u32)>,
 }
 
 /// Up to this many instances a linear loop over their boxes beats traversing the top level.
@@ -225,6 +236,53 @@ fn instance_bounds(inst: &Instance, meshes: &[Arc<MeshGeom>]) -> Option<Aabb> {
     })
 }
 
+/// Most triangles [`merge_static_meshes`] copies into the merged tree: instancing a large mesh
+/// many times must not multiply the scene's memory; instances beyond it keep the two levels.
+const MERGED_TRIANGLES_MAX: usize = 1 << 22;
+
+/// The merged BVH of the static mesh instances (see `Accel::merged`): their triangles carried
+/// to world space, its triangle table, and which instances it holds. Empty when fewer than two
+/// instances qualify (one mesh alone is already a single tree).
+fn merge_static_meshes(
+    meshes: &[Arc<MeshGeom>],
+    instances: &[Instance],
+) -> (Bvh8, Vec<(u32, u32)>, Vec<bool>) {
+    let mut set = vec![false; instances.len()];
+    let mut total = 0usize;
+    for (i, inst) in instances.iter().enumerate() {
+        if let Shape::Mesh { mesh, .. } = inst.shape {
+            let m = &meshes[mesh as usize];
+            if inst.motion.is_none()
+                && !m.is_empty()
+                && mesh::is_sane(&m.bounds)
+                && total + m.triangle_count() <= MERGED_TRIANGLES_MAX
+            {
+                set[i] = true;
+                total += m.triangle_count();
+            }
+        }
+    }
+    if set.iter().filter(|&&q| q).count() < 2 {
+        return (Bvh8::default(), Vec::new(), Vec::new());
+    }
+    let (mut tris, mut aabbs, mut prims) =
+        (Vec::with_capacity(total), Vec::with_capacity(total), Vec::with_capacity(total));
+    for (i, inst) in instances.iter().enumerate() {
+        let Shape::Mesh { mesh, .. } = inst.shape else { continue };
+        if !set[i] {
+            continue;
+        }
+        let to_world = inst.transform.as_ref().map(|xf| &xf.to_world);
+        for (k, t) in meshes[mesh as usize].bvh_triangles(to_world) {
+            aabbs.push(Aabb::from_points(&[t[0], t[0] + t[1], t[0] + t[2]]));
+            tris.push(t);
+            prims.push((i as u32, k));
+        }
+    }
+    let ids: Vec<u32> = (0..tris.len() as u32).collect();
+    (Bvh8::build(&tris, &aabbs, &ids), prims, set)
+}
+
 /// Grows a box by a relative epsilon so `f32` rounding never culls a surface lying on it.
 fn pad(b: Aabb) -> Aabb {
     let e = (b.max - b.min).abs().max(b.min.abs()).max(b.max.abs()) * 1e-5 + Vec3A::splat(1e-6);
@@ -234,7 +292,11 @@ fn pad(b: Aabb) -> Aabb {
 impl Accel {
     pub fn new(meshes: Vec<Arc<MeshGeom>>, instances: Vec<Instance>) -> Self {
         let (mut bounds, mut bounded, mut unbounded) = (Vec::new(), Vec::new(), Vec::new());
+        let (merged, merged_prims, merged_set) = merge_static_meshes(&meshes, &instances);
         for (i, inst) in instances.iter().enumerate() {
+            if merged_set.get(i).copied().unwrap_or(false) {
+                continue;
+            }
             match instance_bounds(inst, &meshes) {
                 // A mesh with no triangle in its BVH can never be hit.
                 _ if matches!(inst.shape, Shape::Mesh { mesh, .. } if meshes[mesh as usize].is_empty()) => {}
@@ -254,7 +316,7 @@ impl Accel {
             build_cwbvh(&bounds, BvhBuildParams::medium_build(), &mut Duration::default())
         };
         let tlas_order = tlas.primitive_indices.iter().map(|&k| bounded[k as usize]).collect();
-        Accel { meshes, instances, tlas, tlas_order, bounds, bounded, unbounded }
+        Accel { meshes, instances, tlas, tlas_order, bounds, bounded, unbounded, merged, merged_prims }
     }
 
     /// Total triangles over all instances (instanced triangles counted once per instance).
@@ -278,6 +340,14 @@ impl Accel {
     pub fn intersect(&self, ray: &Ray, tmin: f64, tmax: f64) -> Option<SurfaceHit> {
         let mut best = Candidate { t: tmax, instance: u32::MAX, tri: 0 };
         let mut fr = to_f32_ray(ray, tmin, tmax);
+        if !self.merged.is_empty()
+            && let Some((t, id)) =
+                self.merged.intersect(&Ray8::new(fr.origin, fr.direction, fr.tmin, fr.tmax))
+        {
+            let (instance, tri) = self.merged_prims[id as usize];
+            best = Candidate { t: t as f64, instance, tri };
+            fr.tmax = t;
+        }
         for &idx in &self.unbounded {
             let t = self.hit_instance(idx, ray, &fr, tmin, &mut best);
             fr.tmax = fr.tmax.min(t);
@@ -304,6 +374,11 @@ impl Accel {
     /// True if anything blocks the ray within (tmin, tmax).
     pub fn occluded(&self, ray: &Ray, tmin: f64, tmax: f64) -> bool {
         let fr = to_f32_ray(ray, tmin, tmax);
+        if !self.merged.is_empty()
+            && self.merged.occluded(&Ray8::new(fr.origin, fr.direction, fr.tmin, fr.tmax))
+        {
+            return true;
+        }
         if self.unbounded.iter().any(|&idx| self.blocks(idx, ray, &fr, tmin, tmax)) {
             return true;
         }
@@ -573,7 +648,8 @@ mod tests {
         assert!(!accel.occluded(&Ray { time: 0.0, ..shadow }, 1e-6, 11.5));
     }
 
-    /// The top-level BVH (used above LINEAR_MAX instances) finds the same closest hits and
+    /// The top-level BVH (used above LINEAR_MAX instances) and the merged tree of the static
+    /// meshes (here the transformed quads without motion) find the same closest hits and
     /// occlusions as testing every instance on its own.
     #[test]
     fn top_level_bvh_agrees_with_brute_force() {
@@ -605,6 +681,13 @@ mod tests {
         }
         let accel = Accel::new(vec![unit_quad()], instances.clone());
         assert!(accel.instances.len() > LINEAR_MAX);
+        let static_meshes =
+            instances.iter().filter(|i| matches!(i.shape, Shape::Mesh { .. }) && i.motion.is_none());
+        assert_eq!(
+            accel.merged_prims.len(),
+            2 * static_meshes.count(),
+            "every static quad is in the merged tree"
+        );
         let singles: Vec<Accel> =
             instances.iter().map(|i| Accel::new(vec![unit_quad()], vec![i.clone()])).collect();
         for _ in 0..3000 {
