@@ -500,21 +500,11 @@ impl ObjectLight {
     ) -> Self {
         let shape = match to_world {
             None => EmitterShape::Sphere { center, radius },
-            Some(m) => {
-                // A similarity (rotation and uniform scale) keeps the sphere a sphere.
-                let a = m.matrix3;
-                let g = a.transpose() * a;
-                let s2 = g.x_axis.x;
-                let off = g.x_axis.y.abs() + g.x_axis.z.abs() + g.y_axis.z.abs();
-                let uniform = (g.y_axis.y - s2).abs() <= 1e-9 * s2
-                    && (g.z_axis.z - s2).abs() <= 1e-9 * s2
-                    && off <= 1e-9 * s2;
-                if uniform {
-                    EmitterShape::Sphere { center: m.transform_point3(center), radius: radius * s2.sqrt() }
-                } else {
-                    EmitterShape::Ellipsoid { center, radius, to_world: m, to_object: m.inverse() }
-                }
-            }
+            // A similarity (rotation and uniform scale) keeps the sphere a sphere.
+            Some(m) => match crate::math::uniform_scale(&m.matrix3) {
+                Some(s) => EmitterShape::Sphere { center: m.transform_point3(center), radius: radius * s },
+                None => EmitterShape::Ellipsoid { center, radius, to_world: m, to_object: m.inverse() },
+            },
         };
         ObjectLight { radiance, instance, shape }
     }

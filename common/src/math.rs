@@ -45,6 +45,21 @@ pub struct Transform {
     pub normal_matrix: DMat3,
 }
 
+/// The scale factor of a similarity (rotations, reflections and one uniform scale): `Some(s)`
+/// when `m`'s columns are orthogonal and of one length `s` (to a relative 1e-9), else `None`.
+/// A sphere under such a matrix is still a sphere, of radius `s·r`.
+pub fn uniform_scale(m: &DMat3) -> Option<f64> {
+    let g = m.transpose() * *m;
+    let s2 = g.x_axis.x;
+    let off = g.x_axis.y.abs() + g.x_axis.z.abs() + g.y_axis.z.abs();
+    let uniform = s2 > 0.0
+        && s2.is_finite()
+        && (g.y_axis.y - s2).abs() <= 1e-9 * s2
+        && (g.z_axis.z - s2).abs() <= 1e-9 * s2
+        && off <= 1e-9 * s2;
+    uniform.then(|| s2.sqrt())
+}
+
 impl Transform {
     /// `None` when the matrix is singular (a zero scale): the caller reports that as an error.
     pub fn new(to_world: DAffine3) -> Option<Self> {
@@ -118,6 +133,24 @@ mod tests {
             assert!((u.length() - 1.0).abs() < 1e-12 && (v.length() - 1.0).abs() < 1e-12);
             assert!(u.dot(n).abs() < 1e-12 && v.dot(n).abs() < 1e-12 && u.dot(v).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn uniform_scale_recognises_similarities_only() {
+        let rot = DMat3::from_axis_angle(DVec3::new(1.0, 2.0, 3.0).normalize(), 0.7);
+        assert!(
+            (uniform_scale(&(rot * DMat3::from_diagonal(DVec3::splat(3.0)))).unwrap() - 3.0).abs() < 1e-12
+        );
+        assert!(
+            (uniform_scale(&DMat3::from_diagonal(DVec3::new(-0.5, 0.5, 0.5))).unwrap() - 0.5).abs() < 1e-12
+        );
+        assert_eq!(uniform_scale(&(rot * DMat3::from_diagonal(DVec3::new(1.0, 1.0, 1.001)))), None);
+        assert_eq!(
+            uniform_scale(&DMat3::from_cols(DVec3::X, DVec3::new(0.1, 1.0, 0.0), DVec3::Z)),
+            None,
+            "shear"
+        );
+        assert_eq!(uniform_scale(&DMat3::ZERO), None);
     }
 
     #[test]

@@ -999,12 +999,31 @@ impl Objects<'_, '_> {
             return Err(ctx.err(&s.loc, format!("<Radius> must be a positive number, found {}", s.radius)));
         }
         let world = ctx.transform(self.transforms, &s.transforms, &s.loc)?;
+        let (center, textures) =
+            (v3(rec.vertices[c as usize]), self.textures.for_object(ctx, &s.textures, &s.loc, warnings)?);
+        let motion = motion(s.motion_blur);
+        // An untextured, unmoving sphere under a similarity is a world-space sphere: the ray
+        // is tested directly instead of being carried into object space first. (Textures keep
+        // the transform: their coordinates and solid noise live in object space.)
+        if textures == ObjectTextures::default()
+            && motion.is_none()
+            && let Some(scale) = crate::math::uniform_scale(&world.matrix3)
+            && world != DAffine3::IDENTITY
+        {
+            return Ok(Instance {
+                shape: Shape::Sphere { center: world.transform_point3(center), radius: s.radius * scale },
+                material,
+                transform: None,
+                motion,
+                textures,
+            });
+        }
         Ok(Instance {
-            shape: Shape::Sphere { center: v3(rec.vertices[c as usize]), radius: s.radius },
+            shape: Shape::Sphere { center, radius: s.radius },
             material,
             transform: ctx.make_transform(world, &s.loc)?,
-            motion: motion(s.motion_blur),
-            textures: self.textures.for_object(ctx, &s.textures, &s.loc, warnings)?,
+            motion,
+            textures,
         })
     }
 
@@ -1130,6 +1149,52 @@ mod tests {
         assert_eq!(emission[lit[0] as usize], Some(DVec3::splat(2.0)));
         assert_eq!(emission[lit[1] as usize], Some(DVec3::new(1.0, 2.0, 3.0)));
         assert_eq!(scene.object_lights[1].area(), Some(16.0 * std::f64::consts::PI));
+    }
+
+    /// An untextured, unmoving sphere under rotations, a reflection, a uniform scale and a
+    /// translation becomes a world-space sphere (no transform to apply per ray), hit where the
+    /// transformed one is; a non-uniform scale, motion or a texture keep the transform.
+    #[test]
+    fn similarity_transformed_spheres_are_placed_in_world_space() {
+        let scene = build(
+            r#"<Scene><Materials><Material id="1"></Material></Materials>
+            <Transformations><Translation id="1">1 2 3</Translation><Scaling id="1">2 2 2</Scaling>
+              <Scaling id="2">-2 2 2</Scaling><Scaling id="3">2 1 1</Scaling><Rotation id="1">30 1 1 0</Rotation></Transformations>
+            <VertexData>0 0 0  0.5 0 0</VertexData>
+            <Objects>
+              <Sphere id="1"><Material>1</Material><Center>2</Center><Radius>1</Radius><Transformations>r1 s1 t1</Transformations></Sphere>
+              <Sphere id="2"><Material>1</Material><Center>1</Center><Radius>1</Radius><Transformations>s2 r1</Transformations></Sphere>
+              <Sphere id="3"><Material>1</Material><Center>1</Center><Radius>1</Radius><Transformations>s3</Transformations></Sphere>
+              <Sphere id="4"><Material>1</Material><Center>1</Center><Radius>1</Radius><Transformations>s1</Transformations><MotionBlur>0 1 0</MotionBlur></Sphere>
+            </Objects></Scene>"#,
+        )
+        .unwrap();
+        let shapes: Vec<(Option<(DVec3, f64)>, bool)> = scene
+            .accel
+            .instances
+            .iter()
+            .map(|i| match i.shape {
+                Shape::Sphere { center, radius } => (Some((center, radius)), i.transform.is_some()),
+                _ => (None, i.transform.is_some()),
+            })
+            .collect();
+        // r1 s1 t1 applied to (0.5, 0, 0): rotated about (1 1 0)/√2 by 30°, doubled, moved.
+        let m = DAffine3::from_translation(DVec3::new(1.0, 2.0, 3.0))
+            * DAffine3::from_scale(DVec3::splat(2.0))
+            * DAffine3::from_axis_angle(DVec3::new(1.0, 1.0, 0.0).normalize(), 30f64.to_radians());
+        let (c, r) = shapes[0].0.unwrap();
+        assert!(
+            (c - m.transform_point3(DVec3::new(0.5, 0.0, 0.0))).length() < 1e-12 && (r - 2.0).abs() < 1e-12
+        );
+        assert!(!shapes[0].1 && !shapes[1].1, "similarities (with a reflection too) are baked: {shapes:?}");
+        assert_eq!(shapes[1].0.map(|s| s.1), Some(2.0));
+        assert!(shapes[2].1 && shapes[3].1, "a non-uniform scale and a moving sphere keep their transform");
+        // Hit where the transformed sphere is: its top along the world z axis through the centre.
+        let h = scene
+            .accel
+            .intersect(&Ray::new(c + DVec3::new(0.0, 0.0, 10.0), DVec3::NEG_Z), 1e-9, 1e9)
+            .unwrap();
+        assert!((h.t - 8.0).abs() < 1e-9 && (h.geo_normal - DVec3::Z).length() < 1e-12, "{h:?}");
     }
 
     #[test]
