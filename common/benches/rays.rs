@@ -26,66 +26,15 @@
 use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
 use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
-use std::sync::Arc;
 use std::time::Instant;
 
 use glam::DVec3;
-use tessera::geometry::{Accel, Instance, MeshGeom, Shape};
+use tessera::geometry::Accel;
 use tessera::math::{Ray, orthonormal_pair};
 use tessera::sampler::Sampler;
 
-fn load_head() -> (Vec<DVec3>, Vec<[u32; 3]>) {
-    let path = tessera_testkit::shared_scenes().join("xml/ply/head.ply");
-    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
-    let ply = tessera::ply::parse_ply(&bytes).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let pos = ply.positions.iter().map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)).collect();
-    (pos, ply.triangles)
-}
-
-/// 1-to-4 midpoint subdivision, `levels` times, with shared vertices (positions rounded to f32,
-/// as the PLY stores them, so both sides trace the same triangles).
-fn subdivide(pos: &[DVec3], tris: &[[u32; 3]], levels: u32) -> (Vec<DVec3>, Vec<[u32; 3]>) {
-    let mut pos: Vec<DVec3> = pos.to_vec();
-    let mut tris = tris.to_vec();
-    for _ in 0..levels {
-        let mut mid = std::collections::HashMap::new();
-        let mut next = Vec::with_capacity(tris.len() * 4);
-        let mut midpoint = |a: u32, b: u32, pos: &mut Vec<DVec3>| -> u32 {
-            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                let p = ((pos[a as usize] + pos[b as usize]) * 0.5).as_vec3().as_dvec3();
-                pos.push(p);
-                pos.len() as u32 - 1
-            })
-        };
-        for &[a, b, c] in &tris {
-            let ab = midpoint(a, b, &mut pos);
-            let bc = midpoint(b, c, &mut pos);
-            let ca = midpoint(c, a, &mut pos);
-            next.extend([[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
-        }
-        tris = next;
-    }
-    (pos, tris)
-}
-
-fn build(pos: &[DVec3], tris: &[[u32; 3]]) -> (Accel, f64) {
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("thread pool");
-    pool.install(|| {
-        let t = Instant::now();
-        let mesh = Arc::new(MeshGeom::new(pos.to_vec(), tris.to_vec(), None));
-        let accel = Accel::new(
-            vec![mesh],
-            vec![Instance {
-                shape: Shape::Mesh { mesh: 0, smooth: false },
-                material: 0,
-                transform: None,
-                motion: None,
-                textures: Default::default(),
-            }],
-        );
-        (accel, t.elapsed().as_secs_f64())
-    })
-}
+mod support;
+use support::{build, load_head, subdivide};
 
 /// One ray as both sides read it: f32 origin, direction, tmax (tmin is 0).
 #[derive(Clone, Copy)]
@@ -283,7 +232,7 @@ fn main() {
         std::fs::write(&mesh_path, tessera::ply::write_ply_binary_le(&ply)).expect("write ply");
         // Both sides trace the f32 vertices the PLY holds.
         let p32: Vec<DVec3> = ply.positions.iter().map(|v| glam::Vec3::from_array(*v).as_dvec3()).collect();
-        let (accel, _) = build(&p32, t);
+        let (accel, _) = build(&p32, t, 1);
         let sets = make_rays(&accel, &p32, w, h);
         let set_dir = dir.join(if t.len() > 100_000 { "big" } else { "head" });
         std::fs::create_dir_all(&set_dir).expect("ray dir");
@@ -294,7 +243,7 @@ fn main() {
 
         let (mut tb, mut eb) = (Vec::new(), Vec::new());
         for _ in 0..rounds.min(3) {
-            tb.push(build(&p32, t).1);
+            tb.push(build(&p32, t, 1).1);
             eb.push(embree.ask("build")["build_s"].as_f64().expect("build_s"));
         }
         builds.push((name, t.len(), median(tb), median(eb)));

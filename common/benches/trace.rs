@@ -15,62 +15,15 @@
 //! generated scene around the 1.13M-triangle head (written as a binary PLY to a temp dir).
 
 use std::path::PathBuf;
-use std::sync::Arc;
 use std::time::Instant;
 
 use glam::DVec3;
-use tessera::geometry::{Accel, Instance, MeshGeom, Shape};
+use tessera::geometry::Accel;
 use tessera::math::{Ray, orthonormal_pair};
 use tessera::sampler::Sampler;
 
-fn load_head() -> (Vec<DVec3>, Vec<[u32; 3]>) {
-    let path = tessera_testkit::shared_scenes().join("xml/ply/head.ply");
-    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
-    let ply = tessera::ply::parse_ply(&bytes).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let pos = ply.positions.iter().map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)).collect();
-    (pos, ply.triangles)
-}
-
-/// 1-to-4 midpoint subdivision, `levels` times (vertices not shared; fine for tracing).
-fn subdivide(pos: &[DVec3], tris: &[[u32; 3]], levels: u32) -> (Vec<DVec3>, Vec<[u32; 3]>) {
-    let mut cur: Vec<[DVec3; 3]> =
-        tris.iter().map(|t| [pos[t[0] as usize], pos[t[1] as usize], pos[t[2] as usize]]).collect();
-    for _ in 0..levels {
-        let mut next = Vec::with_capacity(cur.len() * 4);
-        for [a, b, c] in cur {
-            let (ab, bc, ca) = ((a + b) * 0.5, (b + c) * 0.5, (c + a) * 0.5);
-            next.extend([[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
-        }
-        cur = next;
-    }
-    let mut p = Vec::with_capacity(cur.len() * 3);
-    let mut t = Vec::with_capacity(cur.len());
-    for tri in cur {
-        let base = p.len() as u32;
-        p.extend(tri);
-        t.push([base, base + 1, base + 2]);
-    }
-    (p, t)
-}
-
-fn build(pos: &[DVec3], tris: &[[u32; 3]], threads: usize) -> (Accel, f64) {
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("thread pool");
-    pool.install(|| {
-        let t = Instant::now();
-        let mesh = Arc::new(MeshGeom::new(pos.to_vec(), tris.to_vec(), None));
-        let accel = Accel::new(
-            vec![mesh],
-            vec![Instance {
-                shape: Shape::Mesh { mesh: 0, smooth: false },
-                material: 0,
-                transform: None,
-                motion: None,
-                textures: Default::default(),
-            }],
-        );
-        (accel, t.elapsed().as_secs_f64())
-    })
-}
+mod support;
+use support::{build, load_head, subdivide};
 
 struct Figures {
     primary: f64,

@@ -1568,19 +1568,7 @@ end_header
 
     #[test]
     fn every_prefix_and_mutation_is_ok_or_err_never_panics() {
-        let header_extra = &[
-            "element vertex 7",
-            "property float x",
-            "property float y",
-            "property float z",
-            "property float nx",
-            "property float ny",
-            "property float nz",
-            "property float u",
-            "property float v",
-            "element face 3",
-            "property list uchar int vertex_indices",
-        ];
+        let header_extra = POLY_HEADER;
         for fmt in ALL {
             let full = build(fmt, header_extra, &poly_records());
             assert!(parse_ply(&full).is_ok());
