@@ -8,7 +8,7 @@
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use serde_json::Value;
 pub use tessera_testkit::TempDir;
@@ -17,6 +17,8 @@ pub use tessera_testkit::TempDir;
 const HANG_LIMIT: Duration = Duration::from_secs(600);
 
 /// Takes the lock that runs these tests one at a time, and starts the hang watchdog.
+pub use tessera_testkit::{signal, wait_timeout};
+
 pub fn serial() -> tessera_testkit::Serial {
     tessera_testkit::serial(HANG_LIMIT)
 }
@@ -44,28 +46,7 @@ pub fn farm_bin(name: &str) -> PathBuf {
 }
 
 pub fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
-/// Sends `sig` to a child.
-pub fn signal(child: &Child, sig: libc::c_int) {
-    // SAFETY: kill(2) has no memory effects; a pid that is gone gives ESRCH, which is fine here.
-    unsafe {
-        libc::kill(child.id() as libc::pid_t, sig);
-    }
-}
-
-pub fn wait_timeout(child: &mut Child, limit: Duration) -> Option<std::process::ExitStatus> {
-    let start = Instant::now();
-    loop {
-        if let Ok(Some(status)) = child.try_wait() {
-            return Some(status);
-        }
-        if start.elapsed() > limit {
-            return None;
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    tessera_testkit::repo_root()
 }
 
 /// The worker token the test servers are started with.

@@ -16,16 +16,10 @@ pub use tessera_testkit::TempDir;
 const HANG_LIMIT: Duration = Duration::from_secs(600);
 
 /// Takes the lock that runs these tests one at a time, and starts the hang watchdog.
+pub use tessera_testkit::{signal, wait_timeout};
+
 pub fn serial() -> tessera_testkit::Serial {
     tessera_testkit::serial(HANG_LIMIT)
-}
-
-/// Sends `sig` to a child process (no `kill` program needed: minimal machines lack procps).
-pub fn signal(child: &Child, sig: libc::c_int) {
-    // SAFETY: kill(2) has no memory effects; a pid that is gone gives ESRCH, which is fine here.
-    unsafe {
-        libc::kill(child.id() as libc::pid_t, sig);
-    }
 }
 
 /// What a pipe yields within `limit` (a reader thread; whatever arrived by then, lossily as text).
@@ -45,20 +39,6 @@ pub fn drain_for(mut pipe: impl Read + Send + 'static, limit: Duration) -> Strin
         out.extend(chunk);
     }
     String::from_utf8_lossy(&out).into_owned()
-}
-
-/// The child's exit status, or None when it is still running after `limit`.
-pub fn wait_timeout(child: &mut Child, limit: Duration) -> Option<std::process::ExitStatus> {
-    let start = Instant::now();
-    loop {
-        if let Ok(Some(status)) = child.try_wait() {
-            return Some(status);
-        }
-        if start.elapsed() > limit {
-            return None;
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
 }
 
 /// The first line a child writes to `stdout` (read on a thread of its own, which then drains the
@@ -99,7 +79,7 @@ pub fn worker_bin() -> PathBuf {
 }
 
 pub fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+    tessera_testkit::repo_root()
 }
 
 pub struct Server {

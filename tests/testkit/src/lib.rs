@@ -175,3 +175,25 @@ pub fn serial(limit: Duration) -> Serial {
     });
     Serial { _lock: lock, done }
 }
+
+/// Sends signal `sig` to a child process (tests stop, kill and interrupt the farm's processes).
+pub fn signal(child: &std::process::Child, sig: libc::c_int) {
+    // SAFETY: kill(2) has no memory effects; a pid that is gone gives ESRCH, which is fine here.
+    unsafe {
+        libc::kill(child.id() as libc::pid_t, sig);
+    }
+}
+
+/// The child's exit status, or None when it is still running after `limit`.
+pub fn wait_timeout(child: &mut std::process::Child, limit: Duration) -> Option<std::process::ExitStatus> {
+    let start = Instant::now();
+    loop {
+        if let Ok(Some(status)) = child.try_wait() {
+            return Some(status);
+        }
+        if start.elapsed() > limit {
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
