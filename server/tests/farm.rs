@@ -206,6 +206,32 @@ fn bad_requests_get_clear_errors_and_the_server_keeps_serving() {
         submit(&server.url, t, &[("scene", Some("tori.xml"), &tori), ("asset", Some("big.bin"), &big)]);
     assert_eq!(code, 413, "{v}");
     assert!(v["error"].as_str().unwrap().contains("--max-upload-mb"), "{v}");
+    // The same with `Expect: 100-continue` (curl's way for large bodies): the answer comes
+    // before any of the body is sent, so the client never sends it.
+    {
+        use std::io::{Read, Write};
+        let addr = server.url.trim_start_matches("http://");
+        let mut conn = std::net::TcpStream::connect(addr).expect("connect");
+        conn.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+        let head = format!(
+            "POST /api/v1/jobs HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer sekret\r\n\
+             Content-Type: multipart/form-data; boundary=x\r\nContent-Length: {}\r\n\
+             Expect: 100-continue\r\n\r\n",
+            3 << 20
+        );
+        conn.write_all(head.as_bytes()).unwrap();
+        let mut answer = Vec::new();
+        let mut buf = [0u8; 4096];
+        while !String::from_utf8_lossy(&answer).contains("--max-upload-mb") {
+            match conn.read(&mut buf) {
+                Ok(0) | Err(_) => break,
+                Ok(n) => answer.extend_from_slice(&buf[..n]),
+            }
+        }
+        let answer = String::from_utf8_lossy(&answer);
+        assert!(answer.starts_with("HTTP/1.1 413"), "no 100 Continue, a 413 at once: {answer}");
+        assert!(answer.contains("--max-upload-mb"), "{answer}");
+    }
 
     // Workers need their token too.
     let (code, _) = call(

@@ -188,8 +188,10 @@ pub fn app(state: AppState) -> Router {
     // `Router::layer` puts a layer inside each route, around its handlers and its 405 answer
     // but under the code that adds the 405's `Allow` header: the layers that must see finished
     // answers wrap the whole router as one service instead.
+    let limit = state.settings.max_upload_bytes;
     Router::new()
         .fallback_service(routed(state))
+        .layer(axum::middleware::from_fn_with_state(limit, oversized_uploads))
         .layer(axum::middleware::from_fn(json_errors))
         .layer(axum::middleware::map_response(no_store))
 }
@@ -272,6 +274,60 @@ async fn json_errors(req: axum::extract::Request, next: axum::middleware::Next) 
     parts.headers.insert(header::CONTENT_TYPE, HeaderValue::from_static("application/json"));
     let body = serde_json::to_vec(&ApiError { error, problems: Vec::new() }).unwrap_or_default();
     Response::from_parts(parts, axum::body::Body::from(body))
+}
+
+/// Most bytes of an upload declared too large that [`oversized_uploads`] reads past the limit
+/// before answering, and how long it reads.
+const OVERSIZED_DRAIN_BYTES: u64 = 64 << 20;
+const OVERSIZED_DRAIN_SECONDS: u64 = 30;
+
+/// A request whose `Content-Length` is over `--max-upload-mb` gets its 413 (with the message
+/// that names the flag) without reaching a handler. Many clients (ureq, which the `tessera`
+/// client uses, and simple scripts) write the whole body before they read the answer: if the
+/// server answered and closed at once, they would see a broken pipe instead of the message. So
+/// the rest of the body is read and dropped first, up to `OVERSIZED_DRAIN_BYTES` past the limit
+/// and `OVERSIZED_DRAIN_SECONDS` (beyond that the connection closes and such a client does see
+/// a broken pipe). A client that sent `Expect: 100-continue` (curl, for large bodies) has sent
+/// nothing yet: it is answered at once and sends nothing.
+async fn oversized_uploads(
+    axum::extract::State(limit): axum::extract::State<usize>,
+    req: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    let declared = req
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.trim().parse::<u64>().ok());
+    let Some(declared) = declared.filter(|&n| n > limit as u64) else {
+        return next.run(req).await;
+    };
+    let expects_continue = req
+        .headers()
+        .get(header::EXPECT)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.eq_ignore_ascii_case("100-continue"));
+    if !expects_continue {
+        use futures_util::StreamExt;
+        let budget = declared.min(limit as u64 + OVERSIZED_DRAIN_BYTES);
+        let deadline = tokio::time::Instant::now() + std::time::Duration::from_secs(OVERSIZED_DRAIN_SECONDS);
+        let mut body = req.into_body().into_data_stream();
+        let mut read = 0u64;
+        while read < budget {
+            match tokio::time::timeout_at(deadline, body.next()).await {
+                Ok(Some(Ok(chunk))) => read += chunk.len() as u64,
+                _ => break,
+            }
+        }
+    }
+    AppError::new(
+        StatusCode::PAYLOAD_TOO_LARGE,
+        format!(
+            "the upload ({declared} bytes) is larger than this server accepts ({} MiB); start the server with a larger --max-upload-mb",
+            limit >> 20
+        ),
+    )
+    .into_response()
 }
 
 /// Answers change from one moment to the next: browsers must not reuse them.
