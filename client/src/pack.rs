@@ -217,21 +217,32 @@ element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 -2\n1 0 
         let scene = dir.join("xml/s.xml");
         std::fs::write(
             &scene,
-            r#"<Scene><Cameras><Camera id="1"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
-<NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>4 4</ImageResolution>
-<ImageName>s.png</ImageName></Camera></Cameras>
-<Materials><Material id="1"><DiffuseReflectance>1 1 1</DiffuseReflectance></Material></Materials>
-<Textures><Images><Image id="1">textures/t.png</Image></Images>
+            scene_xml(
+                "s.png",
+                r#"<Textures><Images><Image id="1">textures/t.png</Image></Images>
 <TextureMap id="1" type="image"><ImageId>1</ImageId><DecalMode>replace_kd</DecalMode></TextureMap></Textures>
 <Objects>
 <Mesh id="1"><Material>1</Material><Textures>1</Textures><Faces plyFile="ply/a.ply"/></Mesh>
 <Mesh id="2"><Material>1</Material><Faces plyFile="../models/b.ply"/></Mesh>
 <Mesh id="3"><Material>1</Material><Faces plyFile="assets/ply/c.ply"/></Mesh>
 <Mesh id="4"><Material>1</Material><Faces plyFile="ply/a.ply"/></Mesh>
-</Objects></Scene>"#,
+</Objects>"#,
+            ),
         )
         .unwrap();
         scene
+    }
+
+    /// A scene file of one 4x4 camera writing `image` and one white material, then `body` (its
+    /// textures and objects).
+    fn scene_xml(image: &str, body: &str) -> String {
+        format!(
+            r#"<Scene><Cameras><Camera id="1"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+<NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>4 4</ImageResolution>
+<ImageName>{image}</ImageName></Camera></Cameras>
+<Materials><Material id="1"><DiffuseReflectance>1 1 1</DiffuseReflectance></Material></Materials>
+{body}</Scene>"#
+        )
     }
 
     /// A 2x2 PNG, encoded by the library.
@@ -305,12 +316,11 @@ element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 -2\n1 0 
         let scene = dir.join("s/a.xml");
         std::fs::write(
             &scene,
-            r#"<Scene><Cameras><Camera id="1"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
-<NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>4 4</ImageResolution>
-<ImageName>a.png</ImageName></Camera></Cameras>
-<Materials><Material id="1"><DiffuseReflectance>1 1 1</DiffuseReflectance></Material></Materials>
-<Objects><Mesh id="1"><Material>1</Material><Faces plyFile="x.ply"/></Mesh>
-<Mesh id="2"><Material>1</Material><Faces plyFile="ply/../x.ply"/></Mesh></Objects></Scene>"#,
+            scene_xml(
+                "a.png",
+                r#"<Objects><Mesh id="1"><Material>1</Material><Faces plyFile="x.ply"/></Mesh>
+<Mesh id="2"><Material>1</Material><Faces plyFile="ply/../x.ply"/></Mesh></Objects>"#,
+            ),
         )
         .unwrap();
         let e = pack(&scene).unwrap_err().to_string();

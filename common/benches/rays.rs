@@ -34,7 +34,7 @@ use tessera::math::{Ray, orthonormal_pair};
 use tessera::sampler::Sampler;
 
 mod support;
-use support::{build, load_head, subdivide};
+use support::{bounding_box, build, load_head, subdivide};
 
 /// One ray as both sides read it: f32 origin, direction, tmax (tmin is 0).
 #[derive(Clone, Copy)]
@@ -61,13 +61,8 @@ struct RaySet {
 }
 
 fn make_rays(accel: &Accel, pos: &[DVec3], w: u32, h: u32) -> Vec<RaySet> {
-    let (mut lo, mut hi) = (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN));
-    for p in pos {
-        lo = lo.min(*p);
-        hi = hi.max(*p);
-    }
-    let center = (lo + hi) * 0.5;
-    let radius = (hi - lo).length() * 0.5;
+    let (lo, hi) = bounding_box(pos);
+    let (center, radius) = ((lo + hi) * 0.5, (hi - lo).length() * 0.5);
     // The anchor's camera (../shared/bench/head_primary.xml): lookAt, up +y, FovY 30.
     let eye = DVec3::new(0.322839, 0.0534825, 0.504299);
     let gaze = (DVec3::new(-0.140808, -0.162727, -0.35493) - eye).normalize();

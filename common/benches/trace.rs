@@ -23,7 +23,7 @@ use tessera::math::{Ray, orthonormal_pair};
 use tessera::sampler::Sampler;
 
 mod support;
-use support::{build, load_head, subdivide};
+use support::{bounding_box, build, load_head, subdivide};
 
 struct Figures {
     primary: f64,
@@ -33,13 +33,8 @@ struct Figures {
 }
 
 fn throughput(accel: &Accel, pos: &[DVec3], w: u32, h: u32) -> Figures {
-    let (mut lo, mut hi) = (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN));
-    for p in pos {
-        lo = lo.min(*p);
-        hi = hi.max(*p);
-    }
-    let center = (lo + hi) * 0.5;
-    let radius = (hi - lo).length() * 0.5;
+    let (lo, hi) = bounding_box(pos);
+    let (center, radius) = ((lo + hi) * 0.5, (hi - lo).length() * 0.5);
     // Camera on +z framing the bounding sphere with a 40° vertical field of view.
     let fov = 40f64.to_radians();
     let eye = center + DVec3::Z * (radius / (fov / 2.0).sin());

@@ -1,11 +1,12 @@
 """Whole-process render time of official scenes: Tessera against the student tracer anchor.
 
-Usage: peer_scenes.py [--rounds N] [--threads N] SCENE.xml [SCENE.xml ...]
+Usage: peer_scenes.py [--rounds N] [--threads N] [--peer-dir DIR] SCENE.xml [SCENE.xml ...]
 
 For issue #18 item 3 ("five times the student tracer on every scene"). Each round renders every
 scene once with `tessera-worker render` (target/release, every core unless --threads) and once
-with the student C++ tracer of ../shared/bench/peer (`$PEER_DIR/run_peer.sh`, default
-~/.cache/tessera-peer; it always uses every core), alternately, and times each whole process
+with the student C++ tracer of ../shared/bench/peer (`DIR/run_peer.sh`, where DIR is
+--peer-dir or `$PEER_DIR`, the directory its build.sh built it into; it always uses every
+core), alternately, and times each whole process
 (parse, build, render, image files). Prints one line per scene and round, then one summary line
 per scene: the median wall seconds of each side and the ratio student / Tessera (higher is
 better for Tessera; the target is 5). Bare scene names are looked up in ../shared/scenes/xml
@@ -55,18 +56,24 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--threads", type=int, default=None, help="Tessera's render threads (default: every core)")
+    ap.add_argument("--peer-dir", help="the student tracer's build directory (default: $PEER_DIR)")
     ap.add_argument("scenes", nargs="+")
     args = ap.parse_args()
 
     worker = ROOT / "target" / "release" / "tessera-worker"
     if not worker.is_file():
         sys.exit(f"peer_scenes: {worker} is missing: run `cargo build --release` first")
-    peer_dir = Path(os.environ.get("PEER_DIR", Path.home() / ".cache" / "tessera-peer"))
-    peer = peer_dir / "run_peer.sh"
+    peer_dir = args.peer_dir or os.environ.get("PEER_DIR")
+    if not peer_dir:
+        sys.exit(
+            "peer_scenes: where is the student tracer? Pass --peer-dir DIR or set PEER_DIR to the "
+            "directory ../shared/bench/peer/build.sh built it into (see ../shared/bench/README.md)"
+        )
+    peer = Path(peer_dir) / "run_peer.sh"
     if not peer.is_file():
         sys.exit(
-            f"peer_scenes: {peer} is missing: build the student tracer with ../shared/bench/peer/build.sh "
-            "(see ../shared/bench/README.md) or set PEER_DIR"
+            f"peer_scenes: {peer} is missing: build the student tracer there with "
+            "../shared/bench/peer/build.sh (see ../shared/bench/README.md)"
         )
 
     scenes = [resolve(s) for s in args.scenes]

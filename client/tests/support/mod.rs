@@ -5,7 +5,7 @@
 
 #![allow(dead_code)]
 
-use std::io::{BufRead, BufReader, Read};
+use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::Duration;
@@ -17,7 +17,7 @@ pub use tessera_testkit::TempDir;
 const HANG_LIMIT: Duration = Duration::from_secs(600);
 
 /// Takes the lock that runs these tests one at a time, and starts the hang watchdog.
-pub use tessera_testkit::{signal, wait_timeout};
+pub use tessera_testkit::{first_line, signal, wait_timeout};
 
 pub fn serial() -> tessera_testkit::Serial {
     tessera_testkit::serial(HANG_LIMIT)
@@ -75,16 +75,7 @@ impl Server {
             .stderr(std::fs::File::create(&log).unwrap())
             .spawn()
             .expect("start tessera-server");
-        let (tx, rx) = std::sync::mpsc::channel();
-        let stdout = child.stdout.take().unwrap();
-        std::thread::spawn(move || {
-            let mut lines = BufReader::new(stdout).lines();
-            if let Some(Ok(line)) = lines.next() {
-                let _ = tx.send(line);
-            }
-            for _ in lines {}
-        });
-        let line = rx.recv_timeout(Duration::from_secs(30)).unwrap_or_else(|_| {
+        let line = first_line(child.stdout.take().unwrap(), Duration::from_secs(30)).unwrap_or_else(|| {
             let _ = child.kill();
             panic!("the server did not start:\n{}", std::fs::read_to_string(&log).unwrap_or_default())
         });

@@ -62,3 +62,8 @@ pub fn build(pos: &[DVec3], tris: &[[u32; 3]], threads: usize) -> (Accel, f64) {
         (accel, t.elapsed().as_secs_f64())
     })
 }
+
+/// The box around `pos` (lower and upper corner), where the benches aim their cameras.
+pub fn bounding_box(pos: &[DVec3]) -> (DVec3, DVec3) {
+    pos.iter().fold((DVec3::splat(f64::MAX), DVec3::splat(f64::MIN)), |(lo, hi), p| (lo.min(*p), hi.max(*p)))
+}

@@ -320,14 +320,7 @@ async fn oversized_uploads(
             }
         }
     }
-    AppError::new(
-        StatusCode::PAYLOAD_TOO_LARGE,
-        format!(
-            "the upload ({declared} bytes) is larger than this server accepts ({} MiB); start the server with a larger --max-upload-mb",
-            limit >> 20
-        ),
-    )
-    .into_response()
+    submit::upload_too_large(limit).into_response()
 }
 
 /// Answers change from one moment to the next: browsers must not reuse them.

@@ -115,7 +115,7 @@ async fn read_fields(
         let mut field = match multipart.next_field().await {
             Ok(Some(f)) => f,
             Ok(None) => break,
-            Err(e) if too_big(&e) => return Err(upload_too_large(state)),
+            Err(e) if too_big(&e) => return Err(upload_too_large(state.settings.max_upload_bytes)),
             Err(e) => {
                 return Err(AppError::bad_request(format!(
                     "the upload is not valid multipart/form-data: {e}"
@@ -131,7 +131,7 @@ async fn read_fields(
         };
         let read_error = |e: axum::extract::multipart::MultipartError| {
             if too_big(&e) {
-                upload_too_large(state)
+                upload_too_large(state.settings.max_upload_bytes)
             } else {
                 AppError::bad_request(format!("cannot read the field \"{name}\": {e}"))
             }
@@ -385,12 +385,14 @@ fn bounded(what: &str, value: i64, max: i64, unit: &str) -> ApiResult<u32> {
     }
 }
 
-fn upload_too_large(state: &AppState) -> AppError {
+/// The 413 of an upload over `--max-upload-mb` (`limit` bytes), found while reading it or, from
+/// its `Content-Length`, before (`oversized_uploads`).
+pub(super) fn upload_too_large(limit: usize) -> AppError {
     AppError::new(
         StatusCode::PAYLOAD_TOO_LARGE,
         format!(
             "the upload is larger than this server accepts ({} MiB); start the server with a larger --max-upload-mb",
-            state.settings.max_upload_bytes >> 20
+            limit >> 20
         ),
     )
 }

@@ -2,7 +2,7 @@
 
 #![allow(dead_code)]
 
-use std::io::{BufRead, BufReader, Read};
+use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -16,7 +16,7 @@ pub use tessera_testkit::TempDir;
 const HANG_LIMIT: Duration = Duration::from_secs(600);
 
 /// Takes the lock that runs these tests one at a time, and starts the hang watchdog.
-pub use tessera_testkit::{signal, wait_timeout};
+pub use tessera_testkit::{first_line, signal, wait_timeout};
 
 pub fn serial() -> tessera_testkit::Serial {
     tessera_testkit::serial(HANG_LIMIT)
@@ -39,20 +39,6 @@ pub fn drain_for(mut pipe: impl Read + Send + 'static, limit: Duration) -> Strin
         out.extend(chunk);
     }
     String::from_utf8_lossy(&out).into_owned()
-}
-
-/// The first line a child writes to `stdout` (read on a thread of its own, which then drains the
-/// rest so the child never blocks on a full pipe), or None after `limit` or at end of file.
-pub fn first_line(stdout: std::process::ChildStdout, limit: Duration) -> Option<String> {
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        let mut lines = BufReader::new(stdout).lines();
-        if let Some(Ok(line)) = lines.next() {
-            let _ = tx.send(line);
-        }
-        for _ in lines {}
-    });
-    rx.recv_timeout(limit).ok()
 }
 
 pub fn server_bin() -> PathBuf {

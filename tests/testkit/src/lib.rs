@@ -197,3 +197,17 @@ pub fn wait_timeout(child: &mut std::process::Child, limit: Duration) -> Option<
         std::thread::sleep(Duration::from_millis(20));
     }
 }
+
+/// The first line a child writes to `stdout` (read on a thread of its own, which then drains the
+/// rest so the child never blocks on a full pipe), or None after `limit` or at end of file.
+pub fn first_line(stdout: std::process::ChildStdout, limit: Duration) -> Option<String> {
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut lines = std::io::BufRead::lines(std::io::BufReader::new(stdout));
+        if let Some(Ok(line)) = lines.next() {
+            let _ = tx.send(line);
+        }
+        for _ in lines {}
+    });
+    rx.recv_timeout(limit).ok()
+}
