@@ -12,7 +12,9 @@ use crate::material::{Material, MaterialKind, Refraction, fresnel_conductor, ref
 use crate::math::{Ray, orthonormal_pair, reflect};
 use crate::sampler::Sampler;
 use crate::scene::Scene;
-use crate::scene::records::{DecalMode, EnvSampler, MAX_RECURSION_DEPTH_LIMIT, PathParams, Renderer};
+use crate::scene::records::{
+    DecalMode, EnvSampler, MAX_RECURSION_DEPTH_LIMIT, PathParams, Renderer, Roulette,
+};
 use crate::texture::maps::{
     Source, TextureMap, TexturePoint, bump_by_gradient, image_height, perlin_gradient,
 };
@@ -105,9 +107,8 @@ impl<'a> Tracer<'a> {
     /// specular directions (a dielectric chooses reflection with probability `F`, refraction
     /// otherwise, which weighs each by exactly its Fresnel factor on average). Object lights
     /// and the environment count when a path reaches them unless the previous vertex already
-    /// sampled them. Paths end after `MaxRecursionDepth` bounces, or with `RussianRoulette` at
-    /// random (survival probability the throughput's largest channel, capped at 1, with the
-    /// throughput divided by it) and after [`PATH_DEPTH_LIMIT`] bounces at the latest.
+    /// sampled them. Paths end after `MaxRecursionDepth` bounces, or at random by the rules of
+    /// [`Roulette`] and after [`PATH_DEPTH_LIMIT`] bounces at the latest.
     ///
     /// Measured against the course's references (cornellbox_jaroslav_path_*): virtual lights
     /// (point, area, spot, directional) are sampled only with `NextEventEstimation` — without
@@ -116,7 +117,10 @@ impl<'a> Tracer<'a> {
     fn trace_path(&mut self, camera_ray: &Ray, params: PathParams, rng: &mut Sampler) -> DVec3 {
         let scene = self.scene;
         let nee = params.next_event;
-        let max_bounces = if params.russian_roulette { PATH_DEPTH_LIMIT } else { scene.max_recursion_depth };
+        let max_bounces = match params.roulette {
+            Roulette::Off => scene.max_recursion_depth,
+            Roulette::Course | Roulette::Unbiased => PATH_DEPTH_LIMIT,
+        };
         let eps = scene.shadow_ray_epsilon;
         let mut ray = *camera_ray;
         let mut l = DVec3::ZERO;
@@ -128,6 +132,9 @@ impl<'a> Tracer<'a> {
         let mut specular = true;
         let mut cone = 0.0;
         let mut bounce = 0;
+        // The product of the BRDF values of the path's diffuse and glossy vertices so far: the
+        // course roulette's potential.
+        let mut potential = DVec3::ONE;
         loop {
             let Some(hit) = self.closest(&ray, bounce) else {
                 if let Some(env) = &scene.env_light {
@@ -145,10 +152,13 @@ impl<'a> Tracer<'a> {
                 beta *= (-c * hit.t).exp();
             }
             cone += self.spread * hit.t;
+            // The light this vertex adds: what it emits, the ambient term and the lights
+            // sampled here (weighted by the throughput once the roulette has spoken).
+            let mut local = DVec3::ZERO;
             if let Some(le) = self.emitted(&ray, &hit)
                 && (specular || !nee)
             {
-                l += beta * le;
+                local += le;
             }
             let (mat, shading_normal) = match self.surface(&ray, &hit, cone) {
                 Ok(s) => s,
@@ -163,14 +173,23 @@ impl<'a> Tracer<'a> {
             // The shading normal on the side the path arrives from.
             let n = if entering { shading_normal } else { -shading_normal };
             if bounce == 0 {
-                l += beta * mat.ambient * scene.ambient_light;
+                local += mat.ambient * scene.ambient_light;
             }
             // Light sampled at this vertex: every light with NEE (virtual lights have no other
             // way in), nothing without; dielectrics only on their outside (§15 #20).
             let shaded = !(mat.kind == MaterialKind::Dielectric && medium.is_some());
             if nee && shaded {
-                l += beta * self.lights(&ray, hit.point, n, mat, true, rng);
+                local += self.lights(&ray, hit.point, n, mat, true, rng);
             }
+            if params.roulette == Roulette::Course {
+                let q = potential.max_element().min(1.0);
+                if rng.next_1d() >= q {
+                    l += beta * local;
+                    break;
+                }
+                beta /= q;
+            }
+            l += beta * local;
             if bounce >= max_bounces {
                 break;
             }
@@ -210,22 +229,26 @@ impl<'a> Tracer<'a> {
                         ray = ray.spawn(hit.point + eps * n, glossy(reflect(d, n), mat.roughness, rng));
                         specular = true;
                     } else {
-                        let Some((wi, f)) = self.bounce(n, wo, mat, params.importance, rng) else { break };
+                        let Some((wi, f, brdf)) = self.bounce(n, wo, mat, params.importance, rng) else {
+                            break;
+                        };
                         beta *= f / (1.0 - p_spec);
+                        potential *= brdf;
                         ray = ray.spawn(hit.point + eps * n, wi);
                         specular = false;
                     }
                 }
                 MaterialKind::Plain => {
-                    let Some((wi, f)) = self.bounce(n, wo, mat, params.importance, rng) else { break };
+                    let Some((wi, f, brdf)) = self.bounce(n, wo, mat, params.importance, rng) else { break };
                     beta *= f;
+                    potential *= brdf;
                     ray = ray.spawn(hit.point + eps * n, wi);
                     specular = false;
                 }
             }
             self.stats.secondary += 1;
             bounce += 1;
-            if params.russian_roulette {
+            if params.roulette == Roulette::Unbiased {
                 let q = beta.max_element().min(1.0);
                 if rng.next_1d() >= q {
                     break;
@@ -240,8 +263,9 @@ impl<'a> Tracer<'a> {
     }
 
     /// One bounce direction at a diffuse or glossy vertex: uniform in the hemisphere of `n`
-    /// (pdf 1/2π) or cosine-distributed (pdf cos θ/π), and the throughput factor
-    /// `f(wi, wo)·cos θ / pdf`. `None` when the material reflects nothing that way.
+    /// (pdf 1/2π) or cosine-distributed (pdf cos θ/π), the throughput factor
+    /// `f(wi, wo)·cos θ / pdf` and the BRDF value `f(wi, wo)`. `None` when the material
+    /// reflects nothing that way.
     fn bounce(
         &mut self,
         n: DVec3,
@@ -249,7 +273,7 @@ impl<'a> Tracer<'a> {
         mat: &Material,
         importance: bool,
         rng: &mut Sampler,
-    ) -> Option<(DVec3, DVec3)> {
+    ) -> Option<(DVec3, DVec3, DVec3)> {
         let (u1, u2) = rng.next_2d();
         let (t, b) = orthonormal_pair(n);
         let phi = std::f64::consts::TAU * u2;
@@ -265,8 +289,9 @@ impl<'a> Tracer<'a> {
             return None;
         }
         let pdf = if importance { cos_t * pdf_over_cos } else { 1.0 / std::f64::consts::TAU };
-        let f = mat.reflectance(n, wi, wo) / pdf;
-        (f != DVec3::ZERO && f.is_finite()).then_some((wi, f))
+        let f_cos = mat.reflectance(n, wi, wo);
+        let f = f_cos / pdf;
+        (f != DVec3::ZERO && f.is_finite()).then_some((wi, f, f_cos / cos_t))
     }
 
     /// Radiance arriving along `ray`. `medium` is the absorption coefficient of the dielectric
@@ -971,7 +996,7 @@ mod tests {
         (m, (var / n).sqrt())
     }
 
-    /// Russian roulette changes which paths are traced, not what they average to: with the
+    /// `UnbiasedRussianRoulette` changes which paths are traced, not what they average to: with the
     /// walls reflecting half the light, 64 bounces (the cap) and roulette agree within noise,
     /// while roulette traces far fewer rays. A roulette that forgot to divide by the survival
     /// probability, or a depth limit of 2, would each be many standard errors off.
@@ -980,7 +1005,7 @@ mod tests {
         // Without NEE only paths that reach the light count: noisier, so more samples.
         for (params, spp) in [("NextEventEstimation ImportanceSampling", 512), ("ImportanceSampling", 4096)] {
             let (full, full_rays) = box_path_means(params, 64, spp, 16);
-            let (rr, rr_rays) = box_path_means(&format!("{params} RussianRoulette"), 64, spp, 16);
+            let (rr, rr_rays) = box_path_means(&format!("{params} UnbiasedRussianRoulette"), 64, spp, 16);
             let (short, _) = box_path_means(params, 1, spp, 16);
             let (mf, ef) = mean_and_error(&full);
             let (mr, er) = mean_and_error(&rr);
@@ -996,5 +1021,71 @@ mod tests {
                 "{params}: roulette traced {rr_rays} rays, full depth {full_rays}"
             );
         }
+    }
+
+    /// The course's roulette, pinned on a scene whose paths have three outcomes: a camera
+    /// looking down at an open diffuse floor (reflectance 0.5, so `f = 0.5/π`) under an
+    /// emitting square (radiance 4) facing it, cosine-sampled, no NEE. A bounce that meets the
+    /// light reaches it with potential `q = f` and returns the light undivided (`kd·Le`) when
+    /// the path ends there (probability `1 − q`), divided (`kd·Le/q = π·Le`) when it survives;
+    /// everything else sees black. So every one-sample pixel is 0, 2 or 4π, the survivors are
+    /// a share `q` of the hits, and the mean is `2 − q` times the depth-1 mean, where the
+    /// unbiased roulette keeps it at 1x.
+    #[test]
+    fn the_course_roulette_divides_by_the_brdf_product_and_keeps_the_light_of_paths_it_ends() {
+        let pixels = |params: &str, depth: u32| -> Vec<f64> {
+            let xml = format!(
+                r#"<Scene><MaxRecursionDepth>{depth}</MaxRecursionDepth>
+                <Cameras><Camera id="1"><Position>0 0.5 0</Position><Gaze>0 -1 0</Gaze><Up>0 0 -1</Up>
+                  <NearPlane>-0.1 0.1 -0.1 0.1</NearPlane><NearDistance>1</NearDistance>
+                  <ImageResolution>96 96</ImageResolution><ImageName>a.exr</ImageName><NumSamples>1</NumSamples>
+                  <Renderer>PathTracing</Renderer><RendererParams>ImportanceSampling {params}</RendererParams></Camera></Cameras>
+                <BRDFs><ModifiedPhong id="1" normalized="true"><Exponent>1</Exponent></ModifiedPhong></BRDFs>
+                <Materials><Material id="1" BRDF="1"><DiffuseReflectance>0.5 0.5 0.5</DiffuseReflectance></Material>
+                  <Material id="2"></Material></Materials>
+                <VertexData>-50 0 -50  50 0 -50  50 0 50  -50 0 50  -1 1 -1  1 1 -1  1 1 1  -1 1 1</VertexData>
+                <Objects><Mesh id="1"><Material>1</Material><Faces>1 3 2  1 4 3</Faces></Mesh>
+                  <LightMesh id="2"><Material>2</Material><Radiance>4 4 4</Radiance><Faces>5 6 7  5 7 8</Faces></LightMesh>
+                </Objects></Scene>"#
+            );
+            let scene =
+                load_scene_str(&xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() })
+                    .unwrap();
+            assert!(scene.warnings.is_empty(), "{:?}", scene.warnings);
+            let rect = TileRect { x0: 0, y0: 0, width: 96, height: 96 };
+            (0..6u64)
+                .flat_map(|seed| {
+                    let settings = RenderSettings { seed, ..RenderSettings::default() };
+                    render_tile(&scene, 0, rect, &settings).0.into_iter().map(|p| p[0] as f64)
+                })
+                .collect()
+        };
+        let pi = std::f64::consts::PI;
+        let q = 0.5 / pi;
+        let course = pixels("RussianRoulette", 1);
+        let (mut ended, mut survived) = (0usize, 0usize);
+        for &p in &course {
+            if (p - 2.0).abs() < 1e-4 {
+                ended += 1;
+            } else if (p - 4.0 * pi).abs() < 1e-4 {
+                survived += 1;
+            } else {
+                assert_eq!(p, 0.0, "a pixel outside the rule's three outcomes");
+            }
+        }
+        let hits = (ended + survived) as f64;
+        assert!(hits > 2000.0, "the light is met often enough to measure: {hits}");
+        let share = survived as f64 / hits;
+        let share_error = (q * (1.0 - q) / hits).sqrt();
+        assert!((share - q).abs() < 4.0 * share_error, "survivors {share}, expected {q} ± {share_error}");
+        let (mc, ec) = mean_and_error(&course);
+        let (md, ed) = mean_and_error(&pixels("", 1));
+        let (mu, eu) = mean_and_error(&pixels("UnbiasedRussianRoulette", 1));
+        let ratio_error = (ec / mc).hypot(ed / md) * (2.0 - q);
+        assert!(
+            ((mc / md) - (2.0 - q)).abs() < 4.0 * ratio_error,
+            "course {mc} ± {ec} vs depth 1 {md} ± {ed}"
+        );
+        assert!((mu - md).abs() < 4.0 * eu.hypot(ed), "unbiased {mu} ± {eu} vs depth 1 {md} ± {ed}");
     }
 }

@@ -158,8 +158,32 @@ pub struct PathParams {
     pub next_event: bool,
     /// `ImportanceSampling`: bounce directions from the cosine lobe instead of uniformly.
     pub importance: bool,
-    /// `RussianRoulette`: paths end at random (by their throughput) instead of at the depth limit.
-    pub russian_roulette: bool,
+    /// `RussianRoulette` or `UnbiasedRussianRoulette`: paths end at random instead of at the
+    /// depth limit.
+    pub roulette: Roulette,
+}
+
+/// How a path tracer's paths end (§13.2 step 5).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Roulette {
+    /// After `MaxRecursionDepth` bounces.
+    #[default]
+    Off,
+    /// `RussianRoulette`: the course renderer's roulette, which its official images show (their
+    /// pixels are sums of exactly its quanta). At every vertex after the emission and the
+    /// lights sampled there are gathered, the path's potential `q` is the largest channel of
+    /// the product of the BRDF values `f` (without `cos θ / pdf`) of the vertices before it,
+    /// capped at 1 (so 1 at the first vertex). With probability `1 − q` the path ends there
+    /// keeping that vertex's light undivided; otherwise the throughput, that light included, is
+    /// divided by `q`. It is biased upwards (the light of a vertex where a path ends counts
+    /// `1 + (1 − q)` times on average): the course's roulette images are 1.3-1.5x brighter than
+    /// the converged image.
+    Course,
+    /// `UnbiasedRussianRoulette` (Tessera's own flag, not in the course format): after each
+    /// bounce the path survives with probability `q` = the throughput's largest channel capped
+    /// at 1, and the throughput is divided by `q`. Same expectation as no roulette at an
+    /// unlimited depth.
+    Unbiased,
 }
 
 /// One `<Tonemap>` of a camera (§12.2).

@@ -23,8 +23,8 @@ use super::records::{
     AreaLightRec, BrdfKind, BrdfRec, CameraRec, DecalMode, DirectionalLightRec, EnvLightRec, EnvMapping,
     EnvSampler, FacesRec, Handedness, ImageRec, InstanceRec, Interpolation, LensRec,
     MAX_RECURSION_DEPTH_LIMIT, MaterialKind, MaterialRec, MeshRec, NoiseConversion, PathParams, PlaneRec,
-    PointLightRec, Projection, Renderer, SceneRecords, ShadingMode, SphereRec, SpotLightRec, TextureMapRec,
-    TextureSource, TonemapRec, TransformOp, TransformRec, TransformRef, TriangleRec, Vec3,
+    PointLightRec, Projection, Renderer, Roulette, SceneRecords, ShadingMode, SphereRec, SpotLightRec,
+    TextureMapRec, TextureSource, TonemapRec, TransformOp, TransformRec, TransformRef, TriangleRec, Vec3,
 };
 use crate::error::{Loc, SceneError, Warning};
 use crate::tonemap::params::{Operator, Photographic};
@@ -350,7 +350,8 @@ const BRDF_MODIFIED: Schema = Schema { single: &["Exponent"], attrs: &["id", "no
 const BRDF_TORRANCE_SPARROW: Schema =
     Schema { single: &["Exponent", "RefractiveIndex"], attrs: &["id", "kdfresnel"], ..Schema::EMPTY };
 /// The words of `<RendererParams>` (§13.1).
-const RENDERER_PARAMS: &[&str] = &["NextEventEstimation", "ImportanceSampling", "RussianRoulette"];
+const RENDERER_PARAMS: &[&str] =
+    &["NextEventEstimation", "ImportanceSampling", "RussianRoulette", "UnbiasedRussianRoulette"];
 const TRANSFORMATIONS: Schema =
     Schema { many: &["Translation", "Scaling", "Rotation", "Composite"], ..Schema::EMPTY };
 const TRANSFORMATION: Schema = Schema { attrs: &["id"], ..Schema::EMPTY };
@@ -1071,7 +1072,18 @@ impl Parser<'_> {
             match word {
                 "NextEventEstimation" => out.next_event = true,
                 "ImportanceSampling" => out.importance = true,
-                "RussianRoulette" => out.russian_roulette = true,
+                "RussianRoulette" | "UnbiasedRussianRoulette" => {
+                    let wanted =
+                        if word == "RussianRoulette" { Roulette::Course } else { Roulette::Unbiased };
+                    if out.roulette != Roulette::Off && out.roulette != wanted {
+                        let p = params.expect("words come from it");
+                        return Err(self.err(
+                            p,
+                            "RussianRoulette (the course's rule) and UnbiasedRussianRoulette exclude each other; keep one",
+                        ));
+                    }
+                    out.roulette = wanted;
+                }
                 other => {
                     let p = params.expect("words come from it");
                     return Err(self.err(

@@ -1702,7 +1702,14 @@ fn homework_6_elements() {
     assert_eq!(
         camera(&cam("<Renderer>PathTracing</Renderer><RendererParams>RussianRoulette NextEventEstimation</RendererParams>"))
             .renderer,
-        Renderer::Path(PathParams { next_event: true, importance: false, russian_roulette: true })
+        Renderer::Path(PathParams { next_event: true, importance: false, roulette: Roulette::Course })
+    );
+    assert_eq!(
+        camera(&cam(
+            "<Renderer>PathTracing</Renderer><RendererParams>UnbiasedRussianRoulette</RendererParams>"
+        ))
+        .renderer,
+        Renderer::Path(PathParams { next_event: false, importance: false, roulette: Roulette::Unbiased })
     );
     assert_eq!(
         camera(&cam("<Renderer>PathTracing</Renderer><RendererParams></RendererParams>")).renderer,
@@ -1745,6 +1752,7 @@ fn homework_6_errors() {
     let params = s("<Cameras>\n<Camera id=\"1\"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>\
          <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>2 2</ImageResolution>\
          <ImageName>a.exr</ImageName><Renderer>PathTracing</Renderer>\n<RendererParams>NextEvent</RendererParams></Camera>\n</Cameras>");
+    let both = params.replace("NextEvent<", "RussianRoulette UnbiasedRussianRoulette<");
     let exponent = s("<BRDFs>\n<ModifiedPhong id=\"1\"><Exponent>-3</Exponent></ModifiedPhong>\n</BRDFs>");
     check_errors(&[
         (&lights, "scene.xml:3: <LightMesh id=\"1\">: missing <Radiance>"),
@@ -1758,7 +1766,11 @@ fn homework_6_errors() {
         ),
         (
             &params,
-            "scene.xml:4: <Camera id=\"1\"> / <RendererParams>: unknown renderer parameter \"NextEvent\" (expected any of NextEventEstimation, ImportanceSampling, RussianRoulette)",
+            "scene.xml:4: <Camera id=\"1\"> / <RendererParams>: unknown renderer parameter \"NextEvent\" (expected any of NextEventEstimation, ImportanceSampling, RussianRoulette, UnbiasedRussianRoulette)",
+        ),
+        (
+            &both,
+            "scene.xml:4: <Camera id=\"1\"> / <RendererParams>: RussianRoulette (the course's rule) and UnbiasedRussianRoulette exclude each other; keep one",
         ),
         (
             &exponent,
