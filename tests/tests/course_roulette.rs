@@ -22,7 +22,7 @@ fn trimmed_means(img: &Image) -> [f64; 3] {
         let mut v: Vec<f64> = img.pixels.iter().map(|p| p[c] as f64).collect();
         v.sort_by(f64::total_cmp);
         let cut = v[(v.len() - 1) * 99 / 100];
-        let kept: Vec<f64> = v.into_iter().filter(|&x| x <= cut).collect();
+        let kept = &v[..v.partition_point(|&x| x <= cut)];
         kept.iter().sum::<f64>() / kept.len() as f64
     })
 }
