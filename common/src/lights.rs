@@ -148,11 +148,17 @@ pub fn env_uv(mapping: EnvMapping, d: DVec3) -> (f64, f64) {
 /// The unit direction of lat-long coordinates (u, v): the inverse of [`env_uv`].
 #[inline]
 pub fn latlong_direction(u: f64, v: f64) -> DVec3 {
+    latlong_direction_sin(u, v).0
+}
+
+/// [`latlong_direction`] and sin θ (θ = vπ, the angle from +Y), which solid-angle pdfs divide by.
+#[inline]
+fn latlong_direction_sin(u: f64, v: f64) -> (DVec3, f64) {
     let theta = v * PI;
     let phi = (u - 0.5) * TAU;
     let (st, ct) = theta.sin_cos();
     let (sp, cp) = phi.sin_cos();
-    DVec3::new(st * sp, ct, ENV_U_Z_SIGN * st * cp)
+    (DVec3::new(st * sp, ct, ENV_U_Z_SIGN * st * cp), st)
 }
 
 /// An environment light (§5.6): an HDR map around the scene at infinity. Rays that miss all
@@ -242,21 +248,33 @@ impl EnvLight {
                 // pdf (the balance heuristic). The map finds a small sun; the lobe keeps points
                 // that face away from it from wasting their samples below the horizon.
                 let xi3 = rng.next_1d();
-                let wi = if xi3 < 0.5 {
-                    self.distribution.sample(xi1, xi2)?.0
+                let (wi, cos, (u, v), map_pdf) = if xi3 < 0.5 {
+                    let s = self.distribution.sample_cell(xi1, xi2)?;
+                    let cos = s.wi.dot(n);
+                    if cos <= 0.0 {
+                        return None;
+                    }
+                    // A lat-long map's coordinates are the grid's: the sampled (u, v) and its
+                    // cell's pdf serve the lookup as they are (no atan2 and acos of `wi`).
+                    let uv = match self.mapping {
+                        EnvMapping::LatLong => (s.u, s.v),
+                        EnvMapping::Probe => env_uv(EnvMapping::Probe, s.wi),
+                    };
+                    (s.wi, cos, uv, s.pdf)
                 } else {
-                    hemisphere_direction(n, (1.0 - xi1).sqrt(), xi2)
-                };
-                let cos = wi.dot(n);
-                if cos <= 0.0 {
-                    return None;
-                }
-                // The map coordinates of `wi` serve both the pdf and the lookup (for lat-long
-                // maps the distribution's grid is the map's).
-                let (u, v) = env_uv(self.mapping, wi);
-                let map_pdf = match self.mapping {
-                    EnvMapping::LatLong => self.distribution.pdf_uv(u, v),
-                    EnvMapping::Probe => self.distribution.pdf(wi),
+                    let wi = hemisphere_direction(n, (1.0 - xi1).sqrt(), xi2);
+                    let cos = wi.dot(n);
+                    if cos <= 0.0 {
+                        return None;
+                    }
+                    // The map coordinates of `wi` serve both the pdf and the lookup (for
+                    // lat-long maps the distribution's grid is the map's).
+                    let uv = env_uv(self.mapping, wi);
+                    let map_pdf = match self.mapping {
+                        EnvMapping::LatLong => self.distribution.pdf_uv(uv.0, uv.1),
+                        EnvMapping::Probe => self.distribution.pdf(wi),
+                    };
+                    (wi, cos, uv, map_pdf)
                 };
                 let pdf = 0.5 * map_pdf + 0.5 * cos / PI;
                 (pdf > 0.0 && pdf.is_finite()).then(|| EnvSample { wi, weight: self.radiance_uv(u, v) / pdf })
@@ -297,6 +315,16 @@ pub struct EnvDistribution {
     /// a search over the whole table, in a few steps. `cell_guide` holds one table per row.
     row_guide: Vec<u32>,
     cell_guide: Vec<u32>,
+}
+
+/// A direction drawn from an [`EnvDistribution`]: the unit direction, its solid-angle pdf and
+/// its lat-long coordinates.
+#[derive(Clone, Copy, Debug)]
+struct GridSample {
+    wi: DVec3,
+    pdf: f64,
+    u: f64,
+    v: f64,
 }
 
 /// Buckets per guide table of [`EnvDistribution`].
@@ -394,6 +422,11 @@ impl EnvDistribution {
 
     /// A direction and its pdf with respect to solid angle, from two uniform numbers.
     pub fn sample(&self, xi1: f64, xi2: f64) -> Option<(DVec3, f64)> {
+        self.sample_cell(xi1, xi2).map(|s| (s.wi, s.pdf))
+    }
+
+    /// [`Self::sample`] with the lat-long coordinates of the direction.
+    fn sample_cell(&self, xi1: f64, xi2: f64) -> Option<GridSample> {
         let y = guided_search(&self.rows, &self.row_guide, xi1).min(self.height - 1);
         let row_lo = if y == 0 { 0.0 } else { self.rows[y - 1] };
         let row_p = self.rows[y] - row_lo;
@@ -407,9 +440,14 @@ impl EnvDistribution {
         let fx = if cell_p > 0.0 { ((xi2 - lo) / cell_p).clamp(0.0, 1.0 - 1e-12) } else { 0.5 };
         let u = (x as f64 + fx) / self.width as f64;
         let v = (y as f64 + fy) / self.height as f64;
-        let d = latlong_direction(u, v);
-        let pdf = self.pdf_cell(x, y, v);
-        (pdf > 0.0 && pdf.is_finite()).then_some((d, pdf))
+        let (wi, sin) = latlong_direction_sin(u, v);
+        if sin <= 0.0 {
+            return None;
+        }
+        // The cell's probability from the two tables just searched (their entries are in
+        // cache; `prob` would be one more load), then as in `pdf_cell`.
+        let pdf = row_p * cell_p * (self.width * self.height) as f64 / (2.0 * PI * PI * sin);
+        (pdf > 0.0 && pdf.is_finite()).then_some(GridSample { wi, pdf, u, v })
     }
 
     /// The solid-angle pdf of unit direction `d` (for tests and for combining estimators).
