@@ -138,8 +138,8 @@ pub struct Accel {
     /// Unbounded instances (planes), tested linearly before the bounded ones.
     unbounded: Vec<u32>,
     /// One BVH over the triangles of every static mesh instance (no motion), carried to world
-    /// space, when there are two or more: a ray walks one tree instead of the top level and then
-    /// each mesh's tree in turn. Its hits report an index into `merged_prims`. Those instances
+    /// space, when there are two or more (or one with a transform): a ray walks one tree instead
+    /// of the top level and then each mesh's tree in turn, with no per-instance ray transform. Its hits report an index into `merged_prims`. Those instances
     /// are in neither `bounded` nor `unbounded`. Their meshes keep their own trees (other
     /// instances may share them), so the merged triangles are a second copy: at most
     /// `MERGED_TRIANGLES_MAX` of them.
@@ -243,8 +243,8 @@ fn instance_bounds(inst: &Instance, meshes: &[Arc<MeshGeom>]) -> Option<Aabb> {
 const MERGED_TRIANGLES_MAX: usize = 1 << 22;
 
 /// The merged BVH of the static mesh instances (see `Accel::merged`): their triangles carried
-/// to world space, its triangle table, and which instances it holds. Empty when fewer than two
-/// instances qualify (one mesh alone is already a single tree).
+/// to world space, its triangle table, and which instances it holds. Empty when no instance
+/// qualifies, or one untransformed one (a single mesh is already a single tree).
 fn merge_static_meshes(
     meshes: &[Arc<MeshGeom>],
     instances: &[Instance],
@@ -264,7 +264,11 @@ fn merge_static_meshes(
             }
         }
     }
-    if set.iter().filter(|&&q| q).count() < 2 {
+    // One untransformed mesh is already a single world-space tree; one transformed mesh is
+    // worth carrying to world space (no ray transform per query).
+    let count = set.iter().filter(|&&q| q).count();
+    let one_transformed = count == 1 && set.iter().zip(instances).any(|(&q, i)| q && i.transform.is_some());
+    if count < 2 && !one_transformed {
         return (Bvh8::default(), Vec::new(), Vec::new());
     }
     let (mut tris, mut aabbs, mut prims) =
