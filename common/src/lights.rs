@@ -305,10 +305,11 @@ pub struct EnvDistribution {
     height: usize,
     /// Cumulative row weights, normalised: `rows[j]` = P(row < j + 1).
     rows: Vec<f64>,
-    /// Per row, cumulative cell weights within the row, normalised.
-    cells: Vec<f64>,
-    /// Each cell's probability (not cumulative), for the pdf.
-    prob: Vec<f64>,
+    /// Per row, cumulative cell weights within the row, normalised, in `f32` (half the cache
+    /// footprint of the searches). A cell's probability within its row is the difference of
+    /// two neighbouring entries, for sampling and pdf alike, so the two always agree; cells
+    /// narrower than `f32` resolves get no width, and no direction, in either.
+    cells: Vec<f32>,
     /// Guide tables (cut points) for the searches of [`Self::sample`]: `row_guide[k]` is the
     /// first row whose cumulative weight exceeds `k / GUIDE`, so a search for `xi` starts at
     /// `row_guide[⌊xi·GUIDE⌋]` and ends before `row_guide[⌊xi·GUIDE⌋ + 1] + 1`: the same index as
@@ -332,10 +333,10 @@ const GUIDE: usize = 64;
 
 /// `guide[k]` = the number of entries of the non-decreasing `cdf` that are `<= k / GUIDE`, for
 /// k in 0..=GUIDE (so `guide[GUIDE] = len` when the last entry is 1).
-fn guide_table(cdf: &[f64], out: &mut Vec<u32>) {
+fn guide_table<T: Copy + Into<f64>>(cdf: &[T], out: &mut Vec<u32>) {
     for k in 0..=GUIDE {
         let t = k as f64 / GUIDE as f64;
-        out.push(cdf.partition_point(|&c| c <= t) as u32);
+        out.push(cdf.partition_point(|&c| c.into() <= t) as u32);
     }
 }
 
@@ -343,10 +344,10 @@ fn guide_table(cdf: &[f64], out: &mut Vec<u32>) {
 /// every entry before `guide[k]` is `<= k / GUIDE <= xi`, and entry `guide[k + 1]` onwards is
 /// `> (k + 1) / GUIDE > xi`, so the answer lies in `guide[k]..=guide[k + 1]`.
 #[inline]
-fn guided_search(cdf: &[f64], guide: &[u32], xi: f64) -> usize {
+fn guided_search<T: Copy + Into<f64>>(cdf: &[T], guide: &[u32], xi: f64) -> usize {
     let k = ((xi * GUIDE as f64) as usize).min(GUIDE - 1);
     let (lo, hi) = (guide[k] as usize, (guide[k + 1] as usize).min(cdf.len()));
-    lo + cdf[lo..hi].partition_point(|&c| c <= xi)
+    lo + cdf[lo..hi].partition_point(|&c| c.into() <= xi)
 }
 
 impl EnvDistribution {
@@ -401,7 +402,7 @@ impl EnvDistribution {
             let mut c = 0.0;
             for p in row {
                 c += p / row_sum;
-                cells.push(c);
+                cells.push(c as f32);
             }
             // Exactly 1 at the end of every CDF, whatever the rounding.
             if let Some(last) = cells.last_mut() {
@@ -417,7 +418,7 @@ impl EnvDistribution {
         for cdf in cells.chunks(width) {
             guide_table(cdf, &mut cell_guide);
         }
-        EnvDistribution { width, height, rows, cells, prob, row_guide, cell_guide }
+        EnvDistribution { width, height, rows, cells, row_guide, cell_guide }
     }
 
     /// A direction and its pdf with respect to solid angle, from two uniform numbers.
@@ -435,8 +436,8 @@ impl EnvDistribution {
         let cdf = &self.cells[y * self.width..(y + 1) * self.width];
         let guide = &self.cell_guide[y * (GUIDE + 1)..(y + 1) * (GUIDE + 1)];
         let x = guided_search(cdf, guide, xi2).min(self.width - 1);
-        let lo = if x == 0 { 0.0 } else { cdf[x - 1] };
-        let cell_p = cdf[x] - lo;
+        let lo = if x == 0 { 0.0 } else { f64::from(cdf[x - 1]) };
+        let cell_p = f64::from(cdf[x]) - lo;
         let fx = if cell_p > 0.0 { ((xi2 - lo) / cell_p).clamp(0.0, 1.0 - 1e-12) } else { 0.5 };
         let u = (x as f64 + fx) / self.width as f64;
         let v = (y as f64 + fy) / self.height as f64;
@@ -444,8 +445,7 @@ impl EnvDistribution {
         if sin <= 0.0 {
             return None;
         }
-        // The cell's probability from the two tables just searched (their entries are in
-        // cache; `prob` would be one more load), then as in `pdf_cell`.
+        // The cell's probability from the entries just searched, as in `pdf_cell`.
         let pdf = row_p * cell_p * (self.width * self.height) as f64 / (2.0 * PI * PI * sin);
         (pdf > 0.0 && pdf.is_finite()).then_some(GridSample { wi, pdf, u, v })
     }
@@ -470,7 +470,16 @@ impl EnvDistribution {
         if sin <= 0.0 {
             return 0.0;
         }
-        self.prob[y * self.width + x] * (self.width * self.height) as f64 / (2.0 * PI * PI * sin)
+        self.cell_prob(x, y) * (self.width * self.height) as f64 / (2.0 * PI * PI * sin)
+    }
+
+    /// The probability of cell (x, y): its row's, times its own within the row.
+    #[inline]
+    fn cell_prob(&self, x: usize, y: usize) -> f64 {
+        let row_p = self.rows[y] - if y == 0 { 0.0 } else { self.rows[y - 1] };
+        let cdf = &self.cells[y * self.width..(y + 1) * self.width];
+        let cell_p = f64::from(cdf[x]) - if x == 0 { 0.0 } else { f64::from(cdf[x - 1]) };
+        row_p * cell_p
     }
 }
 
@@ -761,7 +770,7 @@ mod tests {
             let guide = &d.cell_guide[row * (GUIDE + 1)..(row + 1) * (GUIDE + 1)];
             assert_eq!(
                 guided_search(cdf, guide, xi),
-                cdf.partition_point(|&c| c <= xi),
+                cdf.partition_point(|&c| f64::from(c) <= xi),
                 "row {row}, xi {xi}"
             );
         }
