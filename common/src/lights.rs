@@ -216,7 +216,19 @@ impl EnvLight {
         let j = v * h;
         let (p, q) = (i.floor(), j.floor());
         let (dx, dy) = (i - p, j - q);
-        let wrap = |x: f64| -> i64 { (x as i64).rem_euclid(i64::from(img.width.max(1))) };
+        // u is in [0, 1] for unit directions, so p is in [0, W] and p + 1 in [1, W + 1]: one
+        // subtraction wraps them, as `rem_euclid` would with two integer divisions per lookup.
+        let width = i64::from(img.width.max(1));
+        let wrap = |x: f64| -> i64 {
+            let i = x as i64;
+            if (0..width).contains(&i) {
+                i
+            } else if (width..2 * width).contains(&i) {
+                i - width
+            } else {
+                i.rem_euclid(width)
+            }
+        };
         let (x0, x1) = (wrap(p), wrap(p + 1.0));
         let (y0, y1) = (q as i64, q as i64 + 1);
         let t = |x, y| DVec3::from(img.texel(x, y).map(f64::from));
