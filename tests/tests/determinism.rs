@@ -13,8 +13,9 @@ use tessera::scene::load::{load_scene_file, load_scene_str};
 /// distribution.xml has every homework-3 effect: jittered multisampling, an area light, glossy
 /// reflection, a thin lens and motion blur (checked by `the_distribution_scene_exercises_every_effect`);
 /// environment.xml importance-samples an environment map, spotlights.xml has spot and directional
-/// lights, path_traced.xml has object lights, BRDFs and path-traced cameras (homework 6).
-const SCENES: [&str; 7] = [
+/// lights, path_traced.xml has object lights, BRDFs and path-traced cameras (homework 6),
+/// torus_sky.xml lights a PLY mesh with an environment map alone.
+const SCENES: [&str; 8] = [
     "cornell_box.xml",
     "tori.xml",
     "distribution.xml",
@@ -22,6 +23,7 @@ const SCENES: [&str; 7] = [
     "environment.xml",
     "spotlights.xml",
     "path_traced.xml",
+    "torus_sky.xml",
 ];
 
 fn scenes_dir() -> PathBuf {
