@@ -1,9 +1,10 @@
 """Whole-process render time of official scenes: Tessera against the student tracer anchor.
 
-Usage: peer_scenes.py [--rounds N] [--threads N] [--peer-dir DIR] SCENE.xml [SCENE.xml ...]
+Usage: peer_scenes.py [--rounds N] [--threads N] [--peer-dir DIR] [--worker PATH] SCENE.xml [SCENE.xml ...]
 
 For issue #18 item 3 ("five times the student tracer on every scene"). Each round renders every
-scene once with `tessera-worker render` (target/release, every core unless --threads) and once
+scene once with `tessera-worker render` (target/release, or --worker, e.g. the PGO build
+deploy/pgo-build.sh makes in target/pgo/release; every core unless --threads) and once
 with the student C++ tracer of ../shared/bench/peer (`DIR/run_peer.sh`, where DIR is
 --peer-dir or `$PEER_DIR`, the directory its build.sh built it into; it always uses every
 core), alternately, and times each whole process
@@ -57,12 +58,13 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--threads", type=int, default=None, help="Tessera's render threads (default: every core)")
     ap.add_argument("--peer-dir", help="the student tracer's build directory (default: $PEER_DIR)")
+    ap.add_argument("--worker", help="the tessera-worker binary (default: target/release/tessera-worker)")
     ap.add_argument("scenes", nargs="+")
     args = ap.parse_args()
 
-    worker = ROOT / "target" / "release" / "tessera-worker"
+    worker = Path(args.worker) if args.worker else ROOT / "target" / "release" / "tessera-worker"
     if not worker.is_file():
-        sys.exit(f"peer_scenes: {worker} is missing: run `cargo build --release` first")
+        sys.exit(f"peer_scenes: {worker} is missing: run `cargo build --release` (or deploy/pgo-build.sh) first")
     peer_dir = args.peer_dir or os.environ.get("PEER_DIR")
     if not peer_dir:
         sys.exit(
