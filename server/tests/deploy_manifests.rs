@@ -1,5 +1,6 @@
 //! The deployment files in `deploy/` agree with the binaries: every `--flag` they name exists in
-//! `tessera-server --help` or `tessera-worker work --help`, every `TESSERA_*` variable is one the
+//! `tessera-server --help`, `tessera-worker work --help` or (pgo-build.sh's training renders)
+//! `tessera-worker render --help`, every `TESSERA_*` variable is one the
 //! programs read, every port is the one the server binds, every health-check path is answered by
 //! the real server, and every command line in them actually starts a server (or a worker that
 //! registers with it).
@@ -40,6 +41,10 @@ const FOREIGN_FLAGS: &[&str] = &[
     "--build",
     "--env-file",
     "--now",
+    "--target-dir",
+    "--config",
+    "--print",
+    "--bin",
 ];
 
 fn deploy_dir() -> PathBuf {
@@ -169,7 +174,10 @@ fn every_flag_and_variable_in_deploy_exists_in_the_binaries() {
     let worker_help = help(&worker_bin(), &["work", "--help"]);
     let server_flags = flags_in(&server_help);
     let worker_flags = flags_in(&worker_help);
+    // pgo-build.sh renders scenes with `tessera-worker render`.
+    let render_flags = flags_in(&help(&worker_bin(), &["render", "--help"]));
     assert!(server_flags.contains("--bind") && worker_flags.contains("--server"), "help output changed");
+    assert!(render_flags.contains("--samples"), "help output changed");
     let mut known_vars = env_vars_in(&server_help);
     known_vars.extend(env_vars_in(&worker_help));
     known_vars.extend(env_vars_in_sources());
@@ -182,10 +190,12 @@ fn every_flag_and_variable_in_deploy_exists_in_the_binaries() {
         for flag in flags_in(text) {
             let ok = server_flags.contains(&flag)
                 || worker_flags.contains(&flag)
+                || render_flags.contains(&flag)
                 || FOREIGN_FLAGS.contains(&flag.as_str());
             if !ok {
-                problems
-                    .push(format!("{file}: {flag} is not a flag of tessera-server or tessera-worker work"));
+                problems.push(format!(
+                    "{file}: {flag} is not a flag of tessera-server, tessera-worker work or tessera-worker render"
+                ));
             }
         }
         for var in env_vars_in(text) {
