@@ -317,11 +317,11 @@ pub struct EnvDistribution {
     height: usize,
     /// Cumulative row weights, normalised: `rows[j]` = P(row < j + 1).
     rows: Vec<f64>,
-    /// Per row, cumulative cell weights within the row, normalised, in `f32` (half the cache
-    /// footprint of the searches). A cell's probability within its row is the difference of
-    /// two neighbouring entries, for sampling and pdf alike, so the two always agree; cells
-    /// narrower than `f32` resolves get no width, and no direction, in either.
-    cells: Vec<f32>,
+    /// Per row, cumulative cell weights within the row, normalised. A cell's probability within
+    /// its row is the difference of two neighbouring entries, for sampling and pdf alike, so the
+    /// two agree by construction (and no separate probability table is needed). `f64`: in `f32`
+    /// the floor cells beside a bright sun would get no width, and no direction.
+    cells: Vec<f64>,
     /// Guide tables (cut points) for the searches of [`Self::sample`]: `row_guide[k]` is the
     /// first row whose cumulative weight exceeds `k / GUIDE`, so a search for `xi` starts at
     /// `row_guide[⌊xi·GUIDE⌋]` and ends before `row_guide[⌊xi·GUIDE⌋ + 1] + 1`: the same index as
@@ -345,10 +345,10 @@ const GUIDE: usize = 64;
 
 /// `guide[k]` = the number of entries of the non-decreasing `cdf` that are `<= k / GUIDE`, for
 /// k in 0..=GUIDE (so `guide[GUIDE] = len` when the last entry is 1).
-fn guide_table<T: Copy + Into<f64>>(cdf: &[T], out: &mut Vec<u32>) {
+fn guide_table(cdf: &[f64], out: &mut Vec<u32>) {
     for k in 0..=GUIDE {
         let t = k as f64 / GUIDE as f64;
-        out.push(cdf.partition_point(|&c| c.into() <= t) as u32);
+        out.push(cdf.partition_point(|&c| c <= t) as u32);
     }
 }
 
@@ -356,10 +356,10 @@ fn guide_table<T: Copy + Into<f64>>(cdf: &[T], out: &mut Vec<u32>) {
 /// every entry before `guide[k]` is `<= k / GUIDE <= xi`, and entry `guide[k + 1]` onwards is
 /// `> (k + 1) / GUIDE > xi`, so the answer lies in `guide[k]..=guide[k + 1]`.
 #[inline]
-fn guided_search<T: Copy + Into<f64>>(cdf: &[T], guide: &[u32], xi: f64) -> usize {
+fn guided_search(cdf: &[f64], guide: &[u32], xi: f64) -> usize {
     let k = ((xi * GUIDE as f64) as usize).min(GUIDE - 1);
     let (lo, hi) = (guide[k] as usize, (guide[k + 1] as usize).min(cdf.len()));
-    lo + cdf[lo..hi].partition_point(|&c| c.into() <= xi)
+    lo + cdf[lo..hi].partition_point(|&c| c <= xi)
 }
 
 impl EnvDistribution {
@@ -414,7 +414,7 @@ impl EnvDistribution {
             let mut c = 0.0;
             for p in row {
                 c += p / row_sum;
-                cells.push(c as f32);
+                cells.push(c);
             }
             // Exactly 1 at the end of every CDF, whatever the rounding.
             if let Some(last) = cells.last_mut() {
@@ -448,8 +448,8 @@ impl EnvDistribution {
         let cdf = &self.cells[y * self.width..(y + 1) * self.width];
         let guide = &self.cell_guide[y * (GUIDE + 1)..(y + 1) * (GUIDE + 1)];
         let x = guided_search(cdf, guide, xi2).min(self.width - 1);
-        let lo = if x == 0 { 0.0 } else { f64::from(cdf[x - 1]) };
-        let cell_p = f64::from(cdf[x]) - lo;
+        let lo = if x == 0 { 0.0 } else { cdf[x - 1] };
+        let cell_p = cdf[x] - lo;
         let fx = if cell_p > 0.0 { ((xi2 - lo) / cell_p).clamp(0.0, 1.0 - 1e-12) } else { 0.5 };
         let u = (x as f64 + fx) / self.width as f64;
         let v = (y as f64 + fy) / self.height as f64;
@@ -457,8 +457,8 @@ impl EnvDistribution {
         if sin <= 0.0 {
             return None;
         }
-        // The cell's probability from the entries just searched, as in `pdf_cell`.
-        let pdf = row_p * cell_p * (self.width * self.height) as f64 / (2.0 * PI * PI * sin);
+        // The cell's probability from the entries just searched.
+        let pdf = self.solid_angle_pdf(row_p * cell_p, sin);
         (pdf > 0.0 && pdf.is_finite()).then_some(GridSample { wi, pdf, u, v })
     }
 
@@ -482,7 +482,13 @@ impl EnvDistribution {
         if sin <= 0.0 {
             return 0.0;
         }
-        self.cell_prob(x, y) * (self.width * self.height) as f64 / (2.0 * PI * PI * sin)
+        self.solid_angle_pdf(self.cell_prob(x, y), sin)
+    }
+
+    /// The solid-angle density of a cell of probability `p` at sin θ = `sin`.
+    #[inline]
+    fn solid_angle_pdf(&self, p: f64, sin: f64) -> f64 {
+        p * (self.width * self.height) as f64 / (2.0 * PI * PI * sin)
     }
 
     /// The probability of cell (x, y): its row's, times its own within the row.
@@ -490,7 +496,7 @@ impl EnvDistribution {
     fn cell_prob(&self, x: usize, y: usize) -> f64 {
         let row_p = self.rows[y] - if y == 0 { 0.0 } else { self.rows[y - 1] };
         let cdf = &self.cells[y * self.width..(y + 1) * self.width];
-        let cell_p = f64::from(cdf[x]) - if x == 0 { 0.0 } else { f64::from(cdf[x - 1]) };
+        let cell_p = cdf[x] - if x == 0 { 0.0 } else { cdf[x - 1] };
         row_p * cell_p
     }
 }
@@ -755,6 +761,29 @@ mod tests {
         assert!((env.radiance(latlong_direction(0.75, 0.5)).x - 4.0).abs() < 1e-9);
     }
 
+    /// Every direction keeps a positive pdf, even the floor cells in the row of a sun 10^8 times
+    /// brighter than the sky on a 1024x256 map (each one's share of that row, about 4e-9, is
+    /// below `f32` resolution near 1), and the pdf `sample` reports is the one `pdf` gives for
+    /// the same direction.
+    #[test]
+    fn floor_cells_beside_a_blinding_sun_keep_a_positive_pdf() {
+        let (w, h, sun) = (1024, 256, (700, 100));
+        let img = image(w, h, |x, y| if (x, y) == sun { [1e8; 3] } else { [1.0; 3] });
+        let d = EnvDistribution::new(&img, EnvMapping::LatLong);
+        for y in [0, sun.1 - 1, sun.1, sun.1 + 1, h - 1] {
+            for x in 0..w {
+                let dir = latlong_direction((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64);
+                assert!(d.pdf(dir) > 0.0, "cell ({x}, {y})");
+            }
+        }
+        for k in 0..64 {
+            let (xi1, xi2) = ((k as f64 + 0.5) / 64.0, ((k * 37 % 64) as f64 + 0.5) / 64.0);
+            let (dir, pdf) = d.sample(xi1, xi2).unwrap();
+            let again = d.pdf(dir);
+            assert!((pdf - again).abs() <= 1e-9 * pdf, "xi ({xi1}, {xi2}): {pdf} vs {again}");
+        }
+    }
+
     /// The guide tables change no answer: the guided search finds the index the plain binary
     /// search over the whole table finds, on a map with a sun, black rows and ties.
     #[test]
@@ -782,7 +811,7 @@ mod tests {
             let guide = &d.cell_guide[row * (GUIDE + 1)..(row + 1) * (GUIDE + 1)];
             assert_eq!(
                 guided_search(cdf, guide, xi),
-                cdf.partition_point(|&c| f64::from(c) <= xi),
+                cdf.partition_point(|&c| c <= xi),
                 "row {row}, xi {xi}"
             );
         }

@@ -139,10 +139,10 @@ pub struct Accel {
     unbounded: Vec<u32>,
     /// One BVH over the triangles of every static mesh instance (no motion), carried to world
     /// space, when there are two or more (or one with a transform): a ray walks one tree instead
-    /// of the top level and then each mesh's tree in turn, with no per-instance ray transform. Its hits report an index into `merged_prims`. Those instances
-    /// are in neither `bounded` nor `unbounded`. Their meshes keep their own trees (other
-    /// instances may share them), so the merged triangles are a second copy: at most
-    /// `MERGED_TRIANGLES_MAX` of them.
+    /// of the top level and then each mesh's tree in turn, with no per-instance ray transform.
+    /// Its hits report an index into `merged_prims`. Those instances are in neither `bounded`
+    /// nor `unbounded`. Their meshes keep their own trees (other instances may share them), so
+    /// the merged triangles are a second copy: at most `MERGED_TRIANGLES_MAX` of them.
     merged: Bvh8,
     /// (instance, triangle of its mesh) of each triangle of `merged`.
     merged_prims: Vec<(u32, u32)>,
