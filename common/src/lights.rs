@@ -260,33 +260,27 @@ impl EnvLight {
                 // pdf (the balance heuristic). The map finds a small sun; the lobe keeps points
                 // that face away from it from wasting their samples below the horizon.
                 let xi3 = rng.next_1d();
-                let (wi, cos, (u, v), map_pdf) = if xi3 < 0.5 {
-                    let s = self.distribution.sample_cell(xi1, xi2)?;
-                    let cos = s.wi.dot(n);
-                    if cos <= 0.0 {
-                        return None;
-                    }
-                    // A lat-long map's coordinates are the grid's: the sampled (u, v) and its
-                    // cell's pdf serve the lookup as they are (no atan2 and acos of `wi`).
-                    let uv = match self.mapping {
-                        EnvMapping::LatLong => (s.u, s.v),
-                        EnvMapping::Probe => env_uv(EnvMapping::Probe, s.wi),
-                    };
-                    (s.wi, cos, uv, s.pdf)
+                let (wi, grid) = if xi3 < 0.5 {
+                    let s = self.distribution.sample(xi1, xi2)?;
+                    (s.wi, Some(s))
                 } else {
-                    let wi = hemisphere_direction(n, (1.0 - xi1).sqrt(), xi2);
-                    let cos = wi.dot(n);
-                    if cos <= 0.0 {
-                        return None;
+                    (hemisphere_direction(n, (1.0 - xi1).sqrt(), xi2), None)
+                };
+                let cos = wi.dot(n);
+                if cos <= 0.0 {
+                    return None;
+                }
+                // The map coordinates of `wi` serve both the pdf and the lookup. A lat-long map's
+                // grid is the distribution's, so a direction drawn from it keeps its (u, v) and
+                // its cell's pdf (no atan2 and acos of `wi`).
+                let ((u, v), map_pdf) = match (grid, self.mapping) {
+                    (Some(s), EnvMapping::LatLong) => ((s.u, s.v), s.pdf),
+                    (Some(s), EnvMapping::Probe) => (env_uv(EnvMapping::Probe, wi), s.pdf),
+                    (None, EnvMapping::LatLong) => {
+                        let (u, v) = env_uv(EnvMapping::LatLong, wi);
+                        ((u, v), self.distribution.pdf_uv(u, v))
                     }
-                    // The map coordinates of `wi` serve both the pdf and the lookup (for
-                    // lat-long maps the distribution's grid is the map's).
-                    let uv = env_uv(self.mapping, wi);
-                    let map_pdf = match self.mapping {
-                        EnvMapping::LatLong => self.distribution.pdf_uv(uv.0, uv.1),
-                        EnvMapping::Probe => self.distribution.pdf(wi),
-                    };
-                    (wi, cos, uv, map_pdf)
+                    (None, EnvMapping::Probe) => (env_uv(EnvMapping::Probe, wi), self.distribution.pdf(wi)),
                 };
                 let pdf = 0.5 * map_pdf + 0.5 * cos / PI;
                 (pdf > 0.0 && pdf.is_finite()).then(|| EnvSample { wi, weight: self.radiance_uv(u, v) / pdf })
@@ -433,13 +427,9 @@ impl EnvDistribution {
         EnvDistribution { width, height, rows, cells, row_guide, cell_guide }
     }
 
-    /// A direction and its pdf with respect to solid angle, from two uniform numbers.
-    pub fn sample(&self, xi1: f64, xi2: f64) -> Option<(DVec3, f64)> {
-        self.sample_cell(xi1, xi2).map(|s| (s.wi, s.pdf))
-    }
-
-    /// [`Self::sample`] with the lat-long coordinates of the direction.
-    fn sample_cell(&self, xi1: f64, xi2: f64) -> Option<GridSample> {
+    /// A direction, its pdf with respect to solid angle and its lat-long coordinates, from two
+    /// uniform numbers.
+    fn sample(&self, xi1: f64, xi2: f64) -> Option<GridSample> {
         let y = guided_search(&self.rows, &self.row_guide, xi1).min(self.height - 1);
         let row_lo = if y == 0 { 0.0 } else { self.rows[y - 1] };
         let row_p = self.rows[y] - row_lo;
@@ -778,7 +768,7 @@ mod tests {
         }
         for k in 0..64 {
             let (xi1, xi2) = ((k as f64 + 0.5) / 64.0, ((k * 37 % 64) as f64 + 0.5) / 64.0);
-            let (dir, pdf) = d.sample(xi1, xi2).unwrap();
+            let GridSample { wi: dir, pdf, .. } = d.sample(xi1, xi2).unwrap();
             let again = d.pdf(dir);
             assert!((pdf - again).abs() <= 1e-9 * pdf, "xi ({xi1}, {xi2}): {pdf} vs {again}");
         }
@@ -854,7 +844,7 @@ mod tests {
         for k in 0..1000 {
             let mut rng = Sampler::new(7, k, 0, 0);
             let (xi1, xi2) = rng.next_2d();
-            let (d, pdf) = dist.sample(xi1, xi2).unwrap();
+            let GridSample { wi: d, pdf, .. } = dist.sample(xi1, xi2).unwrap();
             assert!((pdf - dist.pdf(d)).abs() <= 1e-9 * pdf, "{pdf} vs {}", dist.pdf(d));
             let (u, v) = env_uv(EnvMapping::LatLong, d);
             if (4..=5).contains(&((u * 16.0) as u32)) && (2..=3).contains(&((v * 8.0) as u32)) {
