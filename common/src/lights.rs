@@ -11,7 +11,7 @@ use std::sync::Arc;
 
 use glam::{DAffine3, DVec3};
 
-use crate::math::orthonormal_pair;
+use crate::math::{atan2_approx, orthonormal_pair};
 use crate::sampler::Sampler;
 use crate::scene::records::{EnvMapping, EnvSampler};
 use crate::texture::image::TextureImage;
@@ -130,16 +130,19 @@ pub const ENV_U_Z_SIGN: f64 = -1.0;
 #[inline]
 pub fn env_uv(mapping: EnvMapping, d: DVec3) -> (f64, f64) {
     match mapping {
+        // Both angles come from `atan2_approx` (2e-10 rad, a millionth of a texel of any map):
+        // θ = acos(y) as atan2(√(1 − y²), y).
         EnvMapping::LatLong => {
-            let u = 0.5 + d.x.atan2(ENV_U_Z_SIGN * d.z) / TAU;
-            let v = d.y.clamp(-1.0, 1.0).acos() / PI;
+            let u = 0.5 + atan2_approx(d.x, ENV_U_Z_SIGN * d.z) / TAU;
+            let y = d.y.clamp(-1.0, 1.0);
+            let v = atan2_approx(((1.0 - y) * (1.0 + y)).sqrt(), y) / PI;
             (u, v)
         }
         EnvMapping::Probe => {
             // Debevec's angular map: the distance from the centre is proportional to the angle
-            // from −Z.
+            // from −Z, whose sine is `s` for a unit direction.
             let s = (d.x * d.x + d.y * d.y).sqrt();
-            let r = if s > 1e-12 { (-d.z).clamp(-1.0, 1.0).acos() / (PI * s) } else { 0.0 };
+            let r = if s > 1e-12 { atan2_approx(s, -d.z) / (PI * s) } else { 0.0 };
             ((r * d.x + 1.0) / 2.0, (-r * d.y + 1.0) / 2.0)
         }
     }

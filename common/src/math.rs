@@ -110,6 +110,56 @@ pub fn orthonormal_pair(n: DVec3) -> (DVec3, DVec3) {
     (u, v)
 }
 
+/// `y.atan2(x)` to within 2e-10 radians, without a call into libm: the environment lookup of
+/// every ray that misses the scene needs two inverse trigonometric functions, and libm's
+/// `atan2` took a sixth of the time of a render where every ray misses (head_env_light's map).
+///
+/// The argument is reduced to `t = min(|x|, |y|) / max(|x|, |y|)` in [0, 1], where
+/// `atan(t) = t·P(t²)` with `P` a degree-10 polynomial fitted for the least maximum error
+/// (1.4e-10 on [0, 1]; evaluated in Estrin's scheme, so its latency is four fused
+/// multiply-adds deep, not eleven), then unfolded by the octant. Signed zeros and quadrants
+/// follow `f64::atan2`; a NaN argument gives NaN. Fused multiply-adds are exact IEEE
+/// operations, so the result is the same bits on every machine.
+#[inline]
+pub fn atan2_approx(y: f64, x: f64) -> f64 {
+    const C: [f64; 11] = [
+        0.999_999_996_672_234_3,
+        -0.333_333_020_880_277_16,
+        0.199_991_297_644_411,
+        -0.142_744_317_995_845_72,
+        0.110_286_493_418_870_85,
+        -0.087_138_548_442_562_9,
+        0.065_413_675_627_087_82,
+        -0.042_087_973_372_376_57,
+        0.020_467_737_348_113_385,
+        -0.006_394_727_546_410_552,
+        0.000_937_551_064_287_188_8,
+    ];
+    let (ax, ay) = (x.abs(), y.abs());
+    // Comparisons with a NaN are false: the NaN lands in `t`.
+    let (lo, hi, steep) = if ay > ax { (ax, ay, true) } else { (ay, ax, false) };
+    let t = if hi == 0.0 { 0.0 } else { lo / hi };
+    let s = t * t;
+    let (s2, s4) = (s * s, s * s * (s * s));
+    let q0 = C[1].mul_add(s, C[0]);
+    let q1 = C[3].mul_add(s, C[2]);
+    let q2 = C[5].mul_add(s, C[4]);
+    let q3 = C[7].mul_add(s, C[6]);
+    let q4 = C[9].mul_add(s, C[8]);
+    let r0 = q1.mul_add(s2, q0);
+    let r1 = q3.mul_add(s2, q2);
+    let r2 = C[10].mul_add(s2, q4);
+    let p = r2.mul_add(s4 * s4, r1.mul_add(s4, r0));
+    let mut a = t * p;
+    if steep {
+        a = std::f64::consts::FRAC_PI_2 - a;
+    }
+    if x.is_sign_negative() {
+        a = std::f64::consts::PI - a;
+    }
+    a.copysign(y)
+}
+
 /// Converts a `[f64; 3]` record value into a vector.
 #[inline]
 pub fn v3(a: [f64; 3]) -> DVec3 {
@@ -119,6 +169,31 @@ pub fn v3(a: [f64; 3]) -> DVec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn atan2_approx_is_within_its_bound_of_libm_everywhere() {
+        // Directions all around the circle, at several radii, and the axes and their signed
+        // zeros.
+        let mut worst = 0.0f64;
+        for k in 0..200_000 {
+            let a = (k as f64 / 200_000.0 - 0.5) * std::f64::consts::TAU * 1.0001;
+            for r in [1e-300, 1e-3, 1.0, 7.5e4, 1e300] {
+                let (y, x) = (r * a.sin(), r * a.cos());
+                worst = worst.max((atan2_approx(y, x) - y.atan2(x)).abs());
+            }
+        }
+        assert!(worst < 2e-10, "worst error {worst:e}");
+        for (y, x) in
+            [(0.0, 1.0), (0.0, -1.0), (-0.0, -1.0), (1.0, 0.0), (-1.0, 0.0), (0.0, 0.0), (-0.0, -0.0)]
+        {
+            let (got, want) = (atan2_approx(y, x), f64::atan2(y, x));
+            assert!(
+                (got - want).abs() < 1e-15 && got.is_sign_negative() == want.is_sign_negative(),
+                "{y} {x}"
+            );
+        }
+        assert!(atan2_approx(f64::NAN, 1.0).is_nan() && atan2_approx(1.0, f64::NAN).is_nan());
+    }
 
     #[test]
     fn orthonormal_pair_is_orthonormal() {
