@@ -270,6 +270,270 @@ impl Bvh8 {
     }
 }
 
+/// Up to eight rays traced together through one traversal (structure of arrays): coherent rays,
+/// such as the camera rays of one pixel, share their node visits and test every triangle of a
+/// leaf eight at a time. Each lane gets the hit its own [`Ray8`] query would find (up to exact
+/// ties of `t` between two triangles, which the two traversals may break differently).
+pub struct Packet8 {
+    o: [[f32; 8]; 3],
+    d: [[f32; 8]; 3],
+    inv: [[f32; 8]; 3],
+    o_inv: [[f32; 8]; 3],
+    tmin: [f32; 8],
+    /// Lanes that hold a ray.
+    active: u32,
+}
+
+impl Packet8 {
+    /// The packet of `rays` (origin, direction; at most eight), all with `tmin`.
+    pub fn new(rays: &[(Vec3A, Vec3A)], tmin: f32) -> Self {
+        assert!(!rays.is_empty() && rays.len() <= 8, "a packet holds one to eight rays");
+        let mut p = Packet8 {
+            o: [[0.0; 8]; 3],
+            d: [[0.0; 8]; 3],
+            inv: [[0.0; 8]; 3],
+            o_inv: [[0.0; 8]; 3],
+            tmin: [tmin; 8],
+            active: (1u32 << rays.len()) - 1,
+        };
+        // Unused lanes repeat the first ray (finite values; their results are never read).
+        for lane in 0..8 {
+            let (o, d) = rays.get(lane).unwrap_or(&rays[0]);
+            let r = Ray8::new(*o, *d, tmin, f32::INFINITY);
+            for a in 0..3 {
+                p.o[a][lane] = r.o[a];
+                p.d[a][lane] = r.d[a];
+                p.inv[a][lane] = r.inv[a];
+                p.o_inv[a][lane] = r.o_inv[a];
+            }
+        }
+        p
+    }
+
+    /// Lane `lane` as a single ray, with its own `tmax`.
+    #[cfg(any(test, not(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))))]
+    fn lane(&self, lane: usize, tmax: f32) -> Ray8 {
+        let o = Vec3A::new(self.o[0][lane], self.o[1][lane], self.o[2][lane]);
+        let d = Vec3A::new(self.d[0][lane], self.d[1][lane], self.d[2][lane]);
+        Ray8::new(o, d, self.tmin[lane], tmax)
+    }
+}
+
+impl Bvh8 {
+    /// The closest hit of every active lane of `p` with t in (tmin, `tmax[lane]`): where a lane
+    /// hits, `tmax[lane]` becomes its distance and `id[lane]` what the triangle reports.
+    /// Returns the mask of lanes that hit.
+    pub fn intersect_packet(&self, p: &Packet8, tmax: &mut [f32; 8], id: &mut [u32; 8]) -> u32 {
+        if self.nodes.is_empty() || p.active == 0 {
+            return 0;
+        }
+        let need = self.depth * 7 + 1;
+        if need <= STACK {
+            let mut stack = [const { MaybeUninit::<(u32, u32, f32)>::uninit() }; STACK];
+            self.closest_packet(p, tmax, id, &mut stack)
+        } else {
+            let mut stack = vec![MaybeUninit::<(u32, u32, f32)>::uninit(); need];
+            self.closest_packet(p, tmax, id, &mut stack)
+        }
+    }
+
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma")))]
+    fn closest_packet(
+        &self,
+        p: &Packet8,
+        tmax: &mut [f32; 8],
+        id: &mut [u32; 8],
+        _stack: &mut [MaybeUninit<(u32, u32, f32)>],
+    ) -> u32 {
+        // Without AVX2 the lanes go one by one.
+        let mut hit = 0;
+        for lane in 0..8 {
+            if p.active & (1 << lane) != 0
+                && let Some((t, i)) = self.intersect(&p.lane(lane, tmax[lane]))
+            {
+                tmax[lane] = t;
+                id[lane] = i;
+                hit |= 1 << lane;
+            }
+        }
+        hit
+    }
+
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+    fn closest_packet(
+        &self,
+        p: &Packet8,
+        tmax_out: &mut [f32; 8],
+        id_out: &mut [u32; 8],
+        stack: &mut [MaybeUninit<(u32, u32, f32)>],
+    ) -> u32 {
+        use std::arch::x86_64::*;
+        // SAFETY: the target has AVX2 and FMA (cfg above); every load below reads a whole
+        // `[f32; 8]` or `[u32; 8]` (unaligned loads), and broadcasts read single elements.
+        unsafe {
+            let ld = |a: &[f32; 8]| _mm256_loadu_ps(a.as_ptr());
+            let (ox, oy, oz) = (ld(&p.o[0]), ld(&p.o[1]), ld(&p.o[2]));
+            let (dx, dy, dz) = (ld(&p.d[0]), ld(&p.d[1]), ld(&p.d[2]));
+            let (ix, iy, iz) = (ld(&p.inv[0]), ld(&p.inv[1]), ld(&p.inv[2]));
+            let (oix, oiy, oiz) = (ld(&p.o_inv[0]), ld(&p.o_inv[1]), ld(&p.o_inv[2]));
+            let tmin = ld(&p.tmin);
+            let mut tmax = ld(tmax_out);
+            let mut ids = _mm256_loadu_si256(id_out.as_ptr().cast());
+            let mut hit_lanes = 0u32;
+            let grow = _mm256_set1_ps(1.0 + 4.0 * f32::EPSILON);
+            let inf = _mm256_set1_ps(f32::INFINITY);
+            let mut sp = 0usize;
+            let mut cur = (0u32, p.active);
+            loop {
+                let (node_ref, mask) = cur;
+                if node_ref & LEAF == 0 {
+                    let node = &self.nodes[node_ref as usize];
+                    // Slots with a box (empty ones have min > max).
+                    let filled = _mm256_movemask_ps(_mm256_cmp_ps(
+                        _mm256_load_ps(node.b[0].as_ptr()),
+                        _mm256_load_ps(node.b[3].as_ptr()),
+                        _CMP_LE_OQ,
+                    )) as u32;
+                    let mut kids = [(0u32, 0u32, 0f32); 8];
+                    let mut n = 0;
+                    let mut slots = filled;
+                    while slots != 0 {
+                        let i = slots.trailing_zeros() as usize;
+                        slots &= slots - 1;
+                        let b = |k: usize| _mm256_set1_ps(node.b[k][i]);
+                        let t0x = _mm256_fmsub_ps(b(0), ix, oix);
+                        let t1x = _mm256_fmsub_ps(b(3), ix, oix);
+                        let t0y = _mm256_fmsub_ps(b(1), iy, oiy);
+                        let t1y = _mm256_fmsub_ps(b(4), iy, oiy);
+                        let t0z = _mm256_fmsub_ps(b(2), iz, oiz);
+                        let t1z = _mm256_fmsub_ps(b(5), iz, oiz);
+                        let tn = _mm256_max_ps(
+                            _mm256_max_ps(_mm256_min_ps(t0x, t1x), _mm256_min_ps(t0y, t1y)),
+                            _mm256_max_ps(_mm256_min_ps(t0z, t1z), tmin),
+                        );
+                        let tf = _mm256_min_ps(
+                            _mm256_min_ps(_mm256_max_ps(t0x, t1x), _mm256_max_ps(t0y, t1y)),
+                            _mm256_min_ps(_mm256_max_ps(t0z, t1z), tmax),
+                        );
+                        let in_box = _mm256_cmp_ps(tn, _mm256_mul_ps(tf, grow), _CMP_LE_OQ);
+                        let lanes = _mm256_movemask_ps(in_box) as u32 & mask;
+                        if lanes != 0 {
+                            // The nearest entry among the lanes that enter orders the children.
+                            let e = _mm256_blendv_ps(inf, tn, in_box);
+                            let e = _mm256_min_ps(e, _mm256_permute2f128_ps(e, e, 1));
+                            let e = _mm256_min_ps(e, _mm256_shuffle_ps(e, e, 0b01_00_11_10));
+                            let e = _mm256_min_ps(e, _mm256_shuffle_ps(e, e, 0b10_11_00_01));
+                            let entry = _mm256_cvtss_f32(e);
+                            let k = (node.child[i], lanes, entry);
+                            // Insertion sort, descending entry distance.
+                            let mut j = n;
+                            while j > 0 && kids[j - 1].2 < entry {
+                                kids[j] = kids[j - 1];
+                                j -= 1;
+                            }
+                            kids[j] = k;
+                            n += 1;
+                        }
+                    }
+                    if n > 0 {
+                        for k in &kids[..n - 1] {
+                            stack[sp] = MaybeUninit::new(*k);
+                            sp += 1;
+                        }
+                        cur = (kids[n - 1].0, kids[n - 1].1);
+                        continue;
+                    }
+                } else {
+                    let first = (node_ref & FIRST_MASK) as usize;
+                    let count = ((node_ref & !LEAF) >> COUNT_SHIFT) as usize;
+                    let live = lane_mask(mask);
+                    for tri in &self.tris[first..first + count] {
+                        for l in 0..4 {
+                            if tri.id[l] == u32::MAX {
+                                break;
+                            }
+                            let c = |v: &[[f32; 4]; 3], a: usize| _mm256_set1_ps(v[a][l]);
+                            let (e1x, e1y, e1z) = (c(&tri.e1, 0), c(&tri.e1, 1), c(&tri.e1, 2));
+                            let (e2x, e2y, e2z) = (c(&tri.e2, 0), c(&tri.e2, 1), c(&tri.e2, 2));
+                            let sx = _mm256_sub_ps(ox, c(&tri.v0, 0));
+                            let sy = _mm256_sub_ps(oy, c(&tri.v0, 1));
+                            let sz = _mm256_sub_ps(oz, c(&tri.v0, 2));
+                            // The same operations, in the same order, as `tri4_closest`.
+                            let px = _mm256_fmsub_ps(dy, e2z, _mm256_mul_ps(dz, e2y));
+                            let py = _mm256_fmsub_ps(dz, e2x, _mm256_mul_ps(dx, e2z));
+                            let pz = _mm256_fmsub_ps(dx, e2y, _mm256_mul_ps(dy, e2x));
+                            let qx = _mm256_fmsub_ps(sy, e1z, _mm256_mul_ps(sz, e1y));
+                            let qy = _mm256_fmsub_ps(sz, e1x, _mm256_mul_ps(sx, e1z));
+                            let qz = _mm256_fmsub_ps(sx, e1y, _mm256_mul_ps(sy, e1x));
+                            let dot = |ax, ay, az, bx, by, bz| {
+                                _mm256_fmadd_ps(ax, bx, _mm256_fmadd_ps(ay, by, _mm256_mul_ps(az, bz)))
+                            };
+                            let det = dot(e1x, e1y, e1z, px, py, pz);
+                            let signbit = _mm256_set1_ps(-0.0);
+                            let sign = _mm256_and_ps(det, signbit);
+                            let adet = _mm256_andnot_ps(signbit, det);
+                            let u = _mm256_xor_ps(dot(sx, sy, sz, px, py, pz), sign);
+                            let v = _mm256_xor_ps(dot(dx, dy, dz, qx, qy, qz), sign);
+                            let tt = _mm256_xor_ps(dot(e2x, e2y, e2z, qx, qy, qz), sign);
+                            let zero = _mm256_setzero_ps();
+                            let mut ok = _mm256_and_ps(live, _mm256_cmp_ps(adet, zero, _CMP_GT_OQ));
+                            ok = _mm256_and_ps(ok, _mm256_cmp_ps(u, zero, _CMP_GE_OQ));
+                            ok = _mm256_and_ps(ok, _mm256_cmp_ps(v, zero, _CMP_GE_OQ));
+                            ok = _mm256_and_ps(ok, _mm256_cmp_ps(_mm256_add_ps(u, v), adet, _CMP_LE_OQ));
+                            ok = _mm256_and_ps(ok, _mm256_cmp_ps(tt, _mm256_mul_ps(tmin, adet), _CMP_GT_OQ));
+                            ok = _mm256_and_ps(ok, _mm256_cmp_ps(tt, _mm256_mul_ps(tmax, adet), _CMP_LT_OQ));
+                            let m = _mm256_movemask_ps(ok) as u32;
+                            if m == 0 {
+                                continue;
+                            }
+                            // Where the scaled test passed, t < tmax up to the rounding of the
+                            // division: keep the strict comparison of the single-ray test.
+                            let t = _mm256_div_ps(tt, adet);
+                            let closer = _mm256_and_ps(ok, _mm256_cmp_ps(t, tmax, _CMP_LT_OQ));
+                            tmax = _mm256_blendv_ps(tmax, t, closer);
+                            ids = _mm256_castps_si256(_mm256_blendv_ps(
+                                _mm256_castsi256_ps(ids),
+                                _mm256_castsi256_ps(_mm256_set1_epi32(tri.id[l] as i32)),
+                                closer,
+                            ));
+                            hit_lanes |= _mm256_movemask_ps(closer) as u32;
+                        }
+                    }
+                }
+                // Pop the next node some lane may still reach before its closest hit.
+                loop {
+                    if sp == 0 {
+                        _mm256_storeu_ps(tmax_out.as_mut_ptr(), tmax);
+                        _mm256_storeu_si256(id_out.as_mut_ptr().cast(), ids);
+                        return hit_lanes;
+                    }
+                    sp -= 1;
+                    // SAFETY: entries below `sp` were written by the pushes above.
+                    let (c, m, d) = stack[sp].assume_init();
+                    let reach = _mm256_movemask_ps(_mm256_cmp_ps(_mm256_set1_ps(d), tmax, _CMP_LE_OQ)) as u32;
+                    if m & reach != 0 {
+                        cur = (c, m & reach);
+                        break;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The lanes of `mask` as an all-ones / all-zeros vector.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+#[inline(always)]
+fn lane_mask(mask: u32) -> std::arch::x86_64::__m256 {
+    use std::arch::x86_64::*;
+    // SAFETY: the target has AVX2 (cfg above); register operations only.
+    unsafe {
+        let bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+        let m = _mm256_and_si256(_mm256_set1_epi32(mask as i32), bits);
+        _mm256_castsi256_ps(_mm256_cmpeq_epi32(m, bits))
+    }
+}
+
 fn fill_counts(bvh2: &Bvh2, root: usize, count: &mut [u32]) {
     // Iterative post-order: children before parents.
     let mut stack = vec![(root, false)];
@@ -526,6 +790,75 @@ fn tri4_closest(p: &Tri4, ray: &Ray8, tmax: f32) -> Option<(f32, usize)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every lane of a packet finds what its own single-ray query finds: coherent packets (the
+    /// rays of one small cone), scattered ones, partial ones, and lanes with their own tmax.
+    #[test]
+    fn packets_find_what_single_rays_find() {
+        let mut s = 777u64;
+        let mut r = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let mut tris = Vec::new();
+        for _ in 0..5000 {
+            let c = Vec3A::new(r(), r(), r()) * 10.0;
+            let a = c + Vec3A::new(r(), r(), r()) - 0.5;
+            let b = c + Vec3A::new(r(), r(), r()) - 0.5;
+            let d = c + Vec3A::new(r(), r(), r()) - 0.5;
+            tris.push([a, b - a, d - a]);
+        }
+        let aabbs: Vec<Aabb> =
+            tris.iter().map(|t| Aabb::from_points(&[t[0], t[0] + t[1], t[0] + t[2]])).collect();
+        let ids: Vec<u32> = (0..tris.len() as u32).collect();
+        let bvh = Bvh8::build(&tris, &aabbs, &ids);
+        let (mut lanes_hit, mut lanes) = (0, 0);
+        for k in 0..3000 {
+            let n = 1 + k % 8;
+            let o = Vec3A::new(r(), r(), r()) * 14.0 - 2.0;
+            let d = Vec3A::new(r() - 0.5, r() - 0.5, r() - 0.5).normalize();
+            let spread = [0.002, 0.05, 1.0][k % 3];
+            let rays: Vec<(Vec3A, Vec3A)> = (0..n)
+                .map(|_| {
+                    let jitter = Vec3A::new(r() - 0.5, r() - 0.5, r() - 0.5) * spread;
+                    let dir = if k % 17 == 0 { Vec3A::new(0.0, 0.0, -1.0) } else { (d + jitter).normalize() };
+                    (o + jitter * 0.1, dir)
+                })
+                .collect();
+            let packet = Packet8::new(&rays, 0.0);
+            let mut tmax = [f32::INFINITY; 8];
+            for (lane, t) in tmax.iter_mut().enumerate().take(n) {
+                if (k + lane) % 4 == 0 {
+                    *t = 3.0 + lane as f32;
+                }
+            }
+            let limits = tmax;
+            let mut id = [u32::MAX; 8];
+            let hit = bvh.intersect_packet(&packet, &mut tmax, &mut id);
+            assert_eq!(hit >> n, 0, "only active lanes hit");
+            for lane in 0..n {
+                let single = bvh.intersect(&packet.lane(lane, limits[lane]));
+                let got = (hit & (1 << lane) != 0).then_some((tmax[lane], id[lane]));
+                assert_eq!(
+                    got.map(|g| g.0.to_bits()),
+                    single.map(|s| s.0.to_bits()),
+                    "packet {k} lane {lane}"
+                );
+                if got.is_none() {
+                    assert_eq!(
+                        (tmax[lane], id[lane]),
+                        (limits[lane], u32::MAX),
+                        "a missing lane is untouched"
+                    );
+                }
+                lanes_hit += usize::from(got.is_some());
+                lanes += 1;
+            }
+        }
+        assert!(lanes_hit > lanes / 5, "{lanes_hit} of {lanes} lanes hit");
+    }
 
     /// Brute force over every triangle agrees with the BVH on random rays through a random soup.
     #[test]
