@@ -88,15 +88,32 @@ impl<'a> Tracer<'a> {
         }
     }
 
-    /// Radiance along a camera ray.
-    pub fn trace_primary(&mut self, ray: &Ray, rng: &mut Sampler) -> DVec3 {
+    /// The surfaces camera rays `rays` (at most eight) see first, into `out`: what
+    /// [`Self::trace_primary`] needs. The rays are traced together (see
+    /// [`Accel::intersect_packet`](crate::geometry::Accel::intersect_packet)); a hit on a back
+    /// face that the scene culls is looked past ray by ray.
+    pub fn camera_hits(&self, rays: &[Ray], out: &mut [Option<SurfaceHit>]) {
+        let scene = self.scene;
+        scene.accel.intersect_packet(rays, scene.intersection_test_epsilon, out);
+        if scene.cull_camera_back_faces {
+            for (o, ray) in out.iter_mut().zip(rays) {
+                if o.is_some_and(|h| ray.dir.dot(h.geo_normal) > 0.0 && scene.accel.is_triangle(h.instance)) {
+                    *o = self.closest(ray, 0);
+                }
+            }
+        }
+    }
+
+    /// Radiance along a camera ray whose first surface [`Self::camera_hits`] found (`None`: it
+    /// misses everything).
+    pub fn trace_primary(&mut self, ray: &Ray, hit: Option<SurfaceHit>, rng: &mut Sampler) -> DVec3 {
         self.stats.primary += 1;
         match self.renderer {
             Renderer::Classic => {
                 self.budget = SECONDARY_RAY_BUDGET;
-                self.trace(ray, 0, None, 0.0, rng)
+                self.trace_from(ray, hit, 0, None, 0.0, rng)
             }
-            Renderer::Path(params) => self.trace_path(ray, params, rng),
+            Renderer::Path(params) => self.trace_path(ray, hit, params, rng),
         }
     }
 
@@ -114,7 +131,13 @@ impl<'a> Tracer<'a> {
     /// (point, area, spot, directional) are sampled only with `NextEventEstimation` — without
     /// it they add nothing, since no path can hit them — and Russian roulette replaces the
     /// depth limit rather than adding to it.
-    fn trace_path(&mut self, camera_ray: &Ray, params: PathParams, rng: &mut Sampler) -> DVec3 {
+    fn trace_path(
+        &mut self,
+        camera_ray: &Ray,
+        camera_hit: Option<SurfaceHit>,
+        params: PathParams,
+        rng: &mut Sampler,
+    ) -> DVec3 {
         let scene = self.scene;
         let nee = params.next_event;
         let max_bounces = match params.roulette {
@@ -135,8 +158,13 @@ impl<'a> Tracer<'a> {
         // The product of the BRDF values of the path's diffuse and glossy vertices so far: the
         // course roulette's potential.
         let mut potential = DVec3::ONE;
+        let mut first = Some(camera_hit);
         loop {
-            let Some(hit) = self.closest(&ray, bounce) else {
+            let found = match first.take() {
+                Some(h) => h,
+                None => self.closest(&ray, bounce),
+            };
+            let Some(hit) = found else {
                 if let Some(env) = &scene.env_light {
                     if specular || !nee {
                         l += beta * env.radiance(ray.dir);
@@ -299,8 +327,22 @@ impl<'a> Tracer<'a> {
     /// the width of the pixel's ray cone at the ray's origin (0 at a pinhole camera); it grows
     /// by `spread` per unit of distance (curved mirrors and lenses are not modelled).
     fn trace(&mut self, ray: &Ray, depth: u32, medium: Option<DVec3>, cone: f64, rng: &mut Sampler) -> DVec3 {
+        let hit = self.closest(ray, depth);
+        self.trace_from(ray, hit, depth, medium, cone, rng)
+    }
+
+    /// [`Self::trace`] with the ray's first surface `hit` already found.
+    fn trace_from(
+        &mut self,
+        ray: &Ray,
+        hit: Option<SurfaceHit>,
+        depth: u32,
+        medium: Option<DVec3>,
+        cone: f64,
+        rng: &mut Sampler,
+    ) -> DVec3 {
         let scene = self.scene;
-        let Some(hit) = self.closest(ray, depth) else {
+        let Some(hit) = hit else {
             // Rays that miss see the environment (§5.6), else the background.
             return match &scene.env_light {
                 Some(env) => env.radiance(ray.dir),

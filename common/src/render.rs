@@ -11,6 +11,7 @@ use rayon::prelude::*;
 
 use crate::image::{Image, TileRect};
 use crate::integrator::{RayStats, Tracer};
+use crate::math::Ray;
 use crate::sampler::{Sampler, frame_seed};
 use crate::scene::Scene;
 use crate::scene::records::EnvSampler;
@@ -88,6 +89,10 @@ impl Stop<'_> {
 /// the look tens of nanoseconds).
 const STOP_CHECK_EVERY: u32 = 16;
 
+/// Camera samples of a pixel traced together (a [`Packet8`](crate::geometry::bvh8::Packet8));
+/// divides [`STOP_CHECK_EVERY`], so the stop checks fall where they did.
+const GROUP: usize = 8;
+
 /// Renders one tile of camera `camera`: linear float RGB, row-major within the tile.
 ///
 /// Panics only if `camera` or `rect` is out of range for the scene (a caller bug, not input).
@@ -142,25 +147,40 @@ pub fn render_tile_until(
             }
             let mut sum = glam::DVec3::ZERO;
             let pixel_sampler = Sampler::new(seed, x, y, 0);
-            for s in 0..n {
+            // The pixel's samples go in groups of up to eight: their camera rays are traced
+            // together (they are nearly parallel and share their nodes), then each sample is
+            // shaded on its own. Each sample's dimensions keep their order, so the grouping
+            // changes no bit.
+            let mut s = 0;
+            while s < n {
                 if s % STOP_CHECK_EVERY == 0 {
                     stop.check()?;
                 }
-                let mut sampler = pixel_sampler.with_sample(s);
-                // One sample goes through the pixel centre (§4.5); several are stratified over
-                // the pixel by the sampler, like every other dimension.
-                let (dx, dy) = if n == 1 { (0.5, 0.5) } else { sampler.next_2d() };
-                // Dimensions in a fixed order: pixel position, lens, time, then shading.
-                let mut ray = if cam.lens.is_some() {
-                    let (l1, l2) = sampler.next_2d();
-                    cam.lens_ray(x, y, dx, dy, l1, l2)
-                } else {
-                    cam.ray(x, y, dx, dy)
-                };
-                if moving {
-                    ray.time = sampler.next_1d();
+                let group = (n - s).min(GROUP as u32) as usize;
+                let mut samplers: [Sampler; GROUP] = std::array::from_fn(|_| pixel_sampler.clone());
+                let mut rays = [Ray::new(glam::DVec3::ZERO, glam::DVec3::Z); GROUP];
+                for (i, (sampler, ray)) in samplers.iter_mut().zip(&mut rays).take(group).enumerate() {
+                    *sampler = pixel_sampler.with_sample(s + i as u32);
+                    // One sample goes through the pixel centre (§4.5); several are stratified
+                    // over the pixel by the sampler, like every other dimension.
+                    let (dx, dy) = if n == 1 { (0.5, 0.5) } else { sampler.next_2d() };
+                    // Dimensions in a fixed order: pixel position, lens, time, then shading.
+                    *ray = if cam.lens.is_some() {
+                        let (l1, l2) = sampler.next_2d();
+                        cam.lens_ray(x, y, dx, dy, l1, l2)
+                    } else {
+                        cam.ray(x, y, dx, dy)
+                    };
+                    if moving {
+                        ray.time = sampler.next_1d();
+                    }
                 }
-                sum += tracer.trace_primary(&ray, &mut sampler);
+                let mut hits = [None; GROUP];
+                tracer.camera_hits(&rays[..group], &mut hits[..group]);
+                for i in 0..group {
+                    sum += tracer.trace_primary(&rays[i], hits[i], &mut samplers[i]);
+                }
+                s += group as u32;
             }
             let c = sum / n as f64;
             out.push([c.x as f32, c.y as f32, c.z as f32]);

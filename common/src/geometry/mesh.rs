@@ -124,6 +124,13 @@ impl MeshGeom {
         self.bvh.intersect(&Ray8::new(ray.origin, ray.direction, ray.tmin, ray.tmax))
     }
 
+    /// The BVH itself, for callers that prepare their own rays (its hits report triangle
+    /// indices, as [`Self::intersect_f32`]'s do).
+    #[inline]
+    pub(super) fn tree(&self) -> &Bvh8 {
+        &self.bvh
+    }
+
     /// True if anything is hit in (tmin, tmax).
     #[inline]
     pub fn occluded_f32(&self, ray: obvhs::ray::Ray) -> bool {

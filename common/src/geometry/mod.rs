@@ -19,7 +19,7 @@ use glam::{DVec2, DVec3, Vec3A};
 use obvhs::{BvhBuildParams, aabb::Aabb, cwbvh::CwBvh, cwbvh::builder::build_cwbvh, ray::RayHit};
 
 use crate::math::{Ray, Transform};
-use bvh8::{Bvh8, Ray8};
+use bvh8::{Bvh8, Packet8, Ray8};
 pub use mesh::MeshGeom;
 
 /// What an instance is made of.
@@ -146,6 +146,18 @@ pub struct Accel {
     merged: Bvh8,
     /// (instance, triangle of its mesh) of each triangle of `merged`.
     merged_prims: Vec<(u32, u32)>,
+    /// The one static untransformed mesh instance, when it is the only static mesh (a single
+    /// PLY model, say): its own tree already is in world space, so it takes the merged tree's
+    /// place (packets of camera rays walk it together). Such an instance is in neither `bounded`
+    /// nor `unbounded`; `merged` is then empty.
+    lone: Option<LoneMesh>,
+}
+
+/// See [`Accel::lone`].
+#[derive(Clone, Copy, Debug)]
+struct LoneMesh {
+    instance: u32,
+    mesh: u32,
 }
 
 /// Up to this many instances a linear loop over their boxes beats traversing the top level.
@@ -242,13 +254,21 @@ fn instance_bounds(inst: &Instance, meshes: &[Arc<MeshGeom>]) -> Option<Aabb> {
 /// many times must not multiply the scene's memory; instances beyond it keep the two levels.
 const MERGED_TRIANGLES_MAX: usize = 1 << 22;
 
+/// The world-space tree of the static mesh instances: see `Accel::merged` and `Accel::lone`.
+#[derive(Default)]
+struct WorldTree {
+    merged: Bvh8,
+    prims: Vec<(u32, u32)>,
+    /// Which instances it holds (empty: none).
+    members: Vec<bool>,
+    lone: Option<LoneMesh>,
+}
+
 /// The merged BVH of the static mesh instances (see `Accel::merged`): their triangles carried
 /// to world space, its triangle table, and which instances it holds. Empty when no instance
-/// qualifies, or one untransformed one (a single mesh is already a single tree).
-fn merge_static_meshes(
-    meshes: &[Arc<MeshGeom>],
-    instances: &[Instance],
-) -> (Bvh8, Vec<(u32, u32)>, Vec<bool>) {
+/// qualifies, or one untransformed one (a single mesh is already a single tree: it is returned
+/// as the [`LoneMesh`] instead).
+fn merge_static_meshes(meshes: &[Arc<MeshGeom>], instances: &[Instance]) -> WorldTree {
     let mut set = vec![false; instances.len()];
     let mut total = 0usize;
     for (i, inst) in instances.iter().enumerate() {
@@ -269,7 +289,11 @@ fn merge_static_meshes(
     let count = set.iter().filter(|&&q| q).count();
     let one_transformed = count == 1 && set.iter().zip(instances).any(|(&q, i)| q && i.transform.is_some());
     if count < 2 && !one_transformed {
-        return (Bvh8::default(), Vec::new(), Vec::new());
+        let lone = set.iter().position(|&q| q).and_then(|i| match instances[i].shape {
+            Shape::Mesh { mesh, .. } => Some(LoneMesh { instance: i as u32, mesh }),
+            _ => None,
+        });
+        return WorldTree { members: set, lone, ..WorldTree::default() };
     }
     let (mut tris, mut aabbs, mut prims) =
         (Vec::with_capacity(total), Vec::with_capacity(total), Vec::with_capacity(total));
@@ -286,7 +310,7 @@ fn merge_static_meshes(
         }
     }
     let ids: Vec<u32> = (0..tris.len() as u32).collect();
-    (Bvh8::build(&tris, &aabbs, &ids), prims, set)
+    WorldTree { merged: Bvh8::build(&tris, &aabbs, &ids), prims, members: set, lone: None }
 }
 
 /// Grows a box by a relative epsilon so `f32` rounding never culls a surface lying on it.
@@ -298,7 +322,8 @@ fn pad(b: Aabb) -> Aabb {
 impl Accel {
     pub fn new(meshes: Vec<Arc<MeshGeom>>, instances: Vec<Instance>) -> Self {
         let (mut bounds, mut bounded, mut unbounded) = (Vec::new(), Vec::new(), Vec::new());
-        let (merged, merged_prims, merged_set) = merge_static_meshes(&meshes, &instances);
+        let WorldTree { merged, prims: merged_prims, members: merged_set, lone } =
+            merge_static_meshes(&meshes, &instances);
         for (i, inst) in instances.iter().enumerate() {
             if merged_set.get(i).copied().unwrap_or(false) {
                 continue;
@@ -322,7 +347,7 @@ impl Accel {
             build_cwbvh(&bounds, BvhBuildParams::medium_build(), &mut Duration::default())
         };
         let tlas_order = tlas.primitive_indices.iter().map(|&k| bounded[k as usize]).collect();
-        Accel { meshes, instances, tlas, tlas_order, bounds, bounded, unbounded, merged, merged_prims }
+        Accel { meshes, instances, tlas, tlas_order, bounds, bounded, unbounded, merged, merged_prims, lone }
     }
 
     /// Total triangles over all instances (instanced triangles counted once per instance).
@@ -342,18 +367,80 @@ impl Accel {
         matches!(self.instances[idx as usize].shape, Shape::Mesh { .. })
     }
 
+    /// The world-space tree of the static meshes (the merged one or the lone mesh's own), if
+    /// any, and how its hit ids map to (instance, triangle).
+    #[inline]
+    fn world_tree(&self) -> Option<&Bvh8> {
+        match self.lone {
+            Some(lone) => Some(self.meshes[lone.mesh as usize].tree()),
+            None => (!self.merged.is_empty()).then_some(&self.merged),
+        }
+    }
+
+    /// The (instance, triangle) of hit id `id` of [`Self::world_tree`].
+    #[inline]
+    fn world_prim(&self, id: u32) -> (u32, u32) {
+        match self.lone {
+            Some(lone) => (lone.instance, id),
+            None => self.merged_prims[id as usize],
+        }
+    }
+
     /// Closest surface hit with `t` in (tmin, tmax).
     pub fn intersect(&self, ray: &Ray, tmin: f64, tmax: f64) -> Option<SurfaceHit> {
         let mut best = Candidate { t: tmax, instance: u32::MAX, tri: 0 };
         let mut fr = to_f32_ray(ray, tmin, tmax);
-        if !self.merged.is_empty()
-            && let Some((t, id)) =
-                self.merged.intersect(&Ray8::new(fr.origin, fr.direction, fr.tmin, fr.tmax))
+        if let Some(tree) = self.world_tree()
+            && let Some((t, id)) = tree.intersect(&Ray8::new(fr.origin, fr.direction, fr.tmin, fr.tmax))
         {
-            let (instance, tri) = self.merged_prims[id as usize];
+            let (instance, tri) = self.world_prim(id);
             best = Candidate { t: t as f64, instance, tri };
             fr.tmax = t;
         }
+        self.intersect_rest(ray, tmin, best, fr)
+    }
+
+    /// The closest hits of up to eight rays with `t` in (tmin, ∞), each what
+    /// [`Self::intersect`] finds (up to exact ties): the world tree is walked by all of them
+    /// together as a [`Packet8`], the other instances ray by ray.
+    pub fn intersect_packet(&self, rays: &[Ray], tmin: f64, out: &mut [Option<SurfaceHit>]) {
+        assert!(rays.len() <= 8 && out.len() == rays.len(), "one result per ray, at most eight rays");
+        let Some(tree) = self.world_tree().filter(|_| !rays.is_empty()) else {
+            for (o, r) in out.iter_mut().zip(rays) {
+                *o = self.intersect(r, tmin, f64::INFINITY);
+            }
+            return;
+        };
+        let mut lanes = [(Vec3A::ZERO, Vec3A::ZERO); 8];
+        for (l, r) in lanes.iter_mut().zip(rays) {
+            let fr = to_f32_ray(r, tmin, f64::INFINITY);
+            *l = (fr.origin, fr.direction);
+        }
+        let packet = Packet8::new(&lanes[..rays.len()], tmin as f32);
+        let (mut tmax, mut id) = ([f32::INFINITY; 8], [u32::MAX; 8]);
+        let hit = tree.intersect_packet(&packet, &mut tmax, &mut id);
+        for (lane, (o, ray)) in out.iter_mut().zip(rays).enumerate() {
+            let mut best = Candidate { t: f64::INFINITY, instance: u32::MAX, tri: 0 };
+            let mut fr = to_f32_ray(ray, tmin, f64::INFINITY);
+            if hit & (1 << lane) != 0 {
+                let (instance, tri) = self.world_prim(id[lane]);
+                best = Candidate { t: tmax[lane] as f64, instance, tri };
+                fr.tmax = tmax[lane];
+            }
+            *o = self.intersect_rest(ray, tmin, best, fr);
+        }
+    }
+
+    /// [`Self::intersect`] beyond the world tree: the unbounded and bounded instances, starting
+    /// from the world tree's candidate `best` (`fr.tmax` its distance).
+    #[inline]
+    fn intersect_rest(
+        &self,
+        ray: &Ray,
+        tmin: f64,
+        mut best: Candidate,
+        mut fr: obvhs::ray::Ray,
+    ) -> Option<SurfaceHit> {
         for &idx in &self.unbounded {
             let t = self.hit_instance(idx, ray, &fr, tmin, &mut best);
             fr.tmax = fr.tmax.min(t);
@@ -380,8 +467,8 @@ impl Accel {
     /// True if anything blocks the ray within (tmin, tmax).
     pub fn occluded(&self, ray: &Ray, tmin: f64, tmax: f64) -> bool {
         let fr = to_f32_ray(ray, tmin, tmax);
-        if !self.merged.is_empty()
-            && self.merged.occluded(&Ray8::new(fr.origin, fr.direction, fr.tmin, fr.tmax))
+        if let Some(tree) = self.world_tree()
+            && tree.occluded(&Ray8::new(fr.origin, fr.direction, fr.tmin, fr.tmax))
         {
             return true;
         }
@@ -716,6 +803,138 @@ mod tests {
             let blocked = singles.iter().any(|a| a.occluded(&ray, 1e-6, 12.0));
             assert_eq!(accel.occluded(&ray, 1e-6, 12.0), blocked);
         }
+    }
+
+    /// A crumpled sheet of 2 * 16 * 16 triangles around the origin.
+    fn sheet(r: &mut impl FnMut() -> f64) -> Arc<MeshGeom> {
+        let n = 17;
+        let mut positions = Vec::new();
+        for j in 0..n {
+            for i in 0..n {
+                positions.push(DVec3::new(i as f64 - 8.0, j as f64 - 8.0, r() * 2.0 - 1.0));
+            }
+        }
+        let mut faces = Vec::new();
+        for j in 0..n - 1 {
+            for i in 0..n - 1 {
+                let k = (j * n + i) as u32;
+                faces.push([k, k + 1, k + n as u32 + 1]);
+                faces.push([k, k + n as u32 + 1, k + n as u32]);
+            }
+        }
+        Arc::new(MeshGeom::new(positions, faces, None))
+    }
+
+    /// The sheet as instance 0 (`transform`), beside a sphere, a moving copy of it and a plane.
+    fn sheet_scene(sheet: &Arc<MeshGeom>, transform: Option<Transform>) -> Accel {
+        let plain = |material: u32, transform: Option<Transform>, motion: Option<DVec3>| Instance {
+            shape: Shape::Mesh { mesh: 0, smooth: false },
+            material,
+            transform,
+            motion,
+            textures: ObjectTextures::default(),
+        };
+        let instances = vec![
+            plain(0, transform, None),
+            Instance {
+                shape: Shape::Sphere { center: DVec3::new(2.0, 1.0, 3.0), radius: 1.5 },
+                material: 1,
+                transform: None,
+                motion: None,
+                textures: ObjectTextures::default(),
+            },
+            plain(2, Transform::new(DAffine3::from_translation(DVec3::new(3.0, 0.0, -4.0))), Some(DVec3::X)),
+            Instance {
+                shape: Shape::Plane { point: DVec3::new(0.0, 0.0, -9.0), normal: DVec3::Z },
+                material: 3,
+                transform: None,
+                motion: None,
+                textures: ObjectTextures::default(),
+            },
+        ];
+        Accel::new(vec![sheet.clone()], instances)
+    }
+
+    /// A lone untransformed static mesh is walked as the world tree on its own and finds what
+    /// the same mesh finds through the merged tree (where an identity transform puts it).
+    #[test]
+    fn a_lone_world_space_mesh_finds_what_the_merged_tree_finds() {
+        let mut rng = crate::sampler::Sampler::new(5, 4, 3, 2);
+        let mut r = move || rng.next_1d();
+        let sheet = sheet(&mut r);
+        let lone = sheet_scene(&sheet, None);
+        let merged = sheet_scene(&sheet, Transform::new(DAffine3::IDENTITY));
+        assert!(lone.lone.is_some() && lone.merged.is_empty() && lone.bounded.len() == 2);
+        assert!(merged.lone.is_none() && merged.merged_prims.len() == 512);
+        let mut hits = 0;
+        for _ in 0..4000 {
+            let o = DVec3::new(r() * 24.0 - 12.0, r() * 24.0 - 12.0, r() * 24.0 - 12.0);
+            let d = DVec3::new(r() - 0.5, r() - 0.5, r() - 0.5).normalize();
+            let ray = Ray { origin: o, dir: d, time: r() };
+            let a = lone.intersect(&ray, 1e-6, f64::INFINITY).map(|h| (h.material, h.t, h.geo_normal));
+            let b = merged.intersect(&ray, 1e-6, f64::INFINITY).map(|h| (h.material, h.t, h.geo_normal));
+            match (a, b) {
+                (Some((ma, ta, na)), Some((mb, tb, nb))) => {
+                    assert!(ma == mb && (ta - tb).abs() < 1e-9 && (na - nb).length() < 1e-9, "{a:?} {b:?}");
+                    hits += usize::from(ma == 0);
+                }
+                (None, None) => {}
+                _ => panic!("{a:?} vs {b:?}"),
+            }
+            assert_eq!(lone.occluded(&ray, 1e-6, 10.0), merged.occluded(&ray, 1e-6, 10.0));
+        }
+        assert!(hits > 300, "the sheet is hit often enough to matter: {hits}");
+    }
+
+    /// Rays traced as a packet get the very hits (same bits) they get one by one, whichever
+    /// world tree the scene has (the lone mesh, the merged tree, none) and whatever else it
+    /// holds; packets of one to eight rays, narrow and wide.
+    #[test]
+    fn packets_of_rays_find_what_single_rays_find() {
+        let mut rng = crate::sampler::Sampler::new(9, 8, 7, 6);
+        let mut r = move || rng.next_1d();
+        let sheet = sheet(&mut r);
+        let scenes = [
+            sheet_scene(&sheet, None),
+            sheet_scene(&sheet, Transform::new(DAffine3::from_rotation_x(0.3))),
+            // Only a moving mesh: no world tree.
+            Accel::new(
+                vec![sheet.clone()],
+                vec![Instance {
+                    shape: Shape::Mesh { mesh: 0, smooth: true },
+                    material: 0,
+                    transform: None,
+                    motion: Some(DVec3::Y),
+                    textures: ObjectTextures::default(),
+                }],
+            ),
+        ];
+        assert!(scenes[0].lone.is_some() && !scenes[1].merged.is_empty());
+        assert!(scenes[2].world_tree().is_none());
+        let key = |h: &Option<SurfaceHit>| {
+            h.map(|h| (h.instance, h.t.to_bits(), h.point.to_array().map(f64::to_bits), h.shading_normal))
+        };
+        let mut hits = 0;
+        for (k, accel) in scenes.iter().cycle().take(3 * 500).enumerate() {
+            let n = 1 + k % 8;
+            let o = DVec3::new(r() * 4.0 - 2.0, r() * 4.0 - 2.0, 12.0);
+            let d = DVec3::new(r() * 0.8 - 0.4, r() * 0.8 - 0.4, -1.0).normalize();
+            let spread = [1e-3, 0.1, 1.0][k % 3];
+            let rays: Vec<Ray> = (0..n)
+                .map(|_| {
+                    let j = DVec3::new(r() - 0.5, r() - 0.5, r() - 0.5) * spread;
+                    Ray { origin: o + j, dir: (d + j).normalize(), time: r() }
+                })
+                .collect();
+            let mut out = vec![None; n];
+            accel.intersect_packet(&rays, 1e-6, &mut out);
+            for (ray, got) in rays.iter().zip(&out) {
+                let single = accel.intersect(ray, 1e-6, f64::INFINITY);
+                assert_eq!(key(got), key(&single), "packet {k}");
+                hits += usize::from(got.is_some_and(|h| h.instance == 0));
+            }
+        }
+        assert!(hits > 1000, "the sheet is hit often enough to matter: {hits}");
     }
 
     #[test]
