@@ -521,6 +521,85 @@ impl Bvh8 {
     }
 }
 
+/// Up to eight rays in obvhs's form, side by side, for its box test ([`Aabb::intersect_ray`]):
+/// one test of a box against all of them, each lane's answer that of the single test.
+pub struct BoxRays8 {
+    o: [[f32; 8]; 3],
+    inv: [[f32; 8]; 3],
+    /// Each lane's far bound: a box the lane enters beyond it does not count. The caller
+    /// lowers it as the lane's closest hit comes nearer.
+    pub tmax: [f32; 8],
+    active: u32,
+}
+
+impl BoxRays8 {
+    pub fn new(rays: &[obvhs::ray::Ray]) -> Self {
+        assert!(rays.len() <= 8, "at most eight rays");
+        let mut b = BoxRays8 {
+            o: [[0.0; 8]; 3],
+            inv: [[0.0; 8]; 3],
+            tmax: [f32::NEG_INFINITY; 8],
+            active: (1u32 << rays.len()) - 1,
+        };
+        for (lane, r) in rays.iter().enumerate() {
+            for a in 0..3 {
+                b.o[a][lane] = r.origin[a];
+                b.inv[a][lane] = r.inv_direction[a];
+            }
+            b.tmax[lane] = r.tmax;
+        }
+        b
+    }
+
+    /// The lanes whose ray enters `b` at a distance up to their `tmax`: obvhs's
+    /// `b.intersect_ray(ray) <= ray.tmax` for each, with the same operations.
+    #[inline]
+    pub fn hits(&self, b: &Aabb) -> u32 {
+        #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+        {
+            use std::arch::x86_64::*;
+            // SAFETY: the target has AVX2 (cfg above); unaligned loads of whole `[f32; 8]`s.
+            unsafe {
+                let ld = |a: &[f32; 8]| _mm256_loadu_ps(a.as_ptr());
+                let axis = |a: usize| {
+                    let (o, inv) = (ld(&self.o[a]), ld(&self.inv[a]));
+                    let t1 = _mm256_mul_ps(_mm256_sub_ps(_mm256_set1_ps(b.min[a]), o), inv);
+                    let t2 = _mm256_mul_ps(_mm256_sub_ps(_mm256_set1_ps(b.max[a]), o), inv);
+                    (_mm256_min_ps(t1, t2), _mm256_max_ps(t1, t2))
+                };
+                let ((nx, fx), (ny, fy), (nz, fz)) = (axis(0), axis(1), axis(2));
+                let near = _mm256_max_ps(_mm256_max_ps(nx, ny), nz);
+                let far = _mm256_min_ps(_mm256_min_ps(fx, fy), fz);
+                let ok = _mm256_and_ps(
+                    _mm256_and_ps(
+                        _mm256_cmp_ps(far, near, _CMP_GE_OQ),
+                        _mm256_cmp_ps(far, _mm256_setzero_ps(), _CMP_GE_OQ),
+                    ),
+                    _mm256_cmp_ps(near, ld(&self.tmax), _CMP_LE_OQ),
+                );
+                _mm256_movemask_ps(ok) as u32 & self.active
+            }
+        }
+        #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma")))]
+        {
+            let mut mask = 0;
+            for lane in 0..8 {
+                let t = |a: usize, p: f32| (p - self.o[a][lane]) * self.inv[a][lane];
+                let (mut near, mut far) = (f32::NEG_INFINITY, f32::INFINITY);
+                for a in 0..3 {
+                    let (t1, t2) = (t(a, b.min[a]), t(a, b.max[a]));
+                    near = near.max(t1.min(t2));
+                    far = far.min(t1.max(t2));
+                }
+                if far >= near && far >= 0.0 && near <= self.tmax[lane] {
+                    mask |= 1 << lane;
+                }
+            }
+            mask & self.active
+        }
+    }
+}
+
 /// The lanes of `mask` as an all-ones / all-zeros vector.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
 #[inline(always)]

@@ -19,7 +19,7 @@ use glam::{DVec2, DVec3, Vec3A};
 use obvhs::{BvhBuildParams, aabb::Aabb, cwbvh::CwBvh, cwbvh::builder::build_cwbvh, ray::RayHit};
 
 use crate::math::{Ray, Transform};
-use bvh8::{Bvh8, Packet8, Ray8};
+use bvh8::{BoxRays8, Bvh8, Packet8, Ray8};
 pub use mesh::MeshGeom;
 
 /// What an instance is made of.
@@ -313,6 +313,15 @@ fn merge_static_meshes(meshes: &[Arc<MeshGeom>], instances: &[Instance]) -> Worl
     WorldTree { merged: Bvh8::build(&tris, &aabbs, &ids), prims, members: set, lone: None }
 }
 
+/// Whether `fr` enters box `b` before `fr.tmax`. obvhs's `intersect_ray` answers a miss with
+/// +inf, which `<= fr.tmax` alone lets through when the ray is unbounded (every camera ray,
+/// every shadow ray to an infinitely far light): those tested every instance exactly.
+#[inline]
+fn enters(b: &Aabb, fr: &obvhs::ray::Ray) -> bool {
+    let t = b.intersect_ray(fr);
+    t < f32::INFINITY && t <= fr.tmax
+}
+
 /// Grows a box by a relative epsilon so `f32` rounding never culls a surface lying on it.
 fn pad(b: Aabb) -> Aabb {
     let e = (b.max - b.min).abs().max(b.min.abs()).max(b.max.abs()) * 1e-5 + Vec3A::splat(1e-6);
@@ -402,32 +411,64 @@ impl Accel {
 
     /// The closest hits of up to eight rays with `t` in (tmin, ∞), each what
     /// [`Self::intersect`] finds (up to exact ties): the world tree is walked by all of them
-    /// together as a [`Packet8`], the other instances ray by ray.
+    /// together as a [`Packet8`], and each instance of a short list is box-tested against all of
+    /// them at once ([`BoxRays8`]); every ray meets the instances in the order it would alone.
     pub fn intersect_packet(&self, rays: &[Ray], tmin: f64, out: &mut [Option<SurfaceHit>]) {
         assert!(rays.len() <= 8 && out.len() == rays.len(), "one result per ray, at most eight rays");
-        let Some(tree) = self.world_tree().filter(|_| !rays.is_empty()) else {
-            for (o, r) in out.iter_mut().zip(rays) {
-                *o = self.intersect(r, tmin, f64::INFINITY);
-            }
+        let n = rays.len();
+        if n == 0 {
             return;
-        };
-        let mut lanes = [(Vec3A::ZERO, Vec3A::ZERO); 8];
-        for (l, r) in lanes.iter_mut().zip(rays) {
-            let fr = to_f32_ray(r, tmin, f64::INFINITY);
-            *l = (fr.origin, fr.direction);
         }
-        let packet = Packet8::new(&lanes[..rays.len()], tmin as f32);
-        let (mut tmax, mut id) = ([f32::INFINITY; 8], [u32::MAX; 8]);
-        let hit = tree.intersect_packet(&packet, &mut tmax, &mut id);
-        for (lane, (o, ray)) in out.iter_mut().zip(rays).enumerate() {
-            let mut best = Candidate { t: f64::INFINITY, instance: u32::MAX, tri: 0 };
-            let mut fr = to_f32_ray(ray, tmin, f64::INFINITY);
-            if hit & (1 << lane) != 0 {
+        let mut best = [Candidate { t: f64::INFINITY, instance: u32::MAX, tri: 0 }; 8];
+        let mut frs = [to_f32_ray(&rays[0], tmin, f64::INFINITY); 8];
+        for (fr, r) in frs.iter_mut().zip(rays) {
+            *fr = to_f32_ray(r, tmin, f64::INFINITY);
+        }
+        if let Some(tree) = self.world_tree() {
+            let lanes: [(Vec3A, Vec3A); 8] = std::array::from_fn(|i| (frs[i].origin, frs[i].direction));
+            let packet = Packet8::new(&lanes[..n], tmin as f32);
+            let (mut tmax, mut id) = ([f32::INFINITY; 8], [u32::MAX; 8]);
+            let mut hit = tree.intersect_packet(&packet, &mut tmax, &mut id);
+            while hit != 0 {
+                let lane = hit.trailing_zeros() as usize;
+                hit &= hit - 1;
                 let (instance, tri) = self.world_prim(id[lane]);
-                best = Candidate { t: tmax[lane] as f64, instance, tri };
-                fr.tmax = tmax[lane];
+                best[lane] = Candidate { t: tmax[lane] as f64, instance, tri };
+                frs[lane].tmax = tmax[lane];
             }
-            *o = self.intersect_rest(ray, tmin, best, fr);
+        }
+        if self.bounded.len() <= LINEAR_MAX {
+            for lane in 0..n {
+                self.unbounded_hits(&rays[lane], &mut frs[lane], tmin, &mut best[lane]);
+            }
+            let mut boxes = BoxRays8::new(&frs[..n]);
+            for (&idx, b) in self.bounded.iter().zip(&self.bounds) {
+                let mut lanes = boxes.hits(b);
+                while lanes != 0 {
+                    let lane = lanes.trailing_zeros() as usize;
+                    lanes &= lanes - 1;
+                    let t = self.hit_instance(idx, &rays[lane], &frs[lane], tmin, &mut best[lane]);
+                    frs[lane].tmax = frs[lane].tmax.min(t);
+                    boxes.tmax[lane] = frs[lane].tmax;
+                }
+            }
+            for lane in 0..n {
+                out[lane] = (best[lane].instance != u32::MAX).then(|| self.surface(&rays[lane], best[lane]));
+            }
+        } else {
+            for lane in 0..n {
+                out[lane] = self.intersect_rest(&rays[lane], tmin, best[lane], frs[lane]);
+            }
+        }
+    }
+
+    /// The unbounded instances (planes) for one ray, from the candidate `best` (`fr.tmax` its
+    /// distance); both updated.
+    #[inline]
+    fn unbounded_hits(&self, ray: &Ray, fr: &mut obvhs::ray::Ray, tmin: f64, best: &mut Candidate) {
+        for &idx in &self.unbounded {
+            let t = self.hit_instance(idx, ray, fr, tmin, best);
+            fr.tmax = fr.tmax.min(t);
         }
     }
 
@@ -441,13 +482,10 @@ impl Accel {
         mut best: Candidate,
         mut fr: obvhs::ray::Ray,
     ) -> Option<SurfaceHit> {
-        for &idx in &self.unbounded {
-            let t = self.hit_instance(idx, ray, &fr, tmin, &mut best);
-            fr.tmax = fr.tmax.min(t);
-        }
+        self.unbounded_hits(ray, &mut fr, tmin, &mut best);
         if self.bounded.len() <= LINEAR_MAX {
             for (&idx, b) in self.bounded.iter().zip(&self.bounds) {
-                if b.intersect_ray(&fr) <= fr.tmax {
+                if enters(b, &fr) {
                     let t = self.hit_instance(idx, ray, &fr, tmin, &mut best);
                     fr.tmax = fr.tmax.min(t);
                 }
@@ -480,7 +518,7 @@ impl Accel {
                 .bounded
                 .iter()
                 .zip(&self.bounds)
-                .any(|(&idx, b)| b.intersect_ray(&fr) <= fr.tmax && self.blocks(idx, ray, &fr, tmin, tmax));
+                .any(|(&idx, b)| enters(b, &fr) && self.blocks(idx, ray, &fr, tmin, tmax));
         }
         !self.tlas.ray_traverse_miss(fr, |fr, id| {
             if self.blocks(self.tlas_order[id], ray, fr, tmin, tmax) { fr.tmin } else { f32::INFINITY }
@@ -805,6 +843,44 @@ mod tests {
         }
     }
 
+    /// One box test for eight rays answers what each ray's own test answers, boxes hit and
+    /// missed, rays inside boxes, bounded and unbounded rays.
+    #[test]
+    fn a_box_test_for_eight_rays_answers_as_each_rays_own() {
+        let mut rng = crate::sampler::Sampler::new(1, 2, 3, 4);
+        let mut r = move || rng.next_1d() as f32;
+        let (mut entered, mut tested) = (0, 0);
+        for k in 0..2000 {
+            let c = Vec3A::new(r(), r(), r()) * 10.0 - 5.0;
+            let h = Vec3A::new(r(), r(), r()) * 2.0 + 0.01;
+            let b = Aabb::new(c - h, c + h);
+            let n = 1 + k % 8;
+            let rays: Vec<obvhs::ray::Ray> = (0..n)
+                .map(|i| {
+                    let o = Vec3A::new(r(), r(), r()) * 12.0 - 6.0;
+                    let d = if i == 0 && k % 5 == 0 {
+                        Vec3A::X
+                    } else if i % 3 == 0 {
+                        Vec3A::new(r() - 0.5, r() - 0.5, r() - 0.5).normalize()
+                    } else {
+                        // Towards the box, near its edges.
+                        (c + h * Vec3A::new(r() - 0.5, r() - 0.5, r() - 0.5) * 2.4 - o).normalize()
+                    };
+                    let tmax = if i % 2 == 0 { f32::INFINITY } else { r() * 8.0 };
+                    obvhs::ray::Ray::new(o, d, 0.0, tmax)
+                })
+                .collect();
+            let mask = BoxRays8::new(&rays).hits(&b);
+            for (i, fr) in rays.iter().enumerate() {
+                assert_eq!(mask & (1 << i) != 0, enters(&b, fr), "box {k} ray {i}");
+                entered += usize::from(enters(&b, fr));
+                tested += 1;
+            }
+            assert_eq!(mask >> n, 0);
+        }
+        assert!(entered > tested / 20 && entered < tested / 2, "{entered} of {tested}");
+    }
+
     /// A crumpled sheet of 2 * 16 * 16 triangles around the origin.
     fn sheet(r: &mut impl FnMut() -> f64) -> Arc<MeshGeom> {
         let n = 17;
@@ -909,13 +985,30 @@ mod tests {
                 }],
             ),
         ];
+        // Beyond LINEAR_MAX spheres the bounded instances go through the top level.
+        let many = Accel::new(
+            vec![sheet.clone()],
+            (0..12)
+                .map(|i| Instance {
+                    shape: Shape::Sphere {
+                        center: DVec3::new(i as f64 % 4.0 * 3.0 - 4.5, (i / 4) as f64 * 3.0 - 3.0, 2.0),
+                        radius: 1.0,
+                    },
+                    material: i,
+                    transform: None,
+                    motion: None,
+                    textures: ObjectTextures::default(),
+                })
+                .collect(),
+        );
+        let scenes: Vec<Accel> = scenes.into_iter().chain([many]).collect();
         assert!(scenes[0].lone.is_some() && !scenes[1].merged.is_empty());
-        assert!(scenes[2].world_tree().is_none());
+        assert!(scenes[2].world_tree().is_none() && scenes[3].bounded.len() > LINEAR_MAX);
         let key = |h: &Option<SurfaceHit>| {
             h.map(|h| (h.instance, h.t.to_bits(), h.point.to_array().map(f64::to_bits), h.shading_normal))
         };
         let mut hits = 0;
-        for (k, accel) in scenes.iter().cycle().take(3 * 500).enumerate() {
+        for (k, accel) in scenes.iter().cycle().take(4 * 500).enumerate() {
             let n = 1 + k % 8;
             let o = DVec3::new(r() * 4.0 - 2.0, r() * 4.0 - 2.0, 12.0);
             let d = DVec3::new(r() * 0.8 - 0.4, r() * 0.8 - 0.4, -1.0).normalize();
@@ -931,10 +1024,10 @@ mod tests {
             for (ray, got) in rays.iter().zip(&out) {
                 let single = accel.intersect(ray, 1e-6, f64::INFINITY);
                 assert_eq!(key(got), key(&single), "packet {k}");
-                hits += usize::from(got.is_some_and(|h| h.instance == 0));
+                hits += usize::from(got.is_some());
             }
         }
-        assert!(hits > 1000, "the sheet is hit often enough to matter: {hits}");
+        assert!(hits > 1000, "the scenes are hit often enough to matter: {hits}");
     }
 
     #[test]
