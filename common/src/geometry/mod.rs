@@ -7,7 +7,10 @@
 //! A plain (untransformed) mesh is simply an instance with no transform. Static mesh instances
 //! (no motion; up to `MERGED_TRIANGLES_MAX` triangles in all) are also carried to world space
 //! into one merged 8-wide tree, walked before the top level, so a scene of many meshes costs one
-//! traversal instead of one per overlapping instance.
+//! traversal instead of one per overlapping instance; a lone untransformed static mesh's own tree
+//! plays that part. That world-space tree can be walked by up to eight coherent rays at once
+//! ([`Accel::intersect_packet`], used for a pixel's camera rays), with the same answers as one
+//! ray at a time.
 
 pub mod bvh8;
 pub mod mesh;
