@@ -872,17 +872,20 @@ mod tests {
 
     /// Every lane of a packet finds what its own single-ray query finds: coherent packets (the
     /// rays of one small cone), scattered ones, partial ones, and lanes with their own tmax.
-    #[test]
-    fn packets_find_what_single_rays_find() {
-        let mut s = 777u64;
-        let mut r = move || {
+    /// Uniform numbers in [0, 1) from a xorshift generator.
+    fn xorshift(mut s: u64) -> impl FnMut() -> f32 {
+        move || {
             s ^= s << 13;
             s ^= s >> 7;
             s ^= s << 17;
             (s >> 40) as f32 / (1u64 << 24) as f32
-        };
+        }
+    }
+
+    /// `count` random small triangles in a 10-unit cube (vertex 0 and edges) and their BVH.
+    fn soup(r: &mut impl FnMut() -> f32, count: usize) -> (Vec<Tri>, Bvh8) {
         let mut tris = Vec::new();
-        for _ in 0..5000 {
+        for _ in 0..count {
             let c = Vec3A::new(r(), r(), r()) * 10.0;
             let a = c + Vec3A::new(r(), r(), r()) - 0.5;
             let b = c + Vec3A::new(r(), r(), r()) - 0.5;
@@ -893,6 +896,13 @@ mod tests {
             tris.iter().map(|t| Aabb::from_points(&[t[0], t[0] + t[1], t[0] + t[2]])).collect();
         let ids: Vec<u32> = (0..tris.len() as u32).collect();
         let bvh = Bvh8::build(&tris, &aabbs, &ids);
+        (tris, bvh)
+    }
+
+    #[test]
+    fn packets_find_what_single_rays_find() {
+        let mut r = xorshift(777);
+        let (_, bvh) = soup(&mut r, 5000);
         let (mut lanes_hit, mut lanes) = (0, 0);
         for k in 0..3000 {
             let n = 1 + k % 8;
@@ -942,25 +952,8 @@ mod tests {
     /// Brute force over every triangle agrees with the BVH on random rays through a random soup.
     #[test]
     fn agrees_with_brute_force() {
-        let mut s = 12345u64;
-        let mut r = move || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 40) as f32 / (1u64 << 24) as f32
-        };
-        let mut tris = Vec::new();
-        for _ in 0..3000 {
-            let c = Vec3A::new(r(), r(), r()) * 10.0;
-            let a = c + Vec3A::new(r(), r(), r()) - 0.5;
-            let b = c + Vec3A::new(r(), r(), r()) - 0.5;
-            let d = c + Vec3A::new(r(), r(), r()) - 0.5;
-            tris.push([a, b - a, d - a]);
-        }
-        let aabbs: Vec<Aabb> =
-            tris.iter().map(|t| Aabb::from_points(&[t[0], t[0] + t[1], t[0] + t[2]])).collect();
-        let ids: Vec<u32> = (0..tris.len() as u32).collect();
-        let bvh = Bvh8::build(&tris, &aabbs, &ids);
+        let mut r = xorshift(12345);
+        let (tris, bvh) = soup(&mut r, 3000);
         let mut hits = 0;
         for k in 0..4000 {
             let o = Vec3A::new(r(), r(), r()) * 14.0 - 2.0;

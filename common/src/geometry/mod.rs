@@ -380,7 +380,7 @@ impl Accel {
     }
 
     /// The world-space tree of the static meshes (the merged one or the lone mesh's own), if
-    /// any, and how its hit ids map to (instance, triangle).
+    /// any; [`Self::world_prim`] maps its hit ids to (instance, triangle).
     #[inline]
     fn world_tree(&self) -> Option<&Bvh8> {
         match self.lone {
