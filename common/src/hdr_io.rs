@@ -14,7 +14,7 @@
 //!   textures use; the first two also insist that the file *is* the format their name says.
 //!
 //! Every file is encoded in memory and then written in place with
-//! [`write_atomic`](crate::atomic_write::write_atomic): never half a file under its name. Every
+//! [`write_atomic`]: never half a file under its name. Every
 //! error names the file ([`HdrError`]).
 
 use std::io::Cursor;

@@ -1,5 +1,5 @@
-//! An 8-wide BVH over triangles for single-ray queries on the CPU, built from obvhs's binary
-//! PLOC tree.
+//! An 8-wide BVH over triangles for ray queries on the CPU (single rays and packets of up to
+//! eight), built from obvhs's binary PLOC tree.
 //!
 //! obvhs's CWBVH is a GPU layout: quantised child boxes (decoded per node), one triangle at a
 //! time in the leaves, and the same traversal for closest and any hit. Here the node holds its
@@ -10,6 +10,10 @@
 //!
 //! The results are those of a plain `f32` Möller–Trumbore test (two-sided) of every triangle, so
 //! which surface a ray finds does not depend on the BVH's shape beyond exact ties.
+//!
+//! Coherent rays (a pixel's camera rays) can also walk the tree together as a [`Packet8`]: one
+//! traversal for up to eight rays, every box and triangle test done for all lanes at once with
+//! the single-ray operations, so each lane's result is its own query's.
 
 use std::mem::MaybeUninit;
 
