@@ -130,8 +130,8 @@ pub const ENV_U_Z_SIGN: f64 = -1.0;
 #[inline]
 pub fn env_uv(mapping: EnvMapping, d: DVec3) -> (f64, f64) {
     match mapping {
-        // Both angles come from `atan2_approx` (2e-10 rad, a millionth of a texel of any map):
-        // θ = acos(y) as atan2(√(1 − y²), y).
+        // Both angles come from `atan2_approx` (within 2e-10 rad: under a millionth of a texel
+        // even of a 16K-wide map); θ = acos(y) as atan2(√(1 − y²), y).
         EnvMapping::LatLong => {
             let u = 0.5 + atan2_approx(d.x, ENV_U_Z_SIGN * d.z) / TAU;
             let y = d.y.clamp(-1.0, 1.0);

@@ -140,7 +140,8 @@ pub fn atan2_approx(y: f64, x: f64) -> f64 {
     let (lo, hi, steep) = if ay > ax { (ax, ay, true) } else { (ay, ax, false) };
     let t = if hi == 0.0 { 0.0 } else { lo / hi };
     let s = t * t;
-    let (s2, s4) = (s * s, s * s * (s * s));
+    let s2 = s * s;
+    let s4 = s2 * s2;
     let q0 = C[1].mul_add(s, C[0]);
     let q1 = C[3].mul_add(s, C[2]);
     let q2 = C[5].mul_add(s, C[4]);
