@@ -620,15 +620,27 @@ impl Accel {
                 (t, ng, ns, frame)
             }
         };
+        // Flat faces, spheres and planes shade with their geometric normal: carry it to world
+        // space once.
+        let normals = |xf: &Transform| {
+            let geo = xf.normal_to_world(n_geo);
+            (geo, if n_shade == n_geo { geo } else { xf.normal_to_world(n_shade) })
+        };
         let (geo_normal, shading_normal, dpdu, dpdv, bump_axis) = match &inst.transform {
-            Some(xf) if textured => (
-                xf.normal_to_world(n_geo),
-                xf.normal_to_world(n_shade),
-                xf.to_world.transform_vector3(dpdu),
-                xf.to_world.transform_vector3(dpdv),
-                xf.to_world.transform_vector3(n_shade),
-            ),
-            Some(xf) => (xf.normal_to_world(n_geo), xf.normal_to_world(n_shade), dpdu, dpdv, DVec3::ZERO),
+            Some(xf) if textured => {
+                let (geo, shade) = normals(xf);
+                (
+                    geo,
+                    shade,
+                    xf.to_world.transform_vector3(dpdu),
+                    xf.to_world.transform_vector3(dpdv),
+                    xf.to_world.transform_vector3(n_shade),
+                )
+            }
+            Some(xf) => {
+                let (geo, shade) = normals(xf);
+                (geo, shade, dpdu, dpdv, DVec3::ZERO)
+            }
             None => (n_geo, n_shade, dpdu, dpdv, n_shade),
         };
         // A smooth normal may lean past the face; keep it on the face's side.
