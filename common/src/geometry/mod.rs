@@ -174,6 +174,13 @@ struct Candidate {
     tri: u32,
 }
 
+impl Candidate {
+    /// Nothing found yet closer than `t`.
+    const fn none(t: f64) -> Self {
+        Candidate { t, instance: u32::MAX, tri: 0 }
+    }
+}
+
 #[inline]
 fn to_f32_ray(r: &Ray, tmin: f64, tmax: f64) -> obvhs::ray::Ray {
     obvhs::ray::Ray::new(r.origin.as_vec3a(), r.dir.as_vec3a(), tmin as f32, tmax as f32)
@@ -400,7 +407,7 @@ impl Accel {
 
     /// Closest surface hit with `t` in (tmin, tmax).
     pub fn intersect(&self, ray: &Ray, tmin: f64, tmax: f64) -> Option<SurfaceHit> {
-        let mut best = Candidate { t: tmax, instance: u32::MAX, tri: 0 };
+        let mut best = Candidate::none(tmax);
         let mut fr = to_f32_ray(ray, tmin, tmax);
         if let Some(tree) = self.world_tree()
             && let Some((t, id)) = tree.intersect(&Ray8::new(fr.origin, fr.direction, fr.tmin, fr.tmax))
@@ -422,7 +429,7 @@ impl Accel {
         if n == 0 {
             return;
         }
-        let mut best = [Candidate { t: f64::INFINITY, instance: u32::MAX, tri: 0 }; 8];
+        let mut best = [Candidate::none(f64::INFINITY); 8];
         let mut frs = [to_f32_ray(&rays[0], tmin, f64::INFINITY); 8];
         for (fr, r) in frs.iter_mut().zip(rays) {
             *fr = to_f32_ray(r, tmin, f64::INFINITY);
@@ -456,7 +463,7 @@ impl Accel {
                 }
             }
             for lane in 0..n {
-                out[lane] = (best[lane].instance != u32::MAX).then(|| self.surface(&rays[lane], best[lane]));
+                out[lane] = self.found(&rays[lane], best[lane]);
             }
         } else {
             for lane in 0..n {
@@ -499,10 +506,7 @@ impl Accel {
                 self.hit_instance(self.tlas_order[id], ray, fr, tmin, &mut best)
             });
         }
-        if best.instance == u32::MAX {
-            return None;
-        }
-        Some(self.surface(ray, best))
+        self.found(ray, best)
     }
 
     /// True if anything blocks the ray within (tmin, tmax).
@@ -584,6 +588,12 @@ impl Accel {
                 self.meshes[*mesh as usize].occluded_f32(lr)
             }
         }
+    }
+
+    /// The hit of the final candidate of a query, if it found anything.
+    #[inline]
+    fn found(&self, ray: &Ray, best: Candidate) -> Option<SurfaceHit> {
+        (best.instance != u32::MAX).then(|| self.surface(ray, best))
     }
 
     /// Completes a candidate into world-space hit data, re-intersecting triangles in `f64`.
