@@ -78,9 +78,13 @@ fn check_image(path: &Path, img: &Image) -> Result<(), HdrError> {
     Ok(())
 }
 
-/// Writes `img` as an OpenEXR file: one layer, channels `R`, `G`, `B` as 32-bit floats, ZIP
-/// compression on 16-scanline blocks (lossless), increasing line order. Values are written as they
-/// are — no clamping, no scaling, NaN and ±∞ kept bit for bit.
+/// Writes `img` as an OpenEXR file: one layer, channels `R`, `G`, `B` as 32-bit floats, RLE
+/// compression on scanlines (lossless), increasing line order. Values are written as they are —
+/// no clamping, no scaling, NaN and ±∞ kept bit for bit.
+///
+/// RLE, not ZIP: on a rendered 800x450 frame ZIP saved 4 % of the file (4.15 MB against 4.33 MB;
+/// noisy floats hardly compress) for 123 ms of one thread after the last tile, RLE takes 11 ms
+/// and still shrinks flat areas (black backgrounds, mattes) to almost nothing.
 pub fn write_exr(path: &Path, img: &Image) -> Result<(), HdrError> {
     use exr::prelude::*;
     check_image(path, img)?;
@@ -93,7 +97,11 @@ pub fn write_exr(path: &Path, img: &Image) -> Result<(), HdrError> {
     let layer = Layer::new(
         (width, img.height as usize),
         LayerAttributes::default(),
-        Encoding::SMALL_LOSSLESS,
+        Encoding {
+            compression: Compression::RLE,
+            blocks: Blocks::ScanLines,
+            line_order: LineOrder::Increasing,
+        },
         channels,
     );
     let mut out = Cursor::new(Vec::new());
@@ -338,17 +346,30 @@ mod tests {
     }
 
     #[test]
-    fn exr_file_is_float_rgb_zip() {
+    fn exr_file_is_float_rgb_rle_scanlines() {
         let dir = TempDir::new("hdr-io-exr-meta");
         let path = dir.join("meta.exr");
         write_exr(&path, &random_image(8, 8, 7)).unwrap();
         let meta = exr::meta::MetaData::read_from_file(&path, false).unwrap();
         let header = &meta.headers[0];
-        assert_eq!(header.compression, exr::compression::Compression::ZIP16);
+        assert_eq!(header.compression, exr::compression::Compression::RLE);
+        assert_eq!(header.blocks, exr::meta::BlockDescription::ScanLines);
         let names: Vec<String> = header.channels.list.iter().map(|c| c.name.to_string()).collect();
         assert_eq!(names, ["B", "G", "R"]);
         assert!(header.channels.list.iter().all(|c| c.sample_type == exr::meta::attribute::SampleType::F32));
         assert_eq!((header.layer_size.x(), header.layer_size.y()), (8, 8));
+    }
+
+    #[test]
+    fn a_flat_exr_is_compressed() {
+        let dir = TempDir::new("hdr-io-exr-flat");
+        let path = dir.join("black.exr");
+        let img = Image { width: 256, height: 128, pixels: vec![[0.0; 3]; 256 * 128] };
+        write_exr(&path, &img).unwrap();
+        let size = std::fs::metadata(&path).unwrap().len();
+        // 384 KiB of raw floats; runs of zeros take a few bytes a line.
+        assert!(size < 256 * 128 * 12 / 20, "a black frame took {size} bytes");
+        assert!(same_bits(&img, &read_exr(&path).unwrap()));
     }
 
     #[test]
