@@ -9,7 +9,7 @@ use glam::{DVec2, DVec3};
 use crate::geometry::Instance;
 use crate::geometry::SurfaceHit;
 use crate::material::{Material, MaterialKind, Refraction, fresnel_conductor, refract};
-use crate::math::{Ray, orthonormal_pair, reflect};
+use crate::math::{Ray, orthonormal_pair, reflect, sincos_turns};
 use crate::sampler::Sampler;
 use crate::scene::Scene;
 use crate::scene::records::{
@@ -304,7 +304,6 @@ impl<'a> Tracer<'a> {
     ) -> Option<(DVec3, DVec3, DVec3)> {
         let (u1, u2) = rng.next_2d();
         let (t, b) = orthonormal_pair(n);
-        let phi = std::f64::consts::TAU * u2;
         let (cos_t, pdf_over_cos) = if importance {
             let c = (1.0 - u1).sqrt();
             (c, 1.0 / std::f64::consts::PI)
@@ -312,7 +311,8 @@ impl<'a> Tracer<'a> {
             (u1, 0.0)
         };
         let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
-        let wi = (sin_t * phi.cos()) * t + (sin_t * phi.sin()) * b + cos_t * n;
+        let (sp, cp) = sincos_turns(u2);
+        let wi = (sin_t * cp) * t + (sin_t * sp) * b + cos_t * n;
         if cos_t <= 0.0 {
             return None;
         }

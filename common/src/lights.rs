@@ -11,7 +11,7 @@ use std::sync::Arc;
 
 use glam::{DAffine3, DVec3};
 
-use crate::math::{atan2_approx, orthonormal_pair};
+use crate::math::{atan2_approx, orthonormal_pair, sincos_turns};
 use crate::sampler::Sampler;
 use crate::scene::records::{EnvMapping, EnvSampler};
 use crate::texture::image::TextureImage;
@@ -157,10 +157,9 @@ pub fn latlong_direction(u: f64, v: f64) -> DVec3 {
 /// [`latlong_direction`] and sin θ (θ = vπ, the angle from +Y), which solid-angle pdfs divide by.
 #[inline]
 fn latlong_direction_sin(u: f64, v: f64) -> (DVec3, f64) {
-    let theta = v * PI;
-    let phi = (u - 0.5) * TAU;
-    let (st, ct) = theta.sin_cos();
-    let (sp, cp) = phi.sin_cos();
+    // θ = vπ is half a turn times v, φ = 2π(u − ½).
+    let (st, ct) = sincos_turns(0.5 * v);
+    let (sp, cp) = sincos_turns(u - 0.5);
     (DVec3::new(st * sp, ct, ENV_U_Z_SIGN * st * cp), st)
 }
 
@@ -297,7 +296,7 @@ impl EnvLight {
 fn hemisphere_direction(n: DVec3, cos: f64, xi: f64) -> DVec3 {
     let sin = (1.0 - cos * cos).max(0.0).sqrt();
     let (a, b) = orthonormal_pair(n);
-    let (sp, cp) = (TAU * xi).sin_cos();
+    let (sp, cp) = sincos_turns(xi);
     (a * (sin * cp) + b * (sin * sp) + n * cos).normalize()
 }
 
@@ -372,7 +371,7 @@ impl EnvDistribution {
         let mut weight = vec![0.0; width * height];
         for y in 0..height {
             let v = (y as f64 + 0.5) / height as f64;
-            let sin = (v * PI).sin();
+            let sin = sincos_turns(0.5 * v).0;
             for x in 0..width {
                 let lum = match mapping {
                     // The lookup in this cell blends texels x, x + 1 (wrapped) and rows y, y + 1:
@@ -471,7 +470,7 @@ impl EnvDistribution {
 
     /// A cell of probability p covers (2π/W)·(π/H) in (φ, θ), and solid angle dω = sin θ dθ dφ.
     fn pdf_cell(&self, x: usize, y: usize, v: f64) -> f64 {
-        let sin = (v * PI).sin();
+        let sin = sincos_turns(0.5 * v).0;
         if sin <= 0.0 {
             return 0.0;
         }
@@ -649,9 +648,9 @@ fn sample_sphere_cone(
     let cos_max = (1.0 - sin2_max).max(0.0).sqrt();
     let cos_t = 1.0 - u1 * (1.0 - cos_max);
     let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
-    let phi = TAU * u2;
+    let (sp, cp) = sincos_turns(u2);
     let (a, b) = orthonormal_pair(axis);
-    let wi = (cos_t * axis + sin_t * (phi.cos() * a + phi.sin() * b)).normalize();
+    let wi = (cos_t * axis + sin_t * (cp * a + sp * b)).normalize();
     // Nearest intersection with the sphere along wi (clamped at the tangent for rounding).
     let proj = to_c.dot(wi);
     let disc = (r * r - (d2 - proj * proj)).max(0.0);
