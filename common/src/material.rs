@@ -55,6 +55,11 @@ impl Material {
     #[inline]
     pub fn reflectance(&self, n: DVec3, wi: DVec3, wo: DVec3) -> DVec3 {
         let Some(brdf) = &self.brdf else {
+            // Most classic materials are matte: no half vector (a square root and a division)
+            // for a lobe that would be multiplied by zero. The sum is the same value.
+            if self.specular == DVec3::ZERO {
+                return self.diffuse * n.dot(wi);
+            }
             let h = (wi + wo).normalize();
             return self.diffuse * n.dot(wi) + self.specular * self.lobe(n.dot(h).max(0.0));
         };

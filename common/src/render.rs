@@ -158,22 +158,32 @@ pub fn render_tile_until(
                 }
                 let group = (n - s).min(GROUP as u32) as usize;
                 let mut samplers: [Sampler; GROUP] = std::array::from_fn(|_| pixel_sampler.clone());
-                let mut rays = [Ray::new(glam::DVec3::ZERO, glam::DVec3::Z); GROUP];
-                for (i, (sampler, ray)) in samplers.iter_mut().zip(&mut rays).take(group).enumerate() {
+                // The group's sample values first, then its rays: the rays' square roots and
+                // divisions are one chain each, and with nothing else in between the processor
+                // overlaps the eight chains.
+                let mut film = [(0.5, 0.5); GROUP];
+                let mut lens = [(0.5, 0.5); GROUP];
+                let mut time = [0.0; GROUP];
+                for (i, sampler) in samplers.iter_mut().enumerate().take(group) {
                     *sampler = pixel_sampler.with_sample(s + i as u32);
                     // One sample goes through the pixel centre (§4.5); several are stratified
                     // over the pixel by the sampler, like every other dimension.
-                    let (dx, dy) = if n == 1 { (0.5, 0.5) } else { sampler.next_2d() };
-                    // Dimensions in a fixed order: pixel position, lens, time, then shading.
-                    *ray = if cam.lens.is_some() {
-                        let (l1, l2) = sampler.next_2d();
-                        cam.lens_ray(x, y, dx, dy, l1, l2)
-                    } else {
-                        cam.ray(x, y, dx, dy)
-                    };
-                    if moving {
-                        ray.time = sampler.next_1d();
+                    if n > 1 {
+                        film[i] = sampler.next_2d();
                     }
+                    // Dimensions in a fixed order: pixel position, lens, time, then shading.
+                    if cam.lens.is_some() {
+                        lens[i] = sampler.next_2d();
+                    }
+                    if moving {
+                        time[i] = sampler.next_1d();
+                    }
+                }
+                let mut rays = [Ray::new(glam::DVec3::ZERO, glam::DVec3::Z); GROUP];
+                for (i, ray) in rays.iter_mut().enumerate().take(group) {
+                    let ((dx, dy), (l1, l2)) = (film[i], lens[i]);
+                    *ray = cam.lens_ray(x, y, dx, dy, l1, l2);
+                    ray.time = time[i];
                 }
                 let mut hits = [None; GROUP];
                 tracer.camera_hits(&rays[..group], &mut hits[..group]);
