@@ -91,7 +91,7 @@ const STOP_CHECK_EVERY: u32 = 16;
 
 /// Camera samples of a pixel traced together (a [`Packet8`](crate::geometry::bvh8::Packet8));
 /// divides [`STOP_CHECK_EVERY`], so the stop checks fall where they did.
-const GROUP: usize = 8;
+const GROUP: usize = crate::sampler::GROUP_LANES;
 
 /// Renders one tile of camera `camera`: linear float RGB, row-major within the tile.
 ///
@@ -161,30 +161,29 @@ pub fn render_tile_until(
                 // The group's sample values first, then its rays: the rays' square roots and
                 // divisions are one chain each, and with nothing else in between the processor
                 // overlaps the eight chains.
-                let mut film = [(0.5, 0.5); GROUP];
-                let mut lens = [(0.5, 0.5); GROUP];
-                let mut time = [0.0; GROUP];
                 for (i, sampler) in samplers.iter_mut().enumerate().take(group) {
                     *sampler = pixel_sampler.with_sample(s + i as u32);
-                    // One sample goes through the pixel centre (§4.5); several are stratified
-                    // over the pixel by the sampler, like every other dimension.
-                    if n > 1 {
-                        film[i] = sampler.next_2d();
-                    }
-                    // Dimensions in a fixed order: pixel position, lens, time, then shading.
-                    if cam.lens.is_some() {
-                        lens[i] = sampler.next_2d();
-                    }
-                    if moving {
-                        time[i] = sampler.next_1d();
-                    }
                 }
-                let mut rays = [Ray::new(glam::DVec3::ZERO, glam::DVec3::Z); GROUP];
-                for (i, ray) in rays.iter_mut().enumerate().take(group) {
+                let samplers_in_use = &mut samplers[..group];
+                // Dimensions in a fixed order: pixel position, lens, time, then shading; the
+                // group draws each of the first ones for its eight samples at once. One sample
+                // goes through the pixel centre (§4.5); several are stratified over the pixel
+                // by the sampler, like every other dimension.
+                let film = if n > 1 { Sampler::next_2d_group(samplers_in_use) } else { [(0.5, 0.5); GROUP] };
+                let lens = if cam.lens.is_some() {
+                    Sampler::next_2d_group(samplers_in_use)
+                } else {
+                    [(0.5, 0.5); GROUP]
+                };
+                let time = if moving { Sampler::next_2d_group(samplers_in_use) } else { [(0.0, 0.0); GROUP] };
+                // All eight lanes, used or not: a loop of fixed length the compiler vectorises.
+                let rays: [Ray; GROUP] = std::array::from_fn(|i| {
                     let ((dx, dy), (l1, l2)) = (film[i], lens[i]);
-                    *ray = cam.lens_ray(x, y, dx, dy, l1, l2);
-                    ray.time = time[i];
-                }
+                    let mut ray = cam.lens_ray(x, y, dx, dy, l1, l2);
+                    // A 1-D request is the first coordinate of the 2-D one.
+                    ray.time = time[i].0;
+                    ray
+                });
                 let mut hits = [None; GROUP];
                 tracer.camera_hits(&rays[..group], &mut hits[..group]);
                 for i in 0..group {

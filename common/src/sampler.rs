@@ -105,16 +105,7 @@ impl Sampler {
     #[inline]
     fn next_bits(&mut self) -> (u32, u32) {
         self.dim += 1;
-        let h = fmix64(self.key ^ self.dim.wrapping_mul(GOLDEN));
-        let h2 = fmix64(h ^ GOLDEN);
-        // Shuffle the index (an Owen scramble of it: within each block of 2^k samples a
-        // permutation), then scramble each coordinate with its own seed.
-        let i = owen_scramble(self.index, h as u32);
-        // owen_scramble(i.reverse_bits(), ..) with the two reversals of `i` cancelled.
-        let a = laine_karras(i, (h >> 32) as u32).reverse_bits();
-        // owen_scramble(sobol_dim1(i), ..) with the reversal inside it folded in.
-        let b = laine_karras(sobol_dim1_reversed(i), h2 as u32).reverse_bits();
-        (a, b)
+        point(self.index, DimSeeds::of(self.key, self.dim))
     }
 
     /// One number in [0, 1), stratified over the pixel's samples.
@@ -129,6 +120,70 @@ impl Sampler {
         let (a, b) = self.next_bits();
         (unit(a), unit(b))
     }
+
+    /// [`Self::next_2d`] of each of up to [`GROUP_LANES`] samplers at once: the same values.
+    /// When they are samples of one pixel standing at the same dimension (a group of camera
+    /// samples drawing their pixel positions, lens points or times), the dimension's seeds are
+    /// hashed once and the samples' scrambles run as one eight-lane computation.
+    pub fn next_2d_group(samplers: &mut [Sampler]) -> [(f64, f64); GROUP_LANES] {
+        assert!(samplers.len() <= GROUP_LANES, "at most {GROUP_LANES} samplers a group");
+        let mut out = [(0.0, 0.0); GROUP_LANES];
+        let Some(first) = samplers.first() else { return out };
+        let (key, dim) = (first.key, first.dim + 1);
+        if samplers.iter().any(|s| s.key != key || s.dim + 1 != dim) {
+            for (o, s) in out.iter_mut().zip(samplers.iter_mut()) {
+                *o = s.next_2d();
+            }
+            return out;
+        }
+        let seeds = DimSeeds::of(key, dim);
+        let index: [u32; GROUP_LANES] = std::array::from_fn(|l| samplers.get(l).map_or(0, |s| s.index));
+        let mut a = [0u32; GROUP_LANES];
+        let mut b = [0u32; GROUP_LANES];
+        for l in 0..GROUP_LANES {
+            (a[l], b[l]) = point(index[l], seeds);
+        }
+        for (l, s) in samplers.iter_mut().enumerate() {
+            s.dim = dim;
+            out[l] = (unit(a[l]), unit(b[l]));
+        }
+        out
+    }
+}
+
+/// How many samplers [`Sampler::next_2d_group`] serves at once.
+pub const GROUP_LANES: usize = 8;
+
+/// The scrambling seeds of one dimension of one pixel (the same for all its samples).
+#[derive(Clone, Copy)]
+struct DimSeeds {
+    /// Seed of the Owen scramble of the sample index.
+    index: u32,
+    /// Seeds of the two coordinates' Owen scrambles.
+    a: u32,
+    b: u32,
+}
+
+impl DimSeeds {
+    #[inline]
+    fn of(key: u64, dim: u64) -> Self {
+        let h = fmix64(key ^ dim.wrapping_mul(GOLDEN));
+        let h2 = fmix64(h ^ GOLDEN);
+        DimSeeds { index: h as u32, a: (h >> 32) as u32, b: h2 as u32 }
+    }
+}
+
+/// Point `index` of a dimension's scrambled (0, 2)-sequence, as fixed-point values.
+#[inline(always)]
+fn point(index: u32, seeds: DimSeeds) -> (u32, u32) {
+    // Shuffle the index (an Owen scramble of it: within each block of 2^k samples a
+    // permutation), then scramble each coordinate with its own seed.
+    let i = owen_scramble(index, seeds.index);
+    // owen_scramble(i.reverse_bits(), ..) with the two reversals of `i` cancelled.
+    let a = laine_karras(i, seeds.a).reverse_bits();
+    // owen_scramble(sobol_dim1(i), ..) with the reversal inside it folded in.
+    let b = laine_karras(sobol_dim1_reversed(i), seeds.b).reverse_bits();
+    (a, b)
 }
 
 /// Frame seed of camera `camera` of a scene: rendering a camera never depends on the others.
@@ -198,6 +253,35 @@ mod tests {
         assert_ne!(draw(3, 4, 5), draw(3, 4, 6));
         let mut r = Sampler::new(7, 3, 4, 0).with_sample(5);
         assert_eq!((0..8).map(|_| r.next_1d()).collect::<Vec<f64>>(), draw(3, 4, 5));
+    }
+
+    #[test]
+    fn a_group_draws_what_each_sampler_draws() {
+        let pixel = Sampler::new(0x5eed, 12, 34, 0);
+        for count in [1, 3, 8] {
+            // Camera samples of one pixel, at the first dimensions and after a few.
+            for skip in [0, 1, 5] {
+                let mut group: Vec<Sampler> = (0..count).map(|k| pixel.with_sample(90 + k)).collect();
+                for s in &mut group {
+                    (0..skip).for_each(|_| _ = s.next_1d());
+                }
+                let mut each = group.clone();
+                let got = Sampler::next_2d_group(&mut group);
+                for (l, s) in each.iter_mut().enumerate() {
+                    assert_eq!(got[l], s.next_2d(), "{count} samplers, lane {l}, after {skip}");
+                    // Both continue at the same dimension.
+                    assert_eq!(group[l].next_1d(), s.next_1d());
+                }
+            }
+        }
+        // Samplers at different dimensions or of different pixels: each draws its own.
+        let mut mixed = [pixel.with_sample(1), Sampler::new(0x5eed, 13, 34, 1), pixel.with_sample(2)];
+        mixed[2].next_1d();
+        let mut each = mixed.clone();
+        let got = Sampler::next_2d_group(&mut mixed);
+        for (l, s) in each.iter_mut().enumerate() {
+            assert_eq!(got[l], s.next_2d(), "mixed lane {l}");
+        }
     }
 
     #[test]
