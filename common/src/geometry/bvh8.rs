@@ -66,6 +66,13 @@ pub struct Ray8 {
     pub tmax: f32,
 }
 
+/// `1 / d` of a direction component, with components of magnitude below 1e-18 taken as ±1e-18
+/// (a finite inverse, so slab tests never compute 0·∞).
+#[inline(always)]
+fn safe_inv(d: f32) -> f32 {
+    1.0 / if d.abs() < 1e-18 { 1e-18f32.copysign(d) } else { d }
+}
+
 impl Ray8 {
     #[inline(always)]
     pub fn new(origin: Vec3A, dir: Vec3A, tmin: f32, tmax: f32) -> Self {
@@ -76,8 +83,7 @@ impl Ray8 {
         let mut near = [0usize; 3];
         let mut far = [0usize; 3];
         for a in 0..3 {
-            let da = if d[a].abs() < 1e-18 { 1e-18f32.copysign(d[a]) } else { d[a] };
-            inv[a] = 1.0 / da;
+            inv[a] = safe_inv(d[a]);
             o_inv[a] = o[a] * inv[a];
             let neg = (inv[a] < 0.0) as usize;
             near[a] = a + 3 * neg;
@@ -303,12 +309,17 @@ impl Packet8 {
         // Unused lanes repeat the first ray (finite values; their results are never read).
         for lane in 0..8 {
             let (o, d) = rays.get(lane).unwrap_or(&rays[0]);
-            let r = Ray8::new(*o, *d, tmin, f32::INFINITY);
             for a in 0..3 {
-                p.o[a][lane] = r.o[a];
-                p.d[a][lane] = r.d[a];
-                p.inv[a][lane] = r.inv[a];
-                p.o_inv[a][lane] = r.o_inv[a];
+                p.o[a][lane] = o[a];
+                p.d[a][lane] = d[a];
+            }
+        }
+        // Ray8::new's operations, an axis of eight lanes at a time (the compiler vectorises
+        // this loop).
+        for a in 0..3 {
+            for lane in 0..8 {
+                p.inv[a][lane] = safe_inv(p.d[a][lane]);
+                p.o_inv[a][lane] = p.o[a][lane] * p.inv[a][lane];
             }
         }
         p
