@@ -41,6 +41,8 @@ pub struct TriHit {
     pub tri: u32,
     pub u: f64,
     pub v: f64,
+    /// The triangle's unit face normal ([`MeshGeom::face_normal`], from the edges at hand).
+    pub normal: DVec3,
 }
 
 impl MeshGeom {
@@ -137,8 +139,9 @@ impl MeshGeom {
         self.bvh.occluded(&Ray8::new(ray.origin, ray.direction, ray.tmin, ray.tmax))
     }
 
-    /// Exact `f64` intersection of a triangle already known to be hit: distance and barycentrics
-    /// (clamped into the triangle, since the `f32` test accepted it).
+    /// Exact `f64` intersection of a triangle already known to be hit: distance, barycentrics
+    /// (clamped into the triangle, since the `f32` test accepted it) and the face normal, whose
+    /// square root and division overlap the intersection's.
     pub fn refine(&self, tri: u32, origin: DVec3, dir: DVec3) -> TriHit {
         let [a, b, c] = self.indices[tri as usize];
         let (p0, p1, p2) =
@@ -155,7 +158,7 @@ impl MeshGeom {
         let t = e2.dot(q) * inv;
         u = u.clamp(0.0, 1.0);
         v = v.clamp(0.0, 1.0 - u);
-        TriHit { t, tri, u, v }
+        TriHit { t, tri, u, v, normal: e1.cross(e2).normalize() }
     }
 
     /// Texture coordinates at barycentrics (u, v) and the surface derivatives ∂p/∂u, ∂p/∂v
@@ -264,6 +267,7 @@ mod tests {
         assert_eq!(tri, 0);
         let h = m.refine(tri, DVec3::new(0.5, -0.5, 3.0), DVec3::NEG_Z);
         assert!((h.t - 3.0).abs() < 1e-12);
+        assert_eq!(h.normal, m.face_normal(tri));
         assert!(m.intersect_f32(fray(DVec3::new(1.5, 0.0, 3.0), DVec3::NEG_Z)).is_none());
         // From behind: two-sided.
         assert!(m.intersect_f32(fray(DVec3::new(0.0, 0.2, -3.0), DVec3::Z)).is_some());

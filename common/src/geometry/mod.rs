@@ -620,7 +620,7 @@ impl Accel {
                 let h = m.refine(c.tri, local.origin, local.dir);
                 // Keep the f32 distance if the f64 re-intersection degenerated (grazing rays).
                 let t = if h.t.is_finite() && h.t > 0.0 { h.t } else { c.t };
-                let ng = m.face_normal(c.tri);
+                let ng = h.normal;
                 let ns = if *smooth { m.smooth_normal(c.tri, h.u, h.v) } else { ng };
                 let frame = if textured {
                     m.uv_frame(c.tri, h.u, h.v).unwrap_or((DVec2::new(h.u, h.v), DVec3::ZERO, DVec3::ZERO))
