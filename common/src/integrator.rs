@@ -581,13 +581,16 @@ impl<'a> Tracer<'a> {
                 l += mat.reflectance(n, s.wi, wo) * s.irradiance;
             }
         }
+        // The direction first, its radiance and pdf after the shadow ray: the lookups' cache
+        // misses overlap the traversal, and a blocked ray needs neither.
         if env
             && let Some(env) = &scene.env_light
-            && let Some(s) = env.sample(n, self.env_sampler, rng)
-            && s.weight != DVec3::ZERO
-            && self.unblocked(ray, n, origin, s.wi)
+            && let Some(d) = env.sample_direction(n, self.env_sampler, rng)
+            && self.unblocked(ray, n, origin, d.wi)
+            && let Some(weight) = env.weight(&d)
+            && weight != DVec3::ZERO
         {
-            l += mat.reflectance(n, s.wi, wo) * s.weight;
+            l += mat.reflectance(n, d.wi, wo) * weight;
         }
         l
     }

@@ -11,7 +11,7 @@ use std::sync::Arc;
 
 use glam::{DAffine3, DVec3};
 
-use crate::math::{atan2_approx, orthonormal_pair, sincos_turns};
+use crate::math::{atan2_approx, orthonormal_pair, prefetch, sincos_turns};
 use crate::sampler::Sampler;
 use crate::scene::records::{EnvMapping, EnvSampler};
 use crate::texture::image::TextureImage;
@@ -213,11 +213,23 @@ impl EnvLight {
     #[inline]
     fn radiance_uv(&self, u: f64, v: f64) -> DVec3 {
         let img = &*self.image;
+        let c = self.corners(u, v);
+        let (dx, dy) = (c.dx, c.dy);
+        let t = |x, y| DVec3::from(img.texel(x, y).map(f64::from));
+        t(c.x0, c.y0) * ((1.0 - dx) * (1.0 - dy))
+            + t(c.x1, c.y0) * (dx * (1.0 - dy))
+            + t(c.x0, c.y1) * ((1.0 - dx) * dy)
+            + t(c.x1, c.y1) * (dx * dy)
+    }
+
+    /// The four texels [`Self::radiance_uv`] blends at `(u, v)`, and the blend's fractions.
+    #[inline]
+    fn corners(&self, u: f64, v: f64) -> Corners {
+        let img = &*self.image;
         let (w, h) = (img.width as f64, img.height as f64);
         let i = u * w;
         let j = v * h;
         let (p, q) = (i.floor(), j.floor());
-        let (dx, dy) = (i - p, j - q);
         // u is in [0, 1] for unit directions, so p is in [0, W] and p + 1 in [1, W + 1]: one
         // subtraction wraps them, as `rem_euclid` would with two integer divisions per lookup.
         let width = i64::from(img.width.max(1));
@@ -231,30 +243,45 @@ impl EnvLight {
                 i.rem_euclid(width)
             }
         };
-        let (x0, x1) = (wrap(p), wrap(p + 1.0));
-        let (y0, y1) = (q as i64, q as i64 + 1);
-        let t = |x, y| DVec3::from(img.texel(x, y).map(f64::from));
-        t(x0, y0) * ((1.0 - dx) * (1.0 - dy))
-            + t(x1, y0) * (dx * (1.0 - dy))
-            + t(x0, y1) * ((1.0 - dx) * dy)
-            + t(x1, y1) * (dx * dy)
+        Corners { x0: wrap(p), x1: wrap(p + 1.0), y0: q as i64, y1: q as i64 + 1, dx: i - p, dy: j - q }
+    }
+
+    /// Starts loading the texels of [`Self::radiance_uv`] at `(u, v)` into the cache.
+    #[inline]
+    fn prefetch_radiance(&self, u: f64, v: f64) {
+        let c = self.corners(u, v);
+        let img = &*self.image;
+        for y in [c.y0, c.y1] {
+            prefetch(&img.texels, img.texel_index(c.x0, y));
+            prefetch(&img.texels, img.texel_index(c.x1, y));
+        }
     }
 
     /// One direction for a point with unit normal `n` (on the side the light can arrive from),
     /// chosen by `sampler`; `None` when the direction is below the surface (importance sampling
-    /// covers the whole sphere) or its pdf is zero.
+    /// covers the whole sphere) or its pdf is zero. [`Self::sample_direction`] then
+    /// [`Self::weight`].
     pub fn sample(&self, n: DVec3, sampler: EnvSampler, rng: &mut Sampler) -> Option<EnvSample> {
+        let d = self.sample_direction(n, sampler, rng)?;
+        Some(EnvSample { wi: d.wi, weight: self.weight(&d)? })
+    }
+
+    /// The direction half of [`Self::sample`]: it draws `wi` and starts loading the texels (and
+    /// pdf cell) that [`Self::weight`] will read, without waiting for them. A caller that traces
+    /// its shadow ray in between gets those loads for free (a random direction's texels are
+    /// seldom in the cache: about 60 ns each), and skips them when the ray is blocked.
+    pub fn sample_direction(&self, n: DVec3, sampler: EnvSampler, rng: &mut Sampler) -> Option<EnvDirection> {
         let (xi1, xi2) = rng.next_2d();
-        match sampler {
+        let (wi, (u, v), pdf) = match sampler {
             EnvSampler::Uniform => {
                 // cos θ uniform in [0, 1) gives uniform directions on the hemisphere.
                 let wi = hemisphere_direction(n, 1.0 - xi1, xi2);
-                Some(EnvSample { wi, weight: self.radiance(wi) * TAU })
+                (wi, env_uv(self.mapping, wi), EnvPdf::Factor(TAU))
             }
             EnvSampler::Cosine => {
                 let cos = (1.0 - xi1).sqrt();
                 let wi = hemisphere_direction(n, cos, xi2);
-                Some(EnvSample { wi, weight: self.radiance(wi) * (PI / cos) })
+                (wi, env_uv(self.mapping, wi), EnvPdf::Factor(PI / cos))
             }
             EnvSampler::Importance => {
                 // One-sample multiple importance sampling: half the samples follow the map's
@@ -275,20 +302,80 @@ impl EnvLight {
                 // The map coordinates of `wi` serve both the pdf and the lookup. A lat-long map's
                 // grid is the distribution's, so a direction drawn from it keeps its (u, v) and
                 // its cell's pdf (no atan2 and acos of `wi`).
-                let ((u, v), map_pdf) = match (grid, self.mapping) {
-                    (Some(s), EnvMapping::LatLong) => ((s.u, s.v), s.pdf),
-                    (Some(s), EnvMapping::Probe) => (env_uv(EnvMapping::Probe, wi), s.pdf),
+                let (uv, map_pdf) = match (grid, self.mapping) {
+                    (Some(s), EnvMapping::LatLong) => ((s.u, s.v), MapPdf::Known(s.pdf)),
+                    (Some(s), EnvMapping::Probe) => (env_uv(EnvMapping::Probe, wi), MapPdf::Known(s.pdf)),
                     (None, EnvMapping::LatLong) => {
                         let (u, v) = env_uv(EnvMapping::LatLong, wi);
-                        ((u, v), self.distribution.pdf_uv(u, v))
+                        self.distribution.prefetch_cell(u, v);
+                        ((u, v), MapPdf::LatLongCell)
                     }
-                    (None, EnvMapping::Probe) => (env_uv(EnvMapping::Probe, wi), self.distribution.pdf(wi)),
+                    (None, EnvMapping::Probe) => {
+                        (env_uv(EnvMapping::Probe, wi), MapPdf::Known(self.distribution.pdf(wi)))
+                    }
                 };
-                let pdf = 0.5 * map_pdf + 0.5 * cos / PI;
-                (pdf > 0.0 && pdf.is_finite()).then(|| EnvSample { wi, weight: self.radiance_uv(u, v) / pdf })
+                (wi, uv, EnvPdf::Mixture { cos, map_pdf })
             }
-        }
+        };
+        self.prefetch_radiance(u, v);
+        Some(EnvDirection { wi, u, v, pdf })
     }
+
+    /// The radiance arriving along a [`Self::sample_direction`] direction divided by the pdf of
+    /// choosing it: the sample's `E` (§5); `None` when that pdf is zero or not finite.
+    pub fn weight(&self, d: &EnvDirection) -> Option<DVec3> {
+        let pdf = match d.pdf {
+            EnvPdf::Factor(f) => return Some(self.radiance_uv(d.u, d.v) * f),
+            EnvPdf::Mixture { cos, map_pdf } => {
+                let map_pdf = match map_pdf {
+                    MapPdf::Known(p) => p,
+                    MapPdf::LatLongCell => self.distribution.pdf_uv(d.u, d.v),
+                };
+                0.5 * map_pdf + 0.5 * cos / PI
+            }
+        };
+        (pdf > 0.0 && pdf.is_finite()).then(|| self.radiance_uv(d.u, d.v) / pdf)
+    }
+}
+
+/// The texels around a point of an environment map: columns `x0`, `x1` (wrapped), rows `y0`,
+/// `y1` (clamped when read), and the point's fractions between them.
+struct Corners {
+    x0: i64,
+    x1: i64,
+    y0: i64,
+    y1: i64,
+    dx: f64,
+    dy: f64,
+}
+
+/// A direction of an environment light, drawn but not yet weighed: see
+/// [`EnvLight::sample_direction`].
+#[derive(Clone, Copy, Debug)]
+pub struct EnvDirection {
+    /// Unit direction towards the environment.
+    pub wi: DVec3,
+    /// Its map coordinates.
+    u: f64,
+    v: f64,
+    pdf: EnvPdf,
+}
+
+/// How [`EnvLight::weight`] finds a direction's pdf.
+#[derive(Clone, Copy, Debug)]
+enum EnvPdf {
+    /// The weight is the radiance times this factor (the inverse of a pdf known in closed form).
+    Factor(f64),
+    /// Importance sampling's mixture: half the map's pdf, half the cosine lobe's (`cos / π`).
+    Mixture { cos: f64, map_pdf: MapPdf },
+}
+
+/// The map distribution's pdf of a direction.
+#[derive(Clone, Copy, Debug)]
+enum MapPdf {
+    Known(f64),
+    /// To be read from the distribution's cell at the direction's lat-long coordinates.
+    LatLongCell,
 }
 
 /// The unit direction with cosine `cos` to `n` and azimuth 2π·`xi` around it.
@@ -458,6 +545,16 @@ impl EnvDistribution {
     pub fn pdf(&self, d: DVec3) -> f64 {
         let (u, v) = env_uv(EnvMapping::LatLong, d);
         self.pdf_uv(u, v)
+    }
+
+    /// Starts loading what [`Self::pdf_uv`] at `(u, v)` reads into the cache.
+    #[inline]
+    fn prefetch_cell(&self, u: f64, v: f64) {
+        let x = ((u * self.width as f64) as usize).min(self.width - 1);
+        let y = ((v * self.height as f64) as usize).min(self.height - 1);
+        let i = y * self.width + x;
+        prefetch(&self.cells, i.saturating_sub(1));
+        prefetch(&self.cells, i);
     }
 
     /// [`Self::pdf`] at the lat-long coordinates `(u, v)` of a direction.

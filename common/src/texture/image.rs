@@ -109,9 +109,14 @@ impl TextureImage {
     /// Texel (x, y) with x, y clamped into the image.
     #[inline]
     pub fn texel(&self, x: i64, y: i64) -> [f32; 3] {
-        let x = clamp_index(x, self.width);
-        let y = clamp_index(y, self.height);
-        self.at(y * self.width as usize + x)
+        self.at(self.texel_index(x, y))
+    }
+
+    /// The position in `texels` of texel (x, y), clamped into the image as [`Self::texel`]
+    /// clamps (for callers that prefetch it).
+    #[inline]
+    pub fn texel_index(&self, x: i64, y: i64) -> usize {
+        clamp_index(y, self.height) * self.width as usize + clamp_index(x, self.width)
     }
 
     /// Nearest lookup at texture coordinates (u, v): u, v wrapped into [0,1) by repeat
@@ -453,6 +458,21 @@ fn decode_exr(bytes: &[u8]) -> Result<TextureImage, ImageError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `texel_index` clamps as `texel` does: the texel at the index is the texel looked up, for
+    /// coordinates inside, on and far outside every border.
+    #[test]
+    fn texel_index_clamps_like_texel() {
+        let img =
+            TextureImage { width: 3, height: 2, texels: (0..6).map(|i| [i as f32, 0.0, 0.0]).collect() };
+        for y in [-5i64, -1, 0, 1, 2, 9, i64::MIN, i64::MAX] {
+            for x in [-7i64, -1, 0, 1, 2, 3, 40, i64::MIN, i64::MAX] {
+                let i = img.texel_index(x, y);
+                assert!(i < 6, "({x}, {y}) -> {i}");
+                assert_eq!(img.texels[i], img.texel(x, y), "({x}, {y})");
+            }
+        }
+    }
 
     // ---------------------------------------------------------------------------------------
     // Test-only encoders.
