@@ -10,7 +10,7 @@ use crate::geometry::Instance;
 use crate::geometry::SurfaceHit;
 use crate::material::{Material, MaterialKind, Refraction, fresnel_conductor, refract};
 use crate::math::{Ray, orthonormal_pair, reflect, sincos_turns};
-use crate::sampler::Sampler;
+use crate::sampler::{GROUP_LANES, Sampler};
 use crate::scene::Scene;
 use crate::scene::records::{
     DecalMode, EnvSampler, MAX_RECURSION_DEPTH_LIMIT, PathParams, Renderer, Roulette,
@@ -102,6 +102,34 @@ impl<'a> Tracer<'a> {
                 }
             }
         }
+    }
+
+    /// [`Self::trace_primary`] of a pixel's group of camera rays (`hits.len()` of the eight in
+    /// `rays`, with their samplers), lane by lane: the same values. Rays that miss everything
+    /// see the environment light, and their lookups are made together
+    /// ([`EnvLight::radiance_lanes`](crate::lights::EnvLight::radiance_lanes)).
+    pub fn trace_primary_group(
+        &mut self,
+        rays: &[Ray; GROUP_LANES],
+        hits: &[Option<SurfaceHit>],
+        samplers: &mut [Sampler],
+    ) -> [DVec3; GROUP_LANES] {
+        let mut out = [DVec3::ZERO; GROUP_LANES];
+        // Both renderers show a camera ray that misses the environment's radiance as is.
+        let seen = match &self.scene.env_light {
+            Some(env) if hits.iter().any(Option::is_none) => Some(env.radiance_lanes(&rays.map(|r| r.dir))),
+            _ => None,
+        };
+        for (i, (hit, rng)) in hits.iter().zip(samplers).enumerate() {
+            out[i] = match (hit, &seen) {
+                (None, Some(seen)) => {
+                    self.stats.primary += 1;
+                    seen[i]
+                }
+                _ => self.trace_primary(&rays[i], *hit, rng),
+            };
+        }
+        out
     }
 
     /// Radiance along a camera ray whose first surface [`Self::camera_hits`] found (`None`: it
@@ -984,6 +1012,69 @@ mod tests {
         assert!((p[0] as f64 / expected - 1.0).abs() < 0.018, "uniform: {p:?} vs {expected}");
         let p = furnace_pixel(l, -1.0, WHITE, 16384, EnvSampler::Importance);
         assert!((p[0] as f64 / expected - 1.0).abs() < 0.04, "importance: {p:?} vs {expected}");
+    }
+
+    /// A group of camera rays, some hitting a sphere and some missing it, traced together gives
+    /// each ray's own radiance and ray counts, bit for bit, with both renderers and for groups
+    /// shorter than eight.
+    #[test]
+    fn a_group_of_camera_rays_traces_what_each_ray_traces() {
+        use super::Tracer;
+        use crate::image::Image;
+        use crate::math::Ray;
+        use crate::sampler::{GROUP_LANES, Sampler};
+        use crate::scene::records::{PathParams, Renderer, Roulette};
+        let dir = tessera_testkit::TempDir::new("group");
+        let pixels =
+            (0..32 * 16).map(|i| [1.0 + (i % 32) as f32 * 0.05, 1.0 + (i / 32) as f32 * 0.1, 1.0]).collect();
+        crate::hdr_io::write_exr(&dir.join("map.exr"), &Image { width: 32, height: 16, pixels }).unwrap();
+        let xml = format!(
+            r#"<Scene><MaxRecursionDepth>2</MaxRecursionDepth>
+            <Cameras><Camera id="1"><Position>0 0 5</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+              <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance>
+              <ImageResolution>8 8</ImageResolution><ImageName>a.exr</ImageName><NumSamples>8</NumSamples></Camera></Cameras>
+            <Textures><Images><Image id="1">map.exr</Image></Images></Textures>
+            <Lights><SphericalDirectionalLight id="1"><ImageId>1</ImageId><Sampler>importance</Sampler></SphericalDirectionalLight></Lights>
+            <Materials>{WHITE}</Materials>
+            <VertexData>0 0 0</VertexData>
+            <Objects><Sphere id="1"><Material>1</Material><Center>1</Center><Radius>1</Radius></Sphere></Objects>
+            </Scene>"#
+        );
+        let scene =
+            load_scene_str(&xml, &dir.join("t.xml"), &FsResolver { base_dir: dir.to_path_buf() }).unwrap();
+        // Rays from the camera fanning across the sphere's edge: lanes alternate hit and miss.
+        let rays: [Ray; GROUP_LANES] = std::array::from_fn(|i| {
+            let x = if i % 2 == 0 { 0.05 * i as f64 } else { 0.3 + 0.05 * i as f64 };
+            Ray::new(DVec3::new(0.0, 0.0, 5.0), DVec3::new(x, 0.02 * i as f64, -1.0).normalize())
+        });
+        let path = Renderer::Path(PathParams { next_event: true, importance: true, roulette: Roulette::Off });
+        for renderer in [Renderer::Classic, path] {
+            for group in [GROUP_LANES, 5, 2] {
+                let samplers: Vec<Sampler> = (0..group as u32).map(|k| Sampler::new(9, 3, 4, k)).collect();
+                let mut together = Tracer::new(&scene);
+                together.renderer = renderer;
+                let mut hits = [None; GROUP_LANES];
+                together.camera_hits(&rays[..group], &mut hits[..group]);
+                assert!(hits[..group].iter().any(Option::is_some), "a lane hits the sphere");
+                assert!(hits[..group].iter().any(Option::is_none), "a lane misses it");
+                let mut group_samplers = samplers.clone();
+                let got = together.trace_primary_group(&rays, &hits[..group], &mut group_samplers);
+                let mut alone = Tracer::new(&scene);
+                alone.renderer = renderer;
+                for i in 0..group {
+                    let want = alone.trace_primary(&rays[i], hits[i], &mut samplers[i].clone());
+                    assert_eq!(
+                        got[i].to_array().map(f64::to_bits),
+                        want.to_array().map(f64::to_bits),
+                        "lane {i}"
+                    );
+                }
+                assert_eq!(together.stats.total(), alone.stats.total(), "{renderer:?}, {group} lanes");
+                if group == GROUP_LANES {
+                    assert!(together.stats.shadow > 0, "{renderer:?}: the hits are lit");
+                }
+            }
+        }
     }
 
     #[test]

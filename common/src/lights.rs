@@ -12,7 +12,7 @@ use std::sync::Arc;
 use glam::{DAffine3, DVec3};
 
 use crate::math::{atan2_approx, orthonormal_pair, prefetch, sincos_turns};
-use crate::sampler::Sampler;
+use crate::sampler::{GROUP_LANES as LANES, Sampler};
 use crate::scene::records::{EnvMapping, EnvSampler};
 use crate::texture::image::TextureImage;
 use crate::tonemap::params::luminance;
@@ -132,12 +132,7 @@ pub fn env_uv(mapping: EnvMapping, d: DVec3) -> (f64, f64) {
     match mapping {
         // Both angles come from `atan2_approx` (within 2e-10 rad: under a millionth of a texel
         // even of a 16K-wide map); θ = acos(y) as atan2(√(1 − y²), y).
-        EnvMapping::LatLong => {
-            let u = 0.5 + atan2_approx(d.x, ENV_U_Z_SIGN * d.z) / TAU;
-            let y = d.y.clamp(-1.0, 1.0);
-            let v = atan2_approx(((1.0 - y) * (1.0 + y)).sqrt(), y) / PI;
-            (u, v)
-        }
+        EnvMapping::LatLong => latlong_uv(d.x, d.y, d.z),
         EnvMapping::Probe => {
             // Debevec's angular map: the distance from the centre is proportional to the angle
             // from −Z, whose sine is `s` for a unit direction.
@@ -146,6 +141,16 @@ pub fn env_uv(mapping: EnvMapping, d: DVec3) -> (f64, f64) {
             ((r * d.x + 1.0) / 2.0, (-r * d.y + 1.0) / 2.0)
         }
     }
+}
+
+/// The lat-long coordinates of unit direction (x, y, z), as [`env_uv`] gives them; inlined into
+/// [`EnvLight::radiance_lanes`]'s loop, where it runs on several directions at once.
+#[inline(always)]
+fn latlong_uv(x: f64, y: f64, z: f64) -> (f64, f64) {
+    let u = 0.5 + atan2_approx(x, ENV_U_Z_SIGN * z) / TAU;
+    let y = y.clamp(-1.0, 1.0);
+    let v = atan2_approx(((1.0 - y) * (1.0 + y)).sqrt(), y) / PI;
+    (u, v)
 }
 
 /// The unit direction of lat-long coordinates (u, v): the inverse of [`env_uv`].
@@ -207,6 +212,29 @@ impl EnvLight {
     pub fn radiance(&self, d: DVec3) -> DVec3 {
         let (u, v) = env_uv(self.mapping, d);
         self.radiance_uv(u, v)
+    }
+
+    /// [`Self::radiance`] of eight directions, the same values: a lat-long map's coordinates
+    /// of all eight are computed side by side (a loop of fixed length over plain arrays, which
+    /// the compiler turns into vector instructions), then looked up one by one. For the camera
+    /// rays of a pixel's sample group that miss everything.
+    pub fn radiance_lanes(&self, dirs: &[DVec3; LANES]) -> [DVec3; LANES] {
+        let mut u = [0.0; LANES];
+        let mut v = [0.0; LANES];
+        match self.mapping {
+            EnvMapping::LatLong => {
+                let (x, y, z) = (dirs.map(|d| d.x), dirs.map(|d| d.y), dirs.map(|d| d.z));
+                for i in 0..LANES {
+                    (u[i], v[i]) = latlong_uv(x[i], y[i], z[i]);
+                }
+            }
+            EnvMapping::Probe => {
+                for i in 0..LANES {
+                    (u[i], v[i]) = env_uv(EnvMapping::Probe, dirs[i]);
+                }
+            }
+        }
+        std::array::from_fn(|i| self.radiance_uv(u[i], v[i]))
     }
 
     /// [`Self::radiance`] at the map coordinates `(u, v)` of a direction.
@@ -951,6 +979,47 @@ mod tests {
             }
         }
         assert!(in_bright > 800, "{in_bright}");
+    }
+
+    /// Eight directions looked up together give each direction's own lookup, bit for bit, for
+    /// both mappings: random directions, the poles, the seam (u = 0 and 1), the axes and signed
+    /// zeros.
+    #[test]
+    fn lanes_look_up_what_single_lookups_do() {
+        let map = image(37, 19, |x, y| [x as f32 * 0.25 + 0.1, y as f32 * 1.5, (x * y % 7) as f32]);
+        let mut dirs = vec![
+            DVec3::Y,
+            -DVec3::Y,
+            DVec3::X,
+            -DVec3::X,
+            DVec3::Z,
+            -DVec3::Z,
+            DVec3::new(0.0, -0.0, -1.0),
+            DVec3::new(-0.0, 0.0, 1.0),
+            DVec3::new(1e-300, 1.0, -1e-300).normalize(),
+            DVec3::new(-1e-12, 0.3, 1.0).normalize(),
+            DVec3::new(1e-12, -0.3, 1.0).normalize(),
+        ];
+        let mut rng = Sampler::new(3, 1, 2, 0);
+        for _ in 0..4000 {
+            let (a, b) = rng.next_2d();
+            dirs.push(latlong_direction(a, b));
+        }
+        for mapping in [EnvMapping::LatLong, EnvMapping::Probe] {
+            let env = EnvLight::new(map.clone(), mapping, None);
+            for chunk in dirs.chunks(LANES) {
+                let lanes: [DVec3; LANES] = std::array::from_fn(|i| chunk[i % chunk.len()]);
+                let together = env.radiance_lanes(&lanes);
+                for (d, got) in lanes.iter().zip(together) {
+                    let want = env.radiance(*d);
+                    assert_eq!(
+                        got.to_array().map(f64::to_bits),
+                        want.to_array().map(f64::to_bits),
+                        "{mapping:?} {d}"
+                    );
+                }
+            }
+        }
     }
 
     /// Each estimator's mean of `cos θ · L(wi)` over many samples is ∫ L cos dω: π·L for a constant map.

@@ -186,8 +186,9 @@ pub fn render_tile_until(
                 });
                 let mut hits = [None; GROUP];
                 tracer.camera_hits(&rays[..group], &mut hits[..group]);
-                for i in 0..group {
-                    sum += tracer.trace_primary(&rays[i], hits[i], &mut samplers[i]);
+                let radiance = tracer.trace_primary_group(&rays, &hits[..group], &mut samplers[..group]);
+                for l in &radiance[..group] {
+                    sum += *l;
                 }
                 s += group as u32;
             }
