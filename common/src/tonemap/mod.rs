@@ -84,7 +84,7 @@ use crate::image::Image;
 
 pub mod params;
 
-use params::{Operator, Photographic, luminance};
+use params::{Gamma, Operator, Photographic, luminance};
 
 /// δ of the log average: keeps ln finite for black pixels. §12.3 suggests 1e-5; the official
 /// references were made with 1e-6 (module docs).
@@ -197,6 +197,7 @@ pub fn tonemap_with(img: &Image, operator: Operator, op: &Photographic) -> (Vec<
     };
     let curve_white = if curve_white > 0.0 { curve_white } else { 1.0 };
 
+    let bytes = ByteCurve::new(op.gamma);
     out.par_chunks_mut(3).zip(img.pixels.par_iter()).for_each(|(o, p)| {
         if !p.iter().all(|c| c.is_finite()) {
             write_non_finite(o, *p);
@@ -216,12 +217,65 @@ pub fn tonemap_with(img: &Image, operator: Operator, op: &Photographic) -> (Vec<
         for ch in 0..3 {
             let ratio = c[ch] / y;
             let ratio = if ratio > 0.0 { ratio } else { 0.0 };
-            let cd = ld * ratio.powf(op.saturation);
-            // encode() clamps to [0, 1] (NaN → 0), so v is in [0, 255]; truncate (§12.3).
-            o[ch] = (255.0 * op.gamma.encode(cd)).floor() as u8;
+            // x^1 is x in IEEE arithmetic: the usual saturation of 1 needs no power.
+            let cd = if op.saturation == 1.0 { ld * ratio } else { ld * ratio.powf(op.saturation) };
+            o[ch] = bytes.byte(cd);
         }
     });
     (out, TonemapStats { non_finite, log_average, white })
+}
+
+/// The 8-bit value of a display value `c`, `⌊255 · gamma.encode(c)⌋` (encode clamps to [0, 1],
+/// NaN gives 0; truncation, §12.3), found among 255 thresholds instead of with a power per
+/// channel: `t[k − 1]` is the least `f64` whose value is at least `k`, so a value is the count
+/// of thresholds at or below it. The thresholds come from the formula itself (bisection over
+/// the doubles in [0, 1]), so the bytes are the formula's wherever it is non-decreasing, which
+/// every valid gamma is (tested around every threshold); an invalid gamma keeps the formula.
+struct ByteCurve {
+    gamma: Gamma,
+    thresholds: Option<[f64; 255]>,
+}
+
+impl ByteCurve {
+    fn new(gamma: Gamma) -> Self {
+        let valid = match gamma {
+            Gamma::Power(g) => g.is_finite() && g > 0.0,
+            Gamma::Srgb => true,
+        };
+        let thresholds = valid.then(|| {
+            let mut t = [0.0; 255];
+            for (k, slot) in (1..=255u32).zip(&mut t) {
+                // Over the bit patterns of [0, 1] (ordered like the values): byte(lo) < k and
+                // byte(hi) >= k throughout, since byte(0) = 0 and byte(1) = 255.
+                let (mut lo, mut hi) = (0u64, 1.0f64.to_bits());
+                while hi - lo > 1 {
+                    let mid = lo + (hi - lo) / 2;
+                    if u32::from(Self::formula(gamma, f64::from_bits(mid))) >= k {
+                        hi = mid;
+                    } else {
+                        lo = mid;
+                    }
+                }
+                *slot = f64::from_bits(hi);
+            }
+            t
+        });
+        ByteCurve { gamma, thresholds }
+    }
+
+    #[inline]
+    fn formula(gamma: Gamma, c: f64) -> u8 {
+        (255.0 * gamma.encode(c)).floor() as u8
+    }
+
+    #[inline]
+    fn byte(&self, c: f64) -> u8 {
+        match &self.thresholds {
+            // Comparisons with NaN are false: NaN counts no threshold, as encode gives it 0.
+            Some(t) => t.partition_point(|&x| x <= c) as u8,
+            None => Self::formula(self.gamma, c),
+        }
+    }
 }
 
 /// A pixel with a NaN or infinite channel: black if any channel is NaN, else 255 for each +∞
@@ -458,6 +512,43 @@ mod tests {
         let (_, stats) = tonemap(&image(5, 2, pixels), &op(0.18, 30.0));
         let y8 = luminance([8.0; 3]);
         assert!(close(stats.white, 0.18 / stats.log_average * y8, 1e-12), "{stats:?}");
+    }
+
+    /// The thresholds give the formula's byte: on both sides of every threshold (a thousand
+    /// doubles each way), at a million spread values, and at the special ones, for the course's
+    /// gamma, sRGB and unusual powers; and the power of a saturation of 1 is skipped exactly.
+    #[test]
+    fn byte_thresholds_give_the_formulas_bytes() {
+        let mut z = 0x9e37_79b9_7f4a_7c15_u64;
+        for gamma in
+            [Gamma::Power(2.2), Gamma::Srgb, Gamma::Power(1.0), Gamma::Power(0.45), Gamma::Power(9.5)]
+        {
+            let curve = ByteCurve::new(gamma);
+            let t = curve.thresholds.expect("a valid gamma has thresholds");
+            let mut values =
+                vec![f64::NAN, -0.0, 0.0, -1.0, 1.0, 2.0, f64::INFINITY, f64::NEG_INFINITY, 5e-324];
+            for &x in &t {
+                for d in 0..1000u64 {
+                    values.push(f64::from_bits(x.to_bits() + d));
+                    values.push(f64::from_bits(x.to_bits().saturating_sub(d)));
+                }
+            }
+            for _ in 0..1_000_000 {
+                z ^= z << 13;
+                z ^= z >> 7;
+                z ^= z << 17;
+                values.push((z >> 11) as f64 / (1u64 << 53) as f64);
+            }
+            for c in values {
+                assert_eq!(curve.byte(c), ByteCurve::formula(gamma, c), "{gamma:?} at {c:e}");
+            }
+            // Every byte value is reachable and the thresholds rise.
+            assert!(t.windows(2).all(|w| w[0] < w[1]), "{gamma:?}");
+        }
+        assert!(ByteCurve::new(Gamma::Power(-2.0)).thresholds.is_none());
+        for x in [0.0f64, 1e-300, 0.3, 0.999_999, 1.0, 7.5, 1e300] {
+            assert_eq!(x.powf(1.0), x);
+        }
     }
 
     #[test]
