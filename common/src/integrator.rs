@@ -968,6 +968,36 @@ mod tests {
         assert_eq!(spot(35.0), 0.0, "outside the coverage cone");
     }
 
+    /// A unit sphere of `material` at the origin, lit only by the environment map `map` (its
+    /// light's extra elements in `light`), seen from (0, 0, 5) along (0, 0, `gaze_z`) through a
+    /// near plane of half-width `half` at distance 1, `res`² pixels of `spp` samples.
+    #[allow(clippy::too_many_arguments)]
+    fn sphere_in_map(
+        dir: &tessera_testkit::TempDir,
+        map: &crate::image::Image,
+        material: &str,
+        gaze_z: f64,
+        half: f64,
+        res: u32,
+        spp: u32,
+        light: &str,
+    ) -> crate::scene::Scene {
+        crate::hdr_io::write_exr(&dir.join("map.exr"), map).unwrap();
+        let xml = format!(
+            r#"<Scene><MaxRecursionDepth>2</MaxRecursionDepth>
+            <Cameras><Camera id="1"><Position>0 0 5</Position><Gaze>0 0 {gaze_z}</Gaze><Up>0 1 0</Up>
+              <NearPlane>-{half} {half} -{half} {half}</NearPlane><NearDistance>1</NearDistance>
+              <ImageResolution>{res} {res}</ImageResolution><ImageName>a.exr</ImageName><NumSamples>{spp}</NumSamples></Camera></Cameras>
+            <Textures><Images><Image id="1">map.exr</Image></Images></Textures>
+            <Lights><SphericalDirectionalLight id="1"><ImageId>1</ImageId>{light}</SphericalDirectionalLight></Lights>
+            <Materials>{material}</Materials>
+            <VertexData>0 0 0</VertexData>
+            <Objects><Sphere id="1"><Material>1</Material><Center>1</Center><Radius>1</Radius></Sphere></Objects>
+            </Scene>"#
+        );
+        load_scene_str(&xml, &dir.join("t.xml"), &FsResolver { base_dir: dir.to_path_buf() }).unwrap()
+    }
+
     /// A scene around a white diffuse unit sphere lit only by a constant environment map of
     /// radiance `l`, seen through one pixel by a camera at z = 5 looking along `gaze_z` (−1: at
     /// the sphere); `spp` samples with `sampler`.
@@ -975,21 +1005,7 @@ mod tests {
         use crate::image::Image;
         let dir = tessera_testkit::TempDir::new("furnace");
         let map = Image { width: 8, height: 4, pixels: vec![[l; 3]; 32] };
-        crate::hdr_io::write_exr(&dir.join("const.exr"), &map).unwrap();
-        let xml = format!(
-            r#"<Scene><MaxRecursionDepth>2</MaxRecursionDepth>
-            <Cameras><Camera id="1"><Position>0 0 5</Position><Gaze>0 0 {gaze_z}</Gaze><Up>0 1 0</Up>
-              <NearPlane>-0.001 0.001 -0.001 0.001</NearPlane><NearDistance>1</NearDistance>
-              <ImageResolution>1 1</ImageResolution><ImageName>a.exr</ImageName><NumSamples>{spp}</NumSamples></Camera></Cameras>
-            <Textures><Images><Image id="1">const.exr</Image></Images></Textures>
-            <Lights><SphericalDirectionalLight id="1"><ImageId>1</ImageId></SphericalDirectionalLight></Lights>
-            <Materials>{material}</Materials>
-            <VertexData>0 0 0</VertexData>
-            <Objects><Sphere id="1"><Material>1</Material><Center>1</Center><Radius>1</Radius></Sphere></Objects>
-            </Scene>"#
-        );
-        let scene =
-            load_scene_str(&xml, &dir.join("t.xml"), &FsResolver { base_dir: dir.to_path_buf() }).unwrap();
+        let scene = sphere_in_map(&dir, &map, material, gaze_z, 0.001, 1, spp, "");
         let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
         let settings = RenderSettings { env_sampling: Some(sampler), ..RenderSettings::default() };
         render_tile(&scene, 0, rect, &settings).0[0]
@@ -1027,21 +1043,8 @@ mod tests {
         let dir = tessera_testkit::TempDir::new("group");
         let pixels =
             (0..32 * 16).map(|i| [1.0 + (i % 32) as f32 * 0.05, 1.0 + (i / 32) as f32 * 0.1, 1.0]).collect();
-        crate::hdr_io::write_exr(&dir.join("map.exr"), &Image { width: 32, height: 16, pixels }).unwrap();
-        let xml = format!(
-            r#"<Scene><MaxRecursionDepth>2</MaxRecursionDepth>
-            <Cameras><Camera id="1"><Position>0 0 5</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
-              <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance>
-              <ImageResolution>8 8</ImageResolution><ImageName>a.exr</ImageName><NumSamples>8</NumSamples></Camera></Cameras>
-            <Textures><Images><Image id="1">map.exr</Image></Images></Textures>
-            <Lights><SphericalDirectionalLight id="1"><ImageId>1</ImageId><Sampler>importance</Sampler></SphericalDirectionalLight></Lights>
-            <Materials>{WHITE}</Materials>
-            <VertexData>0 0 0</VertexData>
-            <Objects><Sphere id="1"><Material>1</Material><Center>1</Center><Radius>1</Radius></Sphere></Objects>
-            </Scene>"#
-        );
-        let scene =
-            load_scene_str(&xml, &dir.join("t.xml"), &FsResolver { base_dir: dir.to_path_buf() }).unwrap();
+        let map = Image { width: 32, height: 16, pixels };
+        let scene = sphere_in_map(&dir, &map, WHITE, -1.0, 1.0, 8, 8, "<Sampler>importance</Sampler>");
         // Rays from the camera fanning across the sphere's edge: lanes alternate hit and miss.
         let rays: [Ray; GROUP_LANES] = std::array::from_fn(|i| {
             let x = if i % 2 == 0 { 0.05 * i as f64 } else { 0.3 + 0.05 * i as f64 };

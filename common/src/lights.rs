@@ -240,8 +240,13 @@ impl EnvLight {
     /// [`Self::radiance`] at the map coordinates `(u, v)` of a direction.
     #[inline]
     fn radiance_uv(&self, u: f64, v: f64) -> DVec3 {
+        self.blend(&self.corners(u, v))
+    }
+
+    /// The bilinear blend of the texels `c` names.
+    #[inline]
+    fn blend(&self, c: &Corners) -> DVec3 {
         let img = &*self.image;
-        let c = self.corners(u, v);
         let (dx, dy) = (c.dx, c.dy);
         let t = |x, y| DVec3::from(img.texel(x, y).map(f64::from));
         t(c.x0, c.y0) * ((1.0 - dx) * (1.0 - dy))
@@ -274,10 +279,9 @@ impl EnvLight {
         Corners { x0: wrap(p), x1: wrap(p + 1.0), y0: q as i64, y1: q as i64 + 1, dx: i - p, dy: j - q }
     }
 
-    /// Starts loading the texels of [`Self::radiance_uv`] at `(u, v)` into the cache.
+    /// Starts loading the texels `c` names into the cache.
     #[inline]
-    fn prefetch_radiance(&self, u: f64, v: f64) {
-        let c = self.corners(u, v);
+    fn prefetch_texels(&self, c: &Corners) {
         let img = &*self.image;
         for y in [c.y0, c.y1] {
             prefetch(&img.texels, img.texel_index(c.x0, y));
@@ -335,8 +339,9 @@ impl EnvLight {
                     (Some(s), EnvMapping::Probe) => (env_uv(EnvMapping::Probe, wi), MapPdf::Known(s.pdf)),
                     (None, EnvMapping::LatLong) => {
                         let (u, v) = env_uv(EnvMapping::LatLong, wi);
-                        self.distribution.prefetch_cell(u, v);
-                        ((u, v), MapPdf::LatLongCell)
+                        let (x, y) = self.distribution.cell_of(u, v);
+                        self.distribution.prefetch_cell(x, y);
+                        ((u, v), MapPdf::LatLongCell { x, y, v })
                     }
                     (None, EnvMapping::Probe) => {
                         (env_uv(EnvMapping::Probe, wi), MapPdf::Known(self.distribution.pdf(wi)))
@@ -345,29 +350,31 @@ impl EnvLight {
                 (wi, uv, EnvPdf::Mixture { cos, map_pdf })
             }
         };
-        self.prefetch_radiance(u, v);
-        Some(EnvDirection { wi, u, v, pdf })
+        let texels = self.corners(u, v);
+        self.prefetch_texels(&texels);
+        Some(EnvDirection { wi, texels, pdf })
     }
 
     /// The radiance arriving along a [`Self::sample_direction`] direction divided by the pdf of
     /// choosing it: the sample's `E` (§5); `None` when that pdf is zero or not finite.
     pub fn weight(&self, d: &EnvDirection) -> Option<DVec3> {
         let pdf = match d.pdf {
-            EnvPdf::Factor(f) => return Some(self.radiance_uv(d.u, d.v) * f),
+            EnvPdf::Factor(f) => return Some(self.blend(&d.texels) * f),
             EnvPdf::Mixture { cos, map_pdf } => {
                 let map_pdf = match map_pdf {
                     MapPdf::Known(p) => p,
-                    MapPdf::LatLongCell => self.distribution.pdf_uv(d.u, d.v),
+                    MapPdf::LatLongCell { x, y, v } => self.distribution.pdf_cell(x, y, v),
                 };
                 0.5 * map_pdf + 0.5 * cos / PI
             }
         };
-        (pdf > 0.0 && pdf.is_finite()).then(|| self.radiance_uv(d.u, d.v) / pdf)
+        (pdf > 0.0 && pdf.is_finite()).then(|| self.blend(&d.texels) / pdf)
     }
 }
 
 /// The texels around a point of an environment map: columns `x0`, `x1` (wrapped), rows `y0`,
 /// `y1` (clamped when read), and the point's fractions between them.
+#[derive(Clone, Copy, Debug)]
 struct Corners {
     x0: i64,
     x1: i64,
@@ -383,9 +390,8 @@ struct Corners {
 pub struct EnvDirection {
     /// Unit direction towards the environment.
     pub wi: DVec3,
-    /// Its map coordinates.
-    u: f64,
-    v: f64,
+    /// The texels its radiance blends (prefetched).
+    texels: Corners,
     pdf: EnvPdf,
 }
 
@@ -402,8 +408,13 @@ enum EnvPdf {
 #[derive(Clone, Copy, Debug)]
 enum MapPdf {
     Known(f64),
-    /// To be read from the distribution's cell at the direction's lat-long coordinates.
-    LatLongCell,
+    /// To be read from the distribution's cell (x, y) (prefetched), at the direction's lat-long
+    /// `v`.
+    LatLongCell {
+        x: usize,
+        y: usize,
+        v: f64,
+    },
 }
 
 /// The unit direction with cosine `cos` to `n` and azimuth 2π·`xi` around it.
@@ -575,11 +586,17 @@ impl EnvDistribution {
         self.pdf_uv(u, v)
     }
 
-    /// Starts loading what [`Self::pdf_uv`] at `(u, v)` reads into the cache.
+    /// The cell of lat-long coordinates `(u, v)`.
     #[inline]
-    fn prefetch_cell(&self, u: f64, v: f64) {
+    fn cell_of(&self, u: f64, v: f64) -> (usize, usize) {
         let x = ((u * self.width as f64) as usize).min(self.width - 1);
         let y = ((v * self.height as f64) as usize).min(self.height - 1);
+        (x, y)
+    }
+
+    /// Starts loading what [`Self::pdf_cell`] of cell (x, y) reads into the cache.
+    #[inline]
+    fn prefetch_cell(&self, x: usize, y: usize) {
         let i = y * self.width + x;
         prefetch(&self.cells, i.saturating_sub(1));
         prefetch(&self.cells, i);
@@ -588,8 +605,7 @@ impl EnvDistribution {
     /// [`Self::pdf`] at the lat-long coordinates `(u, v)` of a direction.
     #[inline]
     fn pdf_uv(&self, u: f64, v: f64) -> f64 {
-        let x = ((u * self.width as f64) as usize).min(self.width - 1);
-        let y = ((v * self.height as f64) as usize).min(self.height - 1);
+        let (x, y) = self.cell_of(u, v);
         self.pdf_cell(x, y, v)
     }
 
