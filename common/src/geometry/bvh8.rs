@@ -339,21 +339,35 @@ impl Bvh8 {
     /// hits, `tmax[lane]` becomes its distance and `id[lane]` what the triangle reports.
     /// Returns the mask of lanes that hit.
     pub fn intersect_packet(&self, p: &Packet8, tmax: &mut [f32; 8], id: &mut [u32; 8]) -> u32 {
+        self.walk_packet::<false>(p, tmax, id)
+    }
+
+    /// The lanes of `p` that hit anything with t in (tmin, `tmax[lane]`): each lane's answer is
+    /// its own [`Self::occluded`] query's (the same node and triangle tests), but the lanes
+    /// share their node visits, and a lane stops taking part once it is blocked.
+    pub fn occluded_packet(&self, p: &Packet8, tmax: &[f32; 8]) -> u32 {
+        let mut tmax = *tmax;
+        self.walk_packet::<true>(p, &mut tmax, &mut [u32::MAX; 8])
+    }
+
+    /// The packet walk: closest hits, or (`ANY`) whether there is any hit.
+    #[inline(always)]
+    fn walk_packet<const ANY: bool>(&self, p: &Packet8, tmax: &mut [f32; 8], id: &mut [u32; 8]) -> u32 {
         if self.nodes.is_empty() || p.active == 0 {
             return 0;
         }
         let need = self.depth * 7 + 1;
         if need <= STACK {
             let mut stack = [const { MaybeUninit::<(u32, u32, f32)>::uninit() }; STACK];
-            self.closest_packet(p, tmax, id, &mut stack)
+            self.closest_packet::<ANY>(p, tmax, id, &mut stack)
         } else {
             let mut stack = vec![MaybeUninit::<(u32, u32, f32)>::uninit(); need];
-            self.closest_packet(p, tmax, id, &mut stack)
+            self.closest_packet::<ANY>(p, tmax, id, &mut stack)
         }
     }
 
     #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma")))]
-    fn closest_packet(
+    fn closest_packet<const ANY: bool>(
         &self,
         p: &Packet8,
         tmax: &mut [f32; 8],
@@ -363,6 +377,12 @@ impl Bvh8 {
         // Without AVX2 the lanes go one by one.
         let mut hit = 0;
         for lane in 0..8 {
+            if ANY {
+                if p.active & (1 << lane) != 0 && self.occluded(&p.lane(lane, tmax[lane])) {
+                    hit |= 1 << lane;
+                }
+                continue;
+            }
             if p.active & (1 << lane) != 0
                 && let Some((t, i)) = self.intersect(&p.lane(lane, tmax[lane]))
             {
@@ -374,8 +394,10 @@ impl Bvh8 {
         hit
     }
 
+    /// `ANY`: a lane that hits anything is done (its `tmax` drops to -inf, so no box or
+    /// triangle test passes for it again) and the walk ends when every lane is.
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
-    fn closest_packet(
+    fn closest_packet<const ANY: bool>(
         &self,
         p: &Packet8,
         tmax_out: &mut [f32; 8],
@@ -499,6 +521,14 @@ impl Bvh8 {
                             ok = _mm256_and_ps(ok, _mm256_cmp_ps(tt, _mm256_mul_ps(tmax, adet), _CMP_LT_OQ));
                             let m = _mm256_movemask_ps(ok) as u32;
                             if m == 0 {
+                                continue;
+                            }
+                            if ANY {
+                                tmax = _mm256_blendv_ps(tmax, _mm256_set1_ps(f32::NEG_INFINITY), ok);
+                                hit_lanes |= m;
+                                if hit_lanes == p.active {
+                                    return hit_lanes;
+                                }
                                 continue;
                             }
                             // Where the scaled test passed, t < tmax up to the rounding of the

@@ -532,6 +532,72 @@ impl Accel {
         })
     }
 
+    /// Which of up to eight rays are blocked within (tmin, `tmax[lane]`), as a lane mask: each
+    /// lane's answer is what [`Self::occluded`] says of it. The world tree is walked by the rays
+    /// together ([`Bvh8::occluded_packet`]) and a short list of instances is box-tested against
+    /// all of them at once; shadow rays from the samples of one pixel towards one light are
+    /// nearly parallel, and share most of their nodes.
+    pub fn occluded_packet(&self, rays: &[Ray], tmin: f64, tmax: &[f64]) -> u32 {
+        assert!(rays.len() <= 8 && tmax.len() == rays.len(), "one bound per ray, at most eight rays");
+        let n = rays.len();
+        if n <= 1 {
+            return rays.first().map_or(0, |r| self.occluded(r, tmin, tmax[0]) as u32);
+        }
+        let all = (1u32 << n) - 1;
+        let mut frs = [to_f32_ray(&rays[0], tmin, tmax[0]); 8];
+        for (fr, (r, &t)) in frs.iter_mut().zip(rays.iter().zip(tmax)) {
+            *fr = to_f32_ray(r, tmin, t);
+        }
+        let mut blocked = 0u32;
+        if let Some(tree) = self.world_tree() {
+            let lanes: [(Vec3A, Vec3A); 8] = std::array::from_fn(|i| (frs[i].origin, frs[i].direction));
+            let packet = Packet8::new(&lanes[..n], tmin as f32);
+            let far: [f32; 8] = std::array::from_fn(|i| frs[i].tmax);
+            blocked = tree.occluded_packet(&packet, &far);
+        }
+        for lane in 0..n {
+            if blocked & (1 << lane) == 0
+                && self
+                    .unbounded
+                    .iter()
+                    .any(|&idx| self.blocks(idx, &rays[lane], &frs[lane], tmin, tmax[lane]))
+            {
+                blocked |= 1 << lane;
+            }
+        }
+        if self.bounded.len() <= LINEAR_MAX {
+            let boxes = BoxRays8::new(&frs[..n]);
+            for (&idx, b) in self.bounded.iter().zip(&self.bounds) {
+                if blocked == all {
+                    break;
+                }
+                let mut lanes = boxes.hits(b) & !blocked;
+                while lanes != 0 {
+                    let lane = lanes.trailing_zeros() as usize;
+                    lanes &= lanes - 1;
+                    if self.blocks(idx, &rays[lane], &frs[lane], tmin, tmax[lane]) {
+                        blocked |= 1 << lane;
+                    }
+                }
+            }
+        } else {
+            for lane in 0..n {
+                if blocked & (1 << lane) == 0
+                    && !self.tlas.ray_traverse_miss(frs[lane], |fr, id| {
+                        if self.blocks(self.tlas_order[id], &rays[lane], fr, tmin, tmax[lane]) {
+                            fr.tmin
+                        } else {
+                            f32::INFINITY
+                        }
+                    })
+                {
+                    blocked |= 1 << lane;
+                }
+            }
+        }
+        blocked
+    }
+
     /// Tests instance `idx` for a hit closer than `best` (`fr` is the world ray in `f32`, its
     /// `tmax` the closest hit so far); updates `best` and returns the hit distance or +inf.
     #[inline]
@@ -987,9 +1053,10 @@ mod tests {
         assert!(hits > 300, "the sheet is hit often enough to matter: {hits}");
     }
 
-    /// Rays traced as a packet get the very hits (same bits) they get one by one, whichever
-    /// world tree the scene has (the lone mesh, the merged tree, none) and whatever else it
-    /// holds; packets of one to eight rays, narrow and wide.
+    /// Rays traced as a packet get the very hits (same bits) they get one by one, and the same
+    /// answers to "is anything in the way" within their own bounds, whichever world tree the
+    /// scene has (the lone mesh, the merged tree, none) and whatever else it holds; packets of
+    /// one to eight rays, narrow and wide.
     #[test]
     fn packets_of_rays_find_what_single_rays_find() {
         let mut rng = crate::sampler::Sampler::new(9, 8, 7, 6);
@@ -1032,7 +1099,7 @@ mod tests {
         let key = |h: &Option<SurfaceHit>| {
             h.map(|h| (h.instance, h.t.to_bits(), h.point.to_array().map(f64::to_bits), h.shading_normal))
         };
-        let mut hits = 0;
+        let (mut hits, mut shadowed, mut shadow_rays) = (0, 0, 0);
         for (k, accel) in scenes.iter().cycle().take(4 * 500).enumerate() {
             let n = 1 + k % 8;
             let o = DVec3::new(r() * 4.0 - 2.0, r() * 4.0 - 2.0, 12.0);
@@ -1051,8 +1118,22 @@ mod tests {
                 assert_eq!(key(got), key(&single), "packet {k}");
                 hits += usize::from(got.is_some());
             }
+            // Shadow rays: bounds from short of the nearest surface to beyond everything.
+            let tmax: Vec<f64> = (0..n).map(|_| if r() < 0.2 { f64::INFINITY } else { r() * 24.0 }).collect();
+            let blocked = accel.occluded_packet(&rays, 1e-6, &tmax);
+            assert_eq!(blocked >> n, 0, "packet {k}: only its own lanes");
+            for (lane, (ray, &t)) in rays.iter().zip(&tmax).enumerate() {
+                let single = accel.occluded(ray, 1e-6, t);
+                assert_eq!(blocked & (1 << lane) != 0, single, "packet {k} lane {lane}, tmax {t}");
+                shadowed += usize::from(single);
+                shadow_rays += 1;
+            }
         }
         assert!(hits > 1000, "the scenes are hit often enough to matter: {hits}");
+        assert!(
+            shadowed > shadow_rays / 5 && shadowed < shadow_rays * 4 / 5,
+            "blocked and clear shadow rays both common: {shadowed} of {shadow_rays}"
+        );
     }
 
     #[test]
