@@ -2,7 +2,7 @@
 //! point lights with shadow rays, then mirror, conductor and dielectric recursion bounded by
 //! `MaxRecursionDepth`, with Beer's law inside dielectrics.
 
-use std::borrow::Cow;
+mod direct;
 
 use glam::{DVec2, DVec3};
 
@@ -15,6 +15,8 @@ use crate::scene::Scene;
 use crate::scene::records::{
     DecalMode, EnvSampler, MAX_RECURSION_DEPTH_LIMIT, PathParams, Renderer, Roulette,
 };
+use direct::{Lighting, LitPoint};
+
 use crate::texture::maps::{
     Source, TextureMap, TexturePoint, bump_by_gradient, image_height, perlin_gradient,
 };
@@ -107,19 +109,23 @@ impl<'a> Tracer<'a> {
     /// [`Self::trace_primary`] of a pixel's group of camera rays (`hits.len()` of the eight in
     /// `rays`, with their samplers), lane by lane: the same values. Rays that miss everything
     /// see the environment light, and their lookups are made together
-    /// ([`EnvLight::radiance_lanes`](crate::lights::EnvLight::radiance_lanes)).
+    /// ([`EnvLight::radiance_lanes`](crate::lights::EnvLight::radiance_lanes)); with the
+    /// recursive renderer, the surfaces the rays find are lit together as well.
     pub fn trace_primary_group(
         &mut self,
         rays: &[Ray; GROUP_LANES],
         hits: &[Option<SurfaceHit>],
         samplers: &mut [Sampler],
     ) -> [DVec3; GROUP_LANES] {
-        let mut out = [DVec3::ZERO; GROUP_LANES];
         // Both renderers show a camera ray that misses the environment's radiance as is.
         let seen = match &self.scene.env_light {
             Some(env) if hits.iter().any(Option::is_none) => Some(env.radiance_lanes(&rays.map(|r| r.dir))),
             _ => None,
         };
+        if self.renderer == Renderer::Classic {
+            return self.classic_group(rays, hits, samplers, seen.as_ref());
+        }
+        let mut out = [DVec3::ZERO; GROUP_LANES];
         for (i, (hit, rng)) in hits.iter().zip(samplers).enumerate() {
             out[i] = match (hit, &seen) {
                 (None, Some(seen)) => {
@@ -128,6 +134,85 @@ impl<'a> Tracer<'a> {
                 }
                 _ => self.trace_primary(&rays[i], *hit, rng),
             };
+        }
+        out
+    }
+
+    /// [`Self::trace_primary_group`] for the recursive renderer: [`Self::shade`] of every lane
+    /// that hits, in three steps so the lanes' direct light is computed together
+    /// ([`Lighting::reflected`]): each lane's surface, then the lights of all of them, then each
+    /// lane's reflection and refraction. A lane draws its numbers in the order it would alone
+    /// (its direct light's before its recursion's).
+    fn classic_group(
+        &mut self,
+        rays: &[Ray; GROUP_LANES],
+        hits: &[Option<SurfaceHit>],
+        samplers: &mut [Sampler],
+        seen: Option<&[DVec3; GROUP_LANES]>,
+    ) -> [DVec3; GROUP_LANES] {
+        let scene = self.scene;
+        let n = hits.len();
+        let mut out = [DVec3::ZERO; GROUP_LANES];
+        // Materials changed by colour maps, one per lane.
+        let mut slots: [Option<Material>; GROUP_LANES] = Default::default();
+        let mut surfaced: [Option<Surfaced<'_>>; GROUP_LANES] = Default::default();
+        for (i, (hit, slot)) in hits.iter().zip(&mut slots).enumerate() {
+            self.stats.primary += 1;
+            match hit {
+                None => out[i] = seen.map_or(self.background, |seen| seen[i]),
+                Some(hit) => match self.begin_shade(&rays[i], hit, self.spread * hit.t, slot) {
+                    Ok(s) => surfaced[i] = Some(s),
+                    Err(texel) => out[i] = texel,
+                },
+            }
+        }
+        // The lit lanes side by side (at depth 0 every surface is lit: nothing is seen from
+        // inside a dielectric), the others' places taken by the first.
+        let Some(first) = surfaced.iter().zip(hits).position(|(s, _)| s.is_some()) else { return out };
+        let point = |i: usize| {
+            let (s, hit) = (surfaced[i].as_ref()?, hits[i].as_ref()?);
+            Some(LitPoint { ray: &rays[i], x: hit.point, n: s.lit_normal(false)?, mat: s.mat })
+        };
+        let Some(filler) = point(first) else { return out };
+        let mut pts = [filler; GROUP_LANES];
+        let mut order = [0usize; GROUP_LANES];
+        let mut m = 0;
+        for i in first..n {
+            if let Some(p) = point(i) {
+                pts[m] = p;
+                order[m] = i;
+                m += 1;
+            }
+        }
+        let light = if m == n {
+            // Every lane: their own samplers.
+            self.lights_lanes(&pts[..m], true, samplers)
+        } else {
+            let mut rngs: [Sampler; GROUP_LANES] =
+                std::array::from_fn(|j| samplers[order[j.min(m - 1)]].clone());
+            let light = self.lights_lanes(&pts[..m], true, &mut rngs[..m]);
+            for (j, &i) in order[..m].iter().enumerate() {
+                samplers[i] = rngs[j].clone();
+            }
+            light
+        };
+        let mut direct = [DVec3::ZERO; GROUP_LANES];
+        for (j, &i) in order[..m].iter().enumerate() {
+            direct[i] = pts[j].mat.ambient * scene.ambient_light + light[j];
+        }
+        for (i, (s, hit)) in surfaced.iter().zip(hits).enumerate() {
+            if let (Some(s), Some(hit)) = (s, hit) {
+                self.budget = SECONDARY_RAY_BUDGET;
+                out[i] = self.finish_shade(
+                    &rays[i],
+                    hit,
+                    0,
+                    self.spread * hit.t,
+                    s,
+                    s.emitted + direct[i],
+                    &mut samplers[i],
+                );
+            }
         }
         out
     }
@@ -216,14 +301,14 @@ impl<'a> Tracer<'a> {
             {
                 local += le;
             }
-            let (mat, shading_normal) = match self.surface(&ray, &hit, cone) {
+            let mut slot = None;
+            let (mat, shading_normal) = match self.surface(&ray, &hit, cone, &mut slot) {
                 Ok(s) => s,
                 Err(texel) => {
                     l += beta * texel;
                     break;
                 }
             };
-            let mat = mat.as_ref();
             let d = ray.dir;
             let entering = d.dot(hit.geo_normal) < 0.0;
             // The shading normal on the side the path arrives from.
@@ -420,18 +505,45 @@ impl<'a> Tracer<'a> {
     }
 
     /// The material and shading normal at a hit after its texture maps (§11.6): the normal or
-    /// bump map first, then up to two colour maps on a copy of the material. `Err` holds the
-    /// texel of a `replace_all` map, which is the surface's radiance (no lights, no recursion).
-    fn surface(&self, ray: &Ray, hit: &SurfaceHit, cone: f64) -> Result<(Cow<'a, Material>, DVec3), DVec3> {
+    /// bump map first, then up to two colour maps on a copy of the material, which goes into
+    /// `slot`. `Err` holds the texel of a `replace_all` map, which is the surface's radiance (no
+    /// lights, no recursion).
+    #[inline]
+    fn surface<'m>(
+        &self,
+        ray: &Ray,
+        hit: &SurfaceHit,
+        cone: f64,
+        slot: &'m mut Option<Material>,
+    ) -> Result<(&'m Material, DVec3), DVec3>
+    where
+        'a: 'm,
+    {
+        let scene = self.scene;
+        let textures = scene.accel.instances[hit.instance as usize].textures;
+        if textures.normal.is_none() && textures.colour[0].is_none() {
+            return Ok((&scene.materials[hit.material as usize], hit.shading_normal));
+        }
+        self.textured_surface(ray, hit, cone, slot)
+    }
+
+    /// [`Self::surface`] of a hit on an object with texture maps.
+    #[inline(never)]
+    fn textured_surface<'m>(
+        &self,
+        ray: &Ray,
+        hit: &SurfaceHit,
+        cone: f64,
+        slot: &'m mut Option<Material>,
+    ) -> Result<(&'m Material, DVec3), DVec3>
+    where
+        'a: 'm,
+    {
         let scene = self.scene;
         let mat = &scene.materials[hit.material as usize];
         let instance = &scene.accel.instances[hit.instance as usize];
         let textures = instance.textures;
         let mut shading_normal = hit.shading_normal;
-        let textured_hit = textures.normal.is_some() || textures.colour[0].is_some();
-        if !textured_hit {
-            return Ok((Cow::Borrowed(mat), shading_normal));
-        }
         let d = ray.dir;
         let footprint = if self.spread > 0.0 { uv_footprint(hit, d, cone) } else { DVec2::ZERO };
         let object = instance.object_point(hit.point, ray.time);
@@ -440,7 +552,7 @@ impl<'a> Tracer<'a> {
             shading_normal = perturbed_normal(&scene.textures[k as usize], hit, instance, &p, shading_normal);
         }
         if textures.colour[0].is_none() {
-            return Ok((Cow::Borrowed(mat), shading_normal));
+            return Ok((mat, shading_normal));
         }
         let mut m = mat.clone();
         for k in textures.colour.into_iter().flatten() {
@@ -454,7 +566,7 @@ impl<'a> Tracer<'a> {
                 _ => {}
             }
         }
-        Ok((Cow::Owned(m), shading_normal))
+        Ok((slot.insert(m), shading_normal))
     }
 
     fn shade(
@@ -466,19 +578,58 @@ impl<'a> Tracer<'a> {
         cone: f64,
         rng: &mut Sampler,
     ) -> DVec3 {
-        let scene = self.scene;
-        let d = ray.dir;
-        let entering = d.dot(hit.geo_normal) < 0.0;
-        // An object light seen directly or through mirrors and glass shows its radiance.
-        let emitted = self.emitted(ray, hit).unwrap_or(DVec3::ZERO);
-        let (mat, shading_normal) = match self.surface(ray, hit, cone) {
+        let mut slot = None;
+        let s = match self.begin_shade(ray, hit, cone, &mut slot) {
             Ok(s) => s,
             Err(texel) => return texel,
         };
-        let mat = mat.as_ref();
+        let direct = match s.lit_normal(inside) {
+            Some(n) => self.direct(ray, hit.point, n, s.mat, rng),
+            None => DVec3::ZERO,
+        };
+        self.finish_shade(ray, hit, depth, cone, &s, s.emitted + direct, rng)
+    }
+
+    /// The first part of [`Self::shade`]: what the surface shows before its lights. `Err` holds
+    /// the texel of a `replace_all` map, which is the surface's radiance. A material changed by
+    /// colour maps goes into `slot`.
+    #[inline(always)]
+    fn begin_shade<'m>(
+        &self,
+        ray: &Ray,
+        hit: &SurfaceHit,
+        cone: f64,
+        slot: &'m mut Option<Material>,
+    ) -> Result<Surfaced<'m>, DVec3>
+    where
+        'a: 'm,
+    {
+        let entering = ray.dir.dot(hit.geo_normal) < 0.0;
+        // An object light seen directly or through mirrors and glass shows its radiance.
+        let emitted = self.emitted(ray, hit).unwrap_or(DVec3::ZERO);
+        let (mat, shading_normal) = self.surface(ray, hit, cone, slot)?;
         // Shading normal facing the incoming ray: where reflected rays start, and the normal
         // dielectrics shade and refract with (they track entering and leaving).
         let n = if entering { shading_normal } else { -shading_normal };
+        Ok(Surfaced { emitted, mat, shading_normal, n, entering })
+    }
+
+    /// The last part of [`Self::shade`]: `l` (emission and direct light) plus what mirrors,
+    /// conductors and dielectrics reflect and refract.
+    #[allow(clippy::too_many_arguments)]
+    fn finish_shade(
+        &mut self,
+        ray: &Ray,
+        hit: &SurfaceHit,
+        depth: u32,
+        cone: f64,
+        s: &Surfaced<'_>,
+        mut l: DVec3,
+        rng: &mut Sampler,
+    ) -> DVec3 {
+        let scene = self.scene;
+        let d = ray.dir;
+        let (mat, n, entering) = (s.mat, s.n, s.entering);
         let eps = scene.shadow_ray_epsilon;
         // Depth is capped when the scene is read (MAX_RECURSION_DEPTH_LIMIT), and so is the
         // stack; the budget bounds the work of a tree of splitting rays.
@@ -488,18 +639,6 @@ impl<'a> Tracer<'a> {
         if can_recurse {
             self.budget -= 2;
         }
-
-        // Local shading; skipped for hits seen from inside a dielectric (§6.4, §15 #20). Opaque
-        // surfaces are lit with their normal as given, never turned towards the viewer (§6.8,
-        // measured on grass_desert): one seen from behind is lit by the lights on its front
-        // side, and its shadow rays start on that side.
-        let mut l = emitted
-            + match mat.kind {
-                MaterialKind::Dielectric if inside => DVec3::ZERO,
-                MaterialKind::Dielectric => self.direct(ray, hit.point, n, mat, rng),
-                _ => self.direct(ray, hit.point, shading_normal, mat, rng),
-            };
-
         match mat.kind {
             MaterialKind::Plain => {}
             MaterialKind::Mirror | MaterialKind::Conductor if can_recurse => {
@@ -560,110 +699,50 @@ impl<'a> Tracer<'a> {
         env: bool,
         rng: &mut Sampler,
     ) -> DVec3 {
-        let scene = self.scene;
-        let mut l = DVec3::ZERO;
-        if mat.diffuse == DVec3::ZERO && mat.specular == DVec3::ZERO {
-            return l;
-        }
-        let wo = -ray.dir;
-        let origin = x + scene.shadow_ray_epsilon * n;
-        for light in &scene.point_lights {
-            if let Some(wi) = self.visible(ray, x, n, origin, light.position) {
-                let e = light.intensity / (light.position - x).length_squared();
-                l += mat.reflectance(n, wi, wo) * e;
-            }
-        }
-        for light in &scene.area_lights {
-            // One point of the square per shading event; the pixel's samples average them.
-            let (u, v) = rng.next_2d();
-            let q = light.point(u, v);
-            if let Some(wi) = self.visible(ray, x, n, origin, q) {
-                let d2 = (q - x).length_squared();
-                let e = light.radiance * (light.size * light.size * light.normal.dot(wi).abs() / d2);
-                l += mat.reflectance(n, wi, wo) * e;
-            }
-        }
-        for light in &scene.directional_lights {
-            if self.unblocked(ray, n, origin, light.to_light) {
-                l += mat.reflectance(n, light.to_light, wo) * light.radiance;
-            }
-        }
-        for light in &scene.spot_lights {
-            let s = light.factor((x - light.position).normalize());
-            if s > 0.0
-                && let Some(wi) = self.visible(ray, x, n, origin, light.position)
-            {
-                let e = light.intensity * (s / (light.position - x).length_squared());
-                l += mat.reflectance(n, wi, wo) * e;
-            }
-        }
-        for light in &scene.object_lights {
-            // One point per shading event (§13.3); the random numbers are drawn whatever the
-            // outcome, so later dimensions keep their places.
-            let u = rng.next_1d();
-            let (u1, u2) = rng.next_2d();
-            if let Some(s) = light.sample(x, u, u1, u2)
-                && n.dot(s.wi) > 0.0
-                && self.clear(ray, origin, x + s.wi * s.dist)
-            {
-                l += mat.reflectance(n, s.wi, wo) * s.irradiance;
-            }
-        }
-        // The direction first, its radiance and pdf after the shadow ray: the lookups' cache
-        // misses overlap the traversal, and a blocked ray needs neither.
-        if env
-            && let Some(env) = &scene.env_light
-            && let Some(d) = env.sample_direction(n, self.env_sampler, rng)
-            && self.unblocked(ray, n, origin, d.wi)
-            && let Some(weight) = env.weight(&d)
-            && weight != DVec3::ZERO
-        {
-            l += mat.reflectance(n, d.wi, wo) * weight;
-        }
+        let mut rngs = [rng.clone()];
+        let l = self.lights_lanes(&[LitPoint { ray, x, n, mat }], env, &mut rngs);
+        *rng = rngs[0].clone();
+        l[0]
+    }
+
+    /// [`Lighting::reflected`] in this tracer's scene, counting its shadow rays.
+    fn lights_lanes(
+        &mut self,
+        pts: &[LitPoint<'_>],
+        env: bool,
+        rngs: &mut [Sampler],
+    ) -> [DVec3; GROUP_LANES] {
+        let mut lighting = Lighting { scene: self.scene, env_sampler: self.env_sampler, shadow_rays: 0 };
+        let l = lighting.reflected(pts, env, rngs);
+        self.stats.shadow += lighting.shadow_rays;
         l
     }
+}
 
-    /// Whether unit direction `wi` is above the surface and a ray from `origin` along it escapes
-    /// the scene (directional and environment lights are infinitely far).
-    fn unblocked(&mut self, ray: &Ray, n: DVec3, origin: DVec3, wi: DVec3) -> bool {
-        if n.dot(wi) <= 0.0 {
-            return false;
-        }
-        self.stats.shadow += 1;
-        let shadow = ray.spawn(origin, wi);
-        !self.scene.accel.occluded(&shadow, self.scene.intersection_test_epsilon, f64::INFINITY)
-    }
+/// A surface a ray found, ready for its lights: see [`Tracer::begin_shade`].
+struct Surfaced<'a> {
+    /// What an object light emits towards the ray (zero for other surfaces).
+    emitted: DVec3,
+    /// The material after the colour maps.
+    mat: &'a Material,
+    /// The shading normal after normal and bump maps, on the geometric normal's side.
+    shading_normal: DVec3,
+    /// `shading_normal` turned towards the incoming ray.
+    n: DVec3,
+    /// Whether the ray arrives on the front side of the geometry.
+    entering: bool,
+}
 
-    /// Whether nothing blocks the segment from `origin` to `p`, a point on an object light: the
-    /// shadow ray stops just short of `p`, so the light's own surface does not block it.
-    fn clear(&mut self, ray: &Ray, origin: DVec3, p: DVec3) -> bool {
-        self.stats.shadow += 1;
-        let to_light = p - origin;
-        let len = to_light.length();
-        if len.is_nan() || len <= 0.0 {
-            return false;
-        }
-        let shadow = ray.spawn(origin, to_light / len);
-        !self.scene.accel.occluded(&shadow, self.scene.intersection_test_epsilon, len * (1.0 - 1e-6))
-    }
-
-    /// The unit direction from `x` to the light point `p` if it is above the surface and no
-    /// object blocks the segment from the offset `origin` to `p`.
-    fn visible(&mut self, ray: &Ray, x: DVec3, n: DVec3, origin: DVec3, p: DVec3) -> Option<DVec3> {
-        let wi = (p - x).normalize();
-        let cos = n.dot(wi);
-        // NaN when the light point is the shaded point itself.
-        if cos.is_nan() || cos <= 0.0 {
-            return None;
-        }
-        self.stats.shadow += 1;
-        let to_light = p - origin;
-        let len = to_light.length();
-        let shadow = ray.spawn(origin, to_light / len);
-        if self.scene.accel.occluded(&shadow, self.scene.intersection_test_epsilon, len) {
-            None
-        } else {
-            Some(wi)
+impl Surfaced<'_> {
+    /// The normal the lights are computed with, if any. Local shading is skipped for hits seen
+    /// from inside a dielectric (§6.4, §15 #20). Opaque surfaces are lit with their normal as
+    /// given, never turned towards the viewer (§6.8, measured on grass_desert): one seen from
+    /// behind is lit by the lights on its front side, and its shadow rays start on that side.
+    fn lit_normal(&self, inside: bool) -> Option<DVec3> {
+        match self.mat.kind {
+            MaterialKind::Dielectric if inside => None,
+            MaterialKind::Dielectric => Some(self.n),
+            _ => Some(self.shading_normal),
         }
     }
 }
@@ -1078,6 +1157,104 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The recursive renderer lights a pixel's hits together: with every kind of light (point,
+    /// area, directional, spot, an object light, the environment), surfaces that block some of
+    /// the shadow rays, a colour map, a material that reflects nothing, mirrors and glass, each
+    /// camera sample still gets its own radiance, random numbers and ray counts bit for bit.
+    #[test]
+    fn lighting_a_group_together_gives_each_sample_its_own_light() {
+        use super::Tracer;
+        use crate::image::Image;
+        use crate::math::Ray;
+        use crate::sampler::{GROUP_LANES, Sampler};
+        let dir = tessera_testkit::TempDir::new("group-lights");
+        let pixels = (0..16 * 8).map(|i| [0.2 + (i % 16) as f32 * 0.1, 0.5, 1.0 + (i / 16) as f32]).collect();
+        crate::hdr_io::write_exr(&dir.join("map.exr"), &Image { width: 16, height: 8, pixels }).unwrap();
+        let xml = r#"<Scene><MaxRecursionDepth>3</MaxRecursionDepth>
+            <Cameras><Camera id="1"><Position>0 1 6</Position><Gaze>0 -0.2 -1</Gaze><Up>0 1 0</Up>
+              <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance>
+              <ImageResolution>8 8</ImageResolution><ImageName>a.exr</ImageName></Camera></Cameras>
+            <Textures><Images><Image id="1">map.exr</Image></Images>
+              <TextureMap id="1" type="image"><ImageId>1</ImageId><DecalMode>replace_kd</DecalMode></TextureMap></Textures>
+            <Lights><AmbientLight>0.1 0.1 0.1</AmbientLight>
+              <PointLight id="1"><Position>2 4 3</Position><Intensity>40 40 40</Intensity></PointLight>
+              <AreaLight id="1"><Position>-2 4 1</Position><Normal>0 -1 0</Normal><Size>1</Size><Radiance>30 30 30</Radiance></AreaLight>
+              <DirectionalLight id="1"><Direction>0.3 -1 -0.2</Direction><Radiance>0.5 0.5 0.5</Radiance></DirectionalLight>
+              <SpotLight id="1"><Position>0 5 0</Position><Direction>0 -1 0</Direction><Intensity>60 60 60</Intensity><CoverageAngle>60</CoverageAngle><FalloffAngle>40</FalloffAngle></SpotLight>
+              <SphericalDirectionalLight id="1"><ImageId>1</ImageId><Sampler>importance</Sampler></SphericalDirectionalLight></Lights>
+            <Materials>
+              <Material id="1"><DiffuseReflectance>0.8 0.7 0.6</DiffuseReflectance><SpecularReflectance>0.3 0.3 0.3</SpecularReflectance><PhongExponent>20</PhongExponent></Material>
+              <Material id="2" type="mirror"><DiffuseReflectance>0.1 0.1 0.1</DiffuseReflectance><MirrorReflectance>0.8 0.8 0.8</MirrorReflectance></Material>
+              <Material id="3" type="dielectric"><AbsorptionCoefficient>0.1 0 0.1</AbsorptionCoefficient><RefractionIndex>1.5</RefractionIndex></Material>
+              <Material id="4"><AmbientReflectance>0.5 0.5 0.5</AmbientReflectance></Material></Materials>
+            <VertexData>-5 -1 -5  5 -1 -5  5 -1 5  -5 -1 5  0 0 0  1.4 0 -0.5  -1.4 0 -0.5  0 1.3 -1  0 2.8 0  1.5 -0.6 1.5</VertexData>
+            <Objects><Mesh id="1"><Material>1</Material><Faces>1 3 2  1 4 3</Faces></Mesh>
+              <Sphere id="1"><Material>1</Material><Textures>1</Textures><Center>5</Center><Radius>0.7</Radius></Sphere>
+              <Sphere id="2"><Material>2</Material><Center>6</Center><Radius>0.5</Radius></Sphere>
+              <Sphere id="3"><Material>3</Material><Center>7</Center><Radius>0.5</Radius></Sphere>
+              <Sphere id="4"><Material>4</Material><Center>8</Center><Radius>0.3</Radius></Sphere>
+              <LightSphere id="5"><Material>1</Material><Center>9</Center><Radius>0.25</Radius><Radiance>20 18 15</Radiance></LightSphere>
+              <Sphere id="6"><Material>1</Material><Center>10</Center><Radius>0.3</Radius></Sphere></Objects>
+            </Scene>"#;
+        let scene =
+            load_scene_str(xml, &dir.join("t.xml"), &FsResolver { base_dir: dir.to_path_buf() }).unwrap();
+        let mut r = Sampler::new(1, 2, 3, 4);
+        let (mut groups, mut blocked, mut mixed) = (0, 0, 0);
+        let mut seen = std::collections::HashSet::new();
+        for pixel in 0..400u32 {
+            // A pixel's camera samples: rays from around the camera through a small patch of
+            // the scene (a wide patch in some pixels, so lanes see different objects).
+            let spread = if pixel % 2 == 0 { 2.0 } else { 0.03 };
+            let (cx, cy) = r.next_2d();
+            let aim = DVec3::new(cx * 6.0 - 3.0, cy * 3.0 - 1.0, -0.5);
+            let group = [GROUP_LANES, 5, 1][pixel as usize % 3];
+            let rays: [Ray; GROUP_LANES] = std::array::from_fn(|_| {
+                let (a, b) = r.next_2d();
+                let o = DVec3::new(a * 0.2, 1.0 + b * 0.2, 6.0);
+                let (c, d) = r.next_2d();
+                let target = aim + DVec3::new(c - 0.5, d - 0.5, 0.0) * spread;
+                Ray::new(o, (target - o).normalize())
+            });
+            let samplers: Vec<Sampler> = (0..group as u32).map(|k| Sampler::new(7, pixel, 0, k)).collect();
+            let mut together = Tracer::new(&scene);
+            let mut hits = [None; GROUP_LANES];
+            together.camera_hits(&rays[..group], &mut hits[..group]);
+            let mut group_samplers = samplers.clone();
+            let got = together.trace_primary_group(&rays, &hits[..group], &mut group_samplers);
+            let mut alone = Tracer::new(&scene);
+            let mut shadows = 0;
+            for i in 0..group {
+                let mut rng = samplers[i].clone();
+                let before = alone.stats.shadow;
+                let want = alone.trace_primary(&rays[i], hits[i], &mut rng);
+                shadows += alone.stats.shadow - before;
+                assert_eq!(
+                    got[i].to_array().map(f64::to_bits),
+                    want.to_array().map(f64::to_bits),
+                    "pixel {pixel} lane {i}: {:?} vs {want:?}",
+                    got[i]
+                );
+                assert_eq!(
+                    group_samplers[i].next_1d().to_bits(),
+                    rng.next_1d().to_bits(),
+                    "pixel {pixel} lane {i}"
+                );
+            }
+            assert_eq!(together.stats, alone.stats, "pixel {pixel}");
+            groups += usize::from(group > 1);
+            // Lanes whose shadow rays differ in number: some were above the surface and
+            // others not, or hit different objects.
+            blocked += usize::from(shadows % group as u64 != 0);
+            let kinds: std::collections::HashSet<_> =
+                hits[..group].iter().map(|h| h.map(|h| h.instance)).collect();
+            mixed += usize::from(kinds.len() > 1);
+            seen.extend(kinds);
+        }
+        assert!(groups > 200 && blocked > 20 && mixed > 50, "coverage: {groups} {blocked} {mixed}");
+        // The floor, the six spheres, and the sky.
+        assert_eq!(seen.len(), 8, "every object and the sky are seen: {seen:?}");
     }
 
     #[test]

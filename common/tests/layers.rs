@@ -55,6 +55,7 @@ const LAYERS: &[(&str, &[&str])] = &[
     ("build", &["scene::build"]),
     ("load", &["scene::load"]),
     ("bundle", &["bundle"]),
+    ("direct light", &["integrator::direct"]),
     ("integrator", &["integrator"]),
     ("render", &["render"]),
     ("output", &["output"]),

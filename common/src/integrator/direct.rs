@@ -1,0 +1,308 @@
+//! Direct lighting of up to eight shading points at once: the camera samples of one pixel that
+//! hit a surface, or a single point (the recursion and the path tracer).
+//!
+//! Each light is taken in turn for all the points: their directions and shadow rays first,
+//! then the shadow rays as one packet query
+//! ([`Accel::occluded_packet`](crate::geometry::Accel::occluded_packet)), then the BRDF of the
+//! points the light reaches. The points of a pixel are close together and see a light along
+//! nearly parallel rays, which then share their nodes; their independent chains of square roots
+//! and divisions overlap; and an environment light's eight lookups are in flight together.
+//!
+//! Every point gets exactly the value, random numbers and ray counts it would get on its own:
+//! per point the operations are the same and in the same order, a point draws its numbers from
+//! its own sampler in the same order (a light at a time), and each shadow ray's answer is its
+//! own query's.
+
+use glam::DVec3;
+
+use crate::material::Material;
+use crate::math::Ray;
+use crate::sampler::{GROUP_LANES, Sampler};
+use crate::scene::Scene;
+use crate::scene::records::EnvSampler;
+
+/// A point to light: where, its normal (on the side the light may come from), its material
+/// and the ray that found it (the viewer's direction, and the time of the shadow rays).
+#[derive(Clone, Copy)]
+pub struct LitPoint<'m> {
+    pub ray: &'m Ray,
+    pub x: DVec3,
+    pub n: DVec3,
+    pub mat: &'m Material,
+}
+
+/// The lanes set in `mask`, lowest first.
+#[inline]
+fn lanes(mut mask: u32) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (mask != 0).then(|| {
+            let k = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            k
+        })
+    })
+}
+
+/// The next two numbers of each sampler of `mask` (`rngs` holds `count` samplers): drawn
+/// together when every sampler is at the same dimension of one pixel, one by one otherwise.
+#[inline]
+fn draw_2d(rngs: &mut [Sampler], mask: u32) -> [(f64, f64); GROUP_LANES] {
+    if mask == (1u32 << rngs.len()) - 1 && rngs.len() > 1 {
+        return Sampler::next_2d_group(rngs);
+    }
+    let mut out = [(0.0, 0.0); GROUP_LANES];
+    for k in lanes(mask) {
+        out[k] = rngs[k].next_2d();
+    }
+    out
+}
+
+/// Shadow rays of a group, lane by lane: origin, unit direction, far bound.
+struct Shadows {
+    origin: [DVec3; GROUP_LANES],
+    dir: [DVec3; GROUP_LANES],
+    far: [f64; GROUP_LANES],
+    /// The lanes that trace one.
+    mask: u32,
+}
+
+impl Shadows {
+    fn new(origin: [DVec3; GROUP_LANES]) -> Self {
+        Shadows { origin, dir: [DVec3::ZERO; GROUP_LANES], far: [0.0; GROUP_LANES], mask: 0 }
+    }
+
+    #[inline]
+    fn add(&mut self, k: usize, dir: DVec3, far: f64) {
+        self.dir[k] = dir;
+        self.far[k] = far;
+        self.mask |= 1 << k;
+    }
+}
+
+/// Direct lighting in one scene: the light reflected at shading points, and how many shadow
+/// rays it took.
+pub struct Lighting<'s> {
+    pub scene: &'s Scene,
+    /// How the environment light (if any) picks its direction.
+    pub env_sampler: EnvSampler,
+    /// Shadow rays traced so far (and degenerate ones counted as blocked).
+    pub shadow_rays: u64,
+}
+
+impl Lighting<'_> {
+    /// The light reflected towards each point's viewer from one sample of every light, for up
+    /// to eight points with their samplers. Lights in the scene's order: point, area,
+    /// directional, spot, object lights, then (when `env`) one direction of the environment
+    /// light.
+    pub fn reflected(
+        &mut self,
+        pts: &[LitPoint<'_>],
+        env: bool,
+        rngs: &mut [Sampler],
+    ) -> [DVec3; GROUP_LANES] {
+        assert!(pts.len() <= GROUP_LANES && rngs.len() == pts.len(), "one sampler per point, at most eight");
+        let scene = self.scene;
+        let mut l = [DVec3::ZERO; GROUP_LANES];
+        // Points whose material reflects nothing draw no numbers and trace no rays.
+        let mut live = 0u32;
+        for (k, p) in pts.iter().enumerate() {
+            if p.mat.diffuse != DVec3::ZERO || p.mat.specular != DVec3::ZERO {
+                live |= 1 << k;
+            }
+        }
+        if live == 0 {
+            return l;
+        }
+        let eps = scene.shadow_ray_epsilon;
+        let mut origin = [DVec3::ZERO; GROUP_LANES];
+        for k in lanes(live) {
+            origin[k] = pts[k].x + eps * pts[k].n;
+        }
+        let reflect = |l: &mut [DVec3; GROUP_LANES], k: usize, wi: DVec3, e: DVec3| {
+            let p = &pts[k];
+            l[k] += p.mat.reflectance(p.n, wi, -p.ray.dir) * e;
+        };
+
+        for light in &scene.point_lights {
+            let mut wis = [DVec3::ZERO; GROUP_LANES];
+            let mut shadows = Shadows::new(origin);
+            for k in lanes(live) {
+                if let Some((wi, dir, len)) = towards(pts[k].x, pts[k].n, origin[k], light.position) {
+                    wis[k] = wi;
+                    shadows.add(k, dir, len);
+                }
+            }
+            for k in lanes(self.clear_lanes(pts, &shadows, true)) {
+                let e = light.intensity / (light.position - pts[k].x).length_squared();
+                reflect(&mut l, k, wis[k], e);
+            }
+        }
+        for light in &scene.area_lights {
+            // One point of the square per shading event; the pixel's samples average them.
+            let uv = draw_2d(rngs, live);
+            let mut q = [DVec3::ZERO; GROUP_LANES];
+            let mut wis = [DVec3::ZERO; GROUP_LANES];
+            let mut shadows = Shadows::new(origin);
+            for k in lanes(live) {
+                q[k] = light.point(uv[k].0, uv[k].1);
+                if let Some((wi, dir, len)) = towards(pts[k].x, pts[k].n, origin[k], q[k]) {
+                    wis[k] = wi;
+                    shadows.add(k, dir, len);
+                }
+            }
+            for k in lanes(self.clear_lanes(pts, &shadows, true)) {
+                let d2 = (q[k] - pts[k].x).length_squared();
+                let e = light.radiance * (light.size * light.size * light.normal.dot(wis[k]).abs() / d2);
+                reflect(&mut l, k, wis[k], e);
+            }
+        }
+        for light in &scene.directional_lights {
+            let mut shadows = Shadows::new(origin);
+            for k in lanes(live) {
+                // Only a light below the surface is skipped (a NaN cosine still traces its ray).
+                let cos = pts[k].n.dot(light.to_light);
+                if cos > 0.0 || cos.is_nan() {
+                    shadows.add(k, light.to_light, f64::INFINITY);
+                }
+            }
+            for k in lanes(self.clear_lanes(pts, &shadows, true)) {
+                reflect(&mut l, k, light.to_light, light.radiance);
+            }
+        }
+        for light in &scene.spot_lights {
+            let mut wis = [DVec3::ZERO; GROUP_LANES];
+            let mut factor = [0.0; GROUP_LANES];
+            let mut shadows = Shadows::new(origin);
+            for k in lanes(live) {
+                let s = light.factor((pts[k].x - light.position).normalize());
+                if s > 0.0
+                    && let Some((wi, dir, len)) = towards(pts[k].x, pts[k].n, origin[k], light.position)
+                {
+                    factor[k] = s;
+                    wis[k] = wi;
+                    shadows.add(k, dir, len);
+                }
+            }
+            for k in lanes(self.clear_lanes(pts, &shadows, true)) {
+                let e = light.intensity * (factor[k] / (light.position - pts[k].x).length_squared());
+                reflect(&mut l, k, wis[k], e);
+            }
+        }
+        for light in &scene.object_lights {
+            // One point per shading event (§13.3); the random numbers are drawn whatever the
+            // outcome, so later dimensions keep their places.
+            let mut u = [0.0; GROUP_LANES];
+            for k in lanes(live) {
+                u[k] = rngs[k].next_1d();
+            }
+            let uv = draw_2d(rngs, live);
+            let mut wis = [DVec3::ZERO; GROUP_LANES];
+            let mut irradiance = [DVec3::ZERO; GROUP_LANES];
+            let mut shadows = Shadows::new(origin);
+            for k in lanes(live) {
+                let p = &pts[k];
+                if let Some(s) = light.sample(p.x, u[k], uv[k].0, uv[k].1)
+                    && p.n.dot(s.wi) > 0.0
+                {
+                    // The shadow ray stops just short of the light's surface, so that surface
+                    // does not block it.
+                    let to_light = p.x + s.wi * s.dist - origin[k];
+                    let len = to_light.length();
+                    if len.is_nan() || len <= 0.0 {
+                        // A degenerate segment: counted as a shadow ray that is blocked.
+                        self.shadow_rays += 1;
+                    } else {
+                        wis[k] = s.wi;
+                        irradiance[k] = s.irradiance;
+                        shadows.add(k, to_light / len, len * (1.0 - 1e-6));
+                    }
+                }
+            }
+            for k in lanes(self.clear_lanes(pts, &shadows, true)) {
+                reflect(&mut l, k, wis[k], irradiance[k]);
+            }
+        }
+        // The directions first, for every point (each starts loading what its lookup reads),
+        // then the shadow rays, then radiance and pdf: the cache misses overlap each other and
+        // the traversal, and a blocked ray needs no lookup.
+        if env && let Some(light) = &scene.env_light {
+            let mut dirs = [None; GROUP_LANES];
+            let mut shadows = Shadows::new(origin);
+            for k in lanes(live) {
+                dirs[k] = light.sample_direction(pts[k].n, self.env_sampler, &mut rngs[k]);
+                if let Some(d) = &dirs[k]
+                    && let cos = pts[k].n.dot(d.wi)
+                    && (cos > 0.0 || cos.is_nan())
+                {
+                    shadows.add(k, d.wi, f64::INFINITY);
+                }
+            }
+            for k in lanes(self.clear_lanes(pts, &shadows, false)) {
+                if let Some(d) = &dirs[k]
+                    && let Some(weight) = light.weight(d)
+                    && weight != DVec3::ZERO
+                {
+                    reflect(&mut l, k, d.wi, weight);
+                }
+            }
+        }
+        l
+    }
+
+    /// The lanes of `shadows` whose ray reaches its far bound unblocked; counts the rays.
+    /// Rays towards one light point (or one direction) are traced as a packet; the environment
+    /// light's directions are random, and such rays go one by one (a packet of them visits the
+    /// union of their nodes).
+    fn clear_lanes(&mut self, pts: &[LitPoint<'_>], shadows: &Shadows, coherent: bool) -> u32 {
+        let mask = shadows.mask;
+        if mask == 0 {
+            return 0;
+        }
+        let scene = self.scene;
+        let tmin = scene.intersection_test_epsilon;
+        self.shadow_rays += u64::from(mask.count_ones());
+        if !coherent || mask & (mask - 1) == 0 {
+            let mut clear = 0;
+            for k in lanes(mask) {
+                let ray = pts[k].ray.spawn(shadows.origin[k], shadows.dir[k]);
+                if !scene.accel.occluded(&ray, tmin, shadows.far[k]) {
+                    clear |= 1 << k;
+                }
+            }
+            return clear;
+        }
+        // The packet holds the lanes that trace, side by side.
+        let mut rays = [*pts[0].ray; GROUP_LANES];
+        let mut far = [0.0; GROUP_LANES];
+        let mut m = 0;
+        for k in lanes(mask) {
+            rays[m] = pts[k].ray.spawn(shadows.origin[k], shadows.dir[k]);
+            far[m] = shadows.far[k];
+            m += 1;
+        }
+        let blocked = scene.accel.occluded_packet(&rays[..m], tmin, &far[..m]);
+        let mut clear = 0;
+        for (j, k) in lanes(mask).enumerate() {
+            if blocked & (1 << j) == 0 {
+                clear |= 1 << k;
+            }
+        }
+        clear
+    }
+}
+
+/// Towards a light point `p` from `x` (normal `n`, shadow rays leaving from `origin`): the unit
+/// direction from `x`, and the shadow ray's unit direction and length; `None` when `p` is not
+/// above the surface (or is `x` itself).
+#[inline]
+fn towards(x: DVec3, n: DVec3, origin: DVec3, p: DVec3) -> Option<(DVec3, DVec3, f64)> {
+    let wi = (p - x).normalize();
+    let cos = n.dot(wi);
+    // NaN when the light point is the shaded point itself.
+    if cos.is_nan() || cos <= 0.0 {
+        return None;
+    }
+    let to_light = p - origin;
+    let len = to_light.length();
+    Some((wi, to_light / len, len))
+}
