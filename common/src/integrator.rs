@@ -186,11 +186,11 @@ impl<'a> Tracer<'a> {
         }
         let light = if m == n {
             // Every lane: their own samplers.
-            self.lights_lanes(&pts[..m], true, samplers)
+            self.lights_lanes::<GROUP_LANES>(&pts[..m], true, samplers)
         } else {
             let mut rngs: [Sampler; GROUP_LANES] =
                 std::array::from_fn(|j| samplers[order[j.min(m - 1)]].clone());
-            let light = self.lights_lanes(&pts[..m], true, &mut rngs[..m]);
+            let light = self.lights_lanes::<GROUP_LANES>(&pts[..m], true, &mut rngs[..m]);
             for (j, &i) in order[..m].iter().enumerate() {
                 samplers[i] = rngs[j].clone();
             }
@@ -700,18 +700,18 @@ impl<'a> Tracer<'a> {
         rng: &mut Sampler,
     ) -> DVec3 {
         let mut rngs = [rng.clone()];
-        let l = self.lights_lanes(&[LitPoint { ray, x, n, mat }], env, &mut rngs);
+        let l = self.lights_lanes::<1>(&[LitPoint { ray, x, n, mat }], env, &mut rngs);
         *rng = rngs[0].clone();
         l[0]
     }
 
     /// [`Lighting::reflected`] in this tracer's scene, counting its shadow rays.
-    fn lights_lanes(
+    fn lights_lanes<const N: usize>(
         &mut self,
         pts: &[LitPoint<'_>],
         env: bool,
         rngs: &mut [Sampler],
-    ) -> [DVec3; GROUP_LANES] {
+    ) -> [DVec3; N] {
         let mut lighting = Lighting { scene: self.scene, env_sampler: self.env_sampler, shadow_rays: 0 };
         let l = lighting.reflected(pts, env, rngs);
         self.stats.shadow += lighting.shadow_rays;

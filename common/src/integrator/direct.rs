@@ -45,12 +45,13 @@ fn lanes(mut mask: u32) -> impl Iterator<Item = usize> {
 
 /// The next two numbers of each sampler of `mask` (`rngs` holds `count` samplers): drawn
 /// together when every sampler is at the same dimension of one pixel, one by one otherwise.
-#[inline]
-fn draw_2d(rngs: &mut [Sampler], mask: u32) -> [(f64, f64); GROUP_LANES] {
-    if mask == (1u32 << rngs.len()) - 1 && rngs.len() > 1 {
-        return Sampler::next_2d_group(rngs);
+#[inline(always)]
+fn draw_2d<const N: usize>(rngs: &mut [Sampler], mask: u32) -> [(f64, f64); N] {
+    let mut out = [(0.0, 0.0); N];
+    if rngs.len() > 1 && mask == (1u32 << rngs.len()) - 1 {
+        out.copy_from_slice(&Sampler::next_2d_group(rngs)[..N]);
+        return out;
     }
-    let mut out = [(0.0, 0.0); GROUP_LANES];
     for k in lanes(mask) {
         out[k] = rngs[k].next_2d();
     }
@@ -58,17 +59,17 @@ fn draw_2d(rngs: &mut [Sampler], mask: u32) -> [(f64, f64); GROUP_LANES] {
 }
 
 /// Shadow rays of a group, lane by lane: origin, unit direction, far bound.
-struct Shadows {
-    origin: [DVec3; GROUP_LANES],
-    dir: [DVec3; GROUP_LANES],
-    far: [f64; GROUP_LANES],
+struct Shadows<const N: usize> {
+    origin: [DVec3; N],
+    dir: [DVec3; N],
+    far: [f64; N],
     /// The lanes that trace one.
     mask: u32,
 }
 
-impl Shadows {
-    fn new(origin: [DVec3; GROUP_LANES]) -> Self {
-        Shadows { origin, dir: [DVec3::ZERO; GROUP_LANES], far: [0.0; GROUP_LANES], mask: 0 }
+impl<const N: usize> Shadows<N> {
+    fn new(origin: [DVec3; N]) -> Self {
+        Shadows { origin, dir: [DVec3::ZERO; N], far: [0.0; N], mask: 0 }
     }
 
     #[inline]
@@ -94,15 +95,16 @@ impl Lighting<'_> {
     /// to eight points with their samplers. Lights in the scene's order: point, area,
     /// directional, spot, object lights, then (when `env`) one direction of the environment
     /// light.
-    pub fn reflected(
+    pub fn reflected<const N: usize>(
         &mut self,
         pts: &[LitPoint<'_>],
         env: bool,
         rngs: &mut [Sampler],
-    ) -> [DVec3; GROUP_LANES] {
-        assert!(pts.len() <= GROUP_LANES && rngs.len() == pts.len(), "one sampler per point, at most eight");
+    ) -> [DVec3; N] {
+        const { assert!(N <= GROUP_LANES, "at most eight lanes") };
+        assert!(pts.len() <= N && rngs.len() == pts.len(), "one sampler per point, at most N");
         let scene = self.scene;
-        let mut l = [DVec3::ZERO; GROUP_LANES];
+        let mut l = [DVec3::ZERO; N];
         // Points whose material reflects nothing draw no numbers and trace no rays.
         let mut live = 0u32;
         for (k, p) in pts.iter().enumerate() {
@@ -114,17 +116,17 @@ impl Lighting<'_> {
             return l;
         }
         let eps = scene.shadow_ray_epsilon;
-        let mut origin = [DVec3::ZERO; GROUP_LANES];
+        let mut origin = [DVec3::ZERO; N];
         for k in lanes(live) {
             origin[k] = pts[k].x + eps * pts[k].n;
         }
-        let reflect = |l: &mut [DVec3; GROUP_LANES], k: usize, wi: DVec3, e: DVec3| {
+        let reflect = |l: &mut [DVec3; N], k: usize, wi: DVec3, e: DVec3| {
             let p = &pts[k];
             l[k] += p.mat.reflectance(p.n, wi, -p.ray.dir) * e;
         };
 
         for light in &scene.point_lights {
-            let mut wis = [DVec3::ZERO; GROUP_LANES];
+            let mut wis = [DVec3::ZERO; N];
             let mut shadows = Shadows::new(origin);
             for k in lanes(live) {
                 if let Some((wi, dir, len)) = towards(pts[k].x, pts[k].n, origin[k], light.position) {
@@ -139,9 +141,9 @@ impl Lighting<'_> {
         }
         for light in &scene.area_lights {
             // One point of the square per shading event; the pixel's samples average them.
-            let uv = draw_2d(rngs, live);
-            let mut q = [DVec3::ZERO; GROUP_LANES];
-            let mut wis = [DVec3::ZERO; GROUP_LANES];
+            let uv = draw_2d::<N>(rngs, live);
+            let mut q = [DVec3::ZERO; N];
+            let mut wis = [DVec3::ZERO; N];
             let mut shadows = Shadows::new(origin);
             for k in lanes(live) {
                 q[k] = light.point(uv[k].0, uv[k].1);
@@ -170,8 +172,8 @@ impl Lighting<'_> {
             }
         }
         for light in &scene.spot_lights {
-            let mut wis = [DVec3::ZERO; GROUP_LANES];
-            let mut factor = [0.0; GROUP_LANES];
+            let mut wis = [DVec3::ZERO; N];
+            let mut factor = [0.0; N];
             let mut shadows = Shadows::new(origin);
             for k in lanes(live) {
                 let s = light.factor((pts[k].x - light.position).normalize());
@@ -191,13 +193,13 @@ impl Lighting<'_> {
         for light in &scene.object_lights {
             // One point per shading event (§13.3); the random numbers are drawn whatever the
             // outcome, so later dimensions keep their places.
-            let mut u = [0.0; GROUP_LANES];
+            let mut u = [0.0; N];
             for k in lanes(live) {
                 u[k] = rngs[k].next_1d();
             }
-            let uv = draw_2d(rngs, live);
-            let mut wis = [DVec3::ZERO; GROUP_LANES];
-            let mut irradiance = [DVec3::ZERO; GROUP_LANES];
+            let uv = draw_2d::<N>(rngs, live);
+            let mut wis = [DVec3::ZERO; N];
+            let mut irradiance = [DVec3::ZERO; N];
             let mut shadows = Shadows::new(origin);
             for k in lanes(live) {
                 let p = &pts[k];
@@ -226,7 +228,7 @@ impl Lighting<'_> {
         // then the shadow rays, then radiance and pdf: the cache misses overlap each other and
         // the traversal, and a blocked ray needs no lookup.
         if env && let Some(light) = &scene.env_light {
-            let mut dirs = [None; GROUP_LANES];
+            let mut dirs = [None; N];
             let mut shadows = Shadows::new(origin);
             for k in lanes(live) {
                 dirs[k] = light.sample_direction(pts[k].n, self.env_sampler, &mut rngs[k]);
@@ -253,7 +255,12 @@ impl Lighting<'_> {
     /// Rays towards one light point (or one direction) are traced as a packet; the environment
     /// light's directions are random, and such rays go one by one (a packet of them visits the
     /// union of their nodes).
-    fn clear_lanes(&mut self, pts: &[LitPoint<'_>], shadows: &Shadows, coherent: bool) -> u32 {
+    fn clear_lanes<const N: usize>(
+        &mut self,
+        pts: &[LitPoint<'_>],
+        shadows: &Shadows<N>,
+        coherent: bool,
+    ) -> u32 {
         let mask = shadows.mask;
         if mask == 0 {
             return 0;
@@ -272,8 +279,8 @@ impl Lighting<'_> {
             return clear;
         }
         // The packet holds the lanes that trace, side by side.
-        let mut rays = [*pts[0].ray; GROUP_LANES];
-        let mut far = [0.0; GROUP_LANES];
+        let mut rays = [*pts[0].ray; N];
+        let mut far = [0.0; N];
         let mut m = 0;
         for k in lanes(mask) {
             rays[m] = pts[k].ray.spawn(shadows.origin[k], shadows.dir[k]);
