@@ -168,7 +168,7 @@ impl<'a> Tracer<'a> {
         }
         // The lit lanes side by side (at depth 0 every surface is lit: nothing is seen from
         // inside a dielectric), the others' places taken by the first.
-        let Some(first) = surfaced.iter().zip(hits).position(|(s, _)| s.is_some()) else { return out };
+        let Some(first) = surfaced.iter().position(Option::is_some) else { return out };
         let point = |i: usize| {
             let (s, hit) = (surfaced[i].as_ref()?, hits[i].as_ref()?);
             Some(LitPoint { ray: &rays[i], x: hit.point, n: s.lit_normal(false)?, mat: s.mat })

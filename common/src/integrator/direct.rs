@@ -43,8 +43,9 @@ fn lanes(mut mask: u32) -> impl Iterator<Item = usize> {
     })
 }
 
-/// The next two numbers of each sampler of `mask` (`rngs` holds `count` samplers): drawn
-/// together when every sampler is at the same dimension of one pixel, one by one otherwise.
+/// The next two numbers of each sampler in `mask` (`rngs` holds one sampler per point): one
+/// [`Sampler::next_2d_group`] when the mask holds them all (it draws them together when they
+/// stand at the same dimension of one pixel), one by one otherwise.
 #[inline(always)]
 fn draw_2d<const N: usize>(rngs: &mut [Sampler], mask: u32) -> [(f64, f64); N] {
     let mut out = [(0.0, 0.0); N];
