@@ -509,13 +509,7 @@ impl<'a> Tracer<'a> {
     /// `slot`. `Err` holds the texel of a `replace_all` map, which is the surface's radiance (no
     /// lights, no recursion).
     #[inline]
-    fn surface<'m>(
-        &self,
-        ray: &Ray,
-        hit: &SurfaceHit,
-        cone: f64,
-        slot: &'m mut Option<Material>,
-    ) -> Result<(&'m Material, DVec3), DVec3>
+    fn surface<'m>(&self, ray: &Ray, hit: &SurfaceHit, cone: f64, slot: &'m mut Option<Material>) -> Looks<'m>
     where
         'a: 'm,
     {
@@ -535,7 +529,7 @@ impl<'a> Tracer<'a> {
         hit: &SurfaceHit,
         cone: f64,
         slot: &'m mut Option<Material>,
-    ) -> Result<(&'m Material, DVec3), DVec3>
+    ) -> Looks<'m>
     where
         'a: 'm,
     {
@@ -608,10 +602,7 @@ impl<'a> Tracer<'a> {
         // An object light seen directly or through mirrors and glass shows its radiance.
         let emitted = self.emitted(ray, hit).unwrap_or(DVec3::ZERO);
         let (mat, shading_normal) = self.surface(ray, hit, cone, slot)?;
-        // Shading normal facing the incoming ray: where reflected rays start, and the normal
-        // dielectrics shade and refract with (they track entering and leaving).
-        let n = if entering { shading_normal } else { -shading_normal };
-        Ok(Surfaced { emitted, mat, shading_normal, n, entering })
+        Ok(Surfaced { emitted, mat, shading_normal, entering })
     }
 
     /// The last part of [`Self::shade`]: `l` (emission and direct light) plus what mirrors,
@@ -629,7 +620,7 @@ impl<'a> Tracer<'a> {
     ) -> DVec3 {
         let scene = self.scene;
         let d = ray.dir;
-        let (mat, n, entering) = (s.mat, s.n, s.entering);
+        let (mat, n, entering) = (s.mat, s.facing(), s.entering);
         let eps = scene.shadow_ray_epsilon;
         // Depth is capped when the scene is read (MAX_RECURSION_DEPTH_LIMIT), and so is the
         // stack; the budget bounds the work of a tree of splitting rays.
@@ -719,6 +710,10 @@ impl<'a> Tracer<'a> {
     }
 }
 
+/// What [`Tracer::surface`] finds: the material and shading normal after the texture maps, or
+/// (`Err`) the texel of a `replace_all` map.
+type Looks<'m> = Result<(&'m Material, DVec3), DVec3>;
+
 /// A surface a ray found, ready for its lights: see [`Tracer::begin_shade`].
 struct Surfaced<'a> {
     /// What an object light emits towards the ray (zero for other surfaces).
@@ -727,13 +722,18 @@ struct Surfaced<'a> {
     mat: &'a Material,
     /// The shading normal after normal and bump maps, on the geometric normal's side.
     shading_normal: DVec3,
-    /// `shading_normal` turned towards the incoming ray.
-    n: DVec3,
     /// Whether the ray arrives on the front side of the geometry.
     entering: bool,
 }
 
 impl Surfaced<'_> {
+    /// The shading normal facing the incoming ray: where reflected rays start, and the normal
+    /// dielectrics shade and refract with (they track entering and leaving).
+    #[inline]
+    fn facing(&self) -> DVec3 {
+        if self.entering { self.shading_normal } else { -self.shading_normal }
+    }
+
     /// The normal the lights are computed with, if any. Local shading is skipped for hits seen
     /// from inside a dielectric (§6.4, §15 #20). Opaque surfaces are lit with their normal as
     /// given, never turned towards the viewer (§6.8, measured on grass_desert): one seen from
@@ -741,7 +741,7 @@ impl Surfaced<'_> {
     fn lit_normal(&self, inside: bool) -> Option<DVec3> {
         match self.mat.kind {
             MaterialKind::Dielectric if inside => None,
-            MaterialKind::Dielectric => Some(self.n),
+            MaterialKind::Dielectric => Some(self.facing()),
             _ => Some(self.shading_normal),
         }
     }

@@ -517,7 +517,7 @@ impl Accel {
         {
             return true;
         }
-        if self.unbounded.iter().any(|&idx| self.blocks(idx, ray, &fr, tmin, tmax)) {
+        if self.unbounded_block(ray, &fr, tmin, tmax) {
             return true;
         }
         if self.bounded.len() <= LINEAR_MAX {
@@ -527,6 +527,17 @@ impl Accel {
                 .zip(&self.bounds)
                 .any(|(&idx, b)| enters(b, &fr) && self.blocks(idx, ray, &fr, tmin, tmax));
         }
+        self.tlas_blocks(ray, fr, tmin, tmax)
+    }
+
+    /// Whether an unbounded instance (a plane) blocks the ray within (tmin, tmax).
+    #[inline]
+    fn unbounded_block(&self, ray: &Ray, fr: &obvhs::ray::Ray, tmin: f64, tmax: f64) -> bool {
+        self.unbounded.iter().any(|&idx| self.blocks(idx, ray, fr, tmin, tmax))
+    }
+
+    /// Whether a bounded instance found through the top level blocks the ray within (tmin, tmax).
+    fn tlas_blocks(&self, ray: &Ray, fr: obvhs::ray::Ray, tmin: f64, tmax: f64) -> bool {
         !self.tlas.ray_traverse_miss(fr, |fr, id| {
             if self.blocks(self.tlas_order[id], ray, fr, tmin, tmax) { fr.tmin } else { f32::INFINITY }
         })
@@ -556,12 +567,7 @@ impl Accel {
             blocked = tree.occluded_packet(&packet, &far);
         }
         for lane in 0..n {
-            if blocked & (1 << lane) == 0
-                && self
-                    .unbounded
-                    .iter()
-                    .any(|&idx| self.blocks(idx, &rays[lane], &frs[lane], tmin, tmax[lane]))
-            {
+            if blocked & (1 << lane) == 0 && self.unbounded_block(&rays[lane], &frs[lane], tmin, tmax[lane]) {
                 blocked |= 1 << lane;
             }
         }
@@ -582,15 +588,7 @@ impl Accel {
             }
         } else {
             for lane in 0..n {
-                if blocked & (1 << lane) == 0
-                    && !self.tlas.ray_traverse_miss(frs[lane], |fr, id| {
-                        if self.blocks(self.tlas_order[id], &rays[lane], fr, tmin, tmax[lane]) {
-                            fr.tmin
-                        } else {
-                            f32::INFINITY
-                        }
-                    })
-                {
+                if blocked & (1 << lane) == 0 && self.tlas_blocks(&rays[lane], frs[lane], tmin, tmax[lane]) {
                     blocked |= 1 << lane;
                 }
             }
