@@ -154,7 +154,24 @@ pub struct Accel {
     /// place (packets of camera rays walk it together). Such an instance is in neither `bounded`
     /// nor `unbounded`; `merged` is then empty.
     lone: Option<LoneMesh>,
+    /// The world-space plane of each triangle of `merged` (same index), when there are at most
+    /// [`PLANES_MAX`] of them (else empty): a hit on a flat, untextured merged triangle takes
+    /// its distance, point and normal from it, with no ray transform, re-intersection or
+    /// normalisation.
+    planes: Vec<WorldPlane>,
 }
+
+/// A triangle's plane in world space, in `f64`: a vertex and the unit geometric normal (what
+/// the triangle's own face normal becomes through its instance's normal transform).
+#[derive(Clone, Copy, Debug)]
+struct WorldPlane {
+    p0: DVec3,
+    n: DVec3,
+}
+
+/// Most merged triangles that get a [`WorldPlane`] (48 bytes each): beyond it, hits take the
+/// general path.
+const PLANES_MAX: usize = 1 << 20;
 
 /// See [`Accel::lone`].
 #[derive(Clone, Copy, Debug)]
@@ -172,12 +189,15 @@ struct Candidate {
     t: f64,
     instance: u32,
     tri: u32,
+    /// Its index in the merged tree when that tree found it (`u32::MAX` otherwise): where
+    /// [`Accel::planes`] keeps its world-space plane.
+    merged: u32,
 }
 
 impl Candidate {
     /// Nothing found yet closer than `t`.
     const fn none(t: f64) -> Self {
-        Candidate { t, instance: u32::MAX, tri: 0 }
+        Candidate { t, instance: u32::MAX, tri: 0, merged: u32::MAX }
     }
 }
 
@@ -272,6 +292,7 @@ struct WorldTree {
     /// Which instances it holds (empty: none).
     members: Vec<bool>,
     lone: Option<LoneMesh>,
+    planes: Vec<WorldPlane>,
 }
 
 /// The merged BVH of the static mesh instances (see `Accel::merged`): their triangles carried
@@ -307,20 +328,31 @@ fn merge_static_meshes(meshes: &[Arc<MeshGeom>], instances: &[Instance]) -> Worl
     }
     let (mut tris, mut aabbs, mut prims) =
         (Vec::with_capacity(total), Vec::with_capacity(total), Vec::with_capacity(total));
+    let with_planes = total <= PLANES_MAX;
+    let mut planes = Vec::with_capacity(if with_planes { total } else { 0 });
     for (i, inst) in instances.iter().enumerate() {
         let Shape::Mesh { mesh, .. } = inst.shape else { continue };
         if !set[i] {
             continue;
         }
+        let m = &meshes[mesh as usize];
         let to_world = inst.transform.as_ref().map(|xf| &xf.to_world);
-        for (k, t) in meshes[mesh as usize].bvh_triangles(to_world) {
+        for (k, t) in m.bvh_triangles(to_world) {
             aabbs.push(Aabb::from_points(&[t[0], t[0] + t[1], t[0] + t[2]]));
             tris.push(t);
             prims.push((i as u32, k));
+            if with_planes {
+                let p0 = m.positions[m.indices[k as usize][0] as usize];
+                let n = m.face_normal(k);
+                planes.push(match &inst.transform {
+                    Some(xf) => WorldPlane { p0: xf.to_world.transform_point3(p0), n: xf.normal_to_world(n) },
+                    None => WorldPlane { p0, n },
+                });
+            }
         }
     }
     let ids: Vec<u32> = (0..tris.len() as u32).collect();
-    WorldTree { merged: Bvh8::build(&tris, &aabbs, &ids), prims, members: set, lone: None }
+    WorldTree { merged: Bvh8::build(&tris, &aabbs, &ids), prims, members: set, lone: None, planes }
 }
 
 /// Whether `fr` enters box `b` before `fr.tmax`. obvhs's `intersect_ray` answers a miss with
@@ -341,7 +373,7 @@ fn pad(b: Aabb) -> Aabb {
 impl Accel {
     pub fn new(meshes: Vec<Arc<MeshGeom>>, instances: Vec<Instance>) -> Self {
         let (mut bounds, mut bounded, mut unbounded) = (Vec::new(), Vec::new(), Vec::new());
-        let WorldTree { merged, prims: merged_prims, members: merged_set, lone } =
+        let WorldTree { merged, prims: merged_prims, members: merged_set, lone, planes } =
             merge_static_meshes(&meshes, &instances);
         for (i, inst) in instances.iter().enumerate() {
             if merged_set.get(i).copied().unwrap_or(false) {
@@ -366,7 +398,19 @@ impl Accel {
             build_cwbvh(&bounds, BvhBuildParams::medium_build(), &mut Duration::default())
         };
         let tlas_order = tlas.primitive_indices.iter().map(|&k| bounded[k as usize]).collect();
-        Accel { meshes, instances, tlas, tlas_order, bounds, bounded, unbounded, merged, merged_prims, lone }
+        Accel {
+            meshes,
+            instances,
+            tlas,
+            tlas_order,
+            bounds,
+            bounded,
+            unbounded,
+            merged,
+            merged_prims,
+            lone,
+            planes,
+        }
     }
 
     /// Total triangles over all instances (instanced triangles counted once per instance).
@@ -413,7 +457,7 @@ impl Accel {
             && let Some((t, id)) = tree.intersect(&Ray8::new(fr.origin, fr.direction, fr.tmin, fr.tmax))
         {
             let (instance, tri) = self.world_prim(id);
-            best = Candidate { t: t as f64, instance, tri };
+            best = Candidate { t: t as f64, instance, tri, merged: id };
             fr.tmax = t;
         }
         self.intersect_rest(ray, tmin, best, fr)
@@ -443,7 +487,7 @@ impl Accel {
                 let lane = hit.trailing_zeros() as usize;
                 hit &= hit - 1;
                 let (instance, tri) = self.world_prim(id[lane]);
-                best[lane] = Candidate { t: tmax[lane] as f64, instance, tri };
+                best[lane] = Candidate { t: tmax[lane] as f64, instance, tri, merged: id[lane] };
                 frs[lane].tmax = tmax[lane];
             }
         }
@@ -612,14 +656,14 @@ impl Accel {
         match &inst.shape {
             Shape::Sphere { center, radius } => match sphere_t(*center, *radius, &local, tmin, best.t) {
                 Some(t) => {
-                    *best = Candidate { t, instance: idx, tri: 0 };
+                    *best = Candidate { t, instance: idx, tri: 0, merged: u32::MAX };
                     t as f32
                 }
                 None => f32::INFINITY,
             },
             Shape::Plane { point, normal } => match plane_t(*point, *normal, &local, tmin, best.t) {
                 Some(t) => {
-                    *best = Candidate { t, instance: idx, tri: 0 };
+                    *best = Candidate { t, instance: idx, tri: 0, merged: u32::MAX };
                     t as f32
                 }
                 None => f32::INFINITY,
@@ -630,7 +674,7 @@ impl Accel {
                 let lr = if inst.is_world_space() { *fr } else { to_f32_ray(&local, tmin, fr.tmax as f64) };
                 match m.intersect_f32(lr) {
                     Some((t, tri)) => {
-                        *best = Candidate { t: t as f64, instance: idx, tri };
+                        *best = Candidate { t: t as f64, instance: idx, tri, merged: u32::MAX };
                         t
                     }
                     None => f32::INFINITY,
@@ -667,6 +711,28 @@ impl Accel {
         // The texture frame (trigonometry for spheres, uv interpolation for meshes) is only
         // needed by objects that have texture maps: skip it on every other hit.
         let textured = inst.textures != ObjectTextures::default();
+        if let Shape::Mesh { smooth: false, .. } = inst.shape
+            && !textured
+            && let Some(plane) = self.planes.get(c.merged as usize)
+        {
+            // A flat face with no texture frame: its world plane gives the exact distance
+            // (the f32 one kept where the ray runs along the plane) and the normal.
+            let n = plane.n;
+            let t = n.dot(plane.p0 - ray.origin) / n.dot(ray.dir);
+            let t = if t.is_finite() && t > 0.0 { t } else { c.t };
+            return SurfaceHit {
+                t,
+                point: ray.at(t),
+                geo_normal: n,
+                shading_normal: n,
+                material: inst.material,
+                instance: c.instance,
+                uv: DVec2::ZERO,
+                dpdu: DVec3::ZERO,
+                dpdv: DVec3::ZERO,
+                bump_axis: if inst.transform.is_some() { DVec3::ZERO } else { n },
+            };
+        }
         let no_frame = (DVec2::ZERO, DVec3::ZERO, DVec3::ZERO);
         let sphere = matches!(inst.shape, Shape::Sphere { .. });
         let (t, n_geo, n_shade, (uv, dpdu, dpdv)) = match &inst.shape {
@@ -1132,6 +1198,67 @@ mod tests {
             shadowed > shadow_rays / 5 && shadowed < shadow_rays * 4 / 5,
             "blocked and clear shadow rays both common: {shadowed} of {shadow_rays}"
         );
+    }
+
+    /// A hit on a flat, untextured face of the merged tree takes its distance and normal from
+    /// the face's world plane; it is the hit the general path (the ray carried to object space,
+    /// the triangle re-intersected there, the normal carried back) finds, to rounding: the same
+    /// normal bits, the distance and point to 1e-12 of the ray's scale. Smooth faces and faces
+    /// outside the merged tree keep the general path.
+    #[test]
+    fn flat_merged_faces_take_their_world_plane() {
+        let mut rng = crate::sampler::Sampler::new(3, 1, 4, 1);
+        let mut r = move || rng.next_1d();
+        let sheet = sheet(&mut r);
+        let normals =
+            (0..sheet.positions.len()).map(|_| DVec3::new(r() - 0.5, r() - 0.5, 2.0).normalize()).collect();
+        let bent = Arc::new(MeshGeom::new(sheet.positions.clone(), sheet.indices.clone(), Some(normals)));
+        let skew = DAffine3::from_translation(DVec3::new(-12.0, -2.0, 0.5))
+            * DAffine3::from_rotation_y(0.4)
+            * DAffine3::from_scale(DVec3::new(1.5, 0.7, 1.0));
+        let face = |smooth: bool, transform: Option<Transform>, material: u32| Instance {
+            shape: Shape::Mesh { mesh: u32::from(smooth), smooth },
+            material,
+            transform,
+            motion: None,
+            textures: ObjectTextures::default(),
+        };
+        let instances = vec![
+            face(false, Transform::new(skew), 0),
+            face(true, Transform::new(DAffine3::from_translation(DVec3::new(12.0, 0.0, 3.0))), 1),
+            face(false, None, 2),
+        ];
+        let meshes = vec![sheet, bent];
+        let fast = Accel::new(meshes.clone(), instances.clone());
+        let mut general = Accel::new(meshes, instances);
+        assert_eq!(fast.planes.len(), fast.merged_prims.len(), "every merged face has its plane");
+        general.planes.clear();
+        let (mut by_instance, mut rounded_differently) = ([0; 3], 0);
+        for _ in 0..3000 {
+            let o = DVec3::new(r() * 36.0 - 18.0, r() * 8.0 - 4.0, 12.0);
+            let ray = Ray { origin: o, dir: DVec3::new(r() - 0.5, r() - 0.5, -1.0).normalize(), time: 0.0 };
+            let (a, b) =
+                (fast.intersect(&ray, 1e-6, f64::INFINITY), general.intersect(&ray, 1e-6, f64::INFINITY));
+            assert_eq!(a.is_some(), b.is_some());
+            let (Some(a), Some(b)) = (a, b) else { continue };
+            assert_eq!((a.instance, a.material), (b.instance, b.material));
+            assert_eq!(a.geo_normal, b.geo_normal, "the normal's bits");
+            assert_eq!(a.shading_normal, b.shading_normal);
+            assert!((a.t - b.t).abs() <= 1e-12 * b.t.max(1.0), "t {} against {}", a.t, b.t);
+            assert!((a.point - b.point).length() <= 1e-12 * (1.0 + o.length() + b.t));
+            by_instance[a.instance as usize] += 1;
+            if a.instance == 1 {
+                // The smooth sheet's shading normals differ from its faces' (checked above):
+                // its hits are the general path's, bit for bit.
+                assert_ne!(a.shading_normal, a.geo_normal);
+                assert_eq!((a.t.to_bits(), a.point), (b.t.to_bits(), b.point));
+            } else {
+                rounded_differently += usize::from(a.t != b.t);
+            }
+        }
+        assert!(by_instance.iter().all(|&k| k > 100), "each sheet hit often enough: {by_instance:?}");
+        // The plane's distance is its own computation (not a copy of the general one's bits).
+        assert!(rounded_differently > 0);
     }
 
     #[test]
