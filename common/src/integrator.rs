@@ -513,12 +513,20 @@ impl<'a> Tracer<'a> {
     where
         'a: 'm,
     {
+        match self.plain_surface(hit) {
+            Some(plain) => Ok(plain),
+            None => self.textured_surface(ray, hit, cone, slot),
+        }
+    }
+
+    /// [`Self::surface`] of a hit on an object without texture maps: its material and normal
+    /// as they are (`None` for a textured object).
+    #[inline(always)]
+    fn plain_surface(&self, hit: &SurfaceHit) -> Option<(&'a Material, DVec3)> {
         let scene = self.scene;
         let textures = scene.accel.instances[hit.instance as usize].textures;
-        if textures.normal.is_none() && textures.colour[0].is_none() {
-            return Ok((&scene.materials[hit.material as usize], hit.shading_normal));
-        }
-        self.textured_surface(ray, hit, cone, slot)
+        (textures.normal.is_none() && textures.colour[0].is_none())
+            .then(|| (&scene.materials[hit.material as usize], hit.shading_normal))
     }
 
     /// [`Self::surface`] of a hit on an object with texture maps.
@@ -601,7 +609,13 @@ impl<'a> Tracer<'a> {
         let entering = ray.dir.dot(hit.geo_normal) < 0.0;
         // An object light seen directly or through mirrors and glass shows its radiance.
         let emitted = self.emitted(ray, hit).unwrap_or(DVec3::ZERO);
-        let (mat, shading_normal) = self.surface(ray, hit, cone, slot)?;
+        // The untextured case spelled out rather than through `surface`'s `Result`: its
+        // `?` went through a stack copy whose 16-byte load straddled two stores (a failed
+        // store-to-load forward on every hit).
+        let (mat, shading_normal) = match self.plain_surface(hit) {
+            Some(plain) => plain,
+            None => self.textured_surface(ray, hit, cone, slot)?,
+        };
         Ok(Surfaced { emitted, mat, shading_normal, entering })
     }
 
