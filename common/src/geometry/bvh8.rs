@@ -280,6 +280,54 @@ impl Bvh8 {
     }
 }
 
+/// Up to eight rays in `f32`, side by side (unused lanes repeat the first ray): the one
+/// conversion from `f64` that a group's packet walk ([`Packet8`]), box tests ([`BoxRays8`]) and
+/// single-ray queries (`obvhs::ray::Ray`s) are all made from, with obvhs's inverse directions
+/// computed for all lanes at once.
+pub struct Lanes8 {
+    pub o: [[f32; 8]; 3],
+    pub d: [[f32; 8]; 3],
+    /// `obvhs::ray::safe_inverse` of each direction component.
+    pub inv: [[f32; 8]; 3],
+    /// How many lanes hold a ray.
+    pub len: usize,
+}
+
+impl Lanes8 {
+    /// `origins` and `dirs` (one to eight, as many of each) as `f32` lanes.
+    #[inline]
+    pub fn new(rays: impl ExactSizeIterator<Item = (glam::DVec3, glam::DVec3)> + Clone) -> Self {
+        let len = rays.len();
+        assert!((1..=8).contains(&len), "one to eight rays");
+        let mut l = Lanes8 { o: [[0.0; 8]; 3], d: [[0.0; 8]; 3], inv: [[0.0; 8]; 3], len };
+        let first = rays.clone().next().expect("at least one ray");
+        for (lane, (o, d)) in rays.chain(std::iter::repeat(first)).take(8).enumerate() {
+            for a in 0..3 {
+                l.o[a][lane] = o[a] as f32;
+                l.d[a][lane] = d[a] as f32;
+            }
+        }
+        // obvhs's `safe_inverse`, both sides computed and one kept (the compiler vectorises
+        // the loop): the same bits as its branch.
+        for a in 0..3 {
+            for lane in 0..8 {
+                let x = l.d[a][lane];
+                let small = if x.is_nan() { f32::NAN } else { 1.0f32.copysign(x) } / f32::EPSILON;
+                l.inv[a][lane] = if x.abs() <= f32::EPSILON { small } else { 1.0 / x };
+            }
+        }
+        l
+    }
+
+    /// Lane `lane` as one obvhs ray with bounds (tmin, tmax): what `obvhs::ray::Ray::new` makes
+    /// of the same values.
+    #[inline]
+    pub fn ray(&self, lane: usize, tmin: f32, tmax: f32) -> obvhs::ray::Ray {
+        let v = |x: &[[f32; 8]; 3]| Vec3A::new(x[0][lane], x[1][lane], x[2][lane]);
+        obvhs::ray::Ray { origin: v(&self.o), direction: v(&self.d), inv_direction: v(&self.inv), tmin, tmax }
+    }
+}
+
 /// Up to eight rays traced together through one traversal (structure of arrays): coherent rays,
 /// such as the camera rays of one pixel, share their node visits and test every triangle of a
 /// leaf eight at a time. Each lane gets the hit its own [`Ray8`] query would find (up to exact
@@ -316,6 +364,26 @@ impl Packet8 {
         }
         // Ray8::new's operations, an axis of eight lanes at a time (the compiler vectorises
         // this loop).
+        for a in 0..3 {
+            for lane in 0..8 {
+                p.inv[a][lane] = safe_inv(p.d[a][lane]);
+                p.o_inv[a][lane] = p.o[a][lane] * p.inv[a][lane];
+            }
+        }
+        p
+    }
+
+    /// The packet of `lanes`, all with `tmin`: what [`Self::new`] makes of the same rays.
+    #[inline]
+    pub fn from_lanes(lanes: &Lanes8, tmin: f32) -> Self {
+        let mut p = Packet8 {
+            o: lanes.o,
+            d: lanes.d,
+            inv: [[0.0; 8]; 3],
+            o_inv: [[0.0; 8]; 3],
+            tmin: [tmin; 8],
+            active: (1u32 << lanes.len) - 1,
+        };
         for a in 0..3 {
             for lane in 0..8 {
                 p.inv[a][lane] = safe_inv(p.d[a][lane]);
@@ -594,6 +662,13 @@ impl BoxRays8 {
             b.tmax[lane] = r.tmax;
         }
         b
+    }
+
+    /// The box tests of `lanes` with far bounds `tmax`: what [`Self::new`] makes of the same
+    /// rays.
+    #[inline]
+    pub fn from_lanes(lanes: &Lanes8, tmax: [f32; 8]) -> Self {
+        BoxRays8 { o: lanes.o, inv: lanes.inv, tmax, active: (1u32 << lanes.len) - 1 }
     }
 
     /// The lanes whose ray enters `b` at a distance up to their `tmax`: obvhs's

@@ -22,7 +22,7 @@ use glam::{DVec2, DVec3, Vec3A};
 use obvhs::{BvhBuildParams, aabb::Aabb, cwbvh::CwBvh, cwbvh::builder::build_cwbvh, ray::RayHit};
 
 use crate::math::{Ray, Transform};
-use bvh8::{BoxRays8, Bvh8, Packet8, Ray8};
+use bvh8::{BoxRays8, Bvh8, Lanes8, Packet8, Ray8};
 pub use mesh::MeshGeom;
 
 /// What an instance is made of.
@@ -101,7 +101,7 @@ impl Instance {
 }
 
 /// A surface point found by a ray, everything in world space.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Default)]
 pub struct SurfaceHit {
     pub t: f64,
     pub point: DVec3,
@@ -474,13 +474,10 @@ impl Accel {
             return;
         }
         let mut best = [Candidate::none(f64::INFINITY); 8];
-        let mut frs = [to_f32_ray(&rays[0], tmin, f64::INFINITY); 8];
-        for (fr, r) in frs.iter_mut().zip(rays) {
-            *fr = to_f32_ray(r, tmin, f64::INFINITY);
-        }
+        let lanes = Lanes8::new(rays.iter().map(|r| (r.origin, r.dir)));
+        let mut frs: [obvhs::ray::Ray; 8] = std::array::from_fn(|i| lanes.ray(i, tmin as f32, f32::INFINITY));
         if let Some(tree) = self.world_tree() {
-            let lanes: [(Vec3A, Vec3A); 8] = std::array::from_fn(|i| (frs[i].origin, frs[i].direction));
-            let packet = Packet8::new(&lanes[..n], tmin as f32);
+            let packet = Packet8::from_lanes(&lanes, tmin as f32);
             let (mut tmax, mut id) = ([f32::INFINITY; 8], [u32::MAX; 8]);
             let mut hit = tree.intersect_packet(&packet, &mut tmax, &mut id);
             while hit != 0 {
@@ -495,19 +492,19 @@ impl Accel {
             for lane in 0..n {
                 self.unbounded_hits(&rays[lane], &mut frs[lane], tmin, &mut best[lane]);
             }
-            let mut boxes = BoxRays8::new(&frs[..n]);
+            let mut boxes = BoxRays8::from_lanes(&lanes, frs.map(|fr| fr.tmax));
             for (&idx, b) in self.bounded.iter().zip(&self.bounds) {
-                let mut lanes = boxes.hits(b);
-                while lanes != 0 {
-                    let lane = lanes.trailing_zeros() as usize;
-                    lanes &= lanes - 1;
+                let mut hit = boxes.hits(b);
+                while hit != 0 {
+                    let lane = hit.trailing_zeros() as usize;
+                    hit &= hit - 1;
                     let t = self.hit_instance(idx, &rays[lane], &frs[lane], tmin, &mut best[lane]);
                     frs[lane].tmax = frs[lane].tmax.min(t);
                     boxes.tmax[lane] = frs[lane].tmax;
                 }
             }
             for lane in 0..n {
-                out[lane] = self.found(&rays[lane], best[lane]);
+                self.found_into(&rays[lane], best[lane], &mut out[lane]);
             }
         } else {
             for lane in 0..n {
@@ -599,14 +596,13 @@ impl Accel {
             return rays.first().map_or(0, |r| self.occluded(r, tmin, tmax[0]) as u32);
         }
         let all = (1u32 << n) - 1;
-        let mut frs = [to_f32_ray(&rays[0], tmin, tmax[0]); 8];
-        for (fr, (r, &t)) in frs.iter_mut().zip(rays.iter().zip(tmax)) {
-            *fr = to_f32_ray(r, tmin, t);
-        }
+        let lanes = Lanes8::new(rays.iter().map(|r| (r.origin, r.dir)));
+        let frs: [obvhs::ray::Ray; 8] = std::array::from_fn(|i| {
+            lanes.ray(i, tmin as f32, tmax.get(i).map_or(f32::NEG_INFINITY, |&t| t as f32))
+        });
         let mut blocked = 0u32;
         if let Some(tree) = self.world_tree() {
-            let lanes: [(Vec3A, Vec3A); 8] = std::array::from_fn(|i| (frs[i].origin, frs[i].direction));
-            let packet = Packet8::new(&lanes[..n], tmin as f32);
+            let packet = Packet8::from_lanes(&lanes, tmin as f32);
             let far: [f32; 8] = std::array::from_fn(|i| frs[i].tmax);
             blocked = tree.occluded_packet(&packet, &far);
         }
@@ -616,7 +612,7 @@ impl Accel {
             }
         }
         if self.bounded.len() <= LINEAR_MAX {
-            let boxes = BoxRays8::new(&frs[..n]);
+            let boxes = BoxRays8::from_lanes(&lanes, frs.map(|fr| fr.tmax));
             for (&idx, b) in self.bounded.iter().zip(&self.bounds) {
                 if blocked == all {
                     break;
@@ -701,11 +697,25 @@ impl Accel {
     /// The hit of the final candidate of a query, if it found anything.
     #[inline]
     fn found(&self, ray: &Ray, best: Candidate) -> Option<SurfaceHit> {
-        (best.instance != u32::MAX).then(|| self.surface(ray, best))
+        let mut hit = None;
+        self.found_into(ray, best, &mut hit);
+        hit
+    }
+
+    /// [`Self::found`] written into `out` in place: the record is stored field by field where
+    /// it is wanted, never copied whole through a temporary (a copy's wide loads right after the
+    /// narrow stores that built it cannot be forwarded, and stall).
+    #[inline]
+    fn found_into(&self, ray: &Ray, best: Candidate, out: &mut Option<SurfaceHit>) {
+        if best.instance == u32::MAX {
+            *out = None;
+        } else {
+            self.surface(ray, best, out.insert(SurfaceHit::default()));
+        }
     }
 
     /// Completes a candidate into world-space hit data, re-intersecting triangles in `f64`.
-    fn surface(&self, ray: &Ray, c: Candidate) -> SurfaceHit {
+    fn surface(&self, ray: &Ray, c: Candidate, out: &mut SurfaceHit) {
         let inst = &self.instances[c.instance as usize];
         let local = inst.local_ray(ray);
         // The texture frame (trigonometry for spheres, uv interpolation for meshes) is only
@@ -720,7 +730,7 @@ impl Accel {
             let n = plane.n;
             let t = n.dot(plane.p0 - ray.origin) / n.dot(ray.dir);
             let t = if t.is_finite() && t > 0.0 { t } else { c.t };
-            return SurfaceHit {
+            *out = SurfaceHit {
                 t,
                 point: ray.at(t),
                 geo_normal: n,
@@ -732,6 +742,7 @@ impl Accel {
                 dpdv: DVec3::ZERO,
                 bump_axis: if inst.transform.is_some() { DVec3::ZERO } else { n },
             };
+            return;
         }
         let no_frame = (DVec2::ZERO, DVec3::ZERO, DVec3::ZERO);
         let sphere = matches!(inst.shape, Shape::Sphere { .. });
@@ -786,7 +797,7 @@ impl Accel {
         // A smooth normal may lean past the face; keep it on the face's side.
         let shading_normal =
             if shading_normal.dot(geo_normal) < 0.0 { -shading_normal } else { shading_normal };
-        SurfaceHit {
+        *out = SurfaceHit {
             t,
             point: ray.at(t),
             geo_normal,
@@ -805,7 +816,7 @@ impl Accel {
             } else {
                 bump_axis
             },
-        }
+        };
     }
 }
 
