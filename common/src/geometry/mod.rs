@@ -648,16 +648,17 @@ impl Accel {
         best: &mut Candidate,
     ) -> f32 {
         let inst = &self.instances[idx as usize];
-        let local = inst.local_ray(ray);
+        let moved;
+        let local = if inst.is_world_space() { ray } else { moved = inst.local_ray(ray); &moved };
         match &inst.shape {
-            Shape::Sphere { center, radius } => match sphere_t(*center, *radius, &local, tmin, best.t) {
+            Shape::Sphere { center, radius } => match sphere_t(*center, *radius, local, tmin, best.t) {
                 Some(t) => {
                     *best = Candidate { t, instance: idx, tri: 0, merged: u32::MAX };
                     t as f32
                 }
                 None => f32::INFINITY,
             },
-            Shape::Plane { point, normal } => match plane_t(*point, *normal, &local, tmin, best.t) {
+            Shape::Plane { point, normal } => match plane_t(*point, *normal, local, tmin, best.t) {
                 Some(t) => {
                     *best = Candidate { t, instance: idx, tri: 0, merged: u32::MAX };
                     t as f32
@@ -667,7 +668,7 @@ impl Accel {
             Shape::Mesh { mesh, .. } => {
                 let m = &self.meshes[*mesh as usize];
                 // A static untransformed mesh sees the world ray itself (no new inverse).
-                let lr = if inst.is_world_space() { *fr } else { to_f32_ray(&local, tmin, fr.tmax as f64) };
+                let lr = if inst.is_world_space() { *fr } else { to_f32_ray(local, tmin, fr.tmax as f64) };
                 match m.intersect_f32(lr) {
                     Some((t, tri)) => {
                         *best = Candidate { t: t as f64, instance: idx, tri, merged: u32::MAX };
@@ -683,12 +684,13 @@ impl Accel {
     #[inline]
     fn blocks(&self, idx: u32, ray: &Ray, fr: &obvhs::ray::Ray, tmin: f64, tmax: f64) -> bool {
         let inst = &self.instances[idx as usize];
-        let local = inst.local_ray(ray);
+        let moved;
+        let local = if inst.is_world_space() { ray } else { moved = inst.local_ray(ray); &moved };
         match &inst.shape {
-            Shape::Sphere { center, radius } => sphere_t(*center, *radius, &local, tmin, tmax).is_some(),
-            Shape::Plane { point, normal } => plane_t(*point, *normal, &local, tmin, tmax).is_some(),
+            Shape::Sphere { center, radius } => sphere_t(*center, *radius, local, tmin, tmax).is_some(),
+            Shape::Plane { point, normal } => plane_t(*point, *normal, local, tmin, tmax).is_some(),
             Shape::Mesh { mesh, .. } => {
-                let lr = if inst.is_world_space() { *fr } else { to_f32_ray(&local, tmin, fr.tmax as f64) };
+                let lr = if inst.is_world_space() { *fr } else { to_f32_ray(local, tmin, fr.tmax as f64) };
                 self.meshes[*mesh as usize].occluded_f32(lr)
             }
         }
@@ -717,7 +719,8 @@ impl Accel {
     /// Completes a candidate into world-space hit data, re-intersecting triangles in `f64`.
     fn surface(&self, ray: &Ray, c: Candidate, out: &mut SurfaceHit) {
         let inst = &self.instances[c.instance as usize];
-        let local = inst.local_ray(ray);
+        let moved;
+        let local = if inst.is_world_space() { ray } else { moved = inst.local_ray(ray); &moved };
         // The texture frame (trigonometry for spheres, uv interpolation for meshes) is only
         // needed by objects that have texture maps: skip it on every other hit.
         let textured = inst.textures != ObjectTextures::default();
