@@ -127,14 +127,7 @@ impl Lighting<'_> {
         };
 
         for light in &scene.point_lights {
-            let mut wis = [DVec3::ZERO; N];
-            let mut shadows = Shadows::new(origin);
-            for k in lanes(live) {
-                if let Some((wi, dir, len)) = towards(pts[k].x, pts[k].n, origin[k], light.position) {
-                    wis[k] = wi;
-                    shadows.add(k, dir, len);
-                }
-            }
+            let (wis, shadows) = towards_lanes(pts, &origin, &[light.position; N], live);
             for k in lanes(self.clear_lanes(pts, &shadows, true)) {
                 let e = light.intensity / (light.position - pts[k].x).length_squared();
                 reflect(&mut l, k, wis[k], e);
@@ -144,15 +137,10 @@ impl Lighting<'_> {
             // One point of the square per shading event; the pixel's samples average them.
             let uv = draw_2d::<N>(rngs, live);
             let mut q = [DVec3::ZERO; N];
-            let mut wis = [DVec3::ZERO; N];
-            let mut shadows = Shadows::new(origin);
             for k in lanes(live) {
                 q[k] = light.point(uv[k].0, uv[k].1);
-                if let Some((wi, dir, len)) = towards(pts[k].x, pts[k].n, origin[k], q[k]) {
-                    wis[k] = wi;
-                    shadows.add(k, dir, len);
-                }
             }
+            let (wis, shadows) = towards_lanes(pts, &origin, &q, live);
             for k in lanes(self.clear_lanes(pts, &shadows, true)) {
                 let d2 = (q[k] - pts[k].x).length_squared();
                 let e = light.radiance * (light.size * light.size * light.normal.dot(wis[k]).abs() / d2);
@@ -173,19 +161,15 @@ impl Lighting<'_> {
             }
         }
         for light in &scene.spot_lights {
-            let mut wis = [DVec3::ZERO; N];
             let mut factor = [0.0; N];
-            let mut shadows = Shadows::new(origin);
+            let mut inside = 0u32;
             for k in lanes(live) {
-                let s = light.factor((pts[k].x - light.position).normalize());
-                if s > 0.0
-                    && let Some((wi, dir, len)) = towards(pts[k].x, pts[k].n, origin[k], light.position)
-                {
-                    factor[k] = s;
-                    wis[k] = wi;
-                    shadows.add(k, dir, len);
+                factor[k] = light.factor((pts[k].x - light.position).normalize());
+                if factor[k] > 0.0 {
+                    inside |= 1 << k;
                 }
             }
+            let (wis, shadows) = towards_lanes(pts, &origin, &[light.position; N], inside);
             for k in lanes(self.clear_lanes(pts, &shadows, true)) {
                 let e = light.intensity * (factor[k] / (light.position - pts[k].x).length_squared());
                 reflect(&mut l, k, wis[k], e);
@@ -299,18 +283,48 @@ impl Lighting<'_> {
     }
 }
 
-/// Towards a light point `p` from `x` (normal `n`, shadow rays leaving from `origin`): the unit
-/// direction from `x`, and the shadow ray's unit direction and length; `None` when `p` is not
-/// above the surface (or is `x` itself).
-#[inline]
-fn towards(x: DVec3, n: DVec3, origin: DVec3, p: DVec3) -> Option<(DVec3, DVec3, f64)> {
-    let wi = (p - x).normalize();
-    let cos = n.dot(wi);
-    // NaN when the light point is the shaded point itself.
-    if cos.is_nan() || cos <= 0.0 {
-        return None;
+/// Towards light points `p[k]` from the points `pts[k]` of `mask` (shadow rays leaving from
+/// `origin[k]`): each lane's unit direction from its point, and its shadow ray (unit direction
+/// and length) when the light point is above the surface (not when it is the point itself,
+/// whose cosine is NaN). Computed for every lane side by side, one component at a time, so the
+/// compiler makes vector code of the square roots and divisions; per lane the operations are
+/// glam's `normalize`, `dot`, `length` and division, in their order, so the bits are the same.
+#[inline(always)]
+fn towards_lanes<const N: usize>(
+    pts: &[LitPoint<'_>],
+    origin: &[DVec3; N],
+    p: &[DVec3; N],
+    mask: u32,
+) -> ([DVec3; N], Shadows<N>) {
+    let mut x = [[0.0; N]; 3];
+    let mut n = [[0.0; N]; 3];
+    for (k, pt) in pts.iter().enumerate() {
+        for a in 0..3 {
+            x[a][k] = pt.x[a];
+            n[a][k] = pt.n[a];
+        }
     }
-    let to_light = p - origin;
-    let len = to_light.length();
-    Some((wi, to_light / len, len))
+    let (mut wi, mut dir, mut len, mut cos) = ([[0.0; N]; 3], [[0.0; N]; 3], [0.0; N], [0.0; N]);
+    for k in 0..N {
+        let v = [p[k].x - x[0][k], p[k].y - x[1][k], p[k].z - x[2][k]];
+        let recip = 1.0 / ((v[0] * v[0]) + (v[1] * v[1]) + (v[2] * v[2])).sqrt();
+        let w = [v[0] * recip, v[1] * recip, v[2] * recip];
+        cos[k] = (n[0][k] * w[0]) + (n[1][k] * w[1]) + (n[2][k] * w[2]);
+        let t = [p[k].x - origin[k].x, p[k].y - origin[k].y, p[k].z - origin[k].z];
+        len[k] = ((t[0] * t[0]) + (t[1] * t[1]) + (t[2] * t[2])).sqrt();
+        for a in 0..3 {
+            wi[a][k] = w[a];
+            dir[a][k] = t[a] / len[k];
+        }
+    }
+    let mut wis = [DVec3::ZERO; N];
+    let mut shadows = Shadows::new(*origin);
+    for k in lanes(mask) {
+        // Not NaN and positive.
+        if cos[k] > 0.0 {
+            wis[k] = DVec3::new(wi[0][k], wi[1][k], wi[2][k]);
+            shadows.add(k, DVec3::new(dir[0][k], dir[1][k], dir[2][k]), len[k]);
+        }
+    }
+    (wis, shadows)
 }
