@@ -294,7 +294,7 @@ pub struct Lanes8 {
 }
 
 impl Lanes8 {
-    /// `origins` and `dirs` (one to eight, as many of each) as `f32` lanes.
+    /// One to eight `f64` rays, as (origin, direction), in `f32` lanes.
     #[inline]
     pub fn new(rays: impl ExactSizeIterator<Item = (glam::DVec3, glam::DVec3)> + Clone) -> Self {
         let len = rays.len();
@@ -346,44 +346,37 @@ impl Packet8 {
     /// The packet of `rays` (origin, direction; at most eight), all with `tmin`.
     pub fn new(rays: &[(Vec3A, Vec3A)], tmin: f32) -> Self {
         assert!(!rays.is_empty() && rays.len() <= 8, "a packet holds one to eight rays");
-        let mut p = Packet8 {
-            o: [[0.0; 8]; 3],
-            d: [[0.0; 8]; 3],
-            inv: [[0.0; 8]; 3],
-            o_inv: [[0.0; 8]; 3],
-            tmin: [tmin; 8],
-            active: (1u32 << rays.len()) - 1,
-        };
+        let (mut o, mut d) = ([[0.0; 8]; 3], [[0.0; 8]; 3]);
         // Unused lanes repeat the first ray (finite values; their results are never read).
         for lane in 0..8 {
-            let (o, d) = rays.get(lane).unwrap_or(&rays[0]);
+            let (ro, rd) = rays.get(lane).unwrap_or(&rays[0]);
             for a in 0..3 {
-                p.o[a][lane] = o[a];
-                p.d[a][lane] = d[a];
+                o[a][lane] = ro[a];
+                d[a][lane] = rd[a];
             }
         }
-        // Ray8::new's operations, an axis of eight lanes at a time (the compiler vectorises
-        // this loop).
-        for a in 0..3 {
-            for lane in 0..8 {
-                p.inv[a][lane] = safe_inv(p.d[a][lane]);
-                p.o_inv[a][lane] = p.o[a][lane] * p.inv[a][lane];
-            }
-        }
-        p
+        Self::from_axes(o, d, rays.len(), tmin)
     }
 
     /// The packet of `lanes`, all with `tmin`: what [`Self::new`] makes of the same rays.
     #[inline]
     pub fn from_lanes(lanes: &Lanes8, tmin: f32) -> Self {
+        Self::from_axes(lanes.o, lanes.d, lanes.len, tmin)
+    }
+
+    /// The packet of origins `o` and directions `d` (by axis, then lane; `len` lanes in use).
+    #[inline(always)]
+    fn from_axes(o: [[f32; 8]; 3], d: [[f32; 8]; 3], len: usize, tmin: f32) -> Self {
         let mut p = Packet8 {
-            o: lanes.o,
-            d: lanes.d,
+            o,
+            d,
             inv: [[0.0; 8]; 3],
             o_inv: [[0.0; 8]; 3],
             tmin: [tmin; 8],
-            active: (1u32 << lanes.len) - 1,
+            active: (1u32 << len) - 1,
         };
+        // Ray8::new's operations, an axis of eight lanes at a time (the compiler vectorises
+        // this loop).
         for a in 0..3 {
             for lane in 0..8 {
                 p.inv[a][lane] = safe_inv(p.d[a][lane]);

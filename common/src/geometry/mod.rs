@@ -82,6 +82,13 @@ impl Instance {
         }
     }
 
+    /// [`Self::local_ray`] without a copy for an instance whose object space is world space:
+    /// `ray` itself then, else the carried ray, kept in `slot`.
+    #[inline(always)]
+    fn ray_here<'r>(&self, ray: &'r Ray, slot: &'r mut Option<Ray>) -> &'r Ray {
+        if self.is_world_space() { ray } else { slot.insert(self.local_ray(ray)) }
+    }
+
     /// The ray in this instance's object space at the ray's time.
     #[inline]
     fn local_ray(&self, ray: &Ray) -> Ray {
@@ -189,8 +196,9 @@ struct Candidate {
     t: f64,
     instance: u32,
     tri: u32,
-    /// Its index in the merged tree when that tree found it (`u32::MAX` otherwise): where
-    /// [`Accel::planes`] keeps its world-space plane.
+    /// Its id in the world tree when that tree found it (`u32::MAX` otherwise): for the merged
+    /// tree, where [`Accel::planes`] keeps its world-space plane (a lone mesh's tree has no
+    /// planes, so its ids find none).
     merged: u32,
 }
 
@@ -648,8 +656,8 @@ impl Accel {
         best: &mut Candidate,
     ) -> f32 {
         let inst = &self.instances[idx as usize];
-        let moved;
-        let local = if inst.is_world_space() { ray } else { moved = inst.local_ray(ray); &moved };
+        let mut moved = None;
+        let local = inst.ray_here(ray, &mut moved);
         match &inst.shape {
             Shape::Sphere { center, radius } => match sphere_t(*center, *radius, local, tmin, best.t) {
                 Some(t) => {
@@ -684,8 +692,8 @@ impl Accel {
     #[inline]
     fn blocks(&self, idx: u32, ray: &Ray, fr: &obvhs::ray::Ray, tmin: f64, tmax: f64) -> bool {
         let inst = &self.instances[idx as usize];
-        let moved;
-        let local = if inst.is_world_space() { ray } else { moved = inst.local_ray(ray); &moved };
+        let mut moved = None;
+        let local = inst.ray_here(ray, &mut moved);
         match &inst.shape {
             Shape::Sphere { center, radius } => sphere_t(*center, *radius, local, tmin, tmax).is_some(),
             Shape::Plane { point, normal } => plane_t(*point, *normal, local, tmin, tmax).is_some(),
@@ -719,8 +727,6 @@ impl Accel {
     /// Completes a candidate into world-space hit data, re-intersecting triangles in `f64`.
     fn surface(&self, ray: &Ray, c: Candidate, out: &mut SurfaceHit) {
         let inst = &self.instances[c.instance as usize];
-        let moved;
-        let local = if inst.is_world_space() { ray } else { moved = inst.local_ray(ray); &moved };
         // The texture frame (trigonometry for spheres, uv interpolation for meshes) is only
         // needed by objects that have texture maps: skip it on every other hit.
         let textured = inst.textures != ObjectTextures::default();
@@ -747,6 +753,8 @@ impl Accel {
             };
             return;
         }
+        let mut moved = None;
+        let local = inst.ray_here(ray, &mut moved);
         let no_frame = (DVec2::ZERO, DVec3::ZERO, DVec3::ZERO);
         let sphere = matches!(inst.shape, Shape::Sphere { .. });
         let (t, n_geo, n_shade, (uv, dpdu, dpdv)) = match &inst.shape {
