@@ -22,7 +22,7 @@ use glam::{DVec2, DVec3, Vec3A};
 use obvhs::{BvhBuildParams, aabb::Aabb, cwbvh::CwBvh, cwbvh::builder::build_cwbvh, ray::RayHit};
 
 use crate::math::{Ray, Transform};
-use bvh8::{BoxRays8, Bvh8, Lanes8, Packet8, Ray8};
+use bvh8::{BoxRays8, Bvh8, Lanes8, Packet8, Ray8, RayLanes};
 pub use mesh::MeshGeom;
 
 /// What an instance is made of.
@@ -239,6 +239,60 @@ fn sphere_t(center: DVec3, radius: f64, r: &Ray, tmin: f64, tmax: f64) -> Option
     } else {
         None
     }
+}
+
+/// [`sphere_t`] of the eight lanes of `r` (world-space rays) against the sphere (`center`,
+/// `radius`) of an instance with transform `xf`, each lane within (tmin, `tmax[lane]`):
+/// infinity where `sphere_t` says `None`, else its distance. Every lane's operations are those
+/// of [`Transform::ray_to_object`] and `sphere_t`, in their order (so the same bits), without
+/// branches: the compiler makes four-lane vector code of the transform, square root and
+/// divisions. (`q / a` is `-half_b / a` bit for bit when `q` is zero: both are then a zero of
+/// the same sign.)
+#[inline(always)]
+fn sphere_lanes(
+    center: DVec3,
+    radius: f64,
+    xf: Option<&Transform>,
+    r: &RayLanes,
+    tmin: f64,
+    tmax: &[f64; 8],
+) -> [f64; 8] {
+    let (mut o, mut d) = (r.o, r.d);
+    if let Some(xf) = xf {
+        let (m, tr) = (&xf.to_object.matrix3, xf.to_object.translation);
+        for lane in 0..8 {
+            let (x, y, z) = (r.o[0][lane], r.o[1][lane], r.o[2][lane]);
+            let (dx, dy, dz) = (r.d[0][lane], r.d[1][lane], r.d[2][lane]);
+            for a in 0..3 {
+                o[a][lane] = m.x_axis[a] * x + m.y_axis[a] * y + m.z_axis[a] * z + tr[a];
+                d[a][lane] = m.x_axis[a] * dx + m.y_axis[a] * dy + m.z_axis[a] * dz;
+            }
+        }
+    }
+    let r2 = radius * radius;
+    let mut out = [f64::INFINITY; 8];
+    for lane in 0..8 {
+        let oc = [o[0][lane] - center.x, o[1][lane] - center.y, o[2][lane] - center.z];
+        let dd = [d[0][lane], d[1][lane], d[2][lane]];
+        let a = dd[0] * dd[0] + dd[1] * dd[1] + dd[2] * dd[2];
+        let half_b = oc[0] * dd[0] + oc[1] * dd[1] + oc[2] * dd[2];
+        let c = (oc[0] * oc[0] + oc[1] * oc[1] + oc[2] * oc[2]) - r2;
+        let disc = half_b * half_b - a * c;
+        let sq = disc.sqrt();
+        let q = -half_b - half_b.signum() * sq;
+        let t0 = q / a;
+        let t1 = if q != 0.0 { c / q } else { t0 };
+        let (t0, t1) = if t0 > t1 { (t1, t0) } else { (t0, t1) };
+        let t = if t0 > tmin && t0 < tmax[lane] {
+            t0
+        } else if t1 > tmin && t1 < tmax[lane] {
+            t1
+        } else {
+            f64::INFINITY
+        };
+        out[lane] = if disc < 0.0 { f64::INFINITY } else { t };
+    }
+    out
 }
 
 /// Distance in (tmin, tmax) to the plane through `point` with normal `normal`, in the ray's own
@@ -482,7 +536,8 @@ impl Accel {
             return;
         }
         let mut best = [Candidate::none(f64::INFINITY); 8];
-        let lanes = Lanes8::new(rays.iter().map(|r| (r.origin, r.dir)));
+        let wide = RayLanes::new(rays);
+        let lanes = Lanes8::new(&wide);
         let mut frs: [obvhs::ray::Ray; 8] = std::array::from_fn(|i| lanes.ray(i, tmin as f32, f32::INFINITY));
         if let Some(tree) = self.world_tree() {
             let packet = Packet8::from_lanes(&lanes, tmin as f32);
@@ -503,6 +558,23 @@ impl Accel {
             let mut boxes = BoxRays8::from_lanes(&lanes, frs.map(|fr| fr.tmax));
             for (&idx, b) in self.bounded.iter().zip(&self.bounds) {
                 let mut hit = boxes.hits(b);
+                if hit & hit.wrapping_sub(1) != 0
+                    && let Some((center, radius, xf)) = self.lane_sphere(idx)
+                {
+                    // Two lanes or more in a sphere's box: its test for all eight at once.
+                    let ts = sphere_lanes(center, radius, xf, &wide, tmin, &best.map(|c| c.t));
+                    while hit != 0 {
+                        let lane = hit.trailing_zeros() as usize;
+                        hit &= hit - 1;
+                        let t = ts[lane];
+                        if t < f64::INFINITY {
+                            best[lane] = Candidate { t, instance: idx, tri: 0, merged: u32::MAX };
+                            frs[lane].tmax = frs[lane].tmax.min(t as f32);
+                            boxes.tmax[lane] = frs[lane].tmax;
+                        }
+                    }
+                    continue;
+                }
                 while hit != 0 {
                     let lane = hit.trailing_zeros() as usize;
                     hit &= hit - 1;
@@ -604,7 +676,8 @@ impl Accel {
             return rays.first().map_or(0, |r| self.occluded(r, tmin, tmax[0]) as u32);
         }
         let all = (1u32 << n) - 1;
-        let lanes = Lanes8::new(rays.iter().map(|r| (r.origin, r.dir)));
+        let wide = RayLanes::new(rays);
+        let lanes = Lanes8::new(&wide);
         let frs: [obvhs::ray::Ray; 8] = std::array::from_fn(|i| {
             lanes.ray(i, tmin as f32, tmax.get(i).map_or(f32::NEG_INFINITY, |&t| t as f32))
         });
@@ -626,6 +699,19 @@ impl Accel {
                     break;
                 }
                 let mut lanes = boxes.hits(b) & !blocked;
+                if lanes & lanes.wrapping_sub(1) != 0
+                    && let Some((center, radius, xf)) = self.lane_sphere(idx)
+                {
+                    let far: [f64; 8] =
+                        std::array::from_fn(|i| tmax.get(i).map_or(f64::NEG_INFINITY, |&t| t));
+                    let ts = sphere_lanes(center, radius, xf, &wide, tmin, &far);
+                    for (lane, t) in ts.iter().enumerate() {
+                        if lanes & (1 << lane) != 0 && *t < f64::INFINITY {
+                            blocked |= 1 << lane;
+                        }
+                    }
+                    continue;
+                }
                 while lanes != 0 {
                     let lane = lanes.trailing_zeros() as usize;
                     lanes &= lanes - 1;
@@ -642,6 +728,19 @@ impl Accel {
             }
         }
         blocked
+    }
+
+    /// The sphere of instance `idx` (centre, radius and transform) when it is one that does not
+    /// move: what [`sphere_lanes`] tests.
+    #[inline]
+    fn lane_sphere(&self, idx: u32) -> Option<(DVec3, f64, Option<&Transform>)> {
+        let inst = &self.instances[idx as usize];
+        match inst.shape {
+            Shape::Sphere { center, radius } if inst.motion.is_none() => {
+                Some((center, radius, inst.transform.as_ref()))
+            }
+            _ => None,
+        }
     }
 
     /// Tests instance `idx` for a hit closer than `best` (`fr` is the world ray in `f32`, its
@@ -1331,6 +1430,61 @@ mod tests {
         assert!((h.t - 3.0).abs() < 1e-12 && (h.geo_normal - DVec3::Y).length() < 1e-12);
         assert!(h.dpdu.dot(DVec3::Y).abs() < 1e-12 && h.dpdv.dot(DVec3::Y).abs() < 1e-12);
         assert!((h.dpdu.cross(h.dpdv) - DVec3::Y).length() < 1e-12, "{:?} {:?}", h.dpdu, h.dpdv);
+    }
+
+    #[test]
+    fn eight_lane_sphere_tests_are_the_single_ray_test_bit_for_bit() {
+        // Rays through, tangent to, inside, behind and beside a sphere, with and without a
+        // transform (rotation, uniform and non-uniform scale, translation), a zero direction
+        // and a NaN: every lane's distance is what `sphere_t` finds in the object-space ray.
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let (center, radius) = (DVec3::new(0.5, -0.25, 1.0), 1.5);
+        let transforms = [
+            None,
+            Transform::new(DAffine3::from_scale_rotation_translation(
+                DVec3::splat(5.0),
+                glam::DQuat::from_rotation_y(0.3),
+                DVec3::new(-10.0, 5.0, 10.0),
+            )),
+            Transform::new(DAffine3::from_scale(DVec3::new(1.0, 3.0, 0.5))),
+        ];
+        let (mut hits, mut misses) = (0, 0);
+        for xf in &transforms {
+            for round in 0..64 {
+                let mut rays: Vec<Ray> = (0..8)
+                    .map(|_| {
+                        let o = DVec3::new(next(), next(), next()) * 12.0;
+                        let aim = center + DVec3::new(next(), next(), next()) * 2.5;
+                        Ray::new(o, (aim - o).normalize())
+                    })
+                    .collect();
+                // Along a tangent, from the centre, a zero direction, a NaN.
+                rays[1] = Ray::new(center + DVec3::new(-5.0, radius, 0.0), DVec3::X);
+                rays[2] = Ray::new(center, DVec3::Z);
+                if round == 0 {
+                    rays[3] = Ray::new(DVec3::ONE, DVec3::ZERO);
+                    rays[4] = Ray::new(DVec3::new(f64::NAN, 0.0, 0.0), DVec3::X);
+                }
+                let len = 3 + round % 6;
+                let tmax: [f64; 8] =
+                    std::array::from_fn(|l| if l % 3 == 0 { f64::INFINITY } else { 4.0 + l as f64 });
+                let lanes = RayLanes::new(&rays[..len]);
+                let got = sphere_lanes(center, radius, xf.as_ref(), &lanes, 1e-6, &tmax);
+                for l in 0..len {
+                    let local = xf.as_ref().map_or(rays[l], |xf| xf.ray_to_object(&rays[l]));
+                    let want = sphere_t(center, radius, &local, 1e-6, tmax[l]).unwrap_or(f64::INFINITY);
+                    assert_eq!(got[l].to_bits(), want.to_bits(), "lane {l} of round {round}: {:?}", rays[l]);
+                    if want.is_finite() { hits += 1 } else { misses += 1 }
+                }
+            }
+        }
+        assert!(hits > 200 && misses > 100, "{hits} hits, {misses} misses");
     }
 
     #[test]
