@@ -169,13 +169,22 @@ pub fn render_tile_until(
                 // group draws each of the first ones for its eight samples at once. One sample
                 // goes through the pixel centre (§4.5); several are stratified over the pixel
                 // by the sampler, like every other dimension.
-                let film = if n > 1 { Sampler::next_2d_group(samplers_in_use) } else { [(0.5, 0.5); GROUP] };
-                let lens = if cam.lens.is_some() {
-                    Sampler::next_2d_group(samplers_in_use)
-                } else {
-                    [(0.5, 0.5); GROUP]
+                // The requests in use are drawn together (their scrambles overlap).
+                let wanted = [n > 1, cam.lens.is_some(), moving];
+                let mut drawn = [[(0.5, 0.5); GROUP], [(0.5, 0.5); GROUP], [(0.0, 0.0); GROUP]];
+                let values: &[[(f64, f64); GROUP]] = match wanted.iter().filter(|&&w| w).count() {
+                    3 => &Sampler::next_2d_groups::<3>(samplers_in_use),
+                    2 => &Sampler::next_2d_groups::<2>(samplers_in_use),
+                    1 => &Sampler::next_2d_groups::<1>(samplers_in_use),
+                    _ => &[],
                 };
-                let time = if moving { Sampler::next_2d_group(samplers_in_use) } else { [(0.0, 0.0); GROUP] };
+                let mut next = values.iter();
+                for (slot, w) in drawn.iter_mut().zip(wanted) {
+                    if w && let Some(v) = next.next() {
+                        *slot = *v;
+                    }
+                }
+                let [film, lens, time] = drawn;
                 // All eight lanes, used or not: a loop of fixed length the compiler vectorises.
                 let rays: [Ray; GROUP] = std::array::from_fn(|i| {
                     let ((dx, dy), (l1, l2)) = (film[i], lens[i]);

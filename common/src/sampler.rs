@@ -125,27 +125,46 @@ impl Sampler {
     /// When they are samples of one pixel standing at the same dimension (a group of camera
     /// samples drawing their pixel positions, lens points or times), the dimension's seeds are
     /// hashed once and the samples' scrambles run as one eight-lane computation.
+    #[inline]
     pub fn next_2d_group(samplers: &mut [Sampler]) -> [(f64, f64); GROUP_LANES] {
+        let [out] = Self::next_2d_groups::<1>(samplers);
+        out
+    }
+
+    /// `M` requests of [`Self::next_2d_group`] in a row: `out[m]` is the `m`-th one's values.
+    /// The requests' scrambles are independent chains of multiplications (each one's latency,
+    /// not the processor's throughput, is what they cost), so drawing them together lets the
+    /// processor overlap them.
+    pub fn next_2d_groups<const M: usize>(samplers: &mut [Sampler]) -> [[(f64, f64); GROUP_LANES]; M] {
         assert!(samplers.len() <= GROUP_LANES, "at most {GROUP_LANES} samplers a group");
-        let mut out = [(0.0, 0.0); GROUP_LANES];
+        let mut out = [[(0.0, 0.0); GROUP_LANES]; M];
         let Some(first) = samplers.first() else { return out };
-        let (key, dim) = (first.key, first.dim + 1);
-        if samplers.iter().any(|s| s.key != key || s.dim + 1 != dim) {
-            for (o, s) in out.iter_mut().zip(samplers.iter_mut()) {
-                *o = s.next_2d();
+        let (key, dim) = (first.key, first.dim);
+        if samplers.iter().any(|s| s.key != key || s.dim != dim) {
+            // Each sampler's requests in its own order.
+            for (l, s) in samplers.iter_mut().enumerate() {
+                for o in out.iter_mut() {
+                    o[l] = s.next_2d();
+                }
             }
             return out;
         }
-        let seeds = DimSeeds::of(key, dim);
+        let seeds: [DimSeeds; M] = std::array::from_fn(|m| DimSeeds::of(key, dim + 1 + m as u64));
         let index: [u32; GROUP_LANES] = std::array::from_fn(|l| samplers.get(l).map_or(0, |s| s.index));
-        let mut a = [0u32; GROUP_LANES];
-        let mut b = [0u32; GROUP_LANES];
-        for l in 0..GROUP_LANES {
-            (a[l], b[l]) = point(index[l], seeds);
+        let mut a = [[0u32; GROUP_LANES]; M];
+        let mut b = [[0u32; GROUP_LANES]; M];
+        for m in 0..M {
+            for l in 0..GROUP_LANES {
+                (a[m][l], b[m][l]) = point(index[l], seeds[m]);
+            }
         }
-        for (l, s) in samplers.iter_mut().enumerate() {
-            s.dim = dim;
-            out[l] = (unit(a[l]), unit(b[l]));
+        for s in samplers.iter_mut() {
+            s.dim = dim + M as u64;
+        }
+        for m in 0..M {
+            for l in 0..GROUP_LANES {
+                out[m][l] = (unit(a[m][l]), unit(b[m][l]));
+            }
         }
         out
     }
@@ -281,6 +300,28 @@ mod tests {
         let got = Sampler::next_2d_group(&mut mixed);
         for (l, s) in each.iter_mut().enumerate() {
             assert_eq!(got[l], s.next_2d(), "mixed lane {l}");
+        }
+    }
+
+    #[test]
+    fn requests_drawn_together_are_those_drawn_in_a_row() {
+        let pixel = Sampler::new(0x5eed, 12, 34, 0);
+        let mut group: Vec<Sampler> = (0..8).map(|k| pixel.with_sample(16 + k)).collect();
+        group.iter_mut().for_each(|s| _ = s.next_2d());
+        let mut each = group.clone();
+        let got = Sampler::next_2d_groups::<3>(&mut group);
+        for (l, s) in each.iter_mut().enumerate() {
+            for (m, req) in got.iter().enumerate() {
+                assert_eq!(req[l], s.next_2d(), "lane {l}, request {m}");
+            }
+            assert_eq!(group[l].next_1d(), s.next_1d(), "lane {l} continues where it would");
+        }
+        // A mixed group: each sampler draws its three in order.
+        let mut mixed = [pixel.with_sample(1), Sampler::new(0x5eed, 13, 34, 1)];
+        let mut each = mixed.clone();
+        let got = Sampler::next_2d_groups::<2>(&mut mixed);
+        for (l, s) in each.iter_mut().enumerate() {
+            assert_eq!((got[0][l], got[1][l]), (s.next_2d(), s.next_2d()), "mixed lane {l}");
         }
     }
 
