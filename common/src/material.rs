@@ -105,6 +105,49 @@ impl Material {
         }
     }
 
+    /// [`Self::reflectance`] of `N` lanes at once (`n[k]`, `wi[k]`, `wo[k]`) for a classic
+    /// material (no BRDF) with a whole Phong exponent, the same bits lane by lane; `None` for
+    /// other materials. Computed for every lane side by side, one component at a time, so the
+    /// compiler makes vector code of the half vectors' square roots and divisions and of the
+    /// lobe's products ([`powi_lanes`]: `powi`'s multiplications in its order).
+    #[inline(always)]
+    pub fn classic_reflectance_lanes<const N: usize>(
+        &self,
+        n: &[DVec3; N],
+        wi: &[DVec3; N],
+        wo: &[DVec3; N],
+    ) -> Option<[DVec3; N]> {
+        let k = match (&self.brdf, self.phong_exponent_int) {
+            (None, Some(k)) => k,
+            _ => return None,
+        };
+        let (kd, ks) = (self.diffuse, self.specular);
+        let mut out = [DVec3::ZERO; N];
+        if ks == DVec3::ZERO {
+            for i in 0..N {
+                out[i] = kd * n[i].dot(wi[i]);
+            }
+            return Some(out);
+        }
+        let soa =
+            |v: &[DVec3; N]| -> [[f64; N]; 3] { std::array::from_fn(|a| std::array::from_fn(|i| v[i][a])) };
+        let (n, wi, wo) = (soa(n), soa(wi), soa(wo));
+        let (mut cos_i, mut cos_h) = ([0.0; N], [0.0; N]);
+        for i in 0..N {
+            // glam's `(wi + wo).normalize()`: times the reciprocal of the length.
+            let h = [wi[0][i] + wo[0][i], wi[1][i] + wo[1][i], wi[2][i] + wo[2][i]];
+            let recip = 1.0 / (h[0] * h[0] + h[1] * h[1] + h[2] * h[2]).sqrt();
+            let h = [h[0] * recip, h[1] * recip, h[2] * recip];
+            cos_h[i] = (n[0][i] * h[0] + n[1][i] * h[1] + n[2][i] * h[2]).max(0.0);
+            cos_i[i] = n[0][i] * wi[0][i] + n[1][i] * wi[1][i] + n[2][i] * wi[2][i];
+        }
+        let lobe = powi_lanes(cos_h, k);
+        for i in 0..N {
+            out[i] = kd * cos_i[i] + ks * lobe[i];
+        }
+        Some(out)
+    }
+
     /// F(β) of the Torrance–Sparrow BRDF (§7, §15 #17): the conductor Fresnel of the material's
     /// RefractionIndex and AbsorptionIndex when it has an absorption index, else Schlick's
     /// approximation with the BRDF's (2019) or the material's refractive index.
@@ -116,6 +159,36 @@ impl Material {
         let r0 = ((eta - 1.0) / (eta + 1.0)).powi(2);
         r0 + (1.0 - r0) * (1.0 - cos_beta.clamp(0.0, 1.0)).powi(5)
     }
+}
+
+/// `x[i].powi(k)` of every lane: the square-and-multiply of `powi` (compiler-builtins'
+/// `__powidf2`: the result starts at one, takes the base at each set bit of `|k|` from the
+/// lowest, the base squared between bits, and the reciprocal for negative `k`), each step for
+/// all lanes at once.
+#[inline(always)]
+pub fn powi_lanes<const N: usize>(mut x: [f64; N], k: i32) -> [f64; N] {
+    let mut bits = k.unsigned_abs();
+    let mut r = [1.0; N];
+    loop {
+        if bits & 1 != 0 {
+            for i in 0..N {
+                r[i] *= x[i];
+            }
+        }
+        bits >>= 1;
+        if bits == 0 {
+            break;
+        }
+        for v in &mut x {
+            *v *= *v;
+        }
+    }
+    if k < 0 {
+        for v in &mut r {
+            *v = 1.0 / *v;
+        }
+    }
+    r
 }
 
 /// Unpolarised Fresnel reflectance of a conductor with complex index `eta + i·kappa`, for the
@@ -156,6 +229,80 @@ pub fn refract(d: DVec3, n: DVec3, n1: f64, n2: f64) -> Refraction {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn powi_lanes_takes_the_bits_of_powi() {
+        let xs =
+            [0.0, -0.0, 1e-300, 0.3, 0.999_999_9, 1.0, -0.7, 1.000_001, 2.5, f64::NAN, f64::INFINITY, 1e10];
+        for k in [0, 1, 2, 3, 7, 8, 13, 64, 100, 255, 1000, 4096, -1, -3, -100, i32::MAX, i32::MIN] {
+            let got = powi_lanes(xs, k);
+            for (x, g) in xs.iter().zip(got) {
+                let want = x.powi(std::hint::black_box(k));
+                assert!(
+                    g.to_bits() == want.to_bits() || (g.is_nan() && want.is_nan()),
+                    "{x}^{k}: {g} vs {want}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn classic_reflectance_lanes_are_reflectance_lane_by_lane() {
+        let mut mat = Material {
+            kind: MaterialKind::Plain,
+            ambient: DVec3::ZERO,
+            diffuse: DVec3::new(0.8, 0.1, 0.3),
+            specular: DVec3::new(1.0, 0.5, 0.25),
+            mirror: DVec3::ZERO,
+            phong_exponent: 100.0,
+            phong_exponent_int: Some(100),
+            refraction_index: 1.0,
+            absorption_index: 0.0,
+            absorption: DVec3::ZERO,
+            roughness: 0.0,
+            brdf: None,
+        };
+        let unit = |x: f64, y: f64, z: f64| DVec3::new(x, y, z).normalize();
+        let n = [
+            unit(0.0, 1.0, 0.0),
+            unit(0.1, 1.0, -0.2),
+            unit(1.0, 0.0, 0.0),
+            unit(0.0, 0.0, 1.0),
+            unit(0.3, 0.3, 0.9),
+        ];
+        let wi = [
+            unit(0.2, 1.0, 0.1),
+            unit(-0.5, 0.4, 0.3),
+            unit(-1.0, 0.2, 0.0),
+            unit(0.0, 1.0, 0.0),
+            unit(0.3, 0.3, 0.9),
+        ];
+        let wo = [
+            unit(-0.2, 1.0, 0.4),
+            unit(0.5, 0.9, 0.0),
+            unit(0.7, 0.7, 0.0),
+            unit(0.0, -1.0, 0.0),
+            unit(-0.3, -0.3, -0.9),
+        ];
+        for (spec, k) in
+            [(DVec3::new(1.0, 0.5, 0.25), 100), (DVec3::ONE, 1), (DVec3::ONE, 0), (DVec3::ZERO, 7)]
+        {
+            mat.specular = spec;
+            mat.phong_exponent = k as f64;
+            mat.phong_exponent_int = Some(k);
+            let lanes = mat.classic_reflectance_lanes(&n, &wi, &wo).expect("a classic material");
+            for i in 0..n.len() {
+                let one = mat.reflectance(n[i], wi[i], wo[i]);
+                assert_eq!(
+                    lanes[i].to_array().map(f64::to_bits),
+                    one.to_array().map(f64::to_bits),
+                    "lane {i}, k {k}"
+                );
+            }
+        }
+        mat.phong_exponent_int = None;
+        assert!(mat.classic_reflectance_lanes(&n, &wi, &wo).is_none(), "powf exponents go lane by lane");
+    }
 
     #[test]
     fn dielectric_fresnel_at_normal_incidence_matches_closed_form() {

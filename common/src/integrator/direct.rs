@@ -59,6 +59,43 @@ fn draw_2d<const N: usize>(rngs: &mut [Sampler], mask: u32) -> [(f64, f64); N] {
     out
 }
 
+/// Adds to `l[k]`, for every lane `k` of `mask`, the light `e[k]` arriving from direction
+/// `wis[k]` reflected towards the point's viewer: [`Material::reflectance`] times `e[k]`. When
+/// the lanes share one classic material (a pixel's samples on one object), its reflectance is
+/// computed for all of them side by side
+/// ([`Material::classic_reflectance_lanes`]); the same bits either way.
+#[inline(always)]
+fn reflect_lanes<const N: usize>(
+    pts: &[LitPoint<'_>],
+    mask: u32,
+    wis: &[DVec3; N],
+    e: &[DVec3; N],
+    l: &mut [DVec3; N],
+) {
+    if mask == 0 {
+        return;
+    }
+    let mat = pts[mask.trailing_zeros() as usize].mat;
+    if mask & (mask - 1) != 0 && lanes(mask).all(|k| std::ptr::eq(pts[k].mat, mat)) {
+        let mut n = [DVec3::ZERO; N];
+        let mut wo = [DVec3::ZERO; N];
+        for (k, p) in pts.iter().enumerate() {
+            n[k] = p.n;
+            wo[k] = -p.ray.dir;
+        }
+        if let Some(f) = mat.classic_reflectance_lanes(&n, wis, &wo) {
+            for k in lanes(mask) {
+                l[k] += f[k] * e[k];
+            }
+            return;
+        }
+    }
+    for k in lanes(mask) {
+        let p = &pts[k];
+        l[k] += p.mat.reflectance(p.n, wis[k], -p.ray.dir) * e[k];
+    }
+}
+
 /// Shadow rays of a group, lane by lane: origin, unit direction, far bound.
 struct Shadows<const N: usize> {
     origin: [DVec3; N],
@@ -127,11 +164,11 @@ impl Lighting<'_> {
         };
 
         for light in &scene.point_lights {
-            let (wis, shadows) = towards_lanes(pts, &origin, &[light.position; N], live);
-            for k in lanes(self.clear_lanes(pts, &shadows, true)) {
-                let e = light.intensity / (light.position - pts[k].x).length_squared();
-                reflect(&mut l, k, wis[k], e);
-            }
+            let (wis, d2, shadows) = towards_lanes(pts, &origin, &[light.position; N], live);
+            let clear = self.clear_lanes(pts, &shadows, true);
+            // Every lane (a loop of fixed length: the divisions overlap); unlit ones unused.
+            let e: [DVec3; N] = std::array::from_fn(|k| light.intensity / d2[k]);
+            reflect_lanes(pts, clear, &wis, &e, &mut l);
         }
         for light in &scene.area_lights {
             // One point of the square per shading event; the pixel's samples average them.
@@ -140,12 +177,12 @@ impl Lighting<'_> {
             for k in lanes(live) {
                 q[k] = light.point(uv[k].0, uv[k].1);
             }
-            let (wis, shadows) = towards_lanes(pts, &origin, &q, live);
-            for k in lanes(self.clear_lanes(pts, &shadows, true)) {
-                let d2 = (q[k] - pts[k].x).length_squared();
-                let e = light.radiance * (light.size * light.size * light.normal.dot(wis[k]).abs() / d2);
-                reflect(&mut l, k, wis[k], e);
-            }
+            let (wis, d2, shadows) = towards_lanes(pts, &origin, &q, live);
+            let clear = self.clear_lanes(pts, &shadows, true);
+            let e: [DVec3; N] = std::array::from_fn(|k| {
+                light.radiance * (light.size * light.size * light.normal.dot(wis[k]).abs() / d2[k])
+            });
+            reflect_lanes(pts, clear, &wis, &e, &mut l);
         }
         for light in &scene.directional_lights {
             let mut shadows = Shadows::new(origin);
@@ -169,11 +206,10 @@ impl Lighting<'_> {
                     inside |= 1 << k;
                 }
             }
-            let (wis, shadows) = towards_lanes(pts, &origin, &[light.position; N], inside);
-            for k in lanes(self.clear_lanes(pts, &shadows, true)) {
-                let e = light.intensity * (factor[k] / (light.position - pts[k].x).length_squared());
-                reflect(&mut l, k, wis[k], e);
-            }
+            let (wis, d2, shadows) = towards_lanes(pts, &origin, &[light.position; N], inside);
+            let clear = self.clear_lanes(pts, &shadows, true);
+            let e: [DVec3; N] = std::array::from_fn(|k| light.intensity * (factor[k] / d2[k]));
+            reflect_lanes(pts, clear, &wis, &e, &mut l);
         }
         for light in &scene.object_lights {
             // One point per shading event (§13.3); the random numbers are drawn whatever the
@@ -284,8 +320,9 @@ impl Lighting<'_> {
 }
 
 /// Towards light points `p[k]` from the points `pts[k]` of `mask` (shadow rays leaving from
-/// `origin[k]`): each lane's unit direction from its point, and its shadow ray (unit direction
-/// and length) when the light point is above the surface (not when it is the point itself,
+/// `origin[k]`): each lane's unit direction from its point, its squared distance (`(p[k] -
+/// pts[k].x).length_squared()`), and its shadow ray (unit direction and length) when the light
+/// point is above the surface (not when it is the point itself,
 /// whose cosine is NaN). Computed for every lane side by side, one component at a time, so the
 /// compiler makes vector code of the square roots and divisions; per lane the operations are
 /// glam's `normalize`, `dot`, `length` and division, in their order, so the bits are the same.
@@ -295,7 +332,7 @@ fn towards_lanes<const N: usize>(
     origin: &[DVec3; N],
     p: &[DVec3; N],
     mask: u32,
-) -> ([DVec3; N], Shadows<N>) {
+) -> ([DVec3; N], [f64; N], Shadows<N>) {
     let mut x = [[0.0; N]; 3];
     let mut n = [[0.0; N]; 3];
     for (k, pt) in pts.iter().enumerate() {
@@ -305,9 +342,11 @@ fn towards_lanes<const N: usize>(
         }
     }
     let (mut wi, mut dir, mut len, mut cos) = ([[0.0; N]; 3], [[0.0; N]; 3], [0.0; N], [0.0; N]);
+    let mut d2 = [0.0; N];
     for k in 0..N {
         let v = [p[k].x - x[0][k], p[k].y - x[1][k], p[k].z - x[2][k]];
-        let recip = 1.0 / ((v[0] * v[0]) + (v[1] * v[1]) + (v[2] * v[2])).sqrt();
+        d2[k] = (v[0] * v[0]) + (v[1] * v[1]) + (v[2] * v[2]);
+        let recip = 1.0 / d2[k].sqrt();
         let w = [v[0] * recip, v[1] * recip, v[2] * recip];
         cos[k] = (n[0][k] * w[0]) + (n[1][k] * w[1]) + (n[2][k] * w[2]);
         let t = [p[k].x - origin[k].x, p[k].y - origin[k].y, p[k].z - origin[k].z];
@@ -326,5 +365,5 @@ fn towards_lanes<const N: usize>(
             shadows.add(k, DVec3::new(dir[0][k], dir[1][k], dir[2][k]), len[k]);
         }
     }
-    (wis, shadows)
+    (wis, d2, shadows)
 }
