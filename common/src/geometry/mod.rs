@@ -538,7 +538,10 @@ impl Accel {
         let mut best = [Candidate::none(f64::INFINITY); 8];
         let wide = RayLanes::new(rays);
         let lanes = Lanes8::new(&wide);
-        let mut frs: [obvhs::ray::Ray; 8] = std::array::from_fn(|i| lanes.ray(i, tmin as f32, f32::INFINITY));
+        let tmin32 = tmin as f32;
+        // Each lane's closest hit so far in f32; a lane's obvhs ray is made only where an
+        // instance's own test needs one.
+        let mut near = [f32::INFINITY; 8];
         if let Some(tree) = self.world_tree() {
             let packet = Packet8::from_lanes(&lanes, tmin as f32);
             let (mut tmax, mut id) = ([f32::INFINITY; 8], [u32::MAX; 8]);
@@ -548,14 +551,19 @@ impl Accel {
                 hit &= hit - 1;
                 let (instance, tri) = self.world_prim(id[lane]);
                 best[lane] = Candidate { t: tmax[lane] as f64, instance, tri, merged: id[lane] };
-                frs[lane].tmax = tmax[lane];
+                near[lane] = tmax[lane];
             }
         }
         if self.bounded.len() <= LINEAR_MAX {
-            for lane in 0..n {
-                self.unbounded_hits(&rays[lane], &mut frs[lane], tmin, &mut best[lane]);
+            if !self.unbounded.is_empty() {
+                for lane in 0..n {
+                    let mut fr = lanes.ray(lane, tmin32, near[lane]);
+                    self.unbounded_hits(&rays[lane], &mut fr, tmin, &mut best[lane]);
+                    near[lane] = fr.tmax;
+                }
             }
-            let mut boxes = BoxRays8::from_lanes(&lanes, frs.map(|fr| fr.tmax));
+            // The boxes' far bounds are the lanes' closest hits from here on.
+            let mut boxes = BoxRays8::from_lanes(&lanes, near);
             for (&idx, b) in self.bounded.iter().zip(&self.bounds) {
                 let mut hit = boxes.hits(b);
                 if hit & hit.wrapping_sub(1) != 0
@@ -569,8 +577,7 @@ impl Accel {
                         let t = ts[lane];
                         if t < f64::INFINITY {
                             best[lane] = Candidate { t, instance: idx, tri: 0, merged: u32::MAX };
-                            frs[lane].tmax = frs[lane].tmax.min(t as f32);
-                            boxes.tmax[lane] = frs[lane].tmax;
+                            boxes.tmax[lane] = boxes.tmax[lane].min(t as f32);
                         }
                     }
                     continue;
@@ -578,9 +585,9 @@ impl Accel {
                 while hit != 0 {
                     let lane = hit.trailing_zeros() as usize;
                     hit &= hit - 1;
-                    let t = self.hit_instance(idx, &rays[lane], &frs[lane], tmin, &mut best[lane]);
-                    frs[lane].tmax = frs[lane].tmax.min(t);
-                    boxes.tmax[lane] = frs[lane].tmax;
+                    let fr = lanes.ray(lane, tmin32, boxes.tmax[lane]);
+                    let t = self.hit_instance(idx, &rays[lane], &fr, tmin, &mut best[lane]);
+                    boxes.tmax[lane] = boxes.tmax[lane].min(t);
                 }
             }
             for lane in 0..n {
@@ -588,7 +595,8 @@ impl Accel {
             }
         } else {
             for lane in 0..n {
-                out[lane] = self.intersect_rest(&rays[lane], tmin, best[lane], frs[lane]);
+                out[lane] =
+                    self.intersect_rest(&rays[lane], tmin, best[lane], lanes.ray(lane, tmin32, near[lane]));
             }
         }
     }
@@ -678,22 +686,27 @@ impl Accel {
         let all = (1u32 << n) - 1;
         let wide = RayLanes::new(rays);
         let lanes = Lanes8::new(&wide);
-        let frs: [obvhs::ray::Ray; 8] = std::array::from_fn(|i| {
-            lanes.ray(i, tmin as f32, tmax.get(i).map_or(f32::NEG_INFINITY, |&t| t as f32))
-        });
+        let tmin32 = tmin as f32;
+        // Each lane's far bound in f32 (unused lanes can reach nothing); a lane's obvhs ray is
+        // made only where an instance's own test needs one.
+        let far: [f32; 8] = std::array::from_fn(|i| tmax.get(i).map_or(f32::NEG_INFINITY, |&t| t as f32));
+        let ray = |lane: usize| lanes.ray(lane, tmin32, far[lane]);
         let mut blocked = 0u32;
         if let Some(tree) = self.world_tree() {
-            let packet = Packet8::from_lanes(&lanes, tmin as f32);
-            let far: [f32; 8] = std::array::from_fn(|i| frs[i].tmax);
+            let packet = Packet8::from_lanes(&lanes, tmin32);
             blocked = tree.occluded_packet(&packet, &far);
         }
-        for lane in 0..n {
-            if blocked & (1 << lane) == 0 && self.unbounded_block(&rays[lane], &frs[lane], tmin, tmax[lane]) {
-                blocked |= 1 << lane;
+        if !self.unbounded.is_empty() {
+            for lane in 0..n {
+                if blocked & (1 << lane) == 0
+                    && self.unbounded_block(&rays[lane], &ray(lane), tmin, tmax[lane])
+                {
+                    blocked |= 1 << lane;
+                }
             }
         }
         if self.bounded.len() <= LINEAR_MAX {
-            let boxes = BoxRays8::from_lanes(&lanes, frs.map(|fr| fr.tmax));
+            let boxes = BoxRays8::from_lanes(&lanes, far);
             for (&idx, b) in self.bounded.iter().zip(&self.bounds) {
                 if blocked == all {
                     break;
@@ -702,9 +715,9 @@ impl Accel {
                 if lanes & lanes.wrapping_sub(1) != 0
                     && let Some((center, radius, xf)) = self.lane_sphere(idx)
                 {
-                    let far: [f64; 8] =
+                    let far64: [f64; 8] =
                         std::array::from_fn(|i| tmax.get(i).map_or(f64::NEG_INFINITY, |&t| t));
-                    let ts = sphere_lanes(center, radius, xf, &wide, tmin, &far);
+                    let ts = sphere_lanes(center, radius, xf, &wide, tmin, &far64);
                     for (lane, t) in ts.iter().enumerate() {
                         if lanes & (1 << lane) != 0 && *t < f64::INFINITY {
                             blocked |= 1 << lane;
@@ -715,14 +728,14 @@ impl Accel {
                 while lanes != 0 {
                     let lane = lanes.trailing_zeros() as usize;
                     lanes &= lanes - 1;
-                    if self.blocks(idx, &rays[lane], &frs[lane], tmin, tmax[lane]) {
+                    if self.blocks(idx, &rays[lane], &ray(lane), tmin, tmax[lane]) {
                         blocked |= 1 << lane;
                     }
                 }
             }
         } else {
             for lane in 0..n {
-                if blocked & (1 << lane) == 0 && self.tlas_blocks(&rays[lane], frs[lane], tmin, tmax[lane]) {
+                if blocked & (1 << lane) == 0 && self.tlas_blocks(&rays[lane], ray(lane), tmin, tmax[lane]) {
                     blocked |= 1 << lane;
                 }
             }
