@@ -290,8 +290,9 @@ pub struct RayLanes {
 }
 
 impl RayLanes {
-    /// One to eight rays, by axis then lane (a loop of fixed length).
-    #[inline]
+    /// One to eight rays, by axis then lane (a loop of fixed length). Always inlined: built in
+    /// the caller's frame, not copied there.
+    #[inline(always)]
     pub fn new(rays: &[crate::math::Ray]) -> Self {
         let len = rays.len();
         assert!((1..=8).contains(&len), "one to eight rays");
@@ -322,7 +323,7 @@ pub struct Lanes8 {
 
 impl Lanes8 {
     /// The `f64` lanes `r` in `f32` (an axis of eight lanes at a time).
-    #[inline]
+    #[inline(always)]
     pub fn new(r: &RayLanes) -> Self {
         let mut l = Lanes8 { o: [[0.0; 8]; 3], d: [[0.0; 8]; 3], inv: [[0.0; 8]; 3], len: r.len };
         for a in 0..3 {

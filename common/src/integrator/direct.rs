@@ -158,11 +158,6 @@ impl Lighting<'_> {
         for k in lanes(live) {
             origin[k] = pts[k].x + eps * pts[k].n;
         }
-        let reflect = |l: &mut [DVec3; N], k: usize, wi: DVec3, e: DVec3| {
-            let p = &pts[k];
-            l[k] += p.mat.reflectance(p.n, wi, -p.ray.dir) * e;
-        };
-
         for light in &scene.point_lights {
             let (wis, d2, shadows) = towards_lanes(pts, &origin, &[light.position; N], live);
             let clear = self.clear_lanes(pts, &shadows, true);
@@ -193,9 +188,8 @@ impl Lighting<'_> {
                     shadows.add(k, light.to_light, f64::INFINITY);
                 }
             }
-            for k in lanes(self.clear_lanes(pts, &shadows, true)) {
-                reflect(&mut l, k, light.to_light, light.radiance);
-            }
+            let clear = self.clear_lanes(pts, &shadows, true);
+            reflect_lanes(pts, clear, &[light.to_light; N], &[light.radiance; N], &mut l);
         }
         for light in &scene.spot_lights {
             let mut factor = [0.0; N];
@@ -241,9 +235,8 @@ impl Lighting<'_> {
                     }
                 }
             }
-            for k in lanes(self.clear_lanes(pts, &shadows, true)) {
-                reflect(&mut l, k, wis[k], irradiance[k]);
-            }
+            let clear = self.clear_lanes(pts, &shadows, true);
+            reflect_lanes(pts, clear, &wis, &irradiance, &mut l);
         }
         // The directions first, for every point (each starts loading what its lookup reads),
         // then the shadow rays, then radiance and pdf: the cache misses overlap each other and
@@ -260,14 +253,18 @@ impl Lighting<'_> {
                     shadows.add(k, d.wi, f64::INFINITY);
                 }
             }
+            let (mut lit, mut wis, mut weights) = (0u32, [DVec3::ZERO; N], [DVec3::ZERO; N]);
             for k in lanes(self.clear_lanes(pts, &shadows, false)) {
                 if let Some(d) = &dirs[k]
                     && let Some(weight) = light.weight(d)
                     && weight != DVec3::ZERO
                 {
-                    reflect(&mut l, k, d.wi, weight);
+                    lit |= 1 << k;
+                    wis[k] = d.wi;
+                    weights[k] = weight;
                 }
             }
+            reflect_lanes(pts, lit, &wis, &weights, &mut l);
         }
         l
     }
