@@ -202,6 +202,12 @@ impl<'a> Tracer<'a> {
         }
         for (i, (s, hit)) in surfaced.iter().zip(hits).enumerate() {
             if let (Some(s), Some(hit)) = (s, hit) {
+                if s.mat.kind == MaterialKind::Plain {
+                    // What `finish_shade` returns for a surface that neither reflects nor
+                    // refracts, without the call.
+                    out[i] = s.emitted + direct[i];
+                    continue;
+                }
                 self.budget = SECONDARY_RAY_BUDGET;
                 out[i] = self.finish_shade(
                     &rays[i],
