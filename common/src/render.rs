@@ -169,28 +169,30 @@ pub fn render_tile_until(
                 // group draws each of the first ones for its eight samples at once. One sample
                 // goes through the pixel centre (§4.5); several are stratified over the pixel
                 // by the sampler, like every other dimension.
-                // The requests in use are drawn together (their scrambles overlap).
-                let wanted = [n > 1, cam.lens.is_some(), moving];
-                let mut drawn = [[(0.5, 0.5); GROUP], [(0.5, 0.5); GROUP], [(0.0, 0.0); GROUP]];
-                let values: &[[(f64, f64); GROUP]] = match wanted.iter().filter(|&&w| w).count() {
-                    3 => &Sampler::next_2d_groups::<3>(samplers_in_use),
-                    2 => &Sampler::next_2d_groups::<2>(samplers_in_use),
-                    1 => &Sampler::next_2d_groups::<1>(samplers_in_use),
-                    _ => &[],
-                };
-                let mut next = values.iter();
-                for (slot, w) in drawn.iter_mut().zip(wanted) {
-                    if w && let Some(v) = next.next() {
-                        *slot = *v;
-                    }
+                // The requests in use are drawn together (their scrambles overlap), each as
+                // two coordinates of eight lanes.
+                let mut drawn = [[[0.0; GROUP]; 2]; 3];
+                let count = usize::from(n > 1) + usize::from(cam.lens.is_some()) + usize::from(moving);
+                match count {
+                    3 => drawn = Sampler::next_2d_groups::<3>(samplers_in_use),
+                    2 => drawn[..2].copy_from_slice(&Sampler::next_2d_groups::<2>(samplers_in_use)),
+                    1 => drawn[..1].copy_from_slice(&Sampler::next_2d_groups::<1>(samplers_in_use)),
+                    _ => {}
                 }
-                let [film, lens, time] = drawn;
+                let mut next = drawn.iter();
+                // The next drawn request if this one is wanted, else the fixed value.
+                let mut take = |wanted: bool, otherwise: f64| match wanted.then(|| next.next()).flatten() {
+                    Some(v) => *v,
+                    None => [[otherwise; GROUP]; 2],
+                };
+                let film = take(n > 1, 0.5);
+                let lens = take(cam.lens.is_some(), 0.5);
+                let time = take(moving, 0.0)[0];
                 // All eight lanes, used or not: a loop of fixed length the compiler vectorises.
                 let rays: [Ray; GROUP] = std::array::from_fn(|i| {
-                    let ((dx, dy), (l1, l2)) = (film[i], lens[i]);
-                    let mut ray = cam.lens_ray(x, y, dx, dy, l1, l2);
+                    let mut ray = cam.lens_ray(x, y, film[0][i], film[1][i], lens[0][i], lens[1][i]);
                     // A 1-D request is the first coordinate of the 2-D one.
-                    ray.time = time[i].0;
+                    ray.time = time[i];
                     ray
                 });
                 let mut hits = [None; GROUP];

@@ -127,24 +127,26 @@ impl Sampler {
     /// hashed once and the samples' scrambles run as one eight-lane computation.
     #[inline]
     pub fn next_2d_group(samplers: &mut [Sampler]) -> [(f64, f64); GROUP_LANES] {
-        let [out] = Self::next_2d_groups::<1>(samplers);
-        out
+        let [[u, v]] = Self::next_2d_groups::<1>(samplers);
+        std::array::from_fn(|l| (u[l], v[l]))
     }
 
-    /// `M` requests of [`Self::next_2d_group`] in a row: `out[m]` is the `m`-th one's values.
-    /// The requests' scrambles are independent chains of multiplications (each one's latency,
-    /// not the processor's throughput, is what they cost), so drawing them together lets the
-    /// processor overlap them.
-    pub fn next_2d_groups<const M: usize>(samplers: &mut [Sampler]) -> [[(f64, f64); GROUP_LANES]; M] {
+    /// `M` requests of [`Self::next_2d_group`] in a row, by request, coordinate and lane:
+    /// `out[m][0][l]` and `out[m][1][l]` are the `m`-th request's two values for sampler `l`
+    /// (lanes side by side, as the camera rays made from them are computed). The requests'
+    /// scrambles are independent chains of multiplications (each one's latency, not the
+    /// processor's throughput, is what they cost), so drawing them together lets the processor
+    /// overlap them.
+    pub fn next_2d_groups<const M: usize>(samplers: &mut [Sampler]) -> [[[f64; GROUP_LANES]; 2]; M] {
         assert!(samplers.len() <= GROUP_LANES, "at most {GROUP_LANES} samplers a group");
-        let mut out = [[(0.0, 0.0); GROUP_LANES]; M];
+        let mut out = [[[0.0; GROUP_LANES]; 2]; M];
         let Some(first) = samplers.first() else { return out };
         let (key, dim) = (first.key, first.dim);
         if samplers.iter().any(|s| s.key != key || s.dim != dim) {
             // Each sampler's requests in its own order.
             for (l, s) in samplers.iter_mut().enumerate() {
                 for o in out.iter_mut() {
-                    o[l] = s.next_2d();
+                    (o[0][l], o[1][l]) = s.next_2d();
                 }
             }
             return out;
@@ -163,7 +165,8 @@ impl Sampler {
         }
         for m in 0..M {
             for l in 0..GROUP_LANES {
-                out[m][l] = (unit(a[m][l]), unit(b[m][l]));
+                out[m][0][l] = unit(a[m][l]);
+                out[m][1][l] = unit(b[m][l]);
             }
         }
         out
@@ -312,7 +315,7 @@ mod tests {
         let got = Sampler::next_2d_groups::<3>(&mut group);
         for (l, s) in each.iter_mut().enumerate() {
             for (m, req) in got.iter().enumerate() {
-                assert_eq!(req[l], s.next_2d(), "lane {l}, request {m}");
+                assert_eq!((req[0][l], req[1][l]), s.next_2d(), "lane {l}, request {m}");
             }
             assert_eq!(group[l].next_1d(), s.next_1d(), "lane {l} continues where it would");
         }
@@ -321,7 +324,8 @@ mod tests {
         let mut each = mixed.clone();
         let got = Sampler::next_2d_groups::<2>(&mut mixed);
         for (l, s) in each.iter_mut().enumerate() {
-            assert_eq!((got[0][l], got[1][l]), (s.next_2d(), s.next_2d()), "mixed lane {l}");
+            let (first, second) = ((got[0][0][l], got[0][1][l]), (got[1][0][l], got[1][1][l]));
+            assert_eq!((first, second), (s.next_2d(), s.next_2d()), "mixed lane {l}");
         }
     }
 
