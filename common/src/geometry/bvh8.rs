@@ -280,34 +280,6 @@ impl Bvh8 {
     }
 }
 
-/// Up to eight `f64` rays side by side (unused lanes repeat the first ray): what a group's
-/// `f32` lanes ([`Lanes8`]) are made from, and what eight-lane tests in `f64` (spheres) read.
-pub struct RayLanes {
-    pub o: [[f64; 8]; 3],
-    pub d: [[f64; 8]; 3],
-    /// How many lanes hold a ray.
-    pub len: usize,
-}
-
-impl RayLanes {
-    /// One to eight rays, by axis then lane (a loop of fixed length). Always inlined: built in
-    /// the caller's frame, not copied there.
-    #[inline(always)]
-    pub fn new(rays: &[crate::math::Ray]) -> Self {
-        let len = rays.len();
-        assert!((1..=8).contains(&len), "one to eight rays");
-        let (mut o, mut d) = ([[0.0f64; 8]; 3], [[0.0f64; 8]; 3]);
-        for lane in 0..8 {
-            let r = &rays[if lane < len { lane } else { 0 }];
-            for a in 0..3 {
-                o[a][lane] = r.origin[a];
-                d[a][lane] = r.dir[a];
-            }
-        }
-        RayLanes { o, d, len }
-    }
-}
-
 /// Up to eight rays in `f32`, side by side (unused lanes repeat the first ray): the one
 /// conversion from `f64` that a group's packet walk ([`Packet8`]), box tests ([`BoxRays8`]) and
 /// single-ray queries (`obvhs::ray::Ray`s) are all made from, with obvhs's inverse directions
@@ -322,14 +294,15 @@ pub struct Lanes8 {
 }
 
 impl Lanes8 {
-    /// The `f64` lanes `r` in `f32` (an axis of eight lanes at a time).
+    /// `len` rays given in `f64` by axis, then lane (origins `o`, directions `d`), in `f32` (an
+    /// axis of eight lanes at a time).
     #[inline(always)]
-    pub fn new(r: &RayLanes) -> Self {
-        let mut l = Lanes8 { o: [[0.0; 8]; 3], d: [[0.0; 8]; 3], inv: [[0.0; 8]; 3], len: r.len };
+    pub fn new(o: &[[f64; 8]; 3], d: &[[f64; 8]; 3], len: usize) -> Self {
+        let mut l = Lanes8 { o: [[0.0; 8]; 3], d: [[0.0; 8]; 3], inv: [[0.0; 8]; 3], len };
         for a in 0..3 {
             for lane in 0..8 {
-                l.o[a][lane] = r.o[a][lane] as f32;
-                l.d[a][lane] = r.d[a][lane] as f32;
+                l.o[a][lane] = o[a][lane] as f32;
+                l.d[a][lane] = d[a][lane] as f32;
             }
         }
         // obvhs's `safe_inverse`, both sides computed and one kept (the compiler vectorises

@@ -22,7 +22,7 @@ use glam::{DVec2, DVec3, Vec3A};
 use obvhs::{BvhBuildParams, aabb::Aabb, cwbvh::CwBvh, cwbvh::builder::build_cwbvh, ray::RayHit};
 
 use crate::math::{Ray, Transform};
-use bvh8::{BoxRays8, Bvh8, Lanes8, Packet8, Ray8, RayLanes};
+use bvh8::{BoxRays8, Bvh8, Lanes8, Packet8, Ray8};
 pub use mesh::MeshGeom;
 
 /// What an instance is made of.
@@ -238,6 +238,34 @@ fn sphere_t(center: DVec3, radius: f64, r: &Ray, tmin: f64, tmax: f64) -> Option
         Some(t1)
     } else {
         None
+    }
+}
+
+/// Up to eight `f64` rays side by side (unused lanes repeat the first ray): what a group's
+/// `f32` lanes ([`Lanes8`]) are converted from, and what eight-lane tests in `f64` (spheres) read.
+struct RayLanes {
+    o: [[f64; 8]; 3],
+    d: [[f64; 8]; 3],
+    /// How many lanes hold a ray.
+    len: usize,
+}
+
+impl RayLanes {
+    /// One to eight rays, by axis then lane (a loop of fixed length). Always inlined: built in
+    /// the caller's frame, not copied there.
+    #[inline(always)]
+    fn new(rays: &[Ray]) -> Self {
+        let len = rays.len();
+        assert!((1..=8).contains(&len), "one to eight rays");
+        let (mut o, mut d) = ([[0.0f64; 8]; 3], [[0.0f64; 8]; 3]);
+        for lane in 0..8 {
+            let r = &rays[if lane < len { lane } else { 0 }];
+            for a in 0..3 {
+                o[a][lane] = r.origin[a];
+                d[a][lane] = r.dir[a];
+            }
+        }
+        RayLanes { o, d, len }
     }
 }
 
@@ -537,7 +565,7 @@ impl Accel {
         }
         let mut best = [Candidate::none(f64::INFINITY); 8];
         let wide = RayLanes::new(rays);
-        let lanes = Lanes8::new(&wide);
+        let lanes = Lanes8::new(&wide.o, &wide.d, wide.len);
         let tmin32 = tmin as f32;
         // Each lane's closest hit so far in f32; a lane's obvhs ray is made only where an
         // instance's own test needs one.
@@ -685,7 +713,7 @@ impl Accel {
         }
         let all = (1u32 << n) - 1;
         let wide = RayLanes::new(rays);
-        let lanes = Lanes8::new(&wide);
+        let lanes = Lanes8::new(&wide.o, &wide.d, wide.len);
         let tmin32 = tmin as f32;
         // Each lane's far bound in f32 (unused lanes can reach nothing); a lane's obvhs ray is
         // made only where an instance's own test needs one.
