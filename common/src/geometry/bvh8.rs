@@ -298,6 +298,7 @@ impl Lanes8 {
     /// axis of eight lanes at a time).
     #[inline(always)]
     pub fn new(o: &[[f64; 8]; 3], d: &[[f64; 8]; 3], len: usize) -> Self {
+        assert!((1..=8).contains(&len), "one to eight rays");
         let mut l = Lanes8 { o: [[0.0; 8]; 3], d: [[0.0; 8]; 3], inv: [[0.0; 8]; 3], len };
         for a in 0..3 {
             for lane in 0..8 {
