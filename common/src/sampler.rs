@@ -319,7 +319,7 @@ mod tests {
             }
             assert_eq!(group[l].next_1d(), s.next_1d(), "lane {l} continues where it would");
         }
-        // A mixed group: each sampler draws its three in order.
+        // A mixed group: each sampler draws its two in order.
         let mut mixed = [pixel.with_sample(1), Sampler::new(0x5eed, 13, 34, 1)];
         let mut each = mixed.clone();
         let got = Sampler::next_2d_groups::<2>(&mut mixed);
