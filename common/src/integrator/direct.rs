@@ -67,6 +67,7 @@ fn draw_2d<const N: usize>(rngs: &mut [Sampler], mask: u32) -> [(f64, f64); N] {
 #[inline(always)]
 fn reflect_lanes<const N: usize>(
     pts: &[LitPoint<'_>],
+    views: &Views<N>,
     mask: u32,
     wis: &[DVec3; N],
     e: &[DVec3; N],
@@ -77,13 +78,7 @@ fn reflect_lanes<const N: usize>(
     }
     let mat = pts[mask.trailing_zeros() as usize].mat;
     if mask & (mask - 1) != 0 && lanes(mask).all(|k| std::ptr::eq(pts[k].mat, mat)) {
-        let mut n = [DVec3::ZERO; N];
-        let mut wo = [DVec3::ZERO; N];
-        for (k, p) in pts.iter().enumerate() {
-            n[k] = p.n;
-            wo[k] = -p.ray.dir;
-        }
-        if let Some(f) = mat.classic_reflectance_lanes(&n, wis, &wo) {
+        if let Some(f) = mat.classic_reflectance_lanes(&views.n, wis, &views.wo) {
             for k in lanes(mask) {
                 l[k] += f[k] * e[k];
             }
@@ -93,6 +88,24 @@ fn reflect_lanes<const N: usize>(
     for k in lanes(mask) {
         let p = &pts[k];
         l[k] += p.mat.reflectance(p.n, wis[k], -p.ray.dir) * e[k];
+    }
+}
+
+/// The points' normals and directions towards their viewers, lane by lane: gathered once per
+/// [`Lighting::reflected`] call for every light's [`reflect_lanes`].
+struct Views<const N: usize> {
+    n: [DVec3; N],
+    wo: [DVec3; N],
+}
+
+impl<const N: usize> Views<N> {
+    fn of(pts: &[LitPoint<'_>]) -> Self {
+        let mut v = Views { n: [DVec3::ZERO; N], wo: [DVec3::ZERO; N] };
+        for (k, p) in pts.iter().enumerate() {
+            v.n[k] = p.n;
+            v.wo[k] = -p.ray.dir;
+        }
+        v
     }
 }
 
@@ -158,12 +171,13 @@ impl Lighting<'_> {
         for k in lanes(live) {
             origin[k] = pts[k].x + eps * pts[k].n;
         }
+        let views = Views::of(pts);
         for light in &scene.point_lights {
             let (wis, d2, shadows) = towards_lanes(pts, &origin, &[light.position; N], live);
             let clear = self.clear_lanes(pts, &shadows, true);
             // Every lane (a loop of fixed length: the divisions overlap); unlit ones unused.
             let e: [DVec3; N] = std::array::from_fn(|k| light.intensity / d2[k]);
-            reflect_lanes(pts, clear, &wis, &e, &mut l);
+            reflect_lanes(pts, &views, clear, &wis, &e, &mut l);
         }
         for light in &scene.area_lights {
             // One point of the square per shading event; the pixel's samples average them.
@@ -177,7 +191,7 @@ impl Lighting<'_> {
             let e: [DVec3; N] = std::array::from_fn(|k| {
                 light.radiance * (light.size * light.size * light.normal.dot(wis[k]).abs() / d2[k])
             });
-            reflect_lanes(pts, clear, &wis, &e, &mut l);
+            reflect_lanes(pts, &views, clear, &wis, &e, &mut l);
         }
         for light in &scene.directional_lights {
             let mut shadows = Shadows::new(origin);
@@ -189,7 +203,7 @@ impl Lighting<'_> {
                 }
             }
             let clear = self.clear_lanes(pts, &shadows, true);
-            reflect_lanes(pts, clear, &[light.to_light; N], &[light.radiance; N], &mut l);
+            reflect_lanes(pts, &views, clear, &[light.to_light; N], &[light.radiance; N], &mut l);
         }
         for light in &scene.spot_lights {
             let mut factor = [0.0; N];
@@ -203,7 +217,7 @@ impl Lighting<'_> {
             let (wis, d2, shadows) = towards_lanes(pts, &origin, &[light.position; N], inside);
             let clear = self.clear_lanes(pts, &shadows, true);
             let e: [DVec3; N] = std::array::from_fn(|k| light.intensity * (factor[k] / d2[k]));
-            reflect_lanes(pts, clear, &wis, &e, &mut l);
+            reflect_lanes(pts, &views, clear, &wis, &e, &mut l);
         }
         for light in &scene.object_lights {
             // One point per shading event (§13.3); the random numbers are drawn whatever the
@@ -236,7 +250,7 @@ impl Lighting<'_> {
                 }
             }
             let clear = self.clear_lanes(pts, &shadows, true);
-            reflect_lanes(pts, clear, &wis, &irradiance, &mut l);
+            reflect_lanes(pts, &views, clear, &wis, &irradiance, &mut l);
         }
         // The directions first, for every point (each starts loading what its lookup reads),
         // then the shadow rays, then radiance and pdf: the cache misses overlap each other and
@@ -264,7 +278,7 @@ impl Lighting<'_> {
                     weights[k] = weight;
                 }
             }
-            reflect_lanes(pts, lit, &wis, &weights, &mut l);
+            reflect_lanes(pts, &views, lit, &wis, &weights, &mut l);
         }
         l
     }
