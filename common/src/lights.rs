@@ -303,56 +303,125 @@ impl EnvLight {
     /// its shadow ray in between gets those loads for free (a random direction's texels are
     /// seldom in the cache: about 60 ns each), and skips them when the ray is blocked.
     pub fn sample_direction(&self, n: DVec3, sampler: EnvSampler, rng: &mut Sampler) -> Option<EnvDirection> {
-        let (xi1, xi2) = rng.next_2d();
-        let (wi, (u, v), pdf) = match sampler {
-            EnvSampler::Uniform => {
-                // cos θ uniform in [0, 1) gives uniform directions on the hemisphere.
-                let wi = hemisphere_direction(n, 1.0 - xi1, xi2);
-                (wi, env_uv(self.mapping, wi), EnvPdf::Factor(TAU))
-            }
-            EnvSampler::Cosine => {
-                let cos = (1.0 - xi1).sqrt();
-                let wi = hemisphere_direction(n, cos, xi2);
-                (wi, env_uv(self.mapping, wi), EnvPdf::Factor(PI / cos))
+        let mut xi = [0.0; 3];
+        (xi[0], xi[1]) = rng.next_2d();
+        if Self::requests(sampler) > 1 {
+            xi[2] = rng.next_1d();
+        }
+        let [d] = self.sample_directions(&[n], sampler, &[xi], 1);
+        d
+    }
+
+    /// How many requests of a [`Sampler`] one direction takes: a two-number request (`xi[0]`,
+    /// `xi[1]` of [`Self::sample_directions`]), then for importance sampling a one-number request
+    /// (`xi[2]`: the first number of the second request, [`Sampler::next_1d`]).
+    pub fn requests(sampler: EnvSampler) -> usize {
+        match sampler {
+            EnvSampler::Uniform | EnvSampler::Cosine => 1,
+            EnvSampler::Importance => 2,
+        }
+    }
+
+    /// [`Self::sample_direction`] for the points `k` of `mask` (unit normals `ns[k]`), from
+    /// the numbers `xi[k]` their samplers drew (see [`Self::requests`]). One step at a time for
+    /// every point: importance sampling reads three tables one after the other (the rows'
+    /// cumulative weights, the row's guide table, the row's cumulative weights), mostly outside
+    /// the nearest caches, and taking each step for all points before the next lets their loads
+    /// overlap instead of waiting in a chain per point. Per point the operations are those of a
+    /// single direction, in their order: the same bits.
+    pub fn sample_directions<const N: usize>(
+        &self,
+        ns: &[DVec3; N],
+        sampler: EnvSampler,
+        xi: &[[f64; 3]; N],
+        mask: u32,
+    ) -> [Option<EnvDirection>; N] {
+        let mut out = [None; N];
+        let mut wi = [DVec3::ZERO; N];
+        let mut uv = [(0.0, 0.0); N];
+        let mut pdf = [EnvPdf::Factor(0.0); N];
+        // Lanes with a direction above the surface so far.
+        let mut found = 0u32;
+        match sampler {
+            EnvSampler::Uniform | EnvSampler::Cosine => {
+                for k in lanes(mask) {
+                    let [xi1, xi2, _] = xi[k];
+                    (wi[k], pdf[k]) = if sampler == EnvSampler::Uniform {
+                        // cos θ uniform in [0, 1) gives uniform directions on the hemisphere.
+                        (hemisphere_direction(ns[k], 1.0 - xi1, xi2), EnvPdf::Factor(TAU))
+                    } else {
+                        let cos = (1.0 - xi1).sqrt();
+                        (hemisphere_direction(ns[k], cos, xi2), EnvPdf::Factor(PI / cos))
+                    };
+                    uv[k] = env_uv(self.mapping, wi[k]);
+                    found |= 1 << k;
+                }
             }
             EnvSampler::Importance => {
                 // One-sample multiple importance sampling: half the samples follow the map's
                 // luminance, half the cosine lobe, and every sample is divided by the mixture's
                 // pdf (the balance heuristic). The map finds a small sun; the lobe keeps points
                 // that face away from it from wasting their samples below the horizon.
-                let xi3 = rng.next_1d();
-                let (wi, grid) = if xi3 < 0.5 {
-                    let s = self.distribution.sample(xi1, xi2)?;
-                    (s.wi, Some(s))
-                } else {
-                    (hemisphere_direction(n, (1.0 - xi1).sqrt(), xi2), None)
-                };
-                let cos = wi.dot(n);
-                if cos <= 0.0 {
-                    return None;
+                let dist = &self.distribution;
+                let mut rows = [RowPick::default(); N];
+                let mut map = 0u32;
+                for k in lanes(mask) {
+                    let [xi1, xi2, xi3] = xi[k];
+                    if xi3 < 0.5 {
+                        rows[k] = dist.pick_row(xi1, xi2);
+                        map |= 1 << k;
+                    } else {
+                        wi[k] = hemisphere_direction(ns[k], (1.0 - xi1).sqrt(), xi2);
+                        found |= 1 << k;
+                    }
                 }
-                // The map coordinates of `wi` serve both the pdf and the lookup. A lat-long map's
-                // grid is the distribution's, so a direction drawn from it keeps its (u, v) and
-                // its cell's pdf (no atan2 and acos of `wi`).
-                let (uv, map_pdf) = match (grid, self.mapping) {
-                    (Some(s), EnvMapping::LatLong) => ((s.u, s.v), MapPdf::Known(s.pdf)),
-                    (Some(s), EnvMapping::Probe) => (env_uv(EnvMapping::Probe, wi), MapPdf::Known(s.pdf)),
-                    (None, EnvMapping::LatLong) => {
-                        let (u, v) = env_uv(EnvMapping::LatLong, wi);
-                        let (x, y) = self.distribution.cell_of(u, v);
-                        self.distribution.prefetch_cell(x, y);
-                        ((u, v), MapPdf::LatLongCell { x, y, v })
+                let mut bounds = [(0, 0); N];
+                for k in lanes(map) {
+                    bounds[k] = dist.cell_bounds(&rows[k], xi[k][1]);
+                }
+                let mut grid = [None; N];
+                for k in lanes(map) {
+                    if let Some(s) = dist.sample_in_row(&rows[k], xi[k][1], bounds[k]) {
+                        wi[k] = s.wi;
+                        grid[k] = Some(s);
+                        found |= 1 << k;
                     }
-                    (None, EnvMapping::Probe) => {
-                        (env_uv(EnvMapping::Probe, wi), MapPdf::Known(self.distribution.pdf(wi)))
+                }
+                for k in lanes(found) {
+                    let cos = wi[k].dot(ns[k]);
+                    if cos <= 0.0 {
+                        found &= !(1 << k);
+                        continue;
                     }
-                };
-                (wi, uv, EnvPdf::Mixture { cos, map_pdf })
+                    // The map coordinates of `wi` serve both the pdf and the lookup. A lat-long
+                    // map's grid is the distribution's, so a direction drawn from it keeps its
+                    // (u, v) and its cell's pdf (no atan2 and acos of `wi`).
+                    let map_pdf;
+                    (uv[k], map_pdf) = match (grid[k], self.mapping) {
+                        (Some(s), EnvMapping::LatLong) => ((s.u, s.v), MapPdf::Known(s.pdf)),
+                        (Some(s), EnvMapping::Probe) => {
+                            (env_uv(EnvMapping::Probe, wi[k]), MapPdf::Known(s.pdf))
+                        }
+                        (None, EnvMapping::LatLong) => {
+                            let (u, v) = env_uv(EnvMapping::LatLong, wi[k]);
+                            let (x, y) = dist.cell_of(u, v);
+                            dist.prefetch_cell(x, y);
+                            ((u, v), MapPdf::LatLongCell { x, y, v })
+                        }
+                        (None, EnvMapping::Probe) => {
+                            (env_uv(EnvMapping::Probe, wi[k]), MapPdf::Known(dist.pdf(wi[k])))
+                        }
+                    };
+                    pdf[k] = EnvPdf::Mixture { cos, map_pdf };
+                }
             }
-        };
-        let texels = self.corners(u, v);
-        self.prefetch_texels(&texels);
-        Some(EnvDirection { wi, texels, pdf })
+        }
+        for k in lanes(found) {
+            let texels = self.corners(uv[k].0, uv[k].1);
+            self.prefetch_texels(&texels);
+            out[k] = Some(EnvDirection { wi: wi[k], texels, pdf: pdf[k] });
+        }
+        out
     }
 
     /// The radiance arriving along a [`Self::sample_direction`] direction divided by the pdf of
@@ -479,9 +548,42 @@ fn guide_table(cdf: &[f64], out: &mut Vec<u32>) {
 /// `> (k + 1) / GUIDE > xi`, so the answer lies in `guide[k]..=guide[k + 1]`.
 #[inline]
 fn guided_search(cdf: &[f64], guide: &[u32], xi: f64) -> usize {
-    let k = ((xi * GUIDE as f64) as usize).min(GUIDE - 1);
-    let (lo, hi) = (guide[k] as usize, (guide[k + 1] as usize).min(cdf.len()));
+    let (lo, hi) = guide_bounds(cdf.len(), guide, xi);
     lo + cdf[lo..hi].partition_point(|&c| c <= xi)
+}
+
+/// The guide table's bucket of `xi` in [0, 1).
+#[inline]
+fn guide_bucket(xi: f64) -> usize {
+    ((xi * GUIDE as f64) as usize).min(GUIDE - 1)
+}
+
+/// The range of a table of `len` entries that [`guided_search`] searches for `xi`.
+#[inline]
+fn guide_bounds(len: usize, guide: &[u32], xi: f64) -> (usize, usize) {
+    let k = guide_bucket(xi);
+    (guide[k] as usize, (guide[k + 1] as usize).min(len))
+}
+
+/// The lanes set in `mask`, lowest first.
+#[inline]
+fn lanes(mut mask: u32) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (mask != 0).then(|| {
+            let k = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            k
+        })
+    })
+}
+
+/// The first step of an [`EnvDistribution`] sample: its row, the row's probability, and the
+/// position within the row's interval.
+#[derive(Clone, Copy, Debug, Default)]
+struct RowPick {
+    y: usize,
+    row_p: f64,
+    fy: f64,
 }
 
 impl EnvDistribution {
@@ -557,15 +659,52 @@ impl EnvDistribution {
 
     /// A direction, its pdf with respect to solid angle and its lat-long coordinates, from two
     /// uniform numbers.
+    #[cfg(test)]
     fn sample(&self, xi1: f64, xi2: f64) -> Option<GridSample> {
+        let row = self.pick_row(xi1, xi2);
+        let bounds = self.cell_bounds(&row, xi2);
+        self.sample_in_row(&row, xi2, bounds)
+    }
+
+    /// The first step of [`Self::sample`]: the row of `xi1` (the rows' table is small and
+    /// stays in the cache). Starts loading the row's guide entries for `xi2`.
+    #[inline]
+    fn pick_row(&self, xi1: f64, xi2: f64) -> RowPick {
         let y = guided_search(&self.rows, &self.row_guide, xi1).min(self.height - 1);
         let row_lo = if y == 0 { 0.0 } else { self.rows[y - 1] };
         let row_p = self.rows[y] - row_lo;
         // Reuse xi1 inside the row: its position within the row's interval is uniform.
         let fy = if row_p > 0.0 { ((xi1 - row_lo) / row_p).clamp(0.0, 1.0 - 1e-12) } else { 0.5 };
+        let g = y * (GUIDE + 1) + guide_bucket(xi2);
+        prefetch(&self.cell_guide, g);
+        prefetch(&self.cell_guide, g + 1);
+        RowPick { y, row_p, fy }
+    }
+
+    /// The second step: the part of the row's cumulative weights that the search for `xi2`
+    /// reads (from the guide table), whose loads it starts.
+    #[inline]
+    fn cell_bounds(&self, row: &RowPick, xi2: f64) -> (usize, usize) {
+        let guide = &self.cell_guide[row.y * (GUIDE + 1)..(row.y + 1) * (GUIDE + 1)];
+        let (lo, hi) = guide_bounds(self.width, guide, xi2);
+        // The search reads entries lo..hi, then the chosen entry and the one before it: at most
+        // hi and lo - 1. A few cache lines ahead of the search; a wide range gets its ends.
+        let base = row.y * self.width;
+        let (first, last) = (base + lo.saturating_sub(1), base + hi.min(self.width - 1));
+        let per_line = 64 / std::mem::size_of::<f64>();
+        for i in (first..=last).step_by(per_line).take(4) {
+            prefetch(&self.cells, i);
+        }
+        prefetch(&self.cells, last);
+        (lo, hi)
+    }
+
+    /// The last step: the cell within the row, and the direction.
+    #[inline]
+    fn sample_in_row(&self, row: &RowPick, xi2: f64, (lo, hi): (usize, usize)) -> Option<GridSample> {
+        let RowPick { y, row_p, fy, .. } = *row;
         let cdf = &self.cells[y * self.width..(y + 1) * self.width];
-        let guide = &self.cell_guide[y * (GUIDE + 1)..(y + 1) * (GUIDE + 1)];
-        let x = guided_search(cdf, guide, xi2).min(self.width - 1);
+        let x = (lo + cdf[lo..hi].partition_point(|&c| c <= xi2)).min(self.width - 1);
         let lo = if x == 0 { 0.0 } else { cdf[x - 1] };
         let cell_p = cdf[x] - lo;
         let fx = if cell_p > 0.0 { ((xi2 - lo) / cell_p).clamp(0.0, 1.0 - 1e-12) } else { 0.5 };
@@ -1036,6 +1175,73 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Directions drawn for eight points together (any subset of them) are, point by point, the
+    /// directions, weights and numbers drawn for each alone: every sampler, both mappings, a map
+    /// with a sun (wide and narrow guide ranges), normals of every kind (axes, a zero vector).
+    #[test]
+    fn directions_drawn_together_are_those_drawn_alone() {
+        let map = image(64, 32, |x, y| {
+            if (30..33).contains(&x) && (9..11).contains(&y) {
+                [5e4, 4e4, 3e4]
+            } else {
+                [(x % 5) as f32 * 0.2, 0.5, (y % 3) as f32]
+            }
+        });
+        let mut rng = Sampler::new(11, 4, 5, 0);
+        let mut normals = vec![DVec3::X, -DVec3::Y, DVec3::Z, DVec3::ZERO];
+        for _ in 0..400 {
+            let (a, b) = rng.next_2d();
+            normals.push(latlong_direction(a, b));
+        }
+        let (mut checked, mut some) = (0, 0);
+        for mapping in [EnvMapping::LatLong, EnvMapping::Probe] {
+            let env = EnvLight::new(map.clone(), mapping, None);
+            for sampler in [EnvSampler::Uniform, EnvSampler::Cosine, EnvSampler::Importance] {
+                for (c, chunk) in normals.chunks(LANES).enumerate() {
+                    let ns: [DVec3; LANES] = std::array::from_fn(|i| chunk[i % chunk.len()]);
+                    let mask = [0xff, 0x5a, 0x01, 0x80, 0x3c][c % 5];
+                    let samplers: Vec<Sampler> =
+                        (0..LANES as u32).map(|k| Sampler::new(3, c as u32, 1, k)).collect();
+                    let mut xi = [[0.0; 3]; LANES];
+                    let mut drawn = samplers.clone();
+                    for k in lanes(mask) {
+                        (xi[k][0], xi[k][1]) = drawn[k].next_2d();
+                        if EnvLight::requests(sampler) > 1 {
+                            xi[k][2] = drawn[k].next_1d();
+                        }
+                    }
+                    let together = env.sample_directions(&ns, sampler, &xi, mask);
+                    for k in 0..LANES {
+                        if mask & (1 << k) == 0 {
+                            assert!(together[k].is_none(), "lane {k} is not in the mask");
+                            continue;
+                        }
+                        let mut alone_rng = samplers[k].clone();
+                        let alone = env.sample_direction(ns[k], sampler, &mut alone_rng);
+                        let bits = |d: &Option<EnvDirection>| {
+                            d.map(|d| {
+                                (
+                                    d.wi.to_array().map(f64::to_bits),
+                                    env.weight(&d).map(|w| w.to_array().map(f64::to_bits)),
+                                )
+                            })
+                        };
+                        assert_eq!(
+                            bits(&together[k]),
+                            bits(&alone),
+                            "{mapping:?} {sampler:?} lane {k} n {}",
+                            ns[k]
+                        );
+                        assert_eq!(alone_rng.next_1d().to_bits(), drawn[k].next_1d().to_bits());
+                        checked += 1;
+                        some += usize::from(alone.is_some());
+                    }
+                }
+            }
+        }
+        assert!(checked > 1000 && some > checked / 2, "{checked} lanes, {some} with a direction");
     }
 
     /// Each estimator's mean of `cos θ · L(wi)` over many samples is ∫ L cos dω: π·L for a constant map.

@@ -15,6 +15,7 @@
 
 use glam::DVec3;
 
+use crate::lights::EnvLight;
 use crate::material::Material;
 use crate::math::Ray;
 use crate::sampler::{GROUP_LANES, Sampler};
@@ -59,6 +60,35 @@ fn draw_2d<const N: usize>(rngs: &mut [Sampler], mask: u32) -> [(f64, f64); N] {
     out
 }
 
+/// The numbers of one environment direction ([`EnvLight::sample_directions`]) for each sampler
+/// in `mask`: `requests` requests per sampler, the first two numbers of the first and the first
+/// of the second. Drawn together like [`draw_2d`] when the mask holds every sampler.
+#[inline(always)]
+fn draw_env<const N: usize>(rngs: &mut [Sampler], mask: u32, requests: usize) -> [[f64; 3]; N] {
+    let mut xi = [[0.0; 3]; N];
+    if rngs.len() > 1 && mask == (1u32 << rngs.len()) - 1 {
+        if requests > 1 {
+            let [a, b] = Sampler::next_2d_groups::<2>(rngs);
+            for (k, x) in xi.iter_mut().enumerate().take(rngs.len()) {
+                *x = [a[0][k], a[1][k], b[0][k]];
+            }
+        } else {
+            let [a] = Sampler::next_2d_groups::<1>(rngs);
+            for (k, x) in xi.iter_mut().enumerate().take(rngs.len()) {
+                *x = [a[0][k], a[1][k], 0.0];
+            }
+        }
+        return xi;
+    }
+    for k in lanes(mask) {
+        (xi[k][0], xi[k][1]) = rngs[k].next_2d();
+        if requests > 1 {
+            xi[k][2] = rngs[k].next_1d();
+        }
+    }
+    xi
+}
+
 /// Adds to `l[k]`, for every lane `k` of `mask`, the light `e[k]` arriving from direction
 /// `wis[k]` reflected towards the point's viewer: [`Material::reflectance`] times `e[k]`. When
 /// the lanes share one classic material (a pixel's samples on one object), its reflectance is
@@ -77,13 +107,14 @@ fn reflect_lanes<const N: usize>(
         return;
     }
     let mat = pts[mask.trailing_zeros() as usize].mat;
-    if mask & (mask - 1) != 0 && lanes(mask).all(|k| std::ptr::eq(pts[k].mat, mat)) {
-        if let Some(f) = mat.classic_reflectance_lanes(&views.n, wis, &views.wo) {
-            for k in lanes(mask) {
-                l[k] += f[k] * e[k];
-            }
-            return;
+    if mask & (mask - 1) != 0
+        && lanes(mask).all(|k| std::ptr::eq(pts[k].mat, mat))
+        && let Some(f) = mat.classic_reflectance_lanes(&views.n, wis, &views.wo)
+    {
+        for k in lanes(mask) {
+            l[k] += f[k] * e[k];
         }
+        return;
     }
     for k in lanes(mask) {
         let p = &pts[k];
@@ -256,10 +287,10 @@ impl Lighting<'_> {
         // then the shadow rays, then radiance and pdf: the cache misses overlap each other and
         // the traversal, and a blocked ray needs no lookup.
         if env && let Some(light) = &scene.env_light {
-            let mut dirs = [None; N];
+            let xi = draw_env::<N>(rngs, live, EnvLight::requests(self.env_sampler));
+            let dirs = light.sample_directions(&views.n, self.env_sampler, &xi, live);
             let mut shadows = Shadows::new(origin);
             for k in lanes(live) {
-                dirs[k] = light.sample_direction(pts[k].n, self.env_sampler, &mut rngs[k]);
                 if let Some(d) = &dirs[k]
                     && let cos = pts[k].n.dot(d.wi)
                     && (cos > 0.0 || cos.is_nan())
