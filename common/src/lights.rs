@@ -11,7 +11,7 @@ use std::sync::Arc;
 
 use glam::{DAffine3, DVec3};
 
-use crate::math::{atan2_approx, orthonormal_pair, prefetch, sincos_turns};
+use crate::math::{atan2_approx, lanes, orthonormal_pair, prefetch, sincos_turns};
 use crate::sampler::{GROUP_LANES as LANES, Sampler};
 use crate::scene::records::{EnvMapping, EnvSampler};
 use crate::texture::image::TextureImage;
@@ -563,18 +563,6 @@ fn guide_bucket(xi: f64) -> usize {
 fn guide_bounds(len: usize, guide: &[u32], xi: f64) -> (usize, usize) {
     let k = guide_bucket(xi);
     (guide[k] as usize, (guide[k + 1] as usize).min(len))
-}
-
-/// The lanes set in `mask`, lowest first.
-#[inline]
-fn lanes(mut mask: u32) -> impl Iterator<Item = usize> {
-    std::iter::from_fn(move || {
-        (mask != 0).then(|| {
-            let k = mask.trailing_zeros() as usize;
-            mask &= mask - 1;
-            k
-        })
-    })
 }
 
 /// The first step of an [`EnvDistribution`] sample: its row, the row's probability, and the

@@ -232,6 +232,18 @@ pub fn prefetch<T>(slice: &[T], index: usize) {
     let _ = (slice, index);
 }
 
+/// The lanes set in `mask`, lowest first.
+#[inline]
+pub fn lanes(mut mask: u32) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (mask != 0).then(|| {
+            let k = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            k
+        })
+    })
+}
+
 /// Converts a `[f64; 3]` record value into a vector.
 #[inline]
 pub fn v3(a: [f64; 3]) -> DVec3 {

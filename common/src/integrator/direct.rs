@@ -17,7 +17,7 @@ use glam::DVec3;
 
 use crate::lights::EnvLight;
 use crate::material::Material;
-use crate::math::Ray;
+use crate::math::{Ray, lanes};
 use crate::sampler::{GROUP_LANES, Sampler};
 use crate::scene::Scene;
 use crate::scene::records::EnvSampler;
@@ -30,18 +30,6 @@ pub struct LitPoint<'m> {
     pub x: DVec3,
     pub n: DVec3,
     pub mat: &'m Material,
-}
-
-/// The lanes set in `mask`, lowest first.
-#[inline]
-fn lanes(mut mask: u32) -> impl Iterator<Item = usize> {
-    std::iter::from_fn(move || {
-        (mask != 0).then(|| {
-            let k = mask.trailing_zeros() as usize;
-            mask &= mask - 1;
-            k
-        })
-    })
 }
 
 /// The next two numbers of each sampler in `mask` (`rngs` holds one sampler per point): one
