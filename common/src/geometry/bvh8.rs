@@ -213,7 +213,23 @@ impl Bvh8 {
                         cur = node.child[mask.trailing_zeros() as usize];
                         continue;
                     }
-                    // Several children: push all but the nearest, farthest first.
+                    // Two children (the commonest case): push the farther, visit the nearer,
+                    // with selects instead of the sort's branches. Equal distances go as the
+                    // sort below sends them: the higher slot is visited first.
+                    let i = mask.trailing_zeros() as usize;
+                    let rest = mask & (mask - 1);
+                    if rest & (rest - 1) == 0 {
+                        let j = rest.trailing_zeros() as usize;
+                        let (a, b) = ((node.child[i], dist[i]), (node.child[j], dist[j]));
+                        self.prefetch_child(a.0);
+                        self.prefetch_child(b.0);
+                        let (near, far) = if a.1 < b.1 { (a, b) } else { (b, a) };
+                        stack[sp] = MaybeUninit::new(far);
+                        sp += 1;
+                        cur = near.0;
+                        continue;
+                    }
+                    // More: push all but the nearest, farthest first.
                     let mut c = [(0u32, 0f32); 8];
                     let mut n = 0;
                     while mask != 0 {
