@@ -213,9 +213,9 @@ impl Bvh8 {
                         cur = node.child[mask.trailing_zeros() as usize];
                         continue;
                     }
-                    // Two children (the commonest case): push the farther, visit the nearer,
-                    // with selects instead of the sort's branches. Equal distances go as the
-                    // sort below sends them: the higher slot is visited first.
+                    // Exactly two children (a common case; not counted): push the farther,
+                    // visit the nearer, with selects instead of the sort's branches. Equal
+                    // distances go as the sort below sends them: the higher slot first.
                     let i = mask.trailing_zeros() as usize;
                     let rest = mask & (mask - 1);
                     if rest & (rest - 1) == 0 {
