@@ -32,49 +32,46 @@ pub struct LitPoint<'m> {
     pub mat: &'m Material,
 }
 
-/// The next two numbers of each sampler in `mask` (`rngs` holds one sampler per point): one
-/// [`Sampler::next_2d_group`] when the mask holds them all (it draws them together when they
-/// stand at the same dimension of one pixel), one by one otherwise.
+/// `M` requests of two numbers from each sampler in `mask` (`rngs` holds one sampler per
+/// point): `out[k][m]` is sampler `k`'s `m`-th. One [`Sampler::next_2d_groups`] call when the
+/// mask holds them all (it draws them together when they stand at the same dimension of one
+/// pixel), one by one otherwise.
 #[inline(always)]
-fn draw_2d<const N: usize>(rngs: &mut [Sampler], mask: u32) -> [(f64, f64); N] {
-    let mut out = [(0.0, 0.0); N];
+fn draw_requests<const N: usize, const M: usize>(rngs: &mut [Sampler], mask: u32) -> [[(f64, f64); M]; N] {
+    let mut out = [[(0.0, 0.0); M]; N];
     if rngs.len() > 1 && mask == (1u32 << rngs.len()) - 1 {
-        out.copy_from_slice(&Sampler::next_2d_group(rngs)[..N]);
+        let drawn = Sampler::next_2d_groups::<M>(rngs);
+        for (k, o) in out.iter_mut().enumerate().take(rngs.len()) {
+            for (m, req) in drawn.iter().enumerate() {
+                o[m] = (req[0][k], req[1][k]);
+            }
+        }
         return out;
     }
     for k in lanes(mask) {
-        out[k] = rngs[k].next_2d();
+        for o in &mut out[k] {
+            *o = rngs[k].next_2d();
+        }
     }
     out
 }
 
+/// The next two numbers of each sampler in `mask`: one request of [`draw_requests`].
+#[inline(always)]
+fn draw_2d<const N: usize>(rngs: &mut [Sampler], mask: u32) -> [(f64, f64); N] {
+    draw_requests::<N, 1>(rngs, mask).map(|[r]| r)
+}
+
 /// The numbers of one environment direction ([`EnvLight::sample_directions`]) for each sampler
-/// in `mask`: `requests` requests per sampler, the first two numbers of the first and the first
-/// of the second. Drawn together like [`draw_2d`] when the mask holds every sampler.
+/// in `mask`: `requests` requests per sampler, the two numbers of the first and the first number
+/// of the second (what [`Sampler::next_1d`] would draw).
 #[inline(always)]
 fn draw_env<const N: usize>(rngs: &mut [Sampler], mask: u32, requests: usize) -> [[f64; 3]; N] {
-    let mut xi = [[0.0; 3]; N];
-    if rngs.len() > 1 && mask == (1u32 << rngs.len()) - 1 {
-        if requests > 1 {
-            let [a, b] = Sampler::next_2d_groups::<2>(rngs);
-            for (k, x) in xi.iter_mut().enumerate().take(rngs.len()) {
-                *x = [a[0][k], a[1][k], b[0][k]];
-            }
-        } else {
-            let [a] = Sampler::next_2d_groups::<1>(rngs);
-            for (k, x) in xi.iter_mut().enumerate().take(rngs.len()) {
-                *x = [a[0][k], a[1][k], 0.0];
-            }
-        }
-        return xi;
+    if requests > 1 {
+        draw_requests::<N, 2>(rngs, mask).map(|[a, b]| [a.0, a.1, b.0])
+    } else {
+        draw_requests::<N, 1>(rngs, mask).map(|[a]| [a.0, a.1, 0.0])
     }
-    for k in lanes(mask) {
-        (xi[k][0], xi[k][1]) = rngs[k].next_2d();
-        if requests > 1 {
-            xi[k][2] = rngs[k].next_1d();
-        }
-    }
-    xi
 }
 
 /// Adds to `l[k]`, for every lane `k` of `mask`, the light `e[k]` arriving from direction
