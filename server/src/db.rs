@@ -188,16 +188,19 @@ fn record_failure(
         Failure::LeaseExpired { error } => ("lease_expired", error, false),
     };
     log_event(tx, job, Event::new(kind, error).tile(frame, tile).worker(worker))?;
-    tx.execute(
+    tx.execute_cached(
         "INSERT INTO tile_failures(job_id, frame, tile, worker_id, error, at) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
         params![job, frame, tile, worker, error, t],
     )?;
-    tx.execute("UPDATE workers SET failures = failures + 1, rendering = NULL WHERE id = ?1", [worker])?;
-    tx.execute(
+    tx.execute_cached(
+        "UPDATE workers SET failures = failures + 1, rendering = NULL WHERE id = ?1",
+        [worker],
+    )?;
+    tx.execute_cached(
         "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE job_id = ?1 AND frame = ?2 AND tile = ?3",
         params![job, frame, tile],
     )?;
-    let failures = tx.query_row(
+    let failures = tx.query_row_cached(
         "SELECT count(DISTINCT worker_id), count(*), sum(error LIKE '% stopped answering while rendering this tile %')
          FROM tile_failures WHERE job_id = ?1 AND frame = ?2 AND tile = ?3",
         params![job, frame, tile],
@@ -212,7 +215,7 @@ fn record_failure(
     let Some(message) = scheduler::tile_verdict(frame, tile, failures, error, fatal) else {
         return Ok(FailOutcome::Requeued);
     };
-    let ended = tx.execute(
+    let ended = tx.execute_cached(
         "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3 WHERE id = ?1 AND state IN ('queued', 'running')",
         params![job, message, t],
     )?;
@@ -234,11 +237,41 @@ enum Failure<'a> {
 /// touches only the leased ones): leasing looks at live jobs only, so they are never handed
 /// out, and cancelling a job of a million tiles costs as little as one of ten.
 fn revoke_leases(tx: &rusqlite::Transaction<'_>, job: i64) -> Result<()> {
-    tx.execute(
+    tx.execute_cached(
         "UPDATE tiles SET state = 'canceled', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE job_id = ?1 AND state = 'leased'",
         [job],
     )?;
     Ok(())
+}
+
+/// Prepared statements the connection keeps: more than the store runs after it opens.
+const STATEMENT_CACHE: usize = 96;
+
+/// `execute` and `query_row` through the connection's statement cache: the store's statements
+/// are a fixed set, so each is parsed once per connection instead of once per call.
+trait Cached {
+    fn execute_cached<P: rusqlite::Params>(&self, sql: &str, params: P) -> rusqlite::Result<usize>;
+    fn query_row_cached<T, P: rusqlite::Params, F: FnOnce(&rusqlite::Row<'_>) -> rusqlite::Result<T>>(
+        &self,
+        sql: &str,
+        params: P,
+        f: F,
+    ) -> rusqlite::Result<T>;
+}
+
+impl Cached for Connection {
+    fn execute_cached<P: rusqlite::Params>(&self, sql: &str, params: P) -> rusqlite::Result<usize> {
+        self.prepare_cached(sql)?.execute(params)
+    }
+
+    fn query_row_cached<T, P: rusqlite::Params, F: FnOnce(&rusqlite::Row<'_>) -> rusqlite::Result<T>>(
+        &self,
+        sql: &str,
+        params: P,
+        f: F,
+    ) -> rusqlite::Result<T> {
+        self.prepare_cached(sql)?.query_row(params, f)
+    }
 }
 
 pub struct Store {
@@ -426,6 +459,9 @@ impl Store {
         conn.pragma_update(None, "journal_mode", "WAL")?;
         conn.pragma_update(None, "synchronous", "NORMAL")?;
         conn.busy_timeout(std::time::Duration::from_secs(5))?;
+        // Every statement is prepared once and kept: parsing them again on each request cost
+        // about a fifth of the server's CPU under a polling client (perf, farmbench).
+        conn.set_prepared_statement_cache_capacity(STATEMENT_CACHE);
         conn.execute_batch(SCHEMA).context("cannot create the job store's tables")?;
         migrate(&conn).context("cannot bring the job store's tables up to date")?;
         conn.execute(
@@ -450,7 +486,7 @@ impl Store {
     pub fn insert_job(&self, job: &NewJob) -> Result<u64> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
-        tx.execute(
+        tx.execute_cached(
             "INSERT INTO jobs(name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, allow_unsupported) VALUES (?1, 'queued', ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
             params![
                 job.name,
@@ -465,7 +501,7 @@ impl Store {
         )?;
         let id = tx.last_insert_rowid();
         for (i, f) in job.frames.iter().enumerate() {
-            tx.execute(
+            tx.execute_cached(
                 "INSERT INTO frames(job_id, idx, camera, image_name, width, height, tiles_total) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
                 params![id, i as i64, f.camera, f.image_name, f.width, f.height, f.tiles.len() as i64],
             )?;
@@ -515,21 +551,25 @@ impl Store {
     pub fn job(&self, id: u64) -> Result<Option<JobRow>> {
         let conn = self.conn();
         Ok(conn
-            .query_row(&format!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = ?1"), [id as i64], job_from_row)
+            .query_row_cached(
+                &format!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = ?1"),
+                [id as i64],
+                job_from_row,
+            )
             .optional()?)
     }
 
     pub fn jobs(&self) -> Result<Vec<JobRow>> {
         let conn = self.conn();
-        let mut stmt = conn.prepare(&format!("SELECT {JOB_COLUMNS} FROM jobs ORDER BY id DESC"))?;
+        let mut stmt = conn.prepare_cached(&format!("SELECT {JOB_COLUMNS} FROM jobs ORDER BY id DESC"))?;
         let rows = stmt.query_map([], job_from_row)?.collect::<rusqlite::Result<Vec<_>>>()?;
         Ok(rows)
     }
 
     pub fn frames(&self, job: u64) -> Result<Vec<FrameRow>> {
         let conn = self.conn();
-        let mut stmt =
-            conn.prepare(&format!("SELECT {FRAME_COLUMNS} FROM frames WHERE job_id = ?1 ORDER BY idx"))?;
+        let mut stmt = conn
+            .prepare_cached(&format!("SELECT {FRAME_COLUMNS} FROM frames WHERE job_id = ?1 ORDER BY idx"))?;
         let rows = stmt.query_map([job as i64], frame_from_row)?.collect::<rusqlite::Result<Vec<_>>>()?;
         Ok(rows)
     }
@@ -538,7 +578,7 @@ impl Store {
     /// stopped in between): merged again at startup.
     pub fn frames_awaiting_merge(&self) -> Result<Vec<FrameRow>> {
         let conn = self.conn();
-        let mut stmt = conn.prepare(&format!(
+        let mut stmt = conn.prepare_cached(&format!(
             "SELECT {FRAME_COLUMNS} FROM frames f WHERE tiles_done = tiles_total AND outputs IS NULL AND (SELECT state FROM jobs WHERE id = f.job_id) IN ('queued', 'running')"
         ))?;
         let rows = stmt.query_map([], frame_from_row)?.collect::<rusqlite::Result<Vec<_>>>()?;
@@ -548,7 +588,7 @@ impl Store {
     /// The rendered tiles of a frame: (rect, pixels bytes).
     pub fn frame_tiles(&self, job: u64, frame: u32) -> Result<Vec<(Rect, Vec<u8>)>> {
         let conn = self.conn();
-        let mut stmt = conn.prepare(
+        let mut stmt = conn.prepare_cached(
             "SELECT x0, y0, w, h, pixels FROM tiles WHERE job_id = ?1 AND frame = ?2 AND state = 'done' AND pixels IS NOT NULL",
         )?;
         let rows = stmt
@@ -579,7 +619,7 @@ impl Store {
     ) -> Result<bool> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
-        tx.execute(
+        tx.execute_cached(
             "UPDATE frames SET outputs = ?3 WHERE job_id = ?1 AND idx = ?2",
             params![job as i64, frame, serde_json::to_string(outputs)?],
         )?;
@@ -598,14 +638,14 @@ impl Store {
                 Event { frame: f, seconds: Some(seconds), ..Event::new("frame_tonemapped", &tonemapped) },
             )?;
         }
-        let left: i64 = tx.query_row(
+        let left: i64 = tx.query_row_cached(
             "SELECT count(*) FROM frames WHERE job_id = ?1 AND outputs IS NULL",
             [job as i64],
             |r| r.get(0),
         )?;
         let done = left == 0;
         if done {
-            let ended = tx.execute(
+            let ended = tx.execute_cached(
                 "UPDATE jobs SET state = 'done', finished_at = ?2 WHERE id = ?1 AND state IN ('queued', 'running')",
                 params![job as i64, now()],
             )?;
@@ -613,7 +653,7 @@ impl Store {
                 log_event(&tx, job as i64, Event::new("job_done", "done: every frame is merged"))?;
             }
             // The pixels live on in the outputs; keep the database small.
-            tx.execute("UPDATE tiles SET pixels = NULL WHERE job_id = ?1", [job as i64])?;
+            tx.execute_cached("UPDATE tiles SET pixels = NULL WHERE job_id = ?1", [job as i64])?;
         }
         tx.commit()?;
         Ok(done)
@@ -622,7 +662,7 @@ impl Store {
     pub fn fail_job(&self, job: u64, error: &str) -> Result<()> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
-        let ended = tx.execute(
+        let ended = tx.execute_cached(
             "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3 WHERE id = ?1 AND state IN ('queued', 'running')",
             params![job as i64, error, now()],
         )?;
@@ -637,7 +677,7 @@ impl Store {
     pub fn cancel_job(&self, job: u64) -> Result<bool> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
-        let n = tx.execute(
+        let n = tx.execute_cached(
             "UPDATE jobs SET state = 'canceled', finished_at = ?2 WHERE id = ?1 AND state IN ('queued', 'running')",
             params![job as i64, now()],
         )?;
@@ -652,7 +692,7 @@ impl Store {
     pub fn register_worker(&self, name: &str, threads: u32) -> Result<u64> {
         let conn = self.conn();
         let t = now();
-        conn.execute(
+        conn.execute_cached(
             "INSERT INTO workers(name, threads, registered_at, last_seen) VALUES (?1, ?2, ?3, ?3)",
             params![name, threads, t],
         )?;
@@ -662,13 +702,13 @@ impl Store {
     pub fn worker_exists(&self, id: u64) -> Result<bool> {
         let conn = self.conn();
         let n: i64 =
-            conn.query_row("SELECT count(*) FROM workers WHERE id = ?1", [id as i64], |r| r.get(0))?;
+            conn.query_row_cached("SELECT count(*) FROM workers WHERE id = ?1", [id as i64], |r| r.get(0))?;
         Ok(n > 0)
     }
 
     pub fn workers(&self) -> Result<Vec<WorkerRow>> {
         let conn = self.conn();
-        let mut stmt = conn.prepare(
+        let mut stmt = conn.prepare_cached(
             "SELECT w.id, w.name, w.threads, w.registered_at, w.last_seen, w.tiles_done, w.failures, w.rendering, t.job_id, t.frame, t.tile
              FROM workers w LEFT JOIN tiles t ON t.lease_id = w.rendering ORDER BY w.id",
         )?;
@@ -753,7 +793,7 @@ impl Store {
         let Some((job, frame, tile, rect, bundle, scene_path, samples, camera, allow_unsupported)) =
             candidate
         else {
-            tx.execute("UPDATE workers SET last_seen = ?2 WHERE id = ?1", params![w, now()])?;
+            tx.execute_cached("UPDATE workers SET last_seen = ?2 WHERE id = ?1", params![w, now()])?;
             tx.commit()?;
             return Ok(None);
         };
@@ -764,7 +804,7 @@ impl Store {
             id
         };
         let t = now();
-        tx.execute(
+        tx.execute_cached(
             "UPDATE tiles SET state = 'leased', lease_id = ?4, worker_id = ?5, deadline = ?6 WHERE job_id = ?1 AND frame = ?2 AND tile = ?3",
             params![job, frame, tile, lease_id as i64, w, t + lease_seconds],
         )?;
@@ -777,12 +817,12 @@ impl Store {
             let message = format!("tile {tile} of frame {frame} tried again after {failures} failure(s)");
             log_event(&tx, job, Event::new("tile_retried", &message).tile(frame, tile).worker(w))?;
         }
-        tx.execute(
+        tx.execute_cached(
             "UPDATE jobs SET state = 'running', started_at = ?2 WHERE id = ?1 AND state = 'queued'",
             params![job, t],
         )?;
         // Shown as the worker's current tile until a heartbeat says which one it renders.
-        tx.execute(
+        tx.execute_cached(
             "UPDATE workers SET last_seen = ?2, rendering = coalesce(rendering, ?3) WHERE id = ?1",
             params![w, t, lease_id as i64],
         )?;
@@ -815,7 +855,7 @@ impl Store {
         let t = now();
         let mut revoked = Vec::new();
         for &l in leases {
-            let n = tx.execute(
+            let n = tx.execute_cached(
                 "UPDATE tiles SET deadline = ?3 WHERE lease_id = ?1 AND worker_id = ?2 AND state = 'leased'",
                 params![l as i64, worker as i64, t + lease_seconds],
             )?;
@@ -824,7 +864,7 @@ impl Store {
             }
         }
         let rendering = rendering.filter(|r| !revoked.contains(r));
-        tx.execute(
+        tx.execute_cached(
             "UPDATE workers SET last_seen = ?2, rendering = ?3 WHERE id = ?1",
             params![worker as i64, t, rendering.map(|r| r as i64)],
         )?;
@@ -869,7 +909,7 @@ impl Store {
                 "worker {worker} stopped answering while rendering this tile (it crashed, was killed or lost \
                  its connection) and its lease expired"
             );
-            tx.execute(
+            tx.execute_cached(
                 "UPDATE workers SET rendering = NULL WHERE id = ?1 AND rendering IS NOT NULL",
                 [worker],
             )?;
@@ -888,13 +928,13 @@ impl Store {
     pub fn release_lease(&self, lease: u64, worker: u64) -> Result<bool> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
-        let n = tx.execute(
+        let n = tx.execute_cached(
             "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL
              WHERE lease_id = ?1 AND worker_id = ?2 AND state = 'leased' AND deadline >= ?3",
             params![lease as i64, worker as i64, now()],
         )?;
         if n > 0 {
-            tx.execute(
+            tx.execute_cached(
                 "UPDATE workers SET rendering = NULL, last_seen = ?3 WHERE id = ?1 AND rendering = ?2",
                 params![worker as i64, lease as i64, now()],
             )?;
@@ -914,7 +954,7 @@ impl Store {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         let row = tx
-            .query_row(
+            .query_row_cached(
                 "SELECT t.job_id, t.frame, t.w, t.h, t.deadline, t.tile, t.x0, t.y0 FROM tiles t JOIN jobs j ON j.id = t.job_id
                  WHERE t.lease_id = ?1 AND t.worker_id = ?2 AND t.state = 'leased' AND j.state IN ('queued', 'running')",
                 params![lease as i64, worker as i64],
@@ -943,11 +983,11 @@ impl Store {
         if pixels.len() != expected {
             return Ok(ResultOutcome::WrongSize { expected });
         }
-        tx.execute(
+        tx.execute_cached(
             "UPDATE tiles SET state = 'done', pixels = ?2, deadline = NULL, render_seconds = ?3 WHERE lease_id = ?1",
             params![lease as i64, pixels, render_seconds],
         )?;
-        tx.execute(
+        tx.execute_cached(
             "UPDATE frames SET tiles_done = tiles_done + 1 WHERE job_id = ?1 AND idx = ?2",
             params![job, frame],
         )?;
@@ -963,11 +1003,11 @@ impl Store {
                 ..Event::new("tile_done", &message).tile(frame, tile).worker(worker as i64)
             },
         )?;
-        tx.execute(
+        tx.execute_cached(
             "UPDATE workers SET tiles_done = tiles_done + 1, last_seen = ?2, rendering = NULL WHERE id = ?1",
             params![worker as i64, now()],
         )?;
-        let (done, total): (i64, i64) = tx.query_row(
+        let (done, total): (i64, i64) = tx.query_row_cached(
             "SELECT tiles_done, tiles_total FROM frames WHERE job_id = ?1 AND idx = ?2",
             params![job, frame],
             |r| Ok((r.get(0)?, r.get(1)?)),
@@ -992,7 +1032,7 @@ impl Store {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         let row = tx
-            .query_row(
+            .query_row_cached(
                 "SELECT job_id, frame, tile FROM tiles WHERE lease_id = ?1 AND worker_id = ?2 AND state = 'leased'",
                 params![lease as i64, worker as i64],
                 |r| Ok((r.get::<_, i64>(0)?, r.get::<_, i64>(1)?, r.get::<_, i64>(2)?)),
@@ -1015,7 +1055,7 @@ impl Store {
     pub fn job_log(&self, job: u64, after: u64) -> Result<Option<Vec<JobEvent>>> {
         let conn = self.conn();
         let exists: i64 =
-            conn.query_row("SELECT count(*) FROM jobs WHERE id = ?1", [job as i64], |r| r.get(0))?;
+            conn.query_row_cached("SELECT count(*) FROM jobs WHERE id = ?1", [job as i64], |r| r.get(0))?;
         if exists == 0 {
             return Ok(None);
         }
@@ -1044,7 +1084,7 @@ impl Store {
     /// The most recent failure messages of a job's tiles (for the job view).
     pub fn recent_failures(&self, job: u64) -> Result<Vec<String>> {
         let conn = self.conn();
-        let mut stmt = conn.prepare(
+        let mut stmt = conn.prepare_cached(
             "SELECT frame, tile, worker_id, error FROM tile_failures WHERE job_id = ?1 ORDER BY at DESC LIMIT 10",
         )?;
         let rows = stmt
@@ -1064,12 +1104,12 @@ impl Store {
     /// Counts for /metrics.
     pub fn metrics(&self) -> Result<StoreMetrics> {
         let conn = self.conn();
-        let mut stmt = conn.prepare("SELECT state, count(*) FROM jobs GROUP BY state")?;
+        let mut stmt = conn.prepare_cached("SELECT state, count(*) FROM jobs GROUP BY state")?;
         let states =
             stmt.query_map([], |r| Ok((r.get(0)?, r.get(1)?)))?.collect::<rusqlite::Result<Vec<_>>>()?;
         let done: i64 =
-            conn.query_row("SELECT count(*) FROM tiles WHERE state = 'done'", [], |r| r.get(0))?;
-        let (sum, count): (Option<f64>, i64) = conn.query_row(
+            conn.query_row_cached("SELECT count(*) FROM tiles WHERE state = 'done'", [], |r| r.get(0))?;
+        let (sum, count): (Option<f64>, i64) = conn.query_row_cached(
             "SELECT sum(render_seconds), count(render_seconds) FROM tiles WHERE render_seconds IS NOT NULL",
             [],
             |r| Ok((r.get(0)?, r.get(1)?)),
