@@ -9,8 +9,9 @@
 //! the scene's folder (every file the scene's directory holds, up to 64 MiB).
 //!
 //! Farm wall time runs from the submission request to the job's `done` state (upload,
-//! validation, bundle fetch and scene build on the worker, rendering, merge, tone mapping);
-//! the server is already running, as a farm is. CPU seconds are read from /proc for the
+//! validation, bundle fetch and scene build on the worker, rendering, merge, tone mapping),
+//! which is awaited on the server's event stream (`/api/v1/events`, as the status page
+//! follows jobs) rather than by polling; the server is already running, as a farm is. CPU seconds are read from /proc for the
 //! server and its worker (Linux only).
 
 use std::io::{BufRead, BufReader, Read};
@@ -192,6 +193,11 @@ fn main() -> Result<()> {
     let run_farm = || -> Result<(f64, f64, f64, f64)> {
         let (s0, _) = cpu_of(server.id())?;
         let (w0, _) = cpu_of(worker_pid)?;
+        // The job's end is awaited on the server's event stream (as the status page follows
+        // jobs), opened before the submission so no event can be missed: polling its state
+        // every few milliseconds instead would load the server being measured.
+        let stream = ureq::get(&format!("{url}/api/v1/events")).call().context("opening /api/v1/events")?;
+        let mut events = BufReader::new(stream.into_reader());
         let t = Instant::now();
         let resp = ureq::post(&format!("{url}/api/v1/jobs"))
             .set("Content-Type", &format!("multipart/form-data; boundary={boundary}"))
@@ -204,14 +210,34 @@ fn main() -> Result<()> {
             Err(e) => bail!("submission failed: {e}"),
         };
         let id = job["id"].as_u64().context("no job id")?;
-        loop {
+        let state_of = || -> Result<String> {
             let mut text = String::new();
             ureq::get(&format!("{url}/api/v1/jobs/{id}")).call()?.into_reader().read_to_string(&mut text)?;
             let j: serde_json::Value = serde_json::from_str(&text)?;
-            match j["state"].as_str() {
-                Some("done") => break,
-                Some("failed") | Some("canceled") => bail!("the job ended: {j}"),
-                _ => std::thread::sleep(Duration::from_millis(20)),
+            Ok(j["state"].as_str().unwrap_or_default().to_string())
+        };
+        let mut line = String::new();
+        loop {
+            line.clear();
+            if events.read_line(&mut line)? == 0 {
+                bail!("the server closed its event stream before job {id} ended");
+            }
+            // `event: resync` (this reader fell behind) means: look at the job itself.
+            let state = if line.trim_end() == "event: resync" {
+                state_of()?
+            } else if let Some(data) = line.strip_prefix("data:") {
+                let ev: serde_json::Value = serde_json::from_str(data.trim()).unwrap_or_default();
+                if ev["type"] != "job" || ev["job"].as_u64() != Some(id) {
+                    continue;
+                }
+                ev["state"].as_str().unwrap_or_default().to_string()
+            } else {
+                continue;
+            };
+            match state.as_str() {
+                "done" => break,
+                "failed" | "canceled" => bail!("job {id} ended {state}: {}", state_of().unwrap_or_default()),
+                _ => {}
             }
         }
         let farm_wall = t.elapsed().as_secs_f64();
