@@ -254,10 +254,18 @@ fn main() -> Result<()> {
     );
     let (mut walls, mut cpus) = (Vec::new(), Vec::new());
     for k in 1..=repeat {
-        let (cw, cc) = run_cli()?;
-        let (fw, fc, sc, wc) = run_farm()?;
+        // The order alternates (CLI first on odd runs, the farm first on even ones), so a
+        // machine that speeds up or slows down within a pair favours neither side.
+        let ((cw, cc), (fw, fc, sc, wc)) = if k % 2 == 1 {
+            let cli = run_cli()?;
+            (cli, run_farm()?)
+        } else {
+            let farm = run_farm()?;
+            (run_cli()?, farm)
+        };
         println!(
-            "run {k}: CLI wall {cw:.2} s, CPU {cc:.2} s | farm wall {fw:.2} s, CPU {fc:.2} s (server {sc:.2}, worker {wc:.2}) | ratio wall {:.3}, CPU {:.3}",
+            "run {k} ({} first): CLI wall {cw:.2} s, CPU {cc:.2} s | farm wall {fw:.2} s, CPU {fc:.2} s (server {sc:.2}, worker {wc:.2}) | ratio wall {:.3}, CPU {:.3}",
+            if k % 2 == 1 { "CLI" } else { "farm" },
             fw / cw,
             fc / cc
         );
