@@ -68,8 +68,8 @@ struct Cli {
     /// it is refused with 422, naming the smallest tile_size that fits.
     #[arg(long, default_value_t = 100_000, env = "TESSERA_MAX_JOB_TILES", value_name = "N")]
     max_job_tiles: u64,
-    /// Longest one tile may render; past it the worker stops and the tile fails (a job whose
-    /// tiles keep failing fails). Raise it, or submit with a larger tile count (smaller
+    /// Longest one tile may render (on one thread of a worker); past it the worker stops and
+    /// the tile fails (a job whose tiles keep failing fails). Raise it, or submit with a larger tile count (smaller
     /// --tile-size) or fewer samples.
     #[arg(long, default_value_t = 1800.0, env = "TESSERA_MAX_TILE_SECONDS", value_name = "S")]
     max_tile_seconds: f64,

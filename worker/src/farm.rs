@@ -1,28 +1,30 @@
 //! `tessera-worker work`: pulls tiles from a `tessera-server` and renders them
 //! (the worker side of `tessera::protocol`).
 //!
-//! Five threads share the work:
+//! These threads share the work:
 //! - the **fetcher** long-polls for the next lease and hands it over through a channel of one,
-//!   so while a tile renders the next one is already here and the cores never wait on the
+//!   so while tiles render the next one is already here and the cores never wait on the
 //!   network;
 //! - the **heartbeat** thread renews every lease the worker holds (rendering or prefetched)
 //!   every `heartbeat_seconds`; it only does HTTP, so rendering cannot starve it; leases the
 //!   server revoked are remembered and their tiles dropped;
-//! - the **watcher** holds a long poll (`/api/v1/worker/watch`) on the lease being rendered,
-//!   which the server answers the moment that lease is revoked (its job cancelled or failed);
-//!   it, or the heartbeat, raises the tile's stop flag, and the renderer, which looks at the
-//!   flag every few samples, gives up within a moment instead of finishing a tile nobody wants;
-//! - the **main** thread renders on a rayon pool: it fetches a job's bundle once, builds the
-//!   scene once per bundle (cached by its hash), renders the tile with the same
-//!   `render_tile` as `tessera-worker render` (same bits), and uploads it with a checksum.
-//!   A tile that is still rendering after the lease's `max_render_seconds` (the server's
-//!   `--max-tile-seconds`) is stopped and reported failed with a message naming that limit;
-//! - the **uploader** sends each finished tile while the main thread renders the next one;
+//! - the **watcher** holds a long poll (`/api/v1/worker/watch`) on the leases being rendered,
+//!   which the server answers the moment one is revoked (its job cancelled or failed); it, or
+//!   the heartbeat, raises that tile's stop flag, and the renderer, which looks at the flag
+//!   every few samples, gives up within a moment instead of finishing a tile nobody wants;
+//! - a **render slot** per thread (`--threads`, default every core) takes a lease, fetches its
+//!   job's bundle once and builds the scene once per bundle (cached by its hash, shared by the
+//!   slots; the build runs on a rayon pool of as many threads), and renders the whole tile on
+//!   its own thread with the same `render_tile_until` as `tessera-worker render`, which also
+//!   gives each thread whole tiles (same bits). A tile that is still rendering after the
+//!   lease's `max_render_seconds` (the server's `--max-tile-seconds`) is stopped and reported
+//!   failed with a message naming that limit;
+//! - the **uploader** sends each finished tile while the slots render the next ones;
 //! - and, for a local worker of `tessera-server` (`--exit-with-parent`), a **parent-watch**
 //!   thread that ends the process when its parent is gone.
 //!
 //! **Stopping.** SIGTERM or Ctrl-C (SIGINT) sets a flag: the worker takes no new lease, finishes
-//! and uploads the tile it is rendering, gives back (`.../release`) the lease it fetched ahead and
+//! and uploads the tiles it is rendering, gives back (`.../release`) the lease it fetched ahead and
 //! exits with status 0, so its tiles go back to the queue at once instead of after the lease
 //! expires. A second signal exits at once (status 1); the server then requeues the tile when its
 //! lease expires, as after a crash.
@@ -35,7 +37,6 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
-use rayon::prelude::*;
 use tessera::bundle::{BundleSceneError, load_bundle_scene, read_tar};
 use tessera::image::TileRect;
 use tessera::protocol::*;
@@ -54,23 +55,39 @@ pub struct WorkOptions {
 }
 
 /// The leases this worker holds and those the server took back.
-#[derive(Default)]
 struct Leases {
     held: HashSet<u64>,
     revoked: HashSet<u64>,
-    rendering: Option<u64>,
-    /// Raised to stop the tile being rendered; a new one for every tile.
-    cancel: Arc<AtomicBool>,
+    /// The lease each render slot is rendering.
+    rendering: Vec<Option<u64>>,
+    /// Raised to stop the tile of a slot; a new one for every tile.
+    cancel: Vec<Arc<AtomicBool>>,
 }
 
 impl Leases {
+    fn new(slots: usize) -> Leases {
+        Leases {
+            held: HashSet::new(),
+            revoked: HashSet::new(),
+            rendering: vec![None; slots],
+            cancel: (0..slots).map(|_| Arc::new(AtomicBool::new(false))).collect(),
+        }
+    }
+
     /// The server took `lease` back: forget it, and stop it if it is being rendered.
     fn revoke(&mut self, lease: u64) {
         self.held.remove(&lease);
         self.revoked.insert(lease);
-        if self.rendering == Some(lease) {
-            self.cancel.store(true, Ordering::SeqCst);
+        for (r, c) in self.rendering.iter().zip(&self.cancel) {
+            if *r == Some(lease) {
+                c.store(true, Ordering::SeqCst);
+            }
         }
+    }
+
+    /// The oldest lease being rendered: what the status page shows the worker doing.
+    fn shown(&self) -> Option<u64> {
+        self.rendering.iter().flatten().min().copied()
     }
 }
 
@@ -216,7 +233,12 @@ pub fn work(opts: WorkOptions) -> Result<()> {
         pool.current_num_threads(),
         client.base
     );
-    let leases = Arc::new(Mutex::new(Leases::default()));
+    // A render slot per thread, each rendering a whole tile, as `tessera-worker render` renders
+    // its tiles. Every core on one tile instead (its rows in parallel; one tile, or two at once)
+    // left the farm at 1.09 of the CLI's CPU and 1.13-1.17 of its wall time (farmbench medians
+    // of six runs, two threads); a tile per thread, 1.05 and 1.03.
+    let slot_count = pool.current_num_threads();
+    let leases = Arc::new(Mutex::new(Leases::new(slot_count)));
 
     // Heartbeats.
     {
@@ -227,7 +249,7 @@ pub fn work(opts: WorkOptions) -> Result<()> {
                 std::thread::sleep(every);
                 let (held, rendering) = {
                     let l = lock(&leases);
-                    (l.held.iter().copied().collect::<Vec<_>>(), l.rendering)
+                    (l.held.iter().copied().collect::<Vec<_>>(), l.shown())
                 };
                 match client.post_json(
                     "/api/v1/worker/heartbeat",
@@ -247,7 +269,7 @@ pub fn work(opts: WorkOptions) -> Result<()> {
         })?;
     }
 
-    // The watcher: a long poll on the lease being rendered.
+    // The watcher: a long poll on the leases being rendered.
     {
         let (client, leases, stop) = (client.clone(), leases.clone(), stop.clone());
         std::thread::Builder::new()
@@ -277,78 +299,160 @@ pub fn work(opts: WorkOptions) -> Result<()> {
         })?
     };
 
-    let mut scenes: HashMap<(String, String), Arc<Scene>> = HashMap::new();
-    let mut done = 0u64;
-    loop {
-        if stop.load(Ordering::SeqCst) {
-            eprintln!("stopping: no new tiles");
-            break;
-        }
-        let lease = match rx.recv_timeout(Duration::from_millis(200)) {
-            Ok(lease) => lease,
-            Err(RecvTimeoutError::Timeout) => continue,
-            Err(RecvTimeoutError::Disconnected) => break,
-        };
-        if stop.load(Ordering::SeqCst) {
-            // The signal came while this lease was on its way: it was never started.
-            release(&client, worker_id, &leases, lease.lease_id);
-            break;
-        }
-        let id = lease.lease_id;
-        let cancel = {
-            let mut l = lock(&leases);
-            l.rendering = Some(id);
-            l.cancel = Arc::new(AtomicBool::new(false));
-            // Revoked while it waited in the channel: start it only to drop it at once.
-            if l.revoked.contains(&id) {
-                l.cancel.store(true, Ordering::SeqCst);
-            }
-            l.cancel.clone()
-        };
-        let started = Instant::now();
-        let rendered = pool.install(|| render_lease(&client, &mut scenes, &lease, &cancel));
-        let seconds = started.elapsed().as_secs_f64();
-        let revoked = {
-            let mut l = lock(&leases);
-            l.rendering = None;
-            l.revoked.remove(&id)
-        };
-        if revoked {
-            eprintln!("lease {id} was revoked while rendering; dropping the tile");
-            lock(&leases).held.remove(&id);
-            continue;
-        }
-        match rendered {
-            // Only a revocation raises the flag, and that was handled above.
-            Ok(None) => {
-                lock(&leases).held.remove(&id);
-            }
-            Ok(Some(px)) => {
-                if up_tx.send((id, px, seconds)).is_err() {
-                    bail!("the upload thread ended");
+    let scenes: Mutex<HashMap<(String, String), Arc<Scene>>> = Mutex::new(HashMap::new());
+    // Tiles taken so far, for `max_tiles`.
+    let taken = std::sync::atomic::AtomicU64::new(0);
+    let rx = Mutex::new(rx);
+    let slots = Slots {
+        client: &client,
+        worker_id,
+        leases: &leases,
+        stop: &stop,
+        pool: &pool,
+        scenes: &scenes,
+        taken: &taken,
+        max_tiles: opts.max_tiles,
+        rx: &rx,
+        announced: AtomicBool::new(false),
+    };
+    let ended: Vec<Result<()>> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..slot_count)
+            .map(|slot| {
+                let (slots, up_tx) = (&slots, up_tx.clone());
+                std::thread::Builder::new()
+                    .name(format!("slot-{slot}"))
+                    .spawn_scoped(scope, move || slots.run(slot, up_tx))
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| match h {
+                Ok(h) => {
+                    h.join().unwrap_or_else(|_| Err(anyhow!("a render slot panicked (a bug in Tessera)")))
                 }
-            }
-            Err(e) => {
-                eprintln!("tile {} of job {} failed: {e:#}", lease.tile, lease.job_id);
-                let fatal = e.downcast_ref::<OutOfTime>().is_some();
-                let req = FailRequest { worker_id, error: format!("{e:#}"), fatal };
-                if let Err(e) = client.post_json(&format!("/api/v1/worker/leases/{id}/fail"), &req) {
-                    eprintln!("reporting the failure: {}", describe(e));
-                }
-                lock(&leases).held.remove(&id);
-            }
-        }
-        done += 1;
-        if opts.max_tiles.is_some_and(|m| done >= m) {
-            break;
-        }
-    }
+                Err(e) => Err(anyhow!("cannot start a render slot: {e}")),
+            })
+            .collect()
+    });
+    let rx = rx.into_inner().unwrap_or_else(|e| e.into_inner());
     stop.store(true, Ordering::SeqCst);
     // Finish the uploads in flight, then give back what was fetched ahead.
     drop(up_tx);
     let _ = uploader.join();
     give_back(&client, worker_id, &leases, &rx);
-    Ok(())
+    ended.into_iter().collect()
+}
+
+/// What the render slots share.
+struct Slots<'a> {
+    client: &'a Client,
+    worker_id: u64,
+    leases: &'a Mutex<Leases>,
+    stop: &'a AtomicBool,
+    pool: &'a rayon::ThreadPool,
+    scenes: &'a Mutex<HashMap<(String, String), Arc<Scene>>>,
+    taken: &'a std::sync::atomic::AtomicU64,
+    max_tiles: Option<u64>,
+    rx: &'a Mutex<Receiver<Lease>>,
+    /// Whether "stopping" was said.
+    announced: AtomicBool,
+}
+
+impl Slots<'_> {
+    /// Says once, from the first slot that sees the flag, that the worker is stopping.
+    fn stopping(&self) {
+        if !self.announced.swap(true, Ordering::SeqCst) {
+            eprintln!("stopping: no new tiles");
+        }
+    }
+
+    /// Render slot `slot`: takes the next lease, renders it on this thread, hands the tile to
+    /// the uploader (or reports its failure); until the worker stops or has taken `max_tiles`.
+    fn run(&self, slot: usize, up_tx: SyncSender<(u64, Vec<[f32; 3]>, f64)>) -> Result<()> {
+        let (client, worker_id, leases, stop) = (self.client, self.worker_id, self.leases, self.stop);
+        loop {
+            if stop.load(Ordering::SeqCst) {
+                self.stopping();
+                return Ok(());
+            }
+            let next = {
+                // One slot waits on the channel at a time; the others wait for it here, and look
+                // at the flag again once they get their turn.
+                let rx = self.rx.lock().unwrap_or_else(|e| e.into_inner());
+                if stop.load(Ordering::SeqCst) {
+                    self.stopping();
+                    return Ok(());
+                }
+                rx.recv_timeout(Duration::from_millis(200))
+            };
+            let lease = match next {
+                Ok(lease) => lease,
+                Err(RecvTimeoutError::Timeout) => continue,
+                Err(RecvTimeoutError::Disconnected) => return Ok(()),
+            };
+            let over = self.max_tiles.is_some_and(|m| self.taken.fetch_add(1, Ordering::SeqCst) >= m);
+            if stop.load(Ordering::SeqCst) || over {
+                // The signal (or the last tile wanted) came while this lease was on its way: it
+                // was never started.
+                release(client, worker_id, leases, lease.lease_id);
+                stop.store(true, Ordering::SeqCst);
+                return Ok(());
+            }
+            let id = lease.lease_id;
+            let cancel = {
+                let mut l = lock(leases);
+                l.rendering[slot] = Some(id);
+                l.cancel[slot] = Arc::new(AtomicBool::new(false));
+                // Revoked while it waited in the channel: start it only to drop it at once.
+                if l.revoked.contains(&id) {
+                    l.cancel[slot].store(true, Ordering::SeqCst);
+                }
+                l.cancel[slot].clone()
+            };
+            let started = Instant::now();
+            let rendered = if cancel.load(Ordering::SeqCst) {
+                Ok(None)
+            } else {
+                lease_scene(client, self.scenes, self.pool, &lease)
+                    .and_then(|scene| render_lease(&scene, &lease, &cancel))
+            };
+            let seconds = started.elapsed().as_secs_f64();
+            let revoked = {
+                let mut l = lock(leases);
+                l.rendering[slot] = None;
+                l.revoked.remove(&id)
+            };
+            if revoked {
+                eprintln!("lease {id} was revoked while rendering; dropping the tile");
+                lock(leases).held.remove(&id);
+                continue;
+            }
+            match rendered {
+                // Only a revocation raises the flag, and that was handled above.
+                Ok(None) => {
+                    lock(leases).held.remove(&id);
+                }
+                Ok(Some(px)) => {
+                    if up_tx.send((id, px, seconds)).is_err() {
+                        bail!("the upload thread ended");
+                    }
+                }
+                Err(e) => {
+                    eprintln!("tile {} of job {} failed: {e:#}", lease.tile, lease.job_id);
+                    let fatal = e.downcast_ref::<OutOfTime>().is_some();
+                    let req = FailRequest { worker_id, error: format!("{e:#}"), fatal };
+                    if let Err(e) = client.post_json(&format!("/api/v1/worker/leases/{id}/fail"), &req) {
+                        eprintln!("reporting the failure: {}", describe(e));
+                    }
+                    lock(leases).held.remove(&id);
+                }
+            }
+            if self.max_tiles.is_some_and(|m| self.taken.load(Ordering::SeqCst) >= m) {
+                stop.store(true, Ordering::SeqCst);
+                return Ok(());
+            }
+        }
+    }
 }
 
 /// How long a stopping worker waits for a long poll in flight to come back (a lease it brings
@@ -432,30 +536,38 @@ fn fetch_leases(
 /// How long the watcher asks the server to hold a watch open.
 const WATCH_SECONDS: f64 = 15.0;
 
-/// Keeps a long poll open on the lease being rendered, and raises its stop flag as soon as the
-/// server says it was revoked. Idle (nothing rendering) it looks again every 50 ms; after an
-/// error (an older server without the endpoint, a restart) it backs off up to 30 s, and the
-/// heartbeat still revokes, only later.
+/// Keeps a long poll open on the leases being rendered, and raises a tile's stop flag as soon
+/// as the server says its lease was revoked. Idle (nothing rendering) it looks again every
+/// 50 ms; after an error (an older server without the endpoint, a restart) it backs off up to
+/// 30 s, and the heartbeat still revokes, only later.
+///
+/// A watch names the leases rendering when it was sent; a slot that starts a tile meanwhile
+/// is not in it. The server answers a watch whenever a job is cancelled or fails if any lease
+/// it names has ended, and one has: the slot's previous tile, whose lease was uploaded or
+/// revoked. The next watch then names the new tile.
 fn watch_rendering(client: &Client, worker_id: u64, leases: &Mutex<Leases>, stop: &AtomicBool) {
     let mut delay = Duration::from_secs(1);
     loop {
-        let Some(id) = lock(leases).rendering else {
+        let watched: Vec<u64> = lock(leases).rendering.iter().flatten().copied().collect();
+        if watched.is_empty() {
             if stop.load(Ordering::SeqCst) {
                 return;
             }
             std::thread::sleep(Duration::from_millis(50));
             continue;
-        };
-        let req = WatchRequest { worker_id, leases: vec![id], wait_seconds: WATCH_SECONDS };
+        }
+        let req = WatchRequest { worker_id, leases: watched.clone(), wait_seconds: WATCH_SECONDS };
         match client.post_json("/api/v1/worker/watch", &req) {
             Ok(resp) => {
                 delay = Duration::from_secs(1);
                 if let Ok(answer) = resp.into_json::<HeartbeatResponse>() {
                     let mut l = lock(leases);
-                    // The server also lists a lease that ended because its tile was uploaded
-                    // meanwhile; only the one still rendering is stopped.
-                    if l.rendering == Some(id) && answer.revoked.contains(&id) {
-                        l.revoke(id);
+                    // The server also lists leases that ended because their tiles were
+                    // uploaded meanwhile; only those still rendering are stopped.
+                    for id in answer.revoked {
+                        if l.rendering.contains(&Some(id)) {
+                            l.revoke(id);
+                        }
                     }
                 }
             }
@@ -463,7 +575,7 @@ fn watch_rendering(client: &Client, worker_id: u64, leases: &Mutex<Leases>, stop
                 if stop.load(Ordering::SeqCst) {
                     return;
                 }
-                eprintln!("watching lease {id}: {}", describe(e));
+                eprintln!("watching leases {watched:?}: {}", describe(e));
                 std::thread::sleep(delay);
                 delay = (delay * 2).min(Duration::from_secs(30));
             }
@@ -471,28 +583,29 @@ fn watch_rendering(client: &Client, worker_id: u64, leases: &Mutex<Leases>, stop
     }
 }
 
-/// Renders the tile of `lease`, building its scene first if this bundle is new here. `None`
-/// when `cancel` was raised (the lease was revoked) before the tile was done.
-fn render_lease(
+/// The scene of `lease`, built (on `pool`) if its bundle is new here. Called on a slot's own
+/// thread, never on the pool: the cache's lock is held while a scene is built, so the other
+/// slot, most likely rendering the same job, waits for it instead of building it again, and a
+/// pool thread that steals work while it waits must never be one that wants the lock.
+fn lease_scene(
     client: &Client,
-    scenes: &mut HashMap<(String, String), Arc<Scene>>,
+    scenes: &Mutex<HashMap<(String, String), Arc<Scene>>>,
+    pool: &rayon::ThreadPool,
     lease: &Lease,
-    cancel: &AtomicBool,
-) -> Result<Option<Vec<[f32; 3]>>> {
-    if cancel.load(Ordering::SeqCst) {
-        return Ok(None);
-    }
+) -> Result<Arc<Scene>> {
     // As the server validated the job: unsupported elements only if its submission allowed them.
     let options = LoadOptions { allow_unsupported: lease.allow_unsupported };
     let key = (lease.bundle.clone(), lease.scene_path.clone());
-    let scene = match scenes.get(&key) {
+    let mut scenes = scenes.lock().unwrap_or_else(|e| e.into_inner());
+    Ok(match scenes.get(&key) {
         Some(s) => {
             // Built for another job of the same bundle, which may have allowed what this one does not.
             options.check(&s.warnings).map_err(BundleSceneError::Unsupported)?;
             s.clone()
         }
         None => {
-            let s = Arc::new(fetch_bundle_scene(client, &lease.bundle, &lease.scene_path, options)?);
+            let s = pool.install(|| fetch_bundle_scene(client, &lease.bundle, &lease.scene_path, options))?;
+            let s = Arc::new(s);
             // Keep a few scenes; jobs rarely interleave more.
             if scenes.len() >= 4 {
                 scenes.clear();
@@ -500,7 +613,12 @@ fn render_lease(
             scenes.insert(key, s.clone());
             s
         }
-    };
+    })
+}
+
+/// Renders the tile of `lease` on the calling thread (a render slot). `None` when `cancel` was
+/// raised (the lease was revoked) before the tile was done.
+fn render_lease(scene: &Scene, lease: &Lease, cancel: &AtomicBool) -> Result<Option<Vec<[f32; 3]>>> {
     let cam = scene
         .cameras
         .get(lease.camera as usize)
@@ -516,22 +634,15 @@ fn render_lease(
         flag: Some(cancel),
         deadline: limit.and_then(|s| Instant::now().checked_add(Duration::from_secs_f64(s.min(1e9)))),
     };
-    // Every core on this one tile: its rows render in parallel. A pixel's value does not depend
-    // on which rectangle it is rendered in, so the rows put together are the tile's exact bits.
-    let rows = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        (r.y0..r.y0 + r.height)
-            .into_par_iter()
-            .map(|y| {
-                let row = TileRect { y0: y, height: 1, ..TileRect::from(r) };
-                render_tile_until(&scene, camera, row, &settings, stop).map(|(px, _)| px)
-            })
-            .collect::<Result<Vec<Vec<[f32; 3]>>, Stopped>>()
+    // The whole tile on this thread; a panic is a bug, reported instead of ending the worker.
+    let rendered = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        render_tile_until(scene, camera, TileRect::from(r), &settings, stop).map(|(px, _)| px)
     }))
     .map_err(|_| {
         anyhow!("the renderer panicked on this tile (a bug in Tessera; please report it with the scene)")
     })?;
-    match rows {
-        Ok(rows) => Ok(Some(rows.concat())),
+    match rendered {
+        Ok(px) => Ok(Some(px)),
         Err(Stopped::Cancelled) => Ok(None),
         Err(Stopped::OutOfTime) => Err(OutOfTime { seconds: limit.unwrap_or_default() }.into()),
     }

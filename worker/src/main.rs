@@ -88,8 +88,8 @@ enum Command {
     /// Pull tiles from a tessera-server and render them, until stopped.
     ///
     /// Registers with the server, then long-polls for tiles (one fetched ahead while the
-    /// current one renders), fetches each job's scene bundle once, renders with every core (or
-    /// --threads) and uploads the float pixels. Heartbeats keep its leases alive; if it dies,
+    /// others render), fetches each job's scene bundle once, renders a tile on each thread
+    /// (every core, or --threads) and uploads the float pixels. Heartbeats keep its leases alive; if it dies,
     /// its tiles go back to the queue by themselves.
     ///
     /// Example: tessera-worker work --server http://farm.example:8080 --token "$TOKEN"
