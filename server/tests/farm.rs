@@ -54,6 +54,41 @@ fn a_job_renders_on_two_local_workers_exactly_like_the_cli() {
     assert!(metrics.contains("tessera_tile_render_seconds_count"), "{metrics}");
 }
 
+/// A worker of two threads renders a tile on each, two at once (as the CLI gives each thread
+/// whole tiles), and the frame is still the CLI's to the bit. Tiles of about a tenth of a
+/// second: two of the worker's tiles whose render intervals (as the log dates them: accepted
+/// at `at`, rendered for `seconds` before) overlap by more than half the shorter one can only
+/// have rendered side by side; one at a time, they would overlap by the jitter of the uploads.
+#[test]
+fn a_two_thread_worker_renders_a_tile_on_each_thread_exactly_like_the_cli() {
+    let _s = serial();
+    let data = TempDir::new("farm-slots");
+    let server = Server::start(&data, &["--local-workers", "1", "--local-worker-threads", "2"]);
+    let id = submit_environment(&server, "8", "64");
+    let job = wait_job(&server, id, 120, |j| j["state"] == "done");
+    assert_eq!(job["frames"][0]["tiles_done"], job["frames"][0]["tiles_total"]);
+    assert_outputs_equal_cli(&server, id, "8");
+    let log = get_json(&server.url, &format!("/api/v1/jobs/{id}/log"));
+    let spans: Vec<(f64, f64)> = log["events"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["kind"] == "tile_done")
+        .map(|e| {
+            let (at, s) = (e["at"].as_f64().unwrap(), e["seconds"].as_f64().unwrap());
+            (at - s, at)
+        })
+        .collect();
+    assert_eq!(spans.len() as u64, job["frames"][0]["tiles_total"].as_u64().unwrap(), "{log}");
+    let side_by_side = spans.iter().enumerate().any(|(i, a)| {
+        spans[i + 1..].iter().any(|b| {
+            let overlap = a.1.min(b.1) - a.0.max(b.0);
+            overlap > 0.5 * (a.1 - a.0).min(b.1 - b.0)
+        })
+    });
+    assert!(side_by_side, "no two tiles rendered at once: {spans:?}");
+}
+
 /// No local workers, worker token `wtok`, and leases that expire 2 s after the last heartbeat:
 /// what the failure tests need to see a lost worker's tiles come back quickly.
 const SHORT_LEASES: [&str; 8] =
