@@ -319,11 +319,18 @@ pub fn work(opts: WorkOptions) -> Result<()> {
         let handles: Vec<_> = (0..slot_count)
             .map(|slot| {
                 let (slots, up_tx) = (&slots, up_tx.clone());
-                std::thread::Builder::new()
-                    .name(format!("slot-{slot}"))
-                    .spawn_scoped(scope, move || slots.run(slot, up_tx))
+                std::thread::Builder::new().name(format!("slot-{slot}")).spawn_scoped(scope, move || {
+                    // However a slot ends (stopped, an error, a panic), the others stop too:
+                    // the worker is ending, and they are joined below.
+                    let _ending = StopOnDrop(slots.stop);
+                    slots.run(slot, up_tx)
+                })
             })
             .collect();
+        if handles.iter().any(|h| h.is_err()) {
+            // A slot could not start: the others end too, and the error is returned.
+            stop.store(true, Ordering::SeqCst);
+        }
         handles
             .into_iter()
             .map(|h| match h {
@@ -341,6 +348,15 @@ pub fn work(opts: WorkOptions) -> Result<()> {
     let _ = uploader.join();
     give_back(&client, worker_id, &leases, &rx);
     ended.into_iter().collect()
+}
+
+/// Raises the stop flag when dropped (also while unwinding).
+struct StopOnDrop<'a>(&'a AtomicBool);
+
+impl Drop for StopOnDrop<'_> {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::SeqCst);
+    }
 }
 
 /// What the render slots share.
