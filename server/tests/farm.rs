@@ -55,8 +55,8 @@ fn a_job_renders_on_two_local_workers_exactly_like_the_cli() {
 }
 
 /// A worker of two threads renders a tile on each, two at once (as the CLI gives each thread
-/// whole tiles), and the frame is still the CLI's to the bit. Tiles of about a tenth of a
-/// second: two of the worker's tiles whose render intervals (as the log dates them: accepted
+/// whole tiles), and the frame is still the CLI's to the bit. Tiles of a few milliseconds
+/// each (8 spp, 64 pixels): two of the worker's tiles whose render intervals (as the log dates them: accepted
 /// at `at`, rendered for `seconds` before) overlap by more than half the shorter one can only
 /// have rendered side by side; one at a time, they would overlap by the jitter of the uploads.
 #[test]

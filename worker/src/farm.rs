@@ -91,9 +91,10 @@ impl Leases {
     }
 }
 
-/// The lease book, even if a thread panicked while holding it (its sets stay consistent).
-fn lock(leases: &Mutex<Leases>) -> std::sync::MutexGuard<'_, Leases> {
-    leases.lock().unwrap_or_else(|e| e.into_inner())
+/// The value behind `m`, even if a thread panicked while holding it (the lease book's sets,
+/// the scene cache and the lease channel stay consistent: none is left half-changed).
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 struct Client {
@@ -394,7 +395,7 @@ impl Slots<'_> {
             let next = {
                 // One slot waits on the channel at a time; the others wait for it here, and look
                 // at the flag again once they get their turn.
-                let rx = self.rx.lock().unwrap_or_else(|e| e.into_inner());
+                let rx = lock(self.rx);
                 if stop.load(Ordering::SeqCst) {
                     self.stopping();
                     return Ok(());
@@ -612,7 +613,7 @@ fn lease_scene(
     // As the server validated the job: unsupported elements only if its submission allowed them.
     let options = LoadOptions { allow_unsupported: lease.allow_unsupported };
     let key = (lease.bundle.clone(), lease.scene_path.clone());
-    let mut scenes = scenes.lock().unwrap_or_else(|e| e.into_inner());
+    let mut scenes = lock(scenes);
     Ok(match scenes.get(&key) {
         Some(s) => {
             // Built for another job of the same bundle, which may have allowed what this one does not.
