@@ -542,14 +542,22 @@ impl Accel {
     /// Closest surface hit with `t` in (tmin, tmax).
     pub fn intersect(&self, ray: &Ray, tmin: f64, tmax: f64) -> Option<SurfaceHit> {
         let mut best = Candidate::none(tmax);
-        let mut fr = to_f32_ray(ray, tmin, tmax);
+        let mut near = tmax as f32;
         if let Some(tree) = self.world_tree()
-            && let Some((t, id)) = tree.intersect(&Ray8::new(fr.origin, fr.direction, fr.tmin, fr.tmax))
+            && let Some((t, id)) =
+                tree.intersect(&Ray8::new(ray.origin.as_vec3a(), ray.dir.as_vec3a(), tmin as f32, near))
         {
             let (instance, tri) = self.world_prim(id);
             best = Candidate { t: t as f64, instance, tri, merged: id };
-            fr.tmax = t;
+            near = t;
         }
+        // obvhs's ray (its own inverse direction) only where an instance outside the world
+        // tree is to be tested: a scene of static meshes alone never needs it.
+        if self.unbounded.is_empty() && self.bounded.is_empty() {
+            return self.found(ray, best);
+        }
+        let mut fr = to_f32_ray(ray, tmin, tmax);
+        fr.tmax = near;
         self.intersect_rest(ray, tmin, best, fr)
     }
 
@@ -668,12 +676,15 @@ impl Accel {
 
     /// True if anything blocks the ray within (tmin, tmax).
     pub fn occluded(&self, ray: &Ray, tmin: f64, tmax: f64) -> bool {
-        let fr = to_f32_ray(ray, tmin, tmax);
         if let Some(tree) = self.world_tree()
-            && tree.occluded(&Ray8::new(fr.origin, fr.direction, fr.tmin, fr.tmax))
+            && tree.occluded(&Ray8::new(ray.origin.as_vec3a(), ray.dir.as_vec3a(), tmin as f32, tmax as f32))
         {
             return true;
         }
+        if self.unbounded.is_empty() && self.bounded.is_empty() {
+            return false;
+        }
+        let fr = to_f32_ray(ray, tmin, tmax);
         if self.unbounded_block(ray, &fr, tmin, tmax) {
             return true;
         }
