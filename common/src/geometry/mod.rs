@@ -162,9 +162,10 @@ pub struct Accel {
     /// nor `unbounded`; `merged` is then empty.
     lone: Option<LoneMesh>,
     /// The world-space plane of each triangle of `merged` (same index), when there are at most
-    /// [`PLANES_MAX`] of them (else empty): a hit on a flat, untextured merged triangle takes
-    /// its distance, point and normal from it, with no ray transform, re-intersection or
-    /// normalisation.
+    /// [`PLANES_MAX`] of them (else empty); or of each triangle of the lone mesh, when it is
+    /// flat and untextured and no larger: a hit on a flat, untextured triangle of the world
+    /// tree takes its distance, point and normal from it, with no ray transform,
+    /// re-intersection or normalisation.
     planes: Vec<WorldPlane>,
 }
 
@@ -178,7 +179,7 @@ struct WorldPlane {
 
 /// Most merged triangles that get a [`WorldPlane`] (48 bytes each): beyond it, hits take the
 /// general path.
-const PLANES_MAX: usize = 1 << 20;
+const PLANES_MAX: usize = 1 << 21;
 
 /// See [`Accel::lone`].
 #[derive(Clone, Copy, Debug)]
@@ -197,8 +198,7 @@ struct Candidate {
     instance: u32,
     tri: u32,
     /// Its id in the world tree when that tree found it (`u32::MAX` otherwise): for the merged
-    /// tree, where [`Accel::planes`] keeps its world-space plane (a lone mesh's tree has no
-    /// planes, so its ids find none).
+    /// tree (or the lone mesh's), where [`Accel::planes`] may keep its world-space plane.
     merged: u32,
 }
 
@@ -414,7 +414,26 @@ fn merge_static_meshes(meshes: &[Arc<MeshGeom>], instances: &[Instance]) -> Worl
             Shape::Mesh { mesh, .. } => Some(LoneMesh { instance: i as u32, mesh }),
             _ => None,
         });
-        return WorldTree { members: set, lone, ..WorldTree::default() };
+        // A flat, untextured lone mesh gets its planes too (indexed by triangle, which is what
+        // its own tree reports): the only hits that would read them.
+        let planes = match lone {
+            Some(LoneMesh { instance, mesh }) => {
+                let (inst, m) = (&instances[instance as usize], &meshes[mesh as usize]);
+                let flat = matches!(inst.shape, Shape::Mesh { smooth: false, .. });
+                if flat && inst.textures == ObjectTextures::default() && m.triangle_count() <= PLANES_MAX {
+                    (0..m.triangle_count() as u32)
+                        .map(|k| WorldPlane {
+                            p0: m.positions[m.indices[k as usize][0] as usize],
+                            n: m.face_normal(k),
+                        })
+                        .collect()
+                } else {
+                    Vec::new()
+                }
+            }
+            None => Vec::new(),
+        };
+        return WorldTree { members: set, lone, planes, ..WorldTree::default() };
     }
     let (mut tris, mut aabbs, mut prims) =
         (Vec::with_capacity(total), Vec::with_capacity(total), Vec::with_capacity(total));
@@ -1432,6 +1451,67 @@ mod tests {
         assert!(by_instance.iter().all(|&k| k > 100), "each sheet hit often enough: {by_instance:?}");
         // The plane's distance is its own computation (not a copy of the general one's bits).
         assert!(rounded_differently > 0);
+    }
+
+    /// A lone mesh (one static untransformed mesh, walked in its own tree) that is flat and
+    /// untextured takes its planes as the merged faces do: the same normal bits as the general
+    /// path, distances to 1e-12. A smooth or textured lone mesh gets none (no hit would read
+    /// them), nor does a sphere beside it change that.
+    #[test]
+    fn a_flat_lone_mesh_takes_its_planes() {
+        let mut rng = crate::sampler::Sampler::new(5, 2, 7, 3);
+        let mut r = move || rng.next_1d();
+        let sheet = sheet(&mut r);
+        let lone = |smooth: bool, textures: ObjectTextures| {
+            let ball = Instance {
+                shape: Shape::Sphere { center: DVec3::new(0.0, 0.0, 4.0), radius: 1.0 },
+                material: 1,
+                transform: None,
+                motion: None,
+                textures: ObjectTextures::default(),
+            };
+            let face = Instance {
+                shape: Shape::Mesh { mesh: 0, smooth },
+                material: 0,
+                transform: None,
+                motion: None,
+                textures,
+            };
+            Accel::new(vec![sheet.clone()], vec![face, ball])
+        };
+        let fast = lone(false, ObjectTextures::default());
+        assert!(fast.lone.is_some() && fast.merged.is_empty());
+        assert_eq!(fast.planes.len(), sheet.triangle_count(), "a plane per triangle of the lone mesh");
+        assert!(lone(true, ObjectTextures::default()).planes.is_empty(), "smooth: no planes");
+        let textured = ObjectTextures { colour: [Some(0), None], normal: None };
+        assert!(lone(false, textured).planes.is_empty(), "textured: no planes");
+        let mut general = lone(false, ObjectTextures::default());
+        general.planes.clear();
+        let (mut sheet_hits, mut rounded_differently) = (0, 0);
+        for _ in 0..2000 {
+            let o = DVec3::new(r() * 20.0 - 10.0, r() * 20.0 - 10.0, 12.0);
+            let ray = Ray { origin: o, dir: DVec3::new(r() - 0.5, r() - 0.5, -1.0).normalize(), time: 0.0 };
+            let (a, b) =
+                (fast.intersect(&ray, 1e-6, f64::INFINITY), general.intersect(&ray, 1e-6, f64::INFINITY));
+            assert_eq!(a.is_some(), b.is_some());
+            let (Some(a), Some(b)) = (a, b) else { continue };
+            assert_eq!(a.instance, b.instance);
+            assert_eq!(
+                (a.geo_normal, a.shading_normal),
+                (b.geo_normal, b.shading_normal),
+                "the normal's bits"
+            );
+            assert!((a.t - b.t).abs() <= 1e-12 * b.t.max(1.0), "t {} against {}", a.t, b.t);
+            assert!((a.point - b.point).length() <= 1e-12 * (1.0 + o.length() + b.t));
+            if a.instance == 0 {
+                sheet_hits += 1;
+                rounded_differently += usize::from(a.t != b.t);
+            } else {
+                assert_eq!(a.t.to_bits(), b.t.to_bits(), "the sphere's hits are not the planes'");
+            }
+        }
+        assert!(sheet_hits > 500, "the sheet is hit often enough: {sheet_hits}");
+        assert!(rounded_differently > 0, "the plane's distance is its own computation");
     }
 
     #[test]
