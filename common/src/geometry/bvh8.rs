@@ -206,7 +206,8 @@ impl Bvh8 {
         let mut cur = 0u32;
         loop {
             if cur & LEAF == 0 {
-                let node = &self.nodes[cur as usize];
+                // SAFETY: a built tree's child references are in bounds (see `Builder::node`).
+                let node = unsafe { self.nodes.get_unchecked(cur as usize) };
                 let (mut mask, dist) = node_hits(node, ray, tmax);
                 if mask != 0 {
                     if mask & (mask - 1) == 0 {
@@ -881,7 +882,9 @@ fn node_hits(node: &Node, ray: &Ray8, tmax: f32) -> (u32, [f32; 8]) {
     // SAFETY: the target has AVX2 and FMA (cfg above); `Node` is 32-byte aligned and its planes
     // are 32 bytes each.
     unsafe {
-        let plane = |i: usize| _mm256_load_ps(node.b[i].as_ptr());
+        let base: *const f32 = node.b.as_ptr().cast();
+        // `near`/`far` are plane indices below 6 (see `Ray8::new`): in bounds.
+        let plane = |i: usize| _mm256_load_ps(base.add(i * 8));
         let t = |i: usize, a: usize| {
             _mm256_fmsub_ps(plane(i), _mm256_set1_ps(ray.inv[a]), _mm256_set1_ps(ray.o_inv[a]))
         };
