@@ -286,7 +286,8 @@ impl Bvh8 {
         let mut cur = 0u32;
         loop {
             if cur & LEAF == 0 {
-                let node = &self.nodes[cur as usize];
+                // SAFETY: a built tree's child references are in bounds (see `Builder::node`).
+                let node = unsafe { self.nodes.get_unchecked(cur as usize) };
                 let (mut mask, _) = node_hits(node, ray, ray.tmax);
                 if mask != 0 {
                     let i = mask.trailing_zeros() as usize;
