@@ -177,8 +177,8 @@ struct WorldPlane {
     n: DVec3,
 }
 
-/// Most merged triangles that get a [`WorldPlane`] (48 bytes each): beyond it, hits take the
-/// general path.
+/// Most world-tree triangles (merged, or of the lone mesh) that get a [`WorldPlane`] (48 bytes
+/// each, so 96 MB at most): beyond it, hits take the general path.
 const PLANES_MAX: usize = 1 << 21;
 
 /// See [`Accel::lone`].
