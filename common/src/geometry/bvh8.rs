@@ -100,6 +100,8 @@ pub struct Bvh8 {
     tris: Vec<Tri4>,
     /// Deepest path from the root, in nodes (sizes the traversal stack).
     depth: usize,
+    /// The root's box, the union of its children's: minima (x, y, z), then maxima.
+    bounds: [f32; 6],
 }
 
 /// One triangle: vertex 0 and its two edges.
@@ -138,6 +140,11 @@ impl Bvh8 {
         b.out.nodes.reserve(tris.len() / 4 + 1);
         b.out.tris.reserve(tris.len() / 2 + 1);
         b.node(0, 1);
+        let root = &b.out.nodes[0].b;
+        for a in 0..3 {
+            b.out.bounds[a] = root[a].iter().copied().fold(f32::INFINITY, f32::min);
+            b.out.bounds[a + 3] = root[a + 3].iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        }
         b.out
     }
 
@@ -519,8 +526,33 @@ impl Bvh8 {
             let mut hit_lanes = 0u32;
             let grow = _mm256_set1_ps(1.0 + 4.0 * f32::EPSILON);
             let inf = _mm256_set1_ps(f32::INFINITY);
+            // The lanes that reach the root's own box (the union of its children's, by the
+            // same test, so no lane that would enter a child is dropped): a packet that misses
+            // the mesh's box (most of a frame around a lone model) is done in one test instead
+            // of one per filled slot.
+            let root = {
+                let b = |k: usize| _mm256_set1_ps(self.bounds[k]);
+                let t0x = _mm256_fmsub_ps(b(0), ix, oix);
+                let t1x = _mm256_fmsub_ps(b(3), ix, oix);
+                let t0y = _mm256_fmsub_ps(b(1), iy, oiy);
+                let t1y = _mm256_fmsub_ps(b(4), iy, oiy);
+                let t0z = _mm256_fmsub_ps(b(2), iz, oiz);
+                let t1z = _mm256_fmsub_ps(b(5), iz, oiz);
+                let tn = _mm256_max_ps(
+                    _mm256_max_ps(_mm256_min_ps(t0x, t1x), _mm256_min_ps(t0y, t1y)),
+                    _mm256_max_ps(_mm256_min_ps(t0z, t1z), tmin),
+                );
+                let tf = _mm256_min_ps(
+                    _mm256_min_ps(_mm256_max_ps(t0x, t1x), _mm256_max_ps(t0y, t1y)),
+                    _mm256_min_ps(_mm256_max_ps(t0z, t1z), tmax),
+                );
+                _mm256_movemask_ps(_mm256_cmp_ps(tn, _mm256_mul_ps(tf, grow), _CMP_LE_OQ)) as u32 & p.active
+            };
+            if root == 0 {
+                return 0;
+            }
             let mut sp = 0usize;
-            let mut cur = (0u32, p.active);
+            let mut cur = (0u32, root);
             loop {
                 let (node_ref, mask) = cur;
                 if node_ref & LEAF == 0 {
