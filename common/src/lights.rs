@@ -246,13 +246,10 @@ impl EnvLight {
     /// The bilinear blend of the texels `c` names.
     #[inline]
     fn blend(&self, c: &Corners) -> DVec3 {
-        let img = &*self.image;
         let (dx, dy) = (c.dx, c.dy);
-        let t = |x, y| DVec3::from(img.texel(x, y).map(f64::from));
-        t(c.x0, c.y0) * ((1.0 - dx) * (1.0 - dy))
-            + t(c.x1, c.y0) * (dx * (1.0 - dy))
-            + t(c.x0, c.y1) * ((1.0 - dx) * dy)
-            + t(c.x1, c.y1) * (dx * dy)
+        let [a, b, e, f] =
+            self.image.texel_quad(c.x0, c.x1, c.y0, c.y1).map(|t| DVec3::from(t.map(f64::from)));
+        a * ((1.0 - dx) * (1.0 - dy)) + b * (dx * (1.0 - dy)) + e * ((1.0 - dx) * dy) + f * (dx * dy)
     }
 
     /// The four texels [`Self::radiance_uv`] blends at `(u, v)`, and the blend's fractions.

@@ -112,6 +112,16 @@ impl TextureImage {
         self.at(self.texel_index(x, y))
     }
 
+    /// The texels (x0, y0), (x1, y0), (x0, y1), (x1, y1), each what [`Self::texel`] gives: a
+    /// bilinear lookup's corners, with each row and column clamped once.
+    #[inline]
+    pub fn texel_quad(&self, x0: i64, x1: i64, y0: i64, y1: i64) -> [[f32; 3]; 4] {
+        let w = self.width as usize;
+        let (r0, r1) = (clamp_index(y0, self.height) * w, clamp_index(y1, self.height) * w);
+        let (c0, c1) = (clamp_index(x0, self.width), clamp_index(x1, self.width));
+        [self.at(r0 + c0), self.at(r0 + c1), self.at(r1 + c0), self.at(r1 + c1)]
+    }
+
     /// The position in `texels` of texel (x, y), clamped into the image as [`Self::texel`]
     /// clamps (for callers that prefetch it).
     #[inline]
