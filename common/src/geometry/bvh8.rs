@@ -530,14 +530,16 @@ impl Bvh8 {
             // same test, so no lane that would enter a child is dropped): a packet that misses
             // the mesh's box (most of a frame around a lone model) is done in one test instead
             // of one per filled slot.
-            let root = {
-                let b = |k: usize| _mm256_set1_ps(self.bounds[k]);
-                let t0x = _mm256_fmsub_ps(b(0), ix, oix);
-                let t1x = _mm256_fmsub_ps(b(3), ix, oix);
-                let t0y = _mm256_fmsub_ps(b(1), iy, oiy);
-                let t1y = _mm256_fmsub_ps(b(4), iy, oiy);
-                let t0z = _mm256_fmsub_ps(b(2), iz, oiz);
-                let t1z = _mm256_fmsub_ps(b(5), iz, oiz);
+            // Where the lanes enter a box given as its six planes broadcast (minima x, y, z,
+            // then maxima) before their far bounds `tmax`: the entry distances, and the lanes
+            // that enter (conservative by a few ulps, as the single-ray test).
+            let enter = move |b: [__m256; 6], tmax: __m256| {
+                let t0x = _mm256_fmsub_ps(b[0], ix, oix);
+                let t1x = _mm256_fmsub_ps(b[3], ix, oix);
+                let t0y = _mm256_fmsub_ps(b[1], iy, oiy);
+                let t1y = _mm256_fmsub_ps(b[4], iy, oiy);
+                let t0z = _mm256_fmsub_ps(b[2], iz, oiz);
+                let t1z = _mm256_fmsub_ps(b[5], iz, oiz);
                 let tn = _mm256_max_ps(
                     _mm256_max_ps(_mm256_min_ps(t0x, t1x), _mm256_min_ps(t0y, t1y)),
                     _mm256_max_ps(_mm256_min_ps(t0z, t1z), tmin),
@@ -546,8 +548,14 @@ impl Bvh8 {
                     _mm256_min_ps(_mm256_max_ps(t0x, t1x), _mm256_max_ps(t0y, t1y)),
                     _mm256_min_ps(_mm256_max_ps(t0z, t1z), tmax),
                 );
-                _mm256_movemask_ps(_mm256_cmp_ps(tn, _mm256_mul_ps(tf, grow), _CMP_LE_OQ)) as u32 & p.active
+                (tn, _mm256_cmp_ps(tn, _mm256_mul_ps(tf, grow), _CMP_LE_OQ))
             };
+            // The lanes that reach the root's own box (the union of its children's, by the
+            // same test, so no lane that would enter a child is dropped): a packet that misses
+            // the mesh's box (most of a frame around a lone model) is done in one test instead
+            // of one per filled slot.
+            let (_, in_root) = enter(std::array::from_fn(|k| _mm256_set1_ps(self.bounds[k])), tmax);
+            let root = _mm256_movemask_ps(in_root) as u32 & p.active;
             if root == 0 {
                 return 0;
             }
@@ -569,22 +577,7 @@ impl Bvh8 {
                     while slots != 0 {
                         let i = slots.trailing_zeros() as usize;
                         slots &= slots - 1;
-                        let b = |k: usize| _mm256_set1_ps(node.b[k][i]);
-                        let t0x = _mm256_fmsub_ps(b(0), ix, oix);
-                        let t1x = _mm256_fmsub_ps(b(3), ix, oix);
-                        let t0y = _mm256_fmsub_ps(b(1), iy, oiy);
-                        let t1y = _mm256_fmsub_ps(b(4), iy, oiy);
-                        let t0z = _mm256_fmsub_ps(b(2), iz, oiz);
-                        let t1z = _mm256_fmsub_ps(b(5), iz, oiz);
-                        let tn = _mm256_max_ps(
-                            _mm256_max_ps(_mm256_min_ps(t0x, t1x), _mm256_min_ps(t0y, t1y)),
-                            _mm256_max_ps(_mm256_min_ps(t0z, t1z), tmin),
-                        );
-                        let tf = _mm256_min_ps(
-                            _mm256_min_ps(_mm256_max_ps(t0x, t1x), _mm256_max_ps(t0y, t1y)),
-                            _mm256_min_ps(_mm256_max_ps(t0z, t1z), tmax),
-                        );
-                        let in_box = _mm256_cmp_ps(tn, _mm256_mul_ps(tf, grow), _CMP_LE_OQ);
+                        let (tn, in_box) = enter(std::array::from_fn(|k| _mm256_set1_ps(node.b[k][i])), tmax);
                         let lanes = _mm256_movemask_ps(in_box) as u32 & mask;
                         if lanes != 0 {
                             // The nearest entry among the lanes that enter orders the children.
