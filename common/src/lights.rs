@@ -11,7 +11,7 @@ use std::sync::Arc;
 
 use glam::{DAffine3, DVec3};
 
-use crate::math::{atan2_approx, lanes, orthonormal_pair, prefetch, sincos_turns};
+use crate::math::{atan2_approx, lanes, orthonormal_pair, prefetch, sampling_frame, sincos_turns};
 use crate::sampler::{GROUP_LANES as LANES, Sampler};
 use crate::scene::records::{EnvMapping, EnvSampler};
 use crate::texture::image::TextureImage;
@@ -483,13 +483,14 @@ enum MapPdf {
     },
 }
 
-/// The unit direction with cosine `cos` to `n` and azimuth 2π·`xi` around it.
-#[inline]
+/// The unit direction with cosine `cos` to the unit vector `n` and azimuth 2π·`xi` around it
+/// (unit to rounding: the frame is orthonormal and sin² + cos² = 1, so no normalisation).
+#[inline(always)]
 fn hemisphere_direction(n: DVec3, cos: f64, xi: f64) -> DVec3 {
     let sin = (1.0 - cos * cos).max(0.0).sqrt();
-    let (a, b) = orthonormal_pair(n);
+    let (a, b) = sampling_frame(n);
     let (sp, cp) = sincos_turns(xi);
-    (a * (sin * cp) + b * (sin * sp) + n * cos).normalize()
+    a * (sin * cp) + b * (sin * sp) + n * cos
 }
 
 /// A piecewise-constant distribution over a lat-long grid of the map, proportional to each
