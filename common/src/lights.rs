@@ -247,9 +247,8 @@ impl EnvLight {
     #[inline]
     fn blend(&self, c: &Corners) -> DVec3 {
         let (dx, dy) = (c.dx, c.dy);
-        let [a, b, e, f] =
-            self.image.texel_quad(c.x0, c.x1, c.y0, c.y1).map(|t| DVec3::from(t.map(f64::from)));
-        a * ((1.0 - dx) * (1.0 - dy)) + b * (dx * (1.0 - dy)) + e * ((1.0 - dx) * dy) + f * (dx * dy)
+        let w = [(1.0 - dx) * (1.0 - dy), dx * (1.0 - dy), (1.0 - dx) * dy, dx * dy];
+        weigh_texels(&self.image.texel_quad(c.x0, c.x1, c.y0, c.y1), &w)
     }
 
     /// The four texels [`Self::radiance_uv`] blends at `(u, v)`, and the blend's fractions.
@@ -436,6 +435,35 @@ impl EnvLight {
         };
         (pdf > 0.0 && pdf.is_finite()).then(|| self.blend(&d.texels) / pdf)
     }
+}
+
+/// `q[0]·w[0] + q[1]·w[1] + q[2]·w[2] + q[3]·w[3]` in `f64`, added left to right: the three
+/// channels of a texel side by side in one AVX register (the same operations, in the same order,
+/// as three scalar sums; neither fused nor reordered, so the same bits).
+#[cfg(all(target_arch = "x86_64", target_feature = "avx"))]
+#[inline(always)]
+fn weigh_texels(q: &[[f32; 3]; 4], w: &[f64; 4]) -> DVec3 {
+    use std::arch::x86_64::*;
+    // SAFETY: the target has AVX (cfg above); register operations and one store into a local
+    // array of four.
+    unsafe {
+        let term = |k: usize| {
+            let t = &q[k];
+            _mm256_mul_pd(_mm256_cvtps_pd(_mm_setr_ps(t[0], t[1], t[2], 0.0)), _mm256_set1_pd(w[k]))
+        };
+        let sum = _mm256_add_pd(_mm256_add_pd(_mm256_add_pd(term(0), term(1)), term(2)), term(3));
+        let mut out = [0.0; 4];
+        _mm256_storeu_pd(out.as_mut_ptr(), sum);
+        DVec3::new(out[0], out[1], out[2])
+    }
+}
+
+/// `q[0]·w[0] + q[1]·w[1] + q[2]·w[2] + q[3]·w[3]` in `f64`, added left to right.
+#[cfg(not(all(target_arch = "x86_64", target_feature = "avx")))]
+#[inline(always)]
+fn weigh_texels(q: &[[f32; 3]; 4], w: &[f64; 4]) -> DVec3 {
+    let [a, b, e, f] = q.map(|t| DVec3::from(t.map(f64::from)));
+    a * w[0] + b * w[1] + e * w[2] + f * w[3]
 }
 
 /// The texels around a point of an environment map: columns `x0`, `x1` (wrapped), rows `y0`,
