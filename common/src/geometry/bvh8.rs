@@ -559,13 +559,69 @@ impl Bvh8 {
             if root == 0 {
                 return 0;
             }
+            // The packet as intervals: the least and greatest inverse direction and scaled
+            // origin of its lanes, per axis. A box tested with them gives, per slot, a lower
+            // bound of every lane's entry distance and an upper bound of every lane's exit
+            // distance (see `maybe` below).
+            let act = lane_mask(p.active);
+            let neg_inf = _mm256_set1_ps(f32::NEG_INFINITY);
+            let hmin = |v: __m256| {
+                let v = _mm256_blendv_ps(inf, v, act);
+                let v = _mm256_min_ps(v, _mm256_permute2f128_ps(v, v, 1));
+                let v = _mm256_min_ps(v, _mm256_shuffle_ps(v, v, 0b01_00_11_10));
+                _mm256_min_ps(v, _mm256_shuffle_ps(v, v, 0b10_11_00_01))
+            };
+            let hmax = |v: __m256| {
+                let v = _mm256_blendv_ps(neg_inf, v, act);
+                let v = _mm256_max_ps(v, _mm256_permute2f128_ps(v, v, 1));
+                let v = _mm256_max_ps(v, _mm256_shuffle_ps(v, v, 0b01_00_11_10));
+                _mm256_max_ps(v, _mm256_shuffle_ps(v, v, 0b10_11_00_01))
+            };
+            let inv_lo = [hmin(ix), hmin(iy), hmin(iz)];
+            let inv_hi = [hmax(ix), hmax(iy), hmax(iz)];
+            let oinv_lo = [hmin(oix), hmin(oiy), hmin(oiz)];
+            let oinv_hi = [hmax(oix), hmax(oiy), hmax(oiz)];
+            // The slots of `node` that some lane of the packet may enter before `far` (the
+            // greatest far bound of its lanes). Per lane the exact test computes each plane's
+            // distance as round(b·inv − o_inv), which is monotonic in the exact value; the
+            // exact value is least at an end of the inverse's interval and at the greatest
+            // scaled origin, greatest at an end and at the least origin, so one rounded
+            // product per end bounds every lane's. Mins, maxes and the product by `grow` keep
+            // the order, so a slot is dropped only when every lane's own test would drop it.
+            // A NaN bound keeps the slot.
+            let maybe = |node: &Node, far: __m256| {
+                let plane = |k: usize| _mm256_load_ps(node.b[k].as_ptr());
+                let lo = |b: __m256, a: usize| {
+                    _mm256_min_ps(
+                        _mm256_fmsub_ps(b, inv_lo[a], oinv_hi[a]),
+                        _mm256_fmsub_ps(b, inv_hi[a], oinv_hi[a]),
+                    )
+                };
+                let hi = |b: __m256, a: usize| {
+                    _mm256_max_ps(
+                        _mm256_fmsub_ps(b, inv_lo[a], oinv_lo[a]),
+                        _mm256_fmsub_ps(b, inv_hi[a], oinv_lo[a]),
+                    )
+                };
+                let (b0, b1, b2, b3, b4, b5) = (plane(0), plane(1), plane(2), plane(3), plane(4), plane(5));
+                let tn = _mm256_max_ps(
+                    _mm256_max_ps(_mm256_min_ps(lo(b0, 0), lo(b3, 0)), _mm256_min_ps(lo(b1, 1), lo(b4, 1))),
+                    _mm256_max_ps(_mm256_min_ps(lo(b2, 2), lo(b5, 2)), tmin),
+                );
+                let tf = _mm256_min_ps(
+                    _mm256_min_ps(_mm256_max_ps(hi(b0, 0), hi(b3, 0)), _mm256_max_ps(hi(b1, 1), hi(b4, 1))),
+                    _mm256_min_ps(_mm256_max_ps(hi(b2, 2), hi(b5, 2)), far),
+                );
+                _mm256_movemask_ps(_mm256_cmp_ps(tn, _mm256_mul_ps(tf, grow), _CMP_NGT_UQ)) as u32
+            };
             let mut sp = 0usize;
             let mut cur = (0u32, root);
             loop {
                 let (node_ref, mask) = cur;
                 if node_ref & LEAF == 0 {
                     let node = &self.nodes[node_ref as usize];
-                    // Slots with a box (empty ones have min > max).
+                    // Slots with a box (empty ones have min > max) that the packet's intervals
+                    // may enter.
                     let filled = _mm256_movemask_ps(_mm256_cmp_ps(
                         _mm256_load_ps(node.b[0].as_ptr()),
                         _mm256_load_ps(node.b[3].as_ptr()),
@@ -573,7 +629,7 @@ impl Bvh8 {
                     )) as u32;
                     let mut kids = [(0u32, 0u32, 0f32); 8];
                     let mut n = 0;
-                    let mut slots = filled;
+                    let mut slots = filled & maybe(node, hmax(tmax));
                     while slots != 0 {
                         let i = slots.trailing_zeros() as usize;
                         slots &= slots - 1;
