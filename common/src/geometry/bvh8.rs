@@ -329,13 +329,14 @@ impl Bvh8 {
 
 /// Up to eight rays in `f32`, side by side (unused lanes repeat the first ray): the one
 /// conversion from `f64` that a group's packet walk ([`Packet8`]), box tests ([`BoxRays8`]) and
-/// single-ray queries (`obvhs::ray::Ray`s) are all made from, with obvhs's inverse directions
-/// computed for all lanes at once.
+/// single-ray queries (`obvhs::ray::Ray`s) are all made from. obvhs's inverse directions, which
+/// only the box tests and obvhs's rays read, are computed for all lanes at once when asked for
+/// ([`Self::compute_inverse`]): a scene whose geometry is all in the world tree never needs them.
 pub struct Lanes8 {
     pub o: [[f32; 8]; 3],
     pub d: [[f32; 8]; 3],
-    /// `obvhs::ray::safe_inverse` of each direction component.
-    pub inv: [[f32; 8]; 3],
+    /// `obvhs::ray::safe_inverse` of each direction component, once computed.
+    inv: Option<[[f32; 8]; 3]>,
     /// How many lanes hold a ray.
     pub len: usize,
 }
@@ -346,31 +347,52 @@ impl Lanes8 {
     #[inline(always)]
     pub fn new(o: &[[f64; 8]; 3], d: &[[f64; 8]; 3], len: usize) -> Self {
         assert!((1..=8).contains(&len), "one to eight rays");
-        let mut l = Lanes8 { o: [[0.0; 8]; 3], d: [[0.0; 8]; 3], inv: [[0.0; 8]; 3], len };
+        let mut l = Lanes8 { o: [[0.0; 8]; 3], d: [[0.0; 8]; 3], inv: None, len };
         for a in 0..3 {
             for lane in 0..8 {
                 l.o[a][lane] = o[a][lane] as f32;
                 l.d[a][lane] = d[a][lane] as f32;
             }
         }
-        // obvhs's `safe_inverse`, both sides computed and one kept (the compiler vectorises
-        // the loop): the same bits as its branch.
-        for a in 0..3 {
-            for lane in 0..8 {
-                let x = l.d[a][lane];
-                let small = if x.is_nan() { f32::NAN } else { 1.0f32.copysign(x) } / f32::EPSILON;
-                l.inv[a][lane] = if x.abs() <= f32::EPSILON { small } else { 1.0 / x };
-            }
-        }
         l
     }
 
+    /// Computes the inverse directions (once).
+    #[inline(always)]
+    pub fn compute_inverse(&mut self) {
+        if self.inv.is_some() {
+            return;
+        }
+        // obvhs's `safe_inverse`, both sides computed and one kept (the compiler vectorises
+        // the loop): the same bits as its branch.
+        let mut inv = [[0.0; 8]; 3];
+        for (row, d) in inv.iter_mut().zip(&self.d) {
+            for (v, &x) in row.iter_mut().zip(d) {
+                let small = if x.is_nan() { f32::NAN } else { 1.0f32.copysign(x) } / f32::EPSILON;
+                *v = if x.abs() <= f32::EPSILON { small } else { 1.0 / x };
+            }
+        }
+        self.inv = Some(inv);
+    }
+
+    /// The inverse directions; [`Self::compute_inverse`] must have run.
+    #[inline(always)]
+    fn inv(&self) -> &[[f32; 8]; 3] {
+        self.inv.as_ref().expect("Lanes8::compute_inverse runs before the inverses are read")
+    }
+
     /// Lane `lane` as one obvhs ray with bounds (tmin, tmax): what `obvhs::ray::Ray::new` makes
-    /// of the same values.
+    /// of the same values. [`Self::compute_inverse`] must have run.
     #[inline]
     pub fn ray(&self, lane: usize, tmin: f32, tmax: f32) -> obvhs::ray::Ray {
         let v = |x: &[[f32; 8]; 3]| Vec3A::new(x[0][lane], x[1][lane], x[2][lane]);
-        obvhs::ray::Ray { origin: v(&self.o), direction: v(&self.d), inv_direction: v(&self.inv), tmin, tmax }
+        obvhs::ray::Ray {
+            origin: v(&self.o),
+            direction: v(&self.d),
+            inv_direction: v(self.inv()),
+            tmin,
+            tmax,
+        }
     }
 }
 
@@ -780,8 +802,9 @@ impl BoxRays8 {
     /// The box tests of `lanes` with far bounds `tmax`: what [`Self::new`] makes of the same
     /// rays.
     #[inline]
+    /// [`Lanes8::compute_inverse`] must have run.
     pub fn from_lanes(lanes: &Lanes8, tmax: [f32; 8]) -> Self {
-        BoxRays8 { o: lanes.o, inv: lanes.inv, tmax, active: (1u32 << lanes.len) - 1 }
+        BoxRays8 { o: lanes.o, inv: *lanes.inv(), tmax, active: (1u32 << lanes.len) - 1 }
     }
 
     /// The lanes whose ray enters `b` at a distance up to their `tmax`: obvhs's

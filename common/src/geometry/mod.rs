@@ -592,7 +592,7 @@ impl Accel {
         }
         let mut best = [Candidate::none(f64::INFINITY); 8];
         let wide = RayLanes::new(rays);
-        let lanes = Lanes8::new(&wide.o, &wide.d, wide.len);
+        let mut lanes = Lanes8::new(&wide.o, &wide.d, wide.len);
         let tmin32 = tmin as f32;
         // Each lane's closest hit so far in f32; a lane's obvhs ray is made only where an
         // instance's own test needs one.
@@ -609,6 +609,14 @@ impl Accel {
                 near[lane] = tmax[lane];
             }
         }
+        if self.bounded.is_empty() && self.unbounded.is_empty() {
+            // Everything was in the world tree.
+            for lane in 0..n {
+                self.found_into(&rays[lane], best[lane], &mut out[lane]);
+            }
+            return;
+        }
+        lanes.compute_inverse();
         if self.bounded.len() <= LINEAR_MAX {
             if !self.unbounded.is_empty() {
                 for lane in 0..n {
@@ -743,17 +751,21 @@ impl Accel {
         }
         let all = (1u32 << n) - 1;
         let wide = RayLanes::new(rays);
-        let lanes = Lanes8::new(&wide.o, &wide.d, wide.len);
+        let mut lanes = Lanes8::new(&wide.o, &wide.d, wide.len);
         let tmin32 = tmin as f32;
         // Each lane's far bound in f32 (unused lanes can reach nothing); a lane's obvhs ray is
         // made only where an instance's own test needs one.
         let far: [f32; 8] = std::array::from_fn(|i| tmax.get(i).map_or(f32::NEG_INFINITY, |&t| t as f32));
-        let ray = |lane: usize| lanes.ray(lane, tmin32, far[lane]);
         let mut blocked = 0u32;
         if let Some(tree) = self.world_tree() {
             let packet = Packet8::from_lanes(&lanes, tmin32);
             blocked = tree.occluded_packet(&packet, &far);
         }
+        if self.bounded.is_empty() && self.unbounded.is_empty() {
+            return blocked;
+        }
+        lanes.compute_inverse();
+        let ray = |lane: usize| lanes.ray(lane, tmin32, far[lane]);
         if !self.unbounded.is_empty() {
             for lane in 0..n {
                 if blocked & (1 << lane) == 0
