@@ -599,6 +599,15 @@ impl Bvh8 {
                 let v = _mm256_max_ps(v, _mm256_shuffle_ps(v, v, 0b01_00_11_10));
                 _mm256_max_ps(v, _mm256_shuffle_ps(v, v, 0b10_11_00_01))
             };
+            // A lane with a NaN inverse or scaled origin (a NaN ray) has no interval; the min
+            // and max instructions would drop it in some lanes of a reduction and not in others,
+            // and a bound reduced that way can miss a valid lane's value. Such a packet keeps
+            // every filled slot for the exact tests. A NaN inverse makes its scaled origin NaN,
+            // and a sum with a NaN term is NaN (an infinite sum that is NaN, ∞ − ∞, only keeps
+            // every slot: still correct).
+            let sum = _mm256_add_ps(_mm256_add_ps(oix, oiy), oiz);
+            let nan_lanes = _mm256_movemask_ps(_mm256_cmp_ps(sum, sum, _CMP_UNORD_Q)) as u32 & p.active;
+            let keep_all = if nan_lanes == 0 { 0 } else { 0xff };
             let inv_lo = [hmin(ix), hmin(iy), hmin(iz)];
             let inv_hi = [hmax(ix), hmax(iy), hmax(iz)];
             let oinv_lo = [hmin(oix), hmin(oiy), hmin(oiz)];
@@ -651,7 +660,7 @@ impl Bvh8 {
                     )) as u32;
                     let mut kids = [(0u32, 0u32, 0f32); 8];
                     let mut n = 0;
-                    let mut slots = filled & maybe(node, hmax(tmax));
+                    let mut slots = filled & (maybe(node, hmax(tmax)) | keep_all);
                     while slots != 0 {
                         let i = slots.trailing_zeros() as usize;
                         slots &= slots - 1;
@@ -800,9 +809,8 @@ impl BoxRays8 {
     }
 
     /// The box tests of `lanes` with far bounds `tmax`: what [`Self::new`] makes of the same
-    /// rays.
+    /// rays. [`Lanes8::compute_inverse`] must have run.
     #[inline]
-    /// [`Lanes8::compute_inverse`] must have run.
     pub fn from_lanes(lanes: &Lanes8, tmax: [f32; 8]) -> Self {
         BoxRays8 { o: lanes.o, inv: *lanes.inv(), tmax, active: (1u32 << lanes.len) - 1 }
     }
@@ -1155,6 +1163,47 @@ mod tests {
         let ids: Vec<u32> = (0..tris.len() as u32).collect();
         let bvh = Bvh8::build(&tris, &aabbs, &ids);
         (tris, bvh)
+    }
+
+    /// A lane with a NaN direction or origin hits nothing, and the other lanes of its packet
+    /// still find what their single rays find (a NaN would otherwise leak into the packet's
+    /// interval bounds, which the min and max instructions reduce lane by lane).
+    #[test]
+    fn a_nan_lane_leaves_its_packet_alone() {
+        let mut r = xorshift(4242);
+        let (_, bvh) = soup(&mut r, 3000);
+        let mut lanes_hit = 0;
+        for k in 0..4000 {
+            let o = Vec3A::new(r(), r(), r()) * 14.0 - 2.0;
+            let d = Vec3A::new(r() - 0.5, r() - 0.5, r() - 0.5).normalize();
+            let bad = k % 8;
+            let rays: Vec<(Vec3A, Vec3A)> = (0..8)
+                .map(|lane| {
+                    let jitter = Vec3A::new(r() - 0.5, r() - 0.5, r() - 0.5) * [0.05, 1.0][k % 2];
+                    let (mut o, mut d) = (o + jitter, (d + jitter).normalize());
+                    if lane == bad {
+                        match k % 3 {
+                            0 => d.x = f32::NAN,
+                            1 => o.y = f32::NAN,
+                            _ => d = Vec3A::splat(f32::NAN),
+                        }
+                    }
+                    (o, d)
+                })
+                .collect();
+            let packet = Packet8::new(&rays, 0.0);
+            let mut tmax = [f32::INFINITY; 8];
+            let mut id = [u32::MAX; 8];
+            let hit = bvh.intersect_packet(&packet, &mut tmax, &mut id);
+            assert_eq!(hit & (1 << bad), 0, "packet {k}: the NaN lane hits nothing");
+            for lane in (0..8).filter(|&l| l != bad) {
+                let single = bvh.intersect(&packet.lane(lane, f32::INFINITY));
+                let got = (hit & (1 << lane) != 0).then_some(tmax[lane]);
+                assert_eq!(got.map(f32::to_bits), single.map(|s| s.0.to_bits()), "packet {k} lane {lane}");
+                lanes_hit += usize::from(got.is_some());
+            }
+        }
+        assert!(lanes_hit > 1000, "{lanes_hit} lanes hit");
     }
 
     #[test]
