@@ -599,13 +599,14 @@ impl Bvh8 {
                 let v = _mm256_max_ps(v, _mm256_shuffle_ps(v, v, 0b01_00_11_10));
                 _mm256_max_ps(v, _mm256_shuffle_ps(v, v, 0b10_11_00_01))
             };
-            // A lane with a NaN inverse or scaled origin (a NaN ray) has no interval; the min
-            // and max instructions would drop it in some lanes of a reduction and not in others,
-            // and a bound reduced that way can miss a valid lane's value. Such a packet keeps
-            // every filled slot for the exact tests. A NaN inverse makes its scaled origin NaN,
-            // and a sum with a NaN term is NaN (an infinite sum that is NaN, ∞ − ∞, only keeps
-            // every slot: still correct).
-            let sum = _mm256_add_ps(_mm256_add_ps(oix, oiy), oiz);
+            // A lane with a NaN inverse, scaled origin or far bound (a NaN ray) has no
+            // interval; the min and max instructions would drop it in some lanes of a reduction
+            // and not in others, and a bound reduced that way can miss a valid lane's value.
+            // Such a packet keeps every filled slot for the exact tests. A NaN inverse makes its
+            // scaled origin NaN, and a sum with a NaN term is NaN (an infinite sum that is NaN,
+            // ∞ − ∞, only keeps every slot: still correct). Far bounds only fall during the
+            // walk, to a hit's distance or −∞, so the first ones are the ones to check.
+            let sum = _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(oix, oiy), oiz), tmax);
             let nan_lanes = _mm256_movemask_ps(_mm256_cmp_ps(sum, sum, _CMP_UNORD_Q)) as u32 & p.active;
             let keep_all = if nan_lanes == 0 { 0 } else { 0xff };
             let inv_lo = [hmin(ix), hmin(iy), hmin(iz)];
@@ -1165,8 +1166,8 @@ mod tests {
         (tris, bvh)
     }
 
-    /// A lane with a NaN direction or origin hits nothing, and the other lanes of its packet
-    /// still find what their single rays find (a NaN would otherwise leak into the packet's
+    /// A lane with a NaN direction, origin or far bound hits nothing, and the other lanes of its
+    /// packet still find what their single rays find (a NaN would otherwise leak into the packet's
     /// interval bounds, which the min and max instructions reduce lane by lane).
     #[test]
     fn a_nan_lane_leaves_its_packet_alone() {
@@ -1192,12 +1193,18 @@ mod tests {
                 })
                 .collect();
             let packet = Packet8::new(&rays, 0.0);
+            // Every fourth packet: the lanes' own far bounds, the NaN lane's a NaN.
             let mut tmax = [f32::INFINITY; 8];
+            if k % 4 == 3 {
+                tmax = std::array::from_fn(|_| 2.0 + 14.0 * r());
+                tmax[bad] = f32::NAN;
+            }
+            let limits = tmax;
             let mut id = [u32::MAX; 8];
             let hit = bvh.intersect_packet(&packet, &mut tmax, &mut id);
             assert_eq!(hit & (1 << bad), 0, "packet {k}: the NaN lane hits nothing");
             for lane in (0..8).filter(|&l| l != bad) {
-                let single = bvh.intersect(&packet.lane(lane, f32::INFINITY));
+                let single = bvh.intersect(&packet.lane(lane, limits[lane]));
                 let got = (hit & (1 << lane) != 0).then_some(tmax[lane]);
                 assert_eq!(got.map(f32::to_bits), single.map(|s| s.0.to_bits()), "packet {k} lane {lane}");
                 lanes_hit += usize::from(got.is_some());
