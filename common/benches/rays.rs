@@ -209,6 +209,7 @@ fn main() {
     let dir = std::env::temp_dir().join(format!("tessera-rays-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");
 
+    println!("machine: {}", tessera_testkit::cpu_description());
     println!(
         "tessera vs Embree 4 (embreex), single rays, one thread, {w}x{h} camera, median of {rounds} rounds"
     );

@@ -53,6 +53,17 @@ def timed(cmd: list[str]) -> float:
     return secs
 
 
+def machine() -> str:
+    """The CPU model and logical CPU count, printed first: ratios from different CPUs differ."""
+    try:
+        info = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return "unknown CPU"
+    model = next((l.split(":", 1)[1].strip() for l in info.splitlines() if l.startswith("model name")), "unknown CPU")
+    cpus = sum(1 for l in info.splitlines() if l.startswith("processor"))
+    return f"{model}, {cpus} logical CPUs"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rounds", type=int, default=3)
@@ -61,6 +72,7 @@ def main() -> None:
     ap.add_argument("--worker", help="the tessera-worker binary (default: target/release/tessera-worker)")
     ap.add_argument("scenes", nargs="+")
     args = ap.parse_args()
+    print(f"machine: {machine()}", flush=True)
 
     worker = Path(args.worker) if args.worker else ROOT / "target" / "release" / "tessera-worker"
     if not worker.is_file():

@@ -104,6 +104,7 @@ fn main() -> Result<()> {
     }
     let out = tessera_tests::repo_root().join("target/envbench");
     std::fs::create_dir_all(&out)?;
+    println!("machine: {}", tessera_testkit::cpu_description());
     println!("threads: {}", rayon::current_num_threads());
     if args.mitsuba {
         return mitsuba_figures(&args, &out);

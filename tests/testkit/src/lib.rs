@@ -45,6 +45,31 @@ pub fn anchor_python() -> PathBuf {
     }
 }
 
+/// The machine a bench runs on, for its first line: the CPU model and the widest vector
+/// instructions it has (`/proc/cpuinfo`). An anchor that compiles for the host (Mitsuba's LLVM
+/// variant) uses AVX-512 where it exists, and Tessera's binaries are built for AVX2 everywhere,
+/// so ratios taken on different CPUs are not comparable without it.
+pub fn cpu_description() -> String {
+    let info = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
+    let field = |name: &str| {
+        info.lines().find_map(|l| {
+            l.split_once(':').filter(|(k, _)| k.trim() == name).map(|(_, v)| v.trim().to_string())
+        })
+    };
+    let model = field("model name").unwrap_or_else(|| "unknown CPU".into());
+    let flags = field("flags").unwrap_or_default();
+    let has = |f: &str| flags.split_whitespace().any(|x| x == f);
+    let vector = if has("avx512f") {
+        "AVX-512"
+    } else if has("avx2") {
+        "AVX2"
+    } else {
+        "no AVX2"
+    };
+    let cpus = info.lines().filter(|l| l.starts_with("processor")).count();
+    format!("{model}, {cpus} logical CPUs, widest vectors {vector}")
+}
+
 /// Whether `TESSERA_REQUIRE_SCENES` asks for the corpus (set, and neither empty nor `0`).
 pub fn scenes_required() -> bool {
     std::env::var_os("TESSERA_REQUIRE_SCENES").is_some_and(|v| !v.is_empty() && v != "0")
