@@ -5,7 +5,7 @@
 //! cargo run --release -p tessera-tests --bin envbench -- [--samples N] [--width W] [--only SCENE]
 //!     [--noise-only] [--scenes-only] [--threads N]
 //! cargo run --release -p tessera-tests --bin envbench -- --mitsuba [--rounds N]
-//!     [--samples N] [--variant llvm_ad_rgb] [--threads N]
+//!     [--samples N] [--variant llvm_ad_rgb] [--threads N] [--mitsuba-avx2]
 //! ```
 //! `--mitsuba` is issue #18's whole-render bench: the head_env_light workload
 //! (`../shared/bench/head_env_park.xml`: head.ply, park.exr, 800x450, importance-sampled
@@ -17,6 +17,11 @@
 //! does the llvm variant pinned to one core with `taskset -c 0`), so the bench runs a copy of the
 //! script without that call: Mitsuba uses one thread per core, and `--threads` should match it
 //! (2 on the 2-vCPU bench machine).
+//! Mitsuba's LLVM variants compile their kernels for the CPU they run on: sixteen lanes per
+//! instruction where it has AVX-512, eight with AVX2. The bench prints the width Mitsuba ran
+//! at. `--mitsuba-avx2` has Mitsuba compile for AVX2 at eight lanes (drjit's
+//! `jit_llvm_set_target`, called through `ctypes`), the instruction set Tessera's binaries are
+//! built for on every machine, so that figures from hosts with and without AVX-512 compare.
 //! Pictures go to `target/envbench/`. `--samples` and `--width` shrink the work (the figures say
 //! so); without them every scene renders at its own resolution and NumSamples.
 
@@ -41,6 +46,7 @@ struct Args {
     mitsuba: bool,
     rounds: usize,
     variant: String,
+    mitsuba_avx2: bool,
 }
 
 fn parse_args() -> Result<Args> {
@@ -54,6 +60,7 @@ fn parse_args() -> Result<Args> {
         mitsuba: false,
         rounds: 5,
         variant: "llvm_ad_rgb".into(),
+        mitsuba_avx2: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
@@ -67,12 +74,14 @@ fn parse_args() -> Result<Args> {
             "--mitsuba" => a.mitsuba = true,
             "--rounds" => a.rounds = value("--rounds")?.parse().context("--rounds: a number")?,
             "--variant" => a.variant = value("--variant")?,
+            "--mitsuba-avx2" => a.mitsuba_avx2 = true,
             "--scenes-only" => a.noise = false,
             "-h" | "--help" => {
                 println!(
                     "envbench: environment-light timings and importance-vs-uniform noise\n\n\
                      options: --samples N  --width W  --only SCENE  --noise-only  --scenes-only  --threads N\n         \
-                     --mitsuba [--rounds N] [--variant V]: head_env_light against Mitsuba 3"
+                     --mitsuba [--rounds N] [--variant V] [--mitsuba-avx2]: head_env_light against Mitsuba 3\n         \
+                     (--mitsuba-avx2: Mitsuba's LLVM kernels for AVX2, eight lanes, as Tessera's binaries)"
                 );
                 std::process::exit(0);
             }
@@ -241,6 +250,25 @@ fn noise_figures(out: &std::path::Path) -> Result<()> {
     Ok(())
 }
 
+/// Python lines for the Mitsuba script, after its `mi.set_variant`: with `avx2`, drjit's LLVM
+/// backend is told to compile for AVX2 at eight lanes; either way the script prints the width
+/// its kernels use. (The functions are drjit-core's C++ entry points, by their mangled names,
+/// as drjit 1.5 exports them.)
+fn llvm_target_lines(avx2: bool) -> String {
+    let mut lines = String::from(
+        "import ctypes\n\
+         _jit = ctypes.CDLL(dr.__path__[0] + '/libdrjit-core.so')\n",
+    );
+    if avx2 {
+        lines += "_jit._Z19jit_llvm_set_targetPKcS0_j(b'haswell', \
+                  b'+avx,+avx2,+fma,+f16c,+bmi,+bmi2,+lzcnt,+popcnt,+sse4.2,+movbe', 8)\n";
+    }
+    lines += "_w = _jit._Z21jit_llvm_vector_widthv\n\
+              _w.restype = ctypes.c_uint32\n\
+              print('mitsuba vector width', _w(), flush=True)\n";
+    lines
+}
+
 /// Issue #18's whole-render bench: Tessera and Mitsuba 3 on head_env_light, alternately.
 fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
     let bench = tessera_tests::shared_bench();
@@ -267,8 +295,16 @@ fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
     let scene_path = dir.join("head_env_park.xml");
     std::fs::write(&scene_path, xml)?;
     let script = std::fs::read_to_string(bench.join("mitsuba_head_env.py"))?;
-    let script: String =
+    if args.mitsuba_avx2 && !args.variant.starts_with("llvm") {
+        bail!("--mitsuba-avx2 applies to Mitsuba's llvm variants, not {}", args.variant);
+    }
+    let mut script: String =
         script.lines().filter(|l| !l.starts_with("dr.set_thread_count")).map(|l| format!("{l}\n")).collect();
+    if args.variant.starts_with("llvm") {
+        let at = script.find("mi.set_variant(variant)\n").context("mitsuba_head_env.py sets no variant")?;
+        let at = at + "mi.set_variant(variant)\n".len();
+        script.insert_str(at, &llvm_target_lines(args.mitsuba_avx2));
+    }
     let script_path = dir.join("mitsuba_head_env.py");
     std::fs::write(&script_path, script)?;
     let python = tessera_tests::anchor_python();
@@ -281,6 +317,7 @@ fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
     let samples = 800.0 * 450.0 * spp as f64;
     println!("head_env_light, 800x450, {spp} spp, Mitsuba variant {}, {} rounds", args.variant, args.rounds);
     let (mut ours, mut theirs) = (Vec::new(), Vec::new());
+    let mut width_shown = false;
     for round in 0..args.rounds {
         let (_, secs, _) = render(&scene, &settings);
         ours.push(samples / secs / 1e6);
@@ -288,6 +325,10 @@ fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
         cmd.arg(&script_path).arg(&ply).arg(&hdri).arg(spp.to_string()).arg(&args.variant);
         let o = cmd.stderr(std::process::Stdio::null()).output().context("running Mitsuba")?;
         let text = String::from_utf8_lossy(&o.stdout);
+        if !width_shown && let Some(w) = text.lines().find_map(|l| l.strip_prefix("mitsuba vector width ")) {
+            println!("  Mitsuba's kernels: {w} lanes per instruction");
+            width_shown = true;
+        }
         let m: f64 = text
             .lines()
             .last()
