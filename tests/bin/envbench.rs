@@ -323,8 +323,15 @@ fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
         ours.push(samples / secs / 1e6);
         let mut cmd = std::process::Command::new(&python);
         cmd.arg(&script_path).arg(&ply).arg(&hdri).arg(spp.to_string()).arg(&args.variant);
-        let o = cmd.stderr(std::process::Stdio::null()).output().context("running Mitsuba")?;
+        let o = cmd.output().with_context(|| format!("running Mitsuba ({})", python.display()))?;
         let text = String::from_utf8_lossy(&o.stdout);
+        if !o.status.success() {
+            // Its last lines say why (a missing package, libLLVM, or drjit entry point).
+            let err = String::from_utf8_lossy(&o.stderr);
+            let tail: Vec<&str> = err.lines().rev().take(12).collect();
+            let tail: Vec<&str> = tail.into_iter().rev().collect();
+            bail!("{} failed ({}):\n{}", script_path.display(), o.status, tail.join("\n"));
+        }
         if !width_shown && let Some(w) = text.lines().find_map(|l| l.strip_prefix("mitsuba vector width ")) {
             println!("  Mitsuba's kernels: {w} lanes per instruction");
             width_shown = true;
