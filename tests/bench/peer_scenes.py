@@ -54,14 +54,16 @@ def timed(cmd: list[str]) -> float:
 
 
 def machine() -> str:
-    """The CPU model and logical CPU count, printed first: ratios from different CPUs differ."""
+    """What `tessera_testkit::cpu_description` prints for the Rust benches: ratios from different CPUs differ."""
     try:
         info = Path("/proc/cpuinfo").read_text()
     except OSError:
         return "unknown CPU"
     model = next((l.split(":", 1)[1].strip() for l in info.splitlines() if l.startswith("model name")), "unknown CPU")
     cpus = sum(1 for l in info.splitlines() if l.startswith("processor"))
-    return f"{model}, {cpus} logical CPUs"
+    flags = next((l.split(":", 1)[1].split() for l in info.splitlines() if l.startswith("flags")), [])
+    vector = "AVX-512" if "avx512f" in flags else "AVX2" if "avx2" in flags else "no AVX2"
+    return f"{model}, {cpus} logical CPUs, widest vectors {vector}"
 
 
 def main() -> None:

@@ -250,12 +250,16 @@ fn noise_figures(out: &std::path::Path) -> Result<()> {
     Ok(())
 }
 
+/// How the Mitsuba script's line with its kernels' width begins.
+const WIDTH_TAG: &str = "mitsuba vector width";
+
 /// Python lines for the Mitsuba script, after its `mi.set_variant`: with `avx2`, drjit's LLVM
 /// backend is told to compile for AVX2 at eight lanes; either way the script prints the width
 /// its kernels use. The functions are drjit-core's C++ entry points, by their mangled names as
 /// drjit 1.5 exports them: without them the width reads "unknown" (the default run goes on) and
 /// `avx2` fails with Python's error, which the bench shows.
 fn llvm_target_lines(avx2: bool) -> String {
+    let tag = WIDTH_TAG;
     let mut lines = String::from(
         "import ctypes\n\
          try:\n    _jit = ctypes.CDLL(dr.__path__[0] + '/libdrjit-core.so')\n\
@@ -265,9 +269,11 @@ fn llvm_target_lines(avx2: bool) -> String {
         lines += "_jit._Z19jit_llvm_set_targetPKcS0_j(b'haswell', \
                   b'+avx,+avx2,+fma,+f16c,+bmi,+bmi2,+lzcnt,+popcnt,+sse4.2,+movbe', 8)\n";
     }
-    lines += "try:\n    _w = _jit._Z21jit_llvm_vector_widthv\n    _w.restype = ctypes.c_uint32\n    \
-              print('mitsuba vector width', _w(), flush=True)\n\
-              except AttributeError:\n    print('mitsuba vector width unknown', flush=True)\n";
+    lines += &format!(
+        "try:\n    _w = _jit._Z21jit_llvm_vector_widthv\n    _w.restype = ctypes.c_uint32\n    \
+         print('{tag}', _w(), flush=True)\n\
+         except AttributeError:\n    print('{tag} unknown', flush=True)\n"
+    );
     lines
 }
 
@@ -275,6 +281,9 @@ fn llvm_target_lines(avx2: bool) -> String {
 fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
     let bench = tessera_tests::shared_bench();
     let scenes = tessera_tests::shared_scenes();
+    if args.mitsuba_avx2 && !args.variant.starts_with("llvm") {
+        bail!("--mitsuba-avx2 applies to Mitsuba's llvm variants, not {}", args.variant);
+    }
     if args.variant.starts_with("llvm") && std::env::var_os("DRJIT_LIBLLVM_PATH").is_none() {
         bail!(
             "Mitsuba's {} variant needs DRJIT_LIBLLVM_PATH, the path of libLLVM (Debian: apt install libllvm19; \
@@ -297,9 +306,6 @@ fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
     let scene_path = dir.join("head_env_park.xml");
     std::fs::write(&scene_path, xml)?;
     let script = std::fs::read_to_string(bench.join("mitsuba_head_env.py"))?;
-    if args.mitsuba_avx2 && !args.variant.starts_with("llvm") {
-        bail!("--mitsuba-avx2 applies to Mitsuba's llvm variants, not {}", args.variant);
-    }
     let mut script: String =
         script.lines().filter(|l| !l.starts_with("dr.set_thread_count")).map(|l| format!("{l}\n")).collect();
     if args.variant.starts_with("llvm") {
@@ -330,11 +336,11 @@ fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
         if !o.status.success() {
             // Its last lines say why (a missing package, libLLVM, or drjit entry point).
             let err = String::from_utf8_lossy(&o.stderr);
-            let tail: Vec<&str> = err.lines().rev().take(12).collect();
-            let tail: Vec<&str> = tail.into_iter().rev().collect();
-            bail!("{} failed ({}):\n{}", script_path.display(), o.status, tail.join("\n"));
+            let lines: Vec<&str> = err.lines().collect();
+            let tail = lines[lines.len().saturating_sub(12)..].join("\n");
+            bail!("{} failed ({}):\n{tail}", script_path.display(), o.status);
         }
-        if !width_shown && let Some(w) = text.lines().find_map(|l| l.strip_prefix("mitsuba vector width ")) {
+        if !width_shown && let Some(w) = text.lines().find_map(|l| l.strip_prefix(WIDTH_TAG).map(str::trim)) {
             println!("  Mitsuba's kernels: {w} lanes per instruction");
             width_shown = true;
         }
