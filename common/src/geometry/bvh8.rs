@@ -264,10 +264,16 @@ impl Bvh8 {
             } else {
                 let first = (cur & FIRST_MASK) as usize;
                 let n = ((cur & !LEAF) >> COUNT_SHIFT) as usize;
-                for p in &self.tris[first..first + n] {
-                    if let Some((t, lane)) = tri4_closest(p, ray, tmax) {
+                // Two packets per test; an odd last one alone.
+                for pair in self.tris[first..first + n].chunks(2) {
+                    let hit = match pair {
+                        [a, b] => tri8_closest(a, b, ray, tmax).map(|(t, l)| (t, [a, b][l / 4].id[l % 4])),
+                        [a] => tri4_closest(a, ray, tmax).map(|(t, l)| (t, a.id[l])),
+                        _ => None,
+                    };
+                    if let Some((t, id)) = hit {
                         tmax = t;
-                        found = p.id[lane];
+                        found = id;
                     }
                 }
             }
@@ -1037,16 +1043,18 @@ fn node_hits(node: &Node, ray: &Ray8, tmax: f32) -> (u32, [f32; 8]) {
     (mask, dist)
 }
 
-/// Whether any triangle of packets `a` and `b` is hit with t in (ray.tmin, tmax): exactly when
-/// `tri4_closest` of `a` or of `b` returns a hit. The same operations per lane as
-/// `tri4_closest`, in AVX registers holding both packets (`a` in the low half), and its final
-/// condition (a lane passes the scaled tests and its distance `tt / |det|` is below `tmax`)
-/// without picking the nearest lane.
+/// Packets `a` (low half) and `b` (high half) against one ray in AVX registers, with the
+/// operations of `tri4_closest` per lane: every test but the far bound's (`ok`), and the two
+/// values that test compares, `tt` and `|det|`.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
 #[inline(always)]
-fn tri8_any(a: &Tri4, b: &Tri4, ray: &Ray8, tmax: f32) -> bool {
+unsafe fn tri8_tests(
+    a: &Tri4,
+    b: &Tri4,
+    ray: &Ray8,
+) -> (std::arch::x86_64::__m256, std::arch::x86_64::__m256, std::arch::x86_64::__m256) {
     use std::arch::x86_64::*;
-    // SAFETY: the target has AVX2 and FMA (cfg above); every row of a `Tri4` is four `f32`s,
+    // SAFETY (the caller's): the target has AVX2 and FMA; every row of a `Tri4` is four `f32`s,
     // read unaligned.
     unsafe {
         let ld = |ra: &[f32; 4], rb: &[f32; 4]| _mm256_loadu2_m128(rb.as_ptr(), ra.as_ptr());
@@ -1078,12 +1086,80 @@ fn tri8_any(a: &Tri4, b: &Tri4, ray: &Ray8, tmax: f32) -> bool {
         ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GE_OQ>(v, zero));
         ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(_mm256_add_ps(u, v), adet));
         ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GT_OQ>(tt, _mm256_mul_ps(set(ray.tmin), adet)));
-        ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(tt, _mm256_mul_ps(set(tmax), adet)));
+        (ok, tt, adet)
+    }
+}
+
+/// The lanes of `ok` whose `tt` lies below `tmax` scaled by `|det|`: `tri4_closest`'s far test.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+#[inline(always)]
+unsafe fn below(
+    ok: std::arch::x86_64::__m256,
+    tt: std::arch::x86_64::__m256,
+    adet: std::arch::x86_64::__m256,
+    tmax: f32,
+) -> std::arch::x86_64::__m256 {
+    use std::arch::x86_64::*;
+    // SAFETY (the caller's): the target has AVX.
+    unsafe { _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(tt, _mm256_mul_ps(_mm256_set1_ps(tmax), adet))) }
+}
+
+/// Whether any triangle of packets `a` and `b` is hit with t in (ray.tmin, tmax): exactly when
+/// `tri4_closest` of `a` or of `b` returns a hit (a lane passes the scaled tests and its
+/// distance `tt / |det|` is below `tmax`), without picking the nearest lane.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+#[inline(always)]
+fn tri8_any(a: &Tri4, b: &Tri4, ray: &Ray8, tmax: f32) -> bool {
+    use std::arch::x86_64::*;
+    // SAFETY: the target has AVX2 and FMA (cfg above).
+    unsafe {
+        let (ok, tt, adet) = tri8_tests(a, b, ray);
+        let ok = below(ok, tt, adet, tmax);
         if _mm256_testz_ps(ok, ok) != 0 {
             return false;
         }
-        let near = _mm256_cmp_ps::<_CMP_LT_OQ>(_mm256_div_ps(tt, adet), set(tmax));
+        let near = _mm256_cmp_ps::<_CMP_LT_OQ>(_mm256_div_ps(tt, adet), _mm256_set1_ps(tmax));
         _mm256_testz_ps(ok, near) == 0
+    }
+}
+
+/// The nearest hit of packets `a` then `b` with t in (ray.tmin, tmax): (t, lane), lanes 0-3
+/// of `a` and 4-7 of `b`. Exactly what `tri4_closest` of `a`, then of `b` with the far bound
+/// lowered to `a`'s hit, finds: `b`'s far test is redone with that bound.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+#[inline(always)]
+fn tri8_closest(a: &Tri4, b: &Tri4, ray: &Ray8, tmax: f32) -> Option<(f32, usize)> {
+    use std::arch::x86_64::*;
+    // SAFETY: the target has AVX2 and FMA (cfg above); one store into a local array of eight.
+    unsafe {
+        let (ok, tt, adet) = tri8_tests(a, b, ray);
+        let first = below(ok, tt, adet, tmax);
+        let mut mask = _mm256_movemask_ps(first) as u32;
+        if mask == 0 {
+            return None;
+        }
+        let mut t = [0f32; 8];
+        _mm256_storeu_ps(t.as_mut_ptr(), _mm256_div_ps(tt, adet));
+        // The lanes of `mask` in order, each kept when nearer than the nearest so far.
+        let pick = |mask: u32, bt: &mut f32, best: &mut Option<(f32, usize)>| {
+            let mut m = mask;
+            while m != 0 {
+                let l = m.trailing_zeros() as usize;
+                m &= m - 1;
+                if t[l] < *bt {
+                    *bt = t[l];
+                    *best = Some((t[l], l));
+                }
+            }
+        };
+        let (mut best, mut bt) = (None, tmax);
+        pick(mask & 0x0f, &mut bt, &mut best);
+        if best.is_some() {
+            // `a` hit: `b` is tested against the nearer bound.
+            mask = _mm256_movemask_ps(below(ok, tt, adet, bt)) as u32;
+        }
+        pick(mask & 0xf0, &mut bt, &mut best);
+        best
     }
 }
 
@@ -1093,6 +1169,15 @@ fn tri8_any(a: &Tri4, b: &Tri4, ray: &Ray8, tmax: f32) -> bool {
 #[inline(always)]
 fn tri8_any(a: &Tri4, b: &Tri4, ray: &Ray8, tmax: f32) -> bool {
     tri4_closest(a, ray, tmax).is_some() || tri4_closest(b, ray, tmax).is_some()
+}
+
+/// The nearest hit of packets `a` then `b`: `tri4_closest` of each in turn, lanes of `b` 4-7.
+#[cfg(not(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma")))]
+#[inline(always)]
+fn tri8_closest(a: &Tri4, b: &Tri4, ray: &Ray8, tmax: f32) -> Option<(f32, usize)> {
+    let first = tri4_closest(a, ray, tmax);
+    let bound = first.map_or(tmax, |h| h.0);
+    tri4_closest(b, ray, bound).map(|(t, l)| (t, l + 4)).or(first)
 }
 
 /// The nearest of four triangles hit with t in (ray.tmin, tmax): (t, lane). Möller–Trumbore
@@ -1324,7 +1409,7 @@ mod tests {
 
     /// Brute force over every triangle agrees with the BVH on random rays through a random soup.
     #[test]
-    fn a_pair_of_packets_is_blocked_exactly_when_either_packet_is_hit() {
+    fn a_pair_of_packets_finds_what_its_packets_find_one_after_the_other() {
         let mut r = xorshift(777);
         let (tris, _) = soup(&mut r, 64);
         let packet = |k: usize| {
@@ -1363,6 +1448,11 @@ mod tests {
                 let ray = Ray8::new(o, d, 0.0, tmax);
                 let expect = tri4_closest(&a, &ray, tmax).is_some() || tri4_closest(&b, &ray, tmax).is_some();
                 assert_eq!(tri8_any(&a, &b, &ray, tmax), expect, "ray {k}, tmax {tmax}");
+                // The nearest: `a`'s, then `b`'s below it (equal packets: `a`'s lane wins).
+                let first = tri4_closest(&a, &ray, tmax);
+                let second = tri4_closest(&b, &ray, first.map_or(tmax, |h| h.0));
+                let nearest = second.map(|(t, l)| (t, l + 4)).or(first);
+                assert_eq!(tri8_closest(&a, &b, &ray, tmax), nearest, "ray {k}, tmax {tmax}");
                 blocked += expect as u32;
                 at_bound += (hit.is_some_and(|h| h.0 == tmax)) as u32;
             }
