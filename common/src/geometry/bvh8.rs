@@ -93,6 +93,20 @@ impl Ray8 {
         }
         Ray8 { o, d, inv, o_inv, near, far, tmin, tmax }
     }
+
+    /// Whether the ray has a NaN in its origin, direction or bounds: such a ray hits nothing
+    /// (every comparison of a triangle test with a NaN is false), and the box test must not
+    /// walk it, since the min and max instructions drop a NaN operand and would let it into
+    /// every slot, the empty ones (whose child reference is the root) too. A NaN direction
+    /// component makes its inverse NaN, and either makes the scaled origin NaN.
+    #[inline(always)]
+    fn has_nan(&self) -> bool {
+        self.o_inv[0].is_nan()
+            || self.o_inv[1].is_nan()
+            || self.o_inv[2].is_nan()
+            || self.tmin.is_nan()
+            || self.tmax.is_nan()
+    }
 }
 
 /// The BVH: nodes (root first) and triangle packets.
@@ -157,7 +171,7 @@ impl Bvh8 {
     /// Closest hit with t in (ray.tmin, ray.tmax): (t, id).
     #[inline]
     pub fn intersect(&self, ray: &Ray8) -> Option<(f32, u32)> {
-        if self.nodes.is_empty() {
+        if self.nodes.is_empty() || ray.has_nan() {
             return None;
         }
         let need = self.depth * 7 + 1;
@@ -173,7 +187,7 @@ impl Bvh8 {
     /// Whether anything is hit with t in (ray.tmin, ray.tmax).
     #[inline]
     pub fn occluded(&self, ray: &Ray8) -> bool {
-        if self.nodes.is_empty() {
+        if self.nodes.is_empty() || ray.has_nan() {
             return false;
         }
         let need = self.depth * 7 + 1;
@@ -1315,6 +1329,27 @@ mod tests {
     /// A lane with a NaN direction, origin or far bound hits nothing, and the other lanes of its
     /// packet still find what their single rays find (a NaN would otherwise leak into the packet's
     /// interval bounds, which the min and max instructions reduce lane by lane).
+    #[test]
+    fn a_ray_with_a_nan_hits_nothing() {
+        let mut r = xorshift(99);
+        let (_, bvh) = soup(&mut r, 3000);
+        let (o, d) = (Vec3A::splat(5.0), Vec3A::new(0.3, -0.5, 0.8).normalize());
+        let nan = f32::NAN;
+        let rays = [
+            Ray8::new(o, Vec3A::splat(nan), 0.0, f32::INFINITY),
+            Ray8::new(o, Vec3A::new(nan, d.y, d.z), 0.0, f32::INFINITY),
+            Ray8::new(Vec3A::new(5.0, nan, 5.0), d, 0.0, f32::INFINITY),
+            Ray8::new(o, d, nan, f32::INFINITY),
+            Ray8::new(o, d, 0.0, nan),
+        ];
+        for (k, ray) in rays.iter().enumerate() {
+            assert_eq!(bvh.intersect(ray), None, "ray {k}");
+            assert!(!bvh.occluded(ray), "ray {k}");
+        }
+        // The same ray without the NaN hits (the soup fills the box it starts in).
+        assert!(bvh.occluded(&Ray8::new(o, d, 0.0, f32::INFINITY)));
+    }
+
     #[test]
     fn a_nan_lane_leaves_its_packet_alone() {
         let mut r = xorshift(4242);
