@@ -5,8 +5,9 @@
 //! time in the leaves, and the same traversal for closest and any hit. Here the node holds its
 //! eight child boxes as full `f32` planes (structure of arrays, one AVX2 register per plane),
 //! leaves hold triangles in packets of four with precomputed edges (a single ray tests a leaf's
-//! two packets in one AVX Möller–Trumbore pass), closest-hit traversal visits children nearest first and skips popped nodes beyond
-//! the closest hit so far, and the any-hit query stops at the first hit in any order.
+//! two packets in one AVX Möller–Trumbore pass), closest-hit traversal visits children nearest
+//! first and skips popped nodes beyond the closest hit so far, and the any-hit query stops at
+//! the first hit in any order.
 //!
 //! The results are those of a plain `f32` Möller–Trumbore test (two-sided) of every triangle, so
 //! which surface a ray finds does not depend on the BVH's shape beyond exact ties.
@@ -1326,9 +1327,9 @@ mod tests {
         (tris, bvh)
     }
 
-    /// A lane with a NaN direction, origin or far bound hits nothing, and the other lanes of its
-    /// packet still find what their single rays find (a NaN would otherwise leak into the packet's
-    /// interval bounds, which the min and max instructions reduce lane by lane).
+    /// A single ray with a NaN in its origin, direction or bounds hits nothing, and its walk
+    /// ends (the box test would let it into every slot, the empty ones, which point at the
+    /// root, too).
     #[test]
     fn a_ray_with_a_nan_hits_nothing() {
         let mut r = xorshift(99);
@@ -1350,6 +1351,9 @@ mod tests {
         assert!(bvh.occluded(&Ray8::new(o, d, 0.0, f32::INFINITY)));
     }
 
+    /// A lane with a NaN direction, origin or far bound hits nothing, and the other lanes of its
+    /// packet still find what their single rays find (a NaN would otherwise leak into the packet's
+    /// interval bounds, which the min and max instructions reduce lane by lane).
     #[test]
     fn a_nan_lane_leaves_its_packet_alone() {
         let mut r = xorshift(4242);
@@ -1444,7 +1448,9 @@ mod tests {
         assert!(lanes_hit > lanes / 5, "{lanes_hit} of {lanes} lanes hit");
     }
 
-    /// Brute force over every triangle agrees with the BVH on random rays through a random soup.
+    /// Two packets tested in one pass find what `tri4_closest` finds testing one packet, then
+    /// the other below the first one's hit: the any-hit answer and the nearest hit, lane and
+    /// distance, with far bounds at and around the hit.
     #[test]
     fn a_pair_of_packets_finds_what_its_packets_find_one_after_the_other() {
         let mut r = xorshift(777);
@@ -1497,6 +1503,7 @@ mod tests {
         assert!(blocked > 1000 && at_bound > 100, "{blocked} blocked, {at_bound} at the bound");
     }
 
+    /// Brute force over every triangle agrees with the BVH on random rays through a random soup.
     #[test]
     fn agrees_with_brute_force() {
         let mut r = xorshift(12345);
