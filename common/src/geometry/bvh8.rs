@@ -726,36 +726,16 @@ impl Bvh8 {
                             if tri.id[l] == u32::MAX {
                                 break;
                             }
-                            let c = |v: &[[f32; 4]; 3], a: usize| _mm256_set1_ps(v[a][l]);
-                            let (e1x, e1y, e1z) = (c(&tri.e1, 0), c(&tri.e1, 1), c(&tri.e1, 2));
-                            let (e2x, e2y, e2z) = (c(&tri.e2, 0), c(&tri.e2, 1), c(&tri.e2, 2));
-                            let sx = _mm256_sub_ps(ox, c(&tri.v0, 0));
-                            let sy = _mm256_sub_ps(oy, c(&tri.v0, 1));
-                            let sz = _mm256_sub_ps(oz, c(&tri.v0, 2));
-                            // The same operations, in the same order, as `tri4_closest`.
-                            let px = _mm256_fmsub_ps(dy, e2z, _mm256_mul_ps(dz, e2y));
-                            let py = _mm256_fmsub_ps(dz, e2x, _mm256_mul_ps(dx, e2z));
-                            let pz = _mm256_fmsub_ps(dx, e2y, _mm256_mul_ps(dy, e2x));
-                            let qx = _mm256_fmsub_ps(sy, e1z, _mm256_mul_ps(sz, e1y));
-                            let qy = _mm256_fmsub_ps(sz, e1x, _mm256_mul_ps(sx, e1z));
-                            let qz = _mm256_fmsub_ps(sx, e1y, _mm256_mul_ps(sy, e1x));
-                            let dot = |ax, ay, az, bx, by, bz| {
-                                _mm256_fmadd_ps(ax, bx, _mm256_fmadd_ps(ay, by, _mm256_mul_ps(az, bz)))
-                            };
-                            let det = dot(e1x, e1y, e1z, px, py, pz);
-                            let signbit = _mm256_set1_ps(-0.0);
-                            let sign = _mm256_and_ps(det, signbit);
-                            let adet = _mm256_andnot_ps(signbit, det);
-                            let u = _mm256_xor_ps(dot(sx, sy, sz, px, py, pz), sign);
-                            let v = _mm256_xor_ps(dot(dx, dy, dz, qx, qy, qz), sign);
-                            let tt = _mm256_xor_ps(dot(e2x, e2y, e2z, qx, qy, qz), sign);
-                            let zero = _mm256_setzero_ps();
-                            let mut ok = _mm256_and_ps(live, _mm256_cmp_ps(adet, zero, _CMP_GT_OQ));
-                            ok = _mm256_and_ps(ok, _mm256_cmp_ps(u, zero, _CMP_GE_OQ));
-                            ok = _mm256_and_ps(ok, _mm256_cmp_ps(v, zero, _CMP_GE_OQ));
-                            ok = _mm256_and_ps(ok, _mm256_cmp_ps(_mm256_add_ps(u, v), adet, _CMP_LE_OQ));
-                            ok = _mm256_and_ps(ok, _mm256_cmp_ps(tt, _mm256_mul_ps(tmin, adet), _CMP_GT_OQ));
-                            ok = _mm256_and_ps(ok, _mm256_cmp_ps(tt, _mm256_mul_ps(tmax, adet), _CMP_LT_OQ));
+                            let c = |v: &[[f32; 4]; 3]| std::array::from_fn(|a| _mm256_set1_ps(v[a][l]));
+                            let v0: [__m256; 3] = c(&tri.v0);
+                            let s = [
+                                _mm256_sub_ps(ox, v0[0]),
+                                _mm256_sub_ps(oy, v0[1]),
+                                _mm256_sub_ps(oz, v0[2]),
+                            ];
+                            // The operations of `tri4_closest`, one triangle against eight rays.
+                            let (ok, tt, adet) = mt8(c(&tri.e1), c(&tri.e2), s, [dx, dy, dz], tmin);
+                            let ok = below(_mm256_and_ps(live, ok), tt, adet, tmax);
                             let m = _mm256_movemask_ps(ok) as u32;
                             if m == 0 {
                                 continue;
@@ -1060,9 +1040,51 @@ fn node_hits(node: &Node, ray: &Ray8, tmax: f32) -> (u32, [f32; 8]) {
     (mask, dist)
 }
 
-/// Packets `a` (low half) and `b` (high half) against one ray in AVX registers, with the
-/// operations of `tri4_closest` per lane: every test but the far bound's (`ok`), and the two
-/// values that test compares, `tt` and `|det|`.
+/// Möller–Trumbore in AVX registers, eight (triangle, ray) pairs side by side: edges `e1`, `e2`,
+/// `s` = origin − vertex 0, direction `d`, per axis. The operations of `tri4_closest` per lane,
+/// in its order: every test but the far bound's (`ok`), and the two values that test compares,
+/// `tt` and `|det|`. The single ray's pair of packets (`tri8_tests`) and the packet's one
+/// triangle against eight rays (`Bvh8::closest_packet`) both come here.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+#[inline(always)]
+unsafe fn mt8(
+    e1: [std::arch::x86_64::__m256; 3],
+    e2: [std::arch::x86_64::__m256; 3],
+    s: [std::arch::x86_64::__m256; 3],
+    d: [std::arch::x86_64::__m256; 3],
+    tmin: std::arch::x86_64::__m256,
+) -> (std::arch::x86_64::__m256, std::arch::x86_64::__m256, std::arch::x86_64::__m256) {
+    use std::arch::x86_64::*;
+    // SAFETY (the caller's): the target has AVX2 and FMA; register operations only.
+    unsafe {
+        let ([e1x, e1y, e1z], [e2x, e2y, e2z], [sx, sy, sz], [dx, dy, dz]) = (e1, e2, s, d);
+        // p = d x e2, q = s x e1 (the products written out: a*b - c*d)
+        let px = _mm256_fmsub_ps(dy, e2z, _mm256_mul_ps(dz, e2y));
+        let py = _mm256_fmsub_ps(dz, e2x, _mm256_mul_ps(dx, e2z));
+        let pz = _mm256_fmsub_ps(dx, e2y, _mm256_mul_ps(dy, e2x));
+        let qx = _mm256_fmsub_ps(sy, e1z, _mm256_mul_ps(sz, e1y));
+        let qy = _mm256_fmsub_ps(sz, e1x, _mm256_mul_ps(sx, e1z));
+        let qz = _mm256_fmsub_ps(sx, e1y, _mm256_mul_ps(sy, e1x));
+        let dot =
+            |ax, ay, az, bx, by, bz| _mm256_fmadd_ps(ax, bx, _mm256_fmadd_ps(ay, by, _mm256_mul_ps(az, bz)));
+        let det = dot(e1x, e1y, e1z, px, py, pz);
+        let signbit = _mm256_set1_ps(-0.0);
+        let sign = _mm256_and_ps(det, signbit);
+        let adet = _mm256_andnot_ps(signbit, det);
+        let u = _mm256_xor_ps(dot(sx, sy, sz, px, py, pz), sign);
+        let v = _mm256_xor_ps(dot(dx, dy, dz, qx, qy, qz), sign);
+        let tt = _mm256_xor_ps(dot(e2x, e2y, e2z, qx, qy, qz), sign);
+        let zero = _mm256_setzero_ps();
+        let mut ok = _mm256_cmp_ps::<_CMP_GT_OQ>(adet, zero);
+        ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GE_OQ>(u, zero));
+        ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GE_OQ>(v, zero));
+        ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(_mm256_add_ps(u, v), adet));
+        ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GT_OQ>(tt, _mm256_mul_ps(tmin, adet)));
+        (ok, tt, adet)
+    }
+}
+
+/// Packets `a` (low half) and `b` (high half) against one ray: [`mt8`] with the ray broadcast.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
 #[inline(always)]
 unsafe fn tri8_tests(
@@ -1074,51 +1096,29 @@ unsafe fn tri8_tests(
     // SAFETY (the caller's): the target has AVX2 and FMA; every row of a `Tri4` is four `f32`s,
     // read unaligned.
     unsafe {
-        let ld = |ra: &[f32; 4], rb: &[f32; 4]| _mm256_loadu2_m128(rb.as_ptr(), ra.as_ptr());
-        let set = _mm256_set1_ps;
-        let (e1x, e1y, e1z) = (ld(&a.e1[0], &b.e1[0]), ld(&a.e1[1], &b.e1[1]), ld(&a.e1[2], &b.e1[2]));
-        let (e2x, e2y, e2z) = (ld(&a.e2[0], &b.e2[0]), ld(&a.e2[1], &b.e2[1]), ld(&a.e2[2], &b.e2[2]));
-        let (dx, dy, dz) = (set(ray.d[0]), set(ray.d[1]), set(ray.d[2]));
-        let sx = _mm256_sub_ps(set(ray.o[0]), ld(&a.v0[0], &b.v0[0]));
-        let sy = _mm256_sub_ps(set(ray.o[1]), ld(&a.v0[1], &b.v0[1]));
-        let sz = _mm256_sub_ps(set(ray.o[2]), ld(&a.v0[2], &b.v0[2]));
-        let px = _mm256_fmsub_ps(dy, e2z, _mm256_mul_ps(dz, e2y));
-        let py = _mm256_fmsub_ps(dz, e2x, _mm256_mul_ps(dx, e2z));
-        let pz = _mm256_fmsub_ps(dx, e2y, _mm256_mul_ps(dy, e2x));
-        let qx = _mm256_fmsub_ps(sy, e1z, _mm256_mul_ps(sz, e1y));
-        let qy = _mm256_fmsub_ps(sz, e1x, _mm256_mul_ps(sx, e1z));
-        let qz = _mm256_fmsub_ps(sx, e1y, _mm256_mul_ps(sy, e1x));
-        let dot =
-            |ax, ay, az, bx, by, bz| _mm256_fmadd_ps(ax, bx, _mm256_fmadd_ps(ay, by, _mm256_mul_ps(az, bz)));
-        let det = dot(e1x, e1y, e1z, px, py, pz);
-        let signbit = set(-0.0);
-        let sign = _mm256_and_ps(det, signbit);
-        let adet = _mm256_andnot_ps(signbit, det);
-        let u = _mm256_xor_ps(dot(sx, sy, sz, px, py, pz), sign);
-        let v = _mm256_xor_ps(dot(dx, dy, dz, qx, qy, qz), sign);
-        let tt = _mm256_xor_ps(dot(e2x, e2y, e2z, qx, qy, qz), sign);
-        let zero = _mm256_setzero_ps();
-        let mut ok = _mm256_cmp_ps::<_CMP_GT_OQ>(adet, zero);
-        ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GE_OQ>(u, zero));
-        ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GE_OQ>(v, zero));
-        ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(_mm256_add_ps(u, v), adet));
-        ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GT_OQ>(tt, _mm256_mul_ps(set(ray.tmin), adet)));
-        (ok, tt, adet)
+        let ld = |ra: &[[f32; 4]; 3], rb: &[[f32; 4]; 3]| {
+            std::array::from_fn(|k| _mm256_loadu2_m128(rb[k].as_ptr(), ra[k].as_ptr()))
+        };
+        let v0: [__m256; 3] = ld(&a.v0, &b.v0);
+        let s = std::array::from_fn(|k| _mm256_sub_ps(_mm256_set1_ps(ray.o[k]), v0[k]));
+        let d = ray.d.map(|c| _mm256_set1_ps(c));
+        mt8(ld(&a.e1, &b.e1), ld(&a.e2, &b.e2), s, d, _mm256_set1_ps(ray.tmin))
     }
 }
 
-/// The lanes of `ok` whose `tt` lies below `tmax` scaled by `|det|`: `tri4_closest`'s far test.
+/// The lanes of `ok` whose `tt` lies below the far bound `tmax` scaled by `|det|`:
+/// `tri4_closest`'s far test.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
 #[inline(always)]
 unsafe fn below(
     ok: std::arch::x86_64::__m256,
     tt: std::arch::x86_64::__m256,
     adet: std::arch::x86_64::__m256,
-    tmax: f32,
+    tmax: std::arch::x86_64::__m256,
 ) -> std::arch::x86_64::__m256 {
     use std::arch::x86_64::*;
     // SAFETY (the caller's): the target has AVX.
-    unsafe { _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(tt, _mm256_mul_ps(_mm256_set1_ps(tmax), adet))) }
+    unsafe { _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(tt, _mm256_mul_ps(tmax, adet))) }
 }
 
 /// Whether any triangle of packets `a` and `b` is hit with t in (ray.tmin, tmax): exactly when
@@ -1131,7 +1131,7 @@ fn tri8_any(a: &Tri4, b: &Tri4, ray: &Ray8, tmax: f32) -> bool {
     // SAFETY: the target has AVX2 and FMA (cfg above).
     unsafe {
         let (ok, tt, adet) = tri8_tests(a, b, ray);
-        let ok = below(ok, tt, adet, tmax);
+        let ok = below(ok, tt, adet, _mm256_set1_ps(tmax));
         if _mm256_testz_ps(ok, ok) != 0 {
             return false;
         }
@@ -1150,7 +1150,7 @@ fn tri8_closest(a: &Tri4, b: &Tri4, ray: &Ray8, tmax: f32) -> Option<(f32, usize
     // SAFETY: the target has AVX2 and FMA (cfg above); one store into a local array of eight.
     unsafe {
         let (ok, tt, adet) = tri8_tests(a, b, ray);
-        let first = below(ok, tt, adet, tmax);
+        let first = below(ok, tt, adet, _mm256_set1_ps(tmax));
         let mut mask = _mm256_movemask_ps(first) as u32;
         if mask == 0 {
             return None;
@@ -1173,7 +1173,7 @@ fn tri8_closest(a: &Tri4, b: &Tri4, ray: &Ray8, tmax: f32) -> Option<(f32, usize
         pick(mask & 0x0f, &mut bt, &mut best);
         if best.is_some() {
             // `a` hit: `b` is tested against the nearer bound.
-            mask = _mm256_movemask_ps(below(ok, tt, adet, bt)) as u32;
+            mask = _mm256_movemask_ps(below(ok, tt, adet, _mm256_set1_ps(bt))) as u32;
         }
         pick(mask & 0xf0, &mut bt, &mut best);
         best
