@@ -234,6 +234,10 @@ impl EnvLight {
                 }
             }
         }
+        #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+        if let Some(out) = bilinear_lanes(&self.image, &u, &v) {
+            return out;
+        }
         std::array::from_fn(|i| self.radiance_uv(u[i], v[i]))
     }
 
@@ -435,6 +439,77 @@ impl EnvLight {
         };
         (pdf > 0.0 && pdf.is_finite()).then(|| self.blend(&d.texels) / pdf)
     }
+}
+
+/// [`EnvLight::radiance_uv`] of eight lat-long coordinates `(u[k], v[k])`, four lanes per AVX
+/// register: the same operations on each lane as [`EnvLight::corners`], [`TextureImage::texel_quad`]
+/// and [`weigh_texels`] (the same bits), with the texels gathered a channel at a time. `None`
+/// when a lane's coordinates are outside what this path handles (a NaN, a column outside two
+/// widths of the map, a row beyond ±2^30), or when the image breaks [`TextureImage`]'s invariant
+/// or is too large for 32-bit offsets: the caller then looks the lanes up one by one.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+fn bilinear_lanes(img: &TextureImage, u: &[f64; LANES], v: &[f64; LANES]) -> Option<[DVec3; LANES]> {
+    use std::arch::x86_64::*;
+    const { assert!(LANES.is_multiple_of(4)) };
+    let (w, h) = (img.width as usize, img.height as usize);
+    // Offsets of up to 3·w·h floats, as i32.
+    if w == 0 || h == 0 || img.texels.len() != w * h || w * h > (i32::MAX as usize) / 3 - 3 {
+        return None;
+    }
+    let mut rgb = [[0.0f64; LANES]; 3];
+    // SAFETY: the target has AVX2 (cfg above). The loads read u, v at 4-lane offsets
+    // below LANES; each gather reads float 3·(y·w + x) + c (c < 3) of `texels`, with y in
+    // [0, h - 1] and x in [0, w - 1] (the checks below), so inside the w·h texels.
+    unsafe {
+        let (wf, hf) = (_mm256_set1_pd(w as f64), _mm256_set1_pd(h as f64));
+        let (zero, one, three) = (_mm256_setzero_pd(), _mm256_set1_pd(1.0), _mm256_set1_pd(3.0));
+        let base = img.texels.as_ptr().cast::<f32>();
+        for half in 0..LANES / 4 {
+            let i = _mm256_mul_pd(_mm256_loadu_pd(u.as_ptr().add(4 * half)), wf);
+            let j = _mm256_mul_pd(_mm256_loadu_pd(v.as_ptr().add(4 * half)), hf);
+            let p = _mm256_floor_pd(i);
+            let q = _mm256_floor_pd(j);
+            // Columns p in [0, 2w - 1], which `corners` wraps by one subtraction (and p + 1 = 2w
+            // by its division, which gives 0: a second subtraction here). Rows within ±2^30,
+            // where `as i64` and the clamp into [0, h - 1] agree with f64 min and max. Ordered
+            // comparisons: a NaN fails them.
+            let ok = _mm256_and_pd(
+                _mm256_and_pd(
+                    _mm256_cmp_pd::<_CMP_GE_OQ>(p, zero),
+                    _mm256_cmp_pd::<_CMP_LE_OQ>(p, _mm256_set1_pd(2.0 * w as f64 - 1.0)),
+                ),
+                _mm256_cmp_pd::<_CMP_LE_OQ>(
+                    _mm256_andnot_pd(_mm256_set1_pd(-0.0), q),
+                    _mm256_set1_pd(f64::from(1u32 << 30)),
+                ),
+            );
+            if _mm256_movemask_pd(ok) != 0xf {
+                return None;
+            }
+            let wrap = |x: __m256d| _mm256_sub_pd(x, _mm256_and_pd(_mm256_cmp_pd::<_CMP_GE_OQ>(x, wf), wf));
+            let (x0, x1) = (wrap(p), wrap(wrap(_mm256_add_pd(p, one))));
+            let last_row = _mm256_set1_pd(h as f64 - 1.0);
+            let row = |y: __m256d| _mm256_mul_pd(_mm256_min_pd(_mm256_max_pd(y, zero), last_row), wf);
+            let (r0, r1) = (row(q), row(_mm256_add_pd(q, one)));
+            // Every value here is an integer below 2^31: exact in f64.
+            let offset =
+                |r: __m256d, x: __m256d| _mm256_cvttpd_epi32(_mm256_mul_pd(_mm256_add_pd(r, x), three));
+            let corners = [offset(r0, x0), offset(r0, x1), offset(r1, x0), offset(r1, x1)];
+            let (dx, dy) = (_mm256_sub_pd(i, p), _mm256_sub_pd(j, q));
+            let (ex, ey) = (_mm256_sub_pd(one, dx), _mm256_sub_pd(one, dy));
+            let weights =
+                [_mm256_mul_pd(ex, ey), _mm256_mul_pd(dx, ey), _mm256_mul_pd(ex, dy), _mm256_mul_pd(dx, dy)];
+            for (c, out) in rgb.iter_mut().enumerate() {
+                let term = |k: usize| {
+                    let t = _mm_i32gather_ps::<4>(base.add(c), corners[k]);
+                    _mm256_mul_pd(_mm256_cvtps_pd(t), weights[k])
+                };
+                let sum = _mm256_add_pd(_mm256_add_pd(_mm256_add_pd(term(0), term(1)), term(2)), term(3));
+                _mm256_storeu_pd(out.as_mut_ptr().add(4 * half), sum);
+            }
+        }
+    }
+    Some(std::array::from_fn(|k| DVec3::new(rgb[0][k], rgb[1][k], rgb[2][k])))
 }
 
 /// `q[0]·w[0] + q[1]·w[1] + q[2]·w[2] + q[3]·w[3]` in `f64`, added left to right: the three
@@ -1188,6 +1263,61 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    /// The vector lookup of eight map coordinates gives what the lookup of each gives, bit for
+    /// bit, and takes every coordinate of the map (a camera ray's) and up to two widths past it:
+    /// both ends of u and v, the texel edges, random points; maps of one column and one row.
+    /// Coordinates it leaves to the single lookups (NaN, far outside the map, an image whose
+    /// texels do not match its size) make it decline the whole group, which then gets each
+    /// lane's own lookup.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[test]
+    fn the_vector_lookup_is_the_single_lookup() {
+        let mut rng = Sampler::new(5, 2, 7, 0);
+        for (w, h) in [(37, 19), (1, 1), (1, 5), (6, 1), (512, 256)] {
+            let map = image(w, h, |x, y| [x as f32 * 0.25 + 0.1, y as f32 * 1.5 + 1e-3, (x * y % 7) as f32]);
+            let env = EnvLight::new(map.clone(), EnvMapping::LatLong, None);
+            // Up to two widths wrap (1.5 is past the last texel of a one-column map, whose second
+            // column wraps twice).
+            let mut uv =
+                vec![(0.0, 0.0), (1.0, 1.0), (-0.0, -0.0), (1.0 - f64::EPSILON, 0.5), (0.5, 1.0), (1.5, 0.3)];
+            for k in 0..=w {
+                uv.push((k as f64 / w as f64, (k % (h + 1)) as f64 / h as f64));
+            }
+            for _ in 0..2000 {
+                uv.push(rng.next_2d());
+            }
+            for chunk in uv.chunks(LANES) {
+                let u: [f64; LANES] = std::array::from_fn(|i| chunk[i % chunk.len()].0);
+                let v: [f64; LANES] = std::array::from_fn(|i| chunk[i % chunk.len()].1);
+                let got = bilinear_lanes(&env.image, &u, &v).expect("coordinates in the map");
+                for k in 0..LANES {
+                    let want = env.radiance_uv(u[k], v[k]);
+                    assert_eq!(
+                        got[k].to_array().map(f64::to_bits),
+                        want.to_array().map(f64::to_bits),
+                        "{w}x{h} {u:?} {v:?}"
+                    );
+                }
+            }
+            for odd in
+                [(f64::NAN, 0.5), (0.5, f64::NAN), (-0.6, 0.5), (2.0, 0.5), (f64::INFINITY, 0.5), (0.5, 3e9)]
+            {
+                let (mut u, mut v) = ([0.25; LANES], [0.5; LANES]);
+                (u[3], v[3]) = odd;
+                assert!(bilinear_lanes(&env.image, &u, &v).is_none(), "{odd:?}");
+                // What the group gets instead: each lane's own lookup.
+                let dirs = [DVec3::new(f64::NAN, 0.0, 1.0); LANES];
+                assert!(
+                    env.radiance_lanes(&dirs).iter().all(|l| l.to_array().map(f64::to_bits)
+                        == env.radiance(dirs[0]).to_array().map(f64::to_bits))
+                );
+            }
+            let mut short = (*map).clone();
+            short.texels.pop();
+            assert!(bilinear_lanes(&short, &[0.5; LANES], &[0.5; LANES]).is_none());
         }
     }
 
