@@ -653,10 +653,25 @@ fn guided_search(cdf: &[f64], guide: &[u32], xi: f64) -> usize {
     lo + cdf[lo..hi].partition_point(|&c| c <= xi)
 }
 
+/// `n as f64` for a count or index below 2^63 (every table size here), through i64: one
+/// conversion instruction, where usize's takes several; the same value.
+#[inline(always)]
+fn small_f64(n: usize) -> f64 {
+    n as i64 as f64
+}
+
+/// `(x as usize).min(len - 1)` for `len` in [1, 2^63), through i64 (one conversion instruction;
+/// usize's saturating one takes a dozen): the same index for every `x`, NaN and negatives
+/// included (0).
+#[inline(always)]
+fn small_index(x: f64, len: usize) -> usize {
+    (x as i64).clamp(0, len as i64 - 1) as usize
+}
+
 /// The guide table's bucket of `xi` in [0, 1).
 #[inline]
 fn guide_bucket(xi: f64) -> usize {
-    ((xi * GUIDE as f64) as usize).min(GUIDE - 1)
+    small_index(xi * GUIDE as f64, GUIDE)
 }
 
 /// The range of a table of `len` entries that [`guided_search`] searches for `xi`.
@@ -797,8 +812,8 @@ impl EnvDistribution {
         let lo = if x == 0 { 0.0 } else { cdf[x - 1] };
         let cell_p = cdf[x] - lo;
         let fx = if cell_p > 0.0 { ((xi2 - lo) / cell_p).clamp(0.0, 1.0 - 1e-12) } else { 0.5 };
-        let u = (x as f64 + fx) / self.width as f64;
-        let v = (y as f64 + fy) / self.height as f64;
+        let u = (small_f64(x) + fx) / small_f64(self.width);
+        let v = (small_f64(y) + fy) / small_f64(self.height);
         let (wi, sin) = latlong_direction_sin(u, v);
         if sin <= 0.0 {
             return None;
@@ -817,8 +832,8 @@ impl EnvDistribution {
     /// The cell of lat-long coordinates `(u, v)`.
     #[inline]
     fn cell_of(&self, u: f64, v: f64) -> (usize, usize) {
-        let x = ((u * self.width as f64) as usize).min(self.width - 1);
-        let y = ((v * self.height as f64) as usize).min(self.height - 1);
+        let x = small_index(u * small_f64(self.width), self.width);
+        let y = small_index(v * small_f64(self.height), self.height);
         (x, y)
     }
 
@@ -849,7 +864,7 @@ impl EnvDistribution {
     /// The solid-angle density of a cell of probability `p` at sin θ = `sin`.
     #[inline]
     fn solid_angle_pdf(&self, p: f64, sin: f64) -> f64 {
-        p * (self.width * self.height) as f64 / (2.0 * PI * PI * sin)
+        p * small_f64(self.width * self.height) / (2.0 * PI * PI * sin)
     }
 
     /// The probability of cell (x, y): its row's, times its own within the row.
@@ -1263,6 +1278,38 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    /// The i64 conversions give what usize's would, for every kind of value.
+    #[test]
+    fn small_conversions_are_usizes() {
+        let xs = [
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            -1e300,
+            -1.0,
+            -0.5,
+            -0.0,
+            0.0,
+            0.999,
+            1.0,
+            63.5,
+            64.0,
+            511.9999,
+            1e18,
+            9.3e18,
+            1.9e19,
+            1e300,
+        ];
+        for len in [1usize, 2, 64, 512, 1 << 40] {
+            for x in xs {
+                assert_eq!(small_index(x, len), (x as usize).min(len - 1), "{x} {len}");
+            }
+        }
+        for n in [0usize, 1, 511, 1 << 52, (1 << 53) + 1, (1 << 62) + 12345] {
+            assert_eq!(small_f64(n).to_bits(), (n as f64).to_bits(), "{n}");
         }
     }
 
