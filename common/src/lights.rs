@@ -153,6 +153,19 @@ fn latlong_uv(x: f64, y: f64, z: f64) -> (f64, f64) {
     (u, v)
 }
 
+/// [`env_uv`] of a lat-long map for each of `dirs`, side by side: a loop of fixed length over
+/// plain arrays, which the compiler turns into vector instructions (the same values as one
+/// direction at a time).
+#[inline(always)]
+fn latlong_uv_lanes<const N: usize>(dirs: &[DVec3; N]) -> ([f64; N], [f64; N]) {
+    let (x, y, z) = (dirs.map(|d| d.x), dirs.map(|d| d.y), dirs.map(|d| d.z));
+    let (mut u, mut v) = ([0.0; N], [0.0; N]);
+    for i in 0..N {
+        (u[i], v[i]) = latlong_uv(x[i], y[i], z[i]);
+    }
+    (u, v)
+}
+
 /// The unit direction of lat-long coordinates (u, v): the inverse of [`env_uv`].
 #[inline]
 pub fn latlong_direction(u: f64, v: f64) -> DVec3 {
@@ -222,12 +235,7 @@ impl EnvLight {
         let mut u = [0.0; LANES];
         let mut v = [0.0; LANES];
         match self.mapping {
-            EnvMapping::LatLong => {
-                let (x, y, z) = (dirs.map(|d| d.x), dirs.map(|d| d.y), dirs.map(|d| d.z));
-                for i in 0..LANES {
-                    (u[i], v[i]) = latlong_uv(x[i], y[i], z[i]);
-                }
-            }
+            EnvMapping::LatLong => (u, v) = latlong_uv_lanes(dirs),
             EnvMapping::Probe => {
                 for i in 0..LANES {
                     (u[i], v[i]) = env_uv(EnvMapping::Probe, dirs[i]);
@@ -277,6 +285,28 @@ impl EnvLight {
             }
         };
         Corners { x0: wrap(p), x1: wrap(p + 1.0), y0: q as i64, y1: q as i64 + 1, dx: i - p, dy: j - q }
+    }
+
+    /// [`env_uv`] of the directions `dirs[k]` of the lanes `k` in `mask` (the others' entries
+    /// unspecified): a lat-long map's for all lanes side by side ([`latlong_uv_lanes`]), a
+    /// probe's one lane at a time.
+    #[inline]
+    fn uv_lanes<const N: usize>(&self, dirs: &[DVec3; N], mask: u32) -> [(f64, f64); N] {
+        let mut out = [(0.0, 0.0); N];
+        match self.mapping {
+            EnvMapping::LatLong if mask != 0 => {
+                let (u, v) = latlong_uv_lanes(dirs);
+                for k in lanes(mask) {
+                    out[k] = (u[k], v[k]);
+                }
+            }
+            _ => {
+                for k in lanes(mask) {
+                    out[k] = env_uv(self.mapping, dirs[k]);
+                }
+            }
+        }
+        out
     }
 
     /// Starts loading the texels `c` names into the cache.
@@ -353,8 +383,11 @@ impl EnvLight {
                         let cos = (1.0 - xi1).sqrt();
                         (hemisphere_direction(ns[k], cos, xi2), EnvPdf::Factor(PI / cos))
                     };
-                    uv[k] = env_uv(self.mapping, wi[k]);
                     found |= 1 << k;
+                }
+                let coords = self.uv_lanes(&wi, found);
+                for k in lanes(found) {
+                    uv[k] = coords[k];
                 }
             }
             EnvSampler::Importance => {
@@ -387,6 +420,8 @@ impl EnvLight {
                         found |= 1 << k;
                     }
                 }
+                // The lobe's directions (not drawn from the map's grid) need their coordinates.
+                let lobe = self.uv_lanes(&wi, found & !map);
                 for k in lanes(found) {
                     let cos = wi[k].dot(ns[k]);
                     if cos <= 0.0 {
@@ -403,14 +438,12 @@ impl EnvLight {
                             (env_uv(EnvMapping::Probe, wi[k]), MapPdf::Known(s.pdf))
                         }
                         (None, EnvMapping::LatLong) => {
-                            let (u, v) = env_uv(EnvMapping::LatLong, wi[k]);
+                            let (u, v) = lobe[k];
                             let (x, y) = dist.cell_of(u, v);
                             dist.prefetch_cell(x, y);
                             ((u, v), MapPdf::LatLongCell { x, y, v })
                         }
-                        (None, EnvMapping::Probe) => {
-                            (env_uv(EnvMapping::Probe, wi[k]), MapPdf::Known(dist.pdf(wi[k])))
-                        }
+                        (None, EnvMapping::Probe) => (lobe[k], MapPdf::Known(dist.pdf(wi[k]))),
                     };
                     pdf[k] = EnvPdf::Mixture { cos, map_pdf };
                 }
