@@ -1016,7 +1016,12 @@ fn node_hits(node: &Node, ray: &Ray8, tmax: f32) -> (u32, [f32; 8]) {
         );
         // Conservative by a few ulps, so rounding never culls a box the ray touches.
         let tf = _mm256_mul_ps(tf, _mm256_set1_ps(1.0 + 4.0 * f32::EPSILON));
-        let mask = _mm256_movemask_ps(_mm256_cmp_ps(tn, tf, _CMP_LE_OQ)) as u32;
+        // Only slots with a box (empty ones have min > max, and their child reference is the
+        // root): a ray whose plane distances come out NaN in the empty slots' infinite planes
+        // (an infinite origin or direction component, ∞ − ∞ or ∞·0) would enter them
+        // otherwise, since min and max drop a NaN operand, and push the root forever.
+        let filled = _mm256_cmp_ps(plane(0), plane(3), _CMP_LE_OQ);
+        let mask = _mm256_movemask_ps(_mm256_and_ps(filled, _mm256_cmp_ps(tn, tf, _CMP_LE_OQ))) as u32;
         let mut dist = [0f32; 8];
         _mm256_storeu_ps(dist.as_mut_ptr(), tn);
         (mask, dist)
@@ -1032,7 +1037,8 @@ fn node_hits(node: &Node, ray: &Ray8, tmax: f32) -> (u32, [f32; 8]) {
         let t = |i: usize, a: usize| node.b[i][s].mul_add(ray.inv[a], -ray.o_inv[a]);
         let tn = t(ray.near[0], 0).max(t(ray.near[1], 1)).max(t(ray.near[2], 2)).max(ray.tmin);
         let tf = t(ray.far[0], 0).min(t(ray.far[1], 1)).min(t(ray.far[2], 2)).min(tmax);
-        if tn <= tf * (1.0 + 4.0 * f32::EPSILON) {
+        // Only slots with a box (see the AVX2 version).
+        if tn <= tf * (1.0 + 4.0 * f32::EPSILON) && node.b[0][s] <= node.b[3][s] {
             mask |= 1 << s;
         }
         dist[s] = tn;
@@ -1349,6 +1355,41 @@ mod tests {
         }
         // The same ray without the NaN hits (the soup fills the box it starts in).
         assert!(bvh.occluded(&Ray8::new(o, d, 0.0, f32::INFINITY)));
+    }
+
+    /// A ray with an infinite origin or direction component (what an f64 ray far out, or carried
+    /// into object space by a huge or tiny scale, becomes in f32) gets an answer and its walk
+    /// ends: its plane distances come out NaN in the empty slots' infinite planes (∞ − ∞, ∞·0),
+    /// and the walk must not enter them (found by fuzzing the renderer: a shadow-ray epsilon
+    /// of 2e54 put the rays' origins at f32 infinity).
+    #[test]
+    fn a_ray_with_an_infinity_ends_its_walk() {
+        let mut r = xorshift(99);
+        let (_, bvh) = soup(&mut r, 3000);
+        let (o, d) = (Vec3A::splat(5.0), Vec3A::new(0.3, -0.5, 0.8).normalize());
+        let inf = f32::INFINITY;
+        // Every pattern of infinite, zero and finite components, in origins and directions.
+        let values = [inf, -inf, 0.0, 5.0, -3.0, 1e30];
+        let mut rays = Vec::new();
+        for a in values {
+            for b in values {
+                for c in values {
+                    let v = Vec3A::new(a, b, c);
+                    rays.push(Ray8::new(v, d, 0.0, inf));
+                    rays.push(Ray8::new(v, -d, 0.0, inf));
+                    rays.push(Ray8::new(o, v, 0.0, inf));
+                    rays.push(Ray8::new(v, Vec3A::new(d.x, 0.0, d.z), 0.0, inf));
+                }
+            }
+        }
+        for (k, ray) in rays.iter().enumerate() {
+            // Whatever the answer, it comes back (before the fix: an index out of bounds).
+            let closest = bvh.intersect(ray);
+            let any = bvh.occluded(ray);
+            assert_eq!(closest.is_some(), any, "ray {k}");
+        }
+        // Finite rays keep their answers: the slots they enter are filled ones anyway.
+        assert!(bvh.occluded(&Ray8::new(o, d, 0.0, inf)));
     }
 
     /// A lane with a NaN direction, origin or far bound hits nothing, and the other lanes of its
