@@ -385,10 +385,7 @@ impl EnvLight {
                     };
                     found |= 1 << k;
                 }
-                let coords = self.uv_lanes(&wi, found);
-                for k in lanes(found) {
-                    uv[k] = coords[k];
-                }
+                uv = self.uv_lanes(&wi, found);
             }
             EnvSampler::Importance => {
                 // One-sample multiple importance sampling: half the samples follow the map's

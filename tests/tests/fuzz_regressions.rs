@@ -49,32 +49,15 @@ fn scene(text_bytes: &[u8], name: &str, json: bool) {
     }
 }
 
-/// What fuzz/fuzz_targets/render_xml.rs does with an input: the middle 3x3 pixels of the first
-/// two cameras of a scene the builder accepts, 2 samples, under each environment sampler.
-fn render(text_bytes: &[u8]) {
-    use tessera::image::TileRect;
-    use tessera::render::{RenderSettings, render_tile};
-    use tessera::scene::records::EnvSampler;
-    let Ok(text) = std::str::from_utf8(text_bytes) else { return };
-    let Ok(records) = tessera::scene::xml::parse_xml(text, Path::new("fuzz.xml")) else { return };
-    let Ok(scene) = build_scene(&records, &MemResolver::for_scene(Default::default(), "fuzz.xml")) else {
-        return;
-    };
-    for (k, cam) in scene.cameras.iter().enumerate().take(2) {
-        let (w, h) = (cam.width.min(3), cam.height.min(3));
-        let rect = TileRect { x0: (cam.width - w) / 2, y0: (cam.height - h) / 2, width: w, height: h };
-        for env in [EnvSampler::Uniform, EnvSampler::Cosine, EnvSampler::Importance] {
-            let settings = RenderSettings { samples: Some(2), env_sampling: Some(env), ..Default::default() };
-            let _ = render_tile(&scene, k, rect, &settings);
-        }
-    }
-}
+/// The `render_xml` fuzz target's entry point, the same file.
+#[path = "../../fuzz/probes/render_xml.rs"]
+mod render_probe;
 
 /// The renderer's fuzzer starts from the scene corpus: both corpora and its crashes render.
 #[test]
 fn render_xml_inputs() {
-    replay("scene_xml", 1, render);
-    replay("render_xml", 1, render);
+    replay("scene_xml", 1, render_probe::render_xml);
+    replay("render_xml", 1, render_probe::render_xml);
 }
 
 #[test]

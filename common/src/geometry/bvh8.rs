@@ -1333,14 +1333,20 @@ mod tests {
         (tris, bvh)
     }
 
+    /// A soup of 3,000 triangles and a ray from inside it that hits one (the probes of the walk's
+    /// odd rays vary that ray).
+    fn soup_and_ray() -> (Bvh8, Vec3A, Vec3A) {
+        let mut r = xorshift(99);
+        let (_, bvh) = soup(&mut r, 3000);
+        (bvh, Vec3A::splat(5.0), Vec3A::new(0.3, -0.5, 0.8).normalize())
+    }
+
     /// A single ray with a NaN in its origin, direction or bounds hits nothing, and its walk
     /// ends (the box test would let it into every slot, the empty ones, which point at the
     /// root, too).
     #[test]
     fn a_ray_with_a_nan_hits_nothing() {
-        let mut r = xorshift(99);
-        let (_, bvh) = soup(&mut r, 3000);
-        let (o, d) = (Vec3A::splat(5.0), Vec3A::new(0.3, -0.5, 0.8).normalize());
+        let (bvh, o, d) = soup_and_ray();
         let nan = f32::NAN;
         let rays = [
             Ray8::new(o, Vec3A::splat(nan), 0.0, f32::INFINITY),
@@ -1364,9 +1370,7 @@ mod tests {
     /// of 2e54 put the rays' origins at f32 infinity).
     #[test]
     fn a_ray_with_an_infinity_ends_its_walk() {
-        let mut r = xorshift(99);
-        let (_, bvh) = soup(&mut r, 3000);
-        let (o, d) = (Vec3A::splat(5.0), Vec3A::new(0.3, -0.5, 0.8).normalize());
+        let (bvh, o, d) = soup_and_ray();
         let inf = f32::INFINITY;
         // Every pattern of infinite, zero and finite components, in origins and directions.
         let values = [inf, -inf, 0.0, 5.0, -3.0, 1e30];
