@@ -522,6 +522,14 @@ impl Accel {
         }
     }
 
+    /// The length of the diagonal of the box around every bounded object (planes left out), in
+    /// world space over the whole exposure; `None` when nothing has bounds.
+    pub fn extent(&self) -> Option<f64> {
+        let boxes = self.instances.iter().filter_map(|i| instance_bounds(i, &self.meshes));
+        let all = boxes.reduce(|a, b| a.union(&b))?;
+        Some((all.max - all.min).as_dvec3().length())
+    }
+
     /// Total triangles over all instances (instanced triangles counted once per instance).
     pub fn instanced_triangle_count(&self) -> usize {
         self.instances

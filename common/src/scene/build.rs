@@ -637,6 +637,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
     let (geoms, instances, emitters) = objects.place(meshes, &mut warnings)?;
 
     let accel = Accel::new(geoms, instances);
+    epsilons(&ctx, accel.extent(), &mut warnings);
     let (object_lights, instance_emission) = object_lights(&ctx, &accel, &emitters, &mut warnings);
     let stats = SceneStats {
         triangles: accel.instanced_triangle_count(),
@@ -672,6 +673,52 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         warnings,
         stats,
     })
+}
+
+/// Warnings about epsilons that no scene means: negative ones, and offsets beyond a tenth of
+/// the objects' extent (`extent`, the diagonal of their box), which let rays pass through
+/// whole objects near their start. Both still render as given.
+fn epsilons(ctx: &Ctx, extent: Option<f64>, warnings: &mut Vec<Warning>) {
+    let rec = ctx.rec;
+    let given = [
+        (
+            rec.shadow_ray_epsilon,
+            "ShadowRayEpsilon",
+            "1e-3",
+            "offset",
+            "start below their surface, which then shadows itself (dark speckles)",
+            "start that far from their surface and pass through whatever is nearer",
+        ),
+        (
+            rec.intersection_test_epsilon,
+            "IntersectionTestEpsilon",
+            "1e-6",
+            "tolerance",
+            "accept hits behind their origin",
+            "ignore every surface nearer than that",
+        ),
+    ];
+    for ((e, name, default, what, negative, large), loc) in given.into_iter().zip(&rec.epsilon_locs) {
+        let Some(loc) = loc else { continue };
+        // Numbers as a person writes them: 2e54, not 54 zeros.
+        let moderate = |x: f64| x == 0.0 || (1e-3..1e6).contains(&x.abs());
+        let shown = if moderate(e) { format!("{e}") } else { format!("{e:e}") };
+        let problem = if e < 0.0 {
+            format!("{name} {shown} is negative: rays {negative}")
+        } else if let Some(d) = extent.filter(|&d| d > 0.0 && e > 0.1 * d) {
+            let span = if moderate(d) { format!("{d:.3}") } else { format!("{d:.3e}") };
+            format!(
+                "{name} {shown} is more than a tenth of the scene's size (its objects span {span}): rays {large}"
+            )
+        } else {
+            continue;
+        };
+        ctx.warn(
+            warnings,
+            loc,
+            format!("{problem}; give a small positive {what} such as {default} (the default)"),
+        );
+    }
 }
 
 /// Step 1: the materials, by position, and how the scene's ids find them (a repeated id keeps

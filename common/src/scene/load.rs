@@ -240,6 +240,46 @@ mod tests {
     }
 
     #[test]
+    fn epsilons_no_scene_means_are_warnings_naming_their_line() {
+        // The sphere of `scene` spans a box of diagonal about 1.73: a tenth of it is 0.173.
+        let cases: &[(&str, Option<&str>)] = &[
+            ("<ShadowRayEpsilon>-0.01</ShadowRayEpsilon>", Some("ShadowRayEpsilon -0.01 is negative")),
+            (
+                "<IntersectionTestEpsilon>-1e-6</IntersectionTestEpsilon>",
+                Some("IntersectionTestEpsilon -1e-6 is negative"),
+            ),
+            (
+                "<ShadowRayEpsilon>2e54</ShadowRayEpsilon>",
+                Some("ShadowRayEpsilon 2e54 is more than a tenth of the scene's size (its objects span 1.7"),
+            ),
+            (
+                "<IntersectionTestEpsilon>0.2</IntersectionTestEpsilon>",
+                Some("is more than a tenth of the scene's size"),
+            ),
+            ("<ShadowRayEpsilon>0.1</ShadowRayEpsilon>", None),
+            ("<ShadowRayEpsilon>0</ShadowRayEpsilon>", None),
+            ("<IntersectionTestEpsilon>1e-9</IntersectionTestEpsilon>", None),
+        ];
+        for (extra, expected) in cases {
+            let scene = load(&scene(extra), LoadOptions::STRICT).unwrap_or_else(|e| panic!("{extra}: {e}"));
+            let found: Vec<&Warning> =
+                scene.warnings.iter().filter(|w| w.message.contains("Epsilon")).collect();
+            match expected {
+                None => assert!(found.is_empty(), "{extra}: {found:?}"),
+                Some(text) => {
+                    assert_eq!(found.len(), 1, "{extra}: {:?}", scene.warnings);
+                    let w = found[0];
+                    assert!(w.message.contains(text), "{extra}: {w}");
+                    assert!(w.message.contains("(the default)"), "{extra}: {w}");
+                    assert_eq!(w.loc.line, Some(2), "{extra}: {w}");
+                    let element = extra[1..].split('>').next().unwrap();
+                    assert_eq!(w.loc.element.as_deref(), Some(element), "{extra}: {w}");
+                }
+            }
+        }
+    }
+
+    #[test]
     fn allowed_unsupported_elements_are_warnings() {
         for (extra, element, builds) in unsupported_cases() {
             let text = scene(&extra);

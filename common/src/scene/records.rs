@@ -30,6 +30,9 @@ pub struct SceneRecords {
     pub background_color: Vec3,
     pub shadow_ray_epsilon: f64,
     pub intersection_test_epsilon: f64,
+    /// Where the scene gives `ShadowRayEpsilon` and `IntersectionTestEpsilon` (`None`: the
+    /// default), for the build's warnings about values no scene means (see `build::epsilons`).
+    pub epsilon_locs: [Option<Loc>; 2],
     /// At most [`MAX_RECURSION_DEPTH_LIMIT`].
     pub max_recursion_depth: u32,
     pub cameras: Vec<CameraRec>,
@@ -72,6 +75,7 @@ impl SceneRecords {
             background_color: [0.0; 3],
             shadow_ray_epsilon: 1e-3,
             intersection_test_epsilon: 1e-6,
+            epsilon_locs: [None, None],
             max_recursion_depth: 0,
             cameras: Vec::new(),
             ambient_light: [0.0; 3],

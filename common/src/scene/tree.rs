@@ -827,11 +827,13 @@ impl Parser<'_> {
         if let Some(c) = self.optional_numbers(scene, "BackgroundColor")? {
             self.out.background_color = c;
         }
-        if let Some(e) = self.optional_number(scene, "ShadowRayEpsilon")? {
-            self.out.shadow_ray_epsilon = e;
+        if let Some(node) = scene.child("ShadowRayEpsilon") {
+            self.out.shadow_ray_epsilon = self.number(node)?;
+            self.out.epsilon_locs[0] = Some(node.loc());
         }
-        if let Some(e) = self.optional_number(scene, "IntersectionTestEpsilon")? {
-            self.out.intersection_test_epsilon = e;
+        if let Some(node) = scene.child("IntersectionTestEpsilon") {
+            self.out.intersection_test_epsilon = self.number(node)?;
+            self.out.epsilon_locs[1] = Some(node.loc());
         }
         if let Some(d) = self.optional_number::<u32>(scene, "MaxRecursionDepth")? {
             self.out.max_recursion_depth = d.min(MAX_RECURSION_DEPTH_LIMIT);

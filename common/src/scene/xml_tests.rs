@@ -131,6 +131,10 @@ fn simple_scene_gives_the_expected_records() {
     expected.background_color = [10.0, 20.0, 30.0];
     expected.shadow_ray_epsilon = 1e-3;
     expected.intersection_test_epsilon = 1e-5;
+    expected.epsilon_locs = [
+        Some(at("<ShadowRayEpsilon>", "ShadowRayEpsilon")),
+        Some(at("<IntersectionTestEpsilon>", "IntersectionTestEpsilon")),
+    ];
     expected.max_recursion_depth = 6;
     expected.cameras.push(CameraRec {
         id: "1".into(),
