@@ -3,9 +3,7 @@
 
 use libfuzzer_sys::fuzz_target;
 
-fuzz_target!(|data: &[u8]| {
-    let mut files = Default::default();
-    if tessera_server::bundle::add_archive(&mut files, data).is_ok() {
-        let _ = tessera_server::bundle::find_scene(&files, None);
-    }
-});
+#[path = "../probes/inputs.rs"]
+mod probe;
+
+fuzz_target!(|data: &[u8]| probe::bundle(data));

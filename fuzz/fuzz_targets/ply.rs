@@ -3,6 +3,7 @@
 
 use libfuzzer_sys::fuzz_target;
 
-fuzz_target!(|data: &[u8]| {
-    let _ = tessera::ply::parse_ply(data);
-});
+#[path = "../probes/inputs.rs"]
+mod probe;
+
+fuzz_target!(|data: &[u8]| probe::ply(data));

@@ -6,7 +6,7 @@
 
 use libfuzzer_sys::fuzz_target;
 
-#[path = "../probes/render_xml.rs"]
+#[path = "../probes/scene.rs"]
 mod probe;
 
-fuzz_target!(|data: &[u8]| probe::render_xml(data));
+fuzz_target!(|data: &[u8]| probe::render(data, false));
