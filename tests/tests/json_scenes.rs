@@ -71,6 +71,7 @@ fn content(mut r: SceneRecords) -> SceneRecords {
     r.source = PathBuf::new();
     r.json = false;
     r.warnings.clear();
+    r.epsilon_locs = [None, None];
     for c in &mut r.cameras {
         c.loc = none();
         for t in &mut c.tonemaps {
@@ -113,6 +114,7 @@ fn first_difference(a: &SceneRecords, b: &SceneRecords) -> String {
         background_color,
         shadow_ray_epsilon,
         intersection_test_epsilon,
+        epsilon_locs,
         max_recursion_depth,
         cameras,
         ambient_light,
