@@ -16,7 +16,7 @@ use anyhow::{Context, Result};
 use rusqlite::{Connection, OptionalExtension, params};
 use tessera::protocol::{JobEvent, JobState, Lease, Rect};
 
-use crate::scheduler::{self, TileFailures};
+use crate::failures::{self, TileFailures};
 
 const SCHEMA: &str = "
 CREATE TABLE IF NOT EXISTS jobs(
@@ -174,7 +174,7 @@ pub struct Expired {
 }
 
 /// Records a failure of `tile` on `worker` inside `tx`: the tile goes back to the queue, or its
-/// job fails, as the failure rule ([`scheduler::tile_verdict`]) says. A lease expiry is such a
+/// job fails, as the failure rule ([`failures::tile_verdict`]) says. A lease expiry is such a
 /// failure too (the worker crashed).
 fn record_failure(
     tx: &rusqlite::Transaction<'_>,
@@ -212,7 +212,7 @@ fn record_failure(
             })
         },
     )?;
-    let Some(message) = scheduler::tile_verdict(frame, tile, failures, error, fatal) else {
+    let Some(message) = failures::tile_verdict(frame, tile, failures, error, fatal) else {
         return Ok(FailOutcome::Requeued);
     };
     let ended = tx.execute_cached(
@@ -736,14 +736,14 @@ impl Store {
 
     /// Hands the next tile to `worker`: highest job priority first, then submission order, then
     /// frame and tile order; not a tile of a job the worker has failed
-    /// [`scheduler::WORKER_FAILURES_PER_JOB`] tiles of, nor a tile it failed, until
-    /// [`scheduler::RETRY_FAILED_AFTER`] has passed since its latest failure there.
+    /// [`failures::WORKER_FAILURES_PER_JOB`] tiles of, nor a tile it failed, until
+    /// [`failures::RETRY_FAILED_AFTER`] has passed since its latest failure there.
     pub fn lease(&self, worker: u64, lease_seconds: f64) -> Result<Option<Lease>> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         let w = worker as i64;
         // Failures since this moment keep the worker off their tile (and job).
-        let recent = now() - scheduler::RETRY_FAILED_AFTER;
+        let recent = now() - failures::RETRY_FAILED_AFTER;
         // Two indexed steps instead of one join sorted over every queued tile: the live jobs in
         // priority order (a short list), then the first queued tile of each (an index seek on
         // `tiles_queue`), so a lease costs the same behind a million queued tiles as behind ten.
@@ -755,7 +755,7 @@ impl Store {
                             FROM tile_failures x WHERE x.job_id = j.id AND x.worker_id = ?1)
                  ORDER BY j.priority DESC, j.id",
             )?;
-            stmt.query_map(params![w, scheduler::WORKER_FAILURES_PER_JOB, recent], |r| {
+            stmt.query_map(params![w, failures::WORKER_FAILURES_PER_JOB, recent], |r| {
                 Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?))
             })?
             .collect::<rusqlite::Result<_>>()?
@@ -1025,7 +1025,7 @@ impl Store {
     }
 
     /// Records that `worker` could not render the tile of `lease`: the tile goes back to the
-    /// queue, or fails its job ([`scheduler::tile_verdict`]: too many workers or attempts, or at
+    /// queue, or fails its job ([`failures::tile_verdict`]: too many workers or attempts, or at
     /// once when the failure is `fatal`, the tile having gone over the farm's render time limit
     /// that another worker would spend again).
     pub fn fail_tile(&self, lease: u64, worker: u64, error: &str, fatal: bool) -> Result<FailOutcome> {
@@ -1267,7 +1267,7 @@ mod tests {
             if k < 5 {
                 assert_eq!(out, FailOutcome::Requeued);
                 assert!(s.lease(w, LONG).unwrap().is_none(), "kept off the tile it just failed");
-                age_failures(&s, scheduler::RETRY_FAILED_AFTER - 5.0);
+                age_failures(&s, failures::RETRY_FAILED_AFTER - 5.0);
                 assert!(s.lease(w, LONG).unwrap().is_none(), "still inside the retry window");
                 age_failures(&s, 6.0);
             } else {
@@ -1312,7 +1312,7 @@ mod tests {
         assert_eq!(s.workers().unwrap().iter().find(|x| x.id == w).unwrap().failures, 3);
         // For the retry window only: then it may take the job's tiles again, the ones it failed
         // included (a farm of one worker must not wait for ever).
-        age_failures(&s, scheduler::RETRY_FAILED_AFTER + 1.0);
+        age_failures(&s, failures::RETRY_FAILED_AFTER + 1.0);
         let again = lease(&s, w);
         assert_eq!((again.job_id, again.tile), (j, 1), "back on the job (tile 0 is the good worker's)");
     }

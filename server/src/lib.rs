@@ -1,8 +1,12 @@
 //! `tessera-server`: the farm's HTTP server.
 //!
-//! - [`api`]: the routes (job API, worker protocol, health, metrics) over an [`api::AppState`].
+//! - [`api`]: the routes (job API, worker protocol, health, metrics) over a [`state::AppState`].
+//! - [`state`]: what the handlers and the merges share (settings, store, blobs, scheduler,
+//!   cached cameras, events).
 //! - [`scheduler`]: the scheduling rules (priority, long polls and their wake-ups, failures and
 //!   bans, lease expiry, revocation, lost workers) between the handlers and the store.
+//! - [`failures`]: the failure rules the store applies in its transactions (re-exported by
+//!   `scheduler`).
 //! - [`db`]: the SQLite job store, the single source of truth (jobs, frames, tiles with their
 //!   pixels, leases, workers); a restart loses nothing that was acknowledged.
 //! - [`bundle`]: uploads into content-addressed tar bundles.
@@ -15,9 +19,11 @@
 pub mod api;
 pub mod bundle;
 pub mod db;
+pub mod failures;
 mod local_workers;
 pub mod merge;
 pub mod scheduler;
+pub mod state;
 pub mod web;
 
 #[cfg(test)]
@@ -153,7 +159,7 @@ pub async fn serve(
     // Uploads spooled by requests that were cut off by a crash.
     let _ = std::fs::remove_dir_all(config.data_dir.join("uploads"));
     let worker_token = config.worker_token.clone().unwrap_or_else(random_token);
-    let settings = api::Settings {
+    let settings = state::Settings {
         data_dir: config.data_dir.clone(),
         tile_size: config.tile_size,
         api_token: config.api_token.clone(),
@@ -173,7 +179,7 @@ pub async fn serve(
         max_wait_seconds: 20.0,
         max_tile_seconds: config.max_tile_seconds,
     };
-    let state = api::AppState::new(store.clone(), blobs, settings, timing);
+    let state = state::AppState::new(store.clone(), blobs, settings, timing);
 
     let listener = tokio::net::TcpListener::bind(config.bind)
         .await

@@ -18,8 +18,8 @@ use tessera::protocol::{JobState, Rect, ServerEvent, decode_tile};
 use tessera::tonemap::params::{Operator, Photographic};
 use tessera::tonemap::tonemap_with;
 
-use crate::api::AppState;
 use crate::db::MergeTiming;
+use crate::state::AppState;
 
 /// Assembles `tiles` into a `width` x `height` image; missing tiles stay black.
 pub fn assemble(width: u32, height: u32, tiles: &[(Rect, Vec<u8>)]) -> Result<Image> {

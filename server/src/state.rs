@@ -1,0 +1,87 @@
+//! What the server's parts share while it runs: its settings, the store, the blobs, the
+//! scheduler, the cache of jobs' cameras and the event channel. The HTTP handlers (`api`) and the
+//! merging of finished frames (`merge`) both work on an [`AppState`]; neither depends on the
+//! other for it.
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use tessera::camera::Camera;
+use tessera::protocol::ServerEvent;
+
+use crate::bundle::{self, BlobStore};
+use crate::db::Store;
+use crate::scheduler::{Scheduler, Timing};
+
+/// Settings the handlers need (the scheduler's are its [`Timing`]).
+#[derive(Clone, Debug)]
+pub struct Settings {
+    pub data_dir: PathBuf,
+    pub tile_size: u32,
+    /// `None`: the job API is open (loopback only; `main` enforces that).
+    pub api_token: Option<String>,
+    pub worker_token: String,
+    pub max_upload_bytes: usize,
+    /// Caps on what an upload unpacks to.
+    pub bundle_limits: bundle::Limits,
+    /// Most tiles one job may be cut into.
+    pub max_job_tiles: u64,
+    /// Most samples (pixels x samples per pixel over all frames) one job may ask for.
+    pub max_job_samples: u64,
+}
+
+#[derive(Clone)]
+pub struct AppState {
+    pub store: Arc<Store>,
+    pub blobs: BlobStore,
+    pub settings: Arc<Settings>,
+    /// Leasing, failures, expiry and revocation: the scheduling rules.
+    pub scheduler: Scheduler,
+    /// Built cameras per job (parsed once from the bundle), for merging and previews.
+    pub cameras: Arc<std::sync::Mutex<HashMap<u64, Arc<Vec<Camera>>>>>,
+    /// Pushed to the status page (server-sent events); nobody listening is fine.
+    pub events: tokio::sync::broadcast::Sender<ServerEvent>,
+    /// Uploads being unpacked and validated at once (each holds its files in memory).
+    pub unpacking: Arc<tokio::sync::Semaphore>,
+}
+
+impl AppState {
+    /// The state of a server over `store` and `blobs`; its scheduler runs on `timing`.
+    pub fn new(store: Arc<Store>, blobs: BlobStore, settings: Settings, timing: Timing) -> AppState {
+        let events = tokio::sync::broadcast::channel(1024).0;
+        AppState {
+            scheduler: Scheduler::new(store.clone(), timing, events.clone()),
+            store,
+            blobs,
+            settings: Arc::new(settings),
+            cameras: Arc::default(),
+            events,
+            unpacking: Arc::new(tokio::sync::Semaphore::new(crate::UNPACKING_AT_ONCE)),
+        }
+    }
+
+    pub fn emit(&self, e: ServerEvent) {
+        let _ = self.events.send(e);
+    }
+
+    /// Where the output files of a job's frame are written: `outputs/JOB/FRAME/`.
+    pub fn frame_dir(&self, job: u64, frame: u32) -> PathBuf {
+        self.settings.data_dir.join("outputs").join(job.to_string()).join(frame.to_string())
+    }
+
+    /// The cameras of a job, parsed from its bundle once and cached.
+    pub fn job_cameras(&self, job: &crate::db::JobRow) -> anyhow::Result<Arc<Vec<Camera>>> {
+        if let Some(c) = self.cameras.lock().unwrap_or_else(|e| e.into_inner()).get(&job.id) {
+            return Ok(c.clone());
+        }
+        let tar = self
+            .blobs
+            .get(&job.bundle)
+            .ok_or_else(|| anyhow::anyhow!("bundle {} of job {} is missing", job.bundle, job.id))?;
+        let files = tessera::bundle::read_tar(&tar)?;
+        let cameras = Arc::new(tessera::bundle::bundle_cameras(&files, &job.scene_path)?);
+        self.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(job.id, cameras.clone());
+        Ok(cameras)
+    }
+}
