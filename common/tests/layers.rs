@@ -1,4 +1,5 @@
-//! The layering check: no module of `common` imports one of its own or of a higher layer.
+//! The layering check: no module of `common` imports one of its own or of a higher layer, and
+//! the server's modules import each other without circles.
 //!
 //! The layers are docs/ARCHITECTURE.md's, "Layers"; keeping to them means no import circles.
 //!
@@ -120,6 +121,71 @@ fn the_table_lists_every_module_once() {
         "modules in no layer (add them to LAYERS and docs/ARCHITECTURE.md): {missing:?}"
     );
     assert!(stale.is_empty(), "LAYERS lists modules that have no file: {stale:?}");
+}
+
+/// The first circle of `edges` (module -> the modules it imports) found by a depth-first walk,
+/// as the modules around it (the first one again at the end); `None` when there is none.
+fn circle(edges: &BTreeMap<String, BTreeSet<String>>) -> Option<Vec<String>> {
+    fn walk(
+        m: &str,
+        edges: &BTreeMap<String, BTreeSet<String>>,
+        path: &mut Vec<String>,
+        done: &mut BTreeSet<String>,
+    ) -> Option<Vec<String>> {
+        if let Some(at) = path.iter().position(|p| p == m) {
+            let mut c = path[at..].to_vec();
+            c.push(m.to_string());
+            return Some(c);
+        }
+        if done.contains(m) {
+            return None;
+        }
+        path.push(m.to_string());
+        for next in edges.get(m).into_iter().flatten() {
+            if let Some(c) = walk(next, edges, path, done) {
+                return Some(c);
+            }
+        }
+        path.pop();
+        done.insert(m.to_string());
+        None
+    }
+    let mut done = BTreeSet::new();
+    edges.keys().find_map(|m| walk(m, edges, &mut Vec::new(), &mut done))
+}
+
+/// The server's modules import each other one way (docs/ARCHITECTURE.md, `server/`): no
+/// circle among its top-level modules, a folder (`api/`) counting as one. The crate root
+/// (`lib.rs`, which wires them and holds the configuration) is left out.
+#[test]
+fn the_server_has_no_import_circles() {
+    let server = Crate::read(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../server/src"));
+    let top = |m: &str| m.split("::").next().unwrap_or_default().to_string();
+    let mut edges: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    for import in server.imports() {
+        let (from, to) = (top(&import.from), top(&import.to));
+        if !from.is_empty() && !to.is_empty() && from != to {
+            edges.entry(from).or_default().insert(to);
+        }
+    }
+    assert!(edges.contains_key("api") && edges.contains_key("merge"), "the scan found too little: {edges:?}");
+    if let Some(c) = circle(&edges) {
+        panic!("server modules import each other in a circle: {}", c.join(" -> "));
+    }
+}
+
+#[test]
+fn circles_are_found() {
+    let graph = |pairs: &[(&str, &str)]| {
+        let mut e: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+        for (a, b) in pairs {
+            e.entry(a.to_string()).or_default().insert(b.to_string());
+        }
+        e
+    };
+    assert_eq!(circle(&graph(&[("a", "b"), ("b", "c"), ("a", "c")])), None);
+    let found = circle(&graph(&[("a", "b"), ("b", "c"), ("c", "d"), ("d", "b")])).unwrap();
+    assert_eq!(found, ["b", "c", "d", "b"]);
 }
 
 /// docs/ARCHITECTURE.md's table: rows `| <n> | <name> | `module`, `module` | … |` under the
@@ -364,7 +430,11 @@ impl Crate {
                 return Some(candidate);
             }
         }
-        abs.first().and_then(|name| self.root_exports.get(name)).cloned()
+        // An item of the root itself (the server's `crate::Config`) is the root's.
+        abs.first()
+            .and_then(|name| self.root_exports.get(name))
+            .cloned()
+            .or_else(|| (path[0] == "crate").then(String::new))
     }
 }
 
