@@ -31,6 +31,8 @@ pub struct Settings {
     pub max_job_samples: u64,
 }
 
+/// Everything a handler or a merge works on; cloning it shares the same store, scheduler,
+/// cache and channel.
 #[derive(Clone)]
 pub struct AppState {
     pub store: Arc<Store>,
