@@ -259,19 +259,6 @@ fn course_scenes_with_unsupported_elements_fail_unless_allowed() {
     assert!(checked > 0, "no scene of the table was found in {}", xml.display());
 }
 
-/// The scene files under `dir` and its subfolders (`.xml` and `.json`).
-fn scene_files(dir: &std::path::Path, out: &mut Vec<PathBuf>) {
-    let Ok(entries) = std::fs::read_dir(dir) else { return };
-    for entry in entries.flatten() {
-        let path = entry.path();
-        if path.is_dir() {
-            scene_files(&path, out);
-        } else if path.extension().is_some_and(|e| e == "xml" || e == "json") {
-            out.push(path);
-        }
-    }
-}
-
 /// The build warns about epsilons no scene means (negative, or beyond a tenth of the objects'
 /// extent); no course scene, in either dialect, gets such a warning.
 #[test]
@@ -280,10 +267,8 @@ fn no_course_scene_draws_an_epsilon_warning() {
     if corpus_xml().is_none() {
         return;
     }
-    let mut files = Vec::new();
-    scene_files(&root.join("xml"), &mut files);
-    scene_files(&root.join("json"), &mut files);
-    files.sort();
+    let mut files = tessera_tests::scene_files(&root.join("xml"));
+    files.extend(tessera_tests::scene_files(&root.join("json")));
     let mut loaded = 0;
     let mut warned = Vec::new();
     for path in &files {

@@ -181,20 +181,14 @@ fn xml_and_json_twins_give_the_same_records() {
 #[test]
 fn every_json_scene_parses_without_warnings() {
     let Some(corpus) = corpus() else { return };
-    let mut stack = vec![corpus.join("json")];
     let mut count = 0;
-    while let Some(dir) = stack.pop() {
-        for entry in std::fs::read_dir(&dir).unwrap() {
-            let path = entry.unwrap().path();
-            if path.is_dir() {
-                stack.push(path);
-            } else if path.extension().is_some_and(|e| e == "json") {
-                let r = parse_file(&path);
-                assert!(!r.cameras.is_empty(), "{}: no cameras", path.display());
-                let warnings: Vec<String> = r.warnings.iter().map(ToString::to_string).collect();
-                assert!(warnings.is_empty(), "{}", warnings.join("\n"));
-                count += 1;
-            }
+    for path in tessera_tests::scene_files(&corpus.join("json")) {
+        if path.extension().is_some_and(|e| e == "json") {
+            let r = parse_file(&path);
+            assert!(!r.cameras.is_empty(), "{}: no cameras", path.display());
+            let warnings: Vec<String> = r.warnings.iter().map(ToString::to_string).collect();
+            assert!(warnings.is_empty(), "{}", warnings.join("\n"));
+            count += 1;
         }
     }
     assert!(count >= 40, "only {count} JSON scenes found");

@@ -96,10 +96,11 @@ impl Ray8 {
     }
 
     /// Whether the ray has a NaN in its origin, direction or bounds: such a ray hits nothing
-    /// (every comparison of a triangle test with a NaN is false), and the box test must not
-    /// walk it, since the min and max instructions drop a NaN operand and would let it into
-    /// every slot, the empty ones (whose child reference is the root) too. A NaN direction
-    /// component makes its inverse NaN, and either makes the scaled origin NaN.
+    /// (every comparison of a triangle test with a NaN is false), so its walk is skipped. Walked,
+    /// it would still end (`node_hits` keeps out of empty slots), but the min and max
+    /// instructions drop a NaN operand and would let it into every filled slot, to test the
+    /// whole tree for nothing. A NaN direction component makes its inverse NaN, and either
+    /// makes the scaled origin NaN.
     #[inline(always)]
     fn has_nan(&self) -> bool {
         self.o_inv[0].is_nan()
