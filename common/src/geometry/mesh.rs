@@ -34,6 +34,28 @@ pub struct MeshGeom {
     pub bounds: Aabb,
 }
 
+/// `x` limited to [lo, hi]: `f64::clamp` for bounds in order (the same result, NaN `x`
+/// included), without its panic when a bound is NaN (a re-intersection whose determinant came
+/// out 0 has a NaN `u`, and `1 - u` bounds `v`).
+#[inline(always)]
+fn clamp(x: f64, lo: f64, hi: f64) -> f64 {
+    if x < lo {
+        lo
+    } else if x > hi {
+        hi
+    } else {
+        x
+    }
+}
+
+/// Eight hits of [`MeshGeom::smooth_hits`], a lane each: the re-intersected distance, the unit
+/// face normal and the unit smooth normal (by axis, then lane).
+pub struct SmoothHits {
+    pub t: [f64; 8],
+    pub ng: [[f64; 8]; 3],
+    pub ns: [[f64; 8]; 3],
+}
+
 /// Closest-hit data within a mesh, in object space.
 #[derive(Clone, Copy, Debug)]
 pub struct TriHit {
@@ -156,9 +178,76 @@ impl MeshGeom {
         let q = s.cross(e1);
         let mut v = dir.dot(q) * inv;
         let t = e2.dot(q) * inv;
-        u = u.clamp(0.0, 1.0);
-        v = v.clamp(0.0, 1.0 - u);
+        u = clamp(u, 0.0, 1.0);
+        v = clamp(v, 0.0, 1.0 - u);
         TriHit { t, tri, u, v, normal: e1.cross(e2).normalize() }
+    }
+
+    /// [`Self::refine`] of eight hits side by side, then [`Self::smooth_normal`] at each one's
+    /// barycentrics: hit `k` is triangle `tri[k]` along the ray of origin `o[·][k]` and
+    /// direction `d[·][k]`. Each lane's operations are the single functions', in their order
+    /// (glam's `cross`, `dot`, `normalize`, the clamps), so each lane has their bits; laid out
+    /// a component at a time, the arithmetic compiles to vector instructions. `None` when the
+    /// mesh has no vertex normals.
+    #[inline]
+    pub fn smooth_hits(&self, tri: &[u32; 8], o: &[[f64; 8]; 3], d: &[[f64; 8]; 3]) -> Option<SmoothHits> {
+        let ns = self.vertex_normals.as_deref()?;
+        // The three corners' positions and normals, by axis, then lane.
+        let (mut p, mut n) = ([[[0.0; 8]; 3]; 3], [[[0.0; 8]; 3]; 3]);
+        for (k, &t) in tri.iter().enumerate() {
+            let corners = self.indices[t as usize];
+            for (c, &i) in corners.iter().enumerate() {
+                let (q, m) = (self.positions[i as usize], ns[i as usize]);
+                for a in 0..3 {
+                    p[c][a][k] = q[a];
+                    n[c][a][k] = m[a];
+                }
+            }
+        }
+        let lanes = |f: &dyn Fn(usize) -> f64| -> [f64; 8] { std::array::from_fn(f) };
+        let sub = |x: &[[f64; 8]; 3], y: &[[f64; 8]; 3]| -> [[f64; 8]; 3] {
+            std::array::from_fn(|a| std::array::from_fn(|k| x[a][k] - y[a][k]))
+        };
+        // glam's `cross` and `dot`, a lane at a time.
+        let cross = |x: &[[f64; 8]; 3], y: &[[f64; 8]; 3]| -> [[f64; 8]; 3] {
+            [
+                std::array::from_fn(|k| x[1][k] * y[2][k] - y[1][k] * x[2][k]),
+                std::array::from_fn(|k| x[2][k] * y[0][k] - y[2][k] * x[0][k]),
+                std::array::from_fn(|k| x[0][k] * y[1][k] - y[0][k] * x[1][k]),
+            ]
+        };
+        let dot = |x: &[[f64; 8]; 3], y: &[[f64; 8]; 3]| -> [f64; 8] {
+            std::array::from_fn(|k| (x[0][k] * y[0][k]) + (x[1][k] * y[1][k]) + (x[2][k] * y[2][k]))
+        };
+        let e1 = sub(&p[1], &p[0]);
+        let e2 = sub(&p[2], &p[0]);
+        let pv = cross(d, &e2);
+        let det = dot(&e1, &pv);
+        let inv = lanes(&|k| 1.0 / det[k]);
+        let sv = sub(o, &p[0]);
+        let su = dot(&sv, &pv);
+        let q = cross(&sv, &e1);
+        let (dq, eq) = (dot(d, &q), dot(&e2, &q));
+        let u = lanes(&|k| clamp(su[k] * inv[k], 0.0, 1.0));
+        let v = lanes(&|k| clamp(dq[k] * inv[k], 0.0, 1.0 - u[k]));
+        let t = lanes(&|k| eq[k] * inv[k]);
+        // `normalize`: the product by the reciprocal of the length.
+        let face = cross(&e1, &e2);
+        let face_len = dot(&face, &face);
+        let recip = lanes(&|k| 1.0 / face_len[k].sqrt());
+        let ng: [[f64; 8]; 3] = std::array::from_fn(|a| std::array::from_fn(|k| face[a][k] * recip[k]));
+        // `smooth_normal`: the weights' sum of the corners' normals, divided by its length
+        // (the face normal where that length is tiny).
+        let w = lanes(&|k| 1.0 - u[k] - v[k]);
+        let sm: [[f64; 8]; 3] = std::array::from_fn(|a| {
+            std::array::from_fn(|k| w[k] * n[0][a][k] + u[k] * n[1][a][k] + v[k] * n[2][a][k])
+        });
+        let sq = dot(&sm, &sm);
+        let len = lanes(&|k| sq[k].sqrt());
+        let ns = std::array::from_fn(|a| {
+            std::array::from_fn(|k| if len[k] > 1e-12 { sm[a][k] / len[k] } else { ng[a][k] })
+        });
+        Some(SmoothHits { t, ng, ns })
     }
 
     /// Texture coordinates at barycentrics (u, v) and the surface derivatives ∂p/∂u, ∂p/∂v
@@ -244,6 +333,20 @@ pub fn drop_degenerate(positions: &[DVec3], indices: &mut Vec<[u32; 3]>) -> usiz
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A ray in the triangle's plane from its first corner makes the re-intersection's
+    /// determinant 0 and its `u` NaN (0 · ∞); `v`'s clamp to [0, 1 - u] then had a NaN bound,
+    /// and `f64::clamp` panics on one.
+    #[test]
+    fn a_re_intersection_in_the_triangle_plane_does_not_panic() {
+        let q = quad();
+        let h = q.refine(0, q.positions[0], DVec3::X);
+        assert!(h.u.is_nan(), "{h:?}");
+        for x in [-0.5, 0.0, -0.0, 0.3, 1.0, 1.5, f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            assert_eq!(clamp(x, 0.0, 1.0).to_bits(), x.clamp(0.0, 1.0).to_bits(), "{x}");
+        }
+        assert_eq!(clamp(0.25, 0.0, f64::NAN), 0.25);
+    }
 
     fn quad() -> MeshGeom {
         let positions = vec![

@@ -619,8 +619,10 @@ impl Accel {
         }
         if self.bounded.is_empty() && self.unbounded.is_empty() {
             // Everything was in the world tree.
-            for lane in 0..n {
-                self.found_into(&rays[lane], best[lane], &mut out[lane]);
+            if !self.smooth_lone_hits(rays, &wide, &best, out) {
+                for lane in 0..n {
+                    self.found_into(&rays[lane], best[lane], &mut out[lane]);
+                }
             }
             return;
         }
@@ -912,6 +914,59 @@ impl Accel {
         } else {
             self.surface(ray, best, out.insert(SurfaceHit::default()));
         }
+    }
+
+    /// [`Self::found_into`] of every lane at once when the world tree is a lone untransformed,
+    /// untextured mesh shaded smooth (a scanned model on its own: the common case), with the
+    /// re-intersections and normals of the lanes side by side ([`MeshGeom::smooth_hits`]);
+    /// each lane gets the record [`Self::surface`] makes. False (nothing written) otherwise.
+    fn smooth_lone_hits(
+        &self,
+        rays: &[Ray],
+        wide: &RayLanes,
+        best: &[Candidate; 8],
+        out: &mut [Option<SurfaceHit>],
+    ) -> bool {
+        let Some(lone) = self.lone else { return false };
+        let inst = &self.instances[lone.instance as usize];
+        if !matches!(inst.shape, Shape::Mesh { smooth: true, .. })
+            || !inst.is_world_space()
+            || inst.textures != ObjectTextures::default()
+        {
+            return false;
+        }
+        let hits = (0..rays.len()).filter(|&k| best[k].instance != u32::MAX).fold(0u32, |m, k| m | 1 << k);
+        if hits & (hits - 1) == 0 {
+            // None, or one: the single path does as well.
+            return false;
+        }
+        // Lanes without a hit repeat the first hit's triangle (their results are not read).
+        let first = best[hits.trailing_zeros() as usize].tri;
+        let tri: [u32; 8] = std::array::from_fn(|k| if hits & (1 << k) != 0 { best[k].tri } else { first });
+        let m = &self.meshes[lone.mesh as usize];
+        let Some(h) = m.smooth_hits(&tri, &wide.o, &wide.d) else { return false };
+        for (k, slot) in out.iter_mut().enumerate() {
+            if hits & (1 << k) == 0 {
+                *slot = None;
+                continue;
+            }
+            let ray = &rays[k];
+            let lane = |v: &[[f64; 8]; 3]| DVec3::new(v[0][k], v[1][k], v[2][k]);
+            // As `surface`: the f32 distance where the re-intersection degenerated, the smooth
+            // normal on the face's side, the bump axis on the shading normal's.
+            let t = if h.t[k].is_finite() && h.t[k] > 0.0 { h.t[k] } else { best[k].t };
+            let (geo_normal, n_shade) = (lane(&h.ng), lane(&h.ns));
+            let shading_normal = if n_shade.dot(geo_normal) < 0.0 { -n_shade } else { n_shade };
+            let hit = slot.insert(SurfaceHit::default());
+            hit.t = t;
+            hit.point = ray.at(t);
+            hit.geo_normal = geo_normal;
+            hit.shading_normal = shading_normal;
+            hit.material = inst.material;
+            hit.instance = lone.instance;
+            hit.bump_axis = if n_shade.dot(shading_normal) < 0.0 { -n_shade } else { n_shade };
+        }
+        true
     }
 
     /// Completes a candidate into world-space hit data, re-intersecting triangles in `f64`.
@@ -1329,6 +1384,24 @@ mod tests {
         assert!(hits > 300, "the sheet is hit often enough to matter: {hits}");
     }
 
+    /// `n` rays about origin `o` and direction `d`, each moved by up to `spread` (times in [0, 1)
+    /// when `moving`, else 0).
+    fn packet(
+        r: &mut impl FnMut() -> f64,
+        n: usize,
+        (o, d): (DVec3, DVec3),
+        spread: f64,
+        moving: bool,
+    ) -> Vec<Ray> {
+        (0..n)
+            .map(|_| {
+                let j = DVec3::new(r() - 0.5, r() - 0.5, r() - 0.5) * spread;
+                let dir = (d + j).normalize();
+                Ray { origin: o + j, dir, time: if moving { r() } else { 0.0 } }
+            })
+            .collect()
+    }
+
     /// Rays traced as a packet get the very hits (same bits) they get one by one, and the same
     /// answers to "is anything in the way" within their own bounds, whichever world tree the
     /// scene has (the lone mesh, the merged tree, none) and whatever else it holds; packets of
@@ -1381,12 +1454,7 @@ mod tests {
             let o = DVec3::new(r() * 4.0 - 2.0, r() * 4.0 - 2.0, 12.0);
             let d = DVec3::new(r() * 0.8 - 0.4, r() * 0.8 - 0.4, -1.0).normalize();
             let spread = [1e-3, 0.1, 1.0][k % 3];
-            let rays: Vec<Ray> = (0..n)
-                .map(|_| {
-                    let j = DVec3::new(r() - 0.5, r() - 0.5, r() - 0.5) * spread;
-                    Ray { origin: o + j, dir: (d + j).normalize(), time: r() }
-                })
-                .collect();
+            let rays = packet(&mut r, n, (o, d), spread, true);
             let mut out = vec![None; n];
             accel.intersect_packet(&rays, 1e-6, &mut out);
             for (ray, got) in rays.iter().zip(&out) {
@@ -1410,6 +1478,69 @@ mod tests {
             shadowed > shadow_rays / 5 && shadowed < shadow_rays * 4 / 5,
             "blocked and clear shadow rays both common: {shadowed} of {shadow_rays}"
         );
+    }
+
+    /// A packet's hits on a lone untransformed smooth mesh (re-intersected and shaded eight
+    /// lanes at a time, `smooth_lone_hits`) are the single rays' records, every field to the
+    /// bit: vertex normals that lean past their faces (flipped), that cancel out (the face
+    /// normal instead), and ordinary ones; packets of one to eight rays, narrow and wide.
+    #[test]
+    fn a_lone_smooth_mesh_packet_gets_the_single_rays_records() {
+        let mut rng = crate::sampler::Sampler::new(5, 3, 2, 8);
+        let mut r = move || rng.next_1d();
+        let sheet = sheet(&mut r);
+        let normals: Vec<DVec3> = (0..sheet.positions.len())
+            .map(|i| match i % 7 {
+                // A corner of zero normals (every triangle touching only such corners
+                // interpolates to zero), and some that point below the sheet.
+                _ if (i / 17) < 3 && i % 17 < 3 => DVec3::ZERO,
+                0 | 3 => DVec3::new(r() - 0.5, r() - 0.5, -1.0).normalize(),
+                _ => DVec3::new(r() - 0.5, r() - 0.5, 1.0).normalize(),
+            })
+            .collect();
+        let mesh = Arc::new(MeshGeom::new(sheet.positions.clone(), sheet.indices.clone(), Some(normals)));
+        let accel = Accel::new(
+            vec![mesh],
+            vec![Instance {
+                shape: Shape::Mesh { mesh: 0, smooth: true },
+                material: 4,
+                transform: None,
+                motion: None,
+                textures: ObjectTextures::default(),
+            }],
+        );
+        assert!(accel.lone.is_some() && accel.bounded.is_empty() && accel.unbounded.is_empty());
+        let bits = |v: DVec3| v.to_array().map(f64::to_bits);
+        let key = |h: &Option<SurfaceHit>| {
+            h.map(|h| {
+                (
+                    (h.t.to_bits(), bits(h.point), bits(h.geo_normal), bits(h.shading_normal)),
+                    (h.material, h.instance, h.uv.to_array().map(f64::to_bits)),
+                    (bits(h.dpdu), bits(h.dpdv), bits(h.bump_axis)),
+                )
+            })
+        };
+        let (mut together, mut face) = (0, 0);
+        for k in 0..3000 {
+            let n = 1 + k % 8;
+            let o = DVec3::new(r() * 14.0 - 7.0, r() * 14.0 - 7.0, 6.0);
+            let d = DVec3::new(r() * 0.6 - 0.3, r() * 0.6 - 0.3, -1.0).normalize();
+            let spread = [1e-3, 0.1, 1.0][k % 3];
+            let rays = packet(&mut r, n, (o, d), spread, false);
+            let mut out = vec![None; n];
+            accel.intersect_packet(&rays, 1e-6, &mut out);
+            for (ray, got) in rays.iter().zip(&out) {
+                let single = accel.intersect(ray, 1e-6, f64::INFINITY);
+                assert_eq!(key(got), key(&single), "packet {k}");
+            }
+            let hit: Vec<SurfaceHit> = out.iter().flatten().copied().collect();
+            if hit.len() >= 2 {
+                together += 1;
+                face += hit.iter().filter(|h| h.shading_normal == h.geo_normal).count();
+            }
+        }
+        assert!(together > 1000, "packets with two hits or more: {together}");
+        assert!(face > 20, "hits shaded with the face normal: {face}");
     }
 
     /// A hit on a flat, untextured face of the merged tree takes its distance and normal from
