@@ -5,7 +5,7 @@
 //! cargo run --release -p tessera-tests --bin envbench -- [--samples N] [--width W] [--only SCENE]
 //!     [--noise-only] [--scenes-only] [--threads N]
 //! cargo run --release -p tessera-tests --bin envbench -- --mitsuba [--rounds N]
-//!     [--samples N] [--variant llvm_ad_rgb] [--threads N] [--mitsuba-avx2]
+//!     [--samples N] [--variant llvm_ad_rgb] [--threads N] [--mitsuba-avx2] [--view whole|hits|misses]
 //! ```
 //! `--mitsuba` is issue #18's whole-render bench: the head_env_light workload
 //! (`../shared/bench/head_env_park.xml`: head.ply, park.exr, 800x450, importance-sampled
@@ -22,6 +22,10 @@
 //! at. `--mitsuba-avx2` has Mitsuba compile for AVX2 at eight lanes (drjit's
 //! `jit_llvm_set_target`, called through `ctypes`), the instruction set Tessera's binaries are
 //! built for on every machine, so that figures from hosts with and without AVX-512 compare.
+//! `--view hits` and `--view misses` change both renderers' camera the same way, to split the
+//! whole-frame figure: zoomed in on the head (a field of view of 6 degrees instead of 30:
+//! nearly every sample hits it, is lit and traces its shadow ray) or turned around (every camera
+//! ray misses and looks the map up); `--view whole` (the default) is the workload itself.
 //! Pictures go to `target/envbench/`. `--samples` and `--width` shrink the work (the figures say
 //! so); without them every scene renders at its own resolution and NumSamples.
 
@@ -47,6 +51,53 @@ struct Args {
     rounds: usize,
     variant: String,
     mitsuba_avx2: bool,
+    view: View,
+}
+
+/// Which part of head_env_light's frame `--mitsuba` measures (see the header).
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+enum View {
+    Whole,
+    Hits,
+    Misses,
+}
+
+impl View {
+    fn parse(s: &str) -> Result<Self> {
+        Ok(match s {
+            "whole" => View::Whole,
+            "hits" => View::Hits,
+            "misses" => View::Misses,
+            other => bail!("--view: whole, hits or misses, not {other}"),
+        })
+    }
+
+    /// (the text to replace, its replacement) in the scene file and in the Mitsuba script.
+    fn edits(self) -> (Vec<(&'static str, &'static str)>, Vec<(&'static str, &'static str)>) {
+        // Turned around: the gaze point mirrored through the camera's position.
+        match self {
+            View::Whole => (Vec::new(), Vec::new()),
+            View::Hits => (vec![("<FovY>30</FovY>", "<FovY>6</FovY>")], vec![("'fov': 30,", "'fov': 6,")]),
+            View::Misses => (
+                vec![(
+                    "<GazePoint>-0.140808 -0.162727 -0.35493</GazePoint>",
+                    "<GazePoint>0.786486 0.269692 1.363528</GazePoint>",
+                )],
+                vec![("target=[-0.140808, -0.162727, -0.35493]", "target=[0.786486, 0.269692, 1.363528]")],
+            ),
+        }
+    }
+}
+
+/// `text` with every edit made; each edit's text must be there (else the bench's copy of the
+/// workload has changed under it, and the view would silently be the whole frame).
+fn edited(text: String, edits: &[(&str, &str)], what: &std::path::Path) -> Result<String> {
+    edits.iter().try_fold(text, |t, (from, to)| {
+        if !t.contains(from) {
+            bail!("{}: `{from}` not found, so --view cannot change the camera", what.display());
+        }
+        Ok(t.replace(from, to))
+    })
 }
 
 fn parse_args() -> Result<Args> {
@@ -61,6 +112,7 @@ fn parse_args() -> Result<Args> {
         rounds: 5,
         variant: "llvm_ad_rgb".into(),
         mitsuba_avx2: false,
+        view: View::Whole,
     };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
@@ -75,13 +127,15 @@ fn parse_args() -> Result<Args> {
             "--rounds" => a.rounds = value("--rounds")?.parse().context("--rounds: a number")?,
             "--variant" => a.variant = value("--variant")?,
             "--mitsuba-avx2" => a.mitsuba_avx2 = true,
+            "--view" => a.view = View::parse(&value("--view")?)?,
             "--scenes-only" => a.noise = false,
             "-h" | "--help" => {
                 println!(
                     "envbench: environment-light timings and importance-vs-uniform noise\n\n\
                      options: --samples N  --width W  --only SCENE  --noise-only  --scenes-only  --threads N\n         \
                      --mitsuba [--rounds N] [--variant V] [--mitsuba-avx2]: head_env_light against Mitsuba 3\n         \
-                     (--mitsuba-avx2: Mitsuba's LLVM kernels for AVX2, eight lanes, as Tessera's binaries)"
+                     (--mitsuba-avx2: Mitsuba's LLVM kernels for AVX2, eight lanes, as Tessera's binaries)\n         \
+                     --view whole|hits|misses: the whole frame, the head filling it, or the map alone"
                 );
                 std::process::exit(0);
             }
@@ -302,10 +356,14 @@ fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
     let park = [scenes.join("textures/park.exr"), scenes.join("hdri/park.exr")];
     let park = park.iter().find(|p| p.exists()).context("park.exr not found")?;
     std::fs::copy(park, &hdri)?;
-    let xml = std::fs::read_to_string(bench.join("head_env_park.xml"))?.replace("SPP", &spp.to_string());
+    let (scene_edits, script_edits) = args.view.edits();
+    let xml_path = bench.join("head_env_park.xml");
+    let xml = std::fs::read_to_string(&xml_path)?.replace("SPP", &spp.to_string());
+    let xml = edited(xml, &scene_edits, &xml_path)?;
     let scene_path = dir.join("head_env_park.xml");
     std::fs::write(&scene_path, xml)?;
-    let script = std::fs::read_to_string(bench.join("mitsuba_head_env.py"))?;
+    let script_src = bench.join("mitsuba_head_env.py");
+    let script = edited(std::fs::read_to_string(&script_src)?, &script_edits, &script_src)?;
     let mut script: String =
         script.lines().filter(|l| !l.starts_with("dr.set_thread_count")).map(|l| format!("{l}\n")).collect();
     if args.variant.starts_with("llvm") {
@@ -323,12 +381,21 @@ fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
         ..RenderSettings::default()
     };
     let samples = 800.0 * 450.0 * spp as f64;
-    println!("head_env_light, 800x450, {spp} spp, Mitsuba variant {}, {} rounds", args.variant, args.rounds);
+    println!(
+        "head_env_light, 800x450, {spp} spp, view {:?}, Mitsuba variant {}, {} rounds",
+        args.view, args.variant, args.rounds
+    );
     let (mut ours, mut theirs) = (Vec::new(), Vec::new());
     let mut width_shown = false;
     for round in 0..args.rounds {
-        let (_, secs, _) = render(&scene, &settings);
+        let t = Instant::now();
+        let (_, stats) = render_camera(&scene, 0, 32, &settings, &|_, _| {});
+        let secs = t.elapsed().as_secs_f64();
         ours.push(samples / secs / 1e6);
+        if round == 0 {
+            // What the view does to the work: a shadow ray per lit sample that faces its light.
+            println!("  Tessera: {:.3} shadow rays per camera sample", stats.shadow as f64 / samples);
+        }
         let mut cmd = std::process::Command::new(&python);
         cmd.arg(&script_path).arg(&ply).arg(&hdri).arg(spp.to_string()).arg(&args.variant);
         let o = cmd.output().with_context(|| format!("running Mitsuba ({})", python.display()))?;
