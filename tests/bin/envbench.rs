@@ -54,6 +54,9 @@ struct Args {
     view: View,
 }
 
+/// A text to replace in a copy of the workload, and its replacement.
+type Edit = (&'static str, &'static str);
+
 /// Which part of head_env_light's frame `--mitsuba` measures (see the header).
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
 enum View {
@@ -73,7 +76,7 @@ impl View {
     }
 
     /// (the text to replace, its replacement) in the scene file and in the Mitsuba script.
-    fn edits(self) -> (Vec<(&'static str, &'static str)>, Vec<(&'static str, &'static str)>) {
+    fn edits(self) -> (Vec<Edit>, Vec<Edit>) {
         // Turned around: the gaze point mirrored through the camera's position.
         match self {
             View::Whole => (Vec::new(), Vec::new()),
@@ -91,7 +94,7 @@ impl View {
 
 /// `text` with every edit made; each edit's text must be there (else the bench's copy of the
 /// workload has changed under it, and the view would silently be the whole frame).
-fn edited(text: String, edits: &[(&str, &str)], what: &std::path::Path) -> Result<String> {
+fn edited(text: String, edits: &[Edit], what: &std::path::Path) -> Result<String> {
     edits.iter().try_fold(text, |t, (from, to)| {
         if !t.contains(from) {
             bail!("{}: `{from}` not found, so --view cannot change the camera", what.display());
