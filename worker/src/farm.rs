@@ -175,6 +175,19 @@ fn stop_flag() -> Result<Arc<AtomicBool>> {
     Ok(stop)
 }
 
+/// The heartbeat period the server's register answer asks for, if it is one a worker can keep:
+/// positive, finite and at most a day (`Duration::from_secs_f64` panics on a negative, NaN or
+/// huge value, and a server that sends one is broken or not a Tessera server).
+fn heartbeat_interval(seconds: f64) -> Result<Duration> {
+    if !(seconds > 0.0 && seconds <= 86_400.0) {
+        bail!(
+            "the server's register answer asks for a heartbeat every {seconds} s (heartbeat_seconds); \
+             a worker needs a period above 0 and at most a day: check that --server names a Tessera server"
+        );
+    }
+    Ok(Duration::from_secs_f64(seconds))
+}
+
 /// Registers, retrying while the server is not up yet; fails at once on a bad token. `None`
 /// when told to stop before the server answered.
 fn register(
@@ -244,7 +257,7 @@ pub fn work(opts: WorkOptions) -> Result<()> {
     // Heartbeats.
     {
         let (client, leases) = (client.clone(), leases.clone());
-        let every = Duration::from_secs_f64(reg.heartbeat_seconds);
+        let every = heartbeat_interval(reg.heartbeat_seconds)?;
         std::thread::Builder::new().name("heartbeat".into()).spawn(move || {
             loop {
                 std::thread::sleep(every);
@@ -738,6 +751,21 @@ fn upload(client: &Client, worker_id: u64, lease: u64, px: &[[f32; 3]], seconds:
                 std::thread::sleep(delay);
                 delay = (delay * 2).min(Duration::from_secs(5));
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_heartbeat_period_the_worker_cannot_keep_is_an_error_not_a_panic() {
+        assert_eq!(heartbeat_interval(5.0).unwrap(), Duration::from_secs(5));
+        assert_eq!(heartbeat_interval(86_400.0).unwrap(), Duration::from_secs(86_400));
+        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY, 1e300, 86_400.5] {
+            let e = heartbeat_interval(bad).unwrap_err().to_string();
+            assert!(e.contains("heartbeat_seconds") && e.contains("--server"), "{bad}: {e}");
         }
     }
 }
