@@ -936,7 +936,7 @@ impl Accel {
             return false;
         }
         let hits = (0..rays.len()).filter(|&k| best[k].instance != u32::MAX).fold(0u32, |m, k| m | 1 << k);
-        if hits & (hits - 1) == 0 {
+        if hits.count_ones() < 2 {
             // None, or one: the single path does as well.
             return false;
         }
