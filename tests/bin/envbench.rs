@@ -145,6 +145,9 @@ fn parse_args() -> Result<Args> {
             other => bail!("unknown argument {other} (try --help)"),
         }
     }
+    if a.view != View::Whole && !a.mitsuba {
+        bail!("--view applies to the --mitsuba bench (head_env_light against Mitsuba 3)");
+    }
     Ok(a)
 }
 
