@@ -240,6 +240,7 @@ pub fn work(opts: WorkOptions) -> Result<()> {
         return Ok(());
     };
     let worker_id = reg.worker_id;
+    let heartbeat_every = heartbeat_interval(reg.heartbeat_seconds)?;
     eprintln!(
         "worker {} ({}, {} threads) registered with {}",
         worker_id,
@@ -257,7 +258,7 @@ pub fn work(opts: WorkOptions) -> Result<()> {
     // Heartbeats.
     {
         let (client, leases) = (client.clone(), leases.clone());
-        let every = heartbeat_interval(reg.heartbeat_seconds)?;
+        let every = heartbeat_every;
         std::thread::Builder::new().name("heartbeat".into()).spawn(move || {
             loop {
                 std::thread::sleep(every);
