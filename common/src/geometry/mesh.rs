@@ -204,7 +204,9 @@ impl MeshGeom {
                 }
             }
         }
-        let lanes = |f: &dyn Fn(usize) -> f64| -> [f64; 8] { std::array::from_fn(f) };
+        fn lanes(f: impl FnMut(usize) -> f64) -> [f64; 8] {
+            std::array::from_fn(f)
+        }
         let sub = |x: &[[f64; 8]; 3], y: &[[f64; 8]; 3]| -> [[f64; 8]; 3] {
             std::array::from_fn(|a| std::array::from_fn(|k| x[a][k] - y[a][k]))
         };
@@ -223,27 +225,27 @@ impl MeshGeom {
         let e2 = sub(&p[2], &p[0]);
         let pv = cross(d, &e2);
         let det = dot(&e1, &pv);
-        let inv = lanes(&|k| 1.0 / det[k]);
+        let inv = lanes(|k| 1.0 / det[k]);
         let sv = sub(o, &p[0]);
         let su = dot(&sv, &pv);
         let q = cross(&sv, &e1);
         let (dq, eq) = (dot(d, &q), dot(&e2, &q));
-        let u = lanes(&|k| clamp(su[k] * inv[k], 0.0, 1.0));
-        let v = lanes(&|k| clamp(dq[k] * inv[k], 0.0, 1.0 - u[k]));
-        let t = lanes(&|k| eq[k] * inv[k]);
+        let u = lanes(|k| clamp(su[k] * inv[k], 0.0, 1.0));
+        let v = lanes(|k| clamp(dq[k] * inv[k], 0.0, 1.0 - u[k]));
+        let t = lanes(|k| eq[k] * inv[k]);
         // `normalize`: the product by the reciprocal of the length.
         let face = cross(&e1, &e2);
         let face_len = dot(&face, &face);
-        let recip = lanes(&|k| 1.0 / face_len[k].sqrt());
+        let recip = lanes(|k| 1.0 / face_len[k].sqrt());
         let ng: [[f64; 8]; 3] = std::array::from_fn(|a| std::array::from_fn(|k| face[a][k] * recip[k]));
         // `smooth_normal`: the weights' sum of the corners' normals, divided by its length
         // (the face normal where that length is tiny).
-        let w = lanes(&|k| 1.0 - u[k] - v[k]);
+        let w = lanes(|k| 1.0 - u[k] - v[k]);
         let sm: [[f64; 8]; 3] = std::array::from_fn(|a| {
             std::array::from_fn(|k| w[k] * n[0][a][k] + u[k] * n[1][a][k] + v[k] * n[2][a][k])
         });
         let sq = dot(&sm, &sm);
-        let len = lanes(&|k| sq[k].sqrt());
+        let len = lanes(|k| sq[k].sqrt());
         let ns = std::array::from_fn(|a| {
             std::array::from_fn(|k| if len[k] > 1e-12 { sm[a][k] / len[k] } else { ng[a][k] })
         });

@@ -917,7 +917,8 @@ impl Accel {
     }
 
     /// [`Self::found_into`] of every lane at once when the world tree is a lone untransformed,
-    /// untextured mesh shaded smooth (a scanned model on its own: the common case), with the
+    /// untextured mesh shaded smooth and the scene holds nothing else (the caller's condition:
+    /// a scanned model on its own), with the
     /// re-intersections and normals of the lanes side by side ([`MeshGeom::smooth_hits`]);
     /// each lane gets the record [`Self::surface`] makes. False (nothing written) otherwise.
     fn smooth_lone_hits(
@@ -945,6 +946,8 @@ impl Accel {
         let tri: [u32; 8] = std::array::from_fn(|k| if hits & (1 << k) != 0 { best[k].tri } else { first });
         let m = &self.meshes[lone.mesh as usize];
         let Some(h) = m.smooth_hits(&tri, &wide.o, &wide.d) else { return false };
+        #[cfg(test)]
+        tests::SMOOTH_LONE_PACKETS.with(|c| c.set(c.get() + 1));
         for (k, slot) in out.iter_mut().enumerate() {
             if hits & (1 << k) == 0 {
                 *slot = None;
@@ -1110,6 +1113,11 @@ fn sphere_uv_frame(d: DVec3, r: f64) -> (DVec2, DVec3, DVec3) {
 mod tests {
     use super::*;
     use glam::DAffine3;
+
+    thread_local! {
+        /// Packets completed by `smooth_lone_hits` on this thread (the test's threads are its own).
+        pub(super) static SMOOTH_LONE_PACKETS: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+    }
 
     fn unit_quad() -> Arc<MeshGeom> {
         Arc::new(MeshGeom::new(
@@ -1520,6 +1528,7 @@ mod tests {
                 )
             })
         };
+        SMOOTH_LONE_PACKETS.with(|c| c.set(0));
         let (mut together, mut face) = (0, 0);
         for k in 0..3000 {
             let n = 1 + k % 8;
@@ -1540,6 +1549,8 @@ mod tests {
             }
         }
         assert!(together > 1000, "packets with two hits or more: {together}");
+        // Each of them came through the eight-lane path (the single rays never do).
+        assert_eq!(SMOOTH_LONE_PACKETS.with(|c| c.get()), together);
         assert!(face > 20, "hits shaded with the face normal: {face}");
     }
 
