@@ -119,12 +119,13 @@ pub fn check_config(config: &Config) -> Result<()> {
     if config.tile_size == 0 || config.tile_size > 4096 {
         bail!("--tile-size must be between 1 and 4096 pixels, found {}", config.tile_size);
     }
-    if config.lease_seconds <= 0.0
-        || config.heartbeat_seconds <= 0.0
-        || config.heartbeat_seconds >= config.lease_seconds
-    {
+    // Workers keep heartbeat periods from 1 ms to 1e9 s (a shorter one floods the server, a
+    // longer one does not fit a `Duration`); a NaN fails both tests.
+    let heartbeat_ok = (1e-3..=1e9).contains(&config.heartbeat_seconds);
+    let lease_ok = config.lease_seconds > config.heartbeat_seconds && config.lease_seconds <= 1e9;
+    if !heartbeat_ok || !lease_ok {
         bail!(
-            "--heartbeat-seconds ({}) must be positive and shorter than --lease-seconds ({})",
+            "--heartbeat-seconds ({}) must be from 0.001 to 1e9 and shorter than --lease-seconds ({}, at most 1e9)",
             config.heartbeat_seconds,
             config.lease_seconds
         );
@@ -239,10 +240,8 @@ pub async fn serve(
 mod tests {
     use super::*;
 
-    #[tokio::test]
-    async fn serve_answers_until_its_shutdown_stream_says_stop() {
-        let dir = tessera_testkit::TempDir::new("unit-serve");
-        let config = Config {
+    fn config(dir: &tessera_testkit::TempDir) -> Config {
+        Config {
             bind: "127.0.0.1:0".parse().unwrap(),
             data_dir: dir.path().join("data"),
             local_workers: 0,
@@ -261,7 +260,43 @@ mod tests {
             max_job_tiles: 1000,
             max_tile_seconds: 60.0,
             max_job_samples: 1 << 30,
+        }
+    }
+
+    /// Heartbeat and lease periods a worker can keep, and nothing else: a NaN, a period too
+    /// short to sleep, one too long for a `Duration`, a lease not longer than the heartbeat.
+    #[test]
+    fn heartbeat_and_lease_periods_are_checked() {
+        let dir = tessera_testkit::TempDir::new("unit-periods");
+        let with = |heartbeat: f64, lease: f64| {
+            check_config(&Config { heartbeat_seconds: heartbeat, lease_seconds: lease, ..config(&dir) })
         };
+        for (heartbeat, lease) in [(5.0, 30.0), (0.001, 0.002), (100_000.0, 300_000.0), (1.0, 1e9)] {
+            assert!(with(heartbeat, lease).is_ok(), "{heartbeat} {lease}");
+        }
+        for (heartbeat, lease) in [
+            (0.0, 30.0),
+            (-1.0, 30.0),
+            (1e-4, 30.0),
+            (f64::NAN, 30.0),
+            (5.0, f64::NAN),
+            (5.0, f64::INFINITY),
+            (5.0, 5.0),
+            (30.0, 5.0),
+            (2e9, 3e9),
+        ] {
+            let e = with(heartbeat, lease).unwrap_err().to_string();
+            assert!(
+                e.contains("--heartbeat-seconds") && e.contains("--lease-seconds"),
+                "{heartbeat} {lease}: {e}"
+            );
+        }
+    }
+
+    #[tokio::test]
+    async fn serve_answers_until_its_shutdown_stream_says_stop() {
+        let dir = tessera_testkit::TempDir::new("unit-serve");
+        let config = config(&dir);
         let (listening_tx, listening_rx) = tokio::sync::oneshot::channel();
         let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
         let stop = futures_util::stream::once(async move {

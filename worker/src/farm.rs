@@ -176,13 +176,15 @@ fn stop_flag() -> Result<Arc<AtomicBool>> {
 }
 
 /// The heartbeat period the server's register answer asks for, if it is one a worker can keep:
-/// positive, finite and at most a day (`Duration::from_secs_f64` panics on a negative, NaN or
-/// huge value, and a server that sends one is broken or not a Tessera server).
+/// from a millisecond (shorter ones would flood the server; a zero `Duration` does not sleep)
+/// to 10^9 s (`Duration::from_secs_f64` panics on a negative, NaN or huge value). A Tessera
+/// server asks for any period below its lease time; one outside these bounds is misconfigured.
 fn heartbeat_interval(seconds: f64) -> Result<Duration> {
-    if !(seconds > 0.0 && seconds <= 86_400.0) {
+    if !(1e-3..=1e9).contains(&seconds) {
         bail!(
             "the server's register answer asks for a heartbeat every {seconds} s (heartbeat_seconds); \
-             a worker needs a period above 0 and at most a day: check that --server names a Tessera server"
+             a worker keeps periods from 1 ms to 1e9 s: check the server's --heartbeat-seconds, \
+             and that --server names a Tessera server"
         );
     }
     Ok(Duration::from_secs_f64(seconds))
@@ -763,10 +765,13 @@ mod tests {
     #[test]
     fn a_heartbeat_period_the_worker_cannot_keep_is_an_error_not_a_panic() {
         assert_eq!(heartbeat_interval(5.0).unwrap(), Duration::from_secs(5));
-        assert_eq!(heartbeat_interval(86_400.0).unwrap(), Duration::from_secs(86_400));
-        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY, 1e300, 86_400.5] {
+        assert_eq!(heartbeat_interval(0.001).unwrap(), Duration::from_millis(1));
+        // A server with a lease of days may ask for a heartbeat every day or more.
+        assert_eq!(heartbeat_interval(100_000.0).unwrap(), Duration::from_secs(100_000));
+        assert_eq!(heartbeat_interval(1e9).unwrap(), Duration::from_secs(1_000_000_000));
+        for bad in [0.0, -1.0, 1e-10, 0.000_999, 1.000_001e9, 1e300, f64::NAN, f64::INFINITY] {
             let e = heartbeat_interval(bad).unwrap_err().to_string();
-            assert!(e.contains("heartbeat_seconds") && e.contains("--server"), "{bad}: {e}");
+            assert!(e.contains("heartbeat_seconds") && e.contains("--heartbeat-seconds"), "{bad}: {e}");
         }
     }
 }
