@@ -24,8 +24,9 @@
 //! built for on every machine, so that figures from hosts with and without AVX-512 compare.
 //! `--view hits` and `--view misses` change both renderers' camera the same way, to split the
 //! whole-frame figure: zoomed in on the head (a field of view of 6 degrees instead of 30:
-//! nearly every sample hits it, is lit and traces its shadow ray) or turned around (every camera
-//! ray misses and looks the map up); `--view whole` (the default) is the workload itself.
+//! nearly every camera ray hits it and is lit; those whose drawn direction is below the surface
+//! trace no shadow ray) or turned around (every camera ray misses and looks the map up);
+//! `--view whole` (the default) is the workload itself.
 //! Pictures go to `target/envbench/`. `--samples` and `--width` shrink the work (the figures say
 //! so); without them every scene renders at its own resolution and NumSamples.
 
