@@ -45,10 +45,11 @@ struct Cli {
     /// Allow a non-loopback --bind without tokens (only on a network you trust).
     #[arg(long)]
     insecure: bool,
-    /// Seconds a lease lives without a heartbeat before its tile goes back to the queue.
+    /// Seconds a lease lives without a heartbeat before its tile goes back to the queue (longer
+    /// than --heartbeat-seconds, at most 1e9).
     #[arg(long, default_value_t = 30.0, env = "TESSERA_LEASE_SECONDS", value_name = "S")]
     lease_seconds: f64,
-    /// How often workers send heartbeats.
+    /// How often workers send heartbeats, in seconds (0.001 to 1e9).
     #[arg(long, default_value_t = 5.0, env = "TESSERA_HEARTBEAT_SECONDS", value_name = "S")]
     heartbeat_seconds: f64,
     /// Largest accepted upload in MiB.
