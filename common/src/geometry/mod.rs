@@ -619,7 +619,7 @@ impl Accel {
         }
         if self.bounded.is_empty() && self.unbounded.is_empty() {
             // Everything was in the world tree.
-            if !self.smooth_lone_hits(rays, &wide, &best, out) {
+            if !self.smooth_mesh_hits(rays, &wide, &best, out) {
                 for lane in 0..n {
                     self.found_into(&rays[lane], best[lane], &mut out[lane]);
                 }
@@ -663,8 +663,10 @@ impl Accel {
                     boxes.tmax[lane] = boxes.tmax[lane].min(t);
                 }
             }
-            for lane in 0..n {
-                self.found_into(&rays[lane], best[lane], &mut out[lane]);
+            if !self.smooth_mesh_hits(rays, &wide, &best, out) {
+                for lane in 0..n {
+                    self.found_into(&rays[lane], best[lane], &mut out[lane]);
+                }
             }
         } else {
             for lane in 0..n {
@@ -916,38 +918,39 @@ impl Accel {
         }
     }
 
-    /// [`Self::found_into`] of every lane at once when the world tree is a lone untransformed,
-    /// untextured mesh shaded smooth and the scene holds nothing else (the caller's condition:
-    /// a scanned model on its own), with the
-    /// re-intersections and normals of the lanes side by side ([`MeshGeom::smooth_hits`]);
-    /// each lane gets the record [`Self::surface`] makes. False (nothing written) otherwise.
-    fn smooth_lone_hits(
+    /// [`Self::found_into`] of every lane at once when two lanes or more hit and all of them
+    /// hit one untransformed, unmoving, untextured mesh shaded smooth (a scanned model, or one
+    /// of a scene's meshes seen by a whole pixel), with the re-intersections and normals of the
+    /// lanes side by side ([`MeshGeom::smooth_hits`]); each lane gets the record
+    /// [`Self::surface`] makes. False (nothing written) otherwise.
+    fn smooth_mesh_hits(
         &self,
         rays: &[Ray],
         wide: &RayLanes,
         best: &[Candidate; 8],
         out: &mut [Option<SurfaceHit>],
     ) -> bool {
-        let Some(lone) = self.lone else { return false };
-        let inst = &self.instances[lone.instance as usize];
-        if !matches!(inst.shape, Shape::Mesh { smooth: true, .. })
-            || !inst.is_world_space()
-            || inst.textures != ObjectTextures::default()
-        {
-            return false;
-        }
         let hits = (0..rays.len()).filter(|&k| best[k].instance != u32::MAX).fold(0u32, |m, k| m | 1 << k);
         if hits.count_ones() < 2 {
             // None, or one: the single path does as well.
             return false;
         }
+        let instance = best[hits.trailing_zeros() as usize].instance;
+        if (0..8).any(|k| hits & (1 << k) != 0 && best[k].instance != instance) {
+            return false;
+        }
+        let inst = &self.instances[instance as usize];
+        let Shape::Mesh { mesh, smooth: true } = inst.shape else { return false };
+        if !inst.is_world_space() || inst.textures != ObjectTextures::default() {
+            return false;
+        }
         // Lanes without a hit repeat the first hit's triangle (their results are not read).
         let first = best[hits.trailing_zeros() as usize].tri;
         let tri: [u32; 8] = std::array::from_fn(|k| if hits & (1 << k) != 0 { best[k].tri } else { first });
-        let m = &self.meshes[lone.mesh as usize];
+        let m = &self.meshes[mesh as usize];
         let Some(h) = m.smooth_hits(&tri, &wide.o, &wide.d) else { return false };
         #[cfg(test)]
-        tests::SMOOTH_LONE_PACKETS.with(|c| c.set(c.get() + 1));
+        tests::SMOOTH_MESH_PACKETS.with(|c| c.set(c.get() + 1));
         for (k, slot) in out.iter_mut().enumerate() {
             if hits & (1 << k) == 0 {
                 *slot = None;
@@ -966,7 +969,7 @@ impl Accel {
             hit.geo_normal = geo_normal;
             hit.shading_normal = shading_normal;
             hit.material = inst.material;
-            hit.instance = lone.instance;
+            hit.instance = instance;
             hit.bump_axis = if n_shade.dot(shading_normal) < 0.0 { -n_shade } else { n_shade };
         }
         true
@@ -1115,8 +1118,8 @@ mod tests {
     use glam::DAffine3;
 
     thread_local! {
-        /// Packets completed by `smooth_lone_hits` on this thread (the test's threads are its own).
-        pub(super) static SMOOTH_LONE_PACKETS: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+        /// Packets completed by `smooth_mesh_hits` on this thread (the test's threads are its own).
+        pub(super) static SMOOTH_MESH_PACKETS: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
     }
 
     fn unit_quad() -> Arc<MeshGeom> {
@@ -1488,12 +1491,14 @@ mod tests {
         );
     }
 
-    /// A packet's hits on a lone untransformed smooth mesh (re-intersected and shaded eight
-    /// lanes at a time, `smooth_lone_hits`) are the single rays' records, every field to the
-    /// bit: vertex normals that lean past their faces (flipped), that cancel out (the face
-    /// normal instead), and ordinary ones; packets of one to eight rays, narrow and wide.
+    /// A packet's hits on one untransformed smooth mesh (re-intersected and shaded eight lanes
+    /// at a time, `smooth_mesh_hits`) are the single rays' records, every field to the bit:
+    /// vertex normals that lean past their faces (flipped), that cancel out (the face normal
+    /// instead), and ordinary ones; packets of one to eight rays, narrow and wide; a lone mesh,
+    /// and two meshes in the merged tree under a sphere (packets whose hits are on several
+    /// objects take the single path).
     #[test]
-    fn a_lone_smooth_mesh_packet_gets_the_single_rays_records() {
+    fn a_smooth_mesh_packet_gets_the_single_rays_records() {
         let mut rng = crate::sampler::Sampler::new(5, 3, 2, 8);
         let mut r = move || rng.next_1d();
         let sheet = sheet(&mut r);
@@ -1506,18 +1511,26 @@ mod tests {
                 _ => DVec3::new(r() - 0.5, r() - 0.5, 1.0).normalize(),
             })
             .collect();
-        let mesh = Arc::new(MeshGeom::new(sheet.positions.clone(), sheet.indices.clone(), Some(normals)));
-        let accel = Accel::new(
-            vec![mesh],
-            vec![Instance {
-                shape: Shape::Mesh { mesh: 0, smooth: true },
-                material: 4,
-                transform: None,
-                motion: None,
-                textures: ObjectTextures::default(),
-            }],
-        );
-        assert!(accel.lone.is_some() && accel.bounded.is_empty() && accel.unbounded.is_empty());
+        let mesh =
+            Arc::new(MeshGeom::new(sheet.positions.clone(), sheet.indices.clone(), Some(normals.clone())));
+        // The same sheet 16 units along x, as a mesh of its own.
+        let moved = sheet.positions.iter().map(|p| *p + DVec3::new(16.0, 0.0, 0.0)).collect();
+        let beside = Arc::new(MeshGeom::new(moved, sheet.indices.clone(), Some(normals)));
+        let smooth = |mesh: u32, material: u32| Instance {
+            shape: Shape::Mesh { mesh, smooth: true },
+            material,
+            transform: None,
+            motion: None,
+            textures: ObjectTextures::default(),
+        };
+        let lone = Accel::new(vec![mesh.clone()], vec![smooth(0, 4)]);
+        assert!(lone.lone.is_some() && lone.bounded.is_empty() && lone.unbounded.is_empty());
+        let ball = Instance {
+            shape: Shape::Sphere { center: DVec3::new(8.0, 0.0, 2.5), radius: 2.0 },
+            ..smooth(0, 6)
+        };
+        let pair = Accel::new(vec![mesh, beside], vec![smooth(0, 4), smooth(1, 5), ball]);
+        assert!(!pair.merged.is_empty() && pair.bounded.len() == 1);
         let bits = |v: DVec3| v.to_array().map(f64::to_bits);
         let key = |h: &Option<SurfaceHit>| {
             h.map(|h| {
@@ -1528,30 +1541,42 @@ mod tests {
                 )
             })
         };
-        SMOOTH_LONE_PACKETS.with(|c| c.set(0));
-        let (mut together, mut face) = (0, 0);
-        for k in 0..3000 {
-            let n = 1 + k % 8;
-            let o = DVec3::new(r() * 14.0 - 7.0, r() * 14.0 - 7.0, 6.0);
-            let d = DVec3::new(r() * 0.6 - 0.3, r() * 0.6 - 0.3, -1.0).normalize();
-            let spread = [1e-3, 0.1, 1.0][k % 3];
-            let rays = packet(&mut r, n, (o, d), spread, false);
-            let mut out = vec![None; n];
-            accel.intersect_packet(&rays, 1e-6, &mut out);
-            for (ray, got) in rays.iter().zip(&out) {
-                let single = accel.intersect(ray, 1e-6, f64::INFINITY);
-                assert_eq!(key(got), key(&single), "packet {k}");
+        for (accel, width) in [(&lone, 14.0), (&pair, 30.0)] {
+            SMOOTH_MESH_PACKETS.with(|c| c.set(0));
+            let (mut together, mut one_mesh, mut face) = (0, 0, 0);
+            for k in 0..3000 {
+                let n = 1 + k % 8;
+                let o = DVec3::new(r() * width - 7.0, r() * 14.0 - 7.0, 6.0);
+                let d = DVec3::new(r() * 0.6 - 0.3, r() * 0.6 - 0.3, -1.0).normalize();
+                let spread = [1e-3, 0.1, 1.0][k % 3];
+                let rays = packet(&mut r, n, (o, d), spread, false);
+                let mut out = vec![None; n];
+                accel.intersect_packet(&rays, 1e-6, &mut out);
+                for (ray, got) in rays.iter().zip(&out) {
+                    let single = accel.intersect(ray, 1e-6, f64::INFINITY);
+                    assert_eq!(key(got), key(&single), "packet {k}");
+                }
+                let hit: Vec<SurfaceHit> = out.iter().flatten().copied().collect();
+                if hit.len() >= 2 {
+                    together += 1;
+                    face += hit.iter().filter(|h| h.shading_normal == h.geo_normal).count();
+                    if hit.iter().all(|h| h.instance == hit[0].instance && h.instance < 2) {
+                        one_mesh += 1;
+                    }
+                }
             }
-            let hit: Vec<SurfaceHit> = out.iter().flatten().copied().collect();
-            if hit.len() >= 2 {
-                together += 1;
-                face += hit.iter().filter(|h| h.shading_normal == h.geo_normal).count();
-            }
+            assert!(
+                together > 1000 && face > 20,
+                "packets with two hits or more {together}, face normals {face}"
+            );
+            // Exactly the packets whose hits are all on one of the meshes came through the
+            // eight-lane path (the single rays never do).
+            assert!(
+                one_mesh > 500 && (accel.lone.is_some() || one_mesh < together),
+                "{one_mesh} of {together}"
+            );
+            assert_eq!(SMOOTH_MESH_PACKETS.with(|c| c.get()), one_mesh);
         }
-        assert!(together > 1000, "packets with two hits or more: {together}");
-        // Each of them came through the eight-lane path (the single rays never do).
-        assert_eq!(SMOOTH_LONE_PACKETS.with(|c| c.get()), together);
-        assert!(face > 20, "hits shaded with the face normal: {face}");
     }
 
     /// A hit on a flat, untextured face of the merged tree takes its distance and normal from
