@@ -46,11 +46,16 @@ pub struct RegisterRequest {
     pub threads: u32,
 }
 
+/// The heartbeat periods, in seconds, a server may ask for and a worker keeps: a shorter one
+/// would flood the server (a zero `Duration` does not sleep), a longer one does not fit a
+/// `Duration` (`Duration::from_secs_f64` panics beyond).
+pub const HEARTBEAT_SECONDS: std::ops::RangeInclusive<f64> = 1e-3..=1e9;
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct RegisterResponse {
     pub worker_id: u64,
-    /// How often to send heartbeats.
+    /// How often to send heartbeats (within [`HEARTBEAT_SECONDS`]).
     pub heartbeat_seconds: f64,
     /// How long a lease lives without a heartbeat.
     pub lease_seconds: f64,

@@ -119,10 +119,10 @@ pub fn check_config(config: &Config) -> Result<()> {
     if config.tile_size == 0 || config.tile_size > 4096 {
         bail!("--tile-size must be between 1 and 4096 pixels, found {}", config.tile_size);
     }
-    // Workers keep heartbeat periods from 1 ms to 1e9 s (a shorter one floods the server, a
-    // longer one does not fit a `Duration`); a NaN fails both tests.
-    let heartbeat_ok = (1e-3..=1e9).contains(&config.heartbeat_seconds);
-    let lease_ok = config.lease_seconds > config.heartbeat_seconds && config.lease_seconds <= 1e9;
+    // The periods workers keep; a NaN fails both tests.
+    let periods = tessera::protocol::HEARTBEAT_SECONDS;
+    let heartbeat_ok = periods.contains(&config.heartbeat_seconds);
+    let lease_ok = config.lease_seconds > config.heartbeat_seconds && config.lease_seconds <= *periods.end();
     if !heartbeat_ok || !lease_ok {
         bail!(
             "--heartbeat-seconds ({}) must be from 0.001 to 1e9 and shorter than --lease-seconds ({}, at most 1e9)",

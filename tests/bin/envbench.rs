@@ -35,6 +35,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use tessera::image::Image;
+use tessera::integrator::RayStats;
 use tessera::render::{RenderSettings, render_camera};
 use tessera::scene::Scene;
 use tessera::scene::records::{EnvSampler, SceneRecords};
@@ -161,10 +162,10 @@ fn shrink(rec: &mut SceneRecords, width: Option<u32>) {
     }
 }
 
-fn render(scene: &Scene, settings: &RenderSettings) -> (Image, f64, u64) {
+fn render(scene: &Scene, settings: &RenderSettings) -> (Image, f64, RayStats) {
     let t = Instant::now();
     let (img, stats) = render_camera(scene, 0, 32, settings, &|_, _| {});
-    (img, t.elapsed().as_secs_f64(), stats.total())
+    (img, t.elapsed().as_secs_f64(), stats)
 }
 
 fn main() -> Result<()> {
@@ -199,8 +200,9 @@ fn scene_figures(name: &str, map: &str, args: &Args, out: &std::path::Path) -> R
     let load = t.elapsed().as_secs_f64();
     let cam = &scene.cameras[0];
     let spp = args.samples.unwrap_or(cam.num_samples);
-    let (img, secs, rays) =
+    let (img, secs, stats) =
         render(&scene, &RenderSettings { samples: args.samples, ..RenderSettings::default() });
+    let rays = stats.total();
     let samples = cam.width as f64 * cam.height as f64 * spp as f64;
     let png: PathBuf = out.join(format!("{name}.png"));
     let ldr = display_image(cam, &img);
@@ -395,9 +397,7 @@ fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
     let (mut ours, mut theirs) = (Vec::new(), Vec::new());
     let mut width_shown = false;
     for round in 0..args.rounds {
-        let t = Instant::now();
-        let (_, stats) = render_camera(&scene, 0, 32, &settings, &|_, _| {});
-        let secs = t.elapsed().as_secs_f64();
+        let (_, secs, stats) = render(&scene, &settings);
         ours.push(samples / secs / 1e6);
         if round == 0 {
             // What the view does to the work: a shadow ray per lit sample that faces its light.

@@ -175,12 +175,10 @@ fn stop_flag() -> Result<Arc<AtomicBool>> {
     Ok(stop)
 }
 
-/// The heartbeat period the server's register answer asks for, if it is one a worker can keep:
-/// from a millisecond (shorter ones would flood the server; a zero `Duration` does not sleep)
-/// to 10^9 s (`Duration::from_secs_f64` panics on a negative, NaN or huge value). A Tessera
-/// server asks for any period below its lease time; one outside these bounds is misconfigured.
+/// The heartbeat period the server's register answer asks for, if it is one a worker can keep
+/// ([`tessera::protocol::HEARTBEAT_SECONDS`]; a Tessera server checks its own against it).
 fn heartbeat_interval(seconds: f64) -> Result<Duration> {
-    if !(1e-3..=1e9).contains(&seconds) {
+    if !tessera::protocol::HEARTBEAT_SECONDS.contains(&seconds) {
         bail!(
             "the server's register answer asks for a heartbeat every {seconds} s (heartbeat_seconds); \
              a worker keeps periods from 1 ms to 1e9 s: check the server's --heartbeat-seconds, \

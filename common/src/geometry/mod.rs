@@ -935,7 +935,8 @@ impl Accel {
             // None, or one: the single path does as well.
             return false;
         }
-        let instance = best[hits.trailing_zeros() as usize].instance;
+        let lead = best[hits.trailing_zeros() as usize];
+        let instance = lead.instance;
         if (0..8).any(|k| hits & (1 << k) != 0 && best[k].instance != instance) {
             return false;
         }
@@ -945,8 +946,8 @@ impl Accel {
             return false;
         }
         // Lanes without a hit repeat the first hit's triangle (their results are not read).
-        let first = best[hits.trailing_zeros() as usize].tri;
-        let tri: [u32; 8] = std::array::from_fn(|k| if hits & (1 << k) != 0 { best[k].tri } else { first });
+        let tri: [u32; 8] =
+            std::array::from_fn(|k| if hits & (1 << k) != 0 { best[k].tri } else { lead.tri });
         let m = &self.meshes[mesh as usize];
         let Some(h) = m.smooth_hits(&tri, &wide.o, &wide.d) else { return false };
         #[cfg(test)]
@@ -1413,6 +1414,13 @@ mod tests {
             .collect()
     }
 
+    /// `rays` traced as a packet by `accel`, each beside its own single-ray hit.
+    fn packet_and_singles(accel: &Accel, rays: &[Ray]) -> Vec<(Option<SurfaceHit>, Option<SurfaceHit>)> {
+        let mut out = vec![None; rays.len()];
+        accel.intersect_packet(rays, 1e-6, &mut out);
+        out.into_iter().zip(rays).map(|(got, ray)| (got, accel.intersect(ray, 1e-6, f64::INFINITY))).collect()
+    }
+
     /// Rays traced as a packet get the very hits (same bits) they get one by one, and the same
     /// answers to "is anything in the way" within their own bounds, whichever world tree the
     /// scene has (the lone mesh, the merged tree, none) and whatever else it holds; packets of
@@ -1466,11 +1474,8 @@ mod tests {
             let d = DVec3::new(r() * 0.8 - 0.4, r() * 0.8 - 0.4, -1.0).normalize();
             let spread = [1e-3, 0.1, 1.0][k % 3];
             let rays = packet(&mut r, n, (o, d), spread, true);
-            let mut out = vec![None; n];
-            accel.intersect_packet(&rays, 1e-6, &mut out);
-            for (ray, got) in rays.iter().zip(&out) {
-                let single = accel.intersect(ray, 1e-6, f64::INFINITY);
-                assert_eq!(key(got), key(&single), "packet {k}");
+            for (got, single) in packet_and_singles(accel, &rays) {
+                assert_eq!(key(&got), key(&single), "packet {k}");
                 hits += usize::from(got.is_some());
             }
             // Shadow rays: bounds from short of the nearest surface to beyond everything.
@@ -1550,13 +1555,11 @@ mod tests {
                 let d = DVec3::new(r() * 0.6 - 0.3, r() * 0.6 - 0.3, -1.0).normalize();
                 let spread = [1e-3, 0.1, 1.0][k % 3];
                 let rays = packet(&mut r, n, (o, d), spread, false);
-                let mut out = vec![None; n];
-                accel.intersect_packet(&rays, 1e-6, &mut out);
-                for (ray, got) in rays.iter().zip(&out) {
-                    let single = accel.intersect(ray, 1e-6, f64::INFINITY);
-                    assert_eq!(key(got), key(&single), "packet {k}");
+                let both = packet_and_singles(accel, &rays);
+                for (got, single) in &both {
+                    assert_eq!(key(got), key(single), "packet {k}");
                 }
-                let hit: Vec<SurfaceHit> = out.iter().flatten().copied().collect();
+                let hit: Vec<SurfaceHit> = both.iter().filter_map(|(got, _)| *got).collect();
                 if hit.len() >= 2 {
                     together += 1;
                     face += hit.iter().filter(|h| h.shading_normal == h.geo_normal).count();
