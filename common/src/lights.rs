@@ -338,8 +338,8 @@ impl EnvLight {
         if Self::requests(sampler) > 1 {
             xi[2] = rng.next_1d();
         }
-        let [d] = self.sample_directions(&[n], sampler, &[xi], 1);
-        d
+        let d = self.sample_directions(&[n], sampler, &[xi], 1);
+        (d.mask & 1 != 0).then_some(d.dirs[0])
     }
 
     /// How many requests of a [`Sampler`] one direction takes: a two-number request (`xi[0]`,
@@ -359,19 +359,24 @@ impl EnvLight {
     /// the nearest caches, and taking each step for all points before the next lets their loads
     /// overlap instead of waiting in a chain per point. Per point the operations are those of a
     /// single direction, in their order: the same bits.
+    ///
+    /// Which points draw from the map and which from the cosine lobe, and which directions
+    /// fall below their surface, are coin flips: they are kept as lane masks and each step runs
+    /// over the lanes it concerns, not as a branch per lane that the processor would guess
+    /// wrong half the time.
     pub fn sample_directions<const N: usize>(
         &self,
         ns: &[DVec3; N],
         sampler: EnvSampler,
         xi: &[[f64; 3]; N],
         mask: u32,
-    ) -> [Option<EnvDirection>; N] {
-        let mut out = [None; N];
+    ) -> EnvDirections<N> {
         let mut wi = [DVec3::ZERO; N];
         let mut uv = [(0.0, 0.0); N];
         let mut pdf = [EnvPdf::Factor(0.0); N];
-        // Lanes with a direction above the surface so far.
+        // Lanes with a direction above the surface, and those whose map pdf is still to read.
         let mut found = 0u32;
+        let mut cells = 0u32;
         match sampler {
             EnvSampler::Uniform | EnvSampler::Cosine => {
                 for k in lanes(mask) {
@@ -393,65 +398,90 @@ impl EnvLight {
                 // pdf (the balance heuristic). The map finds a small sun; the lobe keeps points
                 // that face away from it from wasting their samples below the horizon.
                 let dist = &self.distribution;
-                let mut rows = [RowPick::default(); N];
                 let mut map = 0u32;
-                for k in lanes(mask) {
-                    let [xi1, xi2, xi3] = xi[k];
-                    if xi3 < 0.5 {
-                        rows[k] = dist.pick_row(xi1, xi2);
-                        map |= 1 << k;
-                    } else {
-                        wi[k] = hemisphere_direction(ns[k], (1.0 - xi1).sqrt(), xi2);
-                        found |= 1 << k;
-                    }
+                for (k, x) in xi.iter().enumerate() {
+                    map |= u32::from(x[2] < 0.5) << k;
+                }
+                map &= mask;
+                let lobe = mask & !map;
+                let mut rows = [RowPick::default(); N];
+                for k in lanes(map) {
+                    rows[k] = dist.pick_row(xi[k][0], xi[k][1]);
+                }
+                for k in lanes(lobe) {
+                    wi[k] = hemisphere_direction(ns[k], (1.0 - xi[k][0]).sqrt(), xi[k][1]);
                 }
                 let mut bounds = [(0, 0); N];
                 for k in lanes(map) {
                     bounds[k] = dist.cell_bounds(&rows[k], xi[k][1]);
                 }
-                let mut grid = [None; N];
+                let mut grid = [GridSample::default(); N];
+                let mut drawn = 0u32;
                 for k in lanes(map) {
                     if let Some(s) = dist.sample_in_row(&rows[k], xi[k][1], bounds[k]) {
                         wi[k] = s.wi;
-                        grid[k] = Some(s);
-                        found |= 1 << k;
+                        grid[k] = s;
+                        drawn |= 1 << k;
                     }
                 }
                 // The lobe's directions (not drawn from the map's grid) need their coordinates.
-                let lobe = self.uv_lanes(&wi, found & !map);
-                for k in lanes(found) {
-                    let cos = wi[k].dot(ns[k]);
-                    if cos <= 0.0 {
-                        found &= !(1 << k);
-                        continue;
-                    }
-                    // The map coordinates of `wi` serve both the pdf and the lookup. A lat-long
-                    // map's grid is the distribution's, so a direction drawn from it keeps its
-                    // (u, v) and its cell's pdf (no atan2 and acos of `wi`).
-                    let map_pdf;
-                    (uv[k], map_pdf) = match (grid[k], self.mapping) {
-                        (Some(s), EnvMapping::LatLong) => ((s.u, s.v), MapPdf::Known(s.pdf)),
-                        (Some(s), EnvMapping::Probe) => {
-                            (env_uv(EnvMapping::Probe, wi[k]), MapPdf::Known(s.pdf))
-                        }
-                        (None, EnvMapping::LatLong) => {
-                            let (u, v) = lobe[k];
+                let lobe_uv = self.uv_lanes(&wi, lobe);
+                let mut cos = [0.0; N];
+                let mut below = 0u32;
+                for k in 0..N {
+                    cos[k] = wi[k].dot(ns[k]);
+                    below |= u32::from(cos[k] <= 0.0) << k;
+                }
+                found = (drawn | lobe) & !below;
+                // The map coordinates of `wi` serve both the pdf and the lookup. A lat-long
+                // map's grid is the distribution's, so a direction drawn from it keeps its
+                // (u, v) and its cell's pdf (no atan2 and acos of `wi`); a lobe direction's
+                // cell is read when its shadow ray has come back clear
+                // ([`Self::resolve_cells`]).
+                for k in lanes(found & map) {
+                    uv[k] = match self.mapping {
+                        EnvMapping::LatLong => (grid[k].u, grid[k].v),
+                        EnvMapping::Probe => env_uv(EnvMapping::Probe, wi[k]),
+                    };
+                    pdf[k] = EnvPdf::Mixture { cos: cos[k], map_pdf: MapPdf::Known(grid[k].pdf) };
+                }
+                for k in lanes(found & lobe) {
+                    uv[k] = lobe_uv[k];
+                    let map_pdf = match self.mapping {
+                        EnvMapping::LatLong => {
+                            let (u, v) = lobe_uv[k];
                             let (x, y) = dist.cell_of(u, v);
                             dist.prefetch_cell(x, y);
-                            ((u, v), MapPdf::LatLongCell { x, y, v })
+                            cells |= 1 << k;
+                            MapPdf::LatLongCell { x, y, v }
                         }
-                        (None, EnvMapping::Probe) => (lobe[k], MapPdf::Known(dist.pdf(wi[k]))),
+                        EnvMapping::Probe => MapPdf::Known(dist.pdf(wi[k])),
                     };
-                    pdf[k] = EnvPdf::Mixture { cos, map_pdf };
+                    pdf[k] = EnvPdf::Mixture { cos: cos[k], map_pdf };
                 }
             }
         }
+        let mut dirs = [EnvDirection::NONE; N];
         for k in lanes(found) {
             let texels = self.corners(uv[k].0, uv[k].1);
             self.prefetch_texels(&texels);
-            out[k] = Some(EnvDirection { wi: wi[k], texels, pdf: pdf[k] });
+            dirs[k] = EnvDirection { wi: wi[k], texels, pdf: pdf[k] };
         }
-        out
+        EnvDirections { dirs, mask: found, cells }
+    }
+
+    /// Reads the map pdf of the directions of `lanes_to_read` (a subset of `dirs.mask`) whose
+    /// pdf waits in their cell, so that [`Self::weight`] finds every pdf known: one loop over
+    /// those lanes instead of a branch per lane in each weight.
+    pub fn resolve_cells<const N: usize>(&self, dirs: &mut EnvDirections<N>, lanes_to_read: u32) {
+        for k in lanes(dirs.cells & lanes_to_read) {
+            if let EnvPdf::Mixture { map_pdf: ref mut m @ MapPdf::LatLongCell { x, y, v }, .. } =
+                dirs.dirs[k].pdf
+            {
+                *m = MapPdf::Known(self.distribution.pdf_cell(x, y, v));
+            }
+        }
+        dirs.cells &= !lanes_to_read;
     }
 
     /// The radiance arriving along a [`Self::sample_direction`] direction divided by the pdf of
@@ -594,6 +624,26 @@ pub struct EnvDirection {
     pdf: EnvPdf,
 }
 
+impl EnvDirection {
+    /// The entry of a lane without a direction.
+    const NONE: EnvDirection = EnvDirection {
+        wi: DVec3::ZERO,
+        texels: Corners { x0: 0, x1: 0, y0: 0, y1: 0, dx: 0.0, dy: 0.0 },
+        pdf: EnvPdf::Factor(0.0),
+    };
+}
+
+/// The directions [`EnvLight::sample_directions`] drew for a group of points.
+#[derive(Clone, Copy, Debug)]
+pub struct EnvDirections<const N: usize> {
+    /// Lane `k`'s direction, when `mask` holds `k`.
+    pub dirs: [EnvDirection; N],
+    /// The lanes that have a direction (above their surface, with a positive pdf).
+    pub mask: u32,
+    /// The lanes whose map pdf is still to be read from its cell ([`EnvLight::resolve_cells`]).
+    cells: u32,
+}
+
 /// How [`EnvLight::weight`] finds a direction's pdf.
 #[derive(Clone, Copy, Debug)]
 enum EnvPdf {
@@ -654,7 +704,7 @@ pub struct EnvDistribution {
 
 /// A direction drawn from an [`EnvDistribution`]: the unit direction, its solid-angle pdf and
 /// its lat-long coordinates.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Default)]
 struct GridSample {
     wi: DVec3,
     pdf: f64,
@@ -1433,12 +1483,12 @@ mod tests {
                             xi[k][2] = drawn[k].next_1d();
                         }
                     }
-                    let together = env.sample_directions(&ns, sampler, &xi, mask);
-                    for k in 0..LANES {
-                        if mask & (1 << k) == 0 {
-                            assert!(together[k].is_none(), "lane {k} is not in the mask");
-                            continue;
-                        }
+                    let mut together = env.sample_directions(&ns, sampler, &xi, mask);
+                    assert_eq!(together.mask & !mask, 0, "only lanes of the mask get a direction");
+                    // Half the lanes read their cells' pdfs first, as a group whose shadow rays
+                    // came back clear does; the others are weighed as drawn.
+                    env.resolve_cells(&mut together, 0x55);
+                    for k in lanes(mask) {
                         let mut alone_rng = samplers[k].clone();
                         let alone = env.sample_direction(ns[k], sampler, &mut alone_rng);
                         let bits = |d: &Option<EnvDirection>| {
@@ -1449,8 +1499,9 @@ mod tests {
                                 )
                             })
                         };
+                        let drawn_together = (together.mask & (1 << k) != 0).then_some(together.dirs[k]);
                         assert_eq!(
-                            bits(&together[k]),
+                            bits(&drawn_together),
                             bits(&alone),
                             "{mapping:?} {sampler:?} lane {k} n {}",
                             ns[k]

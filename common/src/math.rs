@@ -253,7 +253,7 @@ fn left_half(a: f64, x: f64) -> f64 {
 /// cannot learn (a random sample's octant). The compiler blends when `c` is a comparison of
 /// floats; on x86 a float select on other conditions still becomes a branch.
 #[inline(always)]
-fn select(c: bool, a: f64, b: f64) -> f64 {
+pub fn select(c: bool, a: f64, b: f64) -> f64 {
     std::hint::select_unpredictable(c, a, b)
 }
 

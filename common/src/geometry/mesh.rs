@@ -8,6 +8,7 @@ use glam::{DVec2, DVec3, Vec3A};
 use obvhs::aabb::Aabb;
 
 use super::bvh8::{Bvh8, Ray8, Tri};
+use crate::math::select;
 
 /// Largest coordinate a box may reach to go into a BVH: the builder's surface areas (products
 /// of extents) stay finite in `f32` below it.
@@ -36,16 +37,11 @@ pub struct MeshGeom {
 
 /// `x` limited to [lo, hi]: `f64::clamp` for bounds in order (the same result, NaN `x`
 /// included), without its panic when a bound is NaN (a re-intersection whose determinant came
-/// out 0 has a NaN `u`, and `1 - u` bounds `v`).
+/// out 0 has a NaN `u`, and `1 - u` bounds `v`). Blends, not branches: which hits fall
+/// outside their triangle by a rounding is anybody's guess.
 #[inline(always)]
 fn clamp(x: f64, lo: f64, hi: f64) -> f64 {
-    if x < lo {
-        lo
-    } else if x > hi {
-        hi
-    } else {
-        x
-    }
+    select(x < lo, lo, select(x > hi, hi, x))
 }
 
 /// Eight hits of [`MeshGeom::smooth_hits`], a lane each: the re-intersected distance, the unit

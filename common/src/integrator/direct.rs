@@ -273,20 +273,22 @@ impl Lighting<'_> {
         // the traversal, and a blocked ray needs no lookup.
         if env && let Some(light) = &scene.env_light {
             let xi = draw_env::<N>(rngs, live, EnvLight::requests(self.env_sampler));
-            let dirs = light.sample_directions(&views.n, self.env_sampler, &xi, live);
+            let mut dirs = light.sample_directions(&views.n, self.env_sampler, &xi, live);
             let mut shadows = Shadows::new(origin);
-            for k in lanes(live) {
-                if let Some(d) = &dirs[k]
-                    && let cos = pts[k].n.dot(d.wi)
-                    && (cos > 0.0 || cos.is_nan())
-                {
-                    shadows.add(k, d.wi, f64::INFINITY);
-                }
+            for k in lanes(dirs.mask) {
+                // Only a direction below the surface is skipped (a NaN cosine still traces its
+                // ray); a mask bit, not a branch per lane.
+                let cos = pts[k].n.dot(dirs.dirs[k].wi);
+                shadows.dir[k] = dirs.dirs[k].wi;
+                shadows.far[k] = f64::INFINITY;
+                shadows.mask |= u32::from(cos > 0.0 || cos.is_nan()) << k;
             }
+            let clear = self.clear_lanes(pts, &shadows, false);
+            light.resolve_cells(&mut dirs, clear);
             let (mut lit, mut wis, mut weights) = (0u32, [DVec3::ZERO; N], [DVec3::ZERO; N]);
-            for k in lanes(self.clear_lanes(pts, &shadows, false)) {
-                if let Some(d) = &dirs[k]
-                    && let Some(weight) = light.weight(d)
+            for k in lanes(clear) {
+                let d = &dirs.dirs[k];
+                if let Some(weight) = light.weight(d)
                     && weight != DVec3::ZERO
                 {
                     lit |= 1 << k;
