@@ -876,8 +876,10 @@ impl EnvDistribution {
         let base = row.y * self.width;
         let (first, last) = (base + lo.saturating_sub(1), base + hi.min(self.width - 1));
         let per_line = 64 / std::mem::size_of::<f64>();
-        for i in (first..=last).step_by(per_line).take(4) {
-            prefetch(&self.cells, i);
+        // Four lines from the first whatever the range's length (a short range repeats its
+        // last): a loop of fixed length, not one that ends at a different round each time.
+        for j in 0..4 {
+            prefetch(&self.cells, (first + j * per_line).min(last));
         }
         prefetch(&self.cells, last);
         (lo, hi)
