@@ -258,10 +258,9 @@ pub fn work(opts: WorkOptions) -> Result<()> {
     // Heartbeats.
     {
         let (client, leases) = (client.clone(), leases.clone());
-        let every = heartbeat_every;
         std::thread::Builder::new().name("heartbeat".into()).spawn(move || {
             loop {
-                std::thread::sleep(every);
+                std::thread::sleep(heartbeat_every);
                 let (held, rendering) = {
                     let l = lock(&leases);
                     (l.held.iter().copied().collect::<Vec<_>>(), l.shown())

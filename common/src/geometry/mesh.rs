@@ -44,6 +44,10 @@ fn clamp(x: f64, lo: f64, hi: f64) -> f64 {
     select(x < lo, lo, select(x > hi, hi, x))
 }
 
+/// The length below which an interpolated vertex normal counts as cancelled out: the face
+/// normal shades instead ([`MeshGeom::smooth_normal`], [`MeshGeom::smooth_hits`]).
+const MIN_SMOOTH_LENGTH: f64 = 1e-12;
+
 /// Eight hits of [`MeshGeom::smooth_hits`], a lane each: the re-intersected distance, the unit
 /// face normal and the unit smooth normal (by axis, then lane).
 pub struct SmoothHits {
@@ -243,7 +247,7 @@ impl MeshGeom {
         let sq = dot(&sm, &sm);
         let len = lanes(|k| sq[k].sqrt());
         let ns = std::array::from_fn(|a| {
-            std::array::from_fn(|k| if len[k] > 1e-12 { sm[a][k] / len[k] } else { ng[a][k] })
+            std::array::from_fn(|k| if len[k] > MIN_SMOOTH_LENGTH { sm[a][k] / len[k] } else { ng[a][k] })
         });
         Some(SmoothHits { t, ng, ns })
     }
@@ -285,7 +289,7 @@ impl MeshGeom {
                 let [a, b, c] = self.indices[tri as usize];
                 let n = (1.0 - u - v) * ns[a as usize] + u * ns[b as usize] + v * ns[c as usize];
                 let len = n.length();
-                if len > 1e-12 { n / len } else { self.face_normal(tri) }
+                if len > MIN_SMOOTH_LENGTH { n / len } else { self.face_normal(tri) }
             }
             None => self.face_normal(tri),
         }

@@ -961,9 +961,9 @@ impl Accel {
             let lane = |v: &[[f64; 8]; 3]| DVec3::new(v[0][k], v[1][k], v[2][k]);
             // As `surface`: the f32 distance where the re-intersection degenerated, the smooth
             // normal on the face's side, the bump axis on the shading normal's.
-            let t = if h.t[k].is_finite() && h.t[k] > 0.0 { h.t[k] } else { best[k].t };
+            let t = refined_t(h.t[k], best[k].t);
             let (geo_normal, n_shade) = (lane(&h.ng), lane(&h.ns));
-            let shading_normal = if n_shade.dot(geo_normal) < 0.0 { -n_shade } else { n_shade };
+            let shading_normal = side_of(n_shade, geo_normal);
             let hit = slot.insert(SurfaceHit::default());
             hit.t = t;
             hit.point = ray.at(t);
@@ -971,7 +971,7 @@ impl Accel {
             hit.shading_normal = shading_normal;
             hit.material = inst.material;
             hit.instance = instance;
-            hit.bump_axis = if n_shade.dot(shading_normal) < 0.0 { -n_shade } else { n_shade };
+            hit.bump_axis = side_of(n_shade, shading_normal);
         }
         true
     }
@@ -990,7 +990,7 @@ impl Accel {
             // (the f32 one kept where the ray runs along the plane) and the normal.
             let n = plane.n;
             let t = n.dot(plane.p0 - ray.origin) / n.dot(ray.dir);
-            let t = if t.is_finite() && t > 0.0 { t } else { c.t };
+            let t = refined_t(t, c.t);
             *out = SurfaceHit {
                 t,
                 point: ray.at(t),
@@ -1022,8 +1022,7 @@ impl Accel {
             Shape::Mesh { mesh, smooth } => {
                 let m = &self.meshes[*mesh as usize];
                 let h = m.refine(c.tri, local.origin, local.dir);
-                // Keep the f32 distance if the f64 re-intersection degenerated (grazing rays).
-                let t = if h.t.is_finite() && h.t > 0.0 { h.t } else { c.t };
+                let t = refined_t(h.t, c.t);
                 let ng = h.normal;
                 let ns = if *smooth { m.smooth_normal(c.tri, h.u, h.v) } else { ng };
                 let frame = if textured {
@@ -1058,8 +1057,7 @@ impl Accel {
             None => (n_geo, n_shade, dpdu, dpdv, n_shade),
         };
         // A smooth normal may lean past the face; keep it on the face's side.
-        let shading_normal =
-            if shading_normal.dot(geo_normal) < 0.0 { -shading_normal } else { shading_normal };
+        let shading_normal = side_of(shading_normal, geo_normal);
         *out = SurfaceHit {
             t,
             point: ray.at(t),
@@ -1072,15 +1070,23 @@ impl Accel {
             dpdv,
             // Measured (bump_mapping_transformed): a transformed mesh's relief scales with the
             // object (axis M·n_obj), a transformed sphere's does not (the unit world normal).
-            bump_axis: if sphere {
-                shading_normal
-            } else if bump_axis.dot(shading_normal) < 0.0 {
-                -bump_axis
-            } else {
-                bump_axis
-            },
+            bump_axis: if sphere { shading_normal } else { side_of(bump_axis, shading_normal) },
         };
     }
+}
+
+/// The `f64` re-intersection's distance `t64`, or the walk's `f32` one `t32` where the
+/// re-intersection degenerated (a grazing ray: not finite, or not ahead).
+#[inline(always)]
+fn refined_t(t64: f64, t32: f64) -> f64 {
+    if t64.is_finite() && t64 > 0.0 { t64 } else { t32 }
+}
+
+/// `n` turned to the side of `reference` (a smooth normal leaning past its face, a bump axis
+/// opposite the shading normal).
+#[inline(always)]
+fn side_of(n: DVec3, reference: DVec3) -> DVec3 {
+    if n.dot(reference) < 0.0 { -n } else { n }
 }
 
 /// Texture coordinates and ∂p/∂u, ∂p/∂v of a plane at object-space offset `d` from its point:
