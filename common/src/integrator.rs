@@ -119,7 +119,7 @@ impl<'a> Tracer<'a> {
     ) -> [DVec3; GROUP_LANES] {
         // Both renderers show a camera ray that misses the environment's radiance as is.
         let seen = match &self.scene.env_light {
-            Some(env) if hits.iter().any(Option::is_none) => Some(env.radiance_lanes(&rays.map(|r| r.dir))),
+            Some(env) if hits.iter().any(Option::is_none) => Some(env.radiance_lanes(|i| rays[i].dir)),
             _ => None,
         };
         if self.renderer == Renderer::Classic {

@@ -231,14 +231,28 @@ impl EnvLight {
     /// of all eight are computed side by side (a loop of fixed length over plain arrays, which
     /// the compiler turns into vector instructions), then looked up one by one. For the camera
     /// rays of a pixel's sample group that miss everything.
-    pub fn radiance_lanes(&self, dirs: &[DVec3; LANES]) -> [DVec3; LANES] {
+    ///
+    /// The directions are read through `dir` (lane index to direction), one component at a
+    /// time, so that a caller's rays are not first copied into an array of vectors: such a
+    /// copy's wide loads right after its narrow stores cannot be forwarded, and stall.
+    #[inline]
+    pub fn radiance_lanes(&self, dir: impl Fn(usize) -> DVec3) -> [DVec3; LANES] {
         let mut u = [0.0; LANES];
         let mut v = [0.0; LANES];
         match self.mapping {
-            EnvMapping::LatLong => (u, v) = latlong_uv_lanes(dirs),
+            EnvMapping::LatLong => {
+                let (mut x, mut y, mut z) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
+                for i in 0..LANES {
+                    let d = dir(i);
+                    (x[i], y[i], z[i]) = (d.x, d.y, d.z);
+                }
+                for i in 0..LANES {
+                    (u[i], v[i]) = latlong_uv(x[i], y[i], z[i]);
+                }
+            }
             EnvMapping::Probe => {
                 for i in 0..LANES {
-                    (u[i], v[i]) = env_uv(EnvMapping::Probe, dirs[i]);
+                    (u[i], v[i]) = env_uv(EnvMapping::Probe, dir(i));
                 }
             }
         }
@@ -290,7 +304,7 @@ impl EnvLight {
     /// [`env_uv`] of the directions `dirs[k]` of the lanes `k` in `mask` (the others' entries
     /// unspecified): a lat-long map's for all lanes side by side ([`latlong_uv_lanes`]), a
     /// probe's one lane at a time.
-    #[inline]
+    #[inline(always)]
     fn uv_lanes<const N: usize>(&self, dirs: &[DVec3; N], mask: u32) -> [(f64, f64); N] {
         let mut out = [(0.0, 0.0); N];
         match self.mapping {
@@ -461,13 +475,19 @@ impl EnvLight {
                 }
             }
         }
-        let mut dirs = [EnvDirection::NONE; N];
+        // Built where it is returned (a finished array moved into it was a copy of the whole).
+        let mut out = EnvDirections { dirs: [EnvDirection::NONE; N], mask: found, cells };
         for k in lanes(found) {
             let texels = self.corners(uv[k].0, uv[k].1);
             self.prefetch_texels(&texels);
-            dirs[k] = EnvDirection { wi: wi[k], texels, pdf: pdf[k] };
+            // Field by field: a whole record assembled first and then copied would be read
+            // back with wide loads right after its narrow stores, which cannot be forwarded.
+            let d = &mut out.dirs[k];
+            d.wi = wi[k];
+            d.texels = texels;
+            d.pdf = pdf[k];
         }
-        EnvDirections { dirs, mask: found, cells }
+        out
     }
 
     /// Reads the map pdf of the directions of `lanes_to_read` (a subset of `dirs.mask`) whose
@@ -486,6 +506,7 @@ impl EnvLight {
 
     /// The radiance arriving along a [`Self::sample_direction`] direction divided by the pdf of
     /// choosing it: the sample's `E` (§5); `None` when that pdf is zero or not finite.
+    #[inline(always)]
     pub fn weight(&self, d: &EnvDirection) -> Option<DVec3> {
         let pdf = match d.pdf {
             EnvPdf::Factor(f) => return Some(self.blend(&d.texels) * f),
@@ -852,7 +873,11 @@ impl EnvDistribution {
 
     /// The first step of [`Self::sample`]: the row of `xi1` (the rows' table is small and
     /// stays in the cache). Starts loading the row's guide entries for `xi2`.
-    #[inline]
+    ///
+    /// This step and the next two are always inlined: called, each returned its record through
+    /// the stack, written a field at a time and copied out with wide loads, whose forwarding
+    /// from the narrow stores fails and stalls (once per lane and step).
+    #[inline(always)]
     fn pick_row(&self, xi1: f64, xi2: f64) -> RowPick {
         let y = guided_search(&self.rows, &self.row_guide, xi1).min(self.height - 1);
         let row_lo = if y == 0 { 0.0 } else { self.rows[y - 1] };
@@ -867,7 +892,7 @@ impl EnvDistribution {
 
     /// The second step: the part of the row's cumulative weights that the search for `xi2`
     /// reads (from the guide table), whose loads it starts.
-    #[inline]
+    #[inline(always)]
     fn cell_bounds(&self, row: &RowPick, xi2: f64) -> (usize, usize) {
         let guide = &self.cell_guide[row.y * (GUIDE + 1)..(row.y + 1) * (GUIDE + 1)];
         let (lo, hi) = guide_bounds(self.width, guide, xi2);
@@ -886,7 +911,7 @@ impl EnvDistribution {
     }
 
     /// The last step: the cell within the row, and the direction.
-    #[inline]
+    #[inline(always)]
     fn sample_in_row(&self, row: &RowPick, xi2: f64, (lo, hi): (usize, usize)) -> Option<GridSample> {
         let RowPick { y, row_p, fy, .. } = *row;
         let cdf = &self.cells[y * self.width..(y + 1) * self.width];
@@ -1350,7 +1375,7 @@ mod tests {
             let env = EnvLight::new(map.clone(), mapping, None);
             for chunk in dirs.chunks(LANES) {
                 let lanes: [DVec3; LANES] = std::array::from_fn(|i| chunk[i % chunk.len()]);
-                let together = env.radiance_lanes(&lanes);
+                let together = env.radiance_lanes(|i| lanes[i]);
                 for (d, got) in lanes.iter().zip(together) {
                     let want = env.radiance(*d);
                     assert_eq!(
@@ -1441,7 +1466,7 @@ mod tests {
             // What such a group gets instead: each lane's own lookup.
             let mut dirs = [DVec3::new(0.3, 0.4, -0.5).normalize(); LANES];
             dirs[5] = DVec3::new(f64::NAN, 0.0, 1.0);
-            for (d, l) in dirs.iter().zip(env.radiance_lanes(&dirs)) {
+            for (d, l) in dirs.iter().zip(env.radiance_lanes(|i| dirs[i])) {
                 assert_eq!(l.to_array().map(f64::to_bits), env.radiance(*d).to_array().map(f64::to_bits));
             }
             let mut short = (*map).clone();
