@@ -385,6 +385,23 @@ impl EnvLight {
         xi: &[[f64; 3]; N],
         mask: u32,
     ) -> EnvDirections<N> {
+        let mut out = EnvDirections::NONE;
+        self.sample_directions_into(ns, sampler, xi, mask, &mut out);
+        out
+    }
+
+    /// [`Self::sample_directions`] written into `out`, whose entries outside the lanes drawn
+    /// stay as they are: the caller's record is filled where it lies instead of being copied
+    /// out of a returned one (900 bytes for eight lanes).
+    #[inline(always)]
+    pub fn sample_directions_into<const N: usize>(
+        &self,
+        ns: &[DVec3; N],
+        sampler: EnvSampler,
+        xi: &[[f64; 3]; N],
+        mask: u32,
+        out: &mut EnvDirections<N>,
+    ) {
         let mut wi = [DVec3::ZERO; N];
         let mut uv = [(0.0, 0.0); N];
         let mut pdf = [EnvPdf::Factor(0.0); N];
@@ -475,8 +492,8 @@ impl EnvLight {
                 }
             }
         }
-        // Built where it is returned (a finished array moved into it was a copy of the whole).
-        let mut out = EnvDirections { dirs: [EnvDirection::NONE; N], mask: found, cells };
+        out.mask = found;
+        out.cells = cells;
         for k in lanes(found) {
             let texels = self.corners(uv[k].0, uv[k].1);
             self.prefetch_texels(&texels);
@@ -487,7 +504,6 @@ impl EnvLight {
             d.texels = texels;
             d.pdf = pdf[k];
         }
-        out
     }
 
     /// Reads the map pdf of the directions of `lanes_to_read` (a subset of `dirs.mask`) whose
@@ -663,6 +679,11 @@ pub struct EnvDirections<const N: usize> {
     pub mask: u32,
     /// The lanes whose map pdf is still to be read from its cell ([`EnvLight::resolve_cells`]).
     cells: u32,
+}
+
+impl<const N: usize> EnvDirections<N> {
+    /// No lane drawn.
+    pub const NONE: Self = EnvDirections { dirs: [EnvDirection::NONE; N], mask: 0, cells: 0 };
 }
 
 /// How [`EnvLight::weight`] finds a direction's pdf.

@@ -15,7 +15,7 @@
 
 use glam::DVec3;
 
-use crate::lights::EnvLight;
+use crate::lights::{EnvDirections, EnvLight};
 use crate::material::Material;
 use crate::math::{Ray, lanes};
 use crate::sampler::{GROUP_LANES, Sampler};
@@ -273,7 +273,8 @@ impl Lighting<'_> {
         // the traversal, and a blocked ray needs no lookup.
         if env && let Some(light) = &scene.env_light {
             let xi = draw_env::<N>(rngs, live, EnvLight::requests(self.env_sampler));
-            let mut dirs = light.sample_directions(&views.n, self.env_sampler, &xi, live);
+            let mut dirs = EnvDirections::NONE;
+            light.sample_directions_into(&views.n, self.env_sampler, &xi, live, &mut dirs);
             let mut shadows = Shadows::new(origin);
             for k in lanes(dirs.mask) {
                 // Only a direction below the surface is skipped (a NaN cosine still traces its
