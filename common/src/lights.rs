@@ -1500,6 +1500,51 @@ mod tests {
     /// directions, weights and numbers drawn for each alone: every sampler, both mappings, a map
     /// with a sun (wide and narrow guide ranges), normals of every kind (axes, a zero vector).
     #[test]
+    fn directions_drawn_into_a_used_record_are_those_of_a_fresh_one() {
+        // What `reflected` relies on when it fills a record in place: the lanes drawn and the
+        // masks are written, every other lane's entry stays as it was.
+        let map = image(64, 32, |x, y| [(x % 7) as f32 * 0.3 + 0.1, (y % 5) as f32 * 0.2, 1.0]);
+        let ns: [DVec3; LANES] =
+            std::array::from_fn(|k| latlong_direction((k as f64 + 0.5) / 8.0, 0.2 + 0.07 * k as f64));
+        let xi = |shift: f64| -> [[f64; 3]; LANES] {
+            std::array::from_fn(|k| {
+                let k = k as f64;
+                [
+                    (0.1 + 0.11 * k + shift).fract(),
+                    (0.7 - 0.05 * k + shift).fract(),
+                    (0.3 * k + shift).fract(),
+                ]
+            })
+        };
+        let bits = |env: &EnvLight, d: &EnvDirection| {
+            (d.wi.to_array().map(f64::to_bits), env.weight(d).map(|w| w.to_array().map(f64::to_bits)))
+        };
+        for mapping in [EnvMapping::LatLong, EnvMapping::Probe] {
+            let env = EnvLight::new(map.clone(), mapping, None);
+            for sampler in [EnvSampler::Uniform, EnvSampler::Cosine, EnvSampler::Importance] {
+                let first = env.sample_directions(&ns, sampler, &xi(0.0), 0xff);
+                let fresh = env.sample_directions(&ns, sampler, &xi(0.37), 0x5a);
+                let mut reused = first;
+                env.sample_directions_into(&ns, sampler, &xi(0.37), 0x5a, &mut reused);
+                assert_eq!((reused.mask, reused.cells), (fresh.mask, fresh.cells), "{mapping:?} {sampler:?}");
+                let mut kept = 0;
+                for k in 0..LANES {
+                    if fresh.mask & (1 << k) != 0 {
+                        assert_eq!(bits(&env, &reused.dirs[k]), bits(&env, &fresh.dirs[k]), "lane {k}");
+                    } else {
+                        assert_eq!(bits(&env, &reused.dirs[k]), bits(&env, &first.dirs[k]), "lane {k}");
+                        kept += usize::from(first.mask & (1 << k) != 0);
+                    }
+                }
+                assert!(
+                    fresh.mask != 0 && kept > 0,
+                    "{mapping:?} {sampler:?}: both kinds of lane are checked"
+                );
+            }
+        }
+    }
+
+    #[test]
     fn directions_drawn_together_are_those_drawn_alone() {
         let map = image(64, 32, |x, y| {
             if (30..33).contains(&x) && (9..11).contains(&y) {
