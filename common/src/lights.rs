@@ -229,8 +229,9 @@ impl EnvLight {
 
     /// [`Self::radiance`] of eight directions, the same values: a lat-long map's coordinates
     /// of all eight are computed side by side (a loop of fixed length over plain arrays, which
-    /// the compiler turns into vector instructions), then looked up one by one. For the camera
-    /// rays of a pixel's sample group that miss everything.
+    /// the compiler turns into vector instructions), then looked up four lanes per register
+    /// (`bilinear_lanes`, AVX2 builds) or one by one. For the camera rays of a pixel's
+    /// sample group that miss everything.
     ///
     /// The directions are read through `dir` (lane index to direction), one component at a
     /// time, so that a caller's rays are not first copied into an array of vectors: such a
