@@ -157,8 +157,12 @@ fn latlong_uv(x: f64, y: f64, z: f64) -> (f64, f64) {
 /// plain arrays, which the compiler turns into vector instructions (the same values as one
 /// direction at a time).
 #[inline(always)]
-fn latlong_uv_lanes<const N: usize>(dirs: &[DVec3; N]) -> ([f64; N], [f64; N]) {
-    let (x, y, z) = (dirs.map(|d| d.x), dirs.map(|d| d.y), dirs.map(|d| d.z));
+fn latlong_uv_lanes<const N: usize>(dir: impl Fn(usize) -> DVec3) -> ([f64; N], [f64; N]) {
+    let (mut x, mut y, mut z) = ([0.0; N], [0.0; N], [0.0; N]);
+    for i in 0..N {
+        let d = dir(i);
+        (x[i], y[i], z[i]) = (d.x, d.y, d.z);
+    }
     let (mut u, mut v) = ([0.0; N], [0.0; N]);
     for i in 0..N {
         (u[i], v[i]) = latlong_uv(x[i], y[i], z[i]);
@@ -241,16 +245,7 @@ impl EnvLight {
         let mut u = [0.0; LANES];
         let mut v = [0.0; LANES];
         match self.mapping {
-            EnvMapping::LatLong => {
-                let (mut x, mut y, mut z) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
-                for i in 0..LANES {
-                    let d = dir(i);
-                    (x[i], y[i], z[i]) = (d.x, d.y, d.z);
-                }
-                for i in 0..LANES {
-                    (u[i], v[i]) = latlong_uv(x[i], y[i], z[i]);
-                }
-            }
+            EnvMapping::LatLong => (u, v) = latlong_uv_lanes(&dir),
             EnvMapping::Probe => {
                 for i in 0..LANES {
                     (u[i], v[i]) = env_uv(EnvMapping::Probe, dir(i));
@@ -310,7 +305,7 @@ impl EnvLight {
         let mut out = [(0.0, 0.0); N];
         match self.mapping {
             EnvMapping::LatLong if mask != 0 => {
-                let (u, v) = latlong_uv_lanes(dirs);
+                let (u, v) = latlong_uv_lanes::<N>(|k| dirs[k]);
                 for k in lanes(mask) {
                     out[k] = (u[k], v[k]);
                 }
@@ -353,7 +348,8 @@ impl EnvLight {
         if Self::requests(sampler) > 1 {
             xi[2] = rng.next_1d();
         }
-        let d = self.sample_directions(&[n], sampler, &[xi], 1);
+        let mut d = EnvDirections::NONE;
+        self.sample_directions(&[n], sampler, &[xi], 1, &mut d);
         (d.mask & 1 != 0).then_some(d.dirs[0])
     }
 
@@ -379,23 +375,12 @@ impl EnvLight {
     /// fall below their surface, are coin flips: they are kept as lane masks and each step runs
     /// over the lanes it concerns, not as a branch per lane that the processor would guess
     /// wrong half the time.
-    pub fn sample_directions<const N: usize>(
-        &self,
-        ns: &[DVec3; N],
-        sampler: EnvSampler,
-        xi: &[[f64; 3]; N],
-        mask: u32,
-    ) -> EnvDirections<N> {
-        let mut out = EnvDirections::NONE;
-        self.sample_directions_into(ns, sampler, xi, mask, &mut out);
-        out
-    }
-
-    /// [`Self::sample_directions`] written into `out`, whose entries outside the lanes drawn
-    /// stay as they are: the caller's record is filled where it lies instead of being copied
-    /// out of a returned one (900 bytes for eight lanes).
+    ///
+    /// The directions go into `out`: its masks are set, the lanes drawn are written and every
+    /// other lane's entry stays as it was. Filled where the caller keeps it, the record is not
+    /// copied out of a returned one (900 bytes for eight lanes), hence always inlined.
     #[inline(always)]
-    pub fn sample_directions_into<const N: usize>(
+    pub fn sample_directions<const N: usize>(
         &self,
         ns: &[DVec3; N],
         sampler: EnvSampler,
@@ -1523,10 +1508,11 @@ mod tests {
         for mapping in [EnvMapping::LatLong, EnvMapping::Probe] {
             let env = EnvLight::new(map.clone(), mapping, None);
             for sampler in [EnvSampler::Uniform, EnvSampler::Cosine, EnvSampler::Importance] {
-                let first = env.sample_directions(&ns, sampler, &xi(0.0), 0xff);
-                let fresh = env.sample_directions(&ns, sampler, &xi(0.37), 0x5a);
+                let (mut first, mut fresh) = (EnvDirections::NONE, EnvDirections::NONE);
+                env.sample_directions(&ns, sampler, &xi(0.0), 0xff, &mut first);
+                env.sample_directions(&ns, sampler, &xi(0.37), 0x5a, &mut fresh);
                 let mut reused = first;
-                env.sample_directions_into(&ns, sampler, &xi(0.37), 0x5a, &mut reused);
+                env.sample_directions(&ns, sampler, &xi(0.37), 0x5a, &mut reused);
                 assert_eq!((reused.mask, reused.cells), (fresh.mask, fresh.cells), "{mapping:?} {sampler:?}");
                 let mut kept = 0;
                 for k in 0..LANES {
@@ -1577,7 +1563,8 @@ mod tests {
                             xi[k][2] = drawn[k].next_1d();
                         }
                     }
-                    let mut together = env.sample_directions(&ns, sampler, &xi, mask);
+                    let mut together = EnvDirections::NONE;
+                    env.sample_directions(&ns, sampler, &xi, mask, &mut together);
                     assert_eq!(together.mask & !mask, 0, "only lanes of the mask get a direction");
                     // Half the lanes read their cells' pdfs first, as a group whose shadow rays
                     // came back clear does; the others are weighed as drawn.

@@ -274,7 +274,7 @@ impl Lighting<'_> {
         if env && let Some(light) = &scene.env_light {
             let xi = draw_env::<N>(rngs, live, EnvLight::requests(self.env_sampler));
             let mut dirs = EnvDirections::NONE;
-            light.sample_directions_into(&views.n, self.env_sampler, &xi, live, &mut dirs);
+            light.sample_directions(&views.n, self.env_sampler, &xi, live, &mut dirs);
             let mut shadows = Shadows::new(origin);
             for k in lanes(dirs.mask) {
                 // Only a direction below the surface is skipped (a NaN cosine still traces its
