@@ -11,7 +11,9 @@ use std::sync::Arc;
 
 use glam::{DAffine3, DVec3};
 
-use crate::math::{atan2_approx, lanes, orthonormal_pair, prefetch, sampling_frame, sincos_turns};
+use crate::math::{
+    F8, atan2_approx, lanes, orthonormal_pair, prefetch, sampling_frame8, sincos_turns, sincos_turns8,
+};
 use crate::sampler::{GROUP_LANES as LANES, Sampler};
 use crate::scene::records::{EnvMapping, EnvSampler};
 use crate::texture::image::TextureImage;
@@ -297,52 +299,11 @@ impl EnvLight {
         Corners { x0: wrap(p), x1: wrap(p + 1.0), y0: q as i64, y1: q as i64 + 1, dx: i - p, dy: j - q }
     }
 
-    /// [`env_uv`] of the directions `dirs[k]` of the lanes `k` in `mask` (the others' entries
-    /// unspecified): a lat-long map's for all lanes side by side ([`latlong_uv_lanes`]), a
-    /// probe's one lane at a time.
-    #[inline(always)]
-    fn uv_lanes<const N: usize>(&self, dirs: &[DVec3; N], mask: u32) -> [(f64, f64); N] {
-        let mut out = [(0.0, 0.0); N];
-        match self.mapping {
-            EnvMapping::LatLong if mask != 0 => {
-                let (u, v) = latlong_uv_lanes::<N>(|k| dirs[k]);
-                for k in lanes(mask) {
-                    out[k] = (u[k], v[k]);
-                }
-            }
-            _ => {
-                for k in lanes(mask) {
-                    out[k] = env_uv(self.mapping, dirs[k]);
-                }
-            }
-        }
-        out
-    }
-
-    /// Starts loading the texels `c` names into the cache.
-    #[inline]
-    fn prefetch_texels(&self, c: &Corners) {
-        let img = &*self.image;
-        for y in [c.y0, c.y1] {
-            prefetch(&img.texels, img.texel_index(c.x0, y));
-            prefetch(&img.texels, img.texel_index(c.x1, y));
-        }
-    }
-
     /// One direction for a point with unit normal `n` (on the side the light can arrive from),
-    /// chosen by `sampler`; `None` when the direction is below the surface (importance sampling
-    /// covers the whole sphere) or its pdf is zero. [`Self::sample_direction`] then
-    /// [`Self::weight`].
+    /// chosen by `sampler`, and its weight (the radiance arriving along it over its pdf); `None`
+    /// when the direction is below the surface (importance sampling covers the whole sphere) or
+    /// its pdf is zero. [`Self::sample_directions`] and [`Self::weights`] for one lane.
     pub fn sample(&self, n: DVec3, sampler: EnvSampler, rng: &mut Sampler) -> Option<EnvSample> {
-        let d = self.sample_direction(n, sampler, rng)?;
-        Some(EnvSample { wi: d.wi, weight: self.weight(&d)? })
-    }
-
-    /// The direction half of [`Self::sample`]: it draws `wi` and starts loading the texels (and
-    /// pdf cell) that [`Self::weight`] will read, without waiting for them. A caller that traces
-    /// its shadow ray in between gets those loads for free (a random direction's texels are
-    /// seldom in the cache: about 60 ns each), and skips them when the ray is blocked.
-    pub fn sample_direction(&self, n: DVec3, sampler: EnvSampler, rng: &mut Sampler) -> Option<EnvDirection> {
         let mut xi = [0.0; 3];
         (xi[0], xi[1]) = rng.next_2d();
         if Self::requests(sampler) > 1 {
@@ -350,7 +311,12 @@ impl EnvLight {
         }
         let mut d = EnvDirections::NONE;
         self.sample_directions(&[n], sampler, &[xi], 1, &mut d);
-        (d.mask & 1 != 0).then_some(d.dirs[0])
+        let drawn = d.mask;
+        let (lit, w) = self.weights(&mut d, drawn);
+        (lit & 1 != 0).then(|| EnvSample {
+            wi: d.wi(0),
+            weight: DVec3::new(f64::from(w[0][0]), f64::from(w[1][0]), f64::from(w[2][0])),
+        })
     }
 
     /// How many requests of a [`Sampler`] one direction takes: a two-number request (`xi[0]`,
@@ -363,22 +329,22 @@ impl EnvLight {
         }
     }
 
-    /// [`Self::sample_direction`] for the points `k` of `mask` (unit normals `ns[k]`), from
-    /// the numbers `xi[k]` their samplers drew (see [`Self::requests`]). One step at a time for
-    /// every point: importance sampling reads three tables one after the other (the rows'
-    /// cumulative weights, the row's guide table, the row's cumulative weights), mostly outside
-    /// the nearest caches, and taking each step for all points before the next lets their loads
-    /// overlap instead of waiting in a chain per point. Per point the operations are those of a
-    /// single direction, in their order: the same bits.
+    /// One direction for each point `k` of `mask` (unit normal `ns[k]`, on the side the light
+    /// can arrive from), chosen by `sampler` from the numbers `xi[k]` its sampler drew (see
+    /// [`Self::requests`]), with its pdf (or what is needed to finish it) and the texels its
+    /// radiance blends, whose loads it starts. A caller traces the shadow rays in between and
+    /// then asks [`Self::weights`] for the lanes that came back clear: the loads overlap the
+    /// traversal, and a blocked ray needs no lookup.
     ///
-    /// Which points draw from the map and which from the cosine lobe, and which directions
-    /// fall below their surface, are coin flips: they are kept as lane masks and each step runs
-    /// over the lanes it concerns, not as a branch per lane that the processor would guess
-    /// wrong half the time.
+    /// Importance sampling reads the map's tables one lane at a time (the rows' cumulative
+    /// weights, the row's guide table, the row's cumulative weights; each step for every lane
+    /// before the next, so that their loads overlap); everything else (the cosine lobe, the
+    /// directions of map cells, their coordinates, pdfs and texels) is computed for the eight
+    /// lanes at once in `f32` ([`F8`]), whichever half of the coin flip a lane took, and the
+    /// lanes pick their results by mask. Per lane the operations are its own: a point's
+    /// direction and weight do not depend on the group it is drawn in.
     ///
-    /// The directions go into `out`: its masks are set, the lanes drawn are written and every
-    /// other lane's entry stays as it was. Filled where the caller keeps it, the record is not
-    /// copied out of a returned one (900 bytes for eight lanes), hence always inlined.
+    /// The directions go into `out`: its masks and every lane's fields are written.
     #[inline(always)]
     pub fn sample_directions<const N: usize>(
         &self,
@@ -386,141 +352,338 @@ impl EnvLight {
         sampler: EnvSampler,
         xi: &[[f64; 3]; N],
         mask: u32,
-        out: &mut EnvDirections<N>,
+        out: &mut EnvDirections,
     ) {
-        let mut wi = [DVec3::ZERO; N];
-        let mut uv = [(0.0, 0.0); N];
-        let mut pdf = [EnvPdf::Factor(0.0); N];
-        // Lanes with a direction above the surface, and those whose map pdf is still to read.
-        let mut found = 0u32;
-        let mut cells = 0u32;
-        match sampler {
-            EnvSampler::Uniform | EnvSampler::Cosine => {
-                for k in lanes(mask) {
-                    let [xi1, xi2, _] = xi[k];
-                    (wi[k], pdf[k]) = if sampler == EnvSampler::Uniform {
-                        // cos θ uniform in [0, 1) gives uniform directions on the hemisphere.
-                        (hemisphere_direction(ns[k], 1.0 - xi1, xi2), EnvPdf::Factor(TAU))
-                    } else {
-                        let cos = (1.0 - xi1).sqrt();
-                        (hemisphere_direction(ns[k], cos, xi2), EnvPdf::Factor(PI / cos))
-                    };
-                    found |= 1 << k;
-                }
-                uv = self.uv_lanes(&wi, found);
+        const { assert!(N <= LANES, "at most eight lanes") };
+        let mask = mask & ((1u32 << N) - 1);
+        let mut n = [[0.0f32; LANES]; 3];
+        let (mut x1, mut x2) = ([0.0f32; LANES], [0.0f32; LANES]);
+        for k in 0..N {
+            for a in 0..3 {
+                n[a][k] = ns[k][a] as f32;
             }
-            EnvSampler::Importance => {
-                // One-sample multiple importance sampling: half the samples follow the map's
-                // luminance, half the cosine lobe, and every sample is divided by the mixture's
-                // pdf (the balance heuristic). The map finds a small sun; the lobe keeps points
-                // that face away from it from wasting their samples below the horizon.
-                let dist = &self.distribution;
-                let mut map = 0u32;
-                for (k, x) in xi.iter().enumerate() {
-                    map |= u32::from(x[2] < 0.5) << k;
-                }
-                map &= mask;
-                let lobe = mask & !map;
-                let mut rows = [RowPick::default(); N];
-                for k in lanes(map) {
-                    rows[k] = dist.pick_row(xi[k][0], xi[k][1]);
-                }
-                for k in lanes(lobe) {
-                    wi[k] = hemisphere_direction(ns[k], (1.0 - xi[k][0]).sqrt(), xi[k][1]);
-                }
-                let mut bounds = [(0, 0); N];
-                for k in lanes(map) {
-                    bounds[k] = dist.cell_bounds(&rows[k], xi[k][1]);
-                }
-                let mut grid = [GridSample::default(); N];
-                let mut drawn = 0u32;
-                for k in lanes(map) {
-                    if let Some(s) = dist.sample_in_row(&rows[k], xi[k][1], bounds[k]) {
-                        wi[k] = s.wi;
-                        grid[k] = s;
-                        drawn |= 1 << k;
+            x1[k] = xi[k][0] as f32;
+            x2[k] = xi[k][1] as f32;
+        }
+        // One-sample multiple importance sampling: half the samples follow the map's
+        // luminance, half the cosine lobe, and every sample is divided by the mixture's pdf
+        // (the balance heuristic). The map finds a small sun; the lobe keeps points that face
+        // away from it from wasting their samples below the horizon.
+        let importance = sampler == EnvSampler::Importance;
+        let mut map = 0u32;
+        if importance {
+            for (k, x) in xi.iter().enumerate() {
+                map |= u32::from(x[2] < 0.5) << k;
+            }
+        }
+        map &= mask;
+        // The map's lanes: a cell and a point in it, one lane at a time.
+        let dist = &self.distribution;
+        let (mut mu, mut mv, mut mp) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
+        let mut drawn = 0u32;
+        if map != 0 {
+            let mut rows = [RowPick::default(); LANES];
+            for k in lanes(map) {
+                rows[k] = dist.pick_row(xi[k][0], xi[k][1]);
+            }
+            let mut bounds = [(0, 0); LANES];
+            for k in lanes(map) {
+                bounds[k] = dist.cell_bounds(&rows[k], xi[k][1]);
+            }
+            for k in lanes(map) {
+                let c = dist.cell_in_row(&rows[k], xi[k][1], bounds[k]);
+                (mu[k], mv[k], mp[k]) = (c.u as f32, c.v as f32, (c.prob * dist.pdf_scale) as f32);
+                drawn |= u32::from(c.prob > 0.0) << k;
+            }
+        }
+        // Every lane's lobe direction and map-cell direction, side by side.
+        let (t, b) = sampling_frame8(&n);
+        let (lobe_sp, lobe_cp) = sincos_turns8(&x2);
+        let (half_v, phi) = (mv.map(|v| 0.5 * v), mu.map(|u| u - 0.5));
+        let (st, ct) = sincos_turns8(&half_v);
+        let (sp, cp) = sincos_turns8(&phi);
+        // cos θ uniform in [0, 1) gives uniform directions on the hemisphere; its square
+        // root, the cosine lobe.
+        let lc: F8 =
+            if sampler == EnvSampler::Uniform { x1.map(|x| 1.0 - x) } else { x1.map(|x| (1.0 - x).sqrt()) };
+        // Lane selects as bit masks (all ones for a map lane), so the loops stay vector code.
+        let is_map: [u32; LANES] = std::array::from_fn(|k| 0u32.wrapping_sub(map >> k & 1));
+        let mut wi = [[0.0f32; LANES]; 3];
+        let mut cos = [0.0f32; LANES];
+        for i in 0..LANES {
+            let ls = (1.0 - lc[i] * lc[i]).max(0.0).sqrt();
+            let (ca, cb) = (ls * lobe_cp[i], ls * lobe_sp[i]);
+            // θ = πv from +Y, φ = 2π(u − ½), as `latlong_direction`.
+            let cell = [st[i] * sp[i], ct[i], ENV_U_Z_SIGN as f32 * st[i] * cp[i]];
+            for a in 0..3 {
+                let lobe = t[a][i] * ca + b[a][i] * cb + n[a][i] * lc[i];
+                wi[a][i] = pick(is_map[i], cell[a], lobe);
+            }
+            cos[i] = n[0][i] * wi[0][i] + n[1][i] * wi[1][i] + n[2][i] * wi[2][i];
+        }
+        let lobe_pdf: F8 = match sampler {
+            EnvSampler::Uniform => [1.0 / std::f32::consts::TAU; LANES],
+            EnvSampler::Cosine => lc.map(|c| c / std::f32::consts::PI),
+            // The mixture's lobe half: `0.5 · cos / π` of whichever direction was drawn.
+            EnvSampler::Importance => cos.map(|c| 0.5 * c / std::f32::consts::PI),
+        };
+        // Grid coordinates (lat-long, the distribution's) of every direction: a map lane's are
+        // those it was drawn at; a lobe direction's are computed (in `f64`: atan2 and acos).
+        let (lu, lv) = latlong_uv_lanes::<LANES>(|k| {
+            DVec3::new(f64::from(wi[0][k]), f64::from(wi[1][k]), f64::from(wi[2][k]))
+        });
+        let found;
+        let (mut gu, mut gv, mut sin) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
+        for i in 0..LANES {
+            gu[i] = pick(is_map[i], mu[i], lu[i] as f32);
+            gv[i] = pick(is_map[i], mv[i], lv[i] as f32);
+            // sin θ: the map cell's from its angle, a lobe direction's from its height.
+            let y = wi[1][i];
+            sin[i] = pick(is_map[i], st[i], ((1.0 - y) * (1.0 + y)).max(0.0).sqrt());
+        }
+        let mut map_pdf = [0.0f32; LANES];
+        let mut cells = 0u32;
+        let (mut cell, mut cell_row) = ([0u32; LANES], [0u32; LANES]);
+        if importance {
+            // A map lane's pdf is its cell's; a lobe lane's cell is read when its shadow ray has
+            // come back clear ([`Self::weights`]).
+            for i in 0..LANES {
+                map_pdf[i] = mp[i] / sin[i];
+            }
+            let map_ok =
+                cmp8::<GT>(&sin, 0.0) & cmp8::<GT>(&map_pdf, 0.0) & cmp8::<LT>(&map_pdf, f32::INFINITY);
+            found = ((drawn & map_ok & map) | (mask & !map)) & !cmp8::<LE>(&cos, 0.0);
+            cells = found & !map;
+            for k in lanes(cells) {
+                let (x, y) = dist.cell_of(f64::from(gu[k]), f64::from(gv[k]));
+                dist.prefetch_cell(x, y);
+                cell[k] = (y * dist.width + x) as u32;
+                cell_row[k] = y as u32;
+            }
+        } else {
+            found = mask;
+        }
+        // The texels each direction's radiance blends.
+        let (mut tu, mut tv) = (gu, gv);
+        if self.mapping == EnvMapping::Probe {
+            for k in lanes(found) {
+                let (u, v) = env_uv(
+                    EnvMapping::Probe,
+                    DVec3::new(f64::from(wi[0][k]), f64::from(wi[1][k]), f64::from(wi[2][k])),
+                );
+                (tu[k], tv[k]) = (u as f32, v as f32);
+            }
+        }
+        let corners = texel_corners(&self.image, &tu, &tv);
+        let texels = &self.image.texels;
+        for k in lanes(found) {
+            for c in &corners.index {
+                prefetch(texels, c[k] as usize);
+            }
+        }
+        let share = if importance { 0.5 } else { 0.0 };
+        *out = EnvDirections {
+            wi,
+            corners,
+            lobe_pdf,
+            map_pdf,
+            map_share: share,
+            sin,
+            cell,
+            cell_row,
+            mask: found,
+            cells,
+        };
+    }
+
+    /// The weights of the directions of `lanes_to_weigh` (a subset of `dirs.mask`): the
+    /// radiance arriving along each (the bilinear blend of its texels) over the pdf of choosing
+    /// it. Reads the map pdf of the lobe directions among them first. Returns the lanes whose
+    /// weight is not zero (a zero, negative, NaN or infinite pdf gives none) and the weights by
+    /// channel, then lane.
+    #[inline(always)]
+    pub fn weights(&self, dirs: &mut EnvDirections, lanes_to_weigh: u32) -> (u32, [F8; 3]) {
+        let dist = &self.distribution;
+        let read = dirs.cells & lanes_to_weigh;
+        if read != 0 {
+            let mut p = [0.0f32; LANES];
+            for k in lanes(read) {
+                let (i, y) = (dirs.cell[k] as usize, dirs.cell_row[k] as usize);
+                p[k] = (dist.cell_prob_at(i, y) * dist.pdf_scale) as f32;
+            }
+            for (i, m) in dirs.map_pdf.iter_mut().enumerate() {
+                let s = dirs.sin[i];
+                let pdf = if s > 0.0 { p[i] / s } else { 0.0 };
+                *m = pick(0u32.wrapping_sub(read >> i & 1), pdf, *m);
+            }
+            dirs.cells &= !read;
+        }
+        let radiance = blend_corners(&self.image, &dirs.corners, lanes_to_weigh & dirs.mask);
+        let mut w = [[0.0f32; LANES]; 3];
+        let mut pdf = [0.0f32; LANES];
+        for i in 0..LANES {
+            pdf[i] = dirs.lobe_pdf[i] + dirs.map_share * dirs.map_pdf[i];
+            for c in 0..3 {
+                w[c][i] = radiance[c][i] / pdf[i];
+            }
+        }
+        let ok = cmp8::<GT>(&pdf, 0.0)
+            & cmp8::<LT>(&pdf, f32::INFINITY)
+            & (cmp8::<NE>(&w[0], 0.0) | cmp8::<NE>(&w[1], 0.0) | cmp8::<NE>(&w[2], 0.0));
+        (ok & lanes_to_weigh & dirs.mask, w)
+    }
+}
+
+/// Comparisons of [`cmp8`]: Rust's `>`, `<`, `<=` (false for a NaN) and `!=` (true for one).
+const GT: u8 = 0;
+const LT: u8 = 1;
+const LE: u8 = 2;
+const NE: u8 = 3;
+
+/// The lanes `i` where `x[i] OP c`, as bits. One vector compare and `movmskps` on AVX builds:
+/// the compiler turns a loop of such comparisons (a pair of them on one value in particular)
+/// into integer tests of each lane's bits, one lane at a time.
+#[inline(always)]
+fn cmp8<const OP: u8>(x: &F8, c: f32) -> u32 {
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx"))]
+    // SAFETY: the target has AVX (cfg above); an unaligned load of eight f32 from a reference.
+    unsafe {
+        use std::arch::x86_64::*;
+        let (v, c) = (_mm256_loadu_ps(x.as_ptr()), _mm256_set1_ps(c));
+        let m = match OP {
+            GT => _mm256_cmp_ps::<_CMP_GT_OQ>(v, c),
+            LT => _mm256_cmp_ps::<_CMP_LT_OQ>(v, c),
+            LE => _mm256_cmp_ps::<_CMP_LE_OQ>(v, c),
+            _ => _mm256_cmp_ps::<_CMP_NEQ_UQ>(v, c),
+        };
+        _mm256_movemask_ps(m) as u32
+    }
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx")))]
+    {
+        let mut b = 0;
+        for (i, &v) in x.iter().enumerate() {
+            let t = match OP {
+                GT => v > c,
+                LT => v < c,
+                LE => v <= c,
+                _ => v != c,
+            };
+            b |= u32::from(t) << i;
+        }
+        b
+    }
+}
+
+/// `a` where `m` is all ones, `b` where it is zero: a lane select of bits, which stays vector
+/// code where a select on a `bool` may not.
+#[inline(always)]
+fn pick(m: u32, a: f32, b: f32) -> f32 {
+    f32::from_bits((a.to_bits() & m) | (b.to_bits() & !m))
+}
+
+/// The four texels around eight map coordinates: their indices in the image, (x0, y0),
+/// (x1, y0), (x0, y1), (x1, y1), and the blend's fractions.
+#[derive(Clone, Copy, Debug)]
+pub struct Corners8 {
+    index: [[u32; LANES]; 4],
+    dx: F8,
+    dy: F8,
+}
+
+/// [`EnvLight::corners`] of eight coordinates in `f32`: columns wrap around, rows are clamped,
+/// and a NaN or a coordinate outside [0, 1] still names texels inside the image (its lane's pdf
+/// or position makes the result unused or clamped at the border).
+#[inline(always)]
+fn texel_corners(img: &TextureImage, u: &F8, v: &F8) -> Corners8 {
+    let (w, h) = (img.width.max(1), img.height.max(1));
+    let (wf, hf) = (w as f32, h as f32);
+    let mut c = Corners8 { index: [[0; LANES]; 4], dx: [0.0; LANES], dy: [0.0; LANES] };
+    for i in 0..LANES {
+        let (x, y) = (u[i] * wf, v[i] * hf);
+        // `max` then `min`: a NaN becomes 0.
+        let (p, q) = (x.floor().max(0.0).min(wf), y.floor().max(-1.0).min(hf));
+        c.dx[i] = x - p;
+        c.dy[i] = y - q;
+        // SAFETY (both): p and q are whole numbers (floor), not NaN (`max` dropped it), and
+        // within [0, w] and [−1, h] with w, h ≤ 2^28: representable as u32 and i32.
+        let x0 = unsafe { p.to_int_unchecked::<u32>() };
+        let x0 = if x0 >= w { x0 - w } else { x0 };
+        let x1 = if x0 + 1 >= w { x0 + 1 - w } else { x0 + 1 };
+        let q = unsafe { q.to_int_unchecked::<i32>() };
+        let last = h as i32 - 1;
+        let (y0, y1) = (q.clamp(0, last) as u32, (q + 1).clamp(0, last) as u32);
+        c.index[0][i] = y0 * w + x0;
+        c.index[1][i] = y0 * w + x1;
+        c.index[2][i] = y1 * w + x0;
+        c.index[3][i] = y1 * w + x1;
+    }
+    c
+}
+
+/// The bilinear blends of [`Corners8`] for the lanes of `mask` (the others blend texels read
+/// as 0), by channel then lane, in `f32`: the four texels weighted `(1 − dx)(1 − dy)`, `dx(1 − dy)`, `(1 − dx)dy`,
+/// `dx·dy`, added in that order.
+#[inline(always)]
+fn blend_corners(img: &TextureImage, c: &Corners8, mask: u32) -> [F8; 3] {
+    let mut q = [[[0.0f32; LANES]; 3]; 4];
+    gather_texels(img, c, mask, &mut q);
+    let mut out = [[0.0f32; LANES]; 3];
+    for i in 0..LANES {
+        let (dx, dy) = (c.dx[i], c.dy[i]);
+        let (ex, ey) = (1.0 - dx, 1.0 - dy);
+        let wt = [ex * ey, dx * ey, ex * dy, dx * dy];
+        for ch in 0..3 {
+            out[ch][i] =
+                q[0][ch][i] * wt[0] + q[1][ch][i] * wt[1] + q[2][ch][i] * wt[2] + q[3][ch][i] * wt[3];
+        }
+    }
+    out
+}
+
+/// The texels [`Corners8`] names for the lanes of `mask`: `q[corner][channel][lane]` (the
+/// other lanes' entries are left alone, and their texels are not read: lanes whose loads were
+/// never started would wait for memory). AVX2 gathers a channel of eight lanes per
+/// instruction; elsewhere one load per texel (the same values).
+#[inline(always)]
+fn gather_texels(img: &TextureImage, c: &Corners8, mask: u32, q: &mut [[F8; 3]; 4]) {
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    {
+        use std::arch::x86_64::*;
+        // Every index is below w·h (texel_corners) and w·h ≤ MAX_TEXELS = 2^28, so 3·index + 2
+        // fits in i32.
+        debug_assert!(img.texels.len() as u64 <= crate::texture::image::MAX_TEXELS);
+        if img.texels.len() == img.width as usize * img.height as usize && !img.texels.is_empty() {
+            // SAFETY: the target has AVX2 (cfg above). Each gather reads float 3·index + ch
+            // (ch < 3) of `texels`, with index < w·h = texels.len() (texel_corners clamps rows
+            // into [0, h − 1] and wraps columns into [0, w − 1]).
+            unsafe {
+                let base = img.texels.as_ptr().cast::<f32>();
+                let three = _mm256_set1_epi32(3);
+                let bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+                let m = _mm256_castsi256_ps(_mm256_cmpeq_epi32(
+                    _mm256_and_si256(_mm256_set1_epi32(mask as i32), bits),
+                    bits,
+                ));
+                for (corner, out) in q.iter_mut().enumerate() {
+                    let idx = _mm256_loadu_si256(c.index[corner].as_ptr().cast());
+                    let off = _mm256_mullo_epi32(idx, three);
+                    for (ch, lane) in out.iter_mut().enumerate() {
+                        let src = _mm256_loadu_ps(lane.as_ptr());
+                        let g = _mm256_mask_i32gather_ps::<4>(src, base.add(ch), off, m);
+                        _mm256_storeu_ps(lane.as_mut_ptr(), g);
                     }
                 }
-                // The lobe's directions (not drawn from the map's grid) need their coordinates.
-                let lobe_uv = self.uv_lanes(&wi, lobe);
-                let mut cos = [0.0; N];
-                let mut below = 0u32;
-                for k in 0..N {
-                    cos[k] = wi[k].dot(ns[k]);
-                    below |= u32::from(cos[k] <= 0.0) << k;
-                }
-                found = (drawn | lobe) & !below;
-                // The map coordinates of `wi` serve both the pdf and the lookup. A lat-long
-                // map's grid is the distribution's, so a direction drawn from it keeps its
-                // (u, v) and its cell's pdf (no atan2 and acos of `wi`); a lobe direction's
-                // cell is read when its shadow ray has come back clear
-                // ([`Self::resolve_cells`]).
-                for k in lanes(found & map) {
-                    uv[k] = match self.mapping {
-                        EnvMapping::LatLong => (grid[k].u, grid[k].v),
-                        EnvMapping::Probe => env_uv(EnvMapping::Probe, wi[k]),
-                    };
-                    pdf[k] = EnvPdf::Mixture { cos: cos[k], map_pdf: MapPdf::Known(grid[k].pdf) };
-                }
-                for k in lanes(found & lobe) {
-                    uv[k] = lobe_uv[k];
-                    let map_pdf = match self.mapping {
-                        EnvMapping::LatLong => {
-                            let (u, v) = lobe_uv[k];
-                            let (x, y) = dist.cell_of(u, v);
-                            dist.prefetch_cell(x, y);
-                            cells |= 1 << k;
-                            MapPdf::LatLongCell { x, y, v }
-                        }
-                        EnvMapping::Probe => MapPdf::Known(dist.pdf(wi[k])),
-                    };
-                    pdf[k] = EnvPdf::Mixture { cos: cos[k], map_pdf };
-                }
             }
-        }
-        out.mask = found;
-        out.cells = cells;
-        for k in lanes(found) {
-            let texels = self.corners(uv[k].0, uv[k].1);
-            self.prefetch_texels(&texels);
-            // Field by field: a whole record assembled first and then copied would be read
-            // back with wide loads right after its narrow stores, which cannot be forwarded.
-            let d = &mut out.dirs[k];
-            d.wi = wi[k];
-            d.texels = texels;
-            d.pdf = pdf[k];
+            return;
         }
     }
-
-    /// Reads the map pdf of the directions of `lanes_to_read` (a subset of `dirs.mask`) whose
-    /// pdf waits in their cell, so that [`Self::weight`] finds every pdf known: one loop over
-    /// those lanes instead of a branch per lane in each weight.
-    pub fn resolve_cells<const N: usize>(&self, dirs: &mut EnvDirections<N>, lanes_to_read: u32) {
-        for k in lanes(dirs.cells & lanes_to_read) {
-            if let EnvPdf::Mixture { map_pdf: ref mut m @ MapPdf::LatLongCell { x, y, v }, .. } =
-                dirs.dirs[k].pdf
-            {
-                *m = MapPdf::Known(self.distribution.pdf_cell(x, y, v));
+    for (corner, out) in q.iter_mut().enumerate() {
+        for i in lanes(mask) {
+            let t = img.texels.get(c.index[corner][i] as usize).copied().unwrap_or([0.0; 3]);
+            for ch in 0..3 {
+                out[ch][i] = t[ch];
             }
         }
-        dirs.cells &= !lanes_to_read;
-    }
-
-    /// The radiance arriving along a [`Self::sample_direction`] direction divided by the pdf of
-    /// choosing it: the sample's `E` (§5); `None` when that pdf is zero or not finite.
-    #[inline(always)]
-    pub fn weight(&self, d: &EnvDirection) -> Option<DVec3> {
-        let pdf = match d.pdf {
-            EnvPdf::Factor(f) => return Some(self.blend(&d.texels) * f),
-            EnvPdf::Mixture { cos, map_pdf } => {
-                let map_pdf = match map_pdf {
-                    MapPdf::Known(p) => p,
-                    MapPdf::LatLongCell { x, y, v } => self.distribution.pdf_cell(x, y, v),
-                };
-                0.5 * map_pdf + 0.5 * cos / PI
-            }
-        };
-        (pdf > 0.0 && pdf.is_finite()).then(|| self.blend(&d.texels) / pdf)
     }
 }
 
@@ -636,72 +799,52 @@ struct Corners {
     dy: f64,
 }
 
-/// A direction of an environment light, drawn but not yet weighed: see
-/// [`EnvLight::sample_direction`].
+/// The directions [`EnvLight::sample_directions`] drew for a group of up to eight points, a
+/// field per quantity and a lane per entry, ready for [`EnvLight::weights`].
 #[derive(Clone, Copy, Debug)]
-pub struct EnvDirection {
-    /// Unit direction towards the environment.
-    pub wi: DVec3,
-    /// The texels its radiance blends (prefetched).
-    texels: Corners,
-    pdf: EnvPdf,
-}
-
-impl EnvDirection {
-    /// The entry of a lane without a direction.
-    const NONE: EnvDirection = EnvDirection {
-        wi: DVec3::ZERO,
-        texels: Corners { x0: 0, x1: 0, y0: 0, y1: 0, dx: 0.0, dy: 0.0 },
-        pdf: EnvPdf::Factor(0.0),
-    };
-}
-
-/// The directions [`EnvLight::sample_directions`] drew for a group of points.
-#[derive(Clone, Copy, Debug)]
-pub struct EnvDirections<const N: usize> {
-    /// Lane `k`'s direction, when `mask` holds `k`.
-    pub dirs: [EnvDirection; N],
+pub struct EnvDirections {
+    /// Unit directions towards the environment, by axis then lane.
+    wi: [F8; 3],
+    /// The texels each lane's radiance blends (their loads started).
+    corners: Corners8,
+    /// The pdf's closed-form part: the whole pdf of uniform and cosine sampling, the cosine
+    /// lobe's half (`0.5 · cos / π`) of importance sampling's mixture.
+    lobe_pdf: F8,
+    /// The map's pdf of each direction (importance sampling; read for the lanes of `cells`).
+    map_pdf: F8,
+    /// The map's share of the mixture: ½ for importance sampling, else 0.
+    map_share: f32,
+    /// sin θ of each direction (θ from +Y), which the map's solid-angle pdf divides by.
+    sin: F8,
+    /// The map cell of each lane of `cells` (`y · width + x`), and its row `y`.
+    cell: [u32; LANES],
+    cell_row: [u32; LANES],
     /// The lanes that have a direction (above their surface, with a positive pdf).
     pub mask: u32,
-    /// The lanes whose map pdf is still to be read from its cell ([`EnvLight::resolve_cells`]).
+    /// The lanes whose map pdf is still to be read from their cell.
     cells: u32,
 }
 
-impl<const N: usize> EnvDirections<N> {
+impl EnvDirections {
     /// No lane drawn.
-    pub const NONE: Self = EnvDirections { dirs: [EnvDirection::NONE; N], mask: 0, cells: 0 };
-}
+    pub const NONE: Self = EnvDirections {
+        wi: [[0.0; LANES]; 3],
+        corners: Corners8 { index: [[0; LANES]; 4], dx: [0.0; LANES], dy: [0.0; LANES] },
+        lobe_pdf: [0.0; LANES],
+        map_pdf: [0.0; LANES],
+        map_share: 0.0,
+        sin: [0.0; LANES],
+        cell: [0; LANES],
+        cell_row: [0; LANES],
+        mask: 0,
+        cells: 0,
+    };
 
-/// How [`EnvLight::weight`] finds a direction's pdf.
-#[derive(Clone, Copy, Debug)]
-enum EnvPdf {
-    /// The weight is the radiance times this factor (the inverse of a pdf known in closed form).
-    Factor(f64),
-    /// Importance sampling's mixture: half the map's pdf, half the cosine lobe's (`cos / π`).
-    Mixture { cos: f64, map_pdf: MapPdf },
-}
-
-/// The map distribution's pdf of a direction.
-#[derive(Clone, Copy, Debug)]
-enum MapPdf {
-    Known(f64),
-    /// To be read from the distribution's cell (x, y) (prefetched), at the direction's lat-long
-    /// `v`.
-    LatLongCell {
-        x: usize,
-        y: usize,
-        v: f64,
-    },
-}
-
-/// The unit direction with cosine `cos` to the unit vector `n` and azimuth 2π·`xi` around it
-/// (unit to rounding: the frame is orthonormal and sin² + cos² = 1, so no normalisation).
-#[inline(always)]
-fn hemisphere_direction(n: DVec3, cos: f64, xi: f64) -> DVec3 {
-    let sin = (1.0 - cos * cos).max(0.0).sqrt();
-    let (a, b) = sampling_frame(n);
-    let (sp, cp) = sincos_turns(xi);
-    a * (sin * cp) + b * (sin * sp) + n * cos
+    /// Lane `k`'s direction.
+    #[inline(always)]
+    pub fn wi(&self, k: usize) -> DVec3 {
+        DVec3::new(f64::from(self.wi[0][k]), f64::from(self.wi[1][k]), f64::from(self.wi[2][k]))
+    }
 }
 
 /// A piecewise-constant distribution over a lat-long grid of the map, proportional to each
@@ -728,16 +871,26 @@ pub struct EnvDistribution {
     /// a search over the whole table, in a few steps. `cell_guide` holds one table per row.
     row_guide: Vec<u32>,
     cell_guide: Vec<u32>,
+    /// A cell's solid-angle pdf times sin θ per unit of its probability: `W·H / (2π²)`.
+    pdf_scale: f64,
 }
 
-/// A direction drawn from an [`EnvDistribution`]: the unit direction, its solid-angle pdf and
-/// its lat-long coordinates.
+/// A direction drawn from an [`EnvDistribution`] (tests): the unit direction and its
+/// solid-angle pdf.
+#[cfg(test)]
 #[derive(Clone, Copy, Debug, Default)]
 struct GridSample {
     wi: DVec3,
     pdf: f64,
+}
+
+/// A cell drawn from an [`EnvDistribution`] and a point in it: the point's lat-long
+/// coordinates and the cell's probability.
+#[derive(Clone, Copy, Debug, Default)]
+struct RowCell {
     u: f64,
     v: f64,
+    prob: f64,
 }
 
 /// Buckets per guide table of [`EnvDistribution`].
@@ -866,7 +1019,8 @@ impl EnvDistribution {
         for cdf in cells.chunks(width) {
             guide_table(cdf, &mut cell_guide);
         }
-        EnvDistribution { width, height, rows, cells, row_guide, cell_guide }
+        let pdf_scale = small_f64(width * height) / (2.0 * PI * PI);
+        EnvDistribution { width, height, rows, cells, row_guide, cell_guide, pdf_scale }
     }
 
     /// A direction, its pdf with respect to solid angle and its lat-long coordinates, from two
@@ -875,7 +1029,13 @@ impl EnvDistribution {
     fn sample(&self, xi1: f64, xi2: f64) -> Option<GridSample> {
         let row = self.pick_row(xi1, xi2);
         let bounds = self.cell_bounds(&row, xi2);
-        self.sample_in_row(&row, xi2, bounds)
+        let RowCell { u, v, prob } = self.cell_in_row(&row, xi2, bounds);
+        let (wi, sin) = latlong_direction_sin(u, v);
+        if sin <= 0.0 {
+            return None;
+        }
+        let pdf = self.solid_angle_pdf(prob, sin);
+        (pdf > 0.0 && pdf.is_finite()).then_some(GridSample { wi, pdf })
     }
 
     /// The first step of [`Self::sample`]: the row of `xi1` (the rows' table is small and
@@ -917,9 +1077,9 @@ impl EnvDistribution {
         (lo, hi)
     }
 
-    /// The last step: the cell within the row, and the direction.
+    /// The last step: the cell within the row and the point in it.
     #[inline(always)]
-    fn sample_in_row(&self, row: &RowPick, xi2: f64, (lo, hi): (usize, usize)) -> Option<GridSample> {
+    fn cell_in_row(&self, row: &RowPick, xi2: f64, (lo, hi): (usize, usize)) -> RowCell {
         let RowPick { y, row_p, fy, .. } = *row;
         let cdf = &self.cells[y * self.width..(y + 1) * self.width];
         let x = (lo + cdf[lo..hi].partition_point(|&c| c <= xi2)).min(self.width - 1);
@@ -928,13 +1088,8 @@ impl EnvDistribution {
         let fx = if cell_p > 0.0 { ((xi2 - lo) / cell_p).clamp(0.0, 1.0 - 1e-12) } else { 0.5 };
         let u = (small_f64(x) + fx) / small_f64(self.width);
         let v = (small_f64(y) + fy) / small_f64(self.height);
-        let (wi, sin) = latlong_direction_sin(u, v);
-        if sin <= 0.0 {
-            return None;
-        }
-        // The cell's probability from the entries just searched.
-        let pdf = self.solid_angle_pdf(row_p * cell_p, sin);
-        (pdf > 0.0 && pdf.is_finite()).then_some(GridSample { wi, pdf, u, v })
+        // The cell's probability from the entries just searched: the same bits as `cell_prob`.
+        RowCell { u, v, prob: row_p * cell_p }
     }
 
     /// The solid-angle pdf of unit direction `d` (for tests and for combining estimators).
@@ -979,6 +1134,15 @@ impl EnvDistribution {
     #[inline]
     fn solid_angle_pdf(&self, p: f64, sin: f64) -> f64 {
         p * small_f64(self.width * self.height) / (2.0 * PI * PI * sin)
+    }
+
+    /// [`Self::cell_prob`] of the cell at `i = y · width + x` in row `y` (no division to find
+    /// them): the same value.
+    #[inline]
+    fn cell_prob_at(&self, i: usize, y: usize) -> f64 {
+        let row_p = self.rows[y] - if y == 0 { 0.0 } else { self.rows[y - 1] };
+        let cell_p = self.cells[i] - if i == y * self.width { 0.0 } else { self.cells[i - 1] };
+        row_p * cell_p
     }
 
     /// The probability of cell (x, y): its row's, times its own within the row.
@@ -1485,52 +1649,8 @@ mod tests {
     /// Directions drawn for eight points together (any subset of them) are, point by point, the
     /// directions, weights and numbers drawn for each alone: every sampler, both mappings, a map
     /// with a sun (wide and narrow guide ranges), normals of every kind (axes, a zero vector).
-    #[test]
-    fn directions_drawn_into_a_used_record_are_those_of_a_fresh_one() {
-        // What `reflected` relies on when it fills a record in place: the lanes drawn and the
-        // masks are written, every other lane's entry stays as it was.
-        let map = image(64, 32, |x, y| [(x % 7) as f32 * 0.3 + 0.1, (y % 5) as f32 * 0.2, 1.0]);
-        let ns: [DVec3; LANES] =
-            std::array::from_fn(|k| latlong_direction((k as f64 + 0.5) / 8.0, 0.2 + 0.07 * k as f64));
-        let xi = |shift: f64| -> [[f64; 3]; LANES] {
-            std::array::from_fn(|k| {
-                let k = k as f64;
-                [
-                    (0.1 + 0.11 * k + shift).fract(),
-                    (0.7 - 0.05 * k + shift).fract(),
-                    (0.3 * k + shift).fract(),
-                ]
-            })
-        };
-        let bits = |env: &EnvLight, d: &EnvDirection| {
-            (d.wi.to_array().map(f64::to_bits), env.weight(d).map(|w| w.to_array().map(f64::to_bits)))
-        };
-        for mapping in [EnvMapping::LatLong, EnvMapping::Probe] {
-            let env = EnvLight::new(map.clone(), mapping, None);
-            for sampler in [EnvSampler::Uniform, EnvSampler::Cosine, EnvSampler::Importance] {
-                let (mut first, mut fresh) = (EnvDirections::NONE, EnvDirections::NONE);
-                env.sample_directions(&ns, sampler, &xi(0.0), 0xff, &mut first);
-                env.sample_directions(&ns, sampler, &xi(0.37), 0x5a, &mut fresh);
-                let mut reused = first;
-                env.sample_directions(&ns, sampler, &xi(0.37), 0x5a, &mut reused);
-                assert_eq!((reused.mask, reused.cells), (fresh.mask, fresh.cells), "{mapping:?} {sampler:?}");
-                let mut kept = 0;
-                for k in 0..LANES {
-                    if fresh.mask & (1 << k) != 0 {
-                        assert_eq!(bits(&env, &reused.dirs[k]), bits(&env, &fresh.dirs[k]), "lane {k}");
-                    } else {
-                        assert_eq!(bits(&env, &reused.dirs[k]), bits(&env, &first.dirs[k]), "lane {k}");
-                        kept += usize::from(first.mask & (1 << k) != 0);
-                    }
-                }
-                assert!(
-                    fresh.mask != 0 && kept > 0,
-                    "{mapping:?} {sampler:?}: both kinds of lane are checked"
-                );
-            }
-        }
-    }
-
+    /// The record drawn into is one used before, and the lanes are weighed in two rounds, as
+    /// `reflected` weighs those whose shadow rays came back clear.
     #[test]
     fn directions_drawn_together_are_those_drawn_alone() {
         let map = image(64, 32, |x, y| {
@@ -1547,6 +1667,7 @@ mod tests {
             normals.push(latlong_direction(a, b));
         }
         let (mut checked, mut some) = (0, 0);
+        let mut used = EnvDirections::NONE;
         for mapping in [EnvMapping::LatLong, EnvMapping::Probe] {
             let env = EnvLight::new(map.clone(), mapping, None);
             for sampler in [EnvSampler::Uniform, EnvSampler::Cosine, EnvSampler::Importance] {
@@ -1563,30 +1684,27 @@ mod tests {
                             xi[k][2] = drawn[k].next_1d();
                         }
                     }
-                    let mut together = EnvDirections::NONE;
-                    env.sample_directions(&ns, sampler, &xi, mask, &mut together);
+                    env.sample_directions(&ns, sampler, &xi, mask, &mut used);
+                    let together = &mut used;
                     assert_eq!(together.mask & !mask, 0, "only lanes of the mask get a direction");
-                    // Half the lanes read their cells' pdfs first, as a group whose shadow rays
-                    // came back clear does; the others are weighed as drawn.
-                    env.resolve_cells(&mut together, 0x55);
+                    let drawn_mask = together.mask;
+                    let (lit_a, w_a) = env.weights(together, drawn_mask & 0x55);
+                    let (lit_b, w_b) = env.weights(together, drawn_mask & !0x55);
+                    assert_eq!((lit_a & !0x55, lit_b & 0x55), (0, 0), "only the lanes asked for are weighed");
                     for k in lanes(mask) {
                         let mut alone_rng = samplers[k].clone();
-                        let alone = env.sample_direction(ns[k], sampler, &mut alone_rng);
-                        let bits = |d: &Option<EnvDirection>| {
-                            d.map(|d| {
-                                (
-                                    d.wi.to_array().map(f64::to_bits),
-                                    env.weight(&d).map(|w| w.to_array().map(f64::to_bits)),
-                                )
-                            })
-                        };
-                        let drawn_together = (together.mask & (1 << k) != 0).then_some(together.dirs[k]);
-                        assert_eq!(
-                            bits(&drawn_together),
-                            bits(&alone),
-                            "{mapping:?} {sampler:?} lane {k} n {}",
-                            ns[k]
-                        );
+                        let alone = env.sample(ns[k], sampler, &mut alone_rng);
+                        let (lit, w) = if k % 2 == 0 { (lit_a, w_a) } else { (lit_b, w_b) };
+                        let got = (lit & (1 << k) != 0).then(|| {
+                            (
+                                together.wi(k).to_array().map(f64::to_bits),
+                                [w[0][k], w[1][k], w[2][k]].map(|x| f64::from(x).to_bits()),
+                            )
+                        });
+                        let want = alone.map(|s| {
+                            (s.wi.to_array().map(f64::to_bits), s.weight.to_array().map(f64::to_bits))
+                        });
+                        assert_eq!(got, want, "{mapping:?} {sampler:?} lane {k} n {}", ns[k]);
                         assert_eq!(alone_rng.next_1d().to_bits(), drawn[k].next_1d().to_bits());
                         checked += 1;
                         some += usize::from(alone.is_some());
@@ -1595,6 +1713,79 @@ mod tests {
             }
         }
         assert!(checked > 1000 && some > checked / 2, "{checked} lanes, {some} with a direction");
+    }
+
+    /// The eight-lane texel step: every coordinate, NaN and out-of-range ones included, names
+    /// texels inside the map; coordinates in [0, 1] name the texels of the single lookup, and
+    /// the blends are its values to `f32` rounding; lanes outside the mask read no texel.
+    #[test]
+    fn lane_texels_are_those_of_the_single_lookup() {
+        let img = image(7, 5, |x, y| [x as f32 + 10.0 * y as f32 + 1.0, 1.0 + x as f32, 2.0]);
+        let env = EnvLight::new(img.clone(), EnvMapping::LatLong, None);
+        let ordinary = [0.0, 1e-9, 0.3, 0.5, 0.71, 0.999_999, 1.0, 0.142_857];
+        let hostile = [f32::NAN, -3.0, 5.0, f32::INFINITY, f32::NEG_INFINITY, -0.0, 1.5, -1e-7];
+        let mut compared = 0;
+        for (us, vs) in [(ordinary, ordinary), (hostile, ordinary), (ordinary, hostile), (hostile, hostile)] {
+            for shift in 0..8 {
+                let u: F8 = std::array::from_fn(|i| us[(i + shift) % 8]);
+                let v: F8 = std::array::from_fn(|i| vs[(i * 3 + shift) % 8]);
+                let c = texel_corners(&img, &u, &v);
+                assert!(c.index.iter().flatten().all(|&i| i < 35), "{u:?} {v:?}: {:?}", c.index);
+                let all = blend_corners(&img, &c, 0xff);
+                let half = blend_corners(&img, &c, 0x0f);
+                for i in 0..LANES {
+                    // Outside the mask the texels read as 0 (a NaN fraction still makes NaN).
+                    if i < 4 || (c.dx[i].is_finite() && c.dy[i].is_finite()) {
+                        for ch in 0..3 {
+                            let want = if i < 4 { all[ch][i].to_bits() } else { 0 };
+                            assert_eq!(half[ch][i].to_bits(), want, "lane {i}");
+                        }
+                    }
+                    if !((0.0..=1.0).contains(&u[i]) && (0.0..=1.0).contains(&v[i])) {
+                        continue;
+                    }
+                    let one = env.corners(f64::from(u[i]), f64::from(v[i]));
+                    let at = |x: i64, y: i64| img.texel_index(x, y) as u32;
+                    let want =
+                        [at(one.x0, one.y0), at(one.x1, one.y0), at(one.x0, one.y1), at(one.x1, one.y1)];
+                    assert_eq!([0, 1, 2, 3].map(|k| c.index[k][i]), want, "({}, {})", u[i], v[i]);
+                    let single = env.radiance_uv(f64::from(u[i]), f64::from(v[i]));
+                    for ch in 0..3 {
+                        assert!(
+                            (f64::from(all[ch][i]) - single[ch]).abs() < 1e-5 * single[ch].abs().max(1.0)
+                        );
+                    }
+                    compared += 1;
+                }
+            }
+        }
+        assert!(compared > 60, "{compared}");
+    }
+
+    /// A cell's probability found from its index and row is the one found from its column and
+    /// row, bit for bit, in every cell (first columns and first row included).
+    #[test]
+    fn cell_probabilities_by_index_are_by_column_and_row() {
+        let map = image(9, 6, |x, y| [(x * y % 4) as f32 + 0.1, 1.0, (x + 2 * y) as f32]);
+        let d = EnvDistribution::new(&map, EnvMapping::LatLong);
+        for y in 0..6 {
+            for x in 0..9 {
+                assert_eq!(d.cell_prob_at(y * 9 + x, y).to_bits(), d.cell_prob(x, y).to_bits(), "({x}, {y})");
+            }
+        }
+    }
+
+    /// [`cmp8`] answers as Rust's comparison operators do, NaN lanes included.
+    #[test]
+    fn lane_comparisons_are_the_operators() {
+        let x: F8 = [f32::NAN, -1.0, 0.0, -0.0, 1e-40, 2.0, f32::INFINITY, f32::NEG_INFINITY];
+        for c in [0.0, 2.0, f32::INFINITY, f32::NAN] {
+            let want = |f: &dyn Fn(f32) -> bool| (0..LANES).fold(0u32, |m, i| m | u32::from(f(x[i])) << i);
+            assert_eq!(cmp8::<GT>(&x, c), want(&|v| v > c), "> {c}");
+            assert_eq!(cmp8::<LT>(&x, c), want(&|v| v < c), "< {c}");
+            assert_eq!(cmp8::<LE>(&x, c), want(&|v| v <= c), "<= {c}");
+            assert_eq!(cmp8::<NE>(&x, c), want(&|v| v != c), "!= {c}");
+        }
     }
 
     /// Each estimator's mean of `cos θ · L(wi)` over many samples is ∫ L cos dω: π·L for a constant map.

@@ -279,25 +279,21 @@ impl Lighting<'_> {
             for k in lanes(dirs.mask) {
                 // Only a direction below the surface is skipped (a NaN cosine still traces its
                 // ray); a mask bit, not a branch per lane.
-                let cos = pts[k].n.dot(dirs.dirs[k].wi);
-                shadows.dir[k] = dirs.dirs[k].wi;
+                let wi = dirs.wi(k);
+                let cos = pts[k].n.dot(wi);
+                shadows.dir[k] = wi;
                 shadows.far[k] = f64::INFINITY;
                 shadows.mask |= u32::from(cos > 0.0 || cos.is_nan()) << k;
             }
             let clear = self.clear_lanes(pts, &shadows, false);
-            light.resolve_cells(&mut dirs, clear);
-            let (mut lit, mut wis, mut weights) = (0u32, [DVec3::ZERO; N], [DVec3::ZERO; N]);
-            for k in lanes(clear) {
-                let d = &dirs.dirs[k];
-                if let Some(weight) = light.weight(d)
-                    && weight != DVec3::ZERO
-                {
-                    lit |= 1 << k;
-                    wis[k] = d.wi;
-                    weights[k] = weight;
+            if clear != 0 {
+                let (lit, w) = light.weights(&mut dirs, clear);
+                let mut weights = [DVec3::ZERO; N];
+                for k in lanes(lit) {
+                    weights[k] = DVec3::new(f64::from(w[0][k]), f64::from(w[1][k]), f64::from(w[2][k]));
                 }
+                reflect_lanes(pts, &views, lit, &shadows.dir, &weights, &mut l);
             }
-            reflect_lanes(pts, &views, lit, &wis, &weights, &mut l);
         }
         l
     }
