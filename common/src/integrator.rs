@@ -119,7 +119,10 @@ impl<'a> Tracer<'a> {
     ) -> [DVec3; GROUP_LANES] {
         // Both renderers show a camera ray that misses the environment's radiance as is.
         let seen = match &self.scene.env_light {
-            Some(env) if hits.iter().any(Option::is_none) => Some(env.radiance_lanes(|i| rays[i].dir)),
+            Some(env) => {
+                let misses = (0..hits.len()).fold(0u32, |m, i| m | u32::from(hits[i].is_none()) << i);
+                (misses != 0).then(|| env.radiance_lanes(|i| rays[i].dir, misses))
+            }
             _ => None,
         };
         if self.renderer == Renderer::Classic {

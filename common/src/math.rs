@@ -296,6 +296,44 @@ pub fn sincos_turns8(t: &F8) -> (F8, F8) {
     (sin, cos)
 }
 
+/// [`atan2_approx`] of eight lanes in `f32`: `y[i].atan2(x[i])` to within 3.5e-7 radians,
+/// about one and a half `f32` steps near ±π (the same octant reduction, then `atan(t) = t·P(t²)`
+/// on [0, 1] with `P` of degree 7, fitted for the least maximum error: 3.7e-8; the rest is
+/// `f32` rounding), unfolded by selects. Signed
+/// zeros and quadrants follow `f32::atan2`; a NaN argument gives NaN.
+#[inline(always)]
+pub fn atan2_8(y: &F8, x: &F8) -> F8 {
+    const C: [f32; 8] = [
+        0.999_999_34,
+        -0.333_298_6,
+        0.199_465_66,
+        -0.139_086_29,
+        0.096_421_97,
+        -0.055_912_327,
+        0.021_862_958,
+        -0.004_054_567,
+    ];
+    let mut out = [0.0; 8];
+    for i in 0..8 {
+        let (ax, ay) = (x[i].abs(), y[i].abs());
+        let steep = ay > ax;
+        let (lo, hi) = if steep { (ax, ay) } else { (ay, ax) };
+        let t = if hi == 0.0 { 0.0 } else { lo / hi };
+        let s = t * t;
+        let mut p = C[7];
+        for &c in C[..7].iter().rev() {
+            p = p.mul_add(s, c);
+        }
+        let a = t * p;
+        let a = if steep { std::f32::consts::FRAC_PI_2 - a } else { a };
+        // π + (−a) when x's sign bit is set, 0 + a otherwise (as `left_half`).
+        let sign = x[i].to_bits() & 0x8000_0000;
+        let base = f32::from_bits(std::f32::consts::PI.to_bits() & 0u32.wrapping_sub(sign >> 31));
+        out[i] = (base + f32::from_bits(a.to_bits() ^ sign)).copysign(y[i]);
+    }
+    out
+}
+
 /// [`sampling_frame`] of eight unit normals given by axis, in `f32`: the two tangents, by axis.
 #[inline(always)]
 pub fn sampling_frame8(n: &[F8; 3]) -> ([F8; 3], [F8; 3]) {
@@ -447,6 +485,43 @@ mod tests {
             assert!(s[i] == w.0 && c[i] == w.1, "{}: {} {}", t[i], s[i], c[i]);
         }
         assert!(s[6].is_nan() && c[6].is_nan() && s[7].is_nan() && c[7].is_nan());
+    }
+
+    /// The eight-lane `f32` atan2 is within 3.5e-7 of the `f64` one on directions all round and
+    /// near the axes, with its signed zeros and quadrants, NaN for a NaN argument.
+    #[test]
+    fn atan2_8_is_within_its_bound_everywhere() {
+        let mut worst = 0.0f64;
+        let mut check = |ys: F8, xs: F8| {
+            let got = atan2_8(&ys, &xs);
+            for i in 0..8 {
+                let want = f64::from(ys[i]).atan2(f64::from(xs[i]));
+                worst = worst.max((f64::from(got[i]) - want).abs());
+            }
+        };
+        for k in 0..50_000 {
+            let (s, c) = sincos_turns(k as f64 / 50_000.0);
+            let r = [1.0, 3e-3, 7e4, 1e-30, 0.5, 2.0, 1e30, 0.1];
+            check(std::array::from_fn(|i| (s * r[i]) as f32), std::array::from_fn(|i| (c * r[i]) as f32));
+        }
+        assert!(worst < 3.5e-7, "worst error {worst:e}");
+        let zeros = atan2_8(
+            &[0.0, -0.0, 0.0, -0.0, 1.0, -1.0, 0.0, 5.0],
+            &[1.0, 1.0, -1.0, -1.0, 0.0, 0.0, 0.0, -0.0],
+        );
+        let want = [0.0, -0.0, std::f32::consts::PI, -std::f32::consts::PI];
+        for i in 0..4 {
+            assert_eq!(zeros[i].to_bits(), want[i].to_bits(), "lane {i}");
+        }
+        assert!(
+            (zeros[4] - std::f32::consts::FRAC_PI_2).abs() < 1e-7
+                && (zeros[5] + std::f32::consts::FRAC_PI_2).abs() < 1e-7
+        );
+        let nan = atan2_8(
+            &[f32::NAN, 1.0, f32::NAN, 0.0, 0.0, 0.0, 0.0, 0.0],
+            &[1.0, f32::NAN, f32::NAN, 1.0, 1.0, 1.0, 1.0, 1.0],
+        );
+        assert!(nan[0].is_nan() && nan[1].is_nan() && nan[2].is_nan());
     }
 
     /// The `f32` frame is the `f64` one to `f32` rounding: unit tangents orthogonal to the
