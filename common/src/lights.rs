@@ -340,47 +340,56 @@ impl EnvLight {
             }
         }
         map &= mask;
-        // The map's lanes: a cell and a point in it, one lane at a time.
+        // The map's lanes: a cell and a point in it, one lane at a time. The rows and the
+        // lines of their cumulative weights to search are asked for first; the lobe's lanes
+        // are computed while they load.
         let dist = &self.distribution;
         let (mut mu, mut mv, mut mp) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
         let mut drawn = 0u32;
-        if map != 0 {
-            let mut rows = [RowPick::default(); LANES];
-            for k in lanes(map) {
-                rows[k] = dist.pick_row(xi[k][0], xi[k][1]);
-            }
-            let mut bounds = [(0, 0); LANES];
-            for k in lanes(map) {
-                bounds[k] = dist.cell_bounds(&rows[k], xi[k][1]);
-            }
-            for k in lanes(map) {
-                let c = dist.cell_in_row(&rows[k], xi[k][1], bounds[k]);
-                (mu[k], mv[k], mp[k]) = (c.u as f32, c.v as f32, (c.prob * dist.pdf_scale) as f32);
-                drawn |= u32::from(c.prob > 0.0) << k;
-            }
+        let mut rows = [RowPick::default(); LANES];
+        let mut bounds = [(0, 0); LANES];
+        for k in lanes(map) {
+            rows[k] = dist.pick_row(xi[k][0], xi[k][1]);
         }
-        // Every lane's lobe direction and map-cell direction, side by side.
+        for k in lanes(map) {
+            bounds[k] = dist.cell_bounds(&rows[k], xi[k][1]);
+        }
+        // Every lane's lobe direction, side by side.
         let (t, b) = sampling_frame8(&n);
         let (lobe_sp, lobe_cp) = sincos_turns8(&x2);
-        let (half_v, phi) = (mv.map(|v| 0.5 * v), mu.map(|u| u - 0.5));
-        let (st, ct) = sincos_turns8(&half_v);
-        let (sp, cp) = sincos_turns8(&phi);
         // cos θ uniform in [0, 1) gives uniform directions on the hemisphere; its square
         // root, the cosine lobe.
         let lc: F8 =
             if sampler == EnvSampler::Uniform { x1.map(|x| 1.0 - x) } else { x1.map(|x| (1.0 - x).sqrt()) };
+        let mut lobe = [[0.0f32; LANES]; 3];
+        for i in 0..LANES {
+            let ls = (1.0 - lc[i] * lc[i]).max(0.0).sqrt();
+            let (ca, cb) = (ls * lobe_cp[i], ls * lobe_sp[i]);
+            for a in 0..3 {
+                lobe[a][i] = t[a][i] * ca + b[a][i] * cb + n[a][i] * lc[i];
+            }
+        }
+        // The lobe directions' grid coordinates (lat-long, the distribution's), also while the
+        // rows load.
+        let (lu, lv) = latlong_uv8(&lobe);
+        for k in lanes(map) {
+            let c = dist.cell_in_row(&rows[k], xi[k][1], bounds[k]);
+            (mu[k], mv[k], mp[k]) = (c.u as f32, c.v as f32, (c.prob * dist.pdf_scale) as f32);
+            drawn |= u32::from(c.prob > 0.0) << k;
+        }
+        // Every lane's map-cell direction.
+        let (half_v, phi) = (mv.map(|v| 0.5 * v), mu.map(|u| u - 0.5));
+        let (st, ct) = sincos_turns8(&half_v);
+        let (sp, cp) = sincos_turns8(&phi);
         // Lane selects as bit masks (all ones for a map lane), so the loops stay vector code.
         let is_map: [u32; LANES] = std::array::from_fn(|k| 0u32.wrapping_sub(map >> k & 1));
         let mut wi = [[0.0f32; LANES]; 3];
         let mut cos = [0.0f32; LANES];
         for i in 0..LANES {
-            let ls = (1.0 - lc[i] * lc[i]).max(0.0).sqrt();
-            let (ca, cb) = (ls * lobe_cp[i], ls * lobe_sp[i]);
             // θ = πv from +Y, φ = 2π(u − ½), as `latlong_direction`.
             let cell = [st[i] * sp[i], ct[i], ENV_U_Z_SIGN as f32 * st[i] * cp[i]];
             for a in 0..3 {
-                let lobe = t[a][i] * ca + b[a][i] * cb + n[a][i] * lc[i];
-                wi[a][i] = pick(is_map[i], cell[a], lobe);
+                wi[a][i] = pick(is_map[i], cell[a], lobe[a][i]);
             }
             cos[i] = n[0][i] * wi[0][i] + n[1][i] * wi[1][i] + n[2][i] * wi[2][i];
         }
@@ -390,9 +399,7 @@ impl EnvLight {
             // The mixture's lobe half: `0.5 · cos / π` of whichever direction was drawn.
             EnvSampler::Importance => cos.map(|c| 0.5 * c / std::f32::consts::PI),
         };
-        // Grid coordinates (lat-long, the distribution's) of every direction: a map lane's are
-        // those it was drawn at; a lobe direction's are computed.
-        let (lu, lv) = latlong_uv8(&wi);
+        // Grid coordinates of every direction: a map lane's are those it was drawn at.
         let found;
         let (mut gu, mut gv, mut sin) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
         for i in 0..LANES {
