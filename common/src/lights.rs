@@ -564,7 +564,10 @@ pub struct Corners8 {
 /// or position makes the result unused or clamped at the border).
 #[inline(always)]
 fn texel_corners(img: &TextureImage, u: &F8, v: &F8) -> Corners8 {
-    let (w, h) = (img.width.max(1), img.height.max(1));
+    // Images hold at most MAX_TEXELS = 2^28 texels (the decoder's bound); sizes are clamped
+    // to it all the same, so that the conversions below stay in range for any image.
+    let bound = 1u32 << 28;
+    let (w, h) = (img.width.clamp(1, bound), img.height.clamp(1, bound));
     let (wf, hf) = (w as f32, h as f32);
     let mut c = Corners8 { index: [[0; LANES]; 4], dx: [0.0; LANES], dy: [0.0; LANES] };
     for i in 0..LANES {
@@ -574,17 +577,21 @@ fn texel_corners(img: &TextureImage, u: &F8, v: &F8) -> Corners8 {
         c.dx[i] = x - p;
         c.dy[i] = y - q;
         // SAFETY (both): p and q are whole numbers (floor), not NaN (`max` dropped it), and
-        // within [0, w] and [−1, h] with w, h ≤ 2^28: representable as u32 and i32.
+        // within [0, w] and [−1, h] with w, h ≤ 2^28 (exact in f32): representable as u32 and
+        // i32.
         let x0 = unsafe { p.to_int_unchecked::<u32>() };
         let x0 = if x0 >= w { x0 - w } else { x0 };
         let x1 = if x0 + 1 >= w { x0 + 1 - w } else { x0 + 1 };
         let q = unsafe { q.to_int_unchecked::<i32>() };
         let last = h as i32 - 1;
         let (y0, y1) = (q.clamp(0, last) as u32, (q + 1).clamp(0, last) as u32);
-        c.index[0][i] = y0 * w + x0;
-        c.index[1][i] = y0 * w + x1;
-        c.index[2][i] = y1 * w + x0;
-        c.index[3][i] = y1 * w + x1;
+        // Below w·h, which fits in u32 for every image that holds its texels (one that does
+        // not is read through checked loads: wrapping here is harmless).
+        let (r0, r1) = (y0.wrapping_mul(w), y1.wrapping_mul(w));
+        c.index[0][i] = r0.wrapping_add(x0);
+        c.index[1][i] = r0.wrapping_add(x1);
+        c.index[2][i] = r1.wrapping_add(x0);
+        c.index[3][i] = r1.wrapping_add(x1);
     }
     c
 }
@@ -618,10 +625,11 @@ fn gather_texels(img: &TextureImage, c: &Corners8, mask: u32, q: &mut [[F8; 3]; 
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     {
         use std::arch::x86_64::*;
-        // Every index is below w·h (texel_corners) and w·h ≤ MAX_TEXELS = 2^28, so 3·index + 2
-        // fits in i32.
-        debug_assert!(img.texels.len() as u64 <= crate::texture::image::MAX_TEXELS);
-        if img.texels.len() == img.width as usize * img.height as usize && !img.texels.is_empty() {
+        // Every index is below w·h (texel_corners), so 3·index + 2 fits in i32 when the image
+        // holds w·h texels and no more than i32::MAX / 3 (any image the decoder gives: at most
+        // MAX_TEXELS = 2^28); others take the checked loads below.
+        let len = img.texels.len();
+        if len == img.width as usize * img.height as usize && len != 0 && len <= i32::MAX as usize / 3 {
             // SAFETY: the target has AVX2 (cfg above). Each gather reads float 3·index + ch
             // (ch < 3) of `texels`, with index < w·h = texels.len() (texel_corners clamps rows
             // into [0, h − 1] and wraps columns into [0, w − 1]).
@@ -1590,6 +1598,15 @@ mod tests {
     fn lane_texels_are_those_of_the_single_lookup() {
         for (w, h) in [(7, 5), (1, 1), (1, 5), (6, 1)] {
             lane_texels_in_a_map(w, h);
+        }
+        // An image whose size does not match its texels, or is beyond any the decoder gives,
+        // is read through checked loads: no panic, no read outside its texels.
+        for (w, h) in [(u32::MAX, 3), (3, u32::MAX), (u32::MAX, u32::MAX), (1 << 29, 1)] {
+            let img = TextureImage { width: w, height: h, texels: vec![[1.0, 2.0, 3.0]; 5] };
+            let u: F8 = [0.0, 0.5, 1.0, 0.999, f32::NAN, 0.25, 1e-7, 0.75];
+            let c = texel_corners(&img, &u, &u);
+            let rgb = blend_corners(&img, &c, 0xff);
+            assert!(rgb.iter().flatten().all(|x| x.is_nan() || (0.0..=3.0).contains(x)), "{w}x{h}: {rgb:?}");
         }
     }
 
