@@ -622,6 +622,18 @@ fn blend_corners(img: &TextureImage, c: &Corners8, mask: u32) -> [F8; 3] {
 /// instruction; elsewhere one load per texel (the same values).
 #[inline(always)]
 fn gather_texels(img: &TextureImage, c: &Corners8, mask: u32, q: &mut [[F8; 3]; 4]) {
+    // The rays of a pixel's group that miss see nearly one direction, mostly within one texel
+    // of the map: when all eight lanes name the same four texels, each is read once and given
+    // to every lane (the values the gathers would read).
+    if mask == 0xff && (0..4).all(|k| c.index[k] == [c.index[k][0]; LANES]) {
+        for (corner, out) in q.iter_mut().enumerate() {
+            let t = img.texels.get(c.index[corner][0] as usize).copied().unwrap_or([0.0; 3]);
+            for (ch, lane) in out.iter_mut().enumerate() {
+                *lane = [t[ch]; LANES];
+            }
+        }
+        return;
+    }
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     {
         use std::arch::x86_64::*;
@@ -1466,6 +1478,17 @@ mod tests {
         }
         for mapping in [EnvMapping::LatLong, EnvMapping::Probe] {
             let env = EnvLight::new(map.clone(), mapping, None);
+            // Groups of directions within one texel quad, as a pixel's camera rays are, read it
+            // once for all lanes: the same values.
+            for d in dirs.iter().take(200) {
+                let near: [DVec3; LANES] =
+                    std::array::from_fn(|i| (*d + DVec3::splat(1e-9 * i as f64)).normalize());
+                let together = env.radiance_lanes(|i| near[i], 0xff);
+                for (n, got) in near.iter().zip(together) {
+                    let want = env.radiance(*n).to_array().map(f64::to_bits);
+                    assert_eq!(got.to_array().map(f64::to_bits), want, "{mapping:?} {n}");
+                }
+            }
             for (c, chunk) in dirs.chunks(LANES).enumerate() {
                 let group: [DVec3; LANES] = std::array::from_fn(|i| chunk[i % chunk.len()]);
                 let mask = [0xff, 0x5a, 0x01, 0x80][c % 4];
