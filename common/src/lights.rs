@@ -553,7 +553,7 @@ fn pick(m: u32, a: f32, b: f32) -> f32 {
 /// The four texels around eight map coordinates: their indices in the image, (x0, y0),
 /// (x1, y0), (x0, y1), (x1, y1), and the blend's fractions.
 #[derive(Clone, Copy, Debug)]
-pub struct Corners8 {
+struct Corners8 {
     index: [[u32; LANES]; 4],
     dx: F8,
     dy: F8,
