@@ -12,7 +12,7 @@ use std::sync::Arc;
 use glam::{DAffine3, DVec3};
 
 use crate::math::{
-    F8, atan2_8, atan2_approx, lanes, orthonormal_pair, prefetch, sampling_frame8, sincos_turns,
+    F8, atan2_8, atan2_approx, lane, lanes, orthonormal_pair, prefetch, sampling_frame8, sincos_turns,
     sincos_turns8,
 };
 use crate::sampler::{GROUP_LANES as LANES, Sampler};
@@ -259,7 +259,7 @@ impl EnvLight {
             }
         }
         let rgb = blend_corners(&self.image, &texel_corners(&self.image, &u, &v), mask);
-        std::array::from_fn(|i| DVec3::new(f64::from(rgb[0][i]), f64::from(rgb[1][i]), f64::from(rgb[2][i])))
+        std::array::from_fn(|i| lane(&rgb, i))
     }
 
     /// One direction for a point with unit normal `n` (on the side the light can arrive from),
@@ -276,10 +276,7 @@ impl EnvLight {
         self.sample_directions(&[n], sampler, &[xi], 1, &mut d);
         let drawn = d.mask;
         let (lit, w) = self.weights(&mut d, drawn);
-        (lit & 1 != 0).then(|| EnvSample {
-            wi: d.wi(0),
-            weight: DVec3::new(f64::from(w[0][0]), f64::from(w[1][0]), f64::from(w[2][0])),
-        })
+        (lit & 1 != 0).then(|| EnvSample { wi: d.wi(0), weight: lane(&w, 0) })
     }
 
     /// How many requests of a [`Sampler`] one direction takes: a two-number request (`xi[0]`,
@@ -436,10 +433,7 @@ impl EnvLight {
         let (mut tu, mut tv) = (gu, gv);
         if self.mapping == EnvMapping::Probe {
             for k in lanes(found) {
-                let (u, v) = env_uv(
-                    EnvMapping::Probe,
-                    DVec3::new(f64::from(wi[0][k]), f64::from(wi[1][k]), f64::from(wi[2][k])),
-                );
+                let (u, v) = env_uv(EnvMapping::Probe, lane(&wi, k));
                 (tu[k], tv[k]) = (u as f32, v as f32);
             }
         }
@@ -774,7 +768,7 @@ impl EnvDirections {
     /// Lane `k`'s direction.
     #[inline(always)]
     pub fn wi(&self, k: usize) -> DVec3 {
-        DVec3::new(f64::from(self.wi[0][k]), f64::from(self.wi[1][k]), f64::from(self.wi[2][k]))
+        lane(&self.wi, k)
     }
 }
 
@@ -1058,30 +1052,21 @@ impl EnvDistribution {
         if sin <= 0.0 {
             return 0.0;
         }
-        self.solid_angle_pdf(self.cell_prob(x, y), sin)
+        self.solid_angle_pdf(self.cell_prob_at(y * self.width + x, y), sin)
     }
 
     /// The solid-angle density of a cell of probability `p` at sin θ = `sin`.
     #[inline]
     fn solid_angle_pdf(&self, p: f64, sin: f64) -> f64 {
-        p * small_f64(self.width * self.height) / (2.0 * PI * PI * sin)
+        p * self.pdf_scale / sin
     }
 
-    /// [`Self::cell_prob`] of the cell at `i = y · width + x` in row `y` (no division to find
-    /// them): the same value.
+    /// The probability of the cell at `i = y · width + x` in row `y` (both given, so that no
+    /// division finds them): its row's, times its own within the row.
     #[inline]
     fn cell_prob_at(&self, i: usize, y: usize) -> f64 {
         let row_p = self.rows[y] - if y == 0 { 0.0 } else { self.rows[y - 1] };
         let cell_p = self.cells[i] - if i == y * self.width { 0.0 } else { self.cells[i - 1] };
-        row_p * cell_p
-    }
-
-    /// The probability of cell (x, y): its row's, times its own within the row.
-    #[inline]
-    fn cell_prob(&self, x: usize, y: usize) -> f64 {
-        let row_p = self.rows[y] - if y == 0 { 0.0 } else { self.rows[y - 1] };
-        let cdf = &self.cells[y * self.width..(y + 1) * self.width];
-        let cell_p = cdf[x] - if x == 0 { 0.0 } else { cdf[x - 1] };
         row_p * cell_p
     }
 }
@@ -1676,15 +1661,19 @@ mod tests {
         assert!(compared > 60, "{compared}");
     }
 
-    /// A cell's probability found from its index and row is the one found from its column and
-    /// row, bit for bit, in every cell (first columns and first row included).
+    /// A cell's probability found from its index and row is its row's width in the rows'
+    /// cumulative table times its own width in its row's, bit for bit, in every cell (first
+    /// columns and first row included).
     #[test]
     fn cell_probabilities_by_index_are_by_column_and_row() {
         let map = image(9, 6, |x, y| [(x * y % 4) as f32 + 0.1, 1.0, (x + 2 * y) as f32]);
         let d = EnvDistribution::new(&map, EnvMapping::LatLong);
         for y in 0..6 {
+            let row_p = d.rows[y] - if y == 0 { 0.0 } else { d.rows[y - 1] };
+            let cdf = &d.cells[y * 9..(y + 1) * 9];
             for x in 0..9 {
-                assert_eq!(d.cell_prob_at(y * 9 + x, y).to_bits(), d.cell_prob(x, y).to_bits(), "({x}, {y})");
+                let want = row_p * (cdf[x] - if x == 0 { 0.0 } else { cdf[x - 1] });
+                assert_eq!(d.cell_prob_at(y * 9 + x, y).to_bits(), want.to_bits(), "({x}, {y})");
             }
         }
     }

@@ -263,6 +263,12 @@ pub fn select(c: bool, a: f64, b: f64) -> f64 {
 /// not depend on its neighbours, on whether the loop was vectorised, or on the machine.
 pub type F8 = [f32; 8];
 
+/// Lane `k` of eight `f32` vectors given by axis, as an `f64` vector.
+#[inline(always)]
+pub fn lane(v: &[F8; 3], k: usize) -> DVec3 {
+    DVec3::new(f64::from(v[0][k]), f64::from(v[1][k]), f64::from(v[2][k]))
+}
+
 /// [`sincos_turns`] of eight lanes in `f32`: `(sin 2πt, cos 2πt)` to within about 1e-7 (the
 /// Taylor series of sine to x⁹ and of cosine to x¹⁰ on [−π/4, π/4], whose truncation errors are
 /// 2e-9 and 1e-10, below `f32`'s rounding), with the same exact reduction and quarter-turn
@@ -299,8 +305,8 @@ pub fn sincos_turns8(t: &F8) -> (F8, F8) {
 /// [`atan2_approx`] of eight lanes in `f32`: `y[i].atan2(x[i])` to within 3.5e-7 radians,
 /// about one and a half `f32` steps near ±π (the same octant reduction, then `atan(t) = t·P(t²)`
 /// on [0, 1] with `P` of degree 7, fitted for the least maximum error: 3.7e-8; the rest is
-/// `f32` rounding), unfolded by selects. Signed
-/// zeros and quadrants follow `f32::atan2`; a NaN argument gives NaN.
+/// `f32` rounding), unfolded by selects. Signed zeros and quadrants follow `f32::atan2`; a NaN
+/// argument gives NaN.
 #[inline(always)]
 pub fn atan2_8(y: &F8, x: &F8) -> F8 {
     const C: [f32; 8] = [

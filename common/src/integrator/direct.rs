@@ -17,7 +17,7 @@ use glam::DVec3;
 
 use crate::lights::{EnvDirections, EnvLight};
 use crate::material::Material;
-use crate::math::{Ray, lanes};
+use crate::math::{Ray, lane, lanes};
 use crate::sampler::{GROUP_LANES, Sampler};
 use crate::scene::Scene;
 use crate::scene::records::EnvSampler;
@@ -290,7 +290,7 @@ impl Lighting<'_> {
                 let (lit, w) = light.weights(&mut dirs, clear);
                 let mut weights = [DVec3::ZERO; N];
                 for k in lanes(lit) {
-                    weights[k] = DVec3::new(f64::from(w[0][k]), f64::from(w[1][k]), f64::from(w[2][k]));
+                    weights[k] = lane(&w, k);
                 }
                 reflect_lanes(pts, &views, lit, &shadows.dir, &weights, &mut l);
             }
