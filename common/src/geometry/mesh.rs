@@ -192,15 +192,29 @@ impl MeshGeom {
     #[inline]
     pub fn smooth_hits(&self, tri: &[u32; 8], o: &[[f64; 8]; 3], d: &[[f64; 8]; 3]) -> Option<SmoothHits> {
         let ns = self.vertex_normals.as_deref()?;
-        // The three corners' positions and normals, by axis, then lane.
+        // The three corners' positions and normals, by axis, then lane. A pixel's samples
+        // mostly find one triangle: then its corners are read once and copied to every lane.
         let (mut p, mut n) = ([[[0.0; 8]; 3]; 3], [[[0.0; 8]; 3]; 3]);
-        for (k, &t) in tri.iter().enumerate() {
-            let corners = self.indices[t as usize];
+        if tri.iter().all(|&t| t == tri[0]) {
+            #[cfg(test)]
+            super::tests::ONE_TRIANGLE_PACKETS.with(|c| c.set(c.get() + 1));
+            let corners = self.indices[tri[0] as usize];
             for (c, &i) in corners.iter().enumerate() {
                 let (q, m) = (self.positions[i as usize], ns[i as usize]);
                 for a in 0..3 {
-                    p[c][a][k] = q[a];
-                    n[c][a][k] = m[a];
+                    p[c][a] = [q[a]; 8];
+                    n[c][a] = [m[a]; 8];
+                }
+            }
+        } else {
+            for (k, &t) in tri.iter().enumerate() {
+                let corners = self.indices[t as usize];
+                for (c, &i) in corners.iter().enumerate() {
+                    let (q, m) = (self.positions[i as usize], ns[i as usize]);
+                    for a in 0..3 {
+                        p[c][a][k] = q[a];
+                        n[c][a][k] = m[a];
+                    }
                 }
             }
         }

@@ -1127,6 +1127,8 @@ mod tests {
     thread_local! {
         /// Packets completed by `smooth_mesh_hits` on this thread (the test's threads are its own).
         pub(super) static SMOOTH_MESH_PACKETS: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+        /// Of those, the packets whose lanes all found one triangle (read once by `smooth_hits`).
+        pub(crate) static ONE_TRIANGLE_PACKETS: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
     }
 
     fn unit_quad() -> Arc<MeshGeom> {
@@ -1554,6 +1556,7 @@ mod tests {
         };
         for (accel, width) in [(&lone, 14.0), (&pair, 30.0)] {
             SMOOTH_MESH_PACKETS.with(|c| c.set(0));
+            ONE_TRIANGLE_PACKETS.with(|c| c.set(0));
             let (mut together, mut one_mesh, mut face) = (0, 0, 0);
             for k in 0..3000 {
                 let n = 1 + k % 8;
@@ -1585,6 +1588,10 @@ mod tests {
                 "{one_mesh} of {together}"
             );
             assert_eq!(SMOOTH_MESH_PACKETS.with(|c| c.get()), one_mesh);
+            // Narrow packets mostly find one triangle, wide ones several: both ways of reading
+            // the corners were taken.
+            let one_triangle = ONE_TRIANGLE_PACKETS.with(|c| c.get());
+            assert!(one_triangle > 100 && one_triangle + 100 < one_mesh, "{one_triangle} of {one_mesh}");
         }
     }
 
