@@ -188,9 +188,13 @@ pub fn render_tile_until(
                 let film = take(n > 1, 0.5);
                 let lens = take(cam.lens.is_some(), 0.5);
                 let time = take(moving, 0.0)[0];
-                // All eight lanes, used or not: a loop of fixed length the compiler vectorises.
+                // All eight lanes, used or not: loops of fixed length the compiler vectorises.
+                let pinhole = cam.lens.is_none().then(|| cam.ray_dirs8(x, y, &film[0], &film[1]));
                 let rays: [Ray; GROUP] = std::array::from_fn(|i| {
-                    let mut ray = cam.lens_ray(x, y, film[0][i], film[1][i], lens[0][i], lens[1][i]);
+                    let mut ray = match &pinhole {
+                        Some(d) => Ray::new(cam.position, glam::DVec3::new(d[0][i], d[1][i], d[2][i])),
+                        None => cam.lens_ray(x, y, film[0][i], film[1][i], lens[0][i], lens[1][i]),
+                    };
                     // A 1-D request is the first coordinate of the 2-D one.
                     ray.time = time[i];
                     ray
