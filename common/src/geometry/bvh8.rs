@@ -65,8 +65,12 @@ pub struct Ray8 {
     /// Plane index (into `Node::b`) of the near and far side per axis.
     near: [usize; 3],
     far: [usize; 3],
-    pub tmin: f32,
-    pub tmax: f32,
+    tmin: f32,
+    tmax: f32,
+    /// Whether the ray has a NaN in its origin, direction or bounds (see [`Self::has_nan`]),
+    /// worked out while the values are in registers: a walk that began by loading the fields
+    /// it was just built from, several at once, waited for their stores.
+    nan: bool,
 }
 
 /// `1 / d` of a direction component, with components of magnitude below 1e-18 taken as ±1e-18
@@ -92,7 +96,9 @@ impl Ray8 {
             near[a] = a + 3 * neg;
             far[a] = a + 3 * (1 - neg);
         }
-        Ray8 { o, d, inv, o_inv, near, far, tmin, tmax }
+        let nan =
+            o_inv[0].is_nan() || o_inv[1].is_nan() || o_inv[2].is_nan() || tmin.is_nan() || tmax.is_nan();
+        Ray8 { o, d, inv, o_inv, near, far, tmin, tmax, nan }
     }
 
     /// Whether the ray has a NaN in its origin, direction or bounds: such a ray hits nothing
@@ -103,11 +109,7 @@ impl Ray8 {
     /// makes the scaled origin NaN.
     #[inline(always)]
     fn has_nan(&self) -> bool {
-        self.o_inv[0].is_nan()
-            || self.o_inv[1].is_nan()
-            || self.o_inv[2].is_nan()
-            || self.tmin.is_nan()
-            || self.tmax.is_nan()
+        self.nan
     }
 }
 
