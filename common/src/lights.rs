@@ -836,6 +836,25 @@ fn guide_table(cdf: &[f64], out: &mut Vec<u32>) {
 #[inline]
 fn guided_search(cdf: &[f64], guide: &[u32], xi: f64) -> usize {
     let (lo, hi) = guide_bounds(cdf.len(), guide, xi);
+    search_between(cdf, lo, hi, xi)
+}
+
+/// Entries a short search counts at once.
+const SEARCH_WINDOW: usize = 16;
+
+/// `cdf.partition_point(|&c| c <= xi)` for a non-decreasing `cdf` whose entries before `lo` are
+/// `<= xi` and whose entries from `hi` on are `> xi` (a guide table's bounds). When the range is
+/// short, the entries `<= xi` among the [`SEARCH_WINDOW`] from `lo` (from the table's end back,
+/// near it) are counted: those loads do not wait on one another, as a binary search's do, and
+/// the count is the same index.
+#[inline(always)]
+fn search_between(cdf: &[f64], lo: usize, hi: usize, xi: f64) -> usize {
+    if hi - lo <= SEARCH_WINDOW && cdf.len() >= SEARCH_WINDOW {
+        let start = lo.min(cdf.len() - SEARCH_WINDOW);
+        let window: &[f64; SEARCH_WINDOW] =
+            cdf[start..start + SEARCH_WINDOW].try_into().expect("window in the table");
+        return start + window.iter().map(|&c| usize::from(c <= xi)).sum::<usize>();
+    }
     lo + cdf[lo..hi].partition_point(|&c| c <= xi)
 }
 
@@ -1007,7 +1026,7 @@ impl EnvDistribution {
     fn cell_in_row(&self, row: &RowPick, xi2: f64, (lo, hi): (usize, usize)) -> RowCell {
         let RowPick { y, row_p, fy, .. } = *row;
         let cdf = &self.cells[y * self.width..(y + 1) * self.width];
-        let x = (lo + cdf[lo..hi].partition_point(|&c| c <= xi2)).min(self.width - 1);
+        let x = search_between(cdf, lo, hi, xi2).min(self.width - 1);
         let lo = if x == 0 { 0.0 } else { cdf[x - 1] };
         let cell_p = cdf[x] - lo;
         let fx = if cell_p > 0.0 { ((xi2 - lo) / cell_p).clamp(0.0, 1.0 - 1e-12) } else { 0.5 };
@@ -1385,6 +1404,35 @@ mod tests {
                 "row {row}, xi {xi}"
             );
         }
+    }
+
+    /// The short search counts what the binary search finds, in the middle of a table and at
+    /// both ends, for ranges of every length up to the window and past it.
+    #[test]
+    fn counting_a_short_range_is_the_binary_search() {
+        // Non-decreasing, with runs of ties and a jump.
+        let cdf: Vec<f64> = (0..40).map(|i| f64::from((i / 3) * (1 + i / 20)) / 40.0).collect();
+        let mut cases = 0;
+        for lo in 0..cdf.len() {
+            for hi in lo..=cdf.len() {
+                for xi in cdf.iter().flat_map(|&c| [c, c + 1e-3, c - 1e-3]) {
+                    // Only the ranges a guide table could give for this xi.
+                    let bounds_hold = cdf[..lo].iter().all(|&c| c <= xi) && cdf[hi..].iter().all(|&c| c > xi);
+                    if bounds_hold {
+                        cases += 1;
+                        assert_eq!(
+                            search_between(&cdf, lo, hi, xi),
+                            cdf.partition_point(|&c| c <= xi),
+                            "{lo}..{hi}, {xi}"
+                        );
+                    }
+                }
+            }
+        }
+        assert!(cases > 200, "{cases}");
+        // A table shorter than the window is searched the plain way.
+        let short = [0.25, 0.5, 1.0];
+        assert_eq!(search_between(&short, 0, 3, 0.6), 2);
     }
 
     fn fmix(mut k: u64) -> u64 {
