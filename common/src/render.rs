@@ -136,6 +136,12 @@ pub fn render_tile_until(
     }
     let pixel_uv = glam::DVec2::new(1.0 / cam.width as f64, 1.0 / cam.height as f64);
     let mut out = Vec::with_capacity((rect.width * rect.height) as usize);
+    // A group's samplers, drawn numbers and camera hits, made once per tile: every group
+    // writes the entries it reads (`camera_hits` writes a hit or `None` to each of its slots),
+    // and a group's arrays zeroed anew cost more stores than all the rest of its setup.
+    let mut samplers: [Sampler; GROUP] = std::array::from_fn(|_| Sampler::new(seed, 0, 0, 0));
+    let mut drawn = [[[0.0; GROUP]; 2]; 3];
+    let mut hits = [None; GROUP];
     for y in rect.y0..rect.y0 + rect.height {
         for x in rect.x0..rect.x0 + rect.width {
             if let Some(k) = scene.background_texture {
@@ -157,7 +163,6 @@ pub fn render_tile_until(
                     stop.check()?;
                 }
                 let group = (n - s).min(GROUP as u32) as usize;
-                let mut samplers: [Sampler; GROUP] = std::array::from_fn(|_| pixel_sampler.clone());
                 // The group's sample values first, then its rays: the rays' square roots and
                 // divisions are one chain each, and with nothing else in between the processor
                 // overlaps the eight chains.
@@ -171,7 +176,6 @@ pub fn render_tile_until(
                 // by the sampler, like every other dimension.
                 // The requests in use are drawn together (their scrambles overlap), each as
                 // two coordinates of eight lanes.
-                let mut drawn = [[[0.0; GROUP]; 2]; 3];
                 let count = usize::from(n > 1) + usize::from(cam.lens.is_some()) + usize::from(moving);
                 match count {
                     3 => drawn = Sampler::next_2d_groups::<3>(samplers_in_use),
@@ -199,7 +203,6 @@ pub fn render_tile_until(
                     ray.time = time[i];
                     ray
                 });
-                let mut hits = [None; GROUP];
                 tracer.camera_hits(&rays[..group], &mut hits[..group]);
                 let radiance = tracer.trace_primary_group(&rays, &hits[..group], &mut samplers[..group]);
                 for l in &radiance[..group] {

@@ -592,6 +592,7 @@ impl Accel {
     /// [`Self::intersect`] finds (up to exact ties): the world tree is walked by all of them
     /// together as a [`Packet8`], and each instance of a short list is box-tested against all of
     /// them at once ([`BoxRays8`]); every ray meets the instances in the order it would alone.
+    /// Every slot of `out` is written (`None` for a ray that hits nothing), whatever it held.
     pub fn intersect_packet(&self, rays: &[Ray], tmin: f64, out: &mut [Option<SurfaceHit>]) {
         assert!(rays.len() <= 8 && out.len() == rays.len(), "one result per ray, at most eight rays");
         let n = rays.len();
@@ -1424,7 +1425,9 @@ mod tests {
 
     /// `rays` traced as a packet by `accel`, each beside its own single-ray hit.
     fn packet_and_singles(accel: &Accel, rays: &[Ray]) -> Vec<(Option<SurfaceHit>, Option<SurfaceHit>)> {
-        let mut out = vec![None; rays.len()];
+        // Stale records in every slot: each must be overwritten.
+        let stale = SurfaceHit { t: -1.0, material: 99, ..SurfaceHit::default() };
+        let mut out = vec![Some(stale); rays.len()];
         accel.intersect_packet(rays, 1e-6, &mut out);
         out.into_iter().zip(rays).map(|(got, ray)| (got, accel.intersect(ray, 1e-6, f64::INFINITY))).collect()
     }
