@@ -7,7 +7,7 @@ mod direct;
 use glam::{DVec2, DVec3};
 
 use crate::geometry::Instance;
-use crate::geometry::SurfaceHit;
+use crate::geometry::{RayLanes, SurfaceHit};
 use crate::material::{Material, MaterialKind, Refraction, fresnel_conductor, refract};
 use crate::math::{Ray, orthonormal_pair, reflect, sincos_turns};
 use crate::sampler::{GROUP_LANES, Sampler};
@@ -95,8 +95,16 @@ impl<'a> Tracer<'a> {
     /// [`Accel::intersect_packet`](crate::geometry::Accel::intersect_packet)); a hit on a back
     /// face that the scene culls is looked past ray by ray.
     pub fn camera_hits(&self, rays: &[Ray], out: &mut [Option<SurfaceHit>]) {
+        if !rays.is_empty() {
+            self.camera_hits_lanes(rays, &RayLanes::new(rays), out);
+        }
+    }
+
+    /// [`Self::camera_hits`] of `rays` also given side by side (see
+    /// [`Accel::intersect_lanes`](crate::geometry::Accel::intersect_lanes)).
+    pub fn camera_hits_lanes(&self, rays: &[Ray], wide: &RayLanes, out: &mut [Option<SurfaceHit>]) {
         let scene = self.scene;
-        scene.accel.intersect_packet(rays, scene.intersection_test_epsilon, out);
+        scene.accel.intersect_lanes(rays, wide, scene.intersection_test_epsilon, out);
         if scene.cull_camera_back_faces {
             for (o, ray) in out.iter_mut().zip(rays) {
                 if o.is_some_and(|h| ray.dir.dot(h.geo_normal) > 0.0 && scene.accel.is_triangle(h.instance)) {

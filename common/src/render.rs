@@ -9,6 +9,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
+use crate::geometry::RayLanes;
 use crate::image::{Image, TileRect};
 use crate::integrator::{RayStats, Tracer};
 use crate::math::Ray;
@@ -194,6 +195,7 @@ pub fn render_tile_until(
                 let time = take(moving, 0.0)[0];
                 // All eight lanes, used or not: loops of fixed length the compiler vectorises.
                 let pinhole = cam.lens.is_none().then(|| cam.ray_dirs8(x, y, &film[0], &film[1]));
+                let wide = pinhole.as_ref().map(|d| RayLanes::from_origin(cam.position, d, group));
                 let rays: [Ray; GROUP] = std::array::from_fn(|i| {
                     let mut ray = match &pinhole {
                         Some(d) => Ray::new(cam.position, glam::DVec3::new(d[0][i], d[1][i], d[2][i])),
@@ -203,7 +205,10 @@ pub fn render_tile_until(
                     ray.time = time[i];
                     ray
                 });
-                tracer.camera_hits(&rays[..group], &mut hits[..group]);
+                match &wide {
+                    Some(wide) => tracer.camera_hits_lanes(&rays[..group], wide, &mut hits[..group]),
+                    None => tracer.camera_hits(&rays[..group], &mut hits[..group]),
+                }
                 let radiance = tracer.trace_primary_group(&rays, &hits[..group], &mut samplers[..group]);
                 for l in &radiance[..group] {
                     sum += *l;

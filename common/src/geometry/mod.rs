@@ -243,7 +243,8 @@ fn sphere_t(center: DVec3, radius: f64, r: &Ray, tmin: f64, tmax: f64) -> Option
 
 /// Up to eight `f64` rays side by side (unused lanes repeat the first ray): what a group's
 /// `f32` lanes ([`Lanes8`]) are converted from, and what eight-lane tests in `f64` (spheres) read.
-struct RayLanes {
+pub struct RayLanes {
+    /// Origins and directions, by axis then lane.
     o: [[f64; 8]; 3],
     d: [[f64; 8]; 3],
     /// How many lanes hold a ray.
@@ -254,18 +255,41 @@ impl RayLanes {
     /// One to eight rays, by axis then lane (a loop of fixed length). Always inlined: built in
     /// the caller's frame, not copied there.
     #[inline(always)]
-    fn new(rays: &[Ray]) -> Self {
+    pub fn new(rays: &[Ray]) -> Self {
         let len = rays.len();
         assert!((1..=8).contains(&len), "one to eight rays");
-        let (mut o, mut d) = ([[0.0f64; 8]; 3], [[0.0f64; 8]; 3]);
+        let mut l = RayLanes { o: [[0.0; 8]; 3], d: [[0.0; 8]; 3], len };
         for lane in 0..8 {
             let r = &rays[if lane < len { lane } else { 0 }];
             for a in 0..3 {
-                o[a][lane] = r.origin[a];
-                d[a][lane] = r.dir[a];
+                l.o[a][lane] = r.origin[a];
+                l.d[a][lane] = r.dir[a];
             }
         }
-        RayLanes { o, d, len }
+        l
+    }
+
+    /// The first `len` (one to eight) of the rays from `origin` along `d` (directions by axis,
+    /// then lane): camera rays made side by side, which need not be gathered from [`Ray`]s.
+    #[inline(always)]
+    pub fn from_origin(origin: DVec3, d: &[[f64; 8]; 3], len: usize) -> Self {
+        assert!((1..=8).contains(&len), "one to eight rays");
+        let mut l = RayLanes { o: [[0.0; 8]; 3], d: *d, len };
+        for a in 0..3 {
+            l.o[a] = [origin[a]; 8];
+            for lane in len..8 {
+                l.d[a][lane] = d[a][0];
+            }
+        }
+        l
+    }
+
+    /// Whether lane `k` holds `ray`'s origin and direction, bit for bit.
+    fn holds(&self, k: usize, ray: &Ray) -> bool {
+        (0..3).all(|a| {
+            self.o[a][k].to_bits() == ray.origin[a].to_bits()
+                && self.d[a][k].to_bits() == ray.dir[a].to_bits()
+        })
     }
 }
 
@@ -595,12 +619,23 @@ impl Accel {
     /// Every slot of `out` is written (`None` for a ray that hits nothing), whatever it held.
     pub fn intersect_packet(&self, rays: &[Ray], tmin: f64, out: &mut [Option<SurfaceHit>]) {
         assert!(rays.len() <= 8 && out.len() == rays.len(), "one result per ray, at most eight rays");
-        let n = rays.len();
-        if n == 0 {
+        if rays.is_empty() {
             return;
         }
+        self.intersect_lanes(rays, &RayLanes::new(rays), tmin, out);
+    }
+
+    /// [`Self::intersect_packet`] of `rays` given side by side as well (`wide` holds the same
+    /// rays, as [`RayLanes::new`] would make them: checked in debug builds), so that a caller
+    /// that made them that way saves the gathering.
+    pub fn intersect_lanes(&self, rays: &[Ray], wide: &RayLanes, tmin: f64, out: &mut [Option<SurfaceHit>]) {
+        assert!(
+            (1..=8).contains(&rays.len()) && out.len() == rays.len() && wide.len == rays.len(),
+            "one to eight rays, as many lanes and results"
+        );
+        debug_assert!(rays.iter().enumerate().all(|(k, r)| wide.holds(k, r)), "the lanes hold the rays");
+        let n = rays.len();
         let mut best = [Candidate::none(f64::INFINITY); 8];
-        let wide = RayLanes::new(rays);
         let mut lanes = Lanes8::new(&wide.o, &wide.d, wide.len);
         let tmin32 = tmin as f32;
         // Each lane's closest hit so far in f32; a lane's obvhs ray is made only where an
@@ -620,7 +655,7 @@ impl Accel {
         }
         if self.bounded.is_empty() && self.unbounded.is_empty() {
             // Everything was in the world tree.
-            if !self.smooth_mesh_hits(rays, &wide, &best, out) {
+            if !self.smooth_mesh_hits(rays, wide, &best, out) {
                 for lane in 0..n {
                     self.found_into(&rays[lane], best[lane], &mut out[lane]);
                 }
@@ -644,7 +679,7 @@ impl Accel {
                     && let Some((center, radius, xf)) = self.lane_sphere(idx)
                 {
                     // Two lanes or more in a sphere's box: its test for all eight at once.
-                    let ts = sphere_lanes(center, radius, xf, &wide, tmin, &best.map(|c| c.t));
+                    let ts = sphere_lanes(center, radius, xf, wide, tmin, &best.map(|c| c.t));
                     while hit != 0 {
                         let lane = hit.trailing_zeros() as usize;
                         hit &= hit - 1;
@@ -664,7 +699,7 @@ impl Accel {
                     boxes.tmax[lane] = boxes.tmax[lane].min(t);
                 }
             }
-            if !self.smooth_mesh_hits(rays, &wide, &best, out) {
+            if !self.smooth_mesh_hits(rays, wide, &best, out) {
                 for lane in 0..n {
                     self.found_into(&rays[lane], best[lane], &mut out[lane]);
                 }
@@ -1595,6 +1630,23 @@ mod tests {
             // the corners were taken.
             let one_triangle = ONE_TRIANGLE_PACKETS.with(|c| c.get());
             assert!(one_triangle > 100 && one_triangle + 100 < one_mesh, "{one_triangle} of {one_mesh}");
+        }
+    }
+
+    /// Rays made side by side from one origin are the lanes a gathering of the same rays makes,
+    /// unused lanes included (they repeat the first), for groups of one to eight.
+    #[test]
+    fn lanes_from_one_origin_are_the_gathered_rays() {
+        let mut rng = crate::sampler::Sampler::new(4, 4, 4, 4);
+        let origin = DVec3::new(0.3, -2.0, 7.5);
+        for len in 1..=8 {
+            let d: [[f64; 8]; 3] = std::array::from_fn(|_| std::array::from_fn(|_| rng.next_1d() - 0.5));
+            let rays: Vec<Ray> =
+                (0..len).map(|k| Ray::new(origin, DVec3::new(d[0][k], d[1][k], d[2][k]))).collect();
+            let (made, gathered) = (RayLanes::from_origin(origin, &d, len), RayLanes::new(&rays));
+            let bits = |v: &[[f64; 8]; 3]| v.map(|row| row.map(f64::to_bits));
+            assert_eq!((bits(&made.o), bits(&made.d), made.len), (bits(&gathered.o), bits(&gathered.d), len));
+            assert!(rays.iter().enumerate().all(|(k, r)| made.holds(k, r)));
         }
     }
 
