@@ -105,10 +105,17 @@ impl Camera {
     /// they run four lanes to an instruction (the compiler left the lanes' arithmetic scalar).
     #[inline(always)]
     pub fn ray_dirs8(&self, x: u32, y: u32, dx: &[f64; 8], dy: &[f64; 8]) -> [[f64; 8]; 3] {
+        let mut d = [[0.0; 8]; 3];
+        self.ray_dirs8_into(x, y, dx, dy, &mut d);
+        d
+    }
+
+    /// [`Self::ray_dirs8`] written into `d`, where the caller keeps them.
+    #[inline(always)]
+    pub fn ray_dirs8_into(&self, x: u32, y: u32, dx: &[f64; 8], dy: &[f64; 8], d: &mut [[f64; 8]; 3]) {
         let (px, py) = (x as f64, y as f64);
         let (c, u, v, o) =
             (self.corner.to_array(), self.u.to_array(), self.v.to_array(), self.position.to_array());
-        let mut d = [[0.0; 8]; 3];
         #[cfg(all(target_arch = "x86_64", target_feature = "avx"))]
         {
             use std::arch::x86_64::*;
@@ -148,7 +155,6 @@ impl Camera {
                 d[i][k] = s[i] * recip;
             }
         }
-        d
     }
 
     /// The point of the image plane at image position (x + dx, y + dy).

@@ -143,6 +143,8 @@ pub fn render_tile_until(
     let mut samplers: [Sampler; GROUP] = std::array::from_fn(|_| Sampler::new(seed, 0, 0, 0));
     let mut drawn = [[[0.0; GROUP]; 2]; 3];
     let mut hits = [None; GROUP];
+    // A pinhole group's camera rays side by side, their directions made in place.
+    let mut wide = RayLanes::from_origin(cam.position, &[[0.0; GROUP]; 3], GROUP);
     for y in rect.y0..rect.y0 + rect.height {
         for x in rect.x0..rect.x0 + rect.width {
             if let Some(k) = scene.background_texture {
@@ -194,20 +196,24 @@ pub fn render_tile_until(
                 let lens = take(cam.lens.is_some(), 0.5);
                 let time = take(moving, 0.0)[0];
                 // All eight lanes, used or not: loops of fixed length the compiler vectorises.
-                let pinhole = cam.lens.is_none().then(|| cam.ray_dirs8(x, y, &film[0], &film[1]));
-                let wide = pinhole.as_ref().map(|d| RayLanes::from_origin(cam.position, d, group));
+                let pinhole = cam.lens.is_none();
+                if pinhole {
+                    wide.refill_dirs(group, |d| cam.ray_dirs8_into(x, y, &film[0], &film[1], d));
+                }
                 let rays: [Ray; GROUP] = std::array::from_fn(|i| {
-                    let mut ray = match &pinhole {
-                        Some(d) => Ray::new(cam.position, glam::DVec3::new(d[0][i], d[1][i], d[2][i])),
-                        None => cam.lens_ray(x, y, film[0][i], film[1][i], lens[0][i], lens[1][i]),
+                    let mut ray = if pinhole {
+                        Ray::new(cam.position, wide.dir(i))
+                    } else {
+                        cam.lens_ray(x, y, film[0][i], film[1][i], lens[0][i], lens[1][i])
                     };
                     // A 1-D request is the first coordinate of the 2-D one.
                     ray.time = time[i];
                     ray
                 });
-                match &wide {
-                    Some(wide) => tracer.camera_hits_lanes(&rays[..group], wide, &mut hits[..group]),
-                    None => tracer.camera_hits(&rays[..group], &mut hits[..group]),
+                if pinhole {
+                    tracer.camera_hits_lanes(&rays[..group], &wide, &mut hits[..group]);
+                } else {
+                    tracer.camera_hits(&rays[..group], &mut hits[..group]);
                 }
                 let radiance = tracer.trace_primary_group(&rays, &hits[..group], &mut samplers[..group]);
                 for l in &radiance[..group] {

@@ -284,6 +284,26 @@ impl RayLanes {
         l
     }
 
+    /// New directions for these rays from one origin ([`Self::from_origin`]'s): `fill` writes
+    /// them (by axis, then lane) where they are kept, the first `len` (one to eight) in use.
+    #[inline(always)]
+    pub fn refill_dirs(&mut self, len: usize, fill: impl FnOnce(&mut [[f64; 8]; 3])) {
+        assert!((1..=8).contains(&len), "one to eight rays");
+        fill(&mut self.d);
+        self.len = len;
+        for a in 0..3 {
+            for lane in len..8 {
+                self.d[a][lane] = self.d[a][0];
+            }
+        }
+    }
+
+    /// Lane `k`'s direction.
+    #[inline(always)]
+    pub fn dir(&self, k: usize) -> DVec3 {
+        DVec3::new(self.d[0][k], self.d[1][k], self.d[2][k])
+    }
+
     /// Whether lane `k` holds `ray`'s origin and direction, bit for bit.
     fn holds(&self, k: usize, ray: &Ray) -> bool {
         (0..3).all(|a| {
@@ -1644,9 +1664,14 @@ mod tests {
             let rays: Vec<Ray> =
                 (0..len).map(|k| Ray::new(origin, DVec3::new(d[0][k], d[1][k], d[2][k]))).collect();
             let (made, gathered) = (RayLanes::from_origin(origin, &d, len), RayLanes::new(&rays));
+            // The same lanes refilled in place, over another group's directions.
+            let mut refilled = RayLanes::from_origin(origin, &[[0.25; 8]; 3], 8);
+            refilled.refill_dirs(len, |to| *to = d);
             let bits = |v: &[[f64; 8]; 3]| v.map(|row| row.map(f64::to_bits));
-            assert_eq!((bits(&made.o), bits(&made.d), made.len), (bits(&gathered.o), bits(&gathered.d), len));
-            assert!(rays.iter().enumerate().all(|(k, r)| made.holds(k, r)));
+            for l in [&made, &refilled] {
+                assert_eq!((bits(&l.o), bits(&l.d), l.len), (bits(&gathered.o), bits(&gathered.d), len));
+                assert!(rays.iter().enumerate().all(|(k, r)| l.holds(k, r) && l.dir(k) == r.dir));
+            }
         }
     }
 
