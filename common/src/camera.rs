@@ -100,25 +100,18 @@ impl Camera {
     }
 
     /// The directions of [`Camera::ray`] through image positions (x + `dx[k]`, y + `dy[k]`) of
-    /// eight lanes, by axis then lane (every ray starts at `position`). Each lane's operations
-    /// are `ray`'s in their order (no fused multiply-adds), so the bits are the same; with AVX
-    /// they run four lanes to an instruction (the compiler left the lanes' arithmetic scalar).
+    /// eight lanes, written into `d` by axis then lane (every ray starts at `position`). Each
+    /// lane's operations are `ray`'s in their order (no fused multiply-adds), so the bits are
+    /// the same; with AVX they run four lanes to an instruction (the compiler left the lanes'
+    /// arithmetic scalar), without it each lane is `ray`'s.
     #[inline(always)]
-    pub fn ray_dirs8(&self, x: u32, y: u32, dx: &[f64; 8], dy: &[f64; 8]) -> [[f64; 8]; 3] {
-        let mut d = [[0.0; 8]; 3];
-        self.ray_dirs8_into(x, y, dx, dy, &mut d);
-        d
-    }
-
-    /// [`Self::ray_dirs8`] written into `d`, where the caller keeps them.
-    #[inline(always)]
-    pub fn ray_dirs8_into(&self, x: u32, y: u32, dx: &[f64; 8], dy: &[f64; 8], d: &mut [[f64; 8]; 3]) {
-        let (px, py) = (x as f64, y as f64);
-        let (c, u, v, o) =
-            (self.corner.to_array(), self.u.to_array(), self.v.to_array(), self.position.to_array());
+    pub fn ray_dirs8(&self, x: u32, y: u32, dx: &[f64; 8], dy: &[f64; 8], d: &mut [[f64; 8]; 3]) {
         #[cfg(all(target_arch = "x86_64", target_feature = "avx"))]
         {
             use std::arch::x86_64::*;
+            let (px, py) = (x as f64, y as f64);
+            let (c, u, v, o) =
+                (self.corner.to_array(), self.u.to_array(), self.v.to_array(), self.position.to_array());
             // SAFETY: the target has AVX (cfg above); the loads and stores read and write four
             // elements of eight-element arrays at offsets 0 and 4.
             unsafe {
@@ -147,12 +140,9 @@ impl Camera {
         }
         #[cfg(not(all(target_arch = "x86_64", target_feature = "avx")))]
         for k in 0..8 {
-            let a = (px + dx[k]) * self.pixel_w;
-            let b = (py + dy[k]) * self.pixel_h;
-            let s: [f64; 3] = std::array::from_fn(|i| ((c[i] + a * u[i]) - b * v[i]) - o[i]);
-            let recip = 1.0 / ((s[0] * s[0]) + (s[1] * s[1]) + (s[2] * s[2])).sqrt();
-            for i in 0..3 {
-                d[i][k] = s[i] * recip;
+            let dir = self.ray(x, y, dx[k], dy[k]).dir;
+            for (row, v) in d.iter_mut().zip(dir.to_array()) {
+                row[k] = v;
             }
         }
     }
@@ -241,7 +231,8 @@ mod tests {
         for (x, y) in [(0, 0), (400, 166), (800, 332), (13, 297)] {
             let dx: [f64; 8] = std::array::from_fn(|_| unit());
             let dy: [f64; 8] = std::array::from_fn(|_| unit());
-            let d = c.ray_dirs8(x, y, &dx, &dy);
+            let mut d = [[f64::NAN; 8]; 3];
+            c.ray_dirs8(x, y, &dx, &dy, &mut d);
             for k in 0..8 {
                 let single = c.ray(x, y, dx[k], dy[k]).dir;
                 assert_eq!(

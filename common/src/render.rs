@@ -198,7 +198,7 @@ pub fn render_tile_until(
                 // All eight lanes, used or not: loops of fixed length the compiler vectorises.
                 let pinhole = cam.lens.is_none();
                 if pinhole {
-                    wide.refill_dirs(group, |d| cam.ray_dirs8_into(x, y, &film[0], &film[1], d));
+                    wide.refill_dirs(group, |d| cam.ray_dirs8(x, y, &film[0], &film[1], d));
                 }
                 let rays: [Ray; GROUP] = std::array::from_fn(|i| {
                     let mut ray = if pinhole {

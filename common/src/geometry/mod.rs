@@ -273,14 +273,8 @@ impl RayLanes {
     /// then lane): camera rays made side by side, which need not be gathered from [`Ray`]s.
     #[inline(always)]
     pub fn from_origin(origin: DVec3, d: &[[f64; 8]; 3], len: usize) -> Self {
-        assert!((1..=8).contains(&len), "one to eight rays");
-        let mut l = RayLanes { o: [[0.0; 8]; 3], d: *d, len };
-        for a in 0..3 {
-            l.o[a] = [origin[a]; 8];
-            for lane in len..8 {
-                l.d[a][lane] = d[a][0];
-            }
-        }
+        let mut l = RayLanes { o: origin.to_array().map(|c| [c; 8]), d: [[0.0; 8]; 3], len: 1 };
+        l.refill_dirs(len, |to| *to = *d);
         l
     }
 
