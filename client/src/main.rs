@@ -578,6 +578,7 @@ mod tests {
             frame: Some(0),
             tile: Some(3),
             worker: Some("w1".into()),
+            worker_id: Some(1),
             seconds: Some(0.4213),
             message: "tile 3 rendered".into(),
         };

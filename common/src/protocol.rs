@@ -26,9 +26,49 @@
 //!    gives back a lease it has not started (204; 409 when it is not that worker's live lease),
 //!    so the tile goes back to the queue at once instead of waiting for the lease to expire.
 //!
-//! Every worker request carries `Authorization: Bearer <worker token>`.
+//! Every worker request carries `Authorization: Bearer <worker token>`, and every request after
+//! registration also [`WORKER_SECRET_HEADER`] with the secret the registration answered: the
+//! worker token lets a machine join the farm, the secret proves which registered worker is
+//! calling, so one worker cannot report, fail or give back another's leases.
+//!
+//! Limits every worker keeps (the server refuses what goes past them): a name of at most
+//! [`MAX_WORKER_NAME`] bytes, 1 to [`MAX_WORKER_THREADS`] threads, at most threads + 1 live
+//! leases, at most [`MAX_LISTED_LEASES`] leases listed in a heartbeat or watch, JSON bodies of at
+//! most [`MAX_WORKER_JSON_BYTES`], failure messages of at most [`MAX_ERROR_BYTES`] (longer ones are
+//! cut), and tile pixels that are finite numbers ([`check_tile_values`]).
 
 use serde::{Deserialize, Serialize};
+
+/// Header carrying a registered worker's secret (from [`RegisterResponse::worker_secret`]) on
+/// each of its requests after registration.
+pub const WORKER_SECRET_HEADER: &str = "x-tessera-worker-secret";
+
+/// Longest worker name, in bytes.
+pub const MAX_WORKER_NAME: usize = 128;
+
+/// Most render threads a worker may declare (it may hold that many leases plus one).
+pub const MAX_WORKER_THREADS: u32 = 1024;
+
+/// Most leases one heartbeat or watch may list: a worker holds at most its threads plus one.
+pub const MAX_LISTED_LEASES: usize = MAX_WORKER_THREADS as usize + 1;
+
+/// Largest JSON body of a worker request (register, lease, heartbeat, watch, fail, release).
+pub const MAX_WORKER_JSON_BYTES: usize = 64 << 10;
+
+/// Longest failure message the server keeps from a worker, in bytes; the rest is cut.
+pub const MAX_ERROR_BYTES: usize = 4 << 10;
+
+/// `text` cut to at most `max` bytes on a character boundary, with a note of how much was cut.
+pub fn truncate_message(text: &str, max: usize) -> String {
+    if text.len() <= max {
+        return text.to_string();
+    }
+    let mut end = max.saturating_sub(48);
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    format!("{}... ({} more bytes cut)", &text[..end], text.len() - end)
+}
 
 /// Header carrying the checksum of a tile upload.
 pub const CHECKSUM_HEADER: &str = "x-tessera-checksum";
@@ -55,6 +95,9 @@ pub const HEARTBEAT_SECONDS: std::ops::RangeInclusive<f64> = 1e-3..=1e9;
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct RegisterResponse {
     pub worker_id: u64,
+    /// The worker's secret: send it as [`WORKER_SECRET_HEADER`] on every later request. The
+    /// server keeps only its hash.
+    pub worker_secret: String,
     /// How often to send heartbeats (within [`HEARTBEAT_SECONDS`]).
     pub heartbeat_seconds: f64,
     /// How long a lease lives without a heartbeat.
@@ -323,6 +366,9 @@ pub struct JobEvent {
     /// The worker's name, for tile events.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub worker: Option<String>,
+    /// The worker's id, for tile events (the workers list has the rest of it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub worker_id: Option<u64>,
     /// Seconds the step took (a tile's render, a merge, a tone map), where it has a duration.
     /// A tile's is the worker's own measurement of its render, sent with the result
     /// ([`RENDER_SECONDS_HEADER`]; absent when the worker sent none), not the time between
@@ -420,6 +466,21 @@ pub fn decode_tile(bytes: &[u8], pixels: usize) -> Option<Vec<[f32; 3]>> {
     )
 }
 
+/// Checks a tile's pixels as the server takes them: every value a finite number. The tracer
+/// never writes NaN or an infinity (it writes 0 for a NaN and the largest `f32` for an
+/// overflow); negative values are legal (a scene may have lights of negative power, and the
+/// CLI writes what the tracer computes). Returns the first bad value's pixel and channel.
+pub fn check_tile_values(px: &[[f32; 3]]) -> Result<(), (usize, usize, f32)> {
+    for (i, p) in px.iter().enumerate() {
+        for (c, v) in p.iter().enumerate() {
+            if !v.is_finite() {
+                return Err((i, c, *v));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// FNV-1a (64-bit) of `bytes` as 16 hex digits: detects a tile damaged on the way.
 pub fn checksum(bytes: &[u8]) -> String {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
@@ -445,6 +506,26 @@ mod tests {
         // NaN bits survive too.
         let nan = encode_tile(&[[f32::NAN; 3]]);
         assert!(decode_tile(&nan, 1).unwrap()[0][0].is_nan());
+    }
+
+    #[test]
+    fn long_messages_are_cut_on_a_character_boundary() {
+        assert_eq!(truncate_message("short", 4096), "short");
+        let long = "é".repeat(10_000); // 20 000 bytes
+        let cut = truncate_message(&long, 4096);
+        assert!(cut.len() <= 4096, "{}", cut.len());
+        assert!(cut.starts_with("éé") && cut.ends_with("more bytes cut)"), "{cut}");
+        let kept = cut.split("...").next().unwrap().len();
+        assert!(cut.contains(&format!("({} more bytes cut)", 20_000 - kept)), "{cut}");
+    }
+
+    #[test]
+    fn tile_values_must_be_finite_and_may_be_negative() {
+        assert_eq!(check_tile_values(&[[0.0, -1.0, 1e38], [f32::MAX, f32::MIN, 0.5]]), Ok(()));
+        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            let got = check_tile_values(&[[0.0; 3], [0.0, 0.0, bad]]).unwrap_err();
+            assert_eq!((got.0, got.1), (1, 2));
+        }
     }
 
     #[test]

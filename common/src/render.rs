@@ -94,6 +94,18 @@ const STOP_CHECK_EVERY: u32 = 16;
 /// divides [`STOP_CHECK_EVERY`], so the stop checks fall where they did.
 const GROUP: usize = crate::sampler::GROUP_LANES;
 
+/// A pixel's average as the film keeps it: `f32`, always a finite number. A NaN (a degenerate
+/// scene: a zero-length normal, an infinite intensity times zero) becomes 0 and a value beyond
+/// `f32`'s range the largest `f32` of its sign, so every output format and the farm's tiles
+/// (whose server refuses non-finite values) hold the same finite numbers. Negative values, from
+/// lights of negative power, stay as they are.
+pub fn film_value(c: glam::DVec3) -> [f32; 3] {
+    let f = |v: f64| {
+        if v.is_nan() { 0.0 } else { (v as f32).clamp(f32::MIN, f32::MAX) }
+    };
+    [f(c.x), f(c.y), f(c.z)]
+}
+
 /// Renders one tile of camera `camera`: linear float RGB, row-major within the tile.
 ///
 /// Panics only if `camera` or `rect` is out of range for the scene (a caller bug, not input).
@@ -222,7 +234,7 @@ pub fn render_tile_until(
                 s += group as u32;
             }
             let c = sum / n as f64;
-            out.push([c.x as f32, c.y as f32, c.z as f32]);
+            out.push(film_value(c));
         }
     }
     Ok((out, tracer.stats))
@@ -260,6 +272,16 @@ pub fn render_camera(
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn the_film_keeps_finite_values_only() {
+        use glam::DVec3;
+        assert_eq!(film_value(DVec3::new(0.25, -1.0, 1e30)), [0.25, -1.0, 1e30]);
+        // Beyond f32's range: the largest value of the sign; NaN: 0.
+        assert_eq!(film_value(DVec3::new(1e300, -1e300, f64::NAN)), [f32::MAX, f32::MIN, 0.0]);
+        assert_eq!(film_value(DVec3::new(f64::INFINITY, f64::NEG_INFINITY, 0.0)), [f32::MAX, f32::MIN, 0.0]);
+    }
+
     use super::*;
     use crate::assets::FsResolver;
     use crate::scene::load::load_scene_str;

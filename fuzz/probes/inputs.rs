@@ -23,6 +23,14 @@ pub fn bundle(data: &[u8]) {
     let mut files = Default::default();
     if tessera_server::bundle::add_archive(&mut files, data).is_ok() {
         let _ = tessera_server::bundle::find_scene(&files, None);
+        // What the unpacker accepts, the server packs into its canonical tar (where a member
+        // name holding a NUL byte used to panic), and that tar reads back as the same files.
+        let tar = tessera_server::bundle::canonical_tar(&files).expect("accepted files pack");
+        let back = tessera::bundle::read_tar(&tar).expect("the canonical tar reads back");
+        assert_eq!(back.len(), files.len());
+        for (path, bytes) in &files {
+            assert_eq!(back[path].as_slice(), bytes.as_slice(), "{path:?}");
+        }
     }
 }
 
@@ -39,5 +47,8 @@ pub fn tile_upload(data: &[u8]) {
     if let Some(px) = tessera::protocol::decode_tile(body, pixels) {
         assert_eq!(px.len(), pixels);
         assert_eq!(tessera::protocol::encode_tile(&px), body);
+        // The server stores a tile only when every value is finite.
+        let all_finite = px.iter().flatten().all(|v| v.is_finite());
+        assert_eq!(tessera::protocol::check_tile_values(&px).is_ok(), all_finite);
     }
 }

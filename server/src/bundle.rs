@@ -51,6 +51,8 @@ pub enum BundleError {
     Archive(String),
     /// The same path twice.
     Duplicate(String),
+    /// A file name holding a control character (a NUL byte, a line break, ...).
+    BadName(String),
     /// Over one of the [`Limits`]; the message names the cap and the flag that raises it.
     TooLarge(String),
 }
@@ -72,6 +74,11 @@ impl std::fmt::Display for BundleError {
             ),
             BundleError::Archive(m) | BundleError::TooLarge(m) => write!(f, "{m}"),
             BundleError::Duplicate(p) => write!(f, "the file \"{p}\" is given twice"),
+            BundleError::BadName(p) => write!(
+                f,
+                "the file name {p:?} holds a control character (a NUL byte, a line break or a tab); \
+                 rename the file without them and pack it again"
+            ),
         }
     }
 }
@@ -137,7 +144,7 @@ impl Unpacker {
 
     /// Adds one file under `path`, read from `data` through the caps.
     pub fn add_reader(&mut self, path: &str, data: impl Read) -> Result<(), BundleError> {
-        let norm = normalize_bundle_path(path).ok_or_else(|| BundleError::UnsafePath(path.to_string()))?;
+        let norm = checked_path(path)?;
         if self.files.contains_key(&norm) {
             return Err(BundleError::Duplicate(norm));
         }
@@ -217,11 +224,21 @@ impl Unpacker {
 
 /// Adds one uploaded file under `path` (no caps: the bytes are in memory already).
 pub fn add_file(files: &mut Files, path: &str, bytes: Vec<u8>) -> Result<(), BundleError> {
-    let norm = normalize_bundle_path(path).ok_or_else(|| BundleError::UnsafePath(path.to_string()))?;
+    let norm = checked_path(path)?;
     if files.insert(norm.clone(), bytes).is_some() {
         return Err(BundleError::Duplicate(norm));
     }
     Ok(())
+}
+
+/// A member's path, normalised, or why it is refused: a control character anywhere in it (no
+/// file system or tar header takes a NUL, and line breaks would forge log lines), or a path
+/// that leaves the bundle.
+fn checked_path(path: &str) -> Result<String, BundleError> {
+    if path.chars().any(char::is_control) {
+        return Err(BundleError::BadName(path.to_string()));
+    }
+    normalize_bundle_path(path).ok_or_else(|| BundleError::UnsafePath(path.to_string()))
 }
 
 /// Unpacks an archive held in memory into `files` under the default [`Limits`].
@@ -249,7 +266,8 @@ fn looks_like_v7_tar(header: &[u8]) -> bool {
 }
 
 /// The bundle as a tar with sorted entries, mode 0644 and mtime 0: same files, same bytes.
-pub fn canonical_tar(files: &Files) -> Vec<u8> {
+/// Fails, naming the file, only for a path no tar can hold (the unpacker refuses those first).
+pub fn canonical_tar(files: &Files) -> Result<Vec<u8>, BundleError> {
     let mut builder = tar::Builder::new(Vec::new());
     for (path, data) in files {
         let mut header = tar::Header::new_gnu();
@@ -260,9 +278,9 @@ pub fn canonical_tar(files: &Files) -> Vec<u8> {
         // `append_data` writes long names with GNU extension headers.
         builder
             .append_data(&mut header, path, data.as_slice())
-            .expect("writing a tar into memory cannot fail");
+            .map_err(|e| BundleError::Archive(format!("cannot pack the file {path:?}: {e}")))?;
     }
-    builder.into_inner().expect("writing a tar into memory cannot fail")
+    builder.into_inner().map_err(|e| BundleError::Archive(format!("cannot pack the bundle: {e}")))
 }
 
 pub fn sha256_hex(bytes: &[u8]) -> String {
@@ -374,7 +392,7 @@ mod tests {
         let mut b = Files::new();
         add_file(&mut b, "./ply/../ply/x.ply", vec![1, 2, 3]).unwrap();
         add_file(&mut b, "scene.xml", b"<Scene/>".to_vec()).unwrap();
-        let (ta, tb) = (canonical_tar(&a), canonical_tar(&b));
+        let (ta, tb) = (canonical_tar(&a).unwrap(), canonical_tar(&b).unwrap());
         assert_eq!(ta, tb);
         let back = tessera::bundle::read_tar(&ta).unwrap();
         assert_eq!(back.len(), 2);

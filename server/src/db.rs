@@ -81,7 +81,8 @@ CREATE TABLE IF NOT EXISTS workers(
     last_seen REAL NOT NULL,
     tiles_done INTEGER NOT NULL DEFAULT 0,
     failures INTEGER NOT NULL DEFAULT 0,
-    rendering INTEGER
+    rendering INTEGER,
+    secret_hash TEXT
 );
 CREATE TABLE IF NOT EXISTS job_events(
     job_id INTEGER NOT NULL,
@@ -93,6 +94,7 @@ CREATE TABLE IF NOT EXISTS job_events(
     worker TEXT,
     seconds REAL,
     message TEXT NOT NULL,
+    worker_id INTEGER,
     PRIMARY KEY(job_id, seq)
 ) WITHOUT ROWID;
 ";
@@ -111,7 +113,7 @@ struct Event<'a> {
     kind: &'static str,
     frame: Option<i64>,
     tile: Option<i64>,
-    /// The worker's id; the log keeps its name.
+    /// The worker's id; the log keeps the id and shows the worker's name when read.
     worker: Option<i64>,
     seconds: Option<f64>,
     message: &'a str,
@@ -137,8 +139,8 @@ fn log_event(tx: &Connection, job: i64, e: Event<'_>) -> Result<()> {
         .prepare_cached("SELECT coalesce(max(seq), 0) FROM job_events WHERE job_id = ?1")?
         .query_row([job], |r| r.get(0))?;
     let mut insert = tx.prepare_cached(
-        "INSERT INTO job_events(job_id, seq, at, kind, frame, tile, worker, seconds, message)
-         VALUES (?1, ?2, ?3, ?4, ?5, ?6, (SELECT name FROM workers WHERE id = ?7), ?8, ?9)",
+        "INSERT INTO job_events(job_id, seq, at, kind, frame, tile, worker_id, seconds, message)
+         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
     )?;
     if last >= MAX_JOB_EVENTS && !JOB_EVENT_KINDS_FINAL.contains(&e.kind) {
         if last == MAX_JOB_EVENTS {
@@ -365,6 +367,36 @@ pub enum ResultOutcome {
     WrongSize { expected: usize },
 }
 
+/// What a lease request got from the store.
+#[derive(Debug, PartialEq)]
+pub enum Leased {
+    Granted(Lease),
+    /// Nothing is queued that this worker may take.
+    NoWork,
+    /// The worker holds as many live leases as it may ([`max_live_leases`]).
+    Full {
+        held: u32,
+        allowed: u32,
+    },
+}
+
+impl Leased {
+    /// The lease, if one was granted.
+    pub fn granted(self) -> Option<Lease> {
+        match self {
+            Leased::Granted(l) => Some(l),
+            _ => None,
+        }
+    }
+}
+
+/// Most live leases a worker of `threads` render threads may hold: one per thread and the one
+/// it fetches ahead. A worker that asks for more is refused, so one registration cannot take a
+/// farm's queue for itself.
+pub fn max_live_leases(threads: u32) -> u32 {
+    threads.saturating_add(1)
+}
+
 /// What a tile failure did.
 #[derive(Debug, PartialEq)]
 pub enum FailOutcome {
@@ -442,6 +474,15 @@ fn migrate(conn: &Connection) -> Result<()> {
         )?;
         Ok(n > 0)
     };
+    if !has_column("workers", "secret_hash")? {
+        // Workers registered before secrets existed have none: every call of theirs is refused
+        // until they register again (a worker does when the server refuses it).
+        conn.execute("ALTER TABLE workers ADD COLUMN secret_hash TEXT", [])?;
+    }
+    if !has_column("job_events", "worker_id")? {
+        // Older events kept the worker's name itself (in `worker`); they still show it.
+        conn.execute("ALTER TABLE job_events ADD COLUMN worker_id INTEGER", [])?;
+    }
     if !has_column("jobs", "allow_unsupported")? {
         // Jobs accepted before the column existed were accepted with their unsupported elements
         // (older servers only warned about them): they keep rendering that way.
@@ -585,6 +626,42 @@ impl Store {
         Ok(rows)
     }
 
+    /// The rectangles of a frame's rendered tiles, by tile index, without their pixels: a
+    /// preview reads the pixels one tile at a time ([`Store::tile_pixels`]), each under a short
+    /// lock, instead of every tile of a large frame at once.
+    pub fn done_tile_rects(&self, job: u64, frame: u32) -> Result<Vec<(u32, Rect)>> {
+        let conn = self.conn();
+        let mut stmt = conn.prepare_cached(
+            "SELECT tile, x0, y0, w, h FROM tiles WHERE job_id = ?1 AND frame = ?2 AND state = 'done' AND pixels IS NOT NULL ORDER BY tile",
+        )?;
+        let rows = stmt
+            .query_map(params![job as i64, frame], |r| {
+                Ok((
+                    r.get::<_, i64>(0)? as u32,
+                    Rect {
+                        x0: r.get::<_, i64>(1)? as u32,
+                        y0: r.get::<_, i64>(2)? as u32,
+                        width: r.get::<_, i64>(3)? as u32,
+                        height: r.get::<_, i64>(4)? as u32,
+                    },
+                ))
+            })?
+            .collect::<rusqlite::Result<Vec<_>>>()?;
+        Ok(rows)
+    }
+
+    /// One rendered tile's pixels (`None` once the finished job dropped them).
+    pub fn tile_pixels(&self, job: u64, frame: u32, tile: u32) -> Result<Option<Vec<u8>>> {
+        let conn = self.conn();
+        Ok(conn
+            .query_row_cached(
+                "SELECT pixels FROM tiles WHERE job_id = ?1 AND frame = ?2 AND tile = ?3 AND pixels IS NOT NULL",
+                params![job as i64, frame, tile],
+                |r| r.get(0),
+            )
+            .optional()?)
+    }
+
     /// The rendered tiles of a frame: (rect, pixels bytes).
     pub fn frame_tiles(&self, job: u64, frame: u32) -> Result<Vec<(Rect, Vec<u8>)>> {
         let conn = self.conn();
@@ -689,21 +766,26 @@ impl Store {
         Ok(n > 0)
     }
 
-    pub fn register_worker(&self, name: &str, threads: u32) -> Result<u64> {
+    /// Registers a worker; `secret_hash` is the SHA-256 (hex) of the secret it was given, which
+    /// every later call of that worker must present ([`Store::worker_secret_hash`]).
+    pub fn register_worker(&self, name: &str, threads: u32, secret_hash: &str) -> Result<u64> {
         let conn = self.conn();
         let t = now();
         conn.execute_cached(
-            "INSERT INTO workers(name, threads, registered_at, last_seen) VALUES (?1, ?2, ?3, ?3)",
-            params![name, threads, t],
+            "INSERT INTO workers(name, threads, registered_at, last_seen, secret_hash) VALUES (?1, ?2, ?3, ?3, ?4)",
+            params![name, threads, t, secret_hash],
         )?;
         Ok(conn.last_insert_rowid() as u64)
     }
 
-    pub fn worker_exists(&self, id: u64) -> Result<bool> {
+    /// The hash of a worker's secret: `None` when there is no such worker, `Some(None)` for a
+    /// worker registered before secrets existed (it must register again).
+    pub fn worker_secret_hash(&self, id: u64) -> Result<Option<Option<String>>> {
         let conn = self.conn();
-        let n: i64 =
-            conn.query_row_cached("SELECT count(*) FROM workers WHERE id = ?1", [id as i64], |r| r.get(0))?;
-        Ok(n > 0)
+        let id = i64::try_from(id).unwrap_or(-1);
+        Ok(conn
+            .query_row_cached("SELECT secret_hash FROM workers WHERE id = ?1", [id], |r| r.get(0))
+            .optional()?)
     }
 
     pub fn workers(&self) -> Result<Vec<WorkerRow>> {
@@ -738,10 +820,24 @@ impl Store {
     /// frame and tile order; not a tile of a job the worker has failed
     /// [`failures::WORKER_FAILURES_PER_JOB`] tiles of, nor a tile it failed, until
     /// [`failures::RETRY_FAILED_AFTER`] has passed since its latest failure there.
-    pub fn lease(&self, worker: u64, lease_seconds: f64) -> Result<Option<Lease>> {
+    ///
+    /// A worker holds at most its threads plus one (the lease it fetches ahead) live leases
+    /// ([`max_live_leases`]): past that it gets [`Leased::Full`], whatever is queued.
+    pub fn lease(&self, worker: u64, lease_seconds: f64) -> Result<Leased> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         let w = worker as i64;
+        let threads: i64 =
+            tx.query_row_cached("SELECT threads FROM workers WHERE id = ?1", [w], |r| r.get(0))?;
+        let held: i64 = tx.query_row_cached(
+            "SELECT count(*) FROM tiles WHERE state = 'leased' AND worker_id = ?1",
+            [w],
+            |r| r.get(0),
+        )?;
+        let allowed = max_live_leases(threads.clamp(0, i64::from(u32::MAX)) as u32);
+        if held >= i64::from(allowed) {
+            return Ok(Leased::Full { held: held as u32, allowed });
+        }
         // Failures since this moment keep the worker off their tile (and job).
         let recent = now() - failures::RETRY_FAILED_AFTER;
         // Two indexed steps instead of one join sorted over every queued tile: the live jobs in
@@ -795,7 +891,7 @@ impl Store {
         else {
             tx.execute_cached("UPDATE workers SET last_seen = ?2 WHERE id = ?1", params![w, now()])?;
             tx.commit()?;
-            return Ok(None);
+            return Ok(Leased::NoWork);
         };
         let lease_id = {
             let mut next = self.next_lease.lock().unwrap_or_else(|e| e.into_inner());
@@ -827,7 +923,7 @@ impl Store {
             params![w, t, lease_id as i64],
         )?;
         tx.commit()?;
-        Ok(Some(Lease {
+        Ok(Leased::Granted(Lease {
             lease_id,
             job_id: job as u64,
             camera: camera as u32,
@@ -941,6 +1037,21 @@ impl Store {
         }
         tx.commit()?;
         Ok(n > 0)
+    }
+
+    /// The size in bytes of the tile a live lease of `worker` expects (width x height x 12), or
+    /// `None` when it is not such a lease: the result route reads no more than this of a body.
+    pub fn result_size(&self, lease: u64, worker: u64) -> Result<Option<usize>> {
+        let conn = self.conn();
+        let (lease, worker) = (i64::try_from(lease).unwrap_or(-1), i64::try_from(worker).unwrap_or(-1));
+        let size: Option<i64> = conn
+            .query_row_cached(
+                "SELECT w * h * 12 FROM tiles WHERE lease_id = ?1 AND worker_id = ?2 AND state = 'leased'",
+                params![lease, worker],
+                |r| r.get(0),
+            )
+            .optional()?;
+        Ok(size.map(|s| s as usize))
     }
 
     /// Stores a tile's pixels for a live lease held by `worker`, once.
@@ -1060,8 +1171,10 @@ impl Store {
             return Ok(None);
         }
         let mut stmt = conn.prepare_cached(
-            "SELECT seq, at, kind, frame, tile, worker, seconds, message FROM job_events
-             WHERE job_id = ?1 AND seq > ?2 ORDER BY seq",
+            "SELECT e.seq, e.at, e.kind, e.frame, e.tile,
+                    coalesce((SELECT w.name FROM workers w WHERE w.id = e.worker_id), e.worker),
+                    e.seconds, e.message, e.worker_id
+             FROM job_events e WHERE e.job_id = ?1 AND e.seq > ?2 ORDER BY e.seq",
         )?;
         let after = i64::try_from(after).unwrap_or(i64::MAX);
         let events = stmt
@@ -1073,6 +1186,7 @@ impl Store {
                     frame: r.get::<_, Option<i64>>(3)?.map(|f| f as u32),
                     tile: r.get::<_, Option<i64>>(4)?.map(|t| t as u32),
                     worker: r.get(5)?,
+                    worker_id: r.get::<_, Option<i64>>(8)?.map(|w| w as u64),
                     seconds: r.get(6)?,
                     message: r.get(7)?,
                 })
@@ -1193,12 +1307,14 @@ mod tests {
         Store::open(&path).unwrap();
     }
 
+    /// A worker of 16 threads: tests that lease tile after tile without rendering them stay
+    /// under its lease limit.
     fn worker(s: &Store) -> u64 {
-        s.register_worker("w", 1).unwrap()
+        s.register_worker("w", 16, "").unwrap()
     }
 
     fn lease(s: &Store, w: u64) -> Lease {
-        s.lease(w, LONG).unwrap().expect("a lease")
+        s.lease(w, LONG).unwrap().granted().expect("a lease")
     }
 
     fn state(s: &Store, job: u64) -> JobState {
@@ -1216,7 +1332,7 @@ mod tests {
         let w = worker(&s);
         let order: Vec<(u64, u32)> = (0..4).map(|_| lease(&s, w)).map(|l| (l.job_id, l.tile)).collect();
         assert_eq!(order, [(high, 0), (low, 0), (low, 1), (low2, 0)]);
-        assert!(s.lease(w, LONG).unwrap().is_none());
+        assert!(s.lease(w, LONG).unwrap() == Leased::NoWork);
         // A job submitted later with a higher priority overtakes a running one.
         let running = job(&s, 0, 3);
         assert_eq!(lease(&s, w).job_id, running);
@@ -1244,7 +1360,7 @@ mod tests {
             }
         }
         assert_eq!(state(&s, j), JobState::Failed);
-        assert!(s.lease(worker(&s), LONG).unwrap().is_none());
+        assert!(s.lease(worker(&s), LONG).unwrap() == Leased::NoWork);
     }
 
     /// Moves every recorded failure `seconds` into the past (the retry window is wall time).
@@ -1266,9 +1382,9 @@ mod tests {
             let out = s.fail_tile(l.lease_id, w, &format!("boom {k}"), false).unwrap();
             if k < 5 {
                 assert_eq!(out, FailOutcome::Requeued);
-                assert!(s.lease(w, LONG).unwrap().is_none(), "kept off the tile it just failed");
+                assert!(s.lease(w, LONG).unwrap() == Leased::NoWork, "kept off the tile it just failed");
                 age_failures(&s, failures::RETRY_FAILED_AFTER - 5.0);
-                assert!(s.lease(w, LONG).unwrap().is_none(), "still inside the retry window");
+                assert!(s.lease(w, LONG).unwrap() == Leased::NoWork, "still inside the retry window");
                 age_failures(&s, 6.0);
             } else {
                 let FailOutcome::JobFailed { message, .. } = out else { panic!("{out:?}") };
@@ -1292,7 +1408,7 @@ mod tests {
         );
         assert_eq!(state(&s, j), JobState::Failed);
         assert_eq!(s.revoked_among(w, &[other.lease_id]).unwrap(), [other.lease_id]);
-        assert!(s.lease(worker(&s), LONG).unwrap().is_none());
+        assert!(s.lease(worker(&s), LONG).unwrap() == Leased::NoWork);
     }
 
     #[test]
@@ -1323,7 +1439,7 @@ mod tests {
         let j = job(&s, 0, 1);
         for k in 0..3 {
             let w = worker(&s);
-            let l = s.lease(w, EXPIRED).unwrap().unwrap();
+            let l = s.lease(w, EXPIRED).unwrap().granted().unwrap();
             let e = s.expire_leases().unwrap();
             assert_eq!(e.leases, 1);
             assert_eq!(s.submit_result(l.lease_id, w, &PIXEL, None).unwrap(), ResultOutcome::Conflict);
@@ -1363,7 +1479,7 @@ mod tests {
         assert_eq!((job_id, tiles_done, tiles_total, frame_complete), (j, 1, 2, false));
         assert_eq!(s.submit_result(l.lease_id, w, &PIXEL, None).unwrap(), ResultOutcome::Conflict);
         // Past its deadline (not swept yet) a lease's result is refused too.
-        let late = s.lease(w, EXPIRED).unwrap().unwrap();
+        let late = s.lease(w, EXPIRED).unwrap().granted().unwrap();
         assert_eq!(s.submit_result(late.lease_id, w, &PIXEL, None).unwrap(), ResultOutcome::Conflict);
         assert_eq!(s.frames(j).unwrap()[0].tiles_done, 1);
     }
@@ -1379,7 +1495,7 @@ mod tests {
         assert_eq!(s.heartbeat(w, &[l.lease_id], Some(l.lease_id), LONG).unwrap(), [l.lease_id]);
         assert_eq!(s.submit_result(l.lease_id, w, &PIXEL, None).unwrap(), ResultOutcome::Conflict);
         assert_eq!(s.fail_tile(l.lease_id, w, "x", false).unwrap(), FailOutcome::Conflict);
-        assert!(s.lease(w, LONG).unwrap().is_none());
+        assert!(s.lease(w, LONG).unwrap() == Leased::NoWork);
         assert!(!s.cancel_job(j).unwrap(), "an ended job cannot be cancelled again");
     }
 
@@ -1404,7 +1520,7 @@ mod tests {
     fn a_jobs_log_tells_its_tiles_failures_retries_expiries_and_end_in_order() {
         let (_d, s) = store("log");
         let j = job(&s, 0, 2);
-        let (a, b) = (s.register_worker("alpha", 1).unwrap(), s.register_worker("beta", 1).unwrap());
+        let (a, b) = (s.register_worker("alpha", 1, "").unwrap(), s.register_worker("beta", 1, "").unwrap());
         let l = lease(&s, a);
         assert_eq!(s.fail_tile(l.lease_id, a, "out of memory", false).unwrap(), FailOutcome::Requeued);
         let again = lease(&s, b);
@@ -1413,7 +1529,7 @@ mod tests {
             s.submit_result(again.lease_id, b, &PIXEL, Some(0.25)).unwrap(),
             ResultOutcome::Accepted { .. }
         ));
-        let late = s.lease(a, EXPIRED).unwrap().unwrap();
+        let late = s.lease(a, EXPIRED).unwrap().granted().unwrap();
         assert_eq!(late.tile, 1);
         assert_eq!(s.expire_leases().unwrap().leases, 1);
         assert!(s.cancel_job(j).unwrap());

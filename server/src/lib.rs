@@ -18,6 +18,7 @@
 
 pub mod api;
 pub mod bundle;
+pub mod connections;
 pub mod db;
 pub mod failures;
 mod local_workers;
@@ -42,6 +43,13 @@ pub use local_workers::LOCAL_WORKER_GRACE;
 /// Uploads unpacked and validated at the same time. Each holds at most `--max-unpacked-mb` of
 /// files plus the canonical tar of them and the decoded scene; the rest wait their turn.
 pub const UNPACKING_AT_ONCE: usize = 2;
+
+/// Previews (at most [`merge::PREVIEW_MAX_SIDE`] pixels a side, plus one tile's pixels being
+/// read) and re-tone-mappings of a stored frame made at the same time; the rest wait their turn.
+pub const PREVIEWS_AT_ONCE: usize = 2;
+
+/// Frames merged at the same time: a merge holds its whole float frame.
+pub const MERGES_AT_ONCE: usize = 1;
 
 /// Everything `tessera-server` can be told (flags and environment).
 #[derive(Clone, Debug)]
@@ -69,10 +77,17 @@ pub struct Config {
     pub max_tile_seconds: f64,
     /// Most samples (pixels x samples per pixel, over every frame) one job may ask for.
     pub max_job_samples: u64,
+    /// Most connections open at once (`None`: the descriptor limit less a reserve).
+    pub max_connections: Option<usize>,
+    /// Most connections open at once from one client address.
+    pub max_connections_per_ip: usize,
+    /// Seconds a client has to send a request head; a kept-alive connection idle this long is
+    /// closed.
+    pub header_timeout_seconds: f64,
 }
 
 /// A random token from the operating system's generator (for local workers when none is set).
-fn random_token() -> String {
+pub(crate) fn random_token() -> String {
     use std::io::Read;
     let mut bytes = [0u8; 24];
     if let Ok(mut f) = std::fs::File::open("/dev/urandom") {
@@ -136,6 +151,12 @@ pub fn check_config(config: &Config) -> Result<()> {
     if config.max_job_samples == 0 {
         bail!("--max-job-samples must be at least 1");
     }
+    if config.max_connections == Some(0) || config.max_connections_per_ip == 0 {
+        bail!("--max-connections and --max-connections-per-ip must be at least 1");
+    }
+    if !(config.header_timeout_seconds >= 0.1 && config.header_timeout_seconds <= 3600.0) {
+        bail!("--header-timeout-seconds must be from 0.1 to 3600, found {}", config.header_timeout_seconds);
+    }
     Ok(())
 }
 
@@ -186,7 +207,18 @@ pub async fn serve(
         .await
         .with_context(|| format!("cannot listen on {}", config.bind))?;
     let addr = listener.local_addr()?;
-    tracing::info!("listening on http://{addr}, data in {}", config.data_dir.display());
+    let descriptors = connections::raise_descriptor_limit();
+    let limits = connections::ConnectionLimits {
+        max_total: connections::max_connections(descriptors, config.max_connections),
+        max_per_ip: config.max_connections_per_ip,
+        header_timeout: Duration::from_secs_f64(config.header_timeout_seconds),
+    };
+    tracing::info!(
+        "listening on http://{addr}, data in {}; at most {} connections ({} per client address; {descriptors} descriptors)",
+        config.data_dir.display(),
+        limits.max_total,
+        limits.max_per_ip
+    );
     on_listening(addr);
 
     // Frames whose last tile arrived just before a crash.
@@ -223,11 +255,11 @@ pub async fn serve(
             .await;
         let _ = stop_tx.send(true);
     };
-    let server = axum::serve(listener, app).with_graceful_shutdown(shutdown);
+    let server = connections::serve(listener, app, limits, shutdown);
     // In-flight requests (long polls of remote workers) get a few seconds to finish.
-    let server = std::pin::pin!(server.into_future());
+    let server = std::pin::pin!(server);
     tokio::select! {
-        r = server => r?,
+        () = server => {}
         _ = async {
             let _ = stop_rx.wait_for(|s| *s).await;
             tokio::time::sleep(Duration::from_secs(3)).await;
@@ -260,6 +292,9 @@ mod tests {
             max_job_tiles: 1000,
             max_tile_seconds: 60.0,
             max_job_samples: 1 << 30,
+            max_connections: None,
+            max_connections_per_ip: 256,
+            header_timeout_seconds: 20.0,
         }
     }
 

@@ -78,6 +78,18 @@ struct Cli {
     /// (VeachAjar_hw6's 1280x720 at 2500 spp is 2.3e9). Larger jobs are refused with 422.
     #[arg(long, default_value_t = 100_000_000_000, env = "TESSERA_MAX_JOB_SAMPLES", value_name = "N")]
     max_job_samples: u64,
+    /// Most connections open at once; more are closed as they arrive. Default: the process's
+    /// open-file limit (raised to its hard limit at start) less 128 kept for the server's files.
+    #[arg(long, env = "TESSERA_MAX_CONNECTIONS", value_name = "N")]
+    max_connections: Option<usize>,
+    /// Most connections open at once from one client address (a worker uses up to four, a
+    /// browser six).
+    #[arg(long, default_value_t = 256, env = "TESSERA_MAX_CONNECTIONS_PER_IP", value_name = "N")]
+    max_connections_per_ip: usize,
+    /// Seconds a client has to send a request's head; a kept-alive connection idle this long is
+    /// closed too (0.1 to 3600).
+    #[arg(long, default_value_t = 20.0, env = "TESSERA_HEADER_TIMEOUT_SECONDS", value_name = "S")]
+    header_timeout_seconds: f64,
 }
 
 fn main() -> ExitCode {
@@ -109,6 +121,9 @@ fn main() -> ExitCode {
         max_job_tiles: cli.max_job_tiles,
         max_tile_seconds: cli.max_tile_seconds,
         max_job_samples: cli.max_job_samples,
+        max_connections: cli.max_connections,
+        max_connections_per_ip: cli.max_connections_per_ip,
+        header_timeout_seconds: cli.header_timeout_seconds,
     };
     let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
         Ok(r) => r,

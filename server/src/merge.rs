@@ -83,37 +83,133 @@ pub fn display_tonemap(cam: &Camera) -> Option<(Operator, Photographic)> {
     })
 }
 
-/// A PNG of what has arrived so far, for the status page: HDR frames through the camera's
-/// operator with its statistics taken over the arrived tiles only (the black of missing tiles
-/// would otherwise drag the log average down and wash the picture out), LDR frames clamped.
-pub fn preview_png(cam: &Camera, width: u32, height: u32, tiles: &[(Rect, Vec<u8>)]) -> Result<Vec<u8>> {
-    let img = assemble(width, height, tiles)?;
-    let Some((operator, params)) = display_tonemap(cam) else {
-        return encode_png(width, height, &img.to_ldr());
-    };
-    // The arrived pixels as one strip, tone-mapped together, then put back in place.
-    let mut strip = Vec::new();
-    for (r, _) in tiles {
-        for y in r.y0..r.y0 + r.height {
-            let row = (y * width + r.x0) as usize;
-            strip.extend_from_slice(&img.pixels[row..row + r.width as usize]);
-        }
+/// Longest side of a preview, in pixels: larger frames are previewed box-filtered by a whole
+/// factor, so a preview costs a bounded amount of memory whatever the frame's size.
+pub const PREVIEW_MAX_SIDE: u32 = 1024;
+
+/// The whole factor a `width` x `height` frame is shrunk by for its preview, and the preview's
+/// size.
+pub fn preview_size(width: u32, height: u32) -> (u32, u32, u32) {
+    let scale = width.max(height).div_ceil(PREVIEW_MAX_SIDE).max(1);
+    (scale, width.div_ceil(scale), height.div_ceil(scale))
+}
+
+/// A frame's preview being filled tile by tile: each preview pixel the average of the frame
+/// pixels of its `scale` x `scale` box that have arrived.
+pub struct PreviewCanvas {
+    width: u32,
+    height: u32,
+    scale: u32,
+    pw: u32,
+    ph: u32,
+    sums: Vec<[f32; 3]>,
+    counts: Vec<u32>,
+}
+
+impl PreviewCanvas {
+    pub fn new(width: u32, height: u32) -> PreviewCanvas {
+        let (scale, pw, ph) = preview_size(width, height);
+        let n = (pw * ph) as usize;
+        PreviewCanvas { width, height, scale, pw, ph, sums: vec![[0.0; 3]; n], counts: vec![0; n] }
     }
-    let mut rgb = vec![0u8; (width * height * 3) as usize];
-    if !strip.is_empty() {
-        let n = strip.len() as u32;
-        let (mapped, _) = tonemap_with(&Image { width: n, height: 1, pixels: strip }, operator, &params);
-        let mut k = 0usize;
-        for (r, _) in tiles {
-            for y in r.y0..r.y0 + r.height {
-                let at = ((y * width + r.x0) * 3) as usize;
-                let len = (r.width * 3) as usize;
-                rgb[at..at + len].copy_from_slice(&mapped[k..k + len]);
-                k += len;
+
+    /// Adds a tile's pixels (the wire format) at its rectangle.
+    pub fn add(&mut self, r: Rect, bytes: &[u8]) -> Result<()> {
+        if r.x0.checked_add(r.width).is_none_or(|x| x > self.width)
+            || r.y0.checked_add(r.height).is_none_or(|y| y > self.height)
+        {
+            bail!("tile {r:?} lies outside the {}x{} frame", self.width, self.height);
+        }
+        let px = decode_tile(bytes, (r.width * r.height) as usize).with_context(|| {
+            format!("tile {r:?} holds {} bytes, not {}", bytes.len(), r.width * r.height * 12)
+        })?;
+        for y in 0..r.height {
+            let row = ((r.y0 + y) / self.scale * self.pw) as usize;
+            for x in 0..r.width {
+                let at = row + ((r.x0 + x) / self.scale) as usize;
+                let p = px[(y * r.width + x) as usize];
+                let s = &mut self.sums[at];
+                for c in 0..3 {
+                    s[c] += p[c];
+                }
+                self.counts[at] += 1;
             }
         }
+        Ok(())
     }
-    encode_png(width, height, &rgb)
+
+    /// The preview as a PNG: HDR frames through the camera's operator with its statistics
+    /// taken over the arrived pixels only (the black of missing tiles would otherwise drag the
+    /// log average down and wash the picture out), LDR frames clamped.
+    pub fn png(&self, cam: &Camera) -> Result<Vec<u8>> {
+        let arrived: Vec<usize> = (0..self.counts.len()).filter(|&i| self.counts[i] > 0).collect();
+        let mean = |i: usize| {
+            let n = self.counts[i] as f32;
+            let s = self.sums[i];
+            [s[0] / n, s[1] / n, s[2] / n]
+        };
+        let mut rgb = vec![0u8; (self.pw * self.ph * 3) as usize];
+        let Some((operator, params)) = display_tonemap(cam) else {
+            let mut img = Image::new(self.pw, self.ph);
+            for &i in &arrived {
+                img.pixels[i] = mean(i);
+            }
+            return encode_png(self.pw, self.ph, &img.to_ldr());
+        };
+        if !arrived.is_empty() {
+            // The arrived pixels as one strip, tone-mapped together, then put back in place.
+            let strip = Image {
+                width: arrived.len() as u32,
+                height: 1,
+                pixels: arrived.iter().map(|&i| mean(i)).collect(),
+            };
+            let (mapped, _) = tonemap_with(&strip, operator, &params);
+            for (k, &i) in arrived.iter().enumerate() {
+                rgb[i * 3..i * 3 + 3].copy_from_slice(&mapped[k * 3..k * 3 + 3]);
+            }
+        }
+        encode_png(self.pw, self.ph, &rgb)
+    }
+}
+
+/// A PNG of what has arrived so far, for the status page (see [`PreviewCanvas`]).
+pub fn preview_png(cam: &Camera, width: u32, height: u32, tiles: &[(Rect, Vec<u8>)]) -> Result<Vec<u8>> {
+    let mut canvas = PreviewCanvas::new(width, height);
+    for (r, bytes) in tiles {
+        canvas.add(*r, bytes)?;
+    }
+    canvas.png(cam)
+}
+
+/// The name of a merged frame's preview beside its outputs (not one of them: hidden, and not
+/// listed).
+pub const PREVIEW_FILE: &str = ".preview.png";
+
+/// A finished frame's preview: the whole image box-filtered to the preview's size, then tone
+/// mapped as the camera's final picture.
+pub fn final_preview_png(cam: &Camera, img: &Image) -> Result<Vec<u8>> {
+    let (scale, pw, ph) = preview_size(img.width, img.height);
+    if scale == 1 {
+        return final_png(cam, img);
+    }
+    let mut small = Image::new(pw, ph);
+    let mut counts = vec![0u32; (pw * ph) as usize];
+    for y in 0..img.height {
+        for x in 0..img.width {
+            let at = (y / scale * pw + x / scale) as usize;
+            let p = img.pixels[(y * img.width + x) as usize];
+            for c in 0..3 {
+                small.pixels[at][c] += p[c];
+            }
+            counts[at] += 1;
+        }
+    }
+    for (p, n) in small.pixels.iter_mut().zip(counts) {
+        for c in p.iter_mut() {
+            *c /= n.max(1) as f32;
+        }
+    }
+    final_png(cam, &small)
 }
 
 /// A finished frame's picture for the page: the camera's tone mapping of the whole image.
@@ -133,6 +229,8 @@ pub fn encode_png(width: u32, height: u32, rgb: &[u8]) -> Result<Vec<u8>> {
 
 /// Merges a complete frame off the executor; a failure fails the job with the reason.
 pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
+    // A merge holds its whole frame in memory: one at a time.
+    let Ok(_permit) = state.merging.clone().acquire_owned().await else { return };
     let st = state.clone();
     let outcome = tokio::task::spawn_blocking(move || -> anyhow::Result<bool> {
         let job = st.store.job(job_id)?.ok_or_else(|| anyhow::anyhow!("job {job_id} vanished"))?;
@@ -152,7 +250,12 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
         let tiles = st.store.frame_tiles(job_id, frame)?;
         let img = assemble(f.width, f.height, &tiles)?;
         let assembled = started.elapsed().as_secs_f64();
-        let (names, written, tonemap_seconds) = write_outputs(&st.frame_dir(job_id, frame), cam, &img)?;
+        let dir = st.frame_dir(job_id, frame);
+        let (names, written, tonemap_seconds) = write_outputs(&dir, cam, &img)?;
+        // The page's picture of the finished frame, made once here: a preview request then
+        // reads a small file instead of the whole float frame.
+        tessera::atomic_write::write_atomic(&dir.join(PREVIEW_FILE), &final_preview_png(cam, &img)?)
+            .with_context(|| format!("cannot write the preview in {}", dir.display()))?;
         let timing = MergeTiming { merge_seconds: assembled + written, tonemap_seconds };
         st.store.frame_merged(job_id, frame, &names, timing)
     })
@@ -167,7 +270,8 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
         }
         Ok(Err(e)) => {
             tracing::error!(job = job_id, frame, "merge failed: {e:#}");
-            let _ = state.store.fail_job(job_id, &format!("merging frame {frame} failed: {e:#}"));
+            let (store, error) = (state.store.clone(), format!("merging frame {frame} failed: {e:#}"));
+            let _ = tokio::task::spawn_blocking(move || store.fail_job(job_id, &error)).await;
             state.emit(ServerEvent::Job { job: job_id, state: JobState::Failed });
         }
         Err(e) => tracing::error!(job = job_id, frame, "merge task panicked: {e}"),

@@ -19,7 +19,7 @@ use anyhow::Result;
 use tessera::protocol::{JobState, Lease, ServerEvent};
 use tokio::sync::{Notify, broadcast};
 
-use crate::db::{FailOutcome, ResultOutcome, Store, WorkerRow};
+use crate::db::{FailOutcome, Leased, ResultOutcome, Store, WorkerRow};
 
 // ---------------------------------------------------------------------------------------------
 // The rules
@@ -29,6 +29,12 @@ use crate::db::{FailOutcome, ResultOutcome, Store, WorkerRow};
 pub const EXPIRY_SWEEP: Duration = Duration::from_millis(500);
 /// Most leases one watch request follows.
 const MAX_WATCHED_LEASES: usize = 64;
+
+/// Runs store work on the blocking pool, so that the async threads keep answering while a
+/// transaction waits for the store's mutex or the disk.
+async fn blocking<T: Send + 'static>(f: impl FnOnce() -> Result<T> + Send + 'static) -> Result<T> {
+    tokio::task::spawn_blocking(f).await.map_err(|e| anyhow::anyhow!("a store task failed: {e}"))?
+}
 
 /// What a registered worker is doing, as the workers list and `/metrics` show it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -101,6 +107,11 @@ pub enum LeaseWait {
     NoWork,
     /// The server is stopping: no more leases.
     ShuttingDown,
+    /// The worker already holds as many live leases as its threads allow (plus one).
+    Full {
+        held: u32,
+        allowed: u32,
+    },
 }
 
 /// The scheduling side of the farm: the store's leasing, failure and expiry operations with the
@@ -178,11 +189,16 @@ impl Scheduler {
             if self.is_shutting_down() {
                 return Ok(LeaseWait::ShuttingDown);
             }
-            if let Some(mut lease) = self.store.lease(worker, self.timing.lease_seconds)? {
-                lease.max_render_seconds = Some(self.timing.max_tile_seconds);
-                self.emit(ServerEvent::Job { job: lease.job_id, state: JobState::Running });
-                self.emit(ServerEvent::Workers);
-                return Ok(LeaseWait::Granted(lease));
+            let (store, lease_seconds) = (self.store.clone(), self.timing.lease_seconds);
+            match blocking(move || store.lease(worker, lease_seconds)).await? {
+                Leased::Granted(mut lease) => {
+                    lease.max_render_seconds = Some(self.timing.max_tile_seconds);
+                    self.emit(ServerEvent::Job { job: lease.job_id, state: JobState::Running });
+                    self.emit(ServerEvent::Workers);
+                    return Ok(LeaseWait::Granted(lease));
+                }
+                Leased::Full { held, allowed } => return Ok(LeaseWait::Full { held, allowed }),
+                Leased::NoWork => {}
             }
             if tokio::time::timeout_at(deadline, notified).await.is_err() {
                 return Ok(LeaseWait::NoWork);
@@ -204,8 +220,10 @@ impl Scheduler {
         let leases: Vec<u64> = leases.into_iter().take(MAX_WATCHED_LEASES).collect();
         // Subscribe before looking, so a cancel between the look and the wait is not lost.
         let mut events = self.events.subscribe();
+        let leases = Arc::new(leases);
         loop {
-            let revoked = self.store.revoked_among(worker, &leases)?;
+            let (store, listed) = (self.store.clone(), leases.clone());
+            let revoked = blocking(move || store.revoked_among(worker, &listed)).await?;
             if !revoked.is_empty() || self.is_shutting_down() {
                 return Ok(revoked);
             }
@@ -311,7 +329,8 @@ impl Scheduler {
             let mut tick = tokio::time::interval(EXPIRY_SWEEP);
             loop {
                 tick.tick().await;
-                if let Err(e) = scheduler.expire_leases() {
+                let sweep = scheduler.clone();
+                if let Err(e) = blocking(move || sweep.expire_leases()).await {
                     tracing::error!("lease expiry: {e:#}");
                 }
             }

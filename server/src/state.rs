@@ -46,6 +46,10 @@ pub struct AppState {
     pub events: tokio::sync::broadcast::Sender<ServerEvent>,
     /// Uploads being unpacked and validated at once (each holds its files in memory).
     pub unpacking: Arc<tokio::sync::Semaphore>,
+    /// Previews and re-tone-mappings made at once (each holds a picture in memory).
+    pub previews: Arc<tokio::sync::Semaphore>,
+    /// Frames merged at once (each holds its whole float frame in memory).
+    pub merging: Arc<tokio::sync::Semaphore>,
 }
 
 impl AppState {
@@ -60,6 +64,8 @@ impl AppState {
             cameras: Arc::default(),
             events,
             unpacking: Arc::new(tokio::sync::Semaphore::new(crate::UNPACKING_AT_ONCE)),
+            previews: Arc::new(tokio::sync::Semaphore::new(crate::PREVIEWS_AT_ONCE)),
+            merging: Arc::new(tokio::sync::Semaphore::new(crate::MERGES_AT_ONCE)),
         }
     }
 

@@ -53,9 +53,11 @@ fn release_gives_a_live_lease_back_to_the_queue_once() {
     let release = |lease: u64, worker: u64| {
         post(&server.url, &format!("/api/v1/worker/leases/{lease}/release"), json!({"worker_id": worker})).0
     };
-    // Not this worker's lease, not a lease at all: 409, and the lease stays.
-    assert_eq!(release(id, w + 1000), 409);
+    // Another worker's lease, not a lease at all: 409, and the lease stays; no such worker: 404.
+    let (_, other) = post(&server.url, "/api/v1/worker/register", json!({"name": "o", "threads": 1}));
+    assert_eq!(release(id, other["worker_id"].as_u64().unwrap()), 409);
     assert_eq!(release(id + 1000, w), 409);
+    assert_eq!(release(id, w + 1000), 404);
     // Without the worker token: refused.
     let (code, _) = call(
         ureq::post(&format!("{}/api/v1/worker/leases/{id}/release", server.url)),
@@ -128,7 +130,7 @@ fn a_worker_given_sigterm_mid_job_finishes_its_tile_gives_back_the_next_and_exit
     );
     // Every tile not done is in the queue again: a hand-driven worker gets a lease on each (none
     // is still held by the stopped worker), then gives them all back.
-    let (_, reg) = post(&server.url, "/api/v1/worker/register", json!({"name": "probe", "threads": 1}));
+    let (_, reg) = post(&server.url, "/api/v1/worker/register", json!({"name": "probe", "threads": 1024}));
     let probe = reg["worker_id"].as_u64().unwrap();
     let mut queued = Vec::new();
     loop {

@@ -36,6 +36,7 @@ fn upload(url: &str, worker: u64, lease: &Value, pixels: &[[f32; 3]], sum: Optio
     let req = ureq::put(&format!("{url}/api/v1/worker/leases/{id}/result"))
         .set("Authorization", &format!("Bearer {TOKEN}"))
         .set("x-tessera-worker", &worker.to_string())
+        .set("x-tessera-worker-secret", &worker_secret(url, worker).unwrap_or_default())
         .set("x-tessera-checksum", &sum);
     call(req, Some(("application/octet-stream".into(), body)))
 }

@@ -157,31 +157,36 @@ fn submitter(url: &str, jobs: usize, opts: &Options, tally: &Tally, stop: &Atomi
 
 // ureq's own error, passed through unboxed: the callers only read its status code.
 #[allow(clippy::result_large_err)]
-fn post(url: &str, path: &str, body: Value) -> Result<ureq::Response, ureq::Error> {
+fn post(url: &str, path: &str, secret: &str, body: Value) -> Result<ureq::Response, ureq::Error> {
     ureq::post(&format!("{url}{path}"))
         .timeout(Duration::from_secs(30))
         .set("Authorization", &format!("Bearer {WORKER_TOKEN}"))
+        .set(tessera::protocol::WORKER_SECRET_HEADER, secret)
         .send_json(body)
 }
 
 fn worker(url: &str, n: usize, tally: &Tally, stop: &AtomicBool) {
     let name = format!("load-{n}");
-    let id = loop {
+    let (id, secret) = loop {
         if stop.load(Ordering::SeqCst) {
             return;
         }
-        let r = post(url, "/api/v1/worker/register", json!({"name": name, "threads": 1}));
+        let r = post(url, "/api/v1/worker/register", "", json!({"name": name, "threads": 1}));
         tally.status("register", code_of(&r));
         match r {
             Ok(resp) => {
-                break resp.into_json::<Value>().unwrap_or_default()["worker_id"].as_u64().unwrap_or(0);
+                let v = resp.into_json::<Value>().unwrap_or_default();
+                break (
+                    v["worker_id"].as_u64().unwrap_or(0),
+                    v["worker_secret"].as_str().unwrap_or("").to_string(),
+                );
             }
             Err(_) => std::thread::sleep(Duration::from_millis(100)),
         }
     };
     while !stop.load(Ordering::SeqCst) {
         let t0 = Instant::now();
-        let r = post(url, "/api/v1/worker/lease", json!({"worker_id": id, "wait_seconds": 1.0}));
+        let r = post(url, "/api/v1/worker/lease", &secret, json!({"worker_id": id, "wait_seconds": 1.0}));
         let code = code_of(&r);
         tally.status("lease", code);
         if code != 200 {
@@ -211,6 +216,7 @@ fn worker(url: &str, n: usize, tally: &Tally, stop: &AtomicBool) {
                 .timeout(Duration::from_secs(30))
                 .set("Authorization", &format!("Bearer {WORKER_TOKEN}"))
                 .set("x-tessera-worker", &id.to_string())
+                .set(tessera::protocol::WORKER_SECRET_HEADER, &secret)
                 .set(CHECKSUM_HEADER, &sum)
                 .set("Content-Type", "application/octet-stream")
                 .send_bytes(&body);

@@ -85,6 +85,13 @@ impl Leases {
         }
     }
 
+    /// Whether the worker may ask for one more lease: it holds at most one per render slot and
+    /// the one fetched ahead (those being uploaded count until the server has them), as the
+    /// server allows ([`tessera::protocol::MAX_WORKER_THREADS`]; threads + 1).
+    fn may_lease(&self) -> bool {
+        self.held.len() < self.rendering.len() + 1
+    }
+
     /// The oldest lease being rendered: what the status page shows the worker doing.
     fn shown(&self) -> Option<u64> {
         self.rendering.iter().flatten().min().copied()
@@ -100,6 +107,8 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 struct Client {
     base: String,
     token: String,
+    /// The secret registration answered (empty before registration): sent on every later call.
+    secret: String,
     agent: ureq::Agent,
 }
 
@@ -114,6 +123,7 @@ impl Client {
         self.agent
             .post(&self.url(path))
             .set("Authorization", &format!("Bearer {}", self.token))
+            .set(WORKER_SECRET_HEADER, &self.secret)
             .send_json(serde_json::to_value(body).expect("protocol types serialise"))
     }
 }
@@ -211,6 +221,12 @@ fn register(
                     "the server refused the worker token; pass the farm's worker token with --token or TESSERA_WORKER_TOKEN"
                 )
             }
+            Err(ureq::Error::Status(code @ (400 | 413 | 422), r)) => {
+                bail!(
+                    "the server refused to register this worker: {}",
+                    describe(ureq::Error::Status(code, r))
+                )
+            }
             Err(e) => {
                 if started.elapsed() > Duration::from_secs(5) {
                     eprintln!("waiting for the server at {}: {}", client.base, describe(e));
@@ -228,10 +244,18 @@ pub fn work(opts: WorkOptions) -> Result<()> {
         .timeout_connect(Duration::from_secs(10))
         .timeout(Duration::from_secs(120))
         .build();
-    let client = Arc::new(Client { base, token: opts.token.clone(), agent });
+    let client = Client { base, token: opts.token.clone(), secret: String::new(), agent };
     let mut pool = rayon::ThreadPoolBuilder::new();
-    if let Some(n) = opts.threads {
-        pool = pool.num_threads(n);
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    match opts.threads {
+        Some(n) if n > MAX_WORKER_THREADS as usize => {
+            bail!(
+                "--threads {n} is more than a farm worker may use ({MAX_WORKER_THREADS}); run several workers instead"
+            )
+        }
+        Some(n) => pool = pool.num_threads(n),
+        // A machine of more cores than one worker may declare runs that many threads.
+        None => pool = pool.num_threads(cores.min(MAX_WORKER_THREADS as usize)),
     }
     let pool = pool.build().context("cannot start the render threads")?;
     let stop = stop_flag()?;
@@ -240,6 +264,7 @@ pub fn work(opts: WorkOptions) -> Result<()> {
         return Ok(());
     };
     let worker_id = reg.worker_id;
+    let client = Arc::new(Client { secret: reg.worker_secret.clone(), ..client });
     let heartbeat_every = heartbeat_interval(reg.heartbeat_seconds)?;
     eprintln!(
         "worker {} ({}, {} threads) registered with {}",
@@ -527,6 +552,11 @@ fn fetch_leases(
         if stop.load(Ordering::SeqCst) {
             return;
         }
+        if !lock(leases).may_lease() {
+            // A finished tile still uploading holds its lease: wait for the upload's answer.
+            std::thread::sleep(Duration::from_millis(5));
+            continue;
+        }
         match client.post_json("/api/v1/worker/lease", &LeaseRequest { worker_id, wait_seconds: 20.0 }) {
             Ok(resp) if resp.status() == 200 => {
                 delay = Duration::from_millis(200);
@@ -551,6 +581,15 @@ fn fetch_leases(
                 // The server forgot this worker (a new data directory): nothing sensible to do
                 // but stop; a supervisor restarts and registers again.
                 eprintln!("the server does not know worker {worker_id} any more; exiting");
+                std::process::exit(3);
+            }
+            Err(ureq::Error::Status(401, r)) => {
+                // The token changed, or the server no longer takes this worker's secret (it
+                // registered with an older server): a restart registers again.
+                eprintln!(
+                    "the server refuses worker {worker_id}: {}; exiting",
+                    describe(ureq::Error::Status(401, r))
+                );
                 std::process::exit(3);
             }
             Err(_) if stop.load(Ordering::SeqCst) => return,
@@ -728,6 +767,7 @@ fn upload(client: &Client, worker_id: u64, lease: u64, px: &[[f32; 3]], seconds:
             .agent
             .put(&client.url(&format!("/api/v1/worker/leases/{lease}/result")))
             .set("Authorization", &format!("Bearer {}", client.token))
+            .set(WORKER_SECRET_HEADER, &client.secret)
             .set("x-tessera-worker", &worker_id.to_string())
             .set(CHECKSUM_HEADER, &sum)
             .set(RENDER_SECONDS_HEADER, &format!("{seconds:.6}"))

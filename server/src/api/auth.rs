@@ -11,7 +11,7 @@ fn bearer(headers: &HeaderMap) -> Option<&str> {
 }
 
 /// Constant-time comparison, so a token cannot be guessed byte by byte from response times.
-fn same_token(a: &str, b: &str) -> bool {
+pub(super) fn same_token(a: &str, b: &str) -> bool {
     a.len() == b.len() && a.bytes().zip(b.bytes()).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 

@@ -8,7 +8,7 @@ use axum::response::{IntoResponse, Response};
 use tessera::camera::Camera;
 use tessera::protocol::*;
 
-use super::{ApiResult, AppError, AppState};
+use super::{ApiResult, AppError, AppState, off_thread};
 use crate::merge;
 
 fn tone_params(p: &tessera::tonemap::params::Photographic) -> ToneParams {
@@ -79,18 +79,24 @@ pub(super) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobIn
 #[utoipa::path(get, path = "/api/v1/jobs", tag = "jobs", security((), ("api_token" = [])),
     responses((status = 200, description = "Every job, newest first", body = JobList), (status = 401, description = "The server needs an API token", body = ApiError)))]
 pub(super) async fn list_jobs(State(state): State<AppState>) -> ApiResult<Json<JobList>> {
-    let ids: Vec<u64> = state.store.jobs()?.iter().map(|j| j.id).collect();
-    let mut jobs = Vec::new();
-    for id in ids {
-        jobs.extend(job_info(&state, id)?);
-    }
-    Ok(Json(JobList { jobs }))
+    off_thread(move || {
+        let ids: Vec<u64> = state.store.jobs()?.iter().map(|j| j.id).collect();
+        let mut jobs = Vec::new();
+        for id in ids {
+            jobs.extend(job_info(&state, id)?);
+        }
+        Ok(Json(JobList { jobs }))
+    })
+    .await
 }
 
 #[utoipa::path(get, path = "/api/v1/jobs/{id}", tag = "jobs", security((), ("api_token" = [])), params(("id" = u64, Path, description = "The job's id")),
     responses((status = 200, description = "The job", body = JobInfo), (status = 400, description = "A path parameter or query does not parse", body = ApiError), (status = 401, description = "The server needs an API token", body = ApiError), (status = 404, description = "No such job", body = ApiError)))]
 pub(super) async fn show_job(State(state): State<AppState>, Path(id): Path<u64>) -> ApiResult<Json<JobInfo>> {
-    job_info(&state, id)?.map(Json).ok_or_else(|| AppError::not_found(format!("there is no job {id}")))
+    off_thread(move || {
+        job_info(&state, id)?.map(Json).ok_or_else(|| AppError::not_found(format!("there is no job {id}")))
+    })
+    .await
 }
 
 #[utoipa::path(post, path = "/api/v1/jobs/{id}/cancel", tag = "jobs", security((), ("api_token" = [])), params(("id" = u64, Path, description = "The job's id")),
@@ -102,16 +108,19 @@ pub(super) async fn cancel_job(
     State(state): State<AppState>,
     Path(id): Path<u64>,
 ) -> ApiResult<Json<JobInfo>> {
-    let Some(job) = state.store.job(id)? else {
-        return Err(AppError::not_found(format!("there is no job {id}")));
-    };
-    if !state.scheduler.cancel(id)? {
-        return Err(AppError::new(
-            StatusCode::CONFLICT,
-            format!("job {id} has already ended ({})", job.state.as_str()),
-        ));
-    }
-    Ok(Json(job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?))
+    off_thread(move || {
+        let Some(job) = state.store.job(id)? else {
+            return Err(AppError::not_found(format!("there is no job {id}")));
+        };
+        if !state.scheduler.cancel(id)? {
+            return Err(AppError::new(
+                StatusCode::CONFLICT,
+                format!("job {id} has already ended ({})", job.state.as_str()),
+            ));
+        }
+        Ok(Json(job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?))
+    })
+    .await
 }
 
 /// The job's event log, or the part of it after `?after=SEQ`.
@@ -124,11 +133,14 @@ pub(super) async fn job_log(
     Path(id): Path<u64>,
     axum::extract::Query(q): axum::extract::Query<LogQuery>,
 ) -> ApiResult<Json<JobLog>> {
-    let events = state
-        .store
-        .job_log(id, q.after.unwrap_or(0))?
-        .ok_or_else(|| AppError::not_found(format!("there is no job {id}")))?;
-    Ok(Json(JobLog { job: id, events }))
+    off_thread(move || {
+        let events = state
+            .store
+            .job_log(id, q.after.unwrap_or(0))?
+            .ok_or_else(|| AppError::not_found(format!("there is no job {id}")))?;
+        Ok(Json(JobLog { job: id, events }))
+    })
+    .await
 }
 
 /// Frame `frame` of job `id`, or a 404 naming what is missing.
@@ -162,7 +174,10 @@ pub(super) async fn frame_file(
     State(state): State<AppState>,
     Path((id, frame, name)): Path<(u64, u32, String)>,
 ) -> ApiResult<Response> {
-    let f = &find_frame(&state, id, frame)?;
+    let f = {
+        let state = state.clone();
+        off_thread(move || find_frame(&state, id, frame)).await?
+    };
     let Some(outputs) = &f.outputs else {
         return Err(AppError::new(
             StatusCode::CONFLICT,
@@ -207,27 +222,46 @@ pub(super) async fn frame_preview(
     State(state): State<AppState>,
     Path((id, frame)): Path<(u64, u32)>,
 ) -> ApiResult<Response> {
-    let (job, f) = job_and_frame(&state, id, frame)?;
-    let cameras = state.job_cameras(&job)?;
-    let cam = cameras
-        .get(f.camera as usize)
-        .cloned()
-        .ok_or_else(|| anyhow::anyhow!("camera {} missing", f.camera))?;
-    let store = state.store.clone();
-    let png = tokio::task::spawn_blocking(move || -> anyhow::Result<Vec<u8>> {
-        let tiles = store.frame_tiles(id, frame)?;
-        if tiles.is_empty() && f.outputs.is_some() {
-            // A finished job drops its tiles: show the stored float frame.
+    // Previews hold a picture each: a few at a time, the rest wait their turn.
+    let _permit = state
+        .previews
+        .clone()
+        .acquire_owned()
+        .await
+        .map_err(|_| AppError::new(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping"))?;
+    let png = off_thread(move || {
+        let (job, f) = job_and_frame(&state, id, frame)?;
+        if f.outputs.is_some() {
+            // A finished frame: the preview its merge wrote, or (frames merged before there
+            // was one) made from the stored float frame.
+            let dir = state.frame_dir(id, frame);
+            if let Ok(png) = std::fs::read(dir.join(merge::PREVIEW_FILE)) {
+                return Ok(png);
+            }
             if let Some(path) = stored_exr(&state, &f) {
-                let img = tessera::hdr_io::read_exr(&path)?;
-                return merge::final_png(&cam, &img);
+                let cam = job_camera(&state, &job, f.camera)?;
+                let img = tessera::hdr_io::read_exr(&path).map_err(|e| anyhow::anyhow!("{e}"))?;
+                return Ok(merge::final_preview_png(&cam, &img)?);
             }
         }
-        merge::preview_png(&cam, f.width, f.height, &tiles)
+        let cam = job_camera(&state, &job, f.camera)?;
+        // The arrived tiles one at a time, each shrunk into the preview as it is read.
+        let mut canvas = merge::PreviewCanvas::new(f.width, f.height);
+        for (tile, rect) in state.store.done_tile_rects(id, frame)? {
+            if let Some(bytes) = state.store.tile_pixels(id, frame, tile)? {
+                canvas.add(rect, &bytes)?;
+            }
+        }
+        Ok(canvas.png(&cam)?)
     })
-    .await
-    .map_err(|e| anyhow::anyhow!("preview task: {e}"))??;
+    .await?;
     Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/png"))], png).into_response())
+}
+
+/// The camera of a job's frame.
+fn job_camera(state: &AppState, job: &crate::db::JobRow, camera: u32) -> ApiResult<Camera> {
+    let cameras = state.job_cameras(job)?;
+    Ok(cameras.get(camera as usize).cloned().ok_or_else(|| anyhow::anyhow!("camera {camera} missing"))?)
 }
 
 /// Where a merged frame's float image (`.exr` output) is stored, if it has one.
@@ -251,7 +285,16 @@ pub(super) async fn frame_tonemap(
     Path((id, frame)): Path<(u64, u32)>,
     axum::extract::Query(q): axum::extract::Query<ToneQuery>,
 ) -> ApiResult<Response> {
-    let (job, f) = job_and_frame(&state, id, frame)?;
+    let _permit = state
+        .previews
+        .clone()
+        .acquire_owned()
+        .await
+        .map_err(|_| AppError::new(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping"))?;
+    let (job, f) = {
+        let state = state.clone();
+        off_thread(move || job_and_frame(&state, id, frame)).await?
+    };
     if f.outputs.is_none() {
         return Err(AppError::new(
             StatusCode::CONFLICT,
@@ -260,7 +303,10 @@ pub(super) async fn frame_tonemap(
     }
     let path = stored_exr(&state, &f)
         .ok_or_else(|| AppError::not_found(format!("frame {frame} of job {id} has no .exr to tone-map")))?;
-    let cameras = state.job_cameras(&job)?;
+    let cameras = {
+        let state = state.clone();
+        off_thread(move || Ok(state.job_cameras(&job)?)).await?
+    };
     let (operator, base) = cameras
         .get(f.camera as usize)
         .and_then(merge::display_tonemap)

@@ -7,21 +7,25 @@ use axum::extract::State;
 use axum::http::{HeaderValue, header};
 use axum::response::{IntoResponse, Response};
 
-use super::{ApiResult, AppState};
+use super::{ApiResult, AppState, off_thread};
 use crate::scheduler::WorkerState;
 
 #[utoipa::path(get, path = "/metrics", tag = "server",
     responses((status = 200, description = "Prometheus text format: jobs by state, tiles, lease expiries, refused results, workers by state, render seconds", content_type = "text/plain", body = String)))]
 pub(super) async fn metrics(State(state): State<AppState>) -> ApiResult<Response> {
+    let (store_metrics, workers) = {
+        let state = state.clone();
+        off_thread(move || Ok((state.store.metrics()?, state.store.workers()?))).await?
+    };
     let crate::db::StoreMetrics {
         jobs_by_state: states,
         tiles_done,
         render_seconds_sum: render_sum,
         render_seconds_count: render_count,
-    } = state.store.metrics()?;
+    } = store_metrics;
     let t = crate::db::now();
     let mut by_state: HashMap<WorkerState, i64> = HashMap::new();
-    for w in &state.store.workers()? {
+    for w in &workers {
         *by_state.entry(state.scheduler.worker_state(w, t)).or_default() += 1;
     }
     let mut out = String::new();

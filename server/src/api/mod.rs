@@ -3,9 +3,9 @@
 //! Two APIs under `/api/v1`, both JSON: the job API for people (curl, the status page) and the
 //! worker protocol (`tessera::protocol`), plus `/healthz`, `/metrics` and the page itself. The
 //! handlers live by concern in the submodules; the scheduling rules they call are in
-//! [`crate::scheduler`], the store in [`crate::db`]. Handlers do database work under a short
-//! mutex and push CPU work (scene validation, merging, tone mapping, PNG encoding) to
-//! `spawn_blocking`. Every error is an [`AppError`] answered as `{"error", "problems"}` JSON with
+//! [`crate::scheduler`], the store in [`crate::db`]. Handlers do their database work (a short
+//! transaction under the store's mutex) and their CPU work (scene validation, merging, tone
+//! mapping, PNG encoding) on `spawn_blocking` ([`off_thread`]), never on the async threads. Every error is an [`AppError`] answered as `{"error", "problems"}` JSON with
 //! a fitting status; internal details go to the log, not to the client.
 
 mod auth;
@@ -66,6 +66,16 @@ impl IntoResponse for AppError {
 
 type ApiResult<T> = Result<T, AppError>;
 
+/// Runs a handler's store and file work on the blocking pool. The store is one SQLite
+/// connection behind a mutex: work under it must never hold one of the few async threads that
+/// accept connections and answer every other request (`/healthz` included), whatever another
+/// client sends.
+async fn off_thread<T: Send + 'static>(f: impl FnOnce() -> ApiResult<T> + Send + 'static) -> ApiResult<T> {
+    tokio::task::spawn_blocking(f)
+        .await
+        .map_err(|e| anyhow::anyhow!("a handler's blocking task failed: {e}"))?
+}
+
 // ---------------------------------------------------------------------------------------------
 // Router
 // ---------------------------------------------------------------------------------------------
@@ -94,6 +104,9 @@ fn routes(state: &AppState) -> OpenApiRouter<AppState> {
         .routes(routes!(worker::fail))
         .routes(routes!(worker::release))
         .routes(routes!(worker::get_bundle))
+        // Worker requests are small JSON (the tile upload reads its body itself, up to the
+        // tile's size): a body past this is refused before it is parsed.
+        .route_layer(DefaultBodyLimit::max(MAX_WORKER_JSON_BYTES))
         .route_layer(axum::middleware::from_fn_with_state(state.clone(), auth::require_worker_token));
     OpenApiRouter::with_openapi(openapi::ApiDoc::openapi())
         .routes(routes!(healthz))
@@ -202,8 +215,9 @@ async fn json_errors(req: axum::extract::Request, next: axum::middleware::Next) 
 const OVERSIZED_DRAIN_BYTES: u64 = 64 << 20;
 const OVERSIZED_DRAIN_SECONDS: u64 = 30;
 
-/// A request whose `Content-Length` is over `--max-upload-mb` gets its 413 (with the message
-/// that names the flag) without reaching a handler. Many clients (ureq, which the `tessera`
+/// A request whose `Content-Length` is over `--max-upload-mb` (a worker's JSON request: over
+/// [`MAX_WORKER_JSON_BYTES`]) gets its 413 (with the message that names the limit) without
+/// reaching a handler. Many clients (ureq, which the `tessera`
 /// client uses, and simple scripts) write the whole body before they read the answer: if the
 /// server answered and closed at once, they would see a broken pipe instead of the message. So
 /// the rest of the body is read and dropped first, up to `OVERSIZED_DRAIN_BYTES` past the limit
@@ -220,6 +234,11 @@ async fn oversized_uploads(
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.trim().parse::<u64>().ok());
+    // A worker's JSON requests are small; its tile upload is checked against the tile's size
+    // by its handler.
+    let path = req.uri().path();
+    let worker_json = path.starts_with("/api/v1/worker/") && !path.ends_with("/result");
+    let limit = if worker_json { MAX_WORKER_JSON_BYTES } else { limit };
     let Some(declared) = declared.filter(|&n| n > limit as u64) else {
         return next.run(req).await;
     };
@@ -240,6 +259,16 @@ async fn oversized_uploads(
                 _ => break,
             }
         }
+    }
+    if worker_json {
+        return AppError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!(
+                "a worker request's body may hold at most {} KiB of JSON; this one declares {declared} bytes",
+                MAX_WORKER_JSON_BYTES >> 10
+            ),
+        )
+        .into_response();
     }
     submit::upload_too_large(limit).into_response()
 }

@@ -4,14 +4,14 @@
 //! method, parameters, answers), the router is built from those attributes (`routes!` in
 //! [`super::routes`]), and the schemas are the protocol types' own (`tessera::protocol`, whose
 //! `ToSchema` derives the server enables with common's `openapi` feature). What is left for this
-//! file is the document's frame: title, version, tags and the two bearer tokens.
+//! file is the document's frame: title, version, tags, the two bearer tokens and the worker secret.
 
 use std::sync::Arc;
 
 use axum::Extension;
 use axum::http::{HeaderValue, header};
 use axum::response::{IntoResponse, Response};
-use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
+use utoipa::openapi::security::{ApiKey, ApiKeyValue, HttpAuthScheme, HttpBuilder, SecurityScheme};
 use utoipa::{Modify, OpenApi};
 
 #[derive(OpenApi)]
@@ -26,7 +26,7 @@ use utoipa::{Modify, OpenApi};
     tags(
         (name = "jobs", description = "The job API: needs the API token when the server has one (`Authorization: Bearer`, or `?access_token=` where headers cannot be sent)"),
         (name = "status", description = "What the status page follows"),
-        (name = "worker", description = "The worker protocol: every request needs the worker token"),
+        (name = "worker", description = "The worker protocol: every request needs the worker token, and every request after registration the worker's secret"),
         (name = "server", description = "Health, metrics, the status page and this description"),
     ),
     modifiers(&Tokens),
@@ -50,6 +50,13 @@ impl Modify for Tokens {
                 ),
             );
         }
+        components.add_security_scheme(
+            "worker_secret",
+            SecurityScheme::ApiKey(ApiKey::Header(ApiKeyValue::with_description(
+                tessera::protocol::WORKER_SECRET_HEADER,
+                "The worker_secret that registration answered: proves which registered worker calls",
+            ))),
+        );
         openapi.info.version = env!("CARGO_PKG_VERSION").to_string();
     }
 }

@@ -7,15 +7,17 @@ use axum::response::{IntoResponse, Response};
 
 use tessera::protocol::{ApiError, ServerEvent, WorkerInfo, WorkerList, WorkerTile};
 
-use super::{ApiResult, AppState};
+use super::{ApiResult, AppState, off_thread};
 
 #[utoipa::path(get, path = "/api/v1/workers", tag = "status", security((), ("api_token" = [])),
     responses((status = 200, description = "Every registered worker", body = WorkerList), (status = 401, description = "The server needs an API token", body = ApiError)))]
 pub(super) async fn list_workers(State(state): State<AppState>) -> ApiResult<Json<WorkerList>> {
+    let rows = {
+        let state = state.clone();
+        off_thread(move || Ok(state.store.workers()?)).await?
+    };
     let t = crate::db::now();
-    let workers: Vec<WorkerInfo> = state
-        .store
-        .workers()?
+    let workers: Vec<WorkerInfo> = rows
         .into_iter()
         .map(|w| WorkerInfo {
             state: state.scheduler.worker_state(&w, t).as_str().to_string(),

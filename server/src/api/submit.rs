@@ -13,7 +13,7 @@ use tessera::protocol::*;
 use tessera::scene::load::LoadOptions;
 
 use super::jobs::job_info;
-use super::{ApiResult, AppError, AppState, Settings};
+use super::{ApiResult, AppError, AppState, Settings, off_thread};
 use crate::bundle::{self, BundleError, Files, Unpacker};
 
 /// The multipart form of a submission, for the OpenAPI description only (the handler reads the
@@ -298,26 +298,29 @@ pub(super) async fn submit_job(
     .await
     .map_err(|e| anyhow::anyhow!("validation task: {e}"))??;
     check_sample_budget(&state.settings, &cameras, &frames, opts.samples)?;
-    let hash = state.blobs.put(&tar)?;
     let name = opts.name.unwrap_or_else(|| scene_path.rsplit('/').next().unwrap_or(&scene_path).to_string());
-    let job = crate::db::NewJob {
-        name,
-        priority: opts.priority,
-        tile_size,
-        samples: opts.samples,
-        bundle: hash,
-        scene_path,
-        frames,
-        warnings: warnings.clone(),
-        allow_unsupported: opts.allow_unsupported,
-    };
-    let id = state.store.insert_job(&job)?;
-    state.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(id, Arc::new(cameras));
-    state.scheduler.job_submitted(id);
-    tracing::info!(job = id, name = %job.name, "job accepted");
-    let mut info = job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?;
-    info.warnings = warnings;
-    Ok((StatusCode::CREATED, Json(info)))
+    off_thread(move || {
+        let hash = state.blobs.put(&tar)?;
+        let job = crate::db::NewJob {
+            name,
+            priority: opts.priority,
+            tile_size,
+            samples: opts.samples,
+            bundle: hash,
+            scene_path,
+            frames,
+            warnings: warnings.clone(),
+            allow_unsupported: opts.allow_unsupported,
+        };
+        let id = state.store.insert_job(&job)?;
+        state.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(id, Arc::new(cameras));
+        state.scheduler.job_submitted(id);
+        tracing::info!(job = id, name = %job.name, "job accepted");
+        let mut info = job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?;
+        info.warnings = warnings;
+        Ok((StatusCode::CREATED, Json(info)))
+    })
+    .await
 }
 
 /// Refuses a job asking for more samples than the server's `--max-job-samples`: one that would
@@ -410,7 +413,7 @@ fn validate(
     tile_size: u32,
     max_tiles: u64,
 ) -> ApiResult<Validated> {
-    let tar = bundle::canonical_tar(&files);
+    let tar = bundle::canonical_tar(&files).map_err(|e| AppError::bad_request(e.to_string()))?;
     let shared: BundleFiles = files.into_iter().map(|(k, v)| (k, Arc::new(v))).collect();
     let scene = load_bundle_scene(shared, scene_path, load).map_err(|e| match e {
         // The scene file is not text: said as it is ("<file>: the scene file is not UTF-8 text ...").

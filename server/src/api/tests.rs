@@ -25,6 +25,9 @@ const TOKEN: &str = "wtok";
 struct Farm {
     app: Router,
     state: AppState,
+    /// The secret each worker registered through [`Farm::post`] was given, sent with its later
+    /// requests as a real worker sends it.
+    secrets: std::sync::Mutex<std::collections::HashMap<u64, String>>,
     _dir: TempDir,
 }
 
@@ -47,7 +50,7 @@ impl Farm {
         let timing =
             Timing { lease_seconds, heartbeat_seconds: 1.0, max_wait_seconds: 20.0, max_tile_seconds: 60.0 };
         let state = AppState::new(store, blobs, settings, timing);
-        Farm { app: app(state.clone()), state, _dir: dir }
+        Farm { app: app(state.clone()), state, secrets: Default::default(), _dir: dir }
     }
 
     /// The status, headers and body (JSON, else a JSON string) of a request.
@@ -59,17 +62,28 @@ impl Farm {
         (parts.status, parts.headers, serde_json::from_str(&text).unwrap_or(Value::String(text)))
     }
 
-    /// A worker-protocol POST.
+    /// A worker-protocol POST (with the secret of the `worker_id` it names, once registered).
     async fn post(&self, path: &str, body: Value) -> (StatusCode, Value) {
+        let secret = body["worker_id"].as_u64().map(|w| self.secret(w)).unwrap_or_default();
         let req = Request::builder()
             .method(Method::POST)
             .uri(path)
             .header(header::AUTHORIZATION, format!("Bearer {TOKEN}"))
+            .header(tessera::protocol::WORKER_SECRET_HEADER, secret)
             .header(header::CONTENT_TYPE, "application/json")
             .body(Body::from(body.to_string()))
             .unwrap();
         let (status, _, v) = self.send(req).await;
+        if path == "/api/v1/worker/register" && status == StatusCode::OK {
+            let secret = v["worker_secret"].as_str().unwrap().to_string();
+            self.secrets.lock().unwrap().insert(v["worker_id"].as_u64().unwrap(), secret);
+        }
         (status, v)
+    }
+
+    /// Worker `w`'s secret ("" for a worker not registered through [`Farm::post`]).
+    fn secret(&self, w: u64) -> String {
+        self.secrets.lock().unwrap().get(&w).cloned().unwrap_or_default()
     }
 
     async fn get(&self, path: &str) -> (StatusCode, Value) {
@@ -106,8 +120,9 @@ impl Farm {
         (status, v)
     }
 
+    /// Registers a worker of 16 threads (tests lease several tiles before rendering any).
     async fn register(&self, name: &str) -> u64 {
-        let (status, v) = self.post("/api/v1/worker/register", json!({"name": name, "threads": 1})).await;
+        let (status, v) = self.post("/api/v1/worker/register", json!({"name": name, "threads": 16})).await;
         assert_eq!(status, StatusCode::OK, "{v}");
         v["worker_id"].as_u64().unwrap()
     }
@@ -136,6 +151,7 @@ impl Farm {
         let sum = sum.map_or_else(|| checksum(&body), str::to_string);
         let req = Request::put(format!("/api/v1/worker/leases/{}/result", lease["lease_id"]))
             .header(header::AUTHORIZATION, format!("Bearer {TOKEN}"))
+            .header(tessera::protocol::WORKER_SECRET_HEADER, self.secret(worker))
             .header("x-tessera-worker", worker.to_string())
             .header(CHECKSUM_HEADER, sum)
             .body(Body::from(body))
@@ -331,9 +347,11 @@ async fn cancel_revokes_the_leases_and_answers_watches_at_once() {
     let watch = {
         let farm_app = farm.app.clone();
         let body = json!({"worker_id": w, "leases": [l["lease_id"]], "wait_seconds": 15.0});
+        let secret = farm.secret(w);
         tokio::spawn(async move {
             let req = Request::post("/api/v1/worker/watch")
                 .header(header::AUTHORIZATION, format!("Bearer {TOKEN}"))
+                .header(tessera::protocol::WORKER_SECRET_HEADER, secret)
                 .header(header::CONTENT_TYPE, "application/json")
                 .body(Body::from(body.to_string()))
                 .unwrap();
@@ -670,6 +688,7 @@ async fn the_log_endpoint_serves_a_jobs_events_and_only_the_new_ones_after_seq()
     let body = encode_tile(&[[0.5, 0.5, 0.5]; 16]);
     let req = Request::put(format!("/api/v1/worker/leases/{}/result", l["lease_id"]))
         .header(header::AUTHORIZATION, format!("Bearer {TOKEN}"))
+        .header(tessera::protocol::WORKER_SECRET_HEADER, farm.secret(w))
         .header("x-tessera-worker", w.to_string())
         .header(CHECKSUM_HEADER, checksum(&body))
         .header(tessera::protocol::RENDER_SECONDS_HEADER, "0.25")
@@ -681,6 +700,7 @@ async fn the_log_endpoint_serves_a_jobs_events_and_only_the_new_ones_after_seq()
     let body = encode_tile(&[[0.5, 0.5, 0.5]; 16]);
     let req = Request::put(format!("/api/v1/worker/leases/{}/result", l2["lease_id"]))
         .header(header::AUTHORIZATION, format!("Bearer {TOKEN}"))
+        .header(tessera::protocol::WORKER_SECRET_HEADER, farm.secret(w))
         .header("x-tessera-worker", w.to_string())
         .header(CHECKSUM_HEADER, checksum(&body))
         .header(tessera::protocol::RENDER_SECONDS_HEADER, "NaN")

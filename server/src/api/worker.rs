@@ -3,13 +3,12 @@
 //! with the status the protocol promises.
 
 use axum::Json;
-use axum::body::Bytes;
 use axum::extract::{Path, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use tessera::protocol::*;
 
-use super::{ApiResult, AppError, AppState};
+use super::{ApiResult, AppError, AppState, off_thread};
 use crate::db::{FailOutcome, ResultOutcome};
 use crate::merge::merge_frame;
 use crate::scheduler::LeaseWait;
@@ -20,39 +19,121 @@ pub(super) async fn register(
     State(state): State<AppState>,
     Json(req): Json<RegisterRequest>,
 ) -> ApiResult<Json<RegisterResponse>> {
-    let id = state.store.register_worker(&req.name, req.threads)?;
+    check_name(&req.name)?;
+    if !(1..=MAX_WORKER_THREADS).contains(&req.threads) {
+        return Err(AppError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!("threads must be from 1 to {MAX_WORKER_THREADS}, found {}", req.threads),
+        ));
+    }
+    let secret = crate::random_token();
+    let hash = crate::bundle::sha256_hex(secret.as_bytes());
+    let id = {
+        let (state, name) = (state.clone(), req.name.clone());
+        off_thread(move || Ok(state.store.register_worker(&name, req.threads, &hash)?)).await?
+    };
     tracing::info!(worker = id, name = %req.name, threads = req.threads, "worker registered");
     state.emit(ServerEvent::Workers);
     let timing = state.scheduler.timing();
     Ok(Json(RegisterResponse {
         worker_id: id,
+        worker_secret: secret,
         heartbeat_seconds: timing.heartbeat_seconds,
         lease_seconds: timing.lease_seconds,
     }))
 }
 
-fn known_worker(state: &AppState, id: u64) -> ApiResult<()> {
-    if state.store.worker_exists(id)? {
-        Ok(())
+/// A worker's name as the page and the logs show it: at most [`MAX_WORKER_NAME`] bytes, not
+/// empty, no control characters.
+fn check_name(name: &str) -> ApiResult<()> {
+    let problem = if name.trim().is_empty() {
+        "is empty"
+    } else if name.len() > MAX_WORKER_NAME {
+        "is too long"
+    } else if name.chars().any(char::is_control) {
+        "holds control characters"
     } else {
-        Err(AppError::new(StatusCode::NOT_FOUND, format!("unknown worker {id}; register again")))
+        return Ok(());
+    };
+    Err(AppError::new(
+        StatusCode::UNPROCESSABLE_ENTITY,
+        format!(
+            "the worker's name {problem}: give a name of 1 to {MAX_WORKER_NAME} bytes without control characters (--name)"
+        ),
+    ))
+}
+
+/// Checks that the caller is registered worker `id`. The middleware has checked the worker
+/// token; this checks the secret the worker got at registration ([`WORKER_SECRET_HEADER`]), so
+/// a holder of the worker token cannot act as another worker. An unknown worker is a 404
+/// (register again), a missing or wrong secret a 401.
+fn authenticate(state: &AppState, headers: &HeaderMap, id: u64) -> ApiResult<()> {
+    let given = headers.get(WORKER_SECRET_HEADER).and_then(|v| v.to_str().ok());
+    let Some(stored) = state.store.worker_secret_hash(id)? else {
+        return Err(AppError::new(StatusCode::NOT_FOUND, format!("unknown worker {id}; register again")));
+    };
+    match (given, stored) {
+        (Some(secret), Some(hash))
+            if super::auth::same_token(&crate::bundle::sha256_hex(secret.as_bytes()), &hash) =>
+        {
+            Ok(())
+        }
+        (None, _) => Err(AppError::new(
+            StatusCode::UNAUTHORIZED,
+            format!(
+                "missing header {WORKER_SECRET_HEADER}: send the worker_secret that registration answered"
+            ),
+        )),
+        _ => Err(AppError::new(
+            StatusCode::UNAUTHORIZED,
+            format!(
+                "wrong {WORKER_SECRET_HEADER} for worker {id}: a worker may only act for itself; register again"
+            ),
+        )),
     }
 }
 
+/// [`authenticate`] on the blocking pool (it reads the store).
+async fn authenticated(state: &AppState, headers: &HeaderMap, id: u64) -> ApiResult<()> {
+    let (state, headers) = (state.clone(), headers.clone());
+    off_thread(move || authenticate(&state, &headers, id)).await
+}
+
+/// Refuses a list of more leases than any worker may hold.
+fn check_listed(leases: &[u64]) -> ApiResult<()> {
+    if leases.len() > MAX_LISTED_LEASES {
+        return Err(AppError::bad_request(format!(
+            "the request lists {} leases; a worker holds at most {MAX_LISTED_LEASES} (its threads + 1)",
+            leases.len()
+        )));
+    }
+    Ok(())
+}
+
 /// Long poll: a lease as soon as a tile is free, or 204 after the wait.
-#[utoipa::path(post, path = "/api/v1/worker/lease", tag = "worker", security(("worker_token" = [])), request_body = LeaseRequest,
+#[utoipa::path(post, path = "/api/v1/worker/lease", tag = "worker", security(("worker_token" = [], "worker_secret" = [])), request_body = LeaseRequest,
     responses(
         (status = 200, description = "A tile to render", body = Lease),
         (status = 204, description = "Nothing became free within the wait"),
-        (status = 400, description = "The body is not JSON", body = ApiError), (status = 415, description = "The body is not sent as application/json", body = ApiError), (status = 422, description = "The JSON does not have the request's shape", body = ApiError), (status = 401, description = "Missing or wrong worker token", body = ApiError), (status = 404, description = "Unknown worker: register again", body = ApiError),
+        (status = 400, description = "The body is not JSON", body = ApiError), (status = 415, description = "The body is not sent as application/json", body = ApiError), (status = 422, description = "The JSON does not have the request's shape", body = ApiError), (status = 401, description = "Missing or wrong worker token or worker secret", body = ApiError), (status = 404, description = "Unknown worker: register again", body = ApiError),
         (status = 503, description = "The server is shutting down (with Retry-After)", body = ApiError)))]
 pub(super) async fn lease(
     State(state): State<AppState>,
+    headers: HeaderMap,
     Json(req): Json<LeaseRequest>,
 ) -> ApiResult<Response> {
-    known_worker(&state, req.worker_id)?;
+    authenticated(&state, &headers, req.worker_id).await?;
     Ok(match state.scheduler.lease(req.worker_id, req.wait_seconds).await? {
         LeaseWait::Granted(lease) => Json(lease).into_response(),
+        LeaseWait::Full { held, allowed } => AppError::new(
+            StatusCode::TOO_MANY_REQUESTS,
+            format!(
+                "worker {} holds {held} live leases, the most a worker of its threads may (threads + 1 = {allowed}); \
+                 render, report or release one first",
+                req.worker_id
+            ),
+        )
+        .into_response(),
         LeaseWait::NoWork => StatusCode::NO_CONTENT.into_response(),
         LeaseWait::ShuttingDown => {
             // An error, not "no work": workers back off on errors, while they ask again at once
@@ -68,31 +149,38 @@ pub(super) async fn lease(
     })
 }
 
-#[utoipa::path(post, path = "/api/v1/worker/heartbeat", tag = "worker", security(("worker_token" = [])), request_body = HeartbeatRequest,
-    responses((status = 200, description = "The leases renewed; those no longer the worker's", body = HeartbeatResponse), (status = 400, description = "The body is not JSON", body = ApiError), (status = 415, description = "The body is not sent as application/json", body = ApiError), (status = 422, description = "The JSON does not have the request's shape", body = ApiError), (status = 401, description = "Missing or wrong worker token", body = ApiError), (status = 404, description = "Unknown worker: register again", body = ApiError)))]
+#[utoipa::path(post, path = "/api/v1/worker/heartbeat", tag = "worker", security(("worker_token" = [], "worker_secret" = [])), request_body = HeartbeatRequest,
+    responses((status = 200, description = "The leases renewed; those no longer the worker's", body = HeartbeatResponse), (status = 400, description = "The body is not JSON", body = ApiError), (status = 415, description = "The body is not sent as application/json", body = ApiError), (status = 422, description = "The JSON does not have the request's shape", body = ApiError), (status = 401, description = "Missing or wrong worker token or worker secret", body = ApiError), (status = 404, description = "Unknown worker: register again", body = ApiError)))]
 pub(super) async fn heartbeat(
     State(state): State<AppState>,
+    headers: HeaderMap,
     Json(req): Json<HeartbeatRequest>,
 ) -> ApiResult<Json<HeartbeatResponse>> {
-    known_worker(&state, req.worker_id)?;
-    let revoked = state.scheduler.heartbeat(req.worker_id, &req.leases, req.rendering)?;
-    Ok(Json(HeartbeatResponse { revoked }))
+    check_listed(&req.leases)?;
+    off_thread(move || {
+        authenticate(&state, &headers, req.worker_id)?;
+        let revoked = state.scheduler.heartbeat(req.worker_id, &req.leases, req.rendering)?;
+        Ok(Json(HeartbeatResponse { revoked }))
+    })
+    .await
 }
 
 /// Long poll: answers as soon as one of the worker's listed leases is no longer its own (its
 /// job was cancelled or failed), else after the wait with nothing revoked.
-#[utoipa::path(post, path = "/api/v1/worker/watch", tag = "worker", security(("worker_token" = [])), request_body = WatchRequest,
-    responses((status = 200, description = "Leases revoked (as soon as one is), or none after the wait", body = HeartbeatResponse), (status = 400, description = "The body is not JSON", body = ApiError), (status = 415, description = "The body is not sent as application/json", body = ApiError), (status = 422, description = "The JSON does not have the request's shape", body = ApiError), (status = 401, description = "Missing or wrong worker token", body = ApiError), (status = 404, description = "Unknown worker: register again", body = ApiError)))]
+#[utoipa::path(post, path = "/api/v1/worker/watch", tag = "worker", security(("worker_token" = [], "worker_secret" = [])), request_body = WatchRequest,
+    responses((status = 200, description = "Leases revoked (as soon as one is), or none after the wait", body = HeartbeatResponse), (status = 400, description = "The body is not JSON", body = ApiError), (status = 415, description = "The body is not sent as application/json", body = ApiError), (status = 422, description = "The JSON does not have the request's shape", body = ApiError), (status = 401, description = "Missing or wrong worker token or worker secret", body = ApiError), (status = 404, description = "Unknown worker: register again", body = ApiError)))]
 pub(super) async fn watch(
     State(state): State<AppState>,
+    headers: HeaderMap,
     Json(req): Json<WatchRequest>,
 ) -> ApiResult<Json<HeartbeatResponse>> {
-    known_worker(&state, req.worker_id)?;
+    check_listed(&req.leases)?;
+    authenticated(&state, &headers, req.worker_id).await?;
     let revoked = state.scheduler.watch(req.worker_id, req.leases, req.wait_seconds).await?;
     Ok(Json(HeartbeatResponse { revoked }))
 }
 
-#[utoipa::path(put, path = "/api/v1/worker/leases/{lease}/result", tag = "worker", security(("worker_token" = [])),
+#[utoipa::path(put, path = "/api/v1/worker/leases/{lease}/result", tag = "worker", security(("worker_token" = [], "worker_secret" = [])),
     params(
         ("lease" = u64, Path, description = "The lease's id"),
         ("x-tessera-worker" = u64, Header, description = "The worker's id"),
@@ -101,34 +189,82 @@ pub(super) async fn watch(
     request_body(content = super::openapi::Binary, content_type = "application/octet-stream", description = "The tile: width x height RGB triples of little-endian f32, row-major"),
     responses(
         (status = 204, description = "Stored (committed before this answer)"),
-        (status = 400, description = "A missing header, a checksum that does not match, or the wrong size", body = ApiError),
-        (status = 401, description = "Missing or wrong worker token", body = ApiError),
+        (status = 400, description = "A missing header, a checksum that does not match, the wrong size, or a value that is not a finite number", body = ApiError),
+        (status = 401, description = "Missing or wrong worker token or worker secret", body = ApiError),
         (status = 409, description = "The lease is not the worker's any more: drop the tile", body = ApiError),
-        (status = 413, description = "The body is over the server's upload limit", body = ApiError)))]
+        (status = 413, description = "The body goes past the tile's size (width x height x 12 bytes)", body = ApiError)))]
 pub(super) async fn result(
     State(state): State<AppState>,
     Path(lease): Path<u64>,
     headers: HeaderMap,
-    body: Bytes,
+    body: axum::body::Body,
 ) -> ApiResult<StatusCode> {
     let worker: u64 = headers
         .get("x-tessera-worker")
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.parse().ok())
         .ok_or_else(|| AppError::bad_request("missing header x-tessera-worker (the worker id)"))?;
+    authenticated(&state, &headers, worker).await?;
     let sum = headers
         .get(CHECKSUM_HEADER)
         .and_then(|v| v.to_str().ok())
-        .ok_or_else(|| AppError::bad_request(format!("missing header {CHECKSUM_HEADER}")))?;
+        .ok_or_else(|| AppError::bad_request(format!("missing header {CHECKSUM_HEADER}")))?
+        .to_string();
+    let declared = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.trim().parse::<u64>().ok());
+    // The lease says how many bytes its tile has: the body is read up to that and no further.
+    let expected = {
+        let state = state.clone();
+        off_thread(move || Ok(state.store.result_size(lease, worker)?)).await?
+    };
+    let Some(expected) = expected else {
+        // Read what a worker that writes before it reads is still sending (a tile's worth at
+        // most, for a while), so that it gets the 409 rather than a broken pipe.
+        drain(body, declared.unwrap_or(0).min(MAX_TILE_BYTES), DRAIN_SECONDS).await;
+        state.scheduler.counters().results_refused.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        return Err(lease_gone(lease));
+    };
+    let wrong_size = |got: String| {
+        AppError::bad_request(format!(
+            "the tile holds {got} bytes; its rectangle needs {expected} (width x height x 3 little-endian f32)"
+        ))
+    };
+    if let Some(n) = declared.filter(|&n| n != expected as u64) {
+        return Err(wrong_size(n.to_string()));
+    }
+    let body = read_at_most(body, expected).await.map_err(|e| match e {
+        BodyError::TooLong => AppError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!(
+                "the tile's body goes past the {expected} bytes its rectangle needs (width x height x 3 little-endian f32); nothing was stored"
+            ),
+        ),
+        BodyError::Broken(e) => AppError::bad_request(format!("the tile's body could not be read: {e}")),
+    })?;
+    if body.len() != expected {
+        return Err(wrong_size(body.len().to_string()));
+    }
     if sum != checksum(&body) {
         return Err(AppError::bad_request("the tile's checksum does not match its bytes; send it again"));
+    }
+    let px = decode_tile(&body, expected / 12).ok_or_else(|| wrong_size(body.len().to_string()))?;
+    if let Err((i, c, v)) = check_tile_values(&px) {
+        return Err(AppError::bad_request(format!(
+            "the tile's pixel {i} (row-major), channel {c}, is {v}: tile values must be finite numbers; nothing was stored"
+        )));
     }
     let render_seconds = headers
         .get(RENDER_SECONDS_HEADER)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.trim().parse::<f64>().ok())
         .filter(|s| s.is_finite() && *s >= 0.0);
-    match state.scheduler.result(lease, worker, &body, render_seconds)? {
+    let outcome = {
+        let state = state.clone();
+        off_thread(move || Ok(state.scheduler.result(lease, worker, &body, render_seconds)?)).await?
+    };
+    match outcome {
         ResultOutcome::Accepted { job_id, frame, frame_complete, .. } => {
             if frame_complete {
                 let state = state.clone();
@@ -136,18 +272,61 @@ pub(super) async fn result(
             }
             Ok(StatusCode::NO_CONTENT)
         }
-        ResultOutcome::Conflict => Err(AppError::new(
-            StatusCode::CONFLICT,
-            format!("lease {lease} is not yours any more (expired, revoked or already done); drop the tile"),
-        )),
+        ResultOutcome::Conflict => Err(lease_gone(lease)),
         ResultOutcome::WrongSize { expected } => Err(AppError::bad_request(format!(
-            "the tile holds {} bytes; its rectangle needs {expected} (width x height x 3 little-endian f32)",
-            body.len()
+            "the tile's rectangle needs {expected} bytes (width x height x 3 little-endian f32)"
         ))),
     }
 }
 
-#[utoipa::path(post, path = "/api/v1/worker/leases/{lease}/fail", tag = "worker", security(("worker_token" = [])), params(("lease" = u64, Path, description = "The lease's id")), request_body = FailRequest,
+fn lease_gone(lease: u64) -> AppError {
+    AppError::new(
+        StatusCode::CONFLICT,
+        format!("lease {lease} is not yours any more (expired, revoked or already done); drop the tile"),
+    )
+}
+
+/// The largest tile body: a tile of the largest tile size (4096 x 4096 pixels).
+const MAX_TILE_BYTES: u64 = 4096 * 4096 * 12;
+/// How long a refused upload's rest is read before the connection is closed.
+const DRAIN_SECONDS: u64 = 30;
+
+enum BodyError {
+    TooLong,
+    Broken(String),
+}
+
+/// Reads a body of at most `max` bytes, stopping as soon as it goes past: a body that claims
+/// nothing (chunked) or lies about its length costs no more memory than the tile it should be.
+async fn read_at_most(body: axum::body::Body, max: usize) -> Result<Vec<u8>, BodyError> {
+    use futures_util::StreamExt;
+    let mut stream = body.into_data_stream();
+    let mut out = Vec::with_capacity(max);
+    while let Some(chunk) = stream.next().await {
+        let chunk = chunk.map_err(|e| BodyError::Broken(e.to_string()))?;
+        if out.len() + chunk.len() > max {
+            return Err(BodyError::TooLong);
+        }
+        out.extend_from_slice(&chunk);
+    }
+    Ok(out)
+}
+
+/// Reads and drops up to `max` bytes of a body for at most `seconds`.
+async fn drain(body: axum::body::Body, max: u64, seconds: u64) {
+    use futures_util::StreamExt;
+    let deadline = tokio::time::Instant::now() + std::time::Duration::from_secs(seconds);
+    let mut stream = body.into_data_stream();
+    let mut read = 0u64;
+    while read < max {
+        match tokio::time::timeout_at(deadline, stream.next()).await {
+            Ok(Some(Ok(chunk))) => read += chunk.len() as u64,
+            _ => break,
+        }
+    }
+}
+
+#[utoipa::path(post, path = "/api/v1/worker/leases/{lease}/fail", tag = "worker", security(("worker_token" = [], "worker_secret" = [])), params(("lease" = u64, Path, description = "The lease's id")), request_body = FailRequest,
     responses(
         (status = 204, description = "Recorded: the tile is queued again or its job failed"),
         (status = 400, description = "The body is not JSON", body = ApiError), (status = 415, description = "The body is not sent as application/json", body = ApiError), (status = 422, description = "The JSON does not have the request's shape", body = ApiError), (status = 401, description = "Missing or wrong worker token", body = ApiError),
@@ -155,18 +334,25 @@ pub(super) async fn result(
 pub(super) async fn fail(
     State(state): State<AppState>,
     Path(lease): Path<u64>,
+    headers: HeaderMap,
     Json(req): Json<FailRequest>,
 ) -> ApiResult<StatusCode> {
-    match state.scheduler.fail(lease, req.worker_id, &req.error, req.fatal)? {
-        FailOutcome::Requeued | FailOutcome::JobFailed { .. } => Ok(StatusCode::NO_CONTENT),
-        FailOutcome::Conflict => {
-            Err(AppError::new(StatusCode::CONFLICT, format!("lease {lease} is not yours any more")))
+    off_thread(move || {
+        authenticate(&state, &headers, req.worker_id)?;
+        // The message goes into the job's error and log: a few KiB say what went wrong.
+        let error = truncate_message(&req.error, MAX_ERROR_BYTES);
+        match state.scheduler.fail(lease, req.worker_id, &error, req.fatal)? {
+            FailOutcome::Requeued | FailOutcome::JobFailed { .. } => Ok(StatusCode::NO_CONTENT),
+            FailOutcome::Conflict => {
+                Err(AppError::new(StatusCode::CONFLICT, format!("lease {lease} is not yours any more")))
+            }
         }
-    }
+    })
+    .await
 }
 
 /// A stopping worker gives back a lease it has not started: the tile is queued again at once.
-#[utoipa::path(post, path = "/api/v1/worker/leases/{lease}/release", tag = "worker", security(("worker_token" = [])), params(("lease" = u64, Path, description = "The lease's id")), request_body = ReleaseRequest,
+#[utoipa::path(post, path = "/api/v1/worker/leases/{lease}/release", tag = "worker", security(("worker_token" = [], "worker_secret" = [])), params(("lease" = u64, Path, description = "The lease's id")), request_body = ReleaseRequest,
     responses(
         (status = 204, description = "The tile is queued again"),
         (status = 400, description = "The body is not JSON", body = ApiError), (status = 415, description = "The body is not sent as application/json", body = ApiError), (status = 422, description = "The JSON does not have the request's shape", body = ApiError), (status = 401, description = "Missing or wrong worker token", body = ApiError),
@@ -174,16 +360,21 @@ pub(super) async fn fail(
 pub(super) async fn release(
     State(state): State<AppState>,
     Path(lease): Path<u64>,
+    headers: HeaderMap,
     Json(req): Json<ReleaseRequest>,
 ) -> ApiResult<StatusCode> {
-    if state.scheduler.release(lease, req.worker_id)? {
-        Ok(StatusCode::NO_CONTENT)
-    } else {
-        Err(AppError::new(
-            StatusCode::CONFLICT,
-            format!("lease {lease} is not a live lease of worker {}", req.worker_id),
-        ))
-    }
+    off_thread(move || {
+        authenticate(&state, &headers, req.worker_id)?;
+        if state.scheduler.release(lease, req.worker_id)? {
+            Ok(StatusCode::NO_CONTENT)
+        } else {
+            Err(AppError::new(
+                StatusCode::CONFLICT,
+                format!("lease {lease} is not a live lease of worker {}", req.worker_id),
+            ))
+        }
+    })
+    .await
 }
 
 #[utoipa::path(get, path = "/api/v1/worker/bundles/{hash}", tag = "worker", security(("worker_token" = [])),

@@ -189,7 +189,8 @@ function draw(fr, url) {
     if (seq !== fr.drawSeq) return;
     const c = $("canvas", fr.node);
     if (c.width !== img.naturalWidth) { c.width = img.naturalWidth; c.height = img.naturalHeight; }
-    c.getContext("2d").drawImage(img, 0, 0);
+    // Previews of large frames are smaller than the frame: drawn stretched to the canvas.
+    c.getContext("2d").drawImage(img, 0, 0, c.width, c.height);
     fr.node.dataset.drawn = String((Number(fr.node.dataset.drawn) || 0) + 1);
   };
   img.src = withToken(url + (url.includes("?") ? "&" : "?") + "t=" + Date.now());

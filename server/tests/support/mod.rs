@@ -80,8 +80,14 @@ pub struct Server {
 impl Server {
     /// Starts `tessera-server` with `args` (plus a data dir and a free port unless given).
     pub fn start(data: &Path, args: &[&str]) -> Server {
+        Server::start_with(data, args, |_| {})
+    }
+
+    /// [`Server::start`], with `configure` applied to the command first (limits, environment).
+    pub fn start_with(data: &Path, args: &[&str], configure: impl FnOnce(&mut Command)) -> Server {
         let log = data.with_extension(format!("log{}", std::process::id()));
         let mut cmd = Command::new(server_bin());
+        configure(&mut cmd);
         cmd.arg("--data-dir").arg(data).args(args);
         if !args.contains(&"--bind") {
             cmd.args(["--bind", "127.0.0.1:0"]);
@@ -111,6 +117,16 @@ impl Server {
         let mut server = Server::start(&data, args);
         server.data = Some(data);
         server
+    }
+
+    /// A field of the server process's `/proc/PID/status` in KiB (`VmRSS`, `VmHWM`: the peak).
+    pub fn memory_kib(&self, field: &str) -> u64 {
+        let status = std::fs::read_to_string(format!("/proc/{}/status", self.child.id())).unwrap();
+        status
+            .lines()
+            .find_map(|l| l.strip_prefix(field)?.strip_prefix(':'))
+            .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+            .unwrap_or_else(|| panic!("no {field} in /proc/PID/status"))
     }
 
     pub fn log(&self) -> String {
@@ -315,11 +331,33 @@ pub fn assert_job_outputs_equal_cli(server: &Server, job: &Value, cli_out: &Path
 }
 
 /// A worker-protocol POST with the worker token `token`.
+/// A worker request as a worker sends it: the worker token, and after registration the
+/// worker's secret. The secret each registration through here answers is remembered (by server
+/// and worker id) and sent with every later request naming that `worker_id`, as a real worker
+/// does; a test that plays a worker lying about its id sends the header itself.
 pub fn worker_post(url: &str, token: &str, path: &str, body: Value) -> (u16, Value) {
-    call(
-        ureq::post(&format!("{url}{path}")).set("Authorization", &format!("Bearer {token}")),
-        Some(("application/json".into(), body.to_string().into_bytes())),
-    )
+    let mut req = ureq::post(&format!("{url}{path}")).set("Authorization", &format!("Bearer {token}"));
+    if let Some(secret) = body["worker_id"].as_u64().and_then(|id| worker_secret(url, id)) {
+        req = req.set("x-tessera-worker-secret", &secret);
+    }
+    let (code, v) = call(req, Some(("application/json".into(), body.to_string().into_bytes())));
+    if path == "/api/v1/worker/register" && code == 200 {
+        if let (Some(id), Some(secret)) = (v["worker_id"].as_u64(), v["worker_secret"].as_str()) {
+            secrets().lock().unwrap().insert((url.to_string(), id), secret.to_string());
+        }
+    }
+    (code, v)
+}
+
+fn secrets() -> &'static std::sync::Mutex<std::collections::HashMap<(String, u64), String>> {
+    static SECRETS: std::sync::OnceLock<std::sync::Mutex<std::collections::HashMap<(String, u64), String>>> =
+        std::sync::OnceLock::new();
+    SECRETS.get_or_init(Default::default)
+}
+
+/// The secret registration gave worker `id` of the server at `url` (through [`worker_post`]).
+pub fn worker_secret(url: &str, id: u64) -> Option<String> {
+    secrets().lock().unwrap().get(&(url.to_string(), id)).cloned()
 }
 
 /// The value of an unlabelled Prometheus metric, as text.
