@@ -328,6 +328,24 @@ mod tests {
         }
     }
 
+    /// Connection limits of at least one, and a header timeout a client can meet.
+    #[test]
+    fn connection_limits_are_checked() {
+        let dir = tessera_testkit::TempDir::new("unit-connections");
+        assert!(check_config(&config(&dir)).is_ok());
+        for bad in [
+            Config { max_connections: Some(0), ..config(&dir) },
+            Config { max_connections_per_ip: 0, ..config(&dir) },
+        ] {
+            let e = check_config(&bad).unwrap_err().to_string();
+            assert!(e.contains("--max-connections"), "{e}");
+        }
+        for t in [0.0, 0.05, 3601.0, f64::NAN, f64::INFINITY] {
+            let e = check_config(&Config { header_timeout_seconds: t, ..config(&dir) }).unwrap_err().to_string();
+            assert!(e.contains("--header-timeout-seconds"), "{t}: {e}");
+        }
+    }
+
     #[tokio::test]
     async fn serve_answers_until_its_shutdown_stream_says_stop() {
         let dir = tessera_testkit::TempDir::new("unit-serve");
