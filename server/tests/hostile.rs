@@ -118,6 +118,7 @@ fn a_giant_heartbeat_is_refused_and_stalls_nobody() {
     assert_eq!(code, 413, "a 57 MiB heartbeat is refused for its size");
     assert!(worst < 1.0, "another client waited {worst:.2} s during the heartbeat ({took:.2} s)");
     let grown = server.memory_kib("VmHWM").saturating_sub(before);
+    eprintln!("giant heartbeat: {code} after {took:.2} s; slowest other request {worst:.3} s; peak memory +{grown} KiB");
     assert!(grown < 32 << 10, "the server's peak memory grew by {grown} KiB for a refused body");
 
     // A heartbeat under the body limit that lists more leases than any worker holds is refused
@@ -174,6 +175,7 @@ fn previews_of_huge_frames_stay_small() {
         assert_eq!((width, height), (1024, 1024), "a 16384 px frame is previewed at 1/16");
     }
     let grown = server.memory_kib("VmHWM").saturating_sub(before);
+    eprintln!("five previews of a 16384 px frame: peak memory +{grown} KiB");
     assert!(grown < 128 << 10, "five previews of a 16384 px frame grew the server's peak by {grown} KiB");
 }
 
@@ -214,6 +216,7 @@ fn a_tile_body_longer_than_its_tile_is_cut_off() {
     let answer = String::from_utf8_lossy(&answer);
     assert!(answer.is_empty() || answer.starts_with("HTTP/1.1 413"), "{answer}");
     let grown = server.memory_kib("VmHWM").saturating_sub(before);
+    eprintln!("chunked upload: cut off after {} MiB sent; peak memory +{grown} KiB", sent >> 20);
     assert!(grown < 32 << 10, "the cut-off upload grew the server's peak memory by {grown} KiB");
     // Nothing was stored, and the lease's holder still uploads the right tile.
     assert_eq!(get_api(&server.url, &format!("/api/v1/jobs/{job}")).1["frames"][0]["tiles_done"], 0);
@@ -283,6 +286,7 @@ fn idle_connections_cannot_take_every_descriptor() {
     // Meanwhile everyone else is served at once.
     for _ in 0..5 {
         let took = timed_get(&server.url, "/healthz");
+        eprintln!("/healthz behind {} idle connections: {took:.4} s", idle.len());
         assert!(took < 1.0, "/healthz took {took:.2} s behind 1 100 idle connections");
     }
     let took = timed_get(&server.url, "/api/v1/jobs");
@@ -295,6 +299,7 @@ fn idle_connections_cannot_take_every_descriptor() {
     let mut buf = [0u8; 512];
     let n = half.read(&mut buf).unwrap_or(0);
     let waited = t.elapsed().as_secs_f64();
+    eprintln!("a half-sent head was closed after {waited:.2} s");
     assert!(waited < 6.0, "a half-sent head stayed open {waited:.1} s");
     assert!(n == 0 || String::from_utf8_lossy(&buf[..n]).starts_with("HTTP/1.1 408"), "{:?}", &buf[..n]);
     // So is a kept-alive connection that sends nothing after its first request.
@@ -306,6 +311,7 @@ fn idle_connections_cannot_take_every_descriptor() {
     let t = Instant::now();
     let n = kept.read(&mut buf).unwrap_or(0);
     let waited = t.elapsed().as_secs_f64();
+    eprintln!("an idle kept-alive connection was closed after {waited:.2} s");
     assert!(n == 0 && waited < 6.0, "an idle kept-alive connection stayed open {waited:.1} s ({n} bytes)");
     drop(idle);
     let log = server.log();
