@@ -38,6 +38,18 @@ const LAYERS: &[(&str, &[&str])] = &[
     ("pixels and records", &["image", "scene::records", "texture::mip"]),
     ("element tree", &["scene::tree"]),
     (
+        "element rules",
+        &[
+            "scene::elements::camera",
+            "scene::elements::tonemap",
+            "scene::elements::lights",
+            "scene::elements::materials",
+            "scene::elements::textures",
+            "scene::elements::geometry",
+        ],
+    ),
+    ("element walk", &["scene::elements"]),
+    (
         "front ends and scene parts",
         &[
             "scene::xml",
