@@ -32,9 +32,10 @@ const LAYERS: &[(&str, &[&str])] = &[
             "tonemap::params",
             "texture::image",
             "texture",
-            "geometry::bvh8",
+            "geometry::bvh8::kernels",
         ],
     ),
+    ("BVH", &["geometry::bvh8"]),
     ("pixels and records", &["image", "scene::records", "texture::mip"]),
     ("element tree", &["scene::tree"]),
     (
