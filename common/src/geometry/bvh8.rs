@@ -45,6 +45,7 @@ const FIRST_MASK: u32 = (1 << COUNT_SHIFT) - 1;
 /// Stack entries on the machine stack; deeper trees use a heap stack.
 const STACK: usize = 256;
 
+/// The BVH: nodes (root first) and triangle packets.
 #[derive(Default)]
 pub struct Bvh8 {
     nodes: Vec<Node>,

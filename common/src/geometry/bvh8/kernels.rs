@@ -85,8 +85,6 @@ impl Ray8 {
     }
 }
 
-/// The BVH: nodes (root first) and triangle packets.
-
 /// The lanes of `mask` as an all-ones / all-zeros vector.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
 #[inline(always)]
