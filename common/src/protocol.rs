@@ -32,7 +32,7 @@
 //! calling, so one worker cannot report, fail or give back another's leases.
 //!
 //! Limits every worker keeps (the server refuses what goes past them): a name of at most
-//! [`MAX_WORKER_NAME`] bytes, 1 to [`MAX_WORKER_THREADS`] threads, at most threads + 1 live
+//! [`MAX_WORKER_NAME`] bytes, 1 to [`MAX_WORKER_THREADS`] threads, at most threads + 2 live
 //! leases, at most [`MAX_LISTED_LEASES`] leases listed in a heartbeat or watch, JSON bodies of at
 //! most [`MAX_WORKER_JSON_BYTES`], failure messages of at most [`MAX_ERROR_BYTES`] (longer ones are
 //! cut), and tile pixels that are finite numbers ([`check_tile_values`]).
@@ -46,11 +46,11 @@ pub const WORKER_SECRET_HEADER: &str = "x-tessera-worker-secret";
 /// Longest worker name, in bytes.
 pub const MAX_WORKER_NAME: usize = 128;
 
-/// Most render threads a worker may declare (it may hold that many leases plus one).
+/// Most render threads a worker may declare (it may hold that many leases plus two).
 pub const MAX_WORKER_THREADS: u32 = 1024;
 
-/// Most leases one heartbeat or watch may list: a worker holds at most its threads plus one.
-pub const MAX_LISTED_LEASES: usize = MAX_WORKER_THREADS as usize + 1;
+/// Most leases one heartbeat or watch may list: a worker holds at most its threads plus two.
+pub const MAX_LISTED_LEASES: usize = MAX_WORKER_THREADS as usize + 2;
 
 /// Largest JSON body of a worker request (register, lease, heartbeat, watch, fail, release).
 pub const MAX_WORKER_JSON_BYTES: usize = 64 << 10;

@@ -390,11 +390,13 @@ impl Leased {
     }
 }
 
-/// Most live leases a worker of `threads` render threads may hold: one per thread and the one
-/// it fetches ahead. A worker that asks for more is refused, so one registration cannot take a
-/// farm's queue for itself.
+/// Most live leases a worker of `threads` render threads may hold: one per thread, the one it
+/// fetches ahead, and one whose finished tile is on its way (a lease lives until its result is
+/// committed; without that one the next lease would wait for each upload, and a render slot
+/// would idle through every short tile). A worker that asks for more is refused, so one
+/// registration cannot take a farm's queue for itself.
 pub fn max_live_leases(threads: u32) -> u32 {
-    threads.saturating_add(1)
+    threads.saturating_add(2)
 }
 
 /// What a tile failure did.
@@ -821,7 +823,7 @@ impl Store {
     /// [`failures::WORKER_FAILURES_PER_JOB`] tiles of, nor a tile it failed, until
     /// [`failures::RETRY_FAILED_AFTER`] has passed since its latest failure there.
     ///
-    /// A worker holds at most its threads plus one (the lease it fetches ahead) live leases
+    /// A worker holds at most its threads plus two (the lease it fetches ahead, a tile uploading) live leases
     /// ([`max_live_leases`]): past that it gets [`Leased::Full`], whatever is queued.
     pub fn lease(&self, worker: u64, lease_seconds: f64) -> Result<Leased> {
         let mut conn = self.conn();

@@ -341,7 +341,8 @@ mod tests {
             assert!(e.contains("--max-connections"), "{e}");
         }
         for t in [0.0, 0.05, 3601.0, f64::NAN, f64::INFINITY] {
-            let e = check_config(&Config { header_timeout_seconds: t, ..config(&dir) }).unwrap_err().to_string();
+            let e =
+                check_config(&Config { header_timeout_seconds: t, ..config(&dir) }).unwrap_err().to_string();
             assert!(e.contains("--header-timeout-seconds"), "{t}: {e}");
         }
     }

@@ -107,7 +107,7 @@ pub enum LeaseWait {
     NoWork,
     /// The server is stopping: no more leases.
     ShuttingDown,
-    /// The worker already holds as many live leases as its threads allow (plus one).
+    /// The worker already holds as many live leases as its threads allow (plus two).
     Full {
         held: u32,
         allowed: u32,

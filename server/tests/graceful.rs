@@ -13,6 +13,11 @@ use support::*;
 
 const TOKEN: &str = "wtok";
 const SAMPLES: &str = "16";
+/// Samples for the test whose signal must find the worker inside a tile: at 16 a tile of the
+/// environment scene renders in about a millisecond, no longer than the lease and upload
+/// round trips around it, so the signal often fell between two tiles; at 256 the render is
+/// most of a tile's time.
+const SIGTERM_SAMPLES: &str = "256";
 
 fn post(url: &str, path: &str, body: Value) -> (u16, Value) {
     worker_post(url, TOKEN, path, body)
@@ -174,7 +179,7 @@ fn a_server_given_sigterm_lets_its_local_worker_finish_then_resumes_the_job_afte
     let data = TempDir::new("farm-server-sigterm");
     let args = ["--local-workers", "1", "--local-worker-threads", "1", "--worker-token", TOKEN];
     let mut server = Server::start(&data, &args);
-    let id = submit_environment(&server, SAMPLES, "32");
+    let id = submit_environment(&server, SIGTERM_SAMPLES, "32");
     let total =
         wait_job(&server, id, 120, |j| tiles_done(j) >= 2)["frames"][0]["tiles_total"].as_u64().unwrap();
     // The worker renders without pause, so the signal finds it inside a tile.
@@ -213,7 +218,7 @@ fn a_server_given_sigterm_lets_its_local_worker_finish_then_resumes_the_job_afte
     );
     let _w = Worker::start(&server.url, TOKEN, "after-restart");
     wait_job(&server, id, 240, |j| j["state"] == "done");
-    let (exr, png) = cli_render_environment(SAMPLES);
+    let (exr, png) = cli_render_environment(SIGTERM_SAMPLES);
     for (name, cli) in [("environment.exr", exr), ("environment.png", png)] {
         let farm = get_bytes(&server.url, &format!("/api/v1/jobs/{id}/frames/0/files/{name}"));
         assert!(farm == cli, "the farm's {name} differs from the CLI's");

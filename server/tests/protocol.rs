@@ -14,7 +14,7 @@ fn post(url: &str, path: &str, body: Value) -> (u16, Value) {
 }
 
 /// Registers a worker of 16 threads: tests lease several tiles before rendering any, within
-/// its limit of threads + 1 live leases.
+/// its limit of threads + 2 live leases.
 fn register(url: &str, name: &str) -> u64 {
     let (code, v) = post(url, "/api/v1/worker/register", json!({"name": name, "threads": 16}));
     assert_eq!(code, 200, "{v}");

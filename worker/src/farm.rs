@@ -85,11 +85,11 @@ impl Leases {
         }
     }
 
-    /// Whether the worker may ask for one more lease: it holds at most one per render slot and
-    /// the one fetched ahead (those being uploaded count until the server has them), as the
-    /// server allows ([`tessera::protocol::MAX_WORKER_THREADS`]; threads + 1).
+    /// Whether the worker may ask for one more lease: it holds at most one per render slot, the
+    /// one fetched ahead and one finished tile uploading (leases count until the server has
+    /// their results), the most the server grants (threads + 2).
     fn may_lease(&self) -> bool {
-        self.held.len() < self.rendering.len() + 1
+        self.held.len() < self.rendering.len() + 2
     }
 
     /// The oldest lease being rendered: what the status page shows the worker doing.

@@ -103,7 +103,7 @@ async fn authenticated(state: &AppState, headers: &HeaderMap, id: u64) -> ApiRes
 fn check_listed(leases: &[u64]) -> ApiResult<()> {
     if leases.len() > MAX_LISTED_LEASES {
         return Err(AppError::bad_request(format!(
-            "the request lists {} leases; a worker holds at most {MAX_LISTED_LEASES} (its threads + 1)",
+            "the request lists {} leases; a worker holds at most {MAX_LISTED_LEASES} (its threads + 2)",
             leases.len()
         )));
     }
@@ -128,7 +128,7 @@ pub(super) async fn lease(
         LeaseWait::Full { held, allowed } => AppError::new(
             StatusCode::TOO_MANY_REQUESTS,
             format!(
-                "worker {} holds {held} live leases, the most a worker of its threads may (threads + 1 = {allowed}); \
+                "worker {} holds {held} live leases, the most a worker of its threads may (threads + 2 = {allowed}); \
                  render, report or release one first",
                 req.worker_id
             ),
