@@ -427,10 +427,12 @@ fn every_command_line_in_deploy_runs() {
 #[test]
 fn both_containerfiles_share_the_runtime_stage() {
     let files = deploy_files();
-    let text = |name: &str| &files.iter().find(|f| f.0 == name).unwrap_or_else(|| panic!("no deploy/{name}")).1;
+    let text =
+        |name: &str| &files.iter().find(|f| f.0 == name).unwrap_or_else(|| panic!("no deploy/{name}")).1;
     let runtime = |name: &str| -> Vec<String> {
         let t = text(name);
-        let start = t.find("# ---- runtime stage").unwrap_or_else(|| panic!("{name}: no runtime stage marker"));
+        let start =
+            t.find("# ---- runtime stage").unwrap_or_else(|| panic!("{name}: no runtime stage marker"));
         t[start..]
             .lines()
             .skip(1)
@@ -443,10 +445,16 @@ fn both_containerfiles_share_the_runtime_stage() {
     assert_eq!(source, prebuilt, "the runtime stages of Containerfile and Containerfile.prebuilt differ");
     for name in ["Containerfile", "Containerfile.prebuilt"] {
         let t = text(name);
-        assert!(t.lines().any(|l| l == "ARG BASE=docker.io/library/debian:bookworm-slim"), "{name}: default BASE");
+        assert!(
+            t.lines().any(|l| l == "ARG BASE=docker.io/library/debian:bookworm-slim"),
+            "{name}: default BASE"
+        );
         assert!(t.contains("COPY") && t.contains("image-setup.sh"), "{name} does not run image-setup.sh");
         for bin in ["tessera-server", "tessera-worker", "tessera "] {
-            assert!(t.lines().any(|l| l.starts_with("COPY ") && l.contains(bin)), "{name} does not copy {bin}");
+            assert!(
+                t.lines().any(|l| l.starts_with("COPY ") && l.contains(bin)),
+                "{name} does not copy {bin}"
+            );
         }
     }
 }
