@@ -45,6 +45,24 @@ const FOREIGN_FLAGS: &[&str] = &[
     "--config",
     "--print",
     "--bin",
+    // podman build and podman's own options in build-image.sh and the Containerfiles' comments.
+    "--format",
+    "--build-arg",
+    "--pull",
+    "--network",
+    "--rm",
+    "--change",
+    // mmdebstrap's, in build-image.sh.
+    "--variant",
+    "--include",
+    "--hook-dir",
+    "--dpkgopt",
+    // build-image.sh's own.
+    "--tag",
+    "--suite",
+    "--no-cargo",
+    "--refresh-base",
+    "--check",
 ];
 
 fn deploy_dir() -> PathBuf {
@@ -228,6 +246,7 @@ fn every_flag_and_variable_in_deploy_exists_in_the_binaries() {
     }
     for (file, program_name) in [
         ("Containerfile", "tessera-server"),
+        ("Containerfile.prebuilt", "tessera-server"),
         ("compose.yaml", "tessera-server"),
         ("compose.yaml", "tessera-worker"),
         ("kubernetes/server.yaml", "tessera-server"),
@@ -398,6 +417,44 @@ fn every_command_line_in_deploy_runs() {
                 );
             }
             other => panic!("{file}: unexpected program {other}"),
+        }
+    }
+}
+
+/// The two Containerfiles make the same image: the one that builds from source on a registry's
+/// images and the one deploy/build-image.sh builds from host binaries share their runtime stage
+/// (every instruction but the COPYs, whose sources differ) and the default base.
+#[test]
+fn both_containerfiles_share_the_runtime_stage() {
+    let files = deploy_files();
+    let text =
+        |name: &str| &files.iter().find(|f| f.0 == name).unwrap_or_else(|| panic!("no deploy/{name}")).1;
+    let runtime = |name: &str| -> Vec<String> {
+        let t = text(name);
+        let start =
+            t.find("# ---- runtime stage").unwrap_or_else(|| panic!("{name}: no runtime stage marker"));
+        t[start..]
+            .lines()
+            .skip(1)
+            .filter(|l| !l.starts_with("COPY ") && !l.trim().is_empty())
+            .map(str::to_string)
+            .collect()
+    };
+    let (source, prebuilt) = (runtime("Containerfile"), runtime("Containerfile.prebuilt"));
+    assert!(source.len() >= 10, "{source:?}");
+    assert_eq!(source, prebuilt, "the runtime stages of Containerfile and Containerfile.prebuilt differ");
+    for name in ["Containerfile", "Containerfile.prebuilt"] {
+        let t = text(name);
+        assert!(
+            t.lines().any(|l| l == "ARG BASE=docker.io/library/debian:bookworm-slim"),
+            "{name}: default BASE"
+        );
+        assert!(t.contains("COPY") && t.contains("image-setup.sh"), "{name} does not run image-setup.sh");
+        for bin in ["tessera-server", "tessera-worker", "tessera "] {
+            assert!(
+                t.lines().any(|l| l.starts_with("COPY ") && l.contains(bin)),
+                "{name} does not copy {bin}"
+            );
         }
     }
 }
