@@ -830,10 +830,10 @@ fn perturbed_normal(
             let c = qv.cross(qu);
             if c.dot(n) < 0.0 { -c } else { c }
         }
-        (DecalMode::BumpNormal, Source::Perlin { conversion, scale }) => {
+        (DecalMode::BumpNormal, Source::Perlin { conversion, scale, octaves }) => {
             // The height field lives in object space (like the noise's colour); its gradient
             // is a covector, carried to world space by the normal matrix.
-            let g = perlin_gradient(p.object, *scale, *conversion);
+            let g = perlin_gradient(p.object, *scale, *conversion, *octaves);
             let g = match &instance.transform {
                 Some(xf) => xf.normal_matrix * g,
                 None => g,

@@ -223,10 +223,8 @@ fn scenes_with_a_missing_asset_fail_naming_it() {
 /// Course scenes with elements Tessera does not implement that change the picture (issue #17
 /// item 5): (scene, the first such element's line and element). Strictly loaded, each fails
 /// naming it; allowed, each loads (the elements become warnings) and its centre tile renders.
-/// VeachAjar_2019's two image textures ask for `<Appearance>clamp</Appearance>` (Tessera
-/// repeats); sponza's meshes are 2019 binary files with 0-based indices (nothing left to draw).
-const UNSUPPORTED: &[(&str, u32, &str)] =
-    &[("VeachAjar_2019", 151, "Texture id=\"1\"> / <Appearance"), ("sponza", 6, "ZeroBasedIndexing")];
+/// sponza's meshes are 2019 binary files with 0-based indices (nothing left to draw).
+const UNSUPPORTED: &[(&str, u32, &str)] = &[("sponza", 6, "ZeroBasedIndexing")];
 
 #[test]
 fn course_scenes_with_unsupported_elements_fail_unless_allowed() {

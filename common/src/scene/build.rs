@@ -472,7 +472,7 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
     let mut out = BuiltTextures { maps: Vec::new(), ids: HashMap::new(), background: None, env_light };
     for m in &rec.texture_maps {
         let source = match &m.source {
-            TextureSource::Image { image, interpolation, normalizer } => {
+            TextureSource::Image { image, interpolation, normalizer, clamp } => {
                 let path = &image_recs[image.as_str()].path;
                 if *normalizer == 0.0 {
                     return Err(ctx.err(&m.loc, "Normalizer must not be 0"));
@@ -485,14 +485,19 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
                     },
                     interpolation: *interpolation,
                     normalizer: *normalizer,
+                    clamp: *clamp,
                 }
             }
-            TextureSource::Perlin { conversion, scale } => {
-                Source::Perlin { conversion: *conversion, scale: *scale }
+            TextureSource::Perlin { conversion, scale, octaves } => {
+                Source::Perlin { conversion: *conversion, scale: *scale, octaves: *octaves }
             }
-            TextureSource::Checkerboard { black, white, scale, offset } => {
-                Source::Checkerboard { black: v3(*black), white: v3(*white), scale: *scale, offset: *offset }
-            }
+            TextureSource::Checkerboard { black, white, scale, offset, dimension3 } => Source::Checkerboard {
+                black: v3(*black),
+                white: v3(*white),
+                scale: *scale,
+                offset: *offset,
+                dimension3: *dimension3,
+            },
         };
         if out.ids.contains_key(m.id.as_str()) {
             ctx.warn(

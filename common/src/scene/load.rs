@@ -187,23 +187,6 @@ mod tests {
                 true,
             ),
             (
-                "<Textures><TextureMap id=\"p\" type=\"perlin\"><DecalMode>replace_kd</DecalMode><NumOctaves>3</NumOctaves></TextureMap></Textures>"
-                    .into(),
-                "TextureMap id=\"p\"> / <NumOctaves",
-                true,
-            ),
-            (
-                "<Textures><Texture id=\"7\"><ImageName>a.png</ImageName><Appearance>clamp</Appearance></Texture></Textures>".into(),
-                "Texture id=\"7\"> / <Appearance",
-                false,
-            ),
-            (
-                "<Textures><Texture id=\"8\"><ImageName>checkerboard</ImageName><Dimension3>false</Dimension3></Texture></Textures>"
-                    .into(),
-                "Texture id=\"8\"> / <Dimension3",
-                true,
-            ),
-            (
                 "<Lights><SphericalDirectionalLight id=\"1\"><ImageId>1</ImageId></SphericalDirectionalLight>\n\
                  <SphericalDirectionalLight id=\"2\"><ImageId>1</ImageId></SphericalDirectionalLight></Lights>"
                     .into(),
@@ -331,6 +314,14 @@ mod tests {
             ),
             (
                 "<Textures><Texture id=\"8\"><ImageName>checkerboard</ImageName><Dimension3>true</Dimension3></Texture></Textures>",
+                false,
+            ),
+            (
+                "<Textures><TextureMap id=\"p\" type=\"perlin\"><DecalMode>replace_kd</DecalMode><NumOctaves>3</NumOctaves></TextureMap></Textures>",
+                false,
+            ),
+            (
+                "<Textures><Texture id=\"8\"><ImageName>checkerboard</ImageName><Dimension3>false</Dimension3></Texture></Textures>",
                 false,
             ),
             ("<Foo>1</Foo>", true),

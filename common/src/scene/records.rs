@@ -410,12 +410,15 @@ pub enum DecalMode {
 
 #[derive(Clone, Debug, PartialEq)]
 pub enum TextureSource {
-    /// `type="image"`: `ImageId`, `Interpolation` (default bilinear), `Normalizer` (default 255).
-    Image { image: String, interpolation: Interpolation, normalizer: f64 },
-    /// `type="perlin"`: `NoiseConversion` (default linear), `NoiseScale` (default 1).
-    Perlin { conversion: NoiseConversion, scale: f64 },
-    /// `type="checkerboard"`: colours used as they are, `Scale`, `Offset`.
-    Checkerboard { black: Vec3, white: Vec3, scale: f64, offset: f64 },
+    /// `type="image"`: `ImageId`, `Interpolation` (default bilinear), `Normalizer` (default 255);
+    /// `clamp`: the 2019 `<Appearance>clamp` (clamp-to-edge addressing instead of repeat).
+    Image { image: String, interpolation: Interpolation, normalizer: f64, clamp: bool },
+    /// `type="perlin"`: `NoiseConversion` (default linear), `NoiseScale` (default 1),
+    /// `NumOctaves` (default 1; a fractal sum, see [`crate::texture::maps::fractal_noise`]).
+    Perlin { conversion: NoiseConversion, scale: f64, octaves: u32 },
+    /// `type="checkerboard"`: colours used as they are, `Scale`, `Offset`; `dimension3` false
+    /// (2019 `<Dimension3>false`) makes it a 2-D checkerboard in the texture coordinates.
+    Checkerboard { black: Vec3, white: Vec3, scale: f64, offset: f64, dimension3: bool },
 }
 
 #[derive(Clone, Debug, PartialEq)]

@@ -931,7 +931,7 @@ fn map(id: &str, loc: Loc, source: TextureSource, decal: DecalMode) -> TextureMa
 }
 
 fn image_source(image: &str, interpolation: Interpolation, normalizer: f64) -> TextureSource {
-    TextureSource::Image { image: image.into(), interpolation, normalizer }
+    TextureSource::Image { image: image.into(), interpolation, normalizer, clamp: false }
 }
 
 const TEXTURE_MAPS: &str = r#"<Scene>
@@ -1019,7 +1019,7 @@ fn texture_maps_of_each_type_with_defaults_and_every_child() {
         map(
             "3",
             at("3"),
-            TextureSource::Perlin { conversion: NoiseConversion::Linear, scale: 1.0 },
+            TextureSource::Perlin { conversion: NoiseConversion::Linear, scale: 1.0, octaves: 1 },
             ReplaceKd,
         ),
         TextureMapRec {
@@ -1027,14 +1027,20 @@ fn texture_maps_of_each_type_with_defaults_and_every_child() {
             ..map(
                 "4",
                 at("4"),
-                TextureSource::Perlin { conversion: NoiseConversion::AbsVal, scale: 0.5 },
+                TextureSource::Perlin { conversion: NoiseConversion::AbsVal, scale: 0.5, octaves: 1 },
                 BumpNormal,
             )
         },
         map(
             "5",
             at("5"),
-            TextureSource::Checkerboard { black: [0.0; 3], white: [1.0; 3], scale: 1.0, offset: 0.0 },
+            TextureSource::Checkerboard {
+                black: [0.0; 3],
+                white: [1.0; 3],
+                scale: 1.0,
+                offset: 0.0,
+                dimension3: true,
+            },
             BlendKd,
         ),
         TextureMapRec {
@@ -1042,7 +1048,13 @@ fn texture_maps_of_each_type_with_defaults_and_every_child() {
             ..map(
                 "6",
                 at("6"),
-                TextureSource::Checkerboard { black: [0.4; 3], white: [10.0; 3], scale: 0.1, offset: 79.0 },
+                TextureSource::Checkerboard {
+                    black: [0.4; 3],
+                    white: [10.0; 3],
+                    scale: 0.1,
+                    offset: 79.0,
+                    dimension3: true,
+                },
                 ReplaceKd,
             )
         },
@@ -1050,7 +1062,7 @@ fn texture_maps_of_each_type_with_defaults_and_every_child() {
         map(
             "8",
             at("8"),
-            TextureSource::Perlin { conversion: NoiseConversion::Linear, scale: 1.0 },
+            TextureSource::Perlin { conversion: NoiseConversion::Linear, scale: 1.0, octaves: 1 },
             ReplaceKd,
         ),
     ];
@@ -1366,6 +1378,7 @@ const LEGACY_TEXTURES: &str = r#"<Scene>
         <Interpolation>bilinear</Interpolation>
         <DecalMode>replace_kd</DecalMode>
         <Normalizer>255</Normalizer>
+        <Appearance>clamp</Appearance>
     </Texture>
     <Texture id="3" bumpmap="true">
         <ImageName>perlin</ImageName>
@@ -1390,6 +1403,7 @@ const LEGACY_TEXTURES: &str = r#"<Scene>
     <Texture id="6">
         <ImageName>checkerboard</ImageName>
         <DecalMode>replace</DecalMode>
+        <Dimension3>false</Dimension3>
     </Texture>
     <Texture id="7">
         <ImageName>textures/sky.jpg</ImageName>
@@ -1428,8 +1442,14 @@ fn legacy_2019_textures_become_texture_maps() {
             image("8", "textures/plain.png"),
         ]
     );
-    let vein = TextureSource::Perlin { conversion: NoiseConversion::AbsVal, scale: 3.0 };
-    let grid = image_source("2019:2", Bilinear, 255.0);
+    let vein = TextureSource::Perlin { conversion: NoiseConversion::AbsVal, scale: 3.0, octaves: 1 };
+    // `<Appearance>clamp`: clamp-to-edge addressing.
+    let grid = TextureSource::Image {
+        image: "2019:2".into(),
+        interpolation: Bilinear,
+        normalizer: 255.0,
+        clamp: true,
+    };
     let expected = vec![
         map("1", at("1"), image_source("2019:1", Nearest, 255.0), BlendKd),
         // bumpmap="true": the colour map and a bump map over the same source.
@@ -1441,20 +1461,33 @@ fn legacy_2019_textures_become_texture_maps() {
         map(
             "4",
             at("4"),
-            TextureSource::Perlin { conversion: NoiseConversion::Linear, scale: 1.0 },
+            TextureSource::Perlin { conversion: NoiseConversion::Linear, scale: 1.0, octaves: 1 },
             ReplaceKd,
         ),
         // bumpmap="false": the multiplier means nothing.
         map(
             "5",
             at("5"),
-            TextureSource::Checkerboard { black: [0.4; 3], white: [10.0; 3], scale: 0.1, offset: 79.0 },
+            TextureSource::Checkerboard {
+                black: [0.4; 3],
+                white: [10.0; 3],
+                scale: 0.1,
+                offset: 79.0,
+                dimension3: true,
+            },
             BlendKd,
         ),
         map(
             "6",
             at("6"),
-            TextureSource::Checkerboard { black: [0.0; 3], white: [1.0; 3], scale: 1.0, offset: 0.0 },
+            // `<Dimension3>false`: a 2-D checkerboard in (u, v).
+            TextureSource::Checkerboard {
+                black: [0.0; 3],
+                white: [1.0; 3],
+                scale: 1.0,
+                offset: 0.0,
+                dimension3: false,
+            },
             ReplaceKd,
         ),
         map("7", at("7"), image_source("2019:7", Nearest, 1.0), ReplaceAll),
@@ -1467,6 +1500,48 @@ fn legacy_2019_textures_become_texture_maps() {
     assert_eq!(records.spheres[1].textures, ["5"]);
     assert_eq!(records.spheres[2].textures, ["2", "2:bump", "1"]);
     assert_eq!(records.triangles[0].textures, ["1"]);
+}
+
+#[test]
+fn perlin_octaves_and_2019_texture_keywords() {
+    let perlin = |octaves: &str| {
+        scene(&format!(
+            "<Textures>\n<TextureMap id=\"1\" type=\"perlin\">\n<NumOctaves>{octaves}</NumOctaves><DecalMode>replace_kd</DecalMode>\n</TextureMap>\n</Textures>"
+        ))
+    };
+    let octaves = |records: SceneRecords| match records.texture_maps[0].source {
+        TextureSource::Perlin { octaves, .. } => octaves,
+        ref other => panic!("{other:?}"),
+    };
+    assert_eq!(octaves(parse(&perlin("4"))), 4);
+    assert_eq!(octaves(parse(&perlin(" 1 "))), 1);
+    let without = scene(
+        "<Textures><TextureMap id=\"1\" type=\"perlin\"><DecalMode>replace_kd</DecalMode></TextureMap></Textures>",
+    );
+    assert_eq!(octaves(parse(&without)), 1);
+    check_errors(&[
+        (
+            &perlin("0"),
+            r#"scene.xml:4: <TextureMap id="1"> / <NumOctaves>: <NumOctaves> must be a whole number from 1 to 32 (octaves of the noise), found 0"#,
+        ),
+        (
+            &perlin("33"),
+            r#"scene.xml:4: <TextureMap id="1"> / <NumOctaves>: <NumOctaves> must be a whole number from 1 to 32 (octaves of the noise), found 33"#,
+        ),
+    ]);
+    let legacy = |children: &str| {
+        scene(&format!("<Textures>\n<Texture id=\"1\">\n{children}\n</Texture>\n</Textures>"))
+    };
+    check_errors(&[
+        (
+            &legacy("<ImageName>checkerboard</ImageName>\n<Dimension3>no</Dimension3>"),
+            r#"scene.xml:5: <Texture id="1"> / <Dimension3>: Dimension3 must be true or false, found "no""#,
+        ),
+        (
+            &legacy("<ImageName>a.png</ImageName>\n<Appearance>mirror</Appearance>"),
+            r#"scene.xml:5: <Texture id="1"> / <Appearance>: Appearance must be repeat or clamp, found "mirror""#,
+        ),
+    ]);
 }
 
 #[test]
@@ -1483,11 +1558,6 @@ fn texture_warnings() {
             ),
             &[
                 &w(3, r#"TextureMap id="1""#, "unknown attribute bumpmap; it is ignored"),
-                &w(
-                    4,
-                    r#"TextureMap id="1"> / <NumOctaves"#,
-                    "<NumOctaves> \"4\" (a fractal sum of noise octaves) is not supported yet; without it, the noise has one octave",
-                ),
                 &w(
                     5,
                     r#"TextureMap id="1"> / <Normalizer"#,
@@ -1534,11 +1604,6 @@ fn texture_warnings() {
             ),
             &[
                 &w(4, "Images> / <Picture", "unknown element <Picture>; it is ignored"),
-                &w(
-                    7,
-                    r#"Texture id="1"> / <Appearance"#,
-                    "<Appearance>clamp</Appearance> is not supported yet; without it, the texture repeats past its edges instead of stretching its border texels",
-                ),
                 &w(
                     8,
                     r#"Texture id="1"> / <ScalingFactor"#,
