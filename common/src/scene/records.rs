@@ -135,6 +135,9 @@ pub struct CameraRec {
     pub handedness: Handedness,
     /// `NumSamples`, default 1.
     pub num_samples: u32,
+    /// 2019 `ClampSamples`: each sample's radiance is clamped to at most this, per channel,
+    /// before the pixel's samples are averaged (`None`: not clamped).
+    pub clamp_samples: Option<f64>,
     /// Thin-lens depth of field: `FocusDistance` and `ApertureSize` (side of the square lens).
     /// Both present and the aperture positive, or the camera is a pinhole.
     pub lens: Option<LensRec>,

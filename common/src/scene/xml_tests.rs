@@ -150,6 +150,7 @@ fn simple_scene_gives_the_expected_records() {
         image_name: "simple.png".into(),
         handedness: Handedness::Right,
         num_samples: 1,
+        clamp_samples: None,
         lens: None,
         tonemaps: Vec::new(),
         renderer: Default::default(),
