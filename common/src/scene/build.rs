@@ -198,12 +198,15 @@ struct ResolvedInstance {
     world: DAffine3,
     material: u32,
     smooth: bool,
+    /// The MeshInstance record whose `Textures` it shows (the nearest in its chain that has
+    /// some); `None`: its Mesh's.
+    textures_from: Option<usize>,
 }
 
 /// Resolves every MeshInstance: `baseMeshId` names a Mesh, or else another MeshInstance (the
 /// course files use one id space for both). Without `resetTransform` the instance's own
-/// transformations apply on top of its base's world transform; the material and smooth shading
-/// are inherited unless the instance sets them. Cycles are errors.
+/// transformations apply on top of its base's world transform; the material, the texture maps
+/// and smooth shading are inherited unless the instance sets them. Cycles are errors.
 fn resolve_instances(
     ctx: &Ctx,
     mat_ids: &HashMap<&str, u32>,
@@ -243,6 +246,7 @@ fn resolve_instances(
                     world: mesh_world[m],
                     material: ctx.material(mat_ids, &mesh.material, &mesh.loc)?,
                     smooth: mesh.shading == ShadingMode::Smooth,
+                    textures_from: None,
                 };
             }
             match inst_index.get(inst.base_mesh.as_str()) {
@@ -267,6 +271,7 @@ fn resolve_instances(
                         None => base.material,
                     },
                     smooth: base.smooth || inst.shading == Some(ShadingMode::Smooth),
+                    textures_from: if inst.textures.is_empty() { base.textures_from } else { Some(i) },
                 };
                 done[i] = Some(r);
             }
@@ -972,12 +977,24 @@ impl Objects<'_, '_> {
             });
         }
         for (r, inst) in resolved.iter().zip(&rec.instances) {
+            // An instance's own `Textures` replace its base mesh's.
+            let textures = match r.textures_from {
+                None => mesh_textures[r.mesh],
+                Some(k) => {
+                    let own = &rec.instances[k];
+                    let t = self.textures.for_object(ctx, &own.textures, &own.loc, warnings)?;
+                    if uses_image(&self.textures.maps, &t) && geoms[r.mesh].uvs.is_none() {
+                        ctx.warn(warnings, &own.loc, "an image texture is applied but the base mesh has no texture coordinates (TexCoordData or PLY u v); it is sampled at the barycentric coordinates");
+                    }
+                    t
+                }
+            };
             instances.push(Instance {
                 shape: Shape::Mesh { mesh: r.mesh as u32, smooth: r.smooth },
                 material: r.material,
                 transform: ctx.make_transform(r.world, &inst.loc)?,
                 motion: motion(inst.motion_blur),
-                textures: mesh_textures[r.mesh],
+                textures,
             });
         }
         for t in &rec.triangles {
@@ -1171,6 +1188,42 @@ mod tests {
         <MeshInstance id="3" baseMeshId="2"><Material>2</Material><Transformations>t1</Transformations></MeshInstance>
         <MeshInstance id="4" baseMeshId="3" resetTransform="true"><Transformations>t2</Transformations></MeshInstance>
       </Objects></Scene>"#;
+
+    /// `Textures` on a MeshInstance replace its base mesh's; an instance without any keeps its
+    /// base's, through a chain of instances.
+    #[test]
+    fn an_instance_s_own_textures_replace_its_base_s() {
+        let scene = build(
+            r#"<Scene>
+      <Materials><Material id="1"/></Materials>
+      <Textures>
+        <TextureMap id="red" type="checkerboard"><DecalMode>replace_kd</DecalMode><BlackColor>1 0 0</BlackColor><WhiteColor>1 0 0</WhiteColor></TextureMap>
+        <TextureMap id="blue" type="checkerboard"><DecalMode>replace_kd</DecalMode><BlackColor>0 0 1</BlackColor><WhiteColor>0 0 1</WhiteColor></TextureMap>
+      </Textures>
+      <VertexData>-1 -1 0  1 -1 0  0 1 0</VertexData>
+      <Objects>
+        <Mesh id="1"><Material>1</Material><Textures>red</Textures><Faces>1 2 3</Faces></Mesh>
+        <MeshInstance id="2" baseMeshId="1"></MeshInstance>
+        <MeshInstance id="3" baseMeshId="1"><Textures>blue</Textures></MeshInstance>
+        <MeshInstance id="4" baseMeshId="3"></MeshInstance>
+      </Objects></Scene>"#,
+        )
+        .unwrap();
+        let colour = |i: usize| {
+            let t = scene.accel.instances[i].textures;
+            assert!(t.colour[1].is_none() && t.normal.is_none());
+            let map = &scene.textures[t.colour[0].expect("a colour map") as usize];
+            let p = crate::texture::maps::TexturePoint {
+                uv: glam::DVec2::ZERO,
+                object: DVec3::splat(0.5),
+                footprint: glam::DVec2::ZERO,
+            };
+            map.value(&p)
+        };
+        let (red, blue) = (DVec3::X, DVec3::Z);
+        // The mesh, the instance without textures, the one with its own, and its instance.
+        assert_eq!([colour(0), colour(1), colour(2), colour(3)], [red, red, blue, blue]);
+    }
 
     /// A material's BRDF must exist; a LightMesh and a LightSphere become object lights with
     /// their instances' radiance, in file order; a light of no area shows but does not light.

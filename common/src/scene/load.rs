@@ -179,13 +179,6 @@ mod tests {
                 true,
             ),
             (
-                "<Objects><Mesh id=\"5\"><Material>1</Material><Faces>1 2 3</Faces></Mesh>\
-                 <MeshInstance id=\"6\" baseMeshId=\"5\"><Textures>c1</Textures></MeshInstance></Objects>"
-                    .into(),
-                "MeshInstance id=\"6\"> / <Textures",
-                true,
-            ),
-            (
                 "<Lights><SphericalDirectionalLight id=\"1\"><ImageId>1</ImageId></SphericalDirectionalLight>\n\
                  <SphericalDirectionalLight id=\"2\"><ImageId>1</ImageId></SphericalDirectionalLight></Lights>"
                     .into(),

@@ -568,4 +568,6 @@ pub struct InstanceRec {
     pub shading: Option<ShadingMode>,
     /// The instance's own `MotionBlur`; it does not inherit its base's (§9.4).
     pub motion_blur: Option<Vec3>,
+    /// `Textures` on the instance: they replace its base's (empty: the base's are kept).
+    pub textures: Vec<String>,
 }

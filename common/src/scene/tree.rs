@@ -409,10 +409,7 @@ const PLANE: Schema = Schema {
 };
 const MESH_INSTANCE: Schema = Schema {
     single: &["Material", "Transformations", "MotionBlur"],
-    unsupported: &[
-        ("Textures", "without it, the instance has its base mesh's textures"),
-        ("Texture", "without it, the instance has its base mesh's textures"),
-    ],
+    many: &["Textures", "Texture"],
     attrs: &["id", "baseMeshId", "resetTransform", "shadingMode"],
     ..Schema::EMPTY
 };
@@ -1884,6 +1881,7 @@ impl Parser<'_> {
             transforms: self.transform_refs(n)?,
             shading: self.shading_attr(n)?,
             motion_blur: self.optional_numbers(n, "MotionBlur")?,
+            textures: self.object_textures(n)?,
         })
     }
 }

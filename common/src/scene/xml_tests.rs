@@ -832,12 +832,8 @@ fn unknown_and_unsupported_elements_are_warnings() {
                      <MeshInstance id=\"2\" baseMeshId=\"1\"><Textures>1</Textures></MeshInstance>\n</Objects>"
             )),
             &[
+                // An instance's own <Textures> are read (they replace its base's).
                 &w(4, r#"Sphere id="1"> / <Radiuss"#, "unknown element <Radiuss>; it is ignored"),
-                &w(
-                    6,
-                    r#"MeshInstance id="2"> / <Textures"#,
-                    "<Textures> is not supported yet; without it, the instance has its base mesh's textures",
-                ),
             ],
         ),
         (
