@@ -328,6 +328,35 @@ mod tests {
         Ok(render_tile(&scene, 0, rect, &RenderSettings::default()).0[0])
     }
 
+    /// A square of two `Triangle`s (radiance 25) straight ahead of a one-pixel camera, each
+    /// triangle with `motion`, seen with 400 samples.
+    fn square_of_triangles(motion: &str) -> [f32; 3] {
+        let xml = format!(
+            r#"<Scene><Cameras><Camera id="1"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+              <NearPlane>-0.001 0.001 -0.001 0.001</NearPlane><NearDistance>1</NearDistance><ImageResolution>1 1</ImageResolution>
+              <NumSamples>400</NumSamples><ImageName>a.png</ImageName></Camera></Cameras>
+            <Lights><AmbientLight>25 25 25</AmbientLight></Lights>
+            <Materials><Material id="1"><AmbientReflectance>1 1 1</AmbientReflectance></Material></Materials>
+            <VertexData>-1 -1 -5  1 -1 -5  1 1 -5  -1 1 -5</VertexData>
+            <Objects><Triangle id="1"><Material>1</Material><Indices>1 2 3</Indices>{motion}</Triangle>
+              <Triangle id="2"><Material>1</Material><Indices>1 3 4</Indices>{motion}</Triangle></Objects></Scene>"#
+        );
+        let scene = load_scene_str(&xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() })
+            .unwrap();
+        let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
+        render_tile(&scene, 0, rect, &RenderSettings::default()).0[0]
+    }
+
+    /// `MotionBlur` on a `Triangle` moves it over the exposure, as it moves meshes: a square
+    /// sliding 4 units to the right leaves the pixel's line of sight once its left edge (at
+    /// x = -1) passes it, a quarter of the way through, so the pixel gets a quarter of 25.
+    #[test]
+    fn moving_triangles_cover_a_pixel_for_part_of_the_exposure() {
+        assert_eq!(square_of_triangles(""), [25.0; 3]);
+        let p = square_of_triangles("<MotionBlur>4 0 0</MotionBlur>");
+        assert!(p.iter().all(|&c| (c - 6.25).abs() < 0.5), "{p:?}");
+    }
+
     /// 2019 `ClampSamples`: each sample is clamped before the average (8 samples of 25 clamped
     /// to 10 and 8 of 0 give 5, where clamping the average would give 10).
     #[test]

@@ -1054,7 +1054,7 @@ impl Objects<'_, '_> {
             shape: Shape::Mesh { mesh, smooth: false },
             material,
             transform: ctx.make_transform(world, &t.loc)?,
-            motion: None,
+            motion: motion(t.motion_blur),
             textures: object_textures,
         };
         Ok(Some((geom, instance)))

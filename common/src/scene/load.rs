@@ -173,12 +173,6 @@ mod tests {
                 true,
             ),
             (
-                "<Objects><Triangle id=\"9\"><Material>1</Material><Indices>1 2 3</Indices><MotionBlur>1 0 0</MotionBlur></Triangle></Objects>"
-                    .into(),
-                "Triangle id=\"9\"> / <MotionBlur",
-                true,
-            ),
-            (
                 "<Lights><SphericalDirectionalLight id=\"1\"><ImageId>1</ImageId></SphericalDirectionalLight>\n\
                  <SphericalDirectionalLight id=\"2\"><ImageId>1</ImageId></SphericalDirectionalLight></Lights>"
                     .into(),

@@ -520,6 +520,8 @@ pub struct TriangleRec {
     pub indices: [i64; 3],
     pub transforms: Vec<TransformRef>,
     pub textures: Vec<String>,
+    /// `MotionBlur`: world-space translation over the exposure, as for meshes.
+    pub motion_blur: Option<Vec3>,
 }
 
 #[derive(Clone, Debug, PartialEq)]

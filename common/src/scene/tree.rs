@@ -386,12 +386,8 @@ const LIGHT_UNSUPPORTED: &[Unsupported] = &[
     ("Texture", "without it, the light's surface is untextured"),
 ];
 const TRIANGLE: Schema = Schema {
-    single: &["Material", "Indices", "Transformations"],
+    single: &["Material", "Indices", "Transformations", "MotionBlur"],
     many: &["Textures", "Texture"],
-    unsupported: &[(
-        "MotionBlur",
-        "without it, the triangle stands still (meshes, mesh instances, spheres and planes move)",
-    )],
     attrs: &["id"],
     ..Schema::EMPTY
 };
@@ -1826,6 +1822,7 @@ impl Parser<'_> {
             indices: self.required_numbers(n, "Indices")?,
             transforms: self.transform_refs(n)?,
             textures: self.object_textures(n)?,
+            motion_blur: self.optional_numbers(n, "MotionBlur")?,
         })
     }
 

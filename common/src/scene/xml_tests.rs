@@ -189,6 +189,7 @@ fn simple_scene_gives_the_expected_records() {
         indices: [1, 2, 3],
         transforms: vec![],
         textures: vec![],
+        motion_blur: None,
     });
     expected.spheres.push(SphereRec {
         id: "1".into(),
@@ -218,6 +219,7 @@ fn distribution_elements() {
   <Mesh id="1"><Material>1</Material><Faces>1 1 1</Faces><MotionBlur>0 0 4</MotionBlur></Mesh>
   <MeshInstance id="2" baseMeshId="1"><MotionBlur>1 2 3</MotionBlur></MeshInstance>
   <Sphere id="1"><Material>1</Material><Center>1</Center><Radius>1</Radius><MotionBlur>3 0 0</MotionBlur></Sphere>
+  <Triangle id="1"><Material>1</Material><Indices>1 1 1</Indices><MotionBlur>0 5 0</MotionBlur></Triangle>
 </Objects></Scene>"#,
     );
     assert!(rec.warnings.is_empty(), "{:?}", rec.warnings);
@@ -232,6 +234,7 @@ fn distribution_elements() {
     assert_eq!(rec.meshes[0].motion_blur, Some([0.0, 0.0, 4.0]));
     assert_eq!(rec.instances[0].motion_blur, Some([1.0, 2.0, 3.0]));
     assert_eq!(rec.spheres[0].motion_blur, Some([3.0, 0.0, 0.0]));
+    assert_eq!(rec.triangles[0].motion_blur, Some([0.0, 5.0, 0.0]));
     // Aperture 0 is a pinhole; a zero area-light normal or size is an error.
     let pinhole =
         parse(&SIMPLE.replace(
