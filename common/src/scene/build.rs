@@ -3,6 +3,7 @@
 //! Every failure here is a [`SceneError`] that points at the element whose reference or data is
 //! wrong (the records carry their source line), so the user can fix the scene file.
 
+use std::borrow::Cow;
 use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Instant;
@@ -302,6 +303,7 @@ fn load_mesh_data(
             .get(path)
             .cloned()
             .unwrap_or_else(|| Err(ctx.err(&mesh.faces_loc, "internal: PLY not loaded"))),
+        FacesRec::Binary { .. } => Err(ctx.err(&mesh.faces_loc, "internal: binary faces not read")),
         FacesRec::Inline { indices, vertex_offset, .. } => {
             if indices.len() % 3 != 0 {
                 return Err(ctx.err(
@@ -317,7 +319,7 @@ fn load_mesh_data(
             // index + textureOffset, or the vertex id itself (§8.4).
             let texture_offset = match &mesh.faces {
                 FacesRec::Inline { texture_offset, .. } => *texture_offset,
-                FacesRec::Ply { .. } => None,
+                FacesRec::Ply { .. } | FacesRec::Binary { .. } => None,
             };
             let tex = &ctx.rec.tex_coords;
             let mut with_uvs = !tex.is_empty();
@@ -348,6 +350,95 @@ fn load_mesh_data(
                 .then(|| uv_ids.iter().map(|&k| DVec2::from_array(tex[k as usize - 1])).collect::<Vec<_>>());
             Ok(Arc::new(MeshData { positions, indices: tris, file_normals: None, uvs, groups: Some(groups) }))
         }
+    }
+}
+
+/// Step 0: the 2019 forms the rest of the build reads as 2020 ones (§8.2, §8.4): `binaryFile`
+/// vertices, texture coordinates and faces read from their files, and the vertex ids of a
+/// `ZeroBasedIndexing` scene (faces and `Triangle` `Indices`) made 1-based. Borrowed when the
+/// scene has none of them.
+fn legacy_data<'r>(
+    rec: &'r SceneRecords,
+    resolver: &dyn AssetResolver,
+) -> Result<Cow<'r, SceneRecords>, SceneError> {
+    let binary_faces = rec.meshes.iter().any(|m| matches!(m.faces, FacesRec::Binary { .. }));
+    if !(rec.zero_based_indexing || rec.vertex_file.is_some() || rec.tex_coord_file.is_some() || binary_faces)
+    {
+        return Ok(Cow::Borrowed(rec));
+    }
+    let mut out = rec.clone();
+    let read =
+        |f: &BinaryFileRec, per: usize, what: &str| read_binary(rec, resolver, &f.path, &f.loc, per, what);
+    if let Some(f) = &rec.vertex_file {
+        let words = read(f, 3, "vertices of 3 float32")?;
+        out.vertices =
+            words.chunks_exact(3).map(|c| [0, 1, 2].map(|k| f64::from(f32::from_bits(c[k])))).collect();
+    }
+    if let Some(f) = &rec.tex_coord_file {
+        let words = read(f, 2, "texture coordinates of 2 float32")?;
+        out.tex_coords =
+            words.chunks_exact(2).map(|c| [0, 1].map(|k| f64::from(f32::from_bits(c[k])))).collect();
+    }
+    for m in &mut out.meshes {
+        if let FacesRec::Binary { path, vertex_offset, texture_offset } = &m.faces {
+            let f = BinaryFileRec { path: path.clone(), loc: m.faces_loc.clone() };
+            let words = read(&f, 3, "triangles of 3 int32 vertex ids")?;
+            let indices = words.iter().map(|&w| i64::from(w as i32)).collect();
+            m.faces =
+                FacesRec::Inline { indices, vertex_offset: *vertex_offset, texture_offset: *texture_offset };
+        }
+    }
+    if rec.zero_based_indexing {
+        for m in &mut out.meshes {
+            if let FacesRec::Inline { indices, .. } = &mut m.faces {
+                indices.iter_mut().for_each(|i| *i = i.saturating_add(1));
+            }
+        }
+        for t in &mut out.triangles {
+            t.indices.iter_mut().for_each(|i| *i = i.saturating_add(1));
+        }
+    }
+    Ok(Cow::Owned(out))
+}
+
+/// The records of a 2019 binary file: little-endian `int32 N`, then `N` records of `per`
+/// 32-bit words, returned as raw words.
+fn read_binary(
+    rec: &SceneRecords,
+    resolver: &dyn AssetResolver,
+    path: &str,
+    loc: &Loc,
+    per: usize,
+    what: &str,
+) -> Result<Vec<u32>, SceneError> {
+    let shown = resolver.display_path(path);
+    let err = |msg: String| SceneError::new(&rec.source, loc.clone(), msg);
+    let (bytes, _) = resolver.read(path).map_err(|e| {
+        err(format!(
+            "cannot read binary file {}: {e}; check the binaryFile path (it is relative to the scene file)",
+            shown.display()
+        ))
+    })?;
+    let Some(head) = bytes.get(..4) else {
+        return Err(err(format!(
+            "binary file {} is {} bytes, too short for its int32 count of {what}",
+            shown.display(),
+            bytes.len()
+        )));
+    };
+    let count = i32::from_le_bytes([head[0], head[1], head[2], head[3]]);
+    let needed =
+        usize::try_from(count).ok().and_then(|n| n.checked_mul(per * 4)).and_then(|b| b.checked_add(4));
+    match needed {
+        Some(needed) if needed <= bytes.len() => Ok(bytes[4..needed]
+            .chunks_exact(4)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect()),
+        _ => Err(err(format!(
+            "binary file {} says it holds {count} {what}, but it is {} bytes long; it is truncated or not a 2019 binary file",
+            shown.display(),
+            bytes.len()
+        ))),
     }
 }
 
@@ -631,6 +722,8 @@ fn placed_cameras(
 /// parser's.
 pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<Scene, SceneError> {
     let started = Instant::now();
+    let legacy = legacy_data(rec, resolver)?;
+    let rec: &SceneRecords = &legacy;
     let ctx = Ctx { rec, resolver };
     let mut warnings: Vec<Warning> = rec.warnings.clone();
 
@@ -1327,6 +1420,76 @@ mod tests {
         let unknown = CHAIN.replace(r#"baseMeshId="3""#, r#"baseMeshId="9""#);
         let e = build(&unknown).err().expect("an unknown base must fail").to_string();
         assert!(e.contains(r#"baseMeshId="9""#) && e.contains("t.xml:"), "{e}");
+    }
+
+    /// A 2019 binary file: the int32 count, then the records' 32-bit words, little-endian.
+    fn binary(count: i32, words: &[[u8; 4]]) -> Vec<u8> {
+        let mut out = count.to_le_bytes().to_vec();
+        words.iter().for_each(|w| out.extend(w));
+        out
+    }
+
+    /// 2019 `binaryFile` vertices, texture coordinates and faces, and `ZeroBasedIndexing`
+    /// (faces and a Triangle's Indices count from 0): a square of a binary-faced mesh and a
+    /// Triangle, each hit where its vertices put it, with the binary uvs (the mesh has a map, so
+    /// its hits carry them).
+    #[test]
+    fn binary_data_and_zero_based_indexing() {
+        let dir = tessera_testkit::TempDir::new("build-binary");
+        let f = |v: f32| v.to_le_bytes();
+        let verts: Vec<[u8; 4]> =
+            [-1.0, -1.0, -5.0, 1.0, -1.0, -5.0, 1.0, 1.0, -5.0, -1.0, 1.0, -5.0].map(f).to_vec();
+        let uvs: Vec<[u8; 4]> = [0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0, 1.0].map(f).to_vec();
+        std::fs::write(dir.join("v.bin"), binary(4, &verts)).unwrap();
+        std::fs::write(dir.join("uv.bin"), binary(4, &uvs)).unwrap();
+        std::fs::write(dir.join("f.bin"), binary(1, &[0i32, 1, 2].map(i32::to_le_bytes))).unwrap();
+        // A count beyond the data.
+        std::fs::write(dir.join("short.bin"), binary(2, &[0i32, 1, 2].map(i32::to_le_bytes))).unwrap();
+        let xml = |zero_based: &str, faces: &str| {
+            format!(
+                r#"<Scene>
+<ZeroBasedIndexing>{zero_based}</ZeroBasedIndexing>
+<Materials><Material id="1"/></Materials><Textures><TextureMap id="c" type="checkerboard"><DecalMode>replace_kd</DecalMode></TextureMap></Textures>
+<VertexData binaryFile="v.bin"/>
+<TexCoordData binaryFile="uv.bin"/>
+<Objects>
+<Mesh id="1"><Material>1</Material><Textures>c</Textures><Faces binaryFile="{faces}"/></Mesh>
+<Triangle id="1"><Material>1</Material><Indices>0 2 3</Indices></Triangle>
+</Objects></Scene>"#
+            )
+        };
+        let build_at = |text: &str| {
+            let rec = crate::scene::xml::parse_xml(text, &dir.join("s.xml"))?;
+            build_scene(&rec, &FsResolver { base_dir: dir.to_path_buf() })
+        };
+        let scene = build_at(&xml("true", "f.bin")).unwrap();
+        assert!(scene.warnings.iter().all(|w| !w.unsupported), "{:?}", scene.warnings);
+        let hit = |x: f64, y: f64| {
+            scene.accel.intersect(&Ray::new(DVec3::new(x, y, 0.0), DVec3::NEG_Z), 1e-9, 1e9).expect("a hit")
+        };
+        let h = hit(0.5, -0.5);
+        assert_eq!(h.instance, 0);
+        assert!((h.t - 5.0).abs() < 1e-9);
+        assert!((h.uv - DVec2::new(0.75, 0.25)).length() < 1e-6, "{:?}", h.uv);
+        let h = hit(-0.5, 0.5);
+        assert_eq!(h.instance, 1);
+        assert!((h.t - 5.0).abs() < 1e-9);
+        // Read 1-based, vertex 0 does not exist.
+        let e = build_at(&xml("false", "f.bin")).err().expect("vertex 0 is an error 1-based");
+        assert!(
+            e.to_string().contains("s.xml:7: <Mesh id=\"1\"> / <Faces>: face 1 refers to vertex 0"),
+            "{e}"
+        );
+        // A missing or truncated file is an error naming the element's line and the file.
+        let e = build_at(&xml("true", "none.bin")).err().expect("a missing file");
+        assert!(e.to_string().contains("s.xml:7: <Mesh id=\"1\"> / <Faces>: cannot read binary file"), "{e}");
+        assert!(e.to_string().contains("none.bin"), "{e}");
+        let e = build_at(&xml("true", "short.bin")).err().expect("a truncated file");
+        assert!(
+            e.to_string()
+                .contains("says it holds 2 triangles of 3 int32 vertex ids, but it is 16 bytes long"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -51,6 +51,14 @@ pub struct SceneRecords {
     /// Global texture coordinates (`TexCoordData`), parallel to `vertices`: id `k` is
     /// `tex_coords[k - 1]`.
     pub tex_coords: Vec<[f64; 2]>,
+    /// 2019 `<VertexData binaryFile>` and `<TexCoordData binaryFile>` (§8.2, §8.4): the values
+    /// come from these files, read when the scene is built, in place of `vertices` and
+    /// `tex_coords`.
+    pub vertex_file: Option<BinaryFileRec>,
+    pub tex_coord_file: Option<BinaryFileRec>,
+    /// 2019 `<ZeroBasedIndexing>true`: the vertex ids of faces (inline and binary) and of
+    /// `Triangle` `Indices` count from 0; the build turns them 1-based.
+    pub zero_based_indexing: bool,
     /// `Textures/Images/Image`: image files by id (HW4).
     pub images: Vec<ImageRec>,
     /// `Textures/TextureMap` (and 2019 `<Texture>` elements, translated).
@@ -88,6 +96,9 @@ impl SceneRecords {
             brdfs: Vec::new(),
             vertices: Vec::new(),
             tex_coords: Vec::new(),
+            vertex_file: None,
+            tex_coord_file: None,
+            zero_based_indexing: false,
             images: Vec::new(),
             texture_maps: Vec::new(),
             transformations: Vec::new(),
@@ -490,6 +501,17 @@ pub enum FacesRec {
     Inline { indices: Vec<i64>, vertex_offset: i64, texture_offset: Option<i64> },
     /// `plyFile="..."`, as written in the scene (resolved against the scene's directory at build time).
     Ply { path: String },
+    /// 2019 `binaryFile="..."` (§8.4): little-endian `int32 T`, then `T×3 int32` vertex ids,
+    /// read at build time; they then count like inline ids, offsets included.
+    Binary { path: String, vertex_offset: i64, texture_offset: Option<i64> },
+}
+
+/// A 2019 `binaryFile` of vertex or texture-coordinate data: little-endian `int32 N`, then
+/// `N` records of 3 (vertices) or 2 (uv) `float32`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BinaryFileRec {
+    pub path: String,
+    pub loc: Loc,
 }
 
 #[derive(Clone, Debug, PartialEq)]

@@ -20,8 +20,8 @@
 use std::path::Path;
 
 use super::records::{
-    AreaLightRec, BrdfKind, BrdfRec, CameraRec, DecalMode, DirectionalLightRec, EnvLightRec, EnvMapping,
-    EnvSampler, FacesRec, Handedness, ImageRec, InstanceRec, Interpolation, LensRec,
+    AreaLightRec, BinaryFileRec, BrdfKind, BrdfRec, CameraRec, DecalMode, DirectionalLightRec, EnvLightRec,
+    EnvMapping, EnvSampler, FacesRec, Handedness, ImageRec, InstanceRec, Interpolation, LensRec,
     MAX_RECURSION_DEPTH_LIMIT, MaterialKind, MaterialRec, MeshRec, NoiseConversion, PathParams, PlaneRec,
     PointLightRec, Projection, Renderer, Roulette, SceneRecords, ShadingMode, SphereRec, SpotLightRec,
     TextureMapRec, TextureSource, TonemapRec, TransformOp, TransformRec, TransformRef, TriangleRec, Vec3,
@@ -410,13 +410,9 @@ const MESH_INSTANCE: Schema = Schema {
     ..Schema::EMPTY
 };
 // Also used for `TexCoordData`.
-// `type` is the 2025 JSON `_type` (`xyz`, `uv`), checked by `Parser::data_type`.
-const VERTEX_DATA_ATTRS: &[&str] = &["type"];
-const VERTEX_DATA_UNSUPPORTED_ATTRS: &[Unsupported] = &[(
-    "binaryFile",
-    "without it, these values are read from the element's text (2019 binary data is not read)",
-)];
-// `binaryFile` is known here but handled by `Parser::mesh` (the mesh is left out).
+// `type` is the 2025 JSON `_type` (`xyz`, `uv`), checked by `Parser::data_type`; `binaryFile`
+// (2019) names a file the values are read from at build time.
+const VERTEX_DATA_ATTRS: &[&str] = &["type", "binaryFile"];
 const FACES_ATTRS: &[&str] = &["vertexOffset", "textureOffset", "plyFile", "binaryFile", "type"];
 const FACES_UNSUPPORTED_ATTRS: &[Unsupported] = &[];
 
@@ -816,7 +812,7 @@ impl Parser<'_> {
 
     fn scene(&mut self, scene: &Node) -> Result<()> {
         self.check(scene, &SCENE);
-        self.legacy_hints(scene);
+        self.legacy_hints(scene)?;
         if let Some(c) = self.optional_numbers(scene, "BackgroundColor")? {
             self.out.background_color = c;
         }
@@ -897,9 +893,8 @@ impl Parser<'_> {
 
     /// The 2019 scene-level `<BackfaceCulling>` and `<ZeroBasedIndexing>` (§3). Culling is an
     /// optimisation hint that never changes the correct image, so not culling is only worth a
-    /// warning; 0-based vertex ids are not supported, and reading them 1-based moves every face.
-    /// `false` is what Tessera does anyway: accepted without a word.
-    fn legacy_hints(&mut self, scene: &Node) {
+    /// warning (`false` is accepted without a word); `ZeroBasedIndexing` is recorded.
+    fn legacy_hints(&mut self, scene: &Node) -> Result<()> {
         if let Some(b) = scene.child("BackfaceCulling")
             && b.text.trim() != "false"
         {
@@ -909,15 +904,10 @@ impl Parser<'_> {
                  which gives the correct image (§3); it is ignored",
             );
         }
-        if let Some(z) = scene.child("ZeroBasedIndexing")
-            && z.text.trim() != "false"
-        {
-            self.unsupported(
-                z,
-                "<ZeroBasedIndexing> (0-based vertex ids) is not supported yet; without it, every vertex id \
-                 is read 1-based and the faces join the wrong vertices",
-            );
+        if let Some(z) = scene.child("ZeroBasedIndexing") {
+            self.out.zero_based_indexing = self.keyword(z, BOOLEANS)?;
         }
+        Ok(())
     }
 
     fn camera(&mut self, n: &Node) -> Result<CameraRec> {
@@ -1404,19 +1394,36 @@ impl Parser<'_> {
     }
 
     fn vertex_data(&mut self, n: &Node) -> Result<()> {
-        self.check_attrs(n, VERTEX_DATA_ATTRS, VERTEX_DATA_UNSUPPORTED_ATTRS);
+        self.check_attrs(n, VERTEX_DATA_ATTRS, &[]);
         self.data_type(n, "xyz", "x y z per vertex")?;
+        if let Some(path) = self.binary_file(n)? {
+            self.out.vertex_file = Some(path);
+            return Ok(());
+        }
         let values = self.number_list::<f64>(n, 3, "x y z per vertex")?;
         self.out.vertices = values.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
         Ok(())
     }
 
     fn tex_coord_data(&mut self, n: &Node) -> Result<()> {
-        self.check_attrs(n, VERTEX_DATA_ATTRS, VERTEX_DATA_UNSUPPORTED_ATTRS);
+        self.check_attrs(n, VERTEX_DATA_ATTRS, &[]);
         self.data_type(n, "uv", "u v per texture coordinate")?;
+        if let Some(path) = self.binary_file(n)? {
+            self.out.tex_coord_file = Some(path);
+            return Ok(());
+        }
         let values = self.number_list::<f64>(n, 2, "u v per texture coordinate")?;
         self.out.tex_coords = values.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
         Ok(())
+    }
+
+    /// A 2019 `binaryFile="..."` attribute: `None` when absent; empty is an error.
+    fn binary_file(&self, n: &Node) -> Result<Option<BinaryFileRec>> {
+        match n.attr("binaryFile").map(str::trim) {
+            None => Ok(None),
+            Some("") => Err(self.err(n, "attribute binaryFile is empty; expected a file path")),
+            Some(path) => Ok(Some(BinaryFileRec { path: path.to_string(), loc: n.loc() })),
+        }
     }
 
     /// A scene-level `<Textures>` block: 2020 `Images` and `TextureMap`s, 2019 `Texture`s.
@@ -1705,9 +1712,8 @@ impl Parser<'_> {
         for n in &objects.children {
             match n.name.as_str() {
                 "Mesh" | "LightMesh" => {
-                    if let Some(mesh) = self.mesh(n)? {
-                        self.out.meshes.push(mesh);
-                    }
+                    let mesh = self.mesh(n)?;
+                    self.out.meshes.push(mesh);
                 }
                 "Triangle" => {
                     let triangle = self.triangle(n)?;
@@ -1760,9 +1766,7 @@ impl Parser<'_> {
             .collect()
     }
 
-    /// `None` when the mesh cannot be read yet (2019 binary faces); an unsupported-element
-    /// warning says so.
-    fn mesh(&mut self, n: &Node) -> Result<Option<MeshRec>> {
+    fn mesh(&mut self, n: &Node) -> Result<MeshRec> {
         let light = n.name == "LightMesh";
         self.check(n, if light { &LIGHT_MESH } else { &MESH });
         let id = self.id(n, true)?;
@@ -1774,13 +1778,12 @@ impl Parser<'_> {
                 "" => return Err(self.err(faces, "attribute plyFile is empty; expected a PLY file path")),
                 path => FacesRec::Ply { path: path.to_string() },
             }
-        } else if faces.attr("binaryFile").is_some() {
-            self.unsupported(
-                faces,
-                "<Faces binaryFile> (2019 binary faces) is not supported yet; without it, the mesh is \
-                 left out of the picture",
-            );
-            return Ok(None);
+        } else if let Some(b) = self.binary_file(faces)? {
+            FacesRec::Binary {
+                path: b.path,
+                vertex_offset: self.int_attr(faces, "vertexOffset")?.unwrap_or(0),
+                texture_offset: self.int_attr(faces, "textureOffset")?,
+            }
         } else {
             FacesRec::Inline {
                 indices: self.number_list(faces, 3, "three vertex ids per triangle")?,
@@ -1788,7 +1791,7 @@ impl Parser<'_> {
                 texture_offset: self.int_attr(faces, "textureOffset")?,
             }
         };
-        Ok(Some(MeshRec {
+        Ok(MeshRec {
             id,
             loc: n.loc(),
             material: self.material_ref(n)?,
@@ -1799,7 +1802,7 @@ impl Parser<'_> {
             motion_blur: if light { None } else { self.optional_numbers(n, "MotionBlur")? },
             textures: if light { Vec::new() } else { self.object_textures(n)? },
             radiance: if light { Some(self.radiance(n)?) } else { None },
-        }))
+        })
     }
 
     /// The `<Radiance>` of an object light: three non-negative numbers.

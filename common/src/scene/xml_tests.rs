@@ -818,9 +818,6 @@ fn entities_and_cdata_are_text() {
     assert_eq!((c.width, c.height, c.image_name.as_str()), (2, 1, "a&b.png"));
 }
 
-const BINARY_DATA: &str =
-    "without it, these values are read from the element's text (2019 binary data is not read)";
-
 #[test]
 fn unknown_and_unsupported_elements_are_warnings() {
     let w = |line: u32, element: &str, message: &str| {
@@ -867,24 +864,13 @@ fn unknown_and_unsupported_elements_are_warnings() {
                 &w(3, r#"Material id="1"> / <Position"#, "unknown element <Position>; it is ignored"),
             ],
         ),
+        // 2019 binary data is read when the scene is built: no warning.
         (
             &scene(
-                "<VertexData binaryFile=\"geometry/vertices.bin\"/>\n<TexCoordData binaryFile=\"geometry/uvs.bin\"/>",
+                "<VertexData binaryFile=\"geometry/vertices.bin\"/>\n<TexCoordData binaryFile=\"geometry/uvs.bin\"/>\n\
+                 <Objects>\n<Mesh id=\"1\"><Material>1</Material><Faces binaryFile=\"0_face.bin\"/></Mesh>\n</Objects>",
             ),
-            &[
-                &w(2, "VertexData", &format!("attribute binaryFile is not supported yet; {BINARY_DATA}")),
-                &w(3, "TexCoordData", &format!("attribute binaryFile is not supported yet; {BINARY_DATA}")),
-            ],
-        ),
-        (
-            &scene(
-                "<Objects>\n<Mesh id=\"1\"><Material>1</Material><Faces binaryFile=\"0_face.bin\"/></Mesh>\n</Objects>",
-            ),
-            &[&w(
-                3,
-                r#"Mesh id="1"> / <Faces"#,
-                "<Faces binaryFile> (2019 binary faces) is not supported yet; without it, the mesh is left out of the picture",
-            )],
+            &[],
         ),
         (
             &scene(
