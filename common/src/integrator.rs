@@ -1170,6 +1170,44 @@ mod tests {
         assert!((p[0] as f64 / expected - 1.0).abs() < 0.04, "importance: {p:?} vs {expected}");
     }
 
+    /// Several `SphericalDirectionalLight`s: each lights (a white sphere under constant maps of
+    /// 0.5 and 0.25 reflects π·0.75, exactly with cosine sampling), and rays that miss see the
+    /// first one only.
+    #[test]
+    fn every_environment_light_lights_and_the_first_is_seen() {
+        use crate::image::Image;
+        let dir = tessera_testkit::TempDir::new("two-envs");
+        for (name, l) in [("a.exr", 0.5f32), ("b.exr", 0.25)] {
+            let map = Image { width: 8, height: 4, pixels: vec![[l; 3]; 32] };
+            crate::hdr_io::write_exr(&dir.join(name), &map).unwrap();
+        }
+        let pixel = |gaze_z: f64| {
+            let xml = format!(
+                r#"<Scene><Cameras><Camera id="1"><Position>0 0 5</Position><Gaze>0 0 {gaze_z}</Gaze><Up>0 1 0</Up>
+              <NearPlane>-0.001 0.001 -0.001 0.001</NearPlane><NearDistance>1</NearDistance>
+              <ImageResolution>1 1</ImageResolution><ImageName>a.exr</ImageName><NumSamples>16</NumSamples></Camera></Cameras>
+            <Textures><Images><Image id="1">a.exr</Image><Image id="2">b.exr</Image></Images></Textures>
+            <Lights><SphericalDirectionalLight id="1"><ImageId>1</ImageId></SphericalDirectionalLight>
+              <SphericalDirectionalLight id="2"><ImageId>2</ImageId></SphericalDirectionalLight></Lights>
+            <Materials>{WHITE}</Materials>
+            <VertexData>0 0 0</VertexData>
+            <Objects><Sphere id="1"><Material>1</Material><Center>1</Center><Radius>1</Radius></Sphere></Objects>
+            </Scene>"#
+            );
+            let scene = load_scene_str(&xml, &dir.join("t.xml"), &FsResolver { base_dir: dir.to_path_buf() })
+                .unwrap();
+            assert_eq!(scene.extra_env_lights.len(), 1);
+            let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
+            let settings =
+                RenderSettings { env_sampling: Some(EnvSampler::Cosine), ..RenderSettings::default() };
+            render_tile(&scene, 0, rect, &settings).0[0]
+        };
+        let lit = pixel(-1.0);
+        let expected = std::f64::consts::PI * 0.75;
+        assert!(lit.iter().all(|&c| (c as f64 - expected).abs() < 1e-5), "{lit:?} vs {expected}");
+        assert_eq!(pixel(1.0), [0.5; 3]);
+    }
+
     /// A group of camera rays, some hitting a sphere and some missing it, traced together gives
     /// each ray's own radiance and ray counts, bit for bit, with both renderers and for groups
     /// shorter than eight.

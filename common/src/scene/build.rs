@@ -487,6 +487,7 @@ struct BuiltTextures<'a> {
     ids: HashMap<&'a str, u32>,
     background: Option<u32>,
     env_light: Option<EnvLight>,
+    extra_env_lights: Vec<EnvLight>,
 }
 
 /// Step 4: decodes every image a texture map or the environment light uses (each file once, in
@@ -510,7 +511,7 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
             want(img, format!("texture map {}", m.id));
         }
     }
-    if let Some(l) = rec.env_lights.first() {
+    for l in &rec.env_lights {
         let img = image_recs.get(l.image.as_str()).ok_or_else(|| {
             ctx.err(
                 &l.loc,
@@ -561,11 +562,19 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
         .par_iter()
         .map(|&path| (path, Arc::new(MipChain::new(by_path[path].clone()))))
         .collect();
-    let env_light = rec
+    let mut env_lights = rec
         .env_lights
-        .first()
+        .iter()
         .map(|l| EnvLight::new(by_path[&image_recs[l.image.as_str()].path].clone(), l.mapping, l.sampler));
-    let mut out = BuiltTextures { maps: Vec::new(), ids: HashMap::new(), background: None, env_light };
+    let env_light = env_lights.next();
+    let extra_env_lights = env_lights.collect();
+    let mut out = BuiltTextures {
+        maps: Vec::new(),
+        ids: HashMap::new(),
+        background: None,
+        env_light,
+        extra_env_lights,
+    };
     for m in &rec.texture_maps {
         let source = match &m.source {
             TextureSource::Image { image, interpolation, normalizer, clamp } => {
@@ -768,6 +777,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         object_lights,
         instance_emission,
         env_light: textures.env_light,
+        extra_env_lights: textures.extra_env_lights,
         materials,
         cameras,
         accel,

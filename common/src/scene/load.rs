@@ -165,13 +165,6 @@ mod tests {
     fn unsupported_cases() -> Vec<(String, &'static str, bool)> {
         vec![
             (camera(3, "<Tonemap><TMO>Drago</TMO></Tonemap>"), "Camera id=\"3\"> / <Tonemap> / <TMO", true),
-            (
-                "<Lights><SphericalDirectionalLight id=\"1\"><ImageId>1</ImageId></SphericalDirectionalLight>\n\
-                 <SphericalDirectionalLight id=\"2\"><ImageId>1</ImageId></SphericalDirectionalLight></Lights>"
-                    .into(),
-                "SphericalDirectionalLight id=\"2\"",
-                false,
-            ),
             // Found by the build, which sorts an object's maps by their decal mode.
             (
                 format!(

@@ -56,9 +56,12 @@ pub struct Scene {
     /// The radiance each instance emits from its front, by instance index: `None` for objects
     /// that are not lights. Empty when the scene has no object lights.
     pub instance_emission: Vec<Option<DVec3>>,
-    /// The environment light (HW5), if any: lights the scene and is what rays that miss see.
-    /// (A second `SphericalDirectionalLight` is warned about and ignored.)
+    /// The environment light (HW5), if any: the first `SphericalDirectionalLight`, which lights
+    /// the scene and is what rays that miss see.
     pub env_light: Option<EnvLight>,
+    /// The scene's further `SphericalDirectionalLight`s: each lights the scene like the first
+    /// (one sampled direction per shading event), none is seen.
+    pub extra_env_lights: Vec<EnvLight>,
     pub materials: Vec<Material>,
     pub cameras: Vec<Camera>,
     pub accel: Accel,
