@@ -576,7 +576,8 @@ impl<'a> Tracer<'a> {
             return Ok((mat, shading_normal));
         }
         let mut m = mat.clone();
-        for k in textures.colour.into_iter().flatten() {
+        let more = textures.more_colour.map_or(&[][..], |i| &scene.more_colour_maps[i as usize][..]);
+        for k in textures.colour.into_iter().flatten().chain(more.iter().copied()) {
             let map = &scene.textures[k as usize];
             let t = map.value(&p);
             match map.decal {
@@ -996,6 +997,45 @@ mod tests {
         for c in p {
             assert!((c - 18.75).abs() < 1e-3, "{p:?}: the reflection sees the lit front face");
         }
+    }
+
+    /// Any number of colour maps, applied in the order the object names them; the last normal
+    /// or bump map is the one used. A white floor lit to 25 (kd 1), with constant checkerboards.
+    #[test]
+    fn colour_maps_apply_in_order_and_the_last_normal_map_wins() {
+        let pixel = |list: &str| {
+            let xml = format!(
+                r#"<Scene><MaxRecursionDepth>1</MaxRecursionDepth>
+            <Cameras><Camera id="1"><Position>0 5 0</Position><Gaze>0 -1 0</Gaze><Up>0 0 -1</Up>
+              <NearPlane>-0.1 0.1 -0.1 0.1</NearPlane><NearDistance>1</NearDistance>
+              <ImageResolution>1 1</ImageResolution><ImageName>a.png</ImageName></Camera></Cameras>
+            <Lights><PointLight id="1"><Position>0 4 0</Position><Intensity>400 400 400</Intensity></PointLight></Lights>
+            <Materials><Material id="1"><DiffuseReflectance>1 1 1</DiffuseReflectance></Material></Materials>
+            <Textures>
+              <TextureMap id="r" type="checkerboard"><DecalMode>replace_kd</DecalMode><BlackColor>1 0 0</BlackColor><WhiteColor>1 0 0</WhiteColor></TextureMap>
+              <TextureMap id="g" type="checkerboard"><DecalMode>replace_kd</DecalMode><BlackColor>0 1 0</BlackColor><WhiteColor>0 1 0</WhiteColor></TextureMap>
+              <TextureMap id="b" type="checkerboard"><DecalMode>blend_kd</DecalMode><BlackColor>0 0 1</BlackColor><WhiteColor>0 0 1</WhiteColor></TextureMap>
+              <TextureMap id="tilt" type="perlin"><DecalMode>bump_normal</DecalMode><NoiseScale>3</NoiseScale><BumpFactor>5</BumpFactor></TextureMap>
+              <TextureMap id="flat" type="checkerboard"><DecalMode>bump_normal</DecalMode></TextureMap>
+            </Textures>
+            <VertexData>-50 0 -50  50 0 -50  50 0 50  -50 0 50</VertexData>
+            <Objects><Mesh id="1"><Material>1</Material><Textures>{list}</Textures><Faces>1 3 2  1 4 3</Faces></Mesh></Objects>
+            </Scene>"#
+            );
+            let scene =
+                load_scene_str(&xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() })
+                    .unwrap();
+            let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
+            render_tile(&scene, 0, rect, &RenderSettings::default()).0[0]
+        };
+        // r, then g, then b blended in: kd = (g + b) / 2.
+        assert_eq!(pixel("r g b"), [0.0, 12.5, 12.5]);
+        // b blended into white, then g, then r: red.
+        assert_eq!(pixel("b g r"), [25.0, 0.0, 0.0]);
+        // The checkerboard "bump" map is flat (its height has no slope): last, it leaves the
+        // normal as it is; first, the Perlin map after it bends the normal and dims the floor.
+        assert_eq!(pixel("g tilt flat"), [0.0, 25.0, 0.0]);
+        assert!(pixel("g flat tilt")[1] < 24.9);
     }
 
     #[test]

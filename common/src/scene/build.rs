@@ -63,12 +63,6 @@ impl Ctx<'_> {
         warnings.push(Warning::new(&self.rec.source, loc.clone(), message));
     }
 
-    /// The same for something the scene asks for that is not implemented and whose absence
-    /// changes the picture ([`Warning::unsupported`]: the loaders refuse it unless allowed).
-    fn unsupported(&self, warnings: &mut Vec<Warning>, loc: &Loc, message: impl Into<String>) {
-        warnings.push(Warning::unsupported(&self.rec.source, loc.clone(), message));
-    }
-
     fn material(&self, ids: &HashMap<&str, u32>, id: &str, loc: &Loc) -> Result<u32, SceneError> {
         ids.get(id).copied().ok_or_else(|| {
             self.err(loc, format!("material \"{id}\" is not defined; add <Material id=\"{id}\"> under <Materials> or use an existing id"))
@@ -474,11 +468,15 @@ fn load_ply(ctx: &Ctx, path: &str, loc: &Loc) -> Result<Arc<MeshData>, SceneErro
 }
 
 /// Whether an object's maps include an image (which needs texture coordinates).
-fn uses_image(maps: &[TextureMap], t: &ObjectTextures) -> bool {
+fn uses_image(textures: &BuiltTextures, t: &ObjectTextures) -> bool {
+    let more = t.more_colour.map_or(Vec::new(), |i| {
+        textures.more_colour.lock().map(|m| m[i as usize].clone()).unwrap_or_default()
+    });
     [t.colour[0], t.colour[1], t.normal]
         .into_iter()
         .flatten()
-        .any(|k| matches!(maps[k as usize].source, Source::Image { .. }))
+        .chain(more)
+        .any(|k| matches!(textures.maps[k as usize].source, Source::Image { .. }))
 }
 
 /// Texture maps ready for shading, by position, and how the scene's ids find them.
@@ -488,6 +486,9 @@ struct BuiltTextures<'a> {
     background: Option<u32>,
     env_light: Option<EnvLight>,
     extra_env_lights: Vec<EnvLight>,
+    /// Objects' colour maps after their first two (`ObjectTextures::more_colour`), filled as
+    /// objects are placed.
+    more_colour: std::sync::Mutex<Vec<Vec<u32>>>,
 }
 
 /// Step 4: decodes every image a texture map or the environment light uses (each file once, in
@@ -574,6 +575,7 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
         background: None,
         env_light,
         extra_env_lights,
+        more_colour: Default::default(),
     };
     for m in &rec.texture_maps {
         let source = match &m.source {
@@ -627,7 +629,8 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
 }
 
 impl BuiltTextures<'_> {
-    /// Sorts an object's `<Textures>` ids into its colour map and its normal map (§11.1).
+    /// Sorts an object's `<Textures>` ids into its colour maps, applied in the order given, and
+    /// its normal map, the last one given (§11.1).
     fn for_object(
         &self,
         ctx: &Ctx,
@@ -636,6 +639,7 @@ impl BuiltTextures<'_> {
         warnings: &mut Vec<Warning>,
     ) -> Result<ObjectTextures, SceneError> {
         let mut t = ObjectTextures::default();
+        let mut colour = Vec::new();
         for id in ids {
             let k = *self.ids.get(id.as_str()).ok_or_else(|| {
                 ctx.err(
@@ -643,31 +647,23 @@ impl BuiltTextures<'_> {
                     format!("texture \"{id}\" is not defined; add <TextureMap id=\"{id}\"> under <Textures>"),
                 )
             })?;
-            let slot = match self.maps[k as usize].decal {
-                DecalMode::ReplaceNormal | DecalMode::BumpNormal => {
-                    if t.normal.is_none() {
-                        Some(&mut t.normal)
-                    } else {
-                        None
-                    }
-                }
+            match self.maps[k as usize].decal {
+                // The last normal or bump map wins (the course material has no object with two).
+                DecalMode::ReplaceNormal | DecalMode::BumpNormal => t.normal = Some(k),
                 DecalMode::ReplaceBackground => {
                     ctx.warn(warnings, loc, format!("texture {id} is a replace_background map; it applies to the background, not to this object"));
-                    continue;
                 }
-                _ => t.colour.iter_mut().find(|c| c.is_none()),
-            };
-            match slot {
-                Some(slot) => *slot = Some(k),
-                None => ctx.unsupported(
-                    warnings,
-                    loc,
-                    format!(
-                        "texture {id} is one texture too many: an object takes one normal map and two \
-                         colour maps (§11.1); without it, the object has the first ones"
-                    ),
-                ),
+                _ => colour.push(k),
             }
+        }
+        for (slot, &k) in t.colour.iter_mut().zip(&colour) {
+            *slot = Some(k);
+        }
+        if colour.len() > 2 {
+            let mut more =
+                self.more_colour.lock().map_err(|_| ctx.err(loc, "internal: texture lists poisoned"))?;
+            t.more_colour = Some(more.len() as u32);
+            more.push(colour[2..].to_vec());
         }
         Ok(t)
     }
@@ -778,6 +774,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         instance_emission,
         env_light: textures.env_light,
         extra_env_lights: textures.extra_env_lights,
+        more_colour_maps: textures.more_colour.into_inner().unwrap_or_default(),
         materials,
         cameras,
         accel,
@@ -1061,7 +1058,7 @@ impl Objects<'_, '_> {
         }
         for (i, m) in rec.meshes.iter().enumerate() {
             let material = ctx.material(self.mat_ids, &m.material, &m.loc)?;
-            if uses_image(&self.textures.maps, &mesh_textures[i]) && geoms[i].uvs.is_none() {
+            if uses_image(self.textures, &mesh_textures[i]) && geoms[i].uvs.is_none() {
                 ctx.warn(warnings, &m.loc, "an image texture is applied but the mesh has no texture coordinates (TexCoordData or PLY u v); it is sampled at the barycentric coordinates");
             }
             if let Some(r) = m.radiance {
@@ -1086,7 +1083,7 @@ impl Objects<'_, '_> {
                 Some(k) => {
                     let own = &rec.instances[k];
                     let t = self.textures.for_object(ctx, &own.textures, &own.loc, warnings)?;
-                    if uses_image(&self.textures.maps, &t) && geoms[r.mesh].uvs.is_none() {
+                    if uses_image(self.textures, &t) && geoms[r.mesh].uvs.is_none() {
                         ctx.warn(warnings, &own.loc, "an image texture is applied but the base mesh has no texture coordinates (TexCoordData or PLY u v); it is sampled at the barycentric coordinates");
                     }
                     t
@@ -1149,7 +1146,7 @@ impl Objects<'_, '_> {
             .map(|&g| rec.tex_coords.get(g as usize).map(|t| DVec2::from_array(*t)))
             .collect::<Option<Vec<_>>>();
         let object_textures = self.textures.for_object(ctx, &t.textures, &t.loc, warnings)?;
-        if uvs.is_none() && uses_image(&self.textures.maps, &object_textures) {
+        if uvs.is_none() && uses_image(self.textures, &object_textures) {
             ctx.warn(warnings, &t.loc, "an image texture is applied but <TexCoordData> has no entry for its vertices; it is sampled at the barycentric coordinates");
         }
         let geom = Arc::new(MeshGeom::with_uvs(positions, indices, None, uvs));

@@ -56,6 +56,9 @@ pub struct Scene {
     /// The radiance each instance emits from its front, by instance index: `None` for objects
     /// that are not lights. Empty when the scene has no object lights.
     pub instance_emission: Vec<Option<DVec3>>,
+    /// The colour maps of objects with more than two, after their first two
+    /// ([`crate::geometry::ObjectTextures::more_colour`]).
+    pub more_colour_maps: Vec<Vec<u32>>,
     /// The environment light (HW5), if any: the first `SphericalDirectionalLight`, which lights
     /// the scene and is what rays that miss see.
     pub env_light: Option<EnvLight>,
