@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Builds tessera-worker with profile-guided optimisation (PGO): about 1.14x faster on small
-# scenes than `cargo build --release` (docs/PERFORMANCE.md), with the same pixels bit for bit
+# Builds tessera-worker with profile-guided optimisation (PGO): 1.02-1.14x faster on one core
+# than `cargo build --release` on the host measured on 2026-11-25, not faster on every host
+# (docs/PERFORMANCE.md, "Output, build and farm"), with the same pixels bit for bit
 # (PGO changes code layout, inlining and branch order, never floating-point arithmetic).
 #
 #   deploy/pgo-build.sh                       # -> target/pgo/release/tessera-worker

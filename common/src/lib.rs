@@ -3,7 +3,8 @@
 //! Pure computation: scene bytes and an [`assets::AssetResolver`] in, linear float images out.
 //! No network, no async runtime, no database: the worker and the server bring those.
 //!
-//! Pipeline: a front end ([`scene::xml`] or [`scene::json`], both walking [`scene::tree`])
+//! Pipeline: a front end ([`scene::xml`] or [`scene::json`], both building a [`scene::tree`]
+//! that [`scene::elements`] walks)
 //! parses a file into [`scene::records`] (plain data with source locations), [`scene::build`]
 //! turns records into a render-ready [`scene::Scene`] (meshes, BVHs, instances, materials,
 //! lights), [`scene::load`] does both for scene text or a file, [`bundle`] for a farm job's tar

@@ -1,5 +1,6 @@
 //! The layering check: no module of `common` imports one of its own or of a higher layer, and
-//! the server's modules import each other without circles.
+//! the server's modules import each other without circles; and the size check: no file of
+//! `common/src` holds more than [`MAX_FILE_LINES`] lines of non-test code.
 //!
 //! The layers are docs/ARCHITECTURE.md's, "Layers"; keeping to them means no import circles.
 //!
@@ -32,16 +33,30 @@ const LAYERS: &[(&str, &[&str])] = &[
             "tonemap::params",
             "texture::image",
             "texture",
-            "geometry::bvh8",
+            "geometry::bvh8::kernels",
         ],
     ),
+    ("BVH", &["geometry::bvh8"]),
     ("pixels and records", &["image", "scene::records", "texture::mip"]),
     ("element tree", &["scene::tree"]),
+    (
+        "element rules",
+        &[
+            "scene::elements::camera",
+            "scene::elements::tonemap",
+            "scene::elements::lights",
+            "scene::elements::materials",
+            "scene::elements::textures",
+            "scene::elements::geometry",
+        ],
+    ),
+    ("element walk", &["scene::elements"]),
     (
         "front ends and scene parts",
         &[
             "scene::xml",
             "scene::json",
+            "scene::legacy_data",
             "camera",
             "material",
             "lights",
@@ -61,6 +76,11 @@ const LAYERS: &[(&str, &[&str])] = &[
     ("render", &["render"]),
     ("output", &["output"]),
 ];
+
+/// The most lines of non-test code (a file's lines outside its `#[cfg(test)]` items) a file of
+/// `common/src` may hold. A file past it holds more than one concern: split it by concern (the
+/// way `scene/elements/` holds the element rules by family), don't squeeze it.
+const MAX_FILE_LINES: usize = 1200;
 
 fn src_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("src")
@@ -121,6 +141,41 @@ fn the_table_lists_every_module_once() {
         "modules in no layer (add them to LAYERS and docs/ARCHITECTURE.md): {missing:?}"
     );
     assert!(stale.is_empty(), "LAYERS lists modules that have no file: {stale:?}");
+}
+
+#[test]
+fn no_file_is_over_the_size_limit() {
+    let crate_ = Crate::read(&src_dir());
+    let sizes = crate_.non_test_lines();
+    assert!(sizes.len() > 40, "the scan found too few files: {sizes:?}");
+    let over: Vec<String> = sizes
+        .iter()
+        .filter(|(_, n)| *n > MAX_FILE_LINES)
+        .map(|(file, n)| format!("common/src/{file}: {n} lines of non-test code"))
+        .collect();
+    assert!(
+        over.is_empty(),
+        "files over {MAX_FILE_LINES} lines of non-test code (split them by concern; \
+         docs/ARCHITECTURE.md's code map names what each file owns):\n{}",
+        over.join("\n")
+    );
+}
+
+/// The counter itself, on made-up files: `#[cfg(test)]` items (inline or a whole file included
+/// with `#[path]`) are not counted, everything else is, blank lines and comments included.
+#[test]
+fn non_test_lines_leave_out_test_items_only() {
+    let files = [
+        ("lib.rs", "pub mod a;\n#[cfg(test)]\n#[path = \"a_tests.rs\"]\nmod tests;\n"),
+        (
+            "a.rs",
+            "//! A.\n\npub fn f() {}\n#[cfg(test)]\nfn helper() {\n    f();\n}\n\n/// Not a test.\n#[cfg(not(test))]\nfn g() {}\n#[cfg(test)]\nmod tests {\n    #[test]\n    fn t() {}\n}\n",
+        ),
+        ("a_tests.rs", "#[test]\nfn long() {}\n"),
+    ];
+    let crate_ = Crate::from_files(files.iter().map(|(p, s)| (PathBuf::from(p), s.to_string())).collect());
+    let sizes: Vec<(String, usize)> = crate_.non_test_lines();
+    assert_eq!(sizes, [("a.rs".to_string(), 7), ("lib.rs".to_string(), 1)]);
 }
 
 /// The first circle of `edges` (module -> the modules it imports) found by a depth-first walk,
@@ -296,6 +351,8 @@ impl std::fmt::Display for Import {
 /// tokens). Test-only files are left out.
 struct Crate {
     modules: BTreeMap<String, (String, Vec<Token>)>,
+    /// Each module's file's length in lines.
+    lines: BTreeMap<String, usize>,
     /// What the root re-exports: name → module (`Loc` → `error`).
     root_exports: BTreeMap<String, String>,
 }
@@ -320,6 +377,8 @@ impl Crate {
 
     /// `files`: paths relative to `src/`, with their text.
     fn from_files(files: Vec<(PathBuf, String)>) -> Crate {
+        let lengths: BTreeMap<PathBuf, usize> =
+            files.iter().map(|(p, text)| (p.clone(), text.lines().count())).collect();
         let mut tokenised: Vec<(PathBuf, Vec<Token>)> =
             files.into_iter().map(|(p, text)| (p, tokenise(&text))).collect();
         tokenised.sort_by(|a, b| a.0.cmp(&b.0));
@@ -337,8 +396,10 @@ impl Crate {
             }
         }
         let mut modules = BTreeMap::new();
+        let mut lines = BTreeMap::new();
         for (path, tokens) in tokenised {
             if !test_files.contains(&path) {
+                lines.insert(module_path(&path), lengths[&path]);
                 modules.insert(module_path(&path), (path.display().to_string(), tokens));
             }
         }
@@ -354,7 +415,36 @@ impl Crate {
                 }
             }
         }
-        Crate { modules, root_exports }
+        Crate { modules, lines, root_exports }
+    }
+
+    /// Every non-test file (by path under `src/`) with its count of lines outside `#[cfg(test)]`
+    /// items: its length less the lines from each such item's attribute to its end.
+    fn non_test_lines(&self) -> Vec<(String, usize)> {
+        let mut out: Vec<(String, usize)> = self
+            .modules
+            .iter()
+            .map(|(module, (file, tokens))| {
+                let skip = test_items(tokens);
+                // A test item's lines run from its first token's to its last token's.
+                let mut test_lines = BTreeSet::new();
+                let mut i = 0;
+                while i < tokens.len() {
+                    let start = i;
+                    while i < tokens.len() && skip[i] {
+                        i += 1;
+                    }
+                    if i > start {
+                        test_lines.extend(tokens[start].line..=tokens[i - 1].line);
+                    } else {
+                        i += 1;
+                    }
+                }
+                (file.clone(), self.lines[module] - test_lines.len())
+            })
+            .collect();
+        out.sort();
+        out
     }
 
     /// Every crate-internal module named in the non-test code of every module but the root, in

@@ -3,7 +3,7 @@
 //! The dialect is a mechanical XML→JSON encoding of the same element tree.
 //!
 //! The JSON text is turned into the very `Node` tree the XML front end builds, and then walked
-//! by the same `parse_tree` (module [`super::tree`]), so every element rule, default, warning
+//! by the same `parse_tree` (module [`super::elements`]), so every element rule, default, warning
 //! and error is shared and a JSON scene gives exactly the records of its XML twin. The mapping (§14.1):
 //!
 //! - the root is an object with the single key `"Scene"`;
@@ -27,8 +27,9 @@
 
 use std::path::Path;
 
+use super::elements::parse_tree;
 use super::records::SceneRecords;
-use super::tree::{Dialect, Node, parse_tree};
+use super::tree::{Dialect, Node};
 use crate::error::{Loc, SceneError};
 
 type Result<T> = std::result::Result<T, SceneError>;

@@ -4,7 +4,7 @@
 //!
 //! 1. `read_tree` turns the text into the element tree (`Node`) with line numbers, using
 //!    `quick-xml`. Everything about well-formedness is decided here.
-//! 2. `parse_tree` (module [`super::tree`], shared with the JSON front end) walks the tree and
+//! 2. `parse_tree` (module [`super::elements`], shared with the JSON front end) walks the tree and
 //!    fills [`SceneRecords`], with the 2019 legacy rules for materials (scene-format.md §6.1,
 //!    §6.9) and the 2019 `<Texture>` / `<BackgroundTexture>` elements, translated into 2020
 //!    texture maps (§11.11), when the file is of that dialect.
@@ -21,8 +21,9 @@ use quick_xml::escape::resolve_predefined_entity;
 use quick_xml::events::{BytesStart, Event};
 use quick_xml::{Reader, XmlVersion};
 
+use super::elements::parse_tree;
 use super::records::SceneRecords;
-use super::tree::{Dialect, Node, excerpt, parse_tree};
+use super::tree::{Dialect, Node, excerpt};
 use crate::error::{Loc, SceneError};
 
 type Result<T> = std::result::Result<T, SceneError>;

@@ -1,4 +1,4 @@
-//! Tests of the XML front end and, through it, of the shared element walk (`scene/tree.rs`).
+//! Tests of the XML front end and, through it, of the shared element walk (`scene/elements/`).
 //!
 //! Records, errors and warnings for hand-written scenes.
 
