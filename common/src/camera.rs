@@ -27,6 +27,8 @@ pub struct Camera {
     pub height: u32,
     pub image_name: String,
     pub num_samples: u32,
+    /// 2019 `ClampSamples`: the most a sample may add to a pixel, per channel.
+    pub clamp_samples: Option<f64>,
     /// Thin lens (depth of field); `None` for a pinhole.
     pub lens: Option<LensRec>,
     /// How an HDR output is also written as PNG (empty: the photographic defaults).
@@ -86,6 +88,7 @@ impl Camera {
             height: c.height,
             image_name: c.image_name.clone(),
             num_samples: c.num_samples.max(1),
+            clamp_samples: c.clamp_samples,
             lens: c.lens,
             tonemaps: c.tonemaps.clone(),
             renderer: c.renderer,
@@ -189,6 +192,7 @@ mod tests {
             image_name: "x.png".into(),
             handedness,
             num_samples: 1,
+            clamp_samples: None,
             lens: None,
             tonemaps: Vec::new(),
             renderer: Default::default(),

@@ -384,7 +384,9 @@ impl<'a> Tracer<'a> {
                             break;
                         }
                         beta *= weight / p_spec;
-                        ray = ray.spawn(hit.point + eps * n, glossy(reflect(d, n), mat.roughness, rng));
+                        // From the front side, as in the recursive renderer (§6.8).
+                        let o = hit.point + eps * shading_normal;
+                        ray = ray.spawn(o, glossy(reflect(d, n), mat.roughness, rng));
                         specular = true;
                     } else {
                         let Some((wi, f, brdf)) = self.bounce(n, wo, mat, params.importance, rng) else {
@@ -574,7 +576,8 @@ impl<'a> Tracer<'a> {
             return Ok((mat, shading_normal));
         }
         let mut m = mat.clone();
-        for k in textures.colour.into_iter().flatten() {
+        let more = textures.more_colour.map_or(&[][..], |i| &scene.more_colour_maps[i as usize][..]);
+        for k in textures.colour.into_iter().flatten().chain(more.iter().copied()) {
             let map = &scene.textures[k as usize];
             let t = map.value(&p);
             match map.decal {
@@ -672,7 +675,10 @@ impl<'a> Tracer<'a> {
                 if weight != DVec3::ZERO {
                     let r = glossy(reflect(d, n), mat.roughness, rng);
                     self.stats.secondary += 1;
-                    l += weight * self.trace(&ray.spawn(hit.point + eps * n, r), depth + 1, None, cone, rng);
+                    // The reflected ray starts on the front side, with the normal as given, like
+                    // the shadow rays (§6.8, measured on thin blades seen from behind).
+                    let o = hit.point + eps * s.shading_normal;
+                    l += weight * self.trace(&ray.spawn(o, r), depth + 1, None, cone, rng);
                 }
             }
             MaterialKind::Dielectric if can_recurse => {
@@ -758,8 +764,8 @@ struct Surfaced<'a> {
 }
 
 impl Surfaced<'_> {
-    /// The shading normal facing the incoming ray: where reflected rays start, and the normal
-    /// dielectrics shade and refract with (they track entering and leaving).
+    /// The shading normal facing the incoming ray: where a dielectric's reflected ray starts,
+    /// and the normal dielectrics shade and refract with (they track entering and leaving).
     #[inline]
     fn facing(&self) -> DVec3 {
         if self.entering { self.shading_normal } else { -self.shading_normal }
@@ -825,10 +831,10 @@ fn perturbed_normal(
             let c = qv.cross(qu);
             if c.dot(n) < 0.0 { -c } else { c }
         }
-        (DecalMode::BumpNormal, Source::Perlin { conversion, scale }) => {
+        (DecalMode::BumpNormal, Source::Perlin { conversion, scale, octaves }) => {
             // The height field lives in object space (like the noise's colour); its gradient
             // is a covector, carried to world space by the normal matrix.
-            let g = perlin_gradient(p.object, *scale, *conversion);
+            let g = perlin_gradient(p.object, *scale, *conversion, *octaves);
             let g = match &instance.transform {
                 Some(xf) => xf.normal_matrix * g,
                 None => g,
@@ -966,6 +972,70 @@ mod tests {
             .unwrap();
         let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
         render_tile(&scene, 0, rect, &RenderSettings::default()).0[0]
+    }
+
+    /// A thin mirror blade seen from behind (§6.8): its reflected ray starts on its front side,
+    /// like its shadow rays, so heading back to the viewer's side it first meets the blade's own
+    /// lit front face. A blade at y = 0 facing up, lit from above by I = 400 at distance 4, seen
+    /// from below: kd·I/d² = 0.5·25 directly, plus mirror 0.5 times the front face's 12.5.
+    #[test]
+    fn a_mirror_seen_from_behind_reflects_from_its_front_side() {
+        let xml = r#"<Scene><MaxRecursionDepth>1</MaxRecursionDepth>
+            <Cameras><Camera id="1"><Position>0 -5 0</Position><Gaze>0 1 0</Gaze><Up>0 0 -1</Up>
+              <NearPlane>-0.1 0.1 -0.1 0.1</NearPlane><NearDistance>1</NearDistance>
+              <ImageResolution>1 1</ImageResolution><ImageName>a.png</ImageName></Camera></Cameras>
+            <Lights><PointLight id="1"><Position>0 4 0</Position><Intensity>400 400 400</Intensity></PointLight></Lights>
+            <Materials><Material id="1" type="mirror"><DiffuseReflectance>0.5 0.5 0.5</DiffuseReflectance>
+              <MirrorReflectance>0.5 0.5 0.5</MirrorReflectance></Material></Materials>
+            <VertexData>-5 0 -5  5 0 -5  5 0 5  -5 0 5</VertexData>
+            <Objects><Mesh id="1"><Material>1</Material><Faces>1 3 2  1 4 3</Faces></Mesh></Objects>
+            </Scene>"#;
+        let scene =
+            load_scene_str(xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() }).unwrap();
+        let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
+        let p = render_tile(&scene, 0, rect, &RenderSettings::default()).0[0];
+        for c in p {
+            assert!((c - 18.75).abs() < 1e-3, "{p:?}: the reflection sees the lit front face");
+        }
+    }
+
+    /// Any number of colour maps, applied in the order the object names them; the last normal
+    /// or bump map is the one used. A white floor lit to 25 (kd 1), with constant checkerboards.
+    #[test]
+    fn colour_maps_apply_in_order_and_the_last_normal_map_wins() {
+        let pixel = |list: &str| {
+            let xml = format!(
+                r#"<Scene><MaxRecursionDepth>1</MaxRecursionDepth>
+            <Cameras><Camera id="1"><Position>0 5 0</Position><Gaze>0 -1 0</Gaze><Up>0 0 -1</Up>
+              <NearPlane>-0.1 0.1 -0.1 0.1</NearPlane><NearDistance>1</NearDistance>
+              <ImageResolution>1 1</ImageResolution><ImageName>a.png</ImageName></Camera></Cameras>
+            <Lights><PointLight id="1"><Position>0 4 0</Position><Intensity>400 400 400</Intensity></PointLight></Lights>
+            <Materials><Material id="1"><DiffuseReflectance>1 1 1</DiffuseReflectance></Material></Materials>
+            <Textures>
+              <TextureMap id="r" type="checkerboard"><DecalMode>replace_kd</DecalMode><BlackColor>1 0 0</BlackColor><WhiteColor>1 0 0</WhiteColor></TextureMap>
+              <TextureMap id="g" type="checkerboard"><DecalMode>replace_kd</DecalMode><BlackColor>0 1 0</BlackColor><WhiteColor>0 1 0</WhiteColor></TextureMap>
+              <TextureMap id="b" type="checkerboard"><DecalMode>blend_kd</DecalMode><BlackColor>0 0 1</BlackColor><WhiteColor>0 0 1</WhiteColor></TextureMap>
+              <TextureMap id="tilt" type="perlin"><DecalMode>bump_normal</DecalMode><NoiseScale>3</NoiseScale><BumpFactor>5</BumpFactor></TextureMap>
+              <TextureMap id="flat" type="checkerboard"><DecalMode>bump_normal</DecalMode></TextureMap>
+            </Textures>
+            <VertexData>-50 0 -50  50 0 -50  50 0 50  -50 0 50</VertexData>
+            <Objects><Mesh id="1"><Material>1</Material><Textures>{list}</Textures><Faces>1 3 2  1 4 3</Faces></Mesh></Objects>
+            </Scene>"#
+            );
+            let scene =
+                load_scene_str(&xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() })
+                    .unwrap();
+            let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
+            render_tile(&scene, 0, rect, &RenderSettings::default()).0[0]
+        };
+        // r, then g, then b blended in: kd = (g + b) / 2.
+        assert_eq!(pixel("r g b"), [0.0, 12.5, 12.5]);
+        // b blended into white, then g, then r: red.
+        assert_eq!(pixel("b g r"), [25.0, 0.0, 0.0]);
+        // The checkerboard "bump" map is flat (its height has no slope): last, it leaves the
+        // normal as it is; first, the Perlin map after it bends the normal and dims the floor.
+        assert_eq!(pixel("g tilt flat"), [0.0, 25.0, 0.0]);
+        assert!(pixel("g flat tilt")[1] < 24.9);
     }
 
     #[test]
@@ -1138,6 +1208,44 @@ mod tests {
         assert!((p[0] as f64 / expected - 1.0).abs() < 0.018, "uniform: {p:?} vs {expected}");
         let p = furnace_pixel(l, -1.0, WHITE, 16384, EnvSampler::Importance);
         assert!((p[0] as f64 / expected - 1.0).abs() < 0.04, "importance: {p:?} vs {expected}");
+    }
+
+    /// Several `SphericalDirectionalLight`s: each lights (a white sphere under constant maps of
+    /// 0.5 and 0.25 reflects π·0.75, exactly with cosine sampling), and rays that miss see the
+    /// first one only.
+    #[test]
+    fn every_environment_light_lights_and_the_first_is_seen() {
+        use crate::image::Image;
+        let dir = tessera_testkit::TempDir::new("two-envs");
+        for (name, l) in [("a.exr", 0.5f32), ("b.exr", 0.25)] {
+            let map = Image { width: 8, height: 4, pixels: vec![[l; 3]; 32] };
+            crate::hdr_io::write_exr(&dir.join(name), &map).unwrap();
+        }
+        let pixel = |gaze_z: f64| {
+            let xml = format!(
+                r#"<Scene><Cameras><Camera id="1"><Position>0 0 5</Position><Gaze>0 0 {gaze_z}</Gaze><Up>0 1 0</Up>
+              <NearPlane>-0.001 0.001 -0.001 0.001</NearPlane><NearDistance>1</NearDistance>
+              <ImageResolution>1 1</ImageResolution><ImageName>a.exr</ImageName><NumSamples>16</NumSamples></Camera></Cameras>
+            <Textures><Images><Image id="1">a.exr</Image><Image id="2">b.exr</Image></Images></Textures>
+            <Lights><SphericalDirectionalLight id="1"><ImageId>1</ImageId></SphericalDirectionalLight>
+              <SphericalDirectionalLight id="2"><ImageId>2</ImageId></SphericalDirectionalLight></Lights>
+            <Materials>{WHITE}</Materials>
+            <VertexData>0 0 0</VertexData>
+            <Objects><Sphere id="1"><Material>1</Material><Center>1</Center><Radius>1</Radius></Sphere></Objects>
+            </Scene>"#
+            );
+            let scene = load_scene_str(&xml, &dir.join("t.xml"), &FsResolver { base_dir: dir.to_path_buf() })
+                .unwrap();
+            assert_eq!(scene.extra_env_lights.len(), 1);
+            let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
+            let settings =
+                RenderSettings { env_sampling: Some(EnvSampler::Cosine), ..RenderSettings::default() };
+            render_tile(&scene, 0, rect, &settings).0[0]
+        };
+        let lit = pixel(-1.0);
+        let expected = std::f64::consts::PI * 0.75;
+        assert!(lit.iter().all(|&c| (c as f64 - expected).abs() < 1e-5), "{lit:?} vs {expected}");
+        assert_eq!(pixel(1.0), [0.5; 3]);
     }
 
     /// A group of camera rays, some hitting a sphere and some missing it, traced together gives

@@ -152,6 +152,7 @@ mod tests {
             image_name: image_name.into(),
             handedness: crate::scene::records::Handedness::Right,
             num_samples: 1,
+            clamp_samples: None,
             lens: None,
             tonemaps,
             renderer: Default::default(),

@@ -228,8 +228,18 @@ pub fn render_tile_until(
                     tracer.camera_hits(&rays[..group], &mut hits[..group]);
                 }
                 let radiance = tracer.trace_primary_group(&rays, &hits[..group], &mut samplers[..group]);
-                for l in &radiance[..group] {
-                    sum += *l;
+                match cam.clamp_samples {
+                    None => {
+                        for l in &radiance[..group] {
+                            sum += *l;
+                        }
+                    }
+                    // 2019 `ClampSamples`: each sample's radiance clamped before the average.
+                    Some(c) => {
+                        for l in &radiance[..group] {
+                            sum += l.min(glam::DVec3::splat(c));
+                        }
+                    }
                 }
                 s += group as u32;
             }
@@ -298,6 +308,70 @@ mod tests {
             <Objects><Mesh id="1"><Material>1</Material><Faces>1 2 3</Faces></Mesh></Objects></Scene>"#
         );
         load_scene_str(&xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() }).unwrap()
+    }
+
+    /// One pixel whose left half sees a surface of radiance 25 (ambient) and right half nothing,
+    /// 16 stratified samples, the camera's `ClampSamples` given by `clamp`.
+    fn half_covered_pixel(clamp: &str) -> Result<[f32; 3], crate::error::SceneError> {
+        let xml = format!(
+            r#"<Scene><Cameras><Camera id="1"><Position>0 0 5</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+              <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>1 1</ImageResolution>
+              <NumSamples>16</NumSamples>{clamp}<ImageName>a.png</ImageName></Camera></Cameras>
+            <Lights><AmbientLight>25 25 25</AmbientLight></Lights>
+            <Materials><Material id="1"><AmbientReflectance>1 1 1</AmbientReflectance></Material></Materials>
+            <VertexData>-20 -20 0  0 -20 0  0 20 0  -20 20 0</VertexData>
+            <Objects><Mesh id="1"><Material>1</Material><Faces>1 2 3  1 3 4</Faces></Mesh></Objects></Scene>"#
+        );
+        let scene =
+            load_scene_str(&xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() })?;
+        let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
+        Ok(render_tile(&scene, 0, rect, &RenderSettings::default()).0[0])
+    }
+
+    /// A square of two `Triangle`s (radiance 25) straight ahead of a one-pixel camera, each
+    /// triangle with `motion`, seen with 400 samples.
+    fn square_of_triangles(motion: &str) -> [f32; 3] {
+        let xml = format!(
+            r#"<Scene><Cameras><Camera id="1"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+              <NearPlane>-0.001 0.001 -0.001 0.001</NearPlane><NearDistance>1</NearDistance><ImageResolution>1 1</ImageResolution>
+              <NumSamples>400</NumSamples><ImageName>a.png</ImageName></Camera></Cameras>
+            <Lights><AmbientLight>25 25 25</AmbientLight></Lights>
+            <Materials><Material id="1"><AmbientReflectance>1 1 1</AmbientReflectance></Material></Materials>
+            <VertexData>-1 -1 -5  1 -1 -5  1 1 -5  -1 1 -5</VertexData>
+            <Objects><Triangle id="1"><Material>1</Material><Indices>1 2 3</Indices>{motion}</Triangle>
+              <Triangle id="2"><Material>1</Material><Indices>1 3 4</Indices>{motion}</Triangle></Objects></Scene>"#
+        );
+        let scene = load_scene_str(&xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() })
+            .unwrap();
+        let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
+        render_tile(&scene, 0, rect, &RenderSettings::default()).0[0]
+    }
+
+    /// `MotionBlur` on a `Triangle` moves it over the exposure, as it moves meshes: a square
+    /// sliding 4 units to the right leaves the pixel's line of sight once its left edge (at
+    /// x = -1) passes it, a quarter of the way through, so the pixel gets a quarter of 25.
+    #[test]
+    fn moving_triangles_cover_a_pixel_for_part_of_the_exposure() {
+        assert_eq!(square_of_triangles(""), [25.0; 3]);
+        let p = square_of_triangles("<MotionBlur>4 0 0</MotionBlur>");
+        assert!(p.iter().all(|&c| (c - 6.25).abs() < 0.5), "{p:?}");
+    }
+
+    /// 2019 `ClampSamples`: each sample is clamped before the average (8 samples of 25 clamped
+    /// to 10 and 8 of 0 give 5, where clamping the average would give 10).
+    #[test]
+    fn clamp_samples_clamps_each_sample_before_the_average() {
+        assert_eq!(half_covered_pixel("").unwrap(), [12.5; 3]);
+        assert_eq!(half_covered_pixel("<ClampSamples>10</ClampSamples>").unwrap(), [5.0; 3]);
+        assert_eq!(half_covered_pixel("<ClampSamples>100</ClampSamples>").unwrap(), [12.5; 3]);
+        for bad in ["0", "-1"] {
+            let e = half_covered_pixel(&format!("<ClampSamples>{bad}</ClampSamples>")).unwrap_err();
+            assert!(
+                e.to_string()
+                    .contains("t.xml:3: <Camera id=\"1\"> / <ClampSamples>: ClampSamples must be positive"),
+                "{e}"
+            );
+        }
     }
 
     #[test]

@@ -56,6 +56,7 @@ const LAYERS: &[(&str, &[&str])] = &[
         &[
             "scene::xml",
             "scene::json",
+            "scene::legacy_data",
             "camera",
             "material",
             "lights",

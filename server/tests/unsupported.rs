@@ -9,17 +9,19 @@ mod support;
 use support::*;
 use tessera_testkit::TempDir;
 
-/// A sphere, a mesh with 2019 binary faces (line 8) and a triangle that would move (line 10).
+/// A sphere, a mesh, a triangle and two tone-mapping operators no course material names
+/// (lines 4 and 5).
 const SCENE: &str = r#"<Scene>
 <Cameras><Camera id="1"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
 <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>24 16</ImageResolution>
-<ImageName>u.png</ImageName></Camera></Cameras>
+<ImageName>u.png</ImageName><Tonemap><TMO>Durand</TMO></Tonemap>
+<Tonemap><TMO>Drago</TMO></Tonemap></Camera></Cameras>
 <Lights><PointLight id="1"><Position>0 2 0</Position><Intensity>100 100 100</Intensity></PointLight></Lights>
 <Materials><Material id="1"><DiffuseReflectance>1 1 1</DiffuseReflectance></Material></Materials>
 <VertexData>0 0 -3 1 0 -3 0 1 -3</VertexData>
-<Objects><Mesh id="2"><Material>1</Material><Faces binaryFile="faces.bin"/></Mesh>
+<Objects><Mesh id="2"><Material>1</Material><Faces>1 2 3</Faces></Mesh>
 <Sphere id="1"><Material>1</Material><Center>1</Center><Radius>1</Radius></Sphere>
-<Triangle id="3"><Material>1</Material><Indices>1 2 3</Indices><MotionBlur>1 0 0</MotionBlur></Triangle>
+<Triangle id="3"><Material>1</Material><Indices>1 2 3</Indices></Triangle>
 </Objects>
 </Scene>
 "#;
@@ -37,7 +39,8 @@ fn unsupported_elements_are_a_422_unless_allowed_and_then_the_job_renders() {
     let problems = body["problems"].as_array().unwrap();
     let at: Vec<(u64, &str)> =
         problems.iter().map(|p| (p["line"].as_u64().unwrap(), p["element"].as_str().unwrap())).collect();
-    assert_eq!(at, [(8, "Mesh id=\"2\"> / <Faces"), (10, "Triangle id=\"3\"> / <MotionBlur")], "{body}");
+    let tmo = "Camera id=\"1\"> / <Tonemap> / <TMO";
+    assert_eq!(at, [(4, tmo), (5, tmo)], "{body}");
     assert!(problems.iter().all(|p| p["file"] == "u.xml"), "{body}");
     let (code, body) = submit(&server.url, None, &[scene, ("allow_unsupported", None, b"maybe")]);
     assert_eq!(code, 400, "{body}");
@@ -45,7 +48,7 @@ fn unsupported_elements_are_a_422_unless_allowed_and_then_the_job_renders() {
     let (code, job) = submit(&server.url, None, &[scene, ("allow_unsupported", None, b"true")]);
     assert_eq!(code, 201, "{job}");
     let warnings = job["warnings"].to_string();
-    assert!(warnings.contains("u.xml:8") && warnings.contains("u.xml:10"), "{job}");
+    assert!(warnings.contains("u.xml:4") && warnings.contains("u.xml:5"), "{job}");
     let id = job["id"].as_u64().unwrap();
     let job = wait_job(&server, id, 120, |j| j["state"] == "done");
 

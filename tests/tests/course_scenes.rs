@@ -220,49 +220,12 @@ fn scenes_with_a_missing_asset_fail_naming_it() {
     assert!(failures.is_empty(), "{} problem(s):\n{}", failures.len(), failures.join("\n"));
 }
 
-/// Course scenes with elements Tessera does not implement that change the picture (issue #17
-/// item 5): (scene, the first such element's line and element). Strictly loaded, each fails
-/// naming it; allowed, each loads (the elements become warnings) and its centre tile renders.
-/// VeachAjar_2019's two image textures ask for `<Appearance>clamp</Appearance>` (Tessera
-/// repeats); sponza's meshes are 2019 binary files with 0-based indices (nothing left to draw).
-const UNSUPPORTED: &[(&str, u32, &str)] =
-    &[("VeachAjar_2019", 151, "Texture id=\"1\"> / <Appearance"), ("sponza", 6, "ZeroBasedIndexing")];
-
+/// No course scene, in either dialect, is refused by default (every element of the format is
+/// implemented: a scene loads strictly, or fails only for an asset the corpus lacks); and the
+/// build warns about epsilons no scene means (negative, or beyond a tenth of the objects'
+/// extent), which no course scene gets.
 #[test]
-fn course_scenes_with_unsupported_elements_fail_unless_allowed() {
-    let Some(xml) = corpus_xml() else { return };
-    let mut checked = 0;
-    for &(name, line, element) in UNSUPPORTED {
-        let path = xml.join(format!("{name}.xml"));
-        if !path.exists() {
-            eprintln!("not in the corpus, skipped: {}", path.display());
-            continue;
-        }
-        let Err(e) = load_scene_file(&path) else { panic!("{name} loaded with unsupported elements") };
-        assert_eq!((e.loc.line, e.loc.element.as_deref()), (Some(line), Some(element)), "{name}: {e}");
-        assert!(e.to_string().contains("--allow-unsupported"), "{e}");
-        if name == "sponza" {
-            // Not rendered: without its binary meshes nothing is left to draw.
-            checked += 1;
-            continue;
-        }
-        let scene =
-            load_scene_file_with(&path, LoadOptions::ALLOW_UNSUPPORTED).unwrap_or_else(|e| panic!("{e}"));
-        assert!(scene.warnings.iter().any(|w| w.unsupported && w.loc.line == Some(line)), "{name}");
-        let cam = &scene.cameras[0];
-        let rect = centre_tile(cam.width, cam.height, 8);
-        let (px, _) =
-            render_tile(&scene, 0, rect, &RenderSettings { samples: Some(1), ..RenderSettings::default() });
-        assert_eq!(px.len(), (rect.width * rect.height) as usize);
-        checked += 1;
-    }
-    assert!(checked > 0, "no scene of the table was found in {}", xml.display());
-}
-
-/// The build warns about epsilons no scene means (negative, or beyond a tenth of the objects'
-/// extent); no course scene, in either dialect, gets such a warning.
-#[test]
-fn no_course_scene_draws_an_epsilon_warning() {
+fn no_course_scene_is_refused_or_draws_an_epsilon_warning() {
     let root = tessera_tests::shared_scenes();
     if corpus_xml().is_none() {
         return;
@@ -271,14 +234,25 @@ fn no_course_scene_draws_an_epsilon_warning() {
     files.extend(tessera_tests::scene_files(&root.join("json")));
     let mut loaded = 0;
     let mut warned = Vec::new();
+    let mut refused = Vec::new();
     for path in &files {
         // Scenes whose assets are missing from the corpus fail to load (tested elsewhere).
-        let Ok(scene) = load_scene_file_with(path, LoadOptions::ALLOW_UNSUPPORTED) else { continue };
+        let scene = match load_scene_file_with(path, LoadOptions::STRICT) {
+            Ok(scene) => scene,
+            Err(e) => {
+                if e.to_string().contains("--allow-unsupported") {
+                    refused.push(e.to_string());
+                }
+                continue;
+            }
+        };
+        assert!(scene.warnings.iter().all(|w| !w.unsupported), "{}: {:?}", path.display(), scene.warnings);
         loaded += 1;
         warned
             .extend(scene.warnings.iter().filter(|w| w.message.contains("Epsilon")).map(ToString::to_string));
     }
     eprintln!("{loaded} of {} scene files loaded", files.len());
+    assert!(refused.is_empty(), "refused:\n{}", refused.join("\n"));
     assert!(warned.is_empty(), "{}", warned.join("\n"));
     assert!(loaded >= 100, "only {loaded} of {} scene files loaded", files.len());
 }

@@ -46,8 +46,9 @@ enum Command {
     /// it has none); .hdr the same with Radiance RGBE. Assets (PLY files, images) are found
     /// relative to the scene file. Warnings about the scene go to stderr; a summary line per
     /// camera goes to stdout. A scene that uses elements Tessera does not implement and that
-    /// would change the picture (binary faces, 0-based indices, a clamped texture, ...) is
-    /// refused, every such element named with its line, unless --allow-unsupported.
+    /// would change the picture (every element of the course format is implemented; today only
+    /// a tone-mapping operator no course material names) is refused, every such element named
+    /// with its line, unless --allow-unsupported.
     ///
     /// Example: tessera-worker render scenes/cornell_box.xml --out out/
     Render {

@@ -51,12 +51,14 @@ pub struct Instance {
     pub textures: ObjectTextures,
 }
 
-/// The texture maps of an object (§11.1): up to two that change its coefficients (wood_box
-/// pairs a replace_kd map with a replace_ks map), applied in order, and one that changes its
-/// normal.
+/// The texture maps of an object (§11.1): those that change its coefficients (wood_box pairs a
+/// replace_kd map with a replace_ks map), applied in order — the first two here, any further
+/// ones in the scene's `more_colour_maps` list `more_colour` — and the one that changes its
+/// normal (the last such map the object names).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ObjectTextures {
     pub colour: [Option<u32>; 2],
+    pub more_colour: Option<u32>,
     pub normal: Option<u32>,
 }
 
@@ -1760,7 +1762,7 @@ mod tests {
         assert!(fast.lone.is_some() && fast.merged.is_empty());
         assert_eq!(fast.planes.len(), sheet.triangle_count(), "a plane per triangle of the lone mesh");
         assert!(lone(true, ObjectTextures::default()).planes.is_empty(), "smooth: no planes");
-        let textured = ObjectTextures { colour: [Some(0), None], normal: None };
+        let textured = ObjectTextures { colour: [Some(0), None], ..ObjectTextures::default() };
         assert!(lone(false, textured).planes.is_empty(), "textured: no planes");
         let mut general = lone(false, ObjectTextures::default());
         general.planes.clear();

@@ -271,7 +271,9 @@ impl Lighting<'_> {
         // The directions first, for every point (each starts loading what its lookup reads),
         // then the shadow rays, then radiance and pdf: the cache misses overlap each other and
         // the traversal, and a blocked ray needs no lookup.
-        if env && let Some(light) = &scene.env_light {
+        // Every environment light, the first (the one rays that miss see) first: each draws its
+        // own directions.
+        for light in scene.env_light.iter().chain(&scene.extra_env_lights).filter(|_| env) {
             let xi = draw_env::<N>(rngs, live, EnvLight::requests(self.env_sampler));
             let mut dirs = EnvDirections::NONE;
             light.sample_directions(&views.n, self.env_sampler, &xi, live, &mut dirs);

@@ -62,12 +62,6 @@ impl Ctx<'_> {
         warnings.push(Warning::new(&self.rec.source, loc.clone(), message));
     }
 
-    /// The same for something the scene asks for that is not implemented and whose absence
-    /// changes the picture ([`Warning::unsupported`]: the loaders refuse it unless allowed).
-    fn unsupported(&self, warnings: &mut Vec<Warning>, loc: &Loc, message: impl Into<String>) {
-        warnings.push(Warning::unsupported(&self.rec.source, loc.clone(), message));
-    }
-
     fn material(&self, ids: &HashMap<&str, u32>, id: &str, loc: &Loc) -> Result<u32, SceneError> {
         ids.get(id).copied().ok_or_else(|| {
             self.err(loc, format!("material \"{id}\" is not defined; add <Material id=\"{id}\"> under <Materials> or use an existing id"))
@@ -198,12 +192,15 @@ struct ResolvedInstance {
     world: DAffine3,
     material: u32,
     smooth: bool,
+    /// The MeshInstance record whose `Textures` it shows (the nearest in its chain that has
+    /// some); `None`: its Mesh's.
+    textures_from: Option<usize>,
 }
 
 /// Resolves every MeshInstance: `baseMeshId` names a Mesh, or else another MeshInstance (the
 /// course files use one id space for both). Without `resetTransform` the instance's own
-/// transformations apply on top of its base's world transform; the material and smooth shading
-/// are inherited unless the instance sets them. Cycles are errors.
+/// transformations apply on top of its base's world transform; the material, the texture maps
+/// and smooth shading are inherited unless the instance sets them. Cycles are errors.
 fn resolve_instances(
     ctx: &Ctx,
     mat_ids: &HashMap<&str, u32>,
@@ -243,6 +240,7 @@ fn resolve_instances(
                     world: mesh_world[m],
                     material: ctx.material(mat_ids, &mesh.material, &mesh.loc)?,
                     smooth: mesh.shading == ShadingMode::Smooth,
+                    textures_from: None,
                 };
             }
             match inst_index.get(inst.base_mesh.as_str()) {
@@ -267,6 +265,7 @@ fn resolve_instances(
                         None => base.material,
                     },
                     smooth: base.smooth || inst.shading == Some(ShadingMode::Smooth),
+                    textures_from: if inst.textures.is_empty() { base.textures_from } else { Some(i) },
                 };
                 done[i] = Some(r);
             }
@@ -297,6 +296,7 @@ fn load_mesh_data(
             .get(path)
             .cloned()
             .unwrap_or_else(|| Err(ctx.err(&mesh.faces_loc, "internal: PLY not loaded"))),
+        FacesRec::Binary { .. } => Err(ctx.err(&mesh.faces_loc, "internal: binary faces not read")),
         FacesRec::Inline { indices, vertex_offset, .. } => {
             if indices.len() % 3 != 0 {
                 return Err(ctx.err(
@@ -312,7 +312,7 @@ fn load_mesh_data(
             // index + textureOffset, or the vertex id itself (§8.4).
             let texture_offset = match &mesh.faces {
                 FacesRec::Inline { texture_offset, .. } => *texture_offset,
-                FacesRec::Ply { .. } => None,
+                FacesRec::Ply { .. } | FacesRec::Binary { .. } => None,
             };
             let tex = &ctx.rec.tex_coords;
             let mut with_uvs = !tex.is_empty();
@@ -378,11 +378,15 @@ fn load_ply(ctx: &Ctx, path: &str, loc: &Loc) -> Result<Arc<MeshData>, SceneErro
 }
 
 /// Whether an object's maps include an image (which needs texture coordinates).
-fn uses_image(maps: &[TextureMap], t: &ObjectTextures) -> bool {
+fn uses_image(textures: &BuiltTextures, t: &ObjectTextures) -> bool {
+    let more = t.more_colour.map_or(Vec::new(), |i| {
+        textures.more_colour.lock().map(|m| m[i as usize].clone()).unwrap_or_default()
+    });
     [t.colour[0], t.colour[1], t.normal]
         .into_iter()
         .flatten()
-        .any(|k| matches!(maps[k as usize].source, Source::Image { .. }))
+        .chain(more)
+        .any(|k| matches!(textures.maps[k as usize].source, Source::Image { .. }))
 }
 
 /// Texture maps ready for shading, by position, and how the scene's ids find them.
@@ -391,6 +395,10 @@ struct BuiltTextures<'a> {
     ids: HashMap<&'a str, u32>,
     background: Option<u32>,
     env_light: Option<EnvLight>,
+    extra_env_lights: Vec<EnvLight>,
+    /// Objects' colour maps after their first two (`ObjectTextures::more_colour`), filled as
+    /// objects are placed.
+    more_colour: std::sync::Mutex<Vec<Vec<u32>>>,
 }
 
 /// Step 4: decodes every image a texture map or the environment light uses (each file once, in
@@ -414,7 +422,7 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
             want(img, format!("texture map {}", m.id));
         }
     }
-    if let Some(l) = rec.env_lights.first() {
+    for l in &rec.env_lights {
         let img = image_recs.get(l.image.as_str()).ok_or_else(|| {
             ctx.err(
                 &l.loc,
@@ -465,14 +473,23 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
         .par_iter()
         .map(|&path| (path, Arc::new(MipChain::new(by_path[path].clone()))))
         .collect();
-    let env_light = rec
+    let mut env_lights = rec
         .env_lights
-        .first()
+        .iter()
         .map(|l| EnvLight::new(by_path[&image_recs[l.image.as_str()].path].clone(), l.mapping, l.sampler));
-    let mut out = BuiltTextures { maps: Vec::new(), ids: HashMap::new(), background: None, env_light };
+    let env_light = env_lights.next();
+    let extra_env_lights = env_lights.collect();
+    let mut out = BuiltTextures {
+        maps: Vec::new(),
+        ids: HashMap::new(),
+        background: None,
+        env_light,
+        extra_env_lights,
+        more_colour: Default::default(),
+    };
     for m in &rec.texture_maps {
         let source = match &m.source {
-            TextureSource::Image { image, interpolation, normalizer } => {
+            TextureSource::Image { image, interpolation, normalizer, clamp } => {
                 let path = &image_recs[image.as_str()].path;
                 if *normalizer == 0.0 {
                     return Err(ctx.err(&m.loc, "Normalizer must not be 0"));
@@ -485,14 +502,19 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
                     },
                     interpolation: *interpolation,
                     normalizer: *normalizer,
+                    clamp: *clamp,
                 }
             }
-            TextureSource::Perlin { conversion, scale } => {
-                Source::Perlin { conversion: *conversion, scale: *scale }
+            TextureSource::Perlin { conversion, scale, octaves } => {
+                Source::Perlin { conversion: *conversion, scale: *scale, octaves: *octaves }
             }
-            TextureSource::Checkerboard { black, white, scale, offset } => {
-                Source::Checkerboard { black: v3(*black), white: v3(*white), scale: *scale, offset: *offset }
-            }
+            TextureSource::Checkerboard { black, white, scale, offset, dimension3 } => Source::Checkerboard {
+                black: v3(*black),
+                white: v3(*white),
+                scale: *scale,
+                offset: *offset,
+                dimension3: *dimension3,
+            },
         };
         if out.ids.contains_key(m.id.as_str()) {
             ctx.warn(
@@ -517,7 +539,8 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
 }
 
 impl BuiltTextures<'_> {
-    /// Sorts an object's `<Textures>` ids into its colour map and its normal map (§11.1).
+    /// Sorts an object's `<Textures>` ids into its colour maps, applied in the order given, and
+    /// its normal map, the last one given (§11.1).
     fn for_object(
         &self,
         ctx: &Ctx,
@@ -526,6 +549,7 @@ impl BuiltTextures<'_> {
         warnings: &mut Vec<Warning>,
     ) -> Result<ObjectTextures, SceneError> {
         let mut t = ObjectTextures::default();
+        let mut colour = Vec::new();
         for id in ids {
             let k = *self.ids.get(id.as_str()).ok_or_else(|| {
                 ctx.err(
@@ -533,31 +557,23 @@ impl BuiltTextures<'_> {
                     format!("texture \"{id}\" is not defined; add <TextureMap id=\"{id}\"> under <Textures>"),
                 )
             })?;
-            let slot = match self.maps[k as usize].decal {
-                DecalMode::ReplaceNormal | DecalMode::BumpNormal => {
-                    if t.normal.is_none() {
-                        Some(&mut t.normal)
-                    } else {
-                        None
-                    }
-                }
+            match self.maps[k as usize].decal {
+                // The last normal or bump map wins (the course material has no object with two).
+                DecalMode::ReplaceNormal | DecalMode::BumpNormal => t.normal = Some(k),
                 DecalMode::ReplaceBackground => {
                     ctx.warn(warnings, loc, format!("texture {id} is a replace_background map; it applies to the background, not to this object"));
-                    continue;
                 }
-                _ => t.colour.iter_mut().find(|c| c.is_none()),
-            };
-            match slot {
-                Some(slot) => *slot = Some(k),
-                None => ctx.unsupported(
-                    warnings,
-                    loc,
-                    format!(
-                        "texture {id} is one texture too many: an object takes one normal map and two \
-                         colour maps (§11.1); without it, the object has the first ones"
-                    ),
-                ),
+                _ => colour.push(k),
             }
+        }
+        for (slot, &k) in t.colour.iter_mut().zip(&colour) {
+            *slot = Some(k);
+        }
+        if colour.len() > 2 {
+            let mut more =
+                self.more_colour.lock().map_err(|_| ctx.err(loc, "internal: texture lists poisoned"))?;
+            t.more_colour = Some(more.len() as u32);
+            more.push(colour[2..].to_vec());
         }
         Ok(t)
     }
@@ -621,6 +637,8 @@ fn placed_cameras(
 /// parser's.
 pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<Scene, SceneError> {
     let started = Instant::now();
+    let legacy = super::legacy_data::legacy_data(rec, resolver)?;
+    let rec: &SceneRecords = &legacy;
     let ctx = Ctx { rec, resolver };
     let mut warnings: Vec<Warning> = rec.warnings.clone();
 
@@ -665,6 +683,8 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         object_lights,
         instance_emission,
         env_light: textures.env_light,
+        extra_env_lights: textures.extra_env_lights,
+        more_colour_maps: textures.more_colour.into_inner().unwrap_or_default(),
         materials,
         cameras,
         accel,
@@ -948,7 +968,7 @@ impl Objects<'_, '_> {
         }
         for (i, m) in rec.meshes.iter().enumerate() {
             let material = ctx.material(self.mat_ids, &m.material, &m.loc)?;
-            if uses_image(&self.textures.maps, &mesh_textures[i]) && geoms[i].uvs.is_none() {
+            if uses_image(self.textures, &mesh_textures[i]) && geoms[i].uvs.is_none() {
                 ctx.warn(warnings, &m.loc, "an image texture is applied but the mesh has no texture coordinates (TexCoordData or PLY u v); it is sampled at the barycentric coordinates");
             }
             if let Some(r) = m.radiance {
@@ -967,12 +987,24 @@ impl Objects<'_, '_> {
             });
         }
         for (r, inst) in resolved.iter().zip(&rec.instances) {
+            // An instance's own `Textures` replace its base mesh's.
+            let textures = match r.textures_from {
+                None => mesh_textures[r.mesh],
+                Some(k) => {
+                    let own = &rec.instances[k];
+                    let t = self.textures.for_object(ctx, &own.textures, &own.loc, warnings)?;
+                    if uses_image(self.textures, &t) && geoms[r.mesh].uvs.is_none() {
+                        ctx.warn(warnings, &own.loc, "an image texture is applied but the base mesh has no texture coordinates (TexCoordData or PLY u v); it is sampled at the barycentric coordinates");
+                    }
+                    t
+                }
+            };
             instances.push(Instance {
                 shape: Shape::Mesh { mesh: r.mesh as u32, smooth: r.smooth },
                 material: r.material,
                 transform: ctx.make_transform(r.world, &inst.loc)?,
                 motion: motion(inst.motion_blur),
-                textures: mesh_textures[r.mesh],
+                textures,
             });
         }
         for t in &rec.triangles {
@@ -1024,7 +1056,7 @@ impl Objects<'_, '_> {
             .map(|&g| rec.tex_coords.get(g as usize).map(|t| DVec2::from_array(*t)))
             .collect::<Option<Vec<_>>>();
         let object_textures = self.textures.for_object(ctx, &t.textures, &t.loc, warnings)?;
-        if uvs.is_none() && uses_image(&self.textures.maps, &object_textures) {
+        if uvs.is_none() && uses_image(self.textures, &object_textures) {
             ctx.warn(warnings, &t.loc, "an image texture is applied but <TexCoordData> has no entry for its vertices; it is sampled at the barycentric coordinates");
         }
         let geom = Arc::new(MeshGeom::with_uvs(positions, indices, None, uvs));
@@ -1032,7 +1064,7 @@ impl Objects<'_, '_> {
             shape: Shape::Mesh { mesh, smooth: false },
             material,
             transform: ctx.make_transform(world, &t.loc)?,
-            motion: None,
+            motion: motion(t.motion_blur),
             textures: object_textures,
         };
         Ok(Some((geom, instance)))
@@ -1167,6 +1199,42 @@ mod tests {
         <MeshInstance id="4" baseMeshId="3" resetTransform="true"><Transformations>t2</Transformations></MeshInstance>
       </Objects></Scene>"#;
 
+    /// `Textures` on a MeshInstance replace its base mesh's; an instance without any keeps its
+    /// base's, through a chain of instances.
+    #[test]
+    fn an_instance_s_own_textures_replace_its_base_s() {
+        let scene = build(
+            r#"<Scene>
+      <Materials><Material id="1"/></Materials>
+      <Textures>
+        <TextureMap id="red" type="checkerboard"><DecalMode>replace_kd</DecalMode><BlackColor>1 0 0</BlackColor><WhiteColor>1 0 0</WhiteColor></TextureMap>
+        <TextureMap id="blue" type="checkerboard"><DecalMode>replace_kd</DecalMode><BlackColor>0 0 1</BlackColor><WhiteColor>0 0 1</WhiteColor></TextureMap>
+      </Textures>
+      <VertexData>-1 -1 0  1 -1 0  0 1 0</VertexData>
+      <Objects>
+        <Mesh id="1"><Material>1</Material><Textures>red</Textures><Faces>1 2 3</Faces></Mesh>
+        <MeshInstance id="2" baseMeshId="1"></MeshInstance>
+        <MeshInstance id="3" baseMeshId="1"><Textures>blue</Textures></MeshInstance>
+        <MeshInstance id="4" baseMeshId="3"></MeshInstance>
+      </Objects></Scene>"#,
+        )
+        .unwrap();
+        let colour = |i: usize| {
+            let t = scene.accel.instances[i].textures;
+            assert!(t.colour[1].is_none() && t.normal.is_none());
+            let map = &scene.textures[t.colour[0].expect("a colour map") as usize];
+            let p = crate::texture::maps::TexturePoint {
+                uv: glam::DVec2::ZERO,
+                object: DVec3::splat(0.5),
+                footprint: glam::DVec2::ZERO,
+            };
+            map.value(&p)
+        };
+        let (red, blue) = (DVec3::X, DVec3::Z);
+        // The mesh, the instance without textures, the one with its own, and its instance.
+        assert_eq!([colour(0), colour(1), colour(2), colour(3)], [red, red, blue, blue]);
+    }
+
     /// A material's BRDF must exist; a LightMesh and a LightSphere become object lights with
     /// their instances' radiance, in file order; a light of no area shows but does not light.
     #[test]
@@ -1269,6 +1337,76 @@ mod tests {
         let unknown = CHAIN.replace(r#"baseMeshId="3""#, r#"baseMeshId="9""#);
         let e = build(&unknown).err().expect("an unknown base must fail").to_string();
         assert!(e.contains(r#"baseMeshId="9""#) && e.contains("t.xml:"), "{e}");
+    }
+
+    /// A 2019 binary file: the int32 count, then the records' 32-bit words, little-endian.
+    fn binary(count: i32, words: &[[u8; 4]]) -> Vec<u8> {
+        let mut out = count.to_le_bytes().to_vec();
+        words.iter().for_each(|w| out.extend(w));
+        out
+    }
+
+    /// 2019 `binaryFile` vertices, texture coordinates and faces, and `ZeroBasedIndexing`
+    /// (faces and a Triangle's Indices count from 0): a square of a binary-faced mesh and a
+    /// Triangle, each hit where its vertices put it, with the binary uvs (the mesh has a map, so
+    /// its hits carry them).
+    #[test]
+    fn binary_data_and_zero_based_indexing() {
+        let dir = tessera_testkit::TempDir::new("build-binary");
+        let f = |v: f32| v.to_le_bytes();
+        let verts: Vec<[u8; 4]> =
+            [-1.0, -1.0, -5.0, 1.0, -1.0, -5.0, 1.0, 1.0, -5.0, -1.0, 1.0, -5.0].map(f).to_vec();
+        let uvs: Vec<[u8; 4]> = [0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0, 1.0].map(f).to_vec();
+        std::fs::write(dir.join("v.bin"), binary(4, &verts)).unwrap();
+        std::fs::write(dir.join("uv.bin"), binary(4, &uvs)).unwrap();
+        std::fs::write(dir.join("f.bin"), binary(1, &[0i32, 1, 2].map(i32::to_le_bytes))).unwrap();
+        // A count beyond the data.
+        std::fs::write(dir.join("short.bin"), binary(2, &[0i32, 1, 2].map(i32::to_le_bytes))).unwrap();
+        let xml = |zero_based: &str, faces: &str| {
+            format!(
+                r#"<Scene>
+<ZeroBasedIndexing>{zero_based}</ZeroBasedIndexing>
+<Materials><Material id="1"/></Materials><Textures><TextureMap id="c" type="checkerboard"><DecalMode>replace_kd</DecalMode></TextureMap></Textures>
+<VertexData binaryFile="v.bin"/>
+<TexCoordData binaryFile="uv.bin"/>
+<Objects>
+<Mesh id="1"><Material>1</Material><Textures>c</Textures><Faces binaryFile="{faces}"/></Mesh>
+<Triangle id="1"><Material>1</Material><Indices>0 2 3</Indices></Triangle>
+</Objects></Scene>"#
+            )
+        };
+        let build_at = |text: &str| {
+            let rec = crate::scene::xml::parse_xml(text, &dir.join("s.xml"))?;
+            build_scene(&rec, &FsResolver { base_dir: dir.to_path_buf() })
+        };
+        let scene = build_at(&xml("true", "f.bin")).unwrap();
+        assert!(scene.warnings.iter().all(|w| !w.unsupported), "{:?}", scene.warnings);
+        let hit = |x: f64, y: f64| {
+            scene.accel.intersect(&Ray::new(DVec3::new(x, y, 0.0), DVec3::NEG_Z), 1e-9, 1e9).expect("a hit")
+        };
+        let h = hit(0.5, -0.5);
+        assert_eq!(h.instance, 0);
+        assert!((h.t - 5.0).abs() < 1e-9);
+        assert!((h.uv - DVec2::new(0.75, 0.25)).length() < 1e-6, "{:?}", h.uv);
+        let h = hit(-0.5, 0.5);
+        assert_eq!(h.instance, 1);
+        assert!((h.t - 5.0).abs() < 1e-9);
+        // Read 1-based, vertex 0 does not exist.
+        let e = build_at(&xml("false", "f.bin")).err().expect("vertex 0 is an error 1-based");
+        assert!(
+            e.to_string().contains("s.xml:7: <Mesh id=\"1\"> / <Faces>: face 1 refers to vertex 0"),
+            "{e}"
+        );
+        // A missing or truncated file is an error naming the element's line and the file.
+        let e = build_at(&xml("true", "none.bin")).err().expect("a missing file");
+        assert!(e.to_string().contains("s.xml:7: <Mesh id=\"1\"> / <Faces>: cannot read binary file"), "{e}");
+        assert!(e.to_string().contains("none.bin"), "{e}");
+        let e = build_at(&xml("true", "short.bin")).err().expect("a truncated file");
+        assert!(
+            e.to_string()
+                .contains("says it holds 2 triangles of 3 int32 vertex ids, but it is 16 bytes long"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -10,6 +10,7 @@
 pub mod build;
 pub mod elements;
 pub mod json;
+pub mod legacy_data;
 pub mod load;
 pub mod records;
 pub mod tree;
@@ -58,9 +59,15 @@ pub struct Scene {
     /// The radiance each instance emits from its front, by instance index: `None` for objects
     /// that are not lights. Empty when the scene has no object lights.
     pub instance_emission: Vec<Option<DVec3>>,
-    /// The environment light (HW5), if any: lights the scene and is what rays that miss see.
-    /// (A second `SphericalDirectionalLight` is warned about and ignored.)
+    /// The colour maps of objects with more than two, after their first two
+    /// ([`crate::geometry::ObjectTextures::more_colour`]).
+    pub more_colour_maps: Vec<Vec<u32>>,
+    /// The environment light (HW5), if any: the first `SphericalDirectionalLight`, which lights
+    /// the scene and is what rays that miss see.
     pub env_light: Option<EnvLight>,
+    /// The scene's further `SphericalDirectionalLight`s: each lights the scene like the first
+    /// (one sampled direction per shading event), none is seen.
+    pub extra_env_lights: Vec<EnvLight>,
     pub materials: Vec<Material>,
     pub cameras: Vec<Camera>,
     pub accel: Accel,

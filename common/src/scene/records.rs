@@ -51,6 +51,14 @@ pub struct SceneRecords {
     /// Global texture coordinates (`TexCoordData`), parallel to `vertices`: id `k` is
     /// `tex_coords[k - 1]`.
     pub tex_coords: Vec<[f64; 2]>,
+    /// 2019 `<VertexData binaryFile>` and `<TexCoordData binaryFile>` (§8.2, §8.4): the values
+    /// come from these files, read when the scene is built, in place of `vertices` and
+    /// `tex_coords`.
+    pub vertex_file: Option<BinaryFileRec>,
+    pub tex_coord_file: Option<BinaryFileRec>,
+    /// 2019 `<ZeroBasedIndexing>true`: the vertex ids of faces (inline and binary) and of
+    /// `Triangle` `Indices` count from 0; the build turns them 1-based.
+    pub zero_based_indexing: bool,
     /// `Textures/Images/Image`: image files by id (HW4).
     pub images: Vec<ImageRec>,
     /// `Textures/TextureMap` (and 2019 `<Texture>` elements, translated).
@@ -88,6 +96,9 @@ impl SceneRecords {
             brdfs: Vec::new(),
             vertices: Vec::new(),
             tex_coords: Vec::new(),
+            vertex_file: None,
+            tex_coord_file: None,
+            zero_based_indexing: false,
             images: Vec::new(),
             texture_maps: Vec::new(),
             transformations: Vec::new(),
@@ -135,6 +146,9 @@ pub struct CameraRec {
     pub handedness: Handedness,
     /// `NumSamples`, default 1.
     pub num_samples: u32,
+    /// 2019 `ClampSamples`: each sample's radiance is clamped to at most this, per channel,
+    /// before the pixel's samples are averaged (`None`: not clamped).
+    pub clamp_samples: Option<f64>,
     /// Thin-lens depth of field: `FocusDistance` and `ApertureSize` (side of the square lens).
     /// Both present and the aperture positive, or the camera is a pinhole.
     pub lens: Option<LensRec>,
@@ -410,12 +424,15 @@ pub enum DecalMode {
 
 #[derive(Clone, Debug, PartialEq)]
 pub enum TextureSource {
-    /// `type="image"`: `ImageId`, `Interpolation` (default bilinear), `Normalizer` (default 255).
-    Image { image: String, interpolation: Interpolation, normalizer: f64 },
-    /// `type="perlin"`: `NoiseConversion` (default linear), `NoiseScale` (default 1).
-    Perlin { conversion: NoiseConversion, scale: f64 },
-    /// `type="checkerboard"`: colours used as they are, `Scale`, `Offset`.
-    Checkerboard { black: Vec3, white: Vec3, scale: f64, offset: f64 },
+    /// `type="image"`: `ImageId`, `Interpolation` (default bilinear), `Normalizer` (default 255);
+    /// `clamp`: the 2019 `<Appearance>clamp` (clamp-to-edge addressing instead of repeat).
+    Image { image: String, interpolation: Interpolation, normalizer: f64, clamp: bool },
+    /// `type="perlin"`: `NoiseConversion` (default linear), `NoiseScale` (default 1),
+    /// `NumOctaves` (default 1; a fractal sum, see [`crate::texture::maps::fractal_noise`]).
+    Perlin { conversion: NoiseConversion, scale: f64, octaves: u32 },
+    /// `type="checkerboard"`: colours used as they are, `Scale`, `Offset`; `dimension3` false
+    /// (2019 `<Dimension3>false`) makes it a 2-D checkerboard in the texture coordinates.
+    Checkerboard { black: Vec3, white: Vec3, scale: f64, offset: f64, dimension3: bool },
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -484,6 +501,17 @@ pub enum FacesRec {
     Inline { indices: Vec<i64>, vertex_offset: i64, texture_offset: Option<i64> },
     /// `plyFile="..."`, as written in the scene (resolved against the scene's directory at build time).
     Ply { path: String },
+    /// 2019 `binaryFile="..."` (§8.4): little-endian `int32 T`, then `T×3 int32` vertex ids,
+    /// read at build time; they then count like inline ids, offsets included.
+    Binary { path: String, vertex_offset: i64, texture_offset: Option<i64> },
+}
+
+/// A 2019 `binaryFile` of vertex or texture-coordinate data: little-endian `int32 N`, then
+/// `N` records of 3 (vertices) or 2 (uv) `float32`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BinaryFileRec {
+    pub path: String,
+    pub loc: Loc,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -514,6 +542,8 @@ pub struct TriangleRec {
     pub indices: [i64; 3],
     pub transforms: Vec<TransformRef>,
     pub textures: Vec<String>,
+    /// `MotionBlur`: world-space translation over the exposure, as for meshes.
+    pub motion_blur: Option<Vec3>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -562,4 +592,6 @@ pub struct InstanceRec {
     pub shading: Option<ShadingMode>,
     /// The instance's own `MotionBlur`; it does not inherit its base's (§9.4).
     pub motion_blur: Option<Vec3>,
+    /// `Textures` on the instance: they replace its base's (empty: the base's are kept).
+    pub textures: Vec<String>,
 }

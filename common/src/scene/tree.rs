@@ -24,6 +24,9 @@ pub(super) type Result<T> = std::result::Result<T, SceneError>;
 /// shipped JSON scenes that give a depth give.
 pub const DEFAULT_MAX_RECURSION_DEPTH: u32 = 6;
 
+/// `true` / `false` element text (2019 `<ZeroBasedIndexing>`, `<Dimension3>`).
+pub(super) const BOOLEANS: &[(&str, bool)] = &[("true", true), ("false", false)];
+
 /// Which front end built the [`Node`] tree: only changes how messages name elements.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum Dialect {

@@ -150,6 +150,7 @@ fn simple_scene_gives_the_expected_records() {
         image_name: "simple.png".into(),
         handedness: Handedness::Right,
         num_samples: 1,
+        clamp_samples: None,
         lens: None,
         tonemaps: Vec::new(),
         renderer: Default::default(),
@@ -188,6 +189,7 @@ fn simple_scene_gives_the_expected_records() {
         indices: [1, 2, 3],
         transforms: vec![],
         textures: vec![],
+        motion_blur: None,
     });
     expected.spheres.push(SphereRec {
         id: "1".into(),
@@ -217,6 +219,7 @@ fn distribution_elements() {
   <Mesh id="1"><Material>1</Material><Faces>1 1 1</Faces><MotionBlur>0 0 4</MotionBlur></Mesh>
   <MeshInstance id="2" baseMeshId="1"><MotionBlur>1 2 3</MotionBlur></MeshInstance>
   <Sphere id="1"><Material>1</Material><Center>1</Center><Radius>1</Radius><MotionBlur>3 0 0</MotionBlur></Sphere>
+  <Triangle id="1"><Material>1</Material><Indices>1 1 1</Indices><MotionBlur>0 5 0</MotionBlur></Triangle>
 </Objects></Scene>"#,
     );
     assert!(rec.warnings.is_empty(), "{:?}", rec.warnings);
@@ -231,6 +234,7 @@ fn distribution_elements() {
     assert_eq!(rec.meshes[0].motion_blur, Some([0.0, 0.0, 4.0]));
     assert_eq!(rec.instances[0].motion_blur, Some([1.0, 2.0, 3.0]));
     assert_eq!(rec.spheres[0].motion_blur, Some([3.0, 0.0, 0.0]));
+    assert_eq!(rec.triangles[0].motion_blur, Some([0.0, 5.0, 0.0]));
     // Aperture 0 is a pinhole; a zero area-light normal or size is an error.
     let pinhole =
         parse(&SIMPLE.replace(
@@ -814,9 +818,6 @@ fn entities_and_cdata_are_text() {
     assert_eq!((c.width, c.height, c.image_name.as_str()), (2, 1, "a&b.png"));
 }
 
-const BINARY_DATA: &str =
-    "without it, these values are read from the element's text (2019 binary data is not read)";
-
 #[test]
 fn unknown_and_unsupported_elements_are_warnings() {
     let w = |line: u32, element: &str, message: &str| {
@@ -831,12 +832,8 @@ fn unknown_and_unsupported_elements_are_warnings() {
                      <MeshInstance id=\"2\" baseMeshId=\"1\"><Textures>1</Textures></MeshInstance>\n</Objects>"
             )),
             &[
+                // An instance's own <Textures> are read (they replace its base's).
                 &w(4, r#"Sphere id="1"> / <Radiuss"#, "unknown element <Radiuss>; it is ignored"),
-                &w(
-                    6,
-                    r#"MeshInstance id="2"> / <Textures"#,
-                    "<Textures> is not supported yet; without it, the instance has its base mesh's textures",
-                ),
             ],
         ),
         (
@@ -867,24 +864,13 @@ fn unknown_and_unsupported_elements_are_warnings() {
                 &w(3, r#"Material id="1"> / <Position"#, "unknown element <Position>; it is ignored"),
             ],
         ),
+        // 2019 binary data is read when the scene is built: no warning.
         (
             &scene(
-                "<VertexData binaryFile=\"geometry/vertices.bin\"/>\n<TexCoordData binaryFile=\"geometry/uvs.bin\"/>",
+                "<VertexData binaryFile=\"geometry/vertices.bin\"/>\n<TexCoordData binaryFile=\"geometry/uvs.bin\"/>\n\
+                 <Objects>\n<Mesh id=\"1\"><Material>1</Material><Faces binaryFile=\"0_face.bin\"/></Mesh>\n</Objects>",
             ),
-            &[
-                &w(2, "VertexData", &format!("attribute binaryFile is not supported yet; {BINARY_DATA}")),
-                &w(3, "TexCoordData", &format!("attribute binaryFile is not supported yet; {BINARY_DATA}")),
-            ],
-        ),
-        (
-            &scene(
-                "<Objects>\n<Mesh id=\"1\"><Material>1</Material><Faces binaryFile=\"0_face.bin\"/></Mesh>\n</Objects>",
-            ),
-            &[&w(
-                3,
-                r#"Mesh id="1"> / <Faces"#,
-                "<Faces binaryFile> (2019 binary faces) is not supported yet; without it, the mesh is left out of the picture",
-            )],
+            &[],
         ),
         (
             &scene(
@@ -931,7 +917,7 @@ fn map(id: &str, loc: Loc, source: TextureSource, decal: DecalMode) -> TextureMa
 }
 
 fn image_source(image: &str, interpolation: Interpolation, normalizer: f64) -> TextureSource {
-    TextureSource::Image { image: image.into(), interpolation, normalizer }
+    TextureSource::Image { image: image.into(), interpolation, normalizer, clamp: false }
 }
 
 const TEXTURE_MAPS: &str = r#"<Scene>
@@ -1019,7 +1005,7 @@ fn texture_maps_of_each_type_with_defaults_and_every_child() {
         map(
             "3",
             at("3"),
-            TextureSource::Perlin { conversion: NoiseConversion::Linear, scale: 1.0 },
+            TextureSource::Perlin { conversion: NoiseConversion::Linear, scale: 1.0, octaves: 1 },
             ReplaceKd,
         ),
         TextureMapRec {
@@ -1027,14 +1013,20 @@ fn texture_maps_of_each_type_with_defaults_and_every_child() {
             ..map(
                 "4",
                 at("4"),
-                TextureSource::Perlin { conversion: NoiseConversion::AbsVal, scale: 0.5 },
+                TextureSource::Perlin { conversion: NoiseConversion::AbsVal, scale: 0.5, octaves: 1 },
                 BumpNormal,
             )
         },
         map(
             "5",
             at("5"),
-            TextureSource::Checkerboard { black: [0.0; 3], white: [1.0; 3], scale: 1.0, offset: 0.0 },
+            TextureSource::Checkerboard {
+                black: [0.0; 3],
+                white: [1.0; 3],
+                scale: 1.0,
+                offset: 0.0,
+                dimension3: true,
+            },
             BlendKd,
         ),
         TextureMapRec {
@@ -1042,7 +1034,13 @@ fn texture_maps_of_each_type_with_defaults_and_every_child() {
             ..map(
                 "6",
                 at("6"),
-                TextureSource::Checkerboard { black: [0.4; 3], white: [10.0; 3], scale: 0.1, offset: 79.0 },
+                TextureSource::Checkerboard {
+                    black: [0.4; 3],
+                    white: [10.0; 3],
+                    scale: 0.1,
+                    offset: 79.0,
+                    dimension3: true,
+                },
                 ReplaceKd,
             )
         },
@@ -1050,7 +1048,7 @@ fn texture_maps_of_each_type_with_defaults_and_every_child() {
         map(
             "8",
             at("8"),
-            TextureSource::Perlin { conversion: NoiseConversion::Linear, scale: 1.0 },
+            TextureSource::Perlin { conversion: NoiseConversion::Linear, scale: 1.0, octaves: 1 },
             ReplaceKd,
         ),
     ];
@@ -1366,6 +1364,7 @@ const LEGACY_TEXTURES: &str = r#"<Scene>
         <Interpolation>bilinear</Interpolation>
         <DecalMode>replace_kd</DecalMode>
         <Normalizer>255</Normalizer>
+        <Appearance>clamp</Appearance>
     </Texture>
     <Texture id="3" bumpmap="true">
         <ImageName>perlin</ImageName>
@@ -1390,6 +1389,7 @@ const LEGACY_TEXTURES: &str = r#"<Scene>
     <Texture id="6">
         <ImageName>checkerboard</ImageName>
         <DecalMode>replace</DecalMode>
+        <Dimension3>false</Dimension3>
     </Texture>
     <Texture id="7">
         <ImageName>textures/sky.jpg</ImageName>
@@ -1428,8 +1428,14 @@ fn legacy_2019_textures_become_texture_maps() {
             image("8", "textures/plain.png"),
         ]
     );
-    let vein = TextureSource::Perlin { conversion: NoiseConversion::AbsVal, scale: 3.0 };
-    let grid = image_source("2019:2", Bilinear, 255.0);
+    let vein = TextureSource::Perlin { conversion: NoiseConversion::AbsVal, scale: 3.0, octaves: 1 };
+    // `<Appearance>clamp`: clamp-to-edge addressing.
+    let grid = TextureSource::Image {
+        image: "2019:2".into(),
+        interpolation: Bilinear,
+        normalizer: 255.0,
+        clamp: true,
+    };
     let expected = vec![
         map("1", at("1"), image_source("2019:1", Nearest, 255.0), BlendKd),
         // bumpmap="true": the colour map and a bump map over the same source.
@@ -1441,20 +1447,33 @@ fn legacy_2019_textures_become_texture_maps() {
         map(
             "4",
             at("4"),
-            TextureSource::Perlin { conversion: NoiseConversion::Linear, scale: 1.0 },
+            TextureSource::Perlin { conversion: NoiseConversion::Linear, scale: 1.0, octaves: 1 },
             ReplaceKd,
         ),
         // bumpmap="false": the multiplier means nothing.
         map(
             "5",
             at("5"),
-            TextureSource::Checkerboard { black: [0.4; 3], white: [10.0; 3], scale: 0.1, offset: 79.0 },
+            TextureSource::Checkerboard {
+                black: [0.4; 3],
+                white: [10.0; 3],
+                scale: 0.1,
+                offset: 79.0,
+                dimension3: true,
+            },
             BlendKd,
         ),
         map(
             "6",
             at("6"),
-            TextureSource::Checkerboard { black: [0.0; 3], white: [1.0; 3], scale: 1.0, offset: 0.0 },
+            // `<Dimension3>false`: a 2-D checkerboard in (u, v).
+            TextureSource::Checkerboard {
+                black: [0.0; 3],
+                white: [1.0; 3],
+                scale: 1.0,
+                offset: 0.0,
+                dimension3: false,
+            },
             ReplaceKd,
         ),
         map("7", at("7"), image_source("2019:7", Nearest, 1.0), ReplaceAll),
@@ -1467,6 +1486,48 @@ fn legacy_2019_textures_become_texture_maps() {
     assert_eq!(records.spheres[1].textures, ["5"]);
     assert_eq!(records.spheres[2].textures, ["2", "2:bump", "1"]);
     assert_eq!(records.triangles[0].textures, ["1"]);
+}
+
+#[test]
+fn perlin_octaves_and_2019_texture_keywords() {
+    let perlin = |octaves: &str| {
+        scene(&format!(
+            "<Textures>\n<TextureMap id=\"1\" type=\"perlin\">\n<NumOctaves>{octaves}</NumOctaves><DecalMode>replace_kd</DecalMode>\n</TextureMap>\n</Textures>"
+        ))
+    };
+    let octaves = |records: SceneRecords| match records.texture_maps[0].source {
+        TextureSource::Perlin { octaves, .. } => octaves,
+        ref other => panic!("{other:?}"),
+    };
+    assert_eq!(octaves(parse(&perlin("4"))), 4);
+    assert_eq!(octaves(parse(&perlin(" 1 "))), 1);
+    let without = scene(
+        "<Textures><TextureMap id=\"1\" type=\"perlin\"><DecalMode>replace_kd</DecalMode></TextureMap></Textures>",
+    );
+    assert_eq!(octaves(parse(&without)), 1);
+    check_errors(&[
+        (
+            &perlin("0"),
+            r#"scene.xml:4: <TextureMap id="1"> / <NumOctaves>: <NumOctaves> must be a whole number from 1 to 32 (octaves of the noise), found 0"#,
+        ),
+        (
+            &perlin("33"),
+            r#"scene.xml:4: <TextureMap id="1"> / <NumOctaves>: <NumOctaves> must be a whole number from 1 to 32 (octaves of the noise), found 33"#,
+        ),
+    ]);
+    let legacy = |children: &str| {
+        scene(&format!("<Textures>\n<Texture id=\"1\">\n{children}\n</Texture>\n</Textures>"))
+    };
+    check_errors(&[
+        (
+            &legacy("<ImageName>checkerboard</ImageName>\n<Dimension3>no</Dimension3>"),
+            r#"scene.xml:5: <Texture id="1"> / <Dimension3>: Dimension3 must be true or false, found "no""#,
+        ),
+        (
+            &legacy("<ImageName>a.png</ImageName>\n<Appearance>mirror</Appearance>"),
+            r#"scene.xml:5: <Texture id="1"> / <Appearance>: Appearance must be repeat or clamp, found "mirror""#,
+        ),
+    ]);
 }
 
 #[test]
@@ -1483,11 +1544,6 @@ fn texture_warnings() {
             ),
             &[
                 &w(3, r#"TextureMap id="1""#, "unknown attribute bumpmap; it is ignored"),
-                &w(
-                    4,
-                    r#"TextureMap id="1"> / <NumOctaves"#,
-                    "<NumOctaves> \"4\" (a fractal sum of noise octaves) is not supported yet; without it, the noise has one octave",
-                ),
                 &w(
                     5,
                     r#"TextureMap id="1"> / <Normalizer"#,
@@ -1534,11 +1590,6 @@ fn texture_warnings() {
             ),
             &[
                 &w(4, "Images> / <Picture", "unknown element <Picture>; it is ignored"),
-                &w(
-                    7,
-                    r#"Texture id="1"> / <Appearance"#,
-                    "<Appearance>clamp</Appearance> is not supported yet; without it, the texture repeats past its edges instead of stretching its border texels",
-                ),
                 &w(
                     8,
                     r#"Texture id="1"> / <ScalingFactor"#,

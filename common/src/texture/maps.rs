@@ -19,16 +19,23 @@ pub enum Source {
         mips: Option<Arc<MipChain>>,
         interpolation: Interpolation,
         normalizer: f64,
+        /// Clamp-to-edge addressing (2019 `<Appearance>clamp`): texture coordinates outside
+        /// [0, 1] take the border texels, at every mip level; otherwise they repeat.
+        clamp: bool,
     },
     Perlin {
         conversion: NoiseConversion,
         scale: f64,
+        /// Octaves of the fractal sum ([`fractal_noise`]); 1 is plain noise.
+        octaves: u32,
     },
     Checkerboard {
         black: DVec3,
         white: DVec3,
         scale: f64,
         offset: f64,
+        /// `false`: a 2-D checkerboard in the texture coordinates ([`checkerboard_uv`]).
+        dimension3: bool,
     },
 }
 
@@ -67,9 +74,11 @@ impl TextureMap {
         image: &TextureImage,
         mips: Option<&MipChain>,
         interpolation: Interpolation,
+        clamp: bool,
         uv: DVec2,
         footprint: DVec2,
     ) -> DVec3 {
+        let uv = if clamp { clamp_to_edge(uv) } else { uv };
         let t = match (interpolation, mips) {
             (Interpolation::Nearest, _) => image.nearest(uv.x, uv.y),
             (Interpolation::Trilinear, Some(m)) => m.trilinear(uv.x, uv.y, footprint),
@@ -82,14 +91,18 @@ impl TextureMap {
     /// or checkerboard colour; degamma applied.
     pub fn value(&self, p: &TexturePoint) -> DVec3 {
         let v = match &self.source {
-            Source::Image { image, mips, interpolation, normalizer } => {
-                Self::image_raw(image, mips.as_deref(), *interpolation, p.uv, p.footprint) / *normalizer
+            Source::Image { image, mips, interpolation, normalizer, clamp } => {
+                Self::image_raw(image, mips.as_deref(), *interpolation, *clamp, p.uv, p.footprint)
+                    / *normalizer
             }
-            Source::Perlin { conversion, scale } => {
-                DVec3::splat(perlin_value(p.object * *scale, *conversion))
+            Source::Perlin { conversion, scale, octaves } => {
+                DVec3::splat(perlin_value(p.object * *scale, *conversion, *octaves))
             }
-            Source::Checkerboard { black, white, scale, offset } => {
+            Source::Checkerboard { black, white, scale, offset, dimension3: true } => {
                 checkerboard(p.object, *scale, *offset, *black, *white)
+            }
+            Source::Checkerboard { black, white, scale, offset, dimension3: false } => {
+                checkerboard_uv(p.uv, *scale, *offset, *black, *white)
             }
         };
         match self.degamma {
@@ -102,8 +115,8 @@ impl TextureMap {
     /// `footprint` is one pixel's extent in uv, (1/width, 1/height) of the frame.
     pub fn background(&self, uv: DVec2, footprint: DVec2) -> DVec3 {
         match &self.source {
-            Source::Image { image, mips, interpolation, .. } => {
-                Self::image_raw(image, mips.as_deref(), *interpolation, uv, footprint)
+            Source::Image { image, mips, interpolation, clamp, .. } => {
+                Self::image_raw(image, mips.as_deref(), *interpolation, *clamp, uv, footprint)
             }
             _ => self.value(&TexturePoint { uv, object: DVec3::new(uv.x, uv.y, 0.0), footprint }),
         }
@@ -113,8 +126,9 @@ impl TextureMap {
     /// to [-1, 1]. `None` for maps that are not images.
     pub fn tangent_normal(&self, uv: DVec2, footprint: DVec2) -> Option<DVec3> {
         match &self.source {
-            Source::Image { image, mips, interpolation, .. } => {
-                let t = Self::image_raw(image, mips.as_deref(), *interpolation, uv, footprint) / 255.0;
+            Source::Image { image, mips, interpolation, clamp, .. } => {
+                let t =
+                    Self::image_raw(image, mips.as_deref(), *interpolation, *clamp, uv, footprint) / 255.0;
                 Some(t * 2.0 - DVec3::ONE)
             }
             _ => None,
@@ -127,11 +141,12 @@ impl TextureMap {
 /// `p.footprint`, so its slopes are those of the filtered height field.
 pub fn image_height(source: &Source, p: &TexturePoint, du: f64, dv: f64) -> f64 {
     match source {
-        Source::Image { image, mips, interpolation, normalizer } => {
+        Source::Image { image, mips, interpolation, normalizer, clamp } => {
             let t = TextureMap::image_raw(
                 image,
                 mips.as_deref(),
                 *interpolation,
+                *clamp,
                 p.uv + DVec2::new(du, dv),
                 p.footprint,
             );
@@ -139,6 +154,24 @@ pub fn image_height(source: &Source, p: &TexturePoint, du: f64, dv: f64) -> f64 
         }
         _ => 0.0,
     }
+}
+
+/// Clamp-to-edge addressing: each coordinate into [0, 1), so the lookups' repeat wrapping
+/// leaves it alone and a coordinate at or past 1 reads the last texel (NaN stays NaN, which the
+/// lookups read as 0). Bilinear neighbours and mip levels are clamped at the border already.
+fn clamp_to_edge(uv: DVec2) -> DVec2 {
+    // The largest f64 below 1.
+    const BELOW_ONE: f64 = 1.0 - f64::EPSILON / 2.0;
+    let c = |t: f64| if t.is_nan() { t } else { t.clamp(0.0, BELOW_ONE) };
+    DVec2::new(c(uv.x), c(uv.y))
+}
+
+/// The 2019 checkerboard with `<Dimension3>false`: the 3-D rule of [`checkerboard`] on the
+/// texture coordinates (u, v) alone (the course material gives no 2-D rule; this is the 3-D
+/// one with the third axis dropped).
+pub fn checkerboard_uv(uv: DVec2, scale: f64, offset: f64, black: DVec3, white: DVec3) -> DVec3 {
+    let cell = |c: f64| -> bool { (((c + offset) * scale) as i64) % 2 != 0 };
+    if cell(uv.x) != cell(uv.y) { black } else { white }
 }
 
 /// The course's checkerboard (§11.10): C-style truncation and remainder, at the object-space
@@ -200,9 +233,23 @@ pub fn perlin(p: DVec3) -> f64 {
     sum
 }
 
-/// Noise converted to [0, 1] as `NoiseConversion` asks.
-pub fn perlin_value(p: DVec3, conversion: NoiseConversion) -> f64 {
-    let n = perlin(p);
+/// `NumOctaves` (2025): the fractal sum Σ_{i<octaves} 2^-i · noise(2^i · p), octave i at
+/// frequency 2^i and amplitude 2^-i; one octave is [`perlin`] itself (0 counts as 1).
+pub fn fractal_noise(p: DVec3, octaves: u32) -> f64 {
+    let mut sum = perlin(p);
+    let (mut freq, mut amp) = (1.0, 1.0);
+    for _ in 1..octaves {
+        freq *= 2.0;
+        amp *= 0.5;
+        sum += amp * perlin(p * freq);
+    }
+    sum
+}
+
+/// Noise (a fractal sum of `octaves`) converted as `NoiseConversion` asks: [0, 1] for one
+/// octave; the conversion is applied to the sum, not clamped.
+pub fn perlin_value(p: DVec3, conversion: NoiseConversion, octaves: u32) -> f64 {
+    let n = fractal_noise(p, octaves);
     match conversion {
         NoiseConversion::Linear => (n + 1.0) / 2.0,
         NoiseConversion::AbsVal => n.abs(),
@@ -211,9 +258,9 @@ pub fn perlin_value(p: DVec3, conversion: NoiseConversion) -> f64 {
 
 /// Gradient of a solid (Perlin) height field at the object-space point `p`, by forward
 /// differences, in object space.
-pub fn perlin_gradient(p: DVec3, scale: f64, conversion: NoiseConversion) -> DVec3 {
+pub fn perlin_gradient(p: DVec3, scale: f64, conversion: NoiseConversion, octaves: u32) -> DVec3 {
     const EPS: f64 = 1e-3;
-    let h = |q: DVec3| perlin_value(q * scale, conversion);
+    let h = |q: DVec3| perlin_value(q * scale, conversion, octaves);
     let h0 = h(p);
     DVec3::new(h(p + DVec3::X * EPS) - h0, h(p + DVec3::Y * EPS) - h0, h(p + DVec3::Z * EPS) - h0) / EPS
 }
@@ -240,7 +287,7 @@ mod tests {
             let p = DVec3::new(r.next_1d(), r.next_1d(), r.next_1d()) * 40.0 - DVec3::splat(20.0);
             let n = perlin(p);
             assert!((-1.0..=1.0).contains(&n), "{n} at {p}");
-            assert!((0.0..=1.0).contains(&perlin_value(p, NoiseConversion::Linear)));
+            assert!((0.0..=1.0).contains(&perlin_value(p, NoiseConversion::Linear, 1)));
         }
     }
 
@@ -271,10 +318,100 @@ mod tests {
         assert_eq!(checkerboard(DVec3::new(-1.5, 0.5, 0.5), 1.0, 0.0, b, w), b);
     }
 
+    /// A 4x2 image whose texel (x, y) is 10·x + 100·y, as a map with `interpolation`.
+    fn ramp_map(interpolation: Interpolation, clamp: bool) -> TextureMap {
+        let texels = (0..2).flat_map(|y| (0..4).map(move |x| [(10 * x + 100 * y) as f32; 3])).collect();
+        let image = Arc::new(TextureImage { width: 4, height: 2, texels });
+        let mips = Some(Arc::new(MipChain::new(image.clone())));
+        TextureMap {
+            source: Source::Image { image, mips, interpolation, normalizer: 1.0, clamp },
+            decal: DecalMode::ReplaceKd,
+            bump_factor: 1.0,
+            degamma: None,
+        }
+    }
+
+    fn at(map: &TextureMap, u: f64, v: f64, footprint: f64) -> f64 {
+        let p =
+            TexturePoint { uv: DVec2::new(u, v), object: DVec3::ZERO, footprint: DVec2::splat(footprint) };
+        map.value(&p).x
+    }
+
+    /// `<Appearance>clamp`: past the edges the border texels are stretched (nearest, bilinear,
+    /// and every mip level of trilinear); repeat wraps around instead.
+    #[test]
+    fn clamp_addressing_stretches_the_border_texels() {
+        for interpolation in [Interpolation::Nearest, Interpolation::Bilinear, Interpolation::Trilinear] {
+            let clamped = ramp_map(interpolation, true);
+            let repeated = ramp_map(interpolation, false);
+            // Right of the image: the last column (30 on row 0, 130 on row 1).
+            assert_eq!(at(&clamped, 1.7, 0.0, 0.0), 30.0, "{interpolation:?}");
+            assert_eq!(at(&clamped, 1.0, 0.6, 0.0), 130.0, "{interpolation:?}");
+            assert_eq!(at(&clamped, 25.0, 7.0, 0.0), 130.0, "{interpolation:?}");
+            // Left of and above it: the first column, the first row.
+            assert_eq!(at(&clamped, -0.7, 0.0, 0.0), 0.0, "{interpolation:?}");
+            assert_eq!(at(&clamped, 0.0, -3.0, 0.0), 0.0, "{interpolation:?}");
+            // Inside, clamp and repeat agree.
+            assert_eq!(at(&clamped, 0.3, 0.3, 0.0), at(&repeated, 0.3, 0.3, 0.0), "{interpolation:?}");
+            // Repeat: u = 1.25 is u = 0.25.
+            assert_eq!(at(&repeated, 1.25, 0.1, 0.0), at(&repeated, 0.25, 0.1, 0.0), "{interpolation:?}");
+            assert_ne!(at(&repeated, 1.25, 0.1, 0.0), at(&clamped, 1.25, 0.1, 0.0), "{interpolation:?}");
+            // Degenerate coordinates stay finite.
+            assert!(at(&clamped, f64::NAN, f64::INFINITY, 0.0).is_finite());
+        }
+        // A footprint of the whole image reads the coarsest level (the mean, 65) wherever it is.
+        let clamped = ramp_map(Interpolation::Trilinear, true);
+        assert!((at(&clamped, 3.0, -2.0, 4.0) - 65.0).abs() < 1e-9);
+        // A coarser level is clamped too: level 1 is 2x1 texels (the 2x2 means 55 and 75); far
+        // right it reads its last texel.
+        let lvl1 = at(&clamped, 9.0, 0.5, 0.5);
+        assert!((lvl1 - 75.0).abs() < 1e-9, "{lvl1}");
+    }
+
+    /// `NumOctaves`: octave i at frequency 2^i and amplitude 2^-i, summed; one octave is the
+    /// plain noise.
+    #[test]
+    fn octaves_add_finer_noise_at_half_the_amplitude() {
+        let mut r = crate::sampler::Sampler::new(5, 6, 7, 8);
+        for _ in 0..200 {
+            let p = DVec3::new(r.next_1d(), r.next_1d(), r.next_1d()) * 20.0 - DVec3::splat(10.0);
+            assert_eq!(fractal_noise(p, 1), perlin(p));
+            assert_eq!(fractal_noise(p, 0), perlin(p));
+            let three = perlin(p) + 0.5 * perlin(p * 2.0) + 0.25 * perlin(p * 4.0);
+            assert!((fractal_noise(p, 3) - three).abs() < 1e-12);
+            assert_eq!(perlin_value(p, NoiseConversion::AbsVal, 3), three.abs());
+        }
+        // On lattice points every octave is zero.
+        assert_eq!(fractal_noise(DVec3::new(2.0, -1.0, 3.0), 8), 0.0);
+    }
+
+    /// `<Dimension3>false`: the checkerboard in (u, v), whatever the 3-D point.
+    #[test]
+    fn two_dimensional_checkerboard_uses_the_texture_coordinates() {
+        let (b, w) = (DVec3::ZERO, DVec3::ONE);
+        let map = TextureMap {
+            source: Source::Checkerboard { black: b, white: w, scale: 4.0, offset: 0.0, dimension3: false },
+            decal: DecalMode::ReplaceKd,
+            bump_factor: 1.0,
+            degamma: None,
+        };
+        let at = |u: f64, v: f64, object: DVec3| {
+            map.value(&TexturePoint { uv: DVec2::new(u, v), object, footprint: DVec2::ZERO })
+        };
+        // Cells of a quarter: (0.1, 0.1) white, (0.3, 0.1) black, (0.3, 0.3) white.
+        for object in [DVec3::ZERO, DVec3::new(1.5, 0.5, 7.3)] {
+            assert_eq!(at(0.1, 0.1, object), w);
+            assert_eq!(at(0.3, 0.1, object), b);
+            assert_eq!(at(0.1, 0.3, object), b);
+            assert_eq!(at(0.3, 0.3, object), w);
+        }
+        assert_eq!(checkerboard_uv(DVec2::new(0.3, 0.1), 4.0, 0.0, b, w), b);
+    }
+
     #[test]
     fn perlin_bump_keeps_unit_length_and_flat_fields_unbent() {
         let n = DVec3::Y;
-        let g = perlin_gradient(DVec3::new(0.3, 0.0, 0.7), 3.0, NoiseConversion::Linear);
+        let g = perlin_gradient(DVec3::new(0.3, 0.0, 0.7), 3.0, NoiseConversion::Linear, 1);
         let bent = bump_by_gradient(n, g, 1.0);
         assert!((bent.length() - 1.0).abs() < 1e-12);
         assert_ne!(bent, n);

@@ -2,8 +2,8 @@
 //! planes, mesh instances and object lights.
 
 use crate::scene::records::{
-    FacesRec, InstanceRec, MeshRec, PlaneRec, ShadingMode, SphereRec, TransformOp, TransformRec, TriangleRec,
-    Vec3,
+    BinaryFileRec, FacesRec, InstanceRec, MeshRec, PlaneRec, ShadingMode, SphereRec, TransformOp,
+    TransformRec, TriangleRec, Vec3,
 };
 use crate::scene::tree::{Node, Parser, Result, Schema, Unsupported, excerpt, quoted};
 
@@ -44,12 +44,8 @@ const LIGHT_UNSUPPORTED: &[Unsupported] = &[
     ("Texture", "without it, the light's surface is untextured"),
 ];
 const TRIANGLE: Schema = Schema {
-    single: &["Material", "Indices", "Transformations"],
+    single: &["Material", "Indices", "Transformations", "MotionBlur"],
     many: &["Textures", "Texture"],
-    unsupported: &[(
-        "MotionBlur",
-        "without it, the triangle stands still (meshes, mesh instances, spheres and planes move)",
-    )],
     attrs: &["id"],
     ..Schema::EMPTY
 };
@@ -67,21 +63,14 @@ const PLANE: Schema = Schema {
 };
 const MESH_INSTANCE: Schema = Schema {
     single: &["Material", "Transformations", "MotionBlur"],
-    unsupported: &[
-        ("Textures", "without it, the instance has its base mesh's textures"),
-        ("Texture", "without it, the instance has its base mesh's textures"),
-    ],
+    many: &["Textures", "Texture"],
     attrs: &["id", "baseMeshId", "resetTransform", "shadingMode"],
     ..Schema::EMPTY
 };
 // Also used for `TexCoordData`.
-// `type` is the 2025 JSON `_type` (`xyz`, `uv`), checked by `Parser::data_type`.
-const VERTEX_DATA_ATTRS: &[&str] = &["type"];
-const VERTEX_DATA_UNSUPPORTED_ATTRS: &[Unsupported] = &[(
-    "binaryFile",
-    "without it, these values are read from the element's text (2019 binary data is not read)",
-)];
-// `binaryFile` is known here but handled by `Parser::mesh` (the mesh is left out).
+// `type` is the 2025 JSON `_type` (`xyz`, `uv`), checked by `Parser::data_type`; `binaryFile`
+// (2019) names a file the values are read from at build time.
+const VERTEX_DATA_ATTRS: &[&str] = &["type", "binaryFile"];
 const FACES_ATTRS: &[&str] = &["vertexOffset", "textureOffset", "plyFile", "binaryFile", "type"];
 const FACES_UNSUPPORTED_ATTRS: &[Unsupported] = &[];
 
@@ -125,19 +114,36 @@ impl Parser<'_> {
     }
 
     pub(super) fn vertex_data(&mut self, n: &Node) -> Result<()> {
-        self.check_attrs(n, VERTEX_DATA_ATTRS, VERTEX_DATA_UNSUPPORTED_ATTRS);
+        self.check_attrs(n, VERTEX_DATA_ATTRS, &[]);
         self.data_type(n, "xyz", "x y z per vertex")?;
+        if let Some(file) = self.binary_file(n)? {
+            self.out.vertex_file = Some(file);
+            return Ok(());
+        }
         let values = self.number_list::<f64>(n, 3, "x y z per vertex")?;
         self.out.vertices = values.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
         Ok(())
     }
 
     pub(super) fn tex_coord_data(&mut self, n: &Node) -> Result<()> {
-        self.check_attrs(n, VERTEX_DATA_ATTRS, VERTEX_DATA_UNSUPPORTED_ATTRS);
+        self.check_attrs(n, VERTEX_DATA_ATTRS, &[]);
         self.data_type(n, "uv", "u v per texture coordinate")?;
+        if let Some(file) = self.binary_file(n)? {
+            self.out.tex_coord_file = Some(file);
+            return Ok(());
+        }
         let values = self.number_list::<f64>(n, 2, "u v per texture coordinate")?;
         self.out.tex_coords = values.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
         Ok(())
+    }
+
+    /// A 2019 `binaryFile="..."` attribute: `None` when absent; empty is an error.
+    fn binary_file(&self, n: &Node) -> Result<Option<BinaryFileRec>> {
+        match n.attr("binaryFile").map(str::trim) {
+            None => Ok(None),
+            Some("") => Err(self.err(n, "attribute binaryFile is empty; expected a file path")),
+            Some(path) => Ok(Some(BinaryFileRec { path: path.to_string(), loc: n.loc() })),
+        }
     }
 
     pub(super) fn objects(&mut self, objects: &Node) -> Result<()> {
@@ -145,9 +151,8 @@ impl Parser<'_> {
         for n in &objects.children {
             match n.name.as_str() {
                 "Mesh" | "LightMesh" => {
-                    if let Some(mesh) = self.mesh(n)? {
-                        self.out.meshes.push(mesh);
-                    }
+                    let mesh = self.mesh(n)?;
+                    self.out.meshes.push(mesh);
                 }
                 "Triangle" => {
                     let triangle = self.triangle(n)?;
@@ -175,9 +180,7 @@ impl Parser<'_> {
         self.id_ref(self.required(n, "Material")?, "a material id")
     }
 
-    /// `None` when the mesh cannot be read yet (2019 binary faces); an unsupported-element
-    /// warning says so.
-    pub(super) fn mesh(&mut self, n: &Node) -> Result<Option<MeshRec>> {
+    pub(super) fn mesh(&mut self, n: &Node) -> Result<MeshRec> {
         let light = n.name == "LightMesh";
         self.check(n, if light { &LIGHT_MESH } else { &MESH });
         let id = self.id(n, true)?;
@@ -189,13 +192,12 @@ impl Parser<'_> {
                 "" => return Err(self.err(faces, "attribute plyFile is empty; expected a PLY file path")),
                 path => FacesRec::Ply { path: path.to_string() },
             }
-        } else if faces.attr("binaryFile").is_some() {
-            self.unsupported(
-                faces,
-                "<Faces binaryFile> (2019 binary faces) is not supported yet; without it, the mesh is \
-                 left out of the picture",
-            );
-            return Ok(None);
+        } else if let Some(b) = self.binary_file(faces)? {
+            FacesRec::Binary {
+                path: b.path,
+                vertex_offset: self.int_attr(faces, "vertexOffset")?.unwrap_or(0),
+                texture_offset: self.int_attr(faces, "textureOffset")?,
+            }
         } else {
             FacesRec::Inline {
                 indices: self.number_list(faces, 3, "three vertex ids per triangle")?,
@@ -203,7 +205,7 @@ impl Parser<'_> {
                 texture_offset: self.int_attr(faces, "textureOffset")?,
             }
         };
-        Ok(Some(MeshRec {
+        Ok(MeshRec {
             id,
             loc: n.loc(),
             material: self.material_ref(n)?,
@@ -214,7 +216,7 @@ impl Parser<'_> {
             motion_blur: if light { None } else { self.optional_numbers(n, "MotionBlur")? },
             textures: if light { Vec::new() } else { self.object_textures(n)? },
             radiance: if light { Some(self.radiance(n)?) } else { None },
-        }))
+        })
     }
 
     /// The `<Radiance>` of an object light: three non-negative numbers.
@@ -237,6 +239,7 @@ impl Parser<'_> {
             indices: self.required_numbers(n, "Indices")?,
             transforms: self.transform_refs(n)?,
             textures: self.object_textures(n)?,
+            motion_blur: self.optional_numbers(n, "MotionBlur")?,
         })
     }
 
@@ -292,6 +295,7 @@ impl Parser<'_> {
             transforms: self.transform_refs(n)?,
             shading: self.shading_attr(n)?,
             motion_blur: self.optional_numbers(n, "MotionBlur")?,
+            textures: self.object_textures(n)?,
         })
     }
 }

@@ -125,13 +125,6 @@ impl Parser<'_> {
         }
         for n in lights.children_named("SphericalDirectionalLight") {
             self.check(n, &ENV_LIGHT);
-            if !self.out.env_lights.is_empty() {
-                self.unsupported(
-                    n,
-                    "a second environment light is not supported; without it, only the first \
-                     <SphericalDirectionalLight> lights the scene and is seen behind it",
-                );
-            }
             let id = self.id(n, false)?;
             let image = match (n.child("ImageId"), n.child("EnvMapName")) {
                 (Some(i), _) => self.id_ref(i, "an image id")?,

@@ -34,7 +34,7 @@ mod tonemap;
 use std::path::Path;
 
 use super::records::{MAX_RECURSION_DEPTH_LIMIT, SceneRecords};
-use super::tree::{DEFAULT_MAX_RECURSION_DEPTH, Dialect, Node, Parser, Result, Schema};
+use super::tree::{BOOLEANS, DEFAULT_MAX_RECURSION_DEPTH, Dialect, Node, Parser, Result, Schema};
 
 /// Step 2 for both front ends: walks a `<Scene>` tree into records.
 pub(super) fn parse_tree(root: &Node, source: &Path, dialect: Dialect) -> Result<SceneRecords> {
@@ -92,7 +92,7 @@ const SCENE: Schema = Schema {
 impl Parser<'_> {
     fn scene(&mut self, scene: &Node) -> Result<()> {
         self.check(scene, &SCENE);
-        self.legacy_hints(scene);
+        self.legacy_hints(scene)?;
         if let Some(c) = self.optional_numbers(scene, "BackgroundColor")? {
             self.out.background_color = c;
         }
@@ -147,9 +147,8 @@ impl Parser<'_> {
 
     /// The 2019 scene-level `<BackfaceCulling>` and `<ZeroBasedIndexing>` (§3). Culling is an
     /// optimisation hint that never changes the correct image, so not culling is only worth a
-    /// warning; 0-based vertex ids are not supported, and reading them 1-based moves every face.
-    /// `false` is what Tessera does anyway: accepted without a word.
-    fn legacy_hints(&mut self, scene: &Node) {
+    /// warning (`false` is accepted without a word); `ZeroBasedIndexing` is recorded.
+    fn legacy_hints(&mut self, scene: &Node) -> Result<()> {
         if let Some(b) = scene.child("BackfaceCulling")
             && b.text.trim() != "false"
         {
@@ -159,14 +158,9 @@ impl Parser<'_> {
                  which gives the correct image (§3); it is ignored",
             );
         }
-        if let Some(z) = scene.child("ZeroBasedIndexing")
-            && z.text.trim() != "false"
-        {
-            self.unsupported(
-                z,
-                "<ZeroBasedIndexing> (0-based vertex ids) is not supported yet; without it, every vertex id \
-                 is read 1-based and the faces join the wrong vertices",
-            );
+        if let Some(z) = scene.child("ZeroBasedIndexing") {
+            self.out.zero_based_indexing = self.keyword(z, BOOLEANS)?;
         }
+        Ok(())
     }
 }

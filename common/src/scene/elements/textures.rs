@@ -4,7 +4,7 @@
 use crate::scene::records::{
     DecalMode, ImageRec, Interpolation, NoiseConversion, TextureMapRec, TextureSource,
 };
-use crate::scene::tree::{Node, Parser, Result, Schema, excerpt, one_of, quoted};
+use crate::scene::tree::{BOOLEANS, Node, Parser, Result, Schema, excerpt, one_of, quoted};
 
 // --- textures (HW4, scene-format.md §11) ---
 
@@ -28,8 +28,7 @@ const IMAGE_MAP: Schema = Schema {
     ..Schema::EMPTY
 };
 const PERLIN_MAP: Schema = Schema {
-    // `NumOctaves` (2025: a fractal sum of octaves) is read by `Parser::num_octaves`: only 1 is
-    // supported.
+    // `NumOctaves` (2025: a fractal sum of octaves) is read by `Parser::num_octaves`.
     single: &["DecalMode", "NoiseConversion", "NoiseScale", "BumpFactor", "NumOctaves"],
     attrs: TEXTURE_MAP_ATTRS,
     inapplicable: &["ImageId", "Interpolation", "Normalizer", "BlackColor", "WhiteColor", "Scale", "Offset"],
@@ -59,8 +58,7 @@ const LEGACY_PERLIN_TEXTURE: Schema = Schema {
     inapplicable_why: "does not apply to perlin textures",
     ..Schema::EMPTY
 };
-// `Dimension3` is read by `Parser::legacy_texture`: the 2020 checkerboard is always 3-D, so
-// only `true` is supported.
+// `Dimension3` false: a 2-D checkerboard in the texture coordinates.
 const LEGACY_CHECKERBOARD_TEXTURE: Schema = Schema {
     single: &[
         "ImageName",
@@ -103,6 +101,9 @@ const NOISE_CONVERSIONS: &[(&str, NoiseConversion)] =
 /// 2019 `<Appearance>` of perlin textures.
 const LEGACY_PERLIN_APPEARANCES: &[(&str, NoiseConversion)] =
     &[("patch", NoiseConversion::Linear), ("vein", NoiseConversion::AbsVal)];
+/// Most octaves a perlin map's `<NumOctaves>` may ask for: octave 31 is already 2^-30 of the
+/// first, far below any display's resolution.
+const MAX_OCTAVES: u32 = 32;
 /// 2019 `<Appearance>` of image textures: is it `clamp`?
 const LEGACY_IMAGE_APPEARANCES: &[(&str, bool)] = &[("repeat", false), ("clamp", true)];
 
@@ -200,22 +201,22 @@ impl Parser<'_> {
                         // cube_waves, cube_cushion, sphere_normal match only this way).
                         .unwrap_or(Interpolation::Nearest),
                     normalizer: self.normalizer(n)?.unwrap_or(255.0),
+                    clamp: false,
                 }
             }
-            MapKind::Perlin => {
-                self.num_octaves(n);
-                TextureSource::Perlin {
-                    conversion: self
-                        .optional_keyword(n, "NoiseConversion", NOISE_CONVERSIONS)?
-                        .unwrap_or(NoiseConversion::Linear),
-                    scale: self.optional_number(n, "NoiseScale")?.unwrap_or(1.0),
-                }
-            }
+            MapKind::Perlin => TextureSource::Perlin {
+                conversion: self
+                    .optional_keyword(n, "NoiseConversion", NOISE_CONVERSIONS)?
+                    .unwrap_or(NoiseConversion::Linear),
+                scale: self.optional_number(n, "NoiseScale")?.unwrap_or(1.0),
+                octaves: self.num_octaves(n)?,
+            },
             MapKind::Checkerboard => TextureSource::Checkerboard {
                 black: self.optional_numbers(n, "BlackColor")?.unwrap_or([0.0; 3]),
                 white: self.optional_numbers(n, "WhiteColor")?.unwrap_or([1.0; 3]),
                 scale: self.optional_number(n, "Scale")?.unwrap_or(1.0),
                 offset: self.optional_number(n, "Offset")?.unwrap_or(0.0),
+                dimension3: true,
             },
         };
         Ok(TextureMapRec {
@@ -228,21 +229,18 @@ impl Parser<'_> {
         })
     }
 
-    /// A perlin map's `<NumOctaves>` (2025, §11.9: a fractal sum of octaves): one octave is
-    /// what Tessera renders, so only 1 is supported.
-    pub(super) fn num_octaves(&mut self, n: &Node) {
-        if let Some(o) = n.child("NumOctaves")
-            && o.text.trim() != "1"
-        {
-            self.unsupported(
+    /// A perlin map's `<NumOctaves>` (2025, §11.9: a fractal sum of octaves), 1 to
+    /// [`MAX_OCTAVES`]; absent means 1.
+    pub(super) fn num_octaves(&mut self, n: &Node) -> Result<u32> {
+        let Some(o) = n.child("NumOctaves") else { return Ok(1) };
+        let v: u32 = self.number(o)?;
+        if !(1..=MAX_OCTAVES).contains(&v) {
+            return Err(self.err(
                 o,
-                format!(
-                    "<NumOctaves> {} (a fractal sum of noise octaves) is not supported yet; without it, \
-                     the noise has one octave",
-                    quoted(&o.text)
-                ),
-            );
+                format!("<NumOctaves> must be a whole number from 1 to {MAX_OCTAVES} (octaves of the noise), found {v}"),
+            ));
         }
+        Ok(v)
     }
 
     /// A 2019 `<Texture>` (scene-format.md §11.11), translated into one texture map, or two
@@ -269,15 +267,8 @@ impl Parser<'_> {
         let degamma = self.bool_attr(n, "degamma")?.unwrap_or(false);
         let source = match kind {
             MapKind::Image => {
-                if let Some(a) = n.child("Appearance")
-                    && self.keyword(a, LEGACY_IMAGE_APPEARANCES)?
-                {
-                    self.unsupported(
-                        a,
-                        "<Appearance>clamp</Appearance> is not supported yet; without it, the texture \
-                         repeats past its edges instead of stretching its border texels",
-                    );
-                }
+                let clamp =
+                    self.optional_keyword(n, "Appearance", LEGACY_IMAGE_APPEARANCES)?.unwrap_or(false);
                 let image = format!("2019:{id}");
                 let path = name.to_string();
                 self.out.images.push(ImageRec { id: image.clone(), loc: n.loc(), path });
@@ -289,6 +280,7 @@ impl Parser<'_> {
                         // cube_waves, cube_cushion, sphere_normal match only this way).
                         .unwrap_or(Interpolation::Nearest),
                     normalizer: self.normalizer(n)?.unwrap_or(255.0),
+                    clamp,
                 }
             }
             MapKind::Perlin => {
@@ -298,27 +290,17 @@ impl Parser<'_> {
                         .optional_keyword(n, "Appearance", LEGACY_PERLIN_APPEARANCES)?
                         .unwrap_or(NoiseConversion::Linear),
                     scale: self.optional_number(n, "ScalingFactor")?.unwrap_or(1.0),
+                    octaves: 1,
                 }
             }
             MapKind::Checkerboard => {
                 self.legacy_unused_normalizer(n, "checkerboard")?;
-                if let Some(d) = n.child("Dimension3")
-                    && d.text.trim() != "true"
-                {
-                    self.unsupported(
-                        d,
-                        format!(
-                            "<Dimension3> {} (a checkerboard that is not 3-D) is not supported yet; \
-                             without it, the checkerboard is 3-D",
-                            quoted(&d.text)
-                        ),
-                    );
-                }
                 TextureSource::Checkerboard {
                     black: self.optional_numbers(n, "BlackColor")?.unwrap_or([0.0; 3]),
                     white: self.optional_numbers(n, "WhiteColor")?.unwrap_or([1.0; 3]),
                     scale: self.optional_number(n, "ScalingFactor")?.unwrap_or(1.0),
                     offset: self.optional_number(n, "Offset")?.unwrap_or(0.0),
+                    dimension3: self.optional_keyword(n, "Dimension3", BOOLEANS)?.unwrap_or(true),
                 }
             }
         };
@@ -366,6 +348,7 @@ impl Parser<'_> {
                 image: id,
                 interpolation: Interpolation::Bilinear,
                 normalizer: 1.0,
+                clamp: false,
             },
             decal: DecalMode::ReplaceBackground,
             bump_factor: 1.0,
