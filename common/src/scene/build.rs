@@ -431,7 +431,7 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
         })?;
         want(img, format!("environment light {}", l.id).trim_end().to_string());
     }
-    // Environment lights after the first are reported by the parser (unsupported).
+    // Every environment light's map is decoded once, like the texture maps' images.
     let decoded: Vec<Result<(String, Arc<TextureImage>), SceneError>> = wanted
         .par_iter()
         .map(|(img, user)| {
