@@ -185,12 +185,21 @@ pub fn preview_png(cam: &Camera, width: u32, height: u32, tiles: &[(Rect, Vec<u8
 /// listed).
 pub const PREVIEW_FILE: &str = ".preview.png";
 
-/// A finished frame's preview: the whole image box-filtered to the preview's size, then tone
-/// mapped as the camera's final picture.
+/// A finished frame's preview: the whole image box-filtered to the preview's size
+/// ([`shrink_for_preview`]), then tone mapped as the camera's final picture.
 pub fn final_preview_png(cam: &Camera, img: &Image) -> Result<Vec<u8>> {
+    match shrink_for_preview(img) {
+        Some(small) => final_png(cam, &small),
+        None => final_png(cam, img),
+    }
+}
+
+/// `img` shrunk by the preview's whole factor (each pixel the mean of its box; boxes cut by the
+/// frame's edge average the pixels they hold), or `None` when it is small enough already.
+pub fn shrink_for_preview(img: &Image) -> Option<Image> {
     let (scale, pw, ph) = preview_size(img.width, img.height);
     if scale == 1 {
-        return final_png(cam, img);
+        return None;
     }
     let mut small = Image::new(pw, ph);
     let mut counts = vec![0u32; (pw * ph) as usize];
@@ -198,8 +207,8 @@ pub fn final_preview_png(cam: &Camera, img: &Image) -> Result<Vec<u8>> {
         for x in 0..img.width {
             let at = (y / scale * pw + x / scale) as usize;
             let p = img.pixels[(y * img.width + x) as usize];
-            for c in 0..3 {
-                small.pixels[at][c] += p[c];
+            for (s, v) in small.pixels[at].iter_mut().zip(p) {
+                *s += v;
             }
             counts[at] += 1;
         }
@@ -209,7 +218,7 @@ pub fn final_preview_png(cam: &Camera, img: &Image) -> Result<Vec<u8>> {
             *c /= n.max(1) as f32;
         }
     }
-    final_png(cam, &small)
+    Some(small)
 }
 
 /// A finished frame's picture for the page: the camera's tone mapping of the whole image.
@@ -275,5 +284,41 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
             state.emit(ServerEvent::Job { job: job_id, state: JobState::Failed });
         }
         Err(e) => tracing::error!(job = job_id, frame, "merge task panicked: {e}"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn large_frames_are_previewed_shrunk_by_a_whole_factor() {
+        assert_eq!(preview_size(800, 600), (1, 800, 600));
+        assert_eq!(preview_size(1024, 1024), (1, 1024, 1024));
+        assert_eq!(preview_size(16384, 16384), (16, 1024, 1024));
+        assert_eq!(preview_size(3000, 10), (3, 1000, 4));
+        let mut img = Image::new(3000, 10);
+        for (i, p) in img.pixels.iter_mut().enumerate() {
+            let (x, y) = ((i % 3000) as f32, (i / 3000) as f32);
+            *p = [x, y, 1.0];
+        }
+        assert!(shrink_for_preview(&Image::new(800, 600)).is_none());
+        let small = shrink_for_preview(&img).unwrap();
+        assert_eq!((small.width, small.height), (1000, 4));
+        // Box (0, 0): x 0-2, y 0-2.
+        assert_eq!(small.pixels[0], [1.0, 1.0, 1.0]);
+        // The last row holds frame row 9 alone (the edge cuts its box).
+        assert_eq!(small.pixels[3 * 1000 + 999], [2997.0 + 1.0, 9.0, 1.0]);
+    }
+
+    #[test]
+    fn a_preview_canvas_averages_the_arrived_pixels_of_each_box() {
+        let mut canvas = PreviewCanvas::new(2048, 8); // scale 2: 1024 x 4
+        let rect = Rect { x0: 0, y0: 0, width: 2, height: 1 };
+        canvas.add(rect, &tessera::protocol::encode_tile(&[[1.0, 2.0, 3.0], [3.0, 4.0, 5.0]])).unwrap();
+        assert_eq!((canvas.pw, canvas.ph, canvas.counts[0]), (1024, 4, 2));
+        assert_eq!(canvas.sums[0], [4.0, 6.0, 8.0]);
+        let outside = Rect { x0: 2047, y0: 0, width: 2, height: 1 };
+        assert!(canvas.add(outside, &tessera::protocol::encode_tile(&[[0.0; 3]; 2])).is_err());
     }
 }

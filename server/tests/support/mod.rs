@@ -353,10 +353,12 @@ pub fn worker_post(url: &str, token: &str, path: &str, body: Value) -> (u16, Val
         req = req.set("x-tessera-worker-secret", &secret);
     }
     let (code, v) = call(req, Some(("application/json".into(), body.to_string().into_bytes())));
-    if path == "/api/v1/worker/register" && code == 200 {
-        if let (Some(id), Some(secret)) = (v["worker_id"].as_u64(), v["worker_secret"].as_str()) {
-            secrets().lock().unwrap().insert((url.to_string(), id), secret.to_string());
-        }
+    if let (true, Some(id), Some(secret)) = (
+        path == "/api/v1/worker/register" && code == 200,
+        v["worker_id"].as_u64(),
+        v["worker_secret"].as_str(),
+    ) {
+        secrets().lock().unwrap().insert((url.to_string(), id), secret.to_string());
     }
     (code, v)
 }
