@@ -160,7 +160,9 @@ fn the_image_runs_a_farm_that_renders_like_the_cli_with_a_worker_container_stopp
     // test is not part of the required CI run until it is.
     let wanted = std::env::var_os("TESSERA_CONTAINER_TEST").is_some_and(|v| v == "1");
     if !wanted && !required() {
-        return skip("the container test runs with TESSERA_CONTAINER_TEST=1 (or TESSERA_REQUIRE_CONTAINER=1)");
+        return skip(
+            "the container test runs with TESSERA_CONTAINER_TEST=1 (or TESSERA_REQUIRE_CONTAINER=1)",
+        );
     }
     if Command::new("podman").arg("--version").output().is_err() {
         return skip("podman is not installed (apt-get install podman mmdebstrap runc)");
