@@ -123,19 +123,10 @@ fn release_dir() -> PathBuf {
 }
 
 /// `deploy/build-image.sh` as a user runs it: without the variables cargo sets for a test
-/// (`CARGO_MANIFEST_DIR`, `CARGO_PKG_*`, ...). Its `cargo build --release` would otherwise see
-/// them, and build scripts that watch them (ring's) would rebuild the release tree every run.
+/// ([`without_test_env`]), which would make its `cargo build --release` rebuild every run.
 fn build_image_sh() -> Command {
     let mut cmd = Command::new(repo().join("deploy/build-image.sh"));
-    for (name, _) in std::env::vars_os() {
-        let name = name.to_string_lossy();
-        if name.starts_with("CARGO_MANIFEST_")
-            || name.starts_with("CARGO_PKG_")
-            || ["CARGO_CRATE_NAME", "CARGO_BIN_NAME", "CARGO_PRIMARY_PACKAGE"].contains(&&*name)
-        {
-            cmd.env_remove(&*name);
-        }
-    }
+    without_test_env(&mut cmd);
     cmd.stdin(Stdio::null());
     cmd
 }

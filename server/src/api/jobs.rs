@@ -223,12 +223,7 @@ pub(super) async fn frame_preview(
     Path((id, frame)): Path<(u64, u32)>,
 ) -> ApiResult<Response> {
     // Previews hold a picture each: a few at a time, the rest wait their turn.
-    let _permit = state
-        .previews
-        .clone()
-        .acquire_owned()
-        .await
-        .map_err(|_| AppError::new(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping"))?;
+    let _permit = super::turn(&state.previews).await?;
     let png = off_thread(move || {
         let (job, f) = job_and_frame(&state, id, frame)?;
         if f.outputs.is_some() {
@@ -285,12 +280,7 @@ pub(super) async fn frame_tonemap(
     Path((id, frame)): Path<(u64, u32)>,
     axum::extract::Query(q): axum::extract::Query<ToneQuery>,
 ) -> ApiResult<Response> {
-    let _permit = state
-        .previews
-        .clone()
-        .acquire_owned()
-        .await
-        .map_err(|_| AppError::new(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping"))?;
+    let _permit = super::turn(&state.previews).await?;
     let (job, f) = {
         let state = state.clone();
         off_thread(move || job_and_frame(&state, id, frame)).await?

@@ -66,6 +66,15 @@ impl IntoResponse for AppError {
 
 type ApiResult<T> = Result<T, AppError>;
 
+/// Waits for a turn under one of the semaphores that bound what holds memory at once
+/// (unpacking, previews); only a closed semaphore (the server stopping) refuses.
+async fn turn(gate: &std::sync::Arc<tokio::sync::Semaphore>) -> ApiResult<tokio::sync::OwnedSemaphorePermit> {
+    gate.clone()
+        .acquire_owned()
+        .await
+        .map_err(|_| AppError::new(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping"))
+}
+
 /// Runs a handler's store and file work on the blocking pool. The store is one SQLite
 /// connection behind a mutex: work under it must never hold one of the few async threads that
 /// accept connections and answer every other request (`/healthz` included), whatever another

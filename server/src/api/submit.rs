@@ -263,12 +263,7 @@ pub(super) async fn submit_job(
 
     // Unpacking and validation hold the files in memory: a few uploads at a time, so the
     // server's memory stays bounded however many arrive at once.
-    let _permit = state
-        .unpacking
-        .clone()
-        .acquire_owned()
-        .await
-        .map_err(|_| AppError::new(StatusCode::SERVICE_UNAVAILABLE, "the server is stopping"))?;
+    let _permit = super::turn(&state.unpacking).await?;
     let tile_size = opts.tile_size.unwrap_or(state.settings.tile_size);
     let wanted = opts.scene_path.clone().or(scene_field);
     let cameras_wanted = opts.cameras.clone();
