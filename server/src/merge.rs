@@ -172,15 +172,6 @@ impl PreviewCanvas {
     }
 }
 
-/// A PNG of what has arrived so far, for the status page (see [`PreviewCanvas`]).
-pub fn preview_png(cam: &Camera, width: u32, height: u32, tiles: &[(Rect, Vec<u8>)]) -> Result<Vec<u8>> {
-    let mut canvas = PreviewCanvas::new(width, height);
-    for (r, bytes) in tiles {
-        canvas.add(*r, bytes)?;
-    }
-    canvas.png(cam)
-}
-
 /// The name of a merged frame's preview beside its outputs (not one of them: hidden, and not
 /// listed).
 pub const PREVIEW_FILE: &str = ".preview.png";
