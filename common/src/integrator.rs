@@ -2,7 +2,10 @@
 //! point lights with shadow rays, then mirror, conductor and dielectric recursion bounded by
 //! `MaxRecursionDepth`, with Beer's law inside dielectrics.
 
+mod aux;
 mod direct;
+
+pub use aux::{AUX_CHAIN_LIMIT, Aux};
 
 use glam::{DVec2, DVec3};
 

@@ -94,6 +94,36 @@ pub fn plan(cam: &Camera) -> (Vec<OutputFile>, Vec<String>) {
     (files, notes)
 }
 
+/// The files of a camera's denoised image (written beside [`plan`]'s, never over them): each
+/// of the plan's files with `_denoised` after the image's stem (`s.exr` → `s_denoised.exr`,
+/// its tone-mapped `s_phot.png` → `s_denoised_phot.png`), and always a float `.exr`
+/// (`.hdr` names get theirs instead of an `.hdr`; `.png` names get one beside the clamped
+/// PNG), so the denoised linear frame can be tone-mapped again later.
+pub fn denoised_plan(cam: &Camera) -> Vec<OutputFile> {
+    let (files, _) = plan(cam);
+    let stem =
+        Path::new(&files[0].name).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let rename = |name: &str| match name.strip_prefix(stem.as_str()) {
+        Some(rest) => format!("{stem}_denoised{rest}"),
+        None => {
+            let p = Path::new(name);
+            let own = p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+            match p.extension() {
+                Some(e) => format!("{own}_denoised.{}", e.to_string_lossy()),
+                None => format!("{own}_denoised"),
+            }
+        }
+    };
+    let mut out = vec![OutputFile { name: format!("{stem}_denoised.exr"), kind: OutputKind::Exr }];
+    for f in files {
+        match f.kind {
+            OutputKind::Exr | OutputKind::Hdr => {}
+            kind => out.push(OutputFile { name: rename(&f.name), kind }),
+        }
+    }
+    out
+}
+
 /// A file that was written.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Written {
@@ -182,6 +212,26 @@ mod tests {
         let (f, notes) = plan(&camera("old.ppm", vec![]));
         assert_eq!(names(&f), ["old.png"]);
         assert_eq!(notes.len(), 1, "{notes:?}");
+    }
+
+    #[test]
+    fn denoised_files_sit_beside_the_plans_under_their_own_names() {
+        let f = denoised_plan(&camera("out/a.png", vec![]));
+        assert_eq!(names(&f), ["a_denoised.exr", "a_denoised.png"]);
+        assert_eq!(f[1].kind, OutputKind::LdrPng);
+        let f = denoised_plan(&camera("c.hdr", vec![]));
+        assert_eq!(names(&f), ["c_denoised.exr", "c_denoised.png"]);
+        assert_eq!(f[1].kind, OutputKind::Tonemapped(Operator::Photographic, Photographic::default()));
+        let t = |ext: &str| TonemapRec {
+            loc: crate::Loc::default(),
+            operator: Operator::Photographic,
+            params: Photographic::default(),
+            extension: Some(ext.into()),
+        };
+        let f = denoised_plan(&camera("s.exr", vec![t("_phot.png"), t("/../../x.png")]));
+        assert_eq!(names(&f), ["s_denoised.exr", "s_denoised_phot.png", "x_denoised.png"]);
+        let plain = plan(&camera("s.exr", vec![t("_phot.png"), t("/../../x.png")])).0;
+        assert!(f.iter().all(|d| plain.iter().all(|p| p.name != d.name)), "no name is shared");
     }
 
     #[test]

@@ -129,6 +129,39 @@ pub fn render_tile_until(
     settings: &RenderSettings,
     stop: Stop<'_>,
 ) -> Result<(Vec<[f32; 3]>, RayStats), Stopped> {
+    render_tile_inner(scene, camera, rect, settings, stop, None)
+}
+
+/// A tile's features for a denoiser, pixel by pixel beside its colour: the average over the
+/// pixel's samples of each sample's [`Aux`](crate::integrator::Aux) (albedo, then normal), as film values.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct AuxTile {
+    pub albedo: Vec<[f32; 3]>,
+    pub normal: Vec<[f32; 3]>,
+}
+
+/// [`render_tile_until`] that also returns the tile's [`AuxTile`]. The colour is the same bits:
+/// the features draw no random numbers.
+pub fn render_tile_with_aux_until(
+    scene: &Scene,
+    camera: usize,
+    rect: TileRect,
+    settings: &RenderSettings,
+    stop: Stop<'_>,
+) -> Result<(Vec<[f32; 3]>, AuxTile, RayStats), Stopped> {
+    let mut aux = AuxTile::default();
+    let (px, stats) = render_tile_inner(scene, camera, rect, settings, stop, Some(&mut aux))?;
+    Ok((px, aux, stats))
+}
+
+fn render_tile_inner(
+    scene: &Scene,
+    camera: usize,
+    rect: TileRect,
+    settings: &RenderSettings,
+    stop: Stop<'_>,
+    mut aux: Option<&mut AuxTile>,
+) -> Result<(Vec<[f32; 3]>, RayStats), Stopped> {
     let cam = &scene.cameras[camera];
     assert!(
         rect.x0 + rect.width <= cam.width && rect.y0 + rect.height <= cam.height,
@@ -149,6 +182,10 @@ pub fn render_tile_until(
     }
     let pixel_uv = glam::DVec2::new(1.0 / cam.width as f64, 1.0 / cam.height as f64);
     let mut out = Vec::with_capacity((rect.width * rect.height) as usize);
+    if let Some(a) = aux.as_deref_mut() {
+        a.albedo = Vec::with_capacity(out.capacity());
+        a.normal = Vec::with_capacity(out.capacity());
+    }
     // A group's samplers, drawn numbers and camera hits, made once per tile: every group
     // writes the entries it reads (`camera_hits` writes a hit or `None` to each of its slots),
     // and a group's arrays zeroed anew cost more stores than all the rest of its setup.
@@ -167,6 +204,7 @@ pub fn render_tile_until(
                 tracer.background = scene.textures[k as usize].background(uv, pixel_uv);
             }
             let mut sum = glam::DVec3::ZERO;
+            let (mut albedo, mut normal) = (glam::DVec3::ZERO, glam::DVec3::ZERO);
             let pixel_sampler = Sampler::new(seed, x, y, 0);
             // The pixel's samples go in groups of up to eight: their camera rays are traced
             // together (they are nearly parallel and share their nodes), then each sample is
@@ -227,6 +265,13 @@ pub fn render_tile_until(
                 } else {
                     tracer.camera_hits(&rays[..group], &mut hits[..group]);
                 }
+                if aux.is_some() {
+                    for (ray, hit) in rays.iter().zip(&hits[..group]) {
+                        let a = tracer.aux(ray, *hit);
+                        albedo += a.albedo;
+                        normal += a.normal;
+                    }
+                }
                 let radiance = tracer.trace_primary_group(&rays, &hits[..group], &mut samplers[..group]);
                 match cam.clamp_samples {
                     None => {
@@ -245,6 +290,10 @@ pub fn render_tile_until(
             }
             let c = sum / n as f64;
             out.push(film_value(c));
+            if let Some(a) = aux.as_deref_mut() {
+                a.albedo.push(film_value(albedo / n as f64));
+                a.normal.push(film_value(normal / n as f64));
+            }
         }
     }
     Ok((out, tracer.stats))
@@ -259,25 +308,73 @@ pub fn render_camera(
     settings: &RenderSettings,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> (Image, RayStats) {
+    let (img, _, stats) = render_camera_inner(scene, camera, tile_size, settings, false, progress);
+    (img, stats)
+}
+
+/// A frame's features for a denoiser: albedo and normal images beside its colour.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AuxImages {
+    pub albedo: Image,
+    pub normal: Image,
+}
+
+/// [`render_camera`] that also renders the frame's [`AuxImages`] (the same colour bits).
+pub fn render_camera_with_aux(
+    scene: &Scene,
+    camera: usize,
+    tile_size: u32,
+    settings: &RenderSettings,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> (Image, AuxImages, RayStats) {
+    let (img, aux, stats) = render_camera_inner(scene, camera, tile_size, settings, true, progress);
+    (img, aux.expect("asked for"), stats)
+}
+
+fn render_camera_inner(
+    scene: &Scene,
+    camera: usize,
+    tile_size: u32,
+    settings: &RenderSettings,
+    with_aux: bool,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> (Image, Option<AuxImages>, RayStats) {
     let cam = &scene.cameras[camera];
     let rects = tiles(cam.width, cam.height, tile_size);
     let done = AtomicUsize::new(0);
     let total = rects.len();
-    let results: Vec<(TileRect, Vec<[f32; 3]>, RayStats)> = rects
+    type Rendered = (TileRect, Vec<[f32; 3]>, Option<AuxTile>, RayStats);
+    let results: Vec<Rendered> = rects
         .par_iter()
         .map(|&r| {
-            let (px, st) = render_tile(scene, camera, r, settings);
+            let (px, aux, st) = if with_aux {
+                match render_tile_with_aux_until(scene, camera, r, settings, Stop::NEVER) {
+                    Ok((px, aux, st)) => (px, Some(aux), st),
+                    Err(_) => unreachable!("Stop::NEVER never stops"),
+                }
+            } else {
+                let (px, st) = render_tile(scene, camera, r, settings);
+                (px, None, st)
+            };
             progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
-            (r, px, st)
+            (r, px, aux, st)
         })
         .collect();
     let mut img = Image::new(cam.width, cam.height);
+    let mut aux = with_aux.then(|| AuxImages {
+        albedo: Image::new(cam.width, cam.height),
+        normal: Image::new(cam.width, cam.height),
+    });
     let mut stats = RayStats::default();
-    for (r, px, st) in &results {
+    for (r, px, tile_aux, st) in &results {
         img.put_tile(*r, px);
+        if let (Some(a), Some(t)) = (aux.as_mut(), tile_aux) {
+            a.albedo.put_tile(*r, &t.albedo);
+            a.normal.put_tile(*r, &t.normal);
+        }
         stats.add(st);
     }
-    (img, stats)
+    (img, aux, stats)
 }
 
 #[cfg(test)]
@@ -406,6 +503,63 @@ mod tests {
         let (px, _) = stopped.expect("not stopped");
         assert_eq!(px, plain);
         assert!(plain.iter().any(|p| p[0] > 0.0), "the triangle is lit");
+    }
+
+    /// A 2x1 frame: the left pixel sees a red diffuse wall straight ahead (z = -5), the right
+    /// one a perfect mirror turned 45 degrees that shows a green wall to the side; `sky` is the
+    /// background.
+    fn features_scene(mirror_diffuse: &str) -> Scene {
+        let xml = format!(
+            r#"<Scene><BackgroundColor>0 0 0</BackgroundColor>
+            <Cameras><Camera id="1"><Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+              <NearPlane>-0.02 0.02 -0.01 0.01</NearPlane><NearDistance>1</NearDistance><ImageResolution>2 1</ImageResolution>
+              <NumSamples>16</NumSamples><ImageName>a.png</ImageName></Camera></Cameras>
+            <Lights><AmbientLight>10 10 10</AmbientLight><PointLight id="1"><Position>0 0 0</Position><Intensity>100 100 100</Intensity></PointLight></Lights>
+            <Materials><Material id="1"><AmbientReflectance>0.1 0 0</AmbientReflectance><DiffuseReflectance>0.8 0 0</DiffuseReflectance></Material>
+              <Material id="2" type="mirror"><DiffuseReflectance>{mirror_diffuse}</DiffuseReflectance><MirrorReflectance>1 1 1</MirrorReflectance></Material>
+              <Material id="3"><DiffuseReflectance>0 0.5 0</DiffuseReflectance><SpecularReflectance>0 0.25 0</SpecularReflectance></Material></Materials>
+            <VertexData>-1 -1 -5  0 -1 -5  0 1 -5  -1 1 -5
+              0 -1 -4.5  1 -1 -5.5  1 1 -5.5  0 1 -4.5
+              10 -50 -100  10 -50 100  10 50 100  10 50 -100</VertexData>
+            <Objects><Mesh id="1"><Material>1</Material><Faces>1 2 3  1 3 4</Faces></Mesh>
+              <Mesh id="2"><Material>2</Material><Faces>5 6 7  5 7 8</Faces></Mesh>
+              <Mesh id="3"><Material>3</Material><Faces>9 11 10  9 12 11</Faces></Mesh></Objects></Scene>"#
+        );
+        load_scene_str(&xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() }).unwrap()
+    }
+
+    #[test]
+    fn features_are_the_first_surface_past_perfect_mirrors_and_change_no_colour_bit() {
+        let scene = features_scene("0 0 0");
+        let rect = TileRect { x0: 0, y0: 0, width: 2, height: 1 };
+        let settings = RenderSettings::default();
+        let (plain, _) = render_tile(&scene, 0, rect, &settings);
+        let (px, aux, _) = render_tile_with_aux_until(&scene, 0, rect, &settings, Stop::NEVER).unwrap();
+        assert_eq!(px, plain, "asking for features changes no colour bit");
+        // Left: the red wall's diffuse colour, its normal towards the camera.
+        assert_eq!(aux.albedo[0], [0.8, 0.0, 0.0]);
+        assert_eq!(aux.normal[0], [0.0, 0.0, 1.0]);
+        // Right: the mirror shows the green wall (diffuse + specular), whose normal faces -x.
+        let (a, n) = (aux.albedo[1], aux.normal[1]);
+        assert!((a[1] - 0.75).abs() < 1e-6 && a[0] == 0.0 && a[2] == 0.0, "{a:?}");
+        assert!((n[0] + 1.0).abs() < 1e-6 && n[1].abs() < 1e-6 && n[2].abs() < 1e-6, "{n:?}");
+        // A mirror with a diffuse part is a surface of its own: the chain stops there.
+        let scene = features_scene("0.2 0.2 0.2");
+        let (_, aux, _) = render_tile_with_aux_until(&scene, 0, rect, &settings, Stop::NEVER).unwrap();
+        assert_eq!(aux.albedo[1], [1.0, 1.0, 1.0], "0.2 + mirror 1, clamped");
+        let n = aux.normal[1];
+        assert!(n[2] > 0.7 && n[0] > 0.7, "the mirror's own normal, towards the camera: {n:?}");
+    }
+
+    #[test]
+    fn rays_that_leave_the_scene_have_the_background_as_albedo_and_no_normal() {
+        let scene = small_scene(4);
+        // The triangle covers the middle of the 4x4 frame; the corner pixel sees the background.
+        let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
+        let (_, aux, _) =
+            render_tile_with_aux_until(&scene, 0, rect, &RenderSettings::default(), Stop::NEVER).unwrap();
+        assert_eq!(aux.albedo[0], [0.0; 3]);
+        assert_eq!(aux.normal[0], [0.0; 3]);
     }
 
     #[test]

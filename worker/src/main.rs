@@ -16,7 +16,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use tessera::assets::FsResolver;
 use tessera::hdr_io::{read_float_image, write_png_rgb8};
 use tessera::output;
-use tessera::render::{RenderSettings, render_camera};
+use tessera::render::{RenderSettings, render_camera, render_camera_with_aux};
 use tessera::scene::build::build_scene;
 use tessera::scene::load::{LoadOptions, parse_scene};
 use tessera::scene::records::EnvSampler;
@@ -85,6 +85,15 @@ enum Command {
         /// this option such a scene is an error that names every one of them.
         #[arg(long)]
         allow_unsupported: bool,
+        /// Also write a denoised copy of each image beside the course's outputs, never over them:
+        /// <stem>_denoised.exr and its tone-mapped (or, for .png image names, clamped) PNG. Uses
+        /// Intel Open Image Denoise 2 (its RT filter, high quality, guided by the albedo and
+        /// normal of the first surface each pixel sees that is not a perfect mirror or glass,
+        /// which are rendered along). The library is looked for in TESSERA_OIDN_LIB, then the
+        /// system's library path, then the pyoidn Python wheel (python3 -m pip install pyoidn);
+        /// without it nothing is rendered.
+        #[arg(long)]
+        denoise: bool,
     },
     /// Pull tiles from a tessera-server and render them, until stopped.
     ///
@@ -211,10 +220,12 @@ fn main() -> ExitCode {
             env_sampling,
             quiet,
             allow_unsupported,
+            denoise,
         } => {
             let env_sampling = env_sampling.map(EnvSampling::into);
             let load = LoadOptions { allow_unsupported };
-            render(&scene, &out, &Options { threads, camera, tile_size, samples, env_sampling, quiet, load })
+            let opts = Options { threads, camera, tile_size, samples, env_sampling, quiet, load, denoise };
+            render(&scene, &out, &opts)
         }
         Command::Work { server, token, name, threads, max_tiles, exit_with_parent } => {
             if exit_with_parent {
@@ -257,6 +268,7 @@ struct Options {
     env_sampling: Option<EnvSampler>,
     quiet: bool,
     load: LoadOptions,
+    denoise: bool,
 }
 
 /// Prints `warnings` (unsupported elements too when they are allowed), then refuses the scene
@@ -279,13 +291,20 @@ fn report_warnings(scene_path: &Path, warnings: &[tessera::Warning], load: LoadO
 }
 
 fn render(scene_path: &Path, out: &Path, opts: &Options) -> Result<()> {
-    let &Options { threads, camera, tile_size, samples, env_sampling, quiet, load } = opts;
+    let &Options { threads, camera, tile_size, samples, env_sampling, quiet, load, denoise } = opts;
     if samples == Some(0) {
         bail!("--samples must be at least 1");
     }
     if tile_size == 0 {
         bail!("--tile-size must be at least 1");
     }
+    // The denoiser is found before anything is read or rendered: a missing library must not
+    // cost a render.
+    let oidn = if denoise {
+        Some(tessera_denoise::oidn().map_err(|e| anyhow::anyhow!("--denoise: {e}"))?)
+    } else {
+        None
+    };
     let mut pool = rayon::ThreadPoolBuilder::new();
     if let Some(n) = threads {
         if n == 0 {
@@ -338,10 +357,17 @@ fn render(scene_path: &Path, out: &Path, opts: &Options) -> Result<()> {
             );
             bar.set_message(cam.image_name.clone());
             let t = Instant::now();
-            let (img, stats) = render_camera(&scene, ci, tile_size, &settings, &|done, total| {
+            let progress = |done: usize, total: usize| {
                 bar.set_length(total as u64);
                 bar.set_position(done as u64);
-            });
+            };
+            let (img, aux, stats) = if oidn.is_some() {
+                let (img, aux, stats) = render_camera_with_aux(&scene, ci, tile_size, &settings, &progress);
+                (img, Some(aux), stats)
+            } else {
+                let (img, stats) = render_camera(&scene, ci, tile_size, &settings, &progress);
+                (img, None, stats)
+            };
             bar.finish_and_clear();
             let secs = t.elapsed().as_secs_f64();
             let written = output::write(out, &img, &files)?;
@@ -365,6 +391,18 @@ fn render(scene_path: &Path, out: &Path, opts: &Options) -> Result<()> {
                 stats.shadow,
                 stats.secondary
             );
+            if let Some(oidn) = oidn {
+                let (clean, secs) = oidn
+                    .denoise(&img, aux.as_ref(), tessera_denoise::Quality::High)
+                    .map_err(|e| anyhow::anyhow!("{}: denoising failed: {e}", cam.image_name))?;
+                let written = output::write(out, &clean, &output::denoised_plan(cam))?;
+                let names: Vec<String> = written.iter().map(|w| w.path.display().to_string()).collect();
+                println!(
+                    "{}: denoised in {secs:.3} s (Intel Open Image Denoise {}, RT filter, high quality, albedo and normal)",
+                    names.join(" + "),
+                    oidn.version()
+                );
+            }
         }
         Ok(())
     })
