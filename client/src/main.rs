@@ -100,6 +100,11 @@ enum Command {
         /// changes the picture (the server refuses such a scene otherwise, naming each element).
         #[arg(long)]
         allow_unsupported: bool,
+        /// Also write each image denoised by the server (Intel Open Image Denoise):
+        /// <stem>_denoised.exr and its PNG, beside the course's outputs (downloaded with --wait).
+        /// The server refuses the job (422) if it has no denoiser.
+        #[arg(long)]
+        denoise: bool,
         /// Follow the job until it ends and download its outputs into --out.
         #[arg(long, short)]
         wait: bool,
@@ -202,14 +207,23 @@ fn run(cli: Cli) -> Result<ExitCode> {
             cameras,
             name,
             allow_unsupported,
+            denoise,
             wait,
             out,
             float_exr,
             dry_run,
             quiet,
         } => {
-            let opts =
-                SubmitOptions { priority, samples, tile_size, cameras, name, allow_unsupported, quiet };
+            let opts = SubmitOptions {
+                priority,
+                samples,
+                tile_size,
+                cameras,
+                name,
+                allow_unsupported,
+                denoise,
+                quiet,
+            };
             // Everything local first: a scene that cannot be packed never reaches the network.
             let bundle = pack::pack(&scene)?;
             if bundle.cameras.is_empty() {
@@ -283,6 +297,7 @@ struct SubmitOptions {
     cameras: Option<String>,
     name: Option<String>,
     allow_unsupported: bool,
+    denoise: bool,
     quiet: bool,
 }
 
@@ -357,6 +372,9 @@ fn submit(
     }
     if opts.allow_unsupported {
         fields.push(("allow_unsupported", "true".to_string()));
+    }
+    if opts.denoise {
+        fields.push(("denoise", "true".to_string()));
     }
     let (content_type, head, tail) = api::multipart_frame(&fields, "bundle", "bundle.tar.gz");
     let length = (head.len() + tar.len() + tail.len()) as u64;

@@ -148,6 +148,9 @@ pub struct Lease {
     /// Tessera does not implement instead of refusing it. Absent: false.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub allow_unsupported: bool,
+    /// Send the tile's denoising features too ([`encode_tile_with_aux`]): the job is denoised.
+    #[serde(default)]
+    pub aux: bool,
 }
 
 /// A long poll for revocations of the leases a worker is rendering.
@@ -326,6 +329,9 @@ pub struct JobInfo {
     pub priority: i64,
     pub tile_size: u32,
     pub samples: Option<u32>,
+    /// Each frame is also written denoised (`<stem>_denoised.exr` and its PNG).
+    #[serde(default)]
+    pub denoise: bool,
     /// Unix seconds.
     pub submitted_at: f64,
     pub started_at: Option<f64>,
@@ -450,6 +456,39 @@ pub fn encode_tile(px: &[[f32; 3]]) -> Vec<u8> {
     out
 }
 
+/// The size of a tile of `pixels` pixels on the wire: its colour, and with `aux` its albedo and
+/// normal after it ([`encode_tile_with_aux`]).
+pub fn tile_bytes(pixels: usize, aux: bool) -> usize {
+    pixels * 12 * if aux { 3 } else { 1 }
+}
+
+/// A tile with its denoising features on the wire: the colour as [`encode_tile`] writes it,
+/// then the albedo, then the normal, each the same way (three planes of RGB triples).
+pub fn encode_tile_with_aux(px: &[[f32; 3]], albedo: &[[f32; 3]], normal: &[[f32; 3]]) -> Vec<u8> {
+    let mut out = encode_tile(px);
+    out.extend_from_slice(&encode_tile(albedo));
+    out.extend_from_slice(&encode_tile(normal));
+    out
+}
+
+/// A tile's colour plane and, when present, its albedo and normal planes.
+pub type TilePlanes<'a> = (&'a [u8], Option<(&'a [u8], &'a [u8])>);
+
+/// A tile's planes as stored (colour, then albedo and normal when the job is denoised): the
+/// colour's bytes and, when present, the features', split at `pixels` pixels each. `None` unless
+/// the bytes hold one or three whole planes.
+pub fn tile_planes(bytes: &[u8], pixels: usize) -> Option<TilePlanes<'_>> {
+    let plane = pixels.checked_mul(12)?;
+    if bytes.len() == plane {
+        Some((bytes, None))
+    } else if Some(bytes.len()) == plane.checked_mul(3) {
+        let (colour, rest) = bytes.split_at(plane);
+        Some((colour, Some(rest.split_at(plane))))
+    } else {
+        None
+    }
+}
+
 /// The inverse of [`encode_tile`]; `None` unless `bytes` holds exactly `pixels` pixels.
 pub fn decode_tile(bytes: &[u8], pixels: usize) -> Option<Vec<[f32; 3]>> {
     if bytes.len() != pixels.checked_mul(12)? {
@@ -506,6 +545,22 @@ mod tests {
         // NaN bits survive too.
         let nan = encode_tile(&[[f32::NAN; 3]]);
         assert!(decode_tile(&nan, 1).unwrap()[0][0].is_nan());
+    }
+
+    #[test]
+    fn a_tile_with_features_splits_into_its_three_planes() {
+        let (c, a, n) = ([[1.0, 2.0, 3.0]; 2], [[0.5; 3]; 2], [[0.0, 0.0, 1.0]; 2]);
+        let bytes = encode_tile_with_aux(&c, &a, &n);
+        assert_eq!(bytes.len(), tile_bytes(2, true));
+        let (colour, aux) = tile_planes(&bytes, 2).unwrap();
+        let (albedo, normal) = aux.unwrap();
+        assert_eq!(decode_tile(colour, 2).unwrap(), c);
+        assert_eq!(decode_tile(albedo, 2).unwrap(), a);
+        assert_eq!(decode_tile(normal, 2).unwrap(), n);
+        let plain = encode_tile(&c);
+        assert_eq!(plain.len(), tile_bytes(2, false));
+        assert_eq!(tile_planes(&plain, 2), Some((&plain[..], None)));
+        assert_eq!(tile_planes(&bytes[..48], 2), None, "two planes are neither");
     }
 
     #[test]

@@ -32,7 +32,8 @@ CREATE TABLE IF NOT EXISTS jobs(
     started_at REAL,
     finished_at REAL,
     error TEXT,
-    allow_unsupported INTEGER NOT NULL DEFAULT 0
+    allow_unsupported INTEGER NOT NULL DEFAULT 0,
+    denoise INTEGER NOT NULL DEFAULT 0
 );
 CREATE TABLE IF NOT EXISTS frames(
     job_id INTEGER NOT NULL,
@@ -294,6 +295,9 @@ pub struct NewJob {
     pub warnings: Vec<String>,
     /// Render the scene without its unsupported elements (`allow_unsupported=true`).
     pub allow_unsupported: bool,
+    /// Tiles carry the denoiser's features, and each merged frame is also written denoised
+    /// (`denoise=true`).
+    pub denoise: bool,
 }
 
 pub struct NewFrame {
@@ -318,6 +322,7 @@ pub struct JobRow {
     pub started_at: Option<f64>,
     pub finished_at: Option<f64>,
     pub error: Option<String>,
+    pub denoise: bool,
 }
 
 #[derive(Clone, Debug)]
@@ -409,10 +414,12 @@ pub enum FailOutcome {
 
 /// How long a frame's merge took, for its log: assembling the tiles and writing the files
 /// that need no tone mapping, and tone mapping (with its PNG) where the frame has one.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Debug, Default)]
 pub struct MergeTiming {
     pub merge_seconds: f64,
     pub tonemap_seconds: Option<f64>,
+    /// The denoiser's run (OIDN's filters) and a description of it, for denoised jobs.
+    pub denoise: Option<(f64, String)>,
 }
 
 /// What /metrics reads from the store.
@@ -442,10 +449,11 @@ fn job_from_row(r: &rusqlite::Row) -> rusqlite::Result<JobRow> {
         started_at: r.get(9)?,
         finished_at: r.get(10)?,
         error: r.get(11)?,
+        denoise: r.get(12)?,
     })
 }
 
-const JOB_COLUMNS: &str = "id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, started_at, finished_at, error";
+const JOB_COLUMNS: &str = "id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, started_at, finished_at, error, denoise";
 
 fn frame_from_row(r: &rusqlite::Row) -> rusqlite::Result<FrameRow> {
     let outputs: Option<String> = r.get(8)?;
@@ -490,6 +498,10 @@ fn migrate(conn: &Connection) -> Result<()> {
         // (older servers only warned about them): they keep rendering that way.
         conn.execute("ALTER TABLE jobs ADD COLUMN allow_unsupported INTEGER NOT NULL DEFAULT 1", [])?;
     }
+    if !has_column("jobs", "denoise")? {
+        // Jobs from before denoising existed did not ask for it.
+        conn.execute("ALTER TABLE jobs ADD COLUMN denoise INTEGER NOT NULL DEFAULT 0", [])?;
+    }
     Ok(())
 }
 
@@ -530,7 +542,7 @@ impl Store {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         tx.execute_cached(
-            "INSERT INTO jobs(name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, allow_unsupported) VALUES (?1, 'queued', ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+            "INSERT INTO jobs(name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, allow_unsupported, denoise) VALUES (?1, 'queued', ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
             params![
                 job.name,
                 job.priority,
@@ -539,7 +551,8 @@ impl Store {
                 job.bundle,
                 job.scene_path,
                 now(),
-                job.allow_unsupported
+                job.allow_unsupported,
+                job.denoise
             ],
         )?;
         let id = tx.last_insert_rowid();
@@ -717,6 +730,13 @@ impl Store {
                 Event { frame: f, seconds: Some(seconds), ..Event::new("frame_tonemapped", &tonemapped) },
             )?;
         }
+        if let Some((seconds, what)) = &timing.denoise {
+            log_event(
+                &tx,
+                job as i64,
+                Event { frame: f, seconds: Some(*seconds), ..Event::new("frame_denoised", what) },
+            )?;
+        }
         let left: i64 = tx.query_row_cached(
             "SELECT count(*) FROM frames WHERE job_id = ?1 AND outputs IS NULL",
             [job as i64],
@@ -845,21 +865,21 @@ impl Store {
         // Two indexed steps instead of one join sorted over every queued tile: the live jobs in
         // priority order (a short list), then the first queued tile of each (an index seek on
         // `tiles_queue`), so a lease costs the same behind a million queued tiles as behind ten.
-        let jobs: Vec<(i64, String, String, Option<i64>, bool)> = {
+        let jobs: Vec<(i64, String, String, Option<i64>, bool, bool)> = {
             let mut stmt = tx.prepare_cached(
-                "SELECT j.id, j.bundle, j.scene_path, j.samples, j.allow_unsupported FROM jobs j
+                "SELECT j.id, j.bundle, j.scene_path, j.samples, j.allow_unsupported, j.denoise FROM jobs j
                  WHERE j.state IN ('queued', 'running')
                    AND NOT (SELECT count(*) >= ?2 AND max(x.at) > ?3
                             FROM tile_failures x WHERE x.job_id = j.id AND x.worker_id = ?1)
                  ORDER BY j.priority DESC, j.id",
             )?;
             stmt.query_map(params![w, failures::WORKER_FAILURES_PER_JOB, recent], |r| {
-                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?))
+                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?, r.get(5)?))
             })?
             .collect::<rusqlite::Result<_>>()?
         };
         let mut candidate = None;
-        for (job, bundle, scene_path, samples, allow_unsupported) in jobs {
+        for (job, bundle, scene_path, samples, allow_unsupported, aux) in jobs {
             let tile = tx
                 .prepare_cached(
                     "SELECT t.frame, t.tile, t.x0, t.y0, t.w, t.h, f.camera
@@ -883,12 +903,22 @@ impl Store {
                 })
                 .optional()?;
             if let Some((frame, tile, rect, camera)) = tile {
-                candidate =
-                    Some((job, frame, tile, rect, bundle, scene_path, samples, camera, allow_unsupported));
+                candidate = Some((
+                    job,
+                    frame,
+                    tile,
+                    rect,
+                    bundle,
+                    scene_path,
+                    samples,
+                    camera,
+                    allow_unsupported,
+                    aux,
+                ));
                 break;
             }
         }
-        let Some((job, frame, tile, rect, bundle, scene_path, samples, camera, allow_unsupported)) =
+        let Some((job, frame, tile, rect, bundle, scene_path, samples, camera, allow_unsupported, aux)) =
             candidate
         else {
             tx.execute_cached("UPDATE workers SET last_seen = ?2 WHERE id = ?1", params![w, now()])?;
@@ -937,6 +967,7 @@ impl Store {
             lease_seconds,
             max_render_seconds: None,
             allow_unsupported,
+            aux,
         }))
     }
 
@@ -1041,14 +1072,17 @@ impl Store {
         Ok(n > 0)
     }
 
-    /// The size in bytes of the tile a live lease of `worker` expects (width x height x 12), or
-    /// `None` when it is not such a lease: the result route reads no more than this of a body.
+    /// The size in bytes of the tile a live lease of `worker` expects (width x height x 12, three
+    /// times that when its job is denoised: [`tessera::protocol::tile_bytes`]), or `None` when it
+    /// is not such a lease: the result route reads no more than this of a body.
     pub fn result_size(&self, lease: u64, worker: u64) -> Result<Option<usize>> {
         let conn = self.conn();
         let (lease, worker) = (i64::try_from(lease).unwrap_or(-1), i64::try_from(worker).unwrap_or(-1));
         let size: Option<i64> = conn
             .query_row_cached(
-                "SELECT w * h * 12 FROM tiles WHERE lease_id = ?1 AND worker_id = ?2 AND state = 'leased'",
+                "SELECT t.w * t.h * 12 * (CASE WHEN j.denoise THEN 3 ELSE 1 END)
+                 FROM tiles t JOIN jobs j ON j.id = t.job_id
+                 WHERE t.lease_id = ?1 AND t.worker_id = ?2 AND t.state = 'leased'",
                 params![lease, worker],
                 |r| r.get(0),
             )
@@ -1068,7 +1102,7 @@ impl Store {
         let tx = conn.transaction()?;
         let row = tx
             .query_row_cached(
-                "SELECT t.job_id, t.frame, t.w, t.h, t.deadline, t.tile, t.x0, t.y0 FROM tiles t JOIN jobs j ON j.id = t.job_id
+                "SELECT t.job_id, t.frame, t.w, t.h, t.deadline, t.tile, t.x0, t.y0, j.denoise FROM tiles t JOIN jobs j ON j.id = t.job_id
                  WHERE t.lease_id = ?1 AND t.worker_id = ?2 AND t.state = 'leased' AND j.state IN ('queued', 'running')",
                 params![lease as i64, worker as i64],
                 |r| {
@@ -1081,18 +1115,19 @@ impl Store {
                         r.get::<_, i64>(5)?,
                         r.get::<_, i64>(6)?,
                         r.get::<_, i64>(7)?,
+                        r.get::<_, bool>(8)?,
                     ))
                 },
             )
             .optional()?;
-        let Some((job, frame, w, h, deadline, tile, x0, y0)) = row else {
+        let Some((job, frame, w, h, deadline, tile, x0, y0, denoise)) = row else {
             return Ok(ResultOutcome::Conflict);
         };
         if deadline < now() {
             // Expired but not swept yet: the tile may already be someone else's.
             return Ok(ResultOutcome::Conflict);
         }
-        let expected = (w * h * 12) as usize;
+        let expected = tessera::protocol::tile_bytes((w * h) as usize, denoise);
         if pixels.len() != expected {
             return Ok(ResultOutcome::WrongSize { expected });
         }
@@ -1261,6 +1296,7 @@ mod tests {
             bundle: "0".repeat(64),
             scene_path: "scene.xml".into(),
             allow_unsupported: false,
+            denoise: false,
             frames: vec![NewFrame {
                 camera: 0,
                 image_name: "j.png".into(),
@@ -1280,8 +1316,11 @@ mod tests {
         {
             // The jobs table before the column, with a job accepted then.
             let conn = Connection::open(&path).unwrap();
-            conn.execute_batch(&SCHEMA.replace(",\n    allow_unsupported INTEGER NOT NULL DEFAULT 0", ""))
-                .unwrap();
+            let old = SCHEMA
+                .replace(",\n    allow_unsupported INTEGER NOT NULL DEFAULT 0", "")
+                .replace(",\n    denoise INTEGER NOT NULL DEFAULT 0", "");
+            assert!(!old.contains("denoise") && !old.contains("allow_unsupported"));
+            conn.execute_batch(&old).unwrap();
             conn.execute(
                 "INSERT INTO jobs(name, state, priority, tile_size, bundle, scene_path, submitted_at) VALUES ('old', 'queued', 0, 1, 'b', 's.xml', 0)",
                 [],
@@ -1302,7 +1341,7 @@ mod tests {
         let new = job(&s, -1, 1);
         let w = worker(&s);
         let old = lease(&s, w);
-        assert_eq!((old.job_id, old.allow_unsupported), (1, true));
+        assert_eq!((old.job_id, old.allow_unsupported, old.aux), (1, true, false), "not denoised");
         let fresh = lease(&s, w);
         assert_eq!((fresh.job_id, fresh.allow_unsupported), (new, false));
         drop(s);
@@ -1487,6 +1526,46 @@ mod tests {
     }
 
     #[test]
+    fn a_denoised_jobs_leases_ask_for_features_and_take_three_planes() {
+        let (_d, s) = store("features");
+        let plain = job(&s, 1, 1);
+        let denoised = s
+            .insert_job(&NewJob {
+                name: "d".into(),
+                priority: 0,
+                tile_size: 1,
+                samples: None,
+                bundle: "0".repeat(64),
+                scene_path: "scene.xml".into(),
+                allow_unsupported: false,
+                denoise: true,
+                frames: vec![NewFrame {
+                    camera: 0,
+                    image_name: "d.exr".into(),
+                    width: 2,
+                    height: 1,
+                    tiles: vec![Rect { x0: 0, y0: 0, width: 2, height: 1 }],
+                }],
+                warnings: Vec::new(),
+            })
+            .unwrap();
+        assert!(s.job(denoised).unwrap().unwrap().denoise && !s.job(plain).unwrap().unwrap().denoise);
+        let w = worker(&s);
+        let first = lease(&s, w);
+        assert_eq!((first.job_id, first.aux), (plain, false));
+        assert_eq!(s.result_size(first.lease_id, w).unwrap(), Some(12));
+        let l = lease(&s, w);
+        assert_eq!((l.job_id, l.aux), (denoised, true));
+        assert_eq!(s.result_size(l.lease_id, w).unwrap(), Some(72), "2 pixels x 3 planes x 12 bytes");
+        assert_eq!(
+            s.submit_result(l.lease_id, w, &[0; 24], None).unwrap(),
+            ResultOutcome::WrongSize { expected: 72 },
+            "the colour alone is refused"
+        );
+        assert!(matches!(s.submit_result(l.lease_id, w, &[0; 72], None).unwrap(), ResultOutcome::Accepted { .. }));
+    }
+
+    #[test]
     fn cancel_revokes_the_live_leases_and_hands_out_no_more_tiles() {
         let (_d, s) = store("cancel");
         let j = job(&s, 0, 3);
@@ -1599,6 +1678,7 @@ mod tests {
                 }],
                 warnings,
                 allow_unsupported: false,
+                denoise: false,
             })
             .unwrap();
         let w = worker(&s);

@@ -14,7 +14,8 @@ use anyhow::{Context, Result, bail};
 use tessera::camera::Camera;
 use tessera::image::{Image, TileRect};
 use tessera::output::{self, OutputFile, OutputKind};
-use tessera::protocol::{JobState, Rect, ServerEvent, decode_tile};
+use tessera::protocol::{JobState, Rect, ServerEvent, decode_tile, tile_bytes, tile_planes};
+use tessera::render::AuxImages;
 use tessera::tonemap::params::{Operator, Photographic};
 use tessera::tonemap::tonemap_with;
 
@@ -23,17 +24,61 @@ use crate::state::AppState;
 
 /// Assembles `tiles` into a `width` x `height` image; missing tiles stay black.
 pub fn assemble(width: u32, height: u32, tiles: &[(Rect, Vec<u8>)]) -> Result<Image> {
+    Ok(assemble_with_aux(width, height, tiles, false)?.0)
+}
+
+/// [`assemble`], and with `aux` the denoising features the tiles carry (every tile must).
+pub fn assemble_with_aux(
+    width: u32,
+    height: u32,
+    tiles: &[(Rect, Vec<u8>)],
+    aux: bool,
+) -> Result<(Image, Option<AuxImages>)> {
     let mut img = Image::new(width, height);
+    let mut features =
+        aux.then(|| AuxImages { albedo: Image::new(width, height), normal: Image::new(width, height) });
     for (r, bytes) in tiles {
         if r.x0 + r.width > width || r.y0 + r.height > height {
             bail!("tile {r:?} lies outside the {width}x{height} frame");
         }
-        let px = decode_tile(bytes, (r.width * r.height) as usize).with_context(|| {
-            format!("tile {r:?} holds {} bytes, not {}", bytes.len(), r.width * r.height * 12)
-        })?;
-        img.put_tile(TileRect::from(*r), &px);
+        let n = (r.width * r.height) as usize;
+        let (colour, planes) = tile_planes(bytes, n)
+            .with_context(|| format!("tile {r:?} holds {} bytes, not {}", bytes.len(), tile_bytes(n, aux)))?;
+        let decode =
+            |b: &[u8]| decode_tile(b, n).with_context(|| format!("tile {r:?}: a plane of the wrong size"));
+        let rect = TileRect::from(*r);
+        img.put_tile(rect, &decode(colour)?);
+        if let Some(f) = features.as_mut() {
+            let (albedo, normal) = planes.with_context(|| format!("tile {r:?} has no denoising features"))?;
+            f.albedo.put_tile(rect, &decode(albedo)?);
+            f.normal.put_tile(rect, &decode(normal)?);
+        }
     }
-    Ok(img)
+    Ok((img, features))
+}
+
+/// Writes `img` denoised (OIDN's RT filter, high quality, with the features) as the camera's
+/// `<stem>_denoised` files in `dir` (`output::denoised_plan`). Returns their names, the
+/// denoiser's seconds and a sentence for the job's log.
+pub fn write_denoised(
+    dir: &Path,
+    cam: &Camera,
+    img: &Image,
+    aux: &AuxImages,
+) -> Result<(Vec<String>, f64, String)> {
+    let oidn = tessera_denoise::oidn().map_err(|e| anyhow::anyhow!("{e}"))?;
+    let (clean, seconds) = oidn
+        .denoise(img, Some(aux), tessera_denoise::Quality::High)
+        .map_err(|e| anyhow::anyhow!("denoising failed: {e}"))?;
+    let files = output::denoised_plan(cam);
+    output::write(dir, &clean, &files).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let names: Vec<String> = files.into_iter().map(|f| f.name).collect();
+    let what = format!(
+        "denoised with Intel Open Image Denoise {} (RT filter, high quality, albedo and normal): {}",
+        oidn.version(),
+        names.join(", ")
+    );
+    Ok((names, seconds, what))
 }
 
 /// The files the farm writes for a camera: what `tessera-worker render` writes, plus the float
@@ -120,8 +165,9 @@ impl PreviewCanvas {
         {
             bail!("tile {r:?} lies outside the {}x{} frame", self.width, self.height);
         }
-        let px = decode_tile(bytes, (r.width * r.height) as usize).with_context(|| {
-            format!("tile {r:?} holds {} bytes, not {}", bytes.len(), r.width * r.height * 12)
+        let n = (r.width * r.height) as usize;
+        let px = tile_planes(bytes, n).and_then(|(colour, _)| decode_tile(colour, n)).with_context(|| {
+            format!("tile {r:?} holds {} bytes, not {} (or three times that)", bytes.len(), n * 12)
         })?;
         for y in 0..r.height {
             let row = ((r.y0 + y) / self.scale * self.pw) as usize;
@@ -248,15 +294,26 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
             cameras.get(f.camera as usize).ok_or_else(|| anyhow::anyhow!("camera {} missing", f.camera))?;
         let started = Instant::now();
         let tiles = st.store.frame_tiles(job_id, frame)?;
-        let img = assemble(f.width, f.height, &tiles)?;
+        let (img, aux) = assemble_with_aux(f.width, f.height, &tiles, job.denoise)?;
+        drop(tiles);
         let assembled = started.elapsed().as_secs_f64();
         let dir = st.frame_dir(job_id, frame);
-        let (names, written, tonemap_seconds) = write_outputs(&dir, cam, &img)?;
+        let (mut names, written, tonemap_seconds) = write_outputs(&dir, cam, &img)?;
+        // The denoised frame goes beside the course's outputs, from the merged frame (never
+        // tile by tile: the filter would leave seams).
+        let denoise = match &aux {
+            Some(aux) => {
+                let (more, seconds, what) = write_denoised(&dir, cam, &img, aux)?;
+                names.extend(more);
+                Some((seconds, what))
+            }
+            None => None,
+        };
         // The page's picture of the finished frame, made once here: a preview request then
         // reads a small file instead of the whole float frame.
         tessera::atomic_write::write_atomic(&dir.join(PREVIEW_FILE), &final_preview_png(cam, &img)?)
             .with_context(|| format!("cannot write the preview in {}", dir.display()))?;
-        let timing = MergeTiming { merge_seconds: assembled + written, tonemap_seconds };
+        let timing = MergeTiming { merge_seconds: assembled + written, tonemap_seconds, denoise };
         st.store.frame_merged(job_id, frame, &names, timing)
     })
     .await;

@@ -40,7 +40,7 @@ use anyhow::{Context, Result, anyhow, bail};
 use tessera::bundle::{BundleSceneError, load_bundle_scene, read_tar};
 use tessera::image::TileRect;
 use tessera::protocol::*;
-use tessera::render::{RenderSettings, Stop, Stopped, render_tile_until};
+use tessera::render::{RenderSettings, Stop, Stopped, render_tile_until, render_tile_with_aux_until};
 use tessera::scene::Scene;
 use tessera::scene::load::LoadOptions;
 
@@ -327,7 +327,7 @@ pub fn work(opts: WorkOptions) -> Result<()> {
 
     // Uploads run beside the rendering, so the cores start the next tile at once; the lease
     // stays held (and heartbeated) until its upload is answered.
-    let (up_tx, up_rx) = sync_channel::<(u64, Vec<[f32; 3]>, f64)>(2);
+    let (up_tx, up_rx) = sync_channel::<(u64, Vec<u8>, f64)>(2);
     let uploader = {
         let (client, leases) = (client.clone(), leases.clone());
         std::thread::Builder::new().name("uploader".into()).spawn(move || {
@@ -423,7 +423,7 @@ impl Slots<'_> {
 
     /// Render slot `slot`: takes the next lease, renders it on this thread, hands the tile to
     /// the uploader (or reports its failure); until the worker stops or has taken `max_tiles`.
-    fn run(&self, slot: usize, up_tx: SyncSender<(u64, Vec<[f32; 3]>, f64)>) -> Result<()> {
+    fn run(&self, slot: usize, up_tx: SyncSender<(u64, Vec<u8>, f64)>) -> Result<()> {
         let (client, worker_id, leases, stop) = (self.client, self.worker_id, self.leases, self.stop);
         loop {
             if stop.load(Ordering::SeqCst) {
@@ -685,9 +685,10 @@ fn lease_scene(
     })
 }
 
-/// Renders the tile of `lease` on the calling thread (a render slot). `None` when `cancel` was
-/// raised (the lease was revoked) before the tile was done.
-fn render_lease(scene: &Scene, lease: &Lease, cancel: &AtomicBool) -> Result<Option<Vec<[f32; 3]>>> {
+/// Renders the tile of `lease` on the calling thread (a render slot), as the bytes to upload
+/// (with its denoising features when the lease asks for them). `None` when `cancel` was raised
+/// (the lease was revoked) before the tile was done.
+fn render_lease(scene: &Scene, lease: &Lease, cancel: &AtomicBool) -> Result<Option<Vec<u8>>> {
     let cam = scene
         .cameras
         .get(lease.camera as usize)
@@ -705,7 +706,13 @@ fn render_lease(scene: &Scene, lease: &Lease, cancel: &AtomicBool) -> Result<Opt
     };
     // The whole tile on this thread; a panic is a bug, reported instead of ending the worker.
     let rendered = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        render_tile_until(scene, camera, TileRect::from(r), &settings, stop).map(|(px, _)| px)
+        let rect = TileRect::from(r);
+        if lease.aux {
+            render_tile_with_aux_until(scene, camera, rect, &settings, stop)
+                .map(|(px, aux, _)| encode_tile_with_aux(&px, &aux.albedo, &aux.normal))
+        } else {
+            render_tile_until(scene, camera, rect, &settings, stop).map(|(px, _)| encode_tile(&px))
+        }
     }))
     .map_err(|_| {
         anyhow!("the renderer panicked on this tile (a bug in Tessera; please report it with the scene)")
@@ -758,9 +765,8 @@ fn fetch_bundle_scene(
 }
 
 /// Uploads a tile, retrying transport errors; a 409 means the lease is gone: drop the tile.
-fn upload(client: &Client, worker_id: u64, lease: u64, px: &[[f32; 3]], seconds: f64) {
-    let body = encode_tile(px);
-    let sum = checksum(&body);
+fn upload(client: &Client, worker_id: u64, lease: u64, body: &[u8], seconds: f64) {
+    let sum = checksum(body);
     let mut delay = Duration::from_millis(200);
     for _ in 0..8 {
         let res = client
@@ -772,7 +778,7 @@ fn upload(client: &Client, worker_id: u64, lease: u64, px: &[[f32; 3]], seconds:
             .set(CHECKSUM_HEADER, &sum)
             .set(RENDER_SECONDS_HEADER, &format!("{seconds:.6}"))
             .set("Content-Type", "application/octet-stream")
-            .send_bytes(&body);
+            .send_bytes(body);
         match res {
             Ok(_) => return,
             Err(ureq::Error::Status(409, _)) => {

@@ -40,6 +40,7 @@ pub(super) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobIn
         priority: job.priority,
         tile_size: job.tile_size,
         samples: job.samples,
+        denoise: job.denoise,
         submitted_at: job.submitted_at,
         started_at: job.started_at,
         finished_at: job.finished_at,

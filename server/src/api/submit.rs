@@ -43,6 +43,9 @@ pub(super) struct SubmitForm {
     cameras: Option<String>,
     /// Which file of a bundle is the scene, when it holds several.
     scene_path: Option<String>,
+    /// "true": also write each frame denoised (`<stem>_denoised.exr` and its PNG) with Intel
+    /// Open Image Denoise on the server; 422 when the server has no OIDN.
+    denoise: Option<bool>,
 }
 
 /// Options of a submission (multipart text fields).
@@ -56,6 +59,8 @@ struct SubmitOptions {
     scene_path: Option<String>,
     /// Render the scene without the elements Tessera does not implement instead of refusing it.
     allow_unsupported: bool,
+    /// Also write each frame denoised.
+    denoise: bool,
 }
 
 fn problem_from(e: &tessera::SceneError) -> Problem {
@@ -209,20 +214,25 @@ async fn read_fields(
                 opts.cameras = Some(list);
             }
             "scene_path" => opts.scene_path = Some(text()),
-            "allow_unsupported" => {
-                opts.allow_unsupported = match text().as_str() {
+            field @ ("allow_unsupported" | "denoise") => {
+                let yes = match text().as_str() {
                     "true" | "1" => true,
                     "false" | "0" => false,
                     other => {
                         return Err(AppError::bad_request(format!(
-                            "allow_unsupported must be true or false, found \"{other}\""
+                            "{field} must be true or false, found \"{other}\""
                         )));
                     }
+                };
+                if field == "denoise" {
+                    opts.denoise = yes;
+                } else {
+                    opts.allow_unsupported = yes;
                 }
             }
             other => {
                 return Err(AppError::bad_request(format!(
-                    "unknown field \"{other}\"; send scene, asset (one per file, named by its relative path), bundle, name, priority, tile_size, samples, cameras, scene_path or allow_unsupported"
+                    "unknown field \"{other}\"; send scene, asset (one per file, named by its relative path), bundle, name, priority, tile_size, samples, cameras, scene_path, allow_unsupported or denoise"
                 )));
             }
         }
@@ -237,7 +247,7 @@ async fn read_fields(
         (status = 400, description = "Not valid multipart, a bad field, or a scene that does not parse or build (`problems` says where)", body = ApiError),
         (status = 401, description = "The server needs an API token", body = ApiError),
         (status = 413, description = "Over the upload or unpacking limits", body = ApiError),
-        (status = 422, description = "Over the tile or sample limits", body = ApiError)))]
+        (status = 422, description = "Over the tile or sample limits, or denoise=true on a server without Intel Open Image Denoise", body = ApiError)))]
 pub(super) async fn submit_job(
     State(state): State<AppState>,
     mut multipart: Multipart,
@@ -253,6 +263,19 @@ pub(super) async fn submit_job(
             while let Ok(Some(_)) = field.chunk().await {}
         }
         return Err(refusal);
+    }
+    if opts.denoise {
+        // Refused before anything is unpacked: the server denoises the merged frames, so it needs
+        // the library itself (workers only send features).
+        let found = tokio::task::spawn_blocking(|| tessera_denoise::oidn().map(|_| ()))
+            .await
+            .map_err(|e| anyhow::anyhow!("denoiser lookup task: {e}"))?;
+        if let Err(e) = found {
+            return Err(AppError::new(
+                StatusCode::UNPROCESSABLE_ENTITY,
+                format!("denoise=true: this server cannot denoise: {e}; or submit without denoise"),
+            ));
+        }
     }
     let too_large = |e: BundleError| AppError::new(StatusCode::PAYLOAD_TOO_LARGE, e.to_string());
     if spool.parts.is_empty() {
@@ -306,6 +329,7 @@ pub(super) async fn submit_job(
             frames,
             warnings: warnings.clone(),
             allow_unsupported: opts.allow_unsupported,
+            denoise: opts.denoise,
         };
         let id = state.store.insert_job(&job)?;
         state.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(id, Arc::new(cameras));

@@ -382,6 +382,7 @@ $("#submit").addEventListener("submit", async (ev) => {
     const v = $("#" + id).value.trim();
     if (v !== "" && !(field === "priority" && v === "0")) form.append(field, v);
   }
+  if ($("#denoise").checked) form.append("denoise", "true");
   const button = $("#submit-button");
   button.disabled = true;
   try {

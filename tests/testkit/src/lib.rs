@@ -236,3 +236,32 @@ pub fn first_line(stdout: std::process::ChildStdout, limit: Duration) -> Option<
     });
     rx.recv_timeout(limit).ok()
 }
+
+/// Whether a test that needs Intel Open Image Denoise may run, given the outcome of looking for
+/// it (`tessera_denoise::oidn()`, mapped to `()`): when it is missing, the test should skip, and
+/// this says why, or panics when `TESSERA_REQUIRE_OIDN` is set (`.ci/run` installs the pyoidn
+/// wheel and sets it), so CI cannot pass by skipping the denoiser.
+pub fn denoiser_found(lookup: Result<(), String>) -> bool {
+    let Err(e) = lookup else { return true };
+    let required = std::env::var_os("TESSERA_REQUIRE_OIDN").is_some_and(|v| !v.is_empty() && v != "0");
+    assert!(!required, "TESSERA_REQUIRE_OIDN is set but {e}");
+    eprintln!("skipping: {e} (TESSERA_REQUIRE_OIDN makes this a failure)");
+    false
+}
+
+/// The course's path-traced Cornell box with a glass sphere (`cornellbox_jaroslav_path_glass`)
+/// made small for tests: every camera at 96 x 96 pixels, written into `dir`. `None` (the test
+/// skips) when the corpus is absent; see [`corpus_has`].
+pub fn small_path_traced_box(dir: &Path) -> Option<PathBuf> {
+    let source = shared_scenes().join("xml/cornellbox_jaroslav_path_glass.xml");
+    if !corpus_has(&source) {
+        return None;
+    }
+    let text = std::fs::read_to_string(&source).expect("read the corpus scene");
+    let small = text
+        .replace("<ImageResolution>512 512</ImageResolution>", "<ImageResolution>96 96</ImageResolution>");
+    assert_ne!(small, text, "the corpus scene's resolution changed; update small_path_traced_box");
+    let path = dir.join("box.xml");
+    std::fs::write(&path, small).expect("write the small scene");
+    Some(path)
+}

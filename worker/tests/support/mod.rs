@@ -20,8 +20,14 @@ impl Run {
 
 /// Runs `tessera-worker` with `args` and waits for it.
 pub fn run<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Run {
+    run_with_env(args, &[])
+}
+
+/// [`run`] with environment variables `env` set for the run.
+#[allow(dead_code)] // not every test binary that includes this module sets any
+pub fn run_with_env<S: AsRef<std::ffi::OsStr>>(args: &[S], env: &[(&str, &str)]) -> Run {
     let Output { status, stdout, stderr } =
-        Command::new(BIN).args(args).output().expect("spawn tessera-worker");
+        Command::new(BIN).args(args).envs(env.iter().copied()).output().expect("spawn tessera-worker");
     Run {
         code: status.code(),
         stdout: String::from_utf8_lossy(&stdout).into_owned(),
