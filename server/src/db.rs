@@ -1562,7 +1562,10 @@ mod tests {
             ResultOutcome::WrongSize { expected: 72 },
             "the colour alone is refused"
         );
-        assert!(matches!(s.submit_result(l.lease_id, w, &[0; 72], None).unwrap(), ResultOutcome::Accepted { .. }));
+        assert!(matches!(
+            s.submit_result(l.lease_id, w, &[0; 72], None).unwrap(),
+            ResultOutcome::Accepted { .. }
+        ));
     }
 
     #[test]
