@@ -116,6 +116,39 @@ fn client_submit_wait_gives_the_clis_files_byte_for_byte() {
     }
 }
 
+/// `tessera submit --denoise --wait` brings down the denoised files too, the CLI's bytes.
+#[test]
+fn client_submit_denoise_downloads_the_clis_denoised_files() {
+    if !tessera_testkit::denoiser_found(tessera_denoise::oidn().map(|_| ())) {
+        return;
+    }
+    let dir = TempDir::new("client-denoise");
+    let Some(scene) = tessera_testkit::small_path_traced_box(dir.path()) else { return };
+    let _serial = serial();
+    let server = Server::start("client-denoise", &[]);
+    let _worker = Worker::start(&server.url, "w1");
+    let (cli, farm, home) = (dir.path().join("cli"), dir.path().join("farm"), dir.path().join("home"));
+    let args = ["--camera", "3", "--samples", "8", "--denoise"];
+    cli_render(&scene, &cli, &args);
+    let out = run(
+        client(&home)
+            .env("TESSERA_SERVER", &server.url)
+            .arg("submit")
+            .arg(&scene)
+            .args(["--cameras", "3", "--samples", "8", "--denoise", "--wait", "--out"])
+            .arg(&farm),
+        Duration::from_secs(300),
+    );
+    assert!(out.status.success(), "{}\n{}\n{}", text(&out.stdout), text(&out.stderr), server.log());
+    let (want, got) = (files_under(&cli), files_under(&farm));
+    let names = |v: &[(String, Vec<u8>)]| v.iter().map(|(n, _)| n.clone()).collect::<Vec<_>>();
+    assert_eq!(names(&got), names(&want), "the same files");
+    assert!(names(&got).contains(&"glass_next_importance_denoised.exr".to_string()), "{:?}", names(&got));
+    for ((name, a), (_, b)) in want.iter().zip(&got) {
+        assert!(a == b, "{name} differs from the CLI's");
+    }
+}
+
 /// A tiny scene in `dir` with a PLY model in `models/` and a PNG texture in `textures/`; its
 /// mesh 2 names `mesh2`.
 fn scene_with_assets(dir: &Path, mesh2: &str) -> PathBuf {

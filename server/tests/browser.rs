@@ -278,6 +278,33 @@ fn a_bad_upload_shows_its_error_on_the_page() {
     assert_eq!(browser.exec("return document.querySelectorAll('.job').length;"), json!(0));
 }
 
+/// The page's "Denoise" box sends `denoise=true`: a server without the denoiser answers it with
+/// its 422, which the page shows (and no job is made).
+#[test]
+fn the_denoise_box_asks_the_server_to_denoise() {
+    let _s = serial();
+    let Some(browser) = Browser::start() else { return };
+    let data = TempDir::new("farm-browser-denoise");
+    let server = Server::start_with(&data, &["--local-workers", "0"], |cmd| {
+        cmd.env("TESSERA_OIDN_LIB", "/nonexistent/oidn");
+    });
+    let dir = TempDir::new("farm-browser-denoise-scene");
+    let scene = dir.canonicalize().unwrap().join("tiny.xml");
+    std::fs::write(&scene, tessera_testkit::tiny_scene(8, 8)).unwrap();
+    browser.goto(&server.url);
+    browser.type_into("#files", &scene.display().to_string());
+    browser.click("#denoise");
+    browser.click("#submit-button");
+    let text = browser.wait(
+        "the error box",
+        30,
+        "!document.querySelector('#submit-error').hidden && document.querySelector('#submit-error').innerText",
+    );
+    let text = text.as_str().unwrap();
+    assert!(text.contains("this server cannot denoise") && text.contains("pip install pyoidn"), "{text}");
+    assert_eq!(browser.exec("return document.querySelectorAll('.job').length;"), json!(0));
+}
+
 #[test]
 fn a_jobs_log_shows_its_tiles_as_a_worker_renders_them() {
     let _s = serial();
