@@ -6,7 +6,9 @@ given, then compares the raw and the denoised frame with the official image:
   - relative MSE on the linear EXRs: mean over pixels and channels of (x - r)^2 / (r^2 + 0.01);
   - PSNR of the tone-mapped PNGs after a 4x4 box filter (forgives per-pixel noise);
   - mean FLIP (LDR, NVIDIA's flip-evaluator package) of the tone-mapped PNGs;
-and prints the render and denoise times the CLI reports. Needs numpy, OpenEXR, Pillow and
+and prints the render and denoise times the CLI reports, beside the time of the pyoidn wheel's
+own `oidnDenoise` program on the same raw frame (colour only: one filter where Tessera runs three)
+as the anchor of the same run. Needs numpy, OpenEXR, Pillow and
 flip-evaluator (`python3 -m pip install numpy OpenEXR pillow flip-evaluator`), OIDN (pyoidn), and
 a release build (`cargo build --release -p tessera-worker`).
 
@@ -62,6 +64,30 @@ def mean_flip(ref_png, test_png):
     return float(mean)
 
 
+def write_pfm(path, px):
+    h, w, _ = px.shape
+    with open(path, "wb") as o:
+        o.write(f"PF\n{w} {h}\n-1.0\n".encode())
+        o.write(np.ascontiguousarray(px[::-1]).astype("<f4").tobytes())
+
+
+def oidn_denoise_seconds(raw_exr, workdir):
+    """The anchor: the pyoidn wheel's own oidnDenoise program on the raw frame (colour only, high
+    quality), its reported filter time, best of two runs."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("pyoidn")
+    if spec is None:
+        return None
+    prog = os.path.join(spec.submodule_search_locations[0], "oidn", "bin", "oidnDenoise")
+    pfm = os.path.join(workdir, "raw.pfm")
+    write_pfm(pfm, read_exr(raw_exr))
+    run = subprocess.run([prog, "--hdr", pfm, "-o", os.path.join(workdir, "out.pfm"), "-q", "high", "-n", "2", "-v", "2"],
+                         capture_output=True, text=True)
+    times = [float(t) / 1000 for t in re.findall(r"Denoising\n\s*msec=([0-9.]+)", run.stdout)]
+    return min(times) if times else None
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", required=True)
@@ -75,8 +101,8 @@ def main():
     ref_exr, ref_png = read_exr(args.reference + ".exr"), args.reference + ".png"
     ref_png_px = read_png(ref_png)
     out_root = args.keep or tempfile.mkdtemp(prefix="tessera-denoise-")
-    print(f"| spp | render s | denoise s | relMSE raw | relMSE denoised | box PSNR raw | box PSNR denoised | FLIP raw | FLIP denoised |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print(f"| spp | render s | denoise s | oidnDenoise s (colour only) | relMSE raw | relMSE denoised | box PSNR raw | box PSNR denoised | FLIP raw | FLIP denoised |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for spp in args.spp:
         out = os.path.join(out_root, f"spp{spp}")
         cmd = [args.bin, "render", args.scene, "--camera", args.camera, "--samples", str(spp), "--denoise", "--quiet", "--out", out]
@@ -98,7 +124,9 @@ def main():
                  mean_flip(ref_png, os.path.join(out, name + ".png")))
             )
         (m0, p0, f0), (m1, p1, f1) = cells
-        print(f"| {spp} | {render_s:.1f} | {denoise_s:.2f} | {m0:.4f} | {m1:.4f} | {p0:.2f} | {p1:.2f} | {f0:.4f} | {f1:.4f} |", flush=True)
+        anchor = oidn_denoise_seconds(os.path.join(out, stem + ".exr"), out)
+        anchor = f"{anchor:.2f}" if anchor is not None else "n/a"
+        print(f"| {spp} | {render_s:.1f} | {denoise_s:.2f} | {anchor} | {m0:.4f} | {m1:.4f} | {p0:.2f} | {p1:.2f} | {f0:.4f} | {f1:.4f} |", flush=True)
     print(f"renders in {out_root}")
 
 
