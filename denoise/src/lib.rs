@@ -59,6 +59,10 @@ impl Quality {
     }
 }
 
+/// The most working memory each filter may take (OIDN's `maxMemoryMB`): larger frames are
+/// denoised in overlapping tiles, so a frame's size does not decide the denoiser's memory.
+const MAX_MEMORY_MB: i32 = 1024;
+
 // The parts of OIDN 2's C API used here (oidn.h): opaque handles, `OIDN_DEVICE_TYPE_CPU` = 1,
 // `OIDN_FORMAT_FLOAT3` = 3, `OIDN_ERROR_NONE` = 0.
 type Handle = *mut c_void;
@@ -266,6 +270,7 @@ impl Oidn {
             f.image(name, buf, w, h);
             f.image("output", buf, w, h);
             f.int("quality", quality.code());
+            f.int("maxMemoryMB", MAX_MEMORY_MB);
             f.run()?;
         }
         let f = device.filter()?;
@@ -280,6 +285,7 @@ impl Oidn {
         f.bool("hdr", true);
         f.bool("cleanAux", aux.is_some());
         f.int("quality", quality.code());
+        f.int("maxMemoryMB", MAX_MEMORY_MB);
         f.run()?;
         drop(f);
         drop(device);

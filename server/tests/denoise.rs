@@ -18,6 +18,19 @@ fn a_denoised_job_writes_the_clis_denoised_files_to_the_bit() {
     let Some(scene) = small_path_traced_box(dir.path()) else { return };
     let server =
         Server::start_temp("denoise-farm-data", &["--local-workers", "2", "--local-worker-threads", "1"]);
+    // A frame too large to denoise on the server is refused, saying what to do.
+    let huge = tessera_testkit::tiny_scene(4097, 4096);
+    let (code, body) = submit(
+        &server.url,
+        None,
+        &[("scene", Some("huge.xml"), &huge), ("tile_size", None, b"4096"), ("denoise", None, b"true")],
+    );
+    assert_eq!(code, 422, "{body}");
+    let error = body["error"].as_str().unwrap();
+    assert!(
+        error.contains("tiny.png is 4097x4096 pixels") && error.contains("at most 16777216 pixels"),
+        "{error}"
+    );
     let text = std::fs::read(&scene).unwrap();
     let (code, job) = submit(
         &server.url,

@@ -316,6 +316,9 @@ pub(super) async fn submit_job(
     .await
     .map_err(|e| anyhow::anyhow!("validation task: {e}"))??;
     check_sample_budget(&state.settings, &cameras, &frames, opts.samples)?;
+    if opts.denoise {
+        check_denoise_size(&frames)?;
+    }
     let name = opts.name.unwrap_or_else(|| scene_path.rsplit('/').next().unwrap_or(&scene_path).to_string());
     off_thread(move || {
         let hash = state.blobs.put(&tar)?;
@@ -368,6 +371,27 @@ fn check_sample_budget(
         ));
     }
     Ok(())
+}
+
+/// The largest frame the server denoises, in pixels (4096 x 4096): a denoised merge holds the
+/// frame's colour, albedo and normal and the denoiser's copies of them, about 84 bytes a pixel
+/// (1.4 GB here) besides OIDN's own working memory, which it bounds by tiling.
+pub const MAX_DENOISE_PIXELS: u64 = 4096 * 4096;
+
+/// Refuses `denoise=true` for a job with a frame over [`MAX_DENOISE_PIXELS`].
+fn check_denoise_size(frames: &[crate::db::NewFrame]) -> ApiResult<()> {
+    match frames.iter().find(|f| u64::from(f.width) * u64::from(f.height) > MAX_DENOISE_PIXELS) {
+        None => Ok(()),
+        Some(f) => Err(AppError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!(
+                "denoise=true: {} is {}x{} pixels, and this server denoises frames of at most {MAX_DENOISE_PIXELS} pixels \
+                 (4096 x 4096); submit without denoise and denoise the .exr on your machine (tessera-worker render \
+                 --denoise), or render fewer pixels",
+                f.image_name, f.width, f.height
+            ),
+        )),
+    }
 }
 
 /// Tiles of frames of `sizes` cut at `tile_size`.
