@@ -113,6 +113,16 @@ impl Browser {
         self.cmd("POST", &format!("/element/{e}/click"), Some(json!({})));
     }
 
+    /// The text of the submission form's error box, once it shows.
+    fn submit_error(&self) -> String {
+        let text = self.wait(
+            "the error box",
+            30,
+            "!document.querySelector('#submit-error').hidden && document.querySelector('#submit-error').innerText",
+        );
+        text.as_str().unwrap().to_string()
+    }
+
     fn exec(&self, script: &str) -> Value {
         self.cmd("POST", "/execute/sync", Some(json!({"script": script, "args": []})))
     }
@@ -264,12 +274,7 @@ fn a_bad_upload_shows_its_error_on_the_page() {
     browser.goto(&server.url);
     browser.type_into("#files", &bad.display().to_string());
     browser.click("#submit-button");
-    let text = browser.wait(
-        "the error box",
-        30,
-        "!document.querySelector('#submit-error').hidden && document.querySelector('#submit-error').innerText",
-    );
-    let text = text.as_str().unwrap();
+    let text = browser.submit_error();
     assert!(
         text.contains("expected 3 numbers") && text.contains("line 3") && text.contains("broken.xml"),
         "{text}"
@@ -295,12 +300,7 @@ fn the_denoise_box_asks_the_server_to_denoise() {
     browser.type_into("#files", &scene.display().to_string());
     browser.click("#denoise");
     browser.click("#submit-button");
-    let text = browser.wait(
-        "the error box",
-        30,
-        "!document.querySelector('#submit-error').hidden && document.querySelector('#submit-error').innerText",
-    );
-    let text = text.as_str().unwrap();
+    let text = browser.submit_error();
     assert!(text.contains("this server cannot denoise") && text.contains("pip install pyoidn"), "{text}");
     assert_eq!(browser.exec("return document.querySelectorAll('.job').length;"), json!(0));
 }
