@@ -113,8 +113,8 @@ pub fn oidn() -> Result<&'static Oidn, String> {
         .map_err(Clone::clone)
 }
 
-/// Where the `pyoidn` wheel keeps the library, if `python3` has it.
-fn pyoidn_lib_dir() -> Option<PathBuf> {
+/// Where the `pyoidn` wheel keeps the library, if `python3` has it; `Err` says why not.
+fn pyoidn_lib_dir() -> Result<PathBuf, &'static str> {
     let out = std::process::Command::new("python3")
         .args([
             "-c",
@@ -124,10 +124,14 @@ fn pyoidn_lib_dir() -> Option<PathBuf> {
         .stdin(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
         .output()
-        .ok()?;
-    let dir = String::from_utf8(out.stdout).ok()?;
+        .map_err(|_| "there is no python3 to ask")?;
+    let dir = String::from_utf8_lossy(&out.stdout);
     let dir = dir.trim();
-    (out.status.success() && !dir.is_empty()).then(|| Path::new(dir).join("oidn").join("lib"))
+    if out.status.success() && !dir.is_empty() {
+        Ok(Path::new(dir).join("oidn").join("lib"))
+    } else {
+        Err("python3 has no pyoidn package")
+    }
 }
 
 impl Oidn {
@@ -152,14 +156,14 @@ impl Oidn {
             Err(_) => {}
         }
         match pyoidn_lib_dir() {
-            Some(dir) => {
+            Ok(dir) => {
                 let file = dir.join(LIB_NAME);
                 if file.exists() {
                     return Oidn::open(&file);
                 }
                 tried.push(format!("the pyoidn wheel ({} does not exist)", file.display()));
             }
-            None => tried.push("the pyoidn wheel (python3 has no pyoidn package)".into()),
+            Err(why) => tried.push(format!("the pyoidn wheel ({why})")),
         }
         Err(format!(
             "Intel Open Image Denoise 2 was not found (looked for {}; {LIB_ENV} is not set): {INSTALL_HINT}",
