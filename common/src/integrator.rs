@@ -999,6 +999,35 @@ mod tests {
         }
     }
 
+    /// The same blade in the path tracer (§6.8 holds in every renderer): its mirror bounce
+    /// starts on the front side and meets the blade's own lit front face, whose light (sampled
+    /// there with NEE, kd·I/d² = 12.5) is all the pixel gets. The vertex seen from behind picks
+    /// the mirror lobe with probability 0.5 (mirror 0.5 against kd 0.5) and keeps its weight
+    /// (0.5/0.5); its own lights and its BRDF bounce face away from the light and the scene, so
+    /// the pixel is 0.5·12.5 on average. A reflection started on the viewer's side sees nothing.
+    #[test]
+    fn a_path_traced_mirror_seen_from_behind_reflects_from_its_front_side() {
+        let xml = r#"<Scene><MaxRecursionDepth>1</MaxRecursionDepth>
+            <Cameras><Camera id="1"><Position>0 -5 0</Position><Gaze>0 1 0</Gaze><Up>0 0 -1</Up>
+              <NearPlane>-0.1 0.1 -0.1 0.1</NearPlane><NearDistance>1</NearDistance>
+              <ImageResolution>1 1</ImageResolution><ImageName>a.exr</ImageName><NumSamples>256</NumSamples>
+              <Renderer>PathTracing</Renderer><RendererParams>NextEventEstimation</RendererParams></Camera></Cameras>
+            <Lights><PointLight id="1"><Position>0 4 0</Position><Intensity>400 400 400</Intensity></PointLight></Lights>
+            <Materials><Material id="1" type="mirror"><DiffuseReflectance>0.5 0.5 0.5</DiffuseReflectance>
+              <MirrorReflectance>0.5 0.5 0.5</MirrorReflectance></Material></Materials>
+            <VertexData>-5 0 -5  5 0 -5  5 0 5  -5 0 5</VertexData>
+            <Objects><Mesh id="1"><Material>1</Material><Faces>1 3 2  1 4 3</Faces></Mesh></Objects>
+            </Scene>"#;
+        let scene =
+            load_scene_str(xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() }).unwrap();
+        assert!(matches!(scene.cameras[0].renderer, crate::scene::records::Renderer::Path(_)));
+        let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
+        let p = render_tile(&scene, 0, rect, &RenderSettings::default()).0[0];
+        for c in p {
+            assert!((c - 6.25).abs() < 0.5, "{p:?}: the path's reflection sees the lit front face");
+        }
+    }
+
     /// Any number of colour maps, applied in the order the object names them; the last normal
     /// or bump map is the one used. A white floor lit to 25 (kd 1), with constant checkerboards.
     #[test]
