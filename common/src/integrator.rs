@@ -11,10 +11,10 @@ use crate::geometry::{RayLanes, SurfaceHit};
 use crate::material::{Material, MaterialKind, Refraction, fresnel_conductor, refract};
 use crate::math::{Ray, orthonormal_pair, reflect, sincos_turns};
 use crate::sampler::{GROUP_LANES, Sampler};
-use crate::scene::Scene;
 use crate::scene::records::{
     DecalMode, EnvSampler, MAX_RECURSION_DEPTH_LIMIT, PathParams, Renderer, Roulette,
 };
+use crate::scene::{DielectricSides, PathDepth, Scene};
 use direct::{Lighting, LitPoint};
 
 use crate::texture::maps::{
@@ -224,6 +224,7 @@ impl<'a> Tracer<'a> {
                     &rays[i],
                     hit,
                     0,
+                    None,
                     self.spread * hit.t,
                     s,
                     s.emitted + direct[i],
@@ -274,6 +275,9 @@ impl<'a> Tracer<'a> {
             Roulette::Off => scene.max_recursion_depth,
             Roulette::Course | Roulette::Unbiased => PATH_DEPTH_LIMIT,
         };
+        // The bounces that count towards `max_bounces` (all of them, or by the rule only the
+        // diffuse and glossy ones); `bounce` counts every one, up to PATH_DEPTH_LIMIT.
+        let mut counted = 0;
         let eps = scene.shadow_ray_epsilon;
         let mut ray = *camera_ray;
         let mut l = DVec3::ZERO;
@@ -327,9 +331,9 @@ impl<'a> Tracer<'a> {
                 }
             };
             let d = ray.dir;
-            let entering = d.dot(hit.geo_normal) < 0.0;
+            let front = d.dot(hit.geo_normal) < 0.0;
             // The shading normal on the side the path arrives from.
-            let n = if entering { shading_normal } else { -shading_normal };
+            let n = if front { shading_normal } else { -shading_normal };
             if bounce == 0 {
                 local += mat.ambient * scene.ambient_light;
             }
@@ -348,13 +352,17 @@ impl<'a> Tracer<'a> {
                 beta /= q;
             }
             l += beta * local;
-            if bounce >= max_bounces {
+            if counted >= max_bounces || bounce >= PATH_DEPTH_LIMIT {
                 break;
             }
             let wo = -d;
             match mat.kind {
                 MaterialKind::Dielectric => {
                     let eta = mat.refraction_index;
+                    let entering = match scene.rules.dielectric_sides {
+                        DielectricSides::FaceSide => front,
+                        DielectricSides::Flag => medium.is_none(),
+                    };
                     let (n1, n2) = if entering { (1.0, eta) } else { (eta, 1.0) };
                     let reflected = glossy(reflect(d, n), mat.roughness, rng);
                     let xi = rng.next_1d();
@@ -408,6 +416,9 @@ impl<'a> Tracer<'a> {
             }
             self.stats.secondary += 1;
             bounce += 1;
+            if !specular || scene.rules.path_depth == PathDepth::EveryBounce {
+                counted += 1;
+            }
             if params.roulette == Roulette::Unbiased {
                 let q = beta.max_element().min(1.0);
                 if rng.next_1d() >= q {
@@ -482,7 +493,7 @@ impl<'a> Tracer<'a> {
             };
         };
         let cone = cone + self.spread * hit.t;
-        let l = self.shade(ray, &hit, depth, medium.is_some(), cone, rng);
+        let l = self.shade(ray, &hit, depth, medium, cone, rng);
         match medium {
             Some(c) if c != DVec3::ZERO => l * (-c * hit.t).exp(),
             _ => l,
@@ -596,7 +607,7 @@ impl<'a> Tracer<'a> {
         ray: &Ray,
         hit: &SurfaceHit,
         depth: u32,
-        inside: bool,
+        medium: Option<DVec3>,
         cone: f64,
         rng: &mut Sampler,
     ) -> DVec3 {
@@ -605,11 +616,11 @@ impl<'a> Tracer<'a> {
             Ok(s) => s,
             Err(texel) => return texel,
         };
-        let direct = match s.lit_normal(inside) {
+        let direct = match s.lit_normal(medium.is_some()) {
             Some(n) => self.direct(ray, hit.point, n, s.mat, rng),
             None => DVec3::ZERO,
         };
-        self.finish_shade(ray, hit, depth, cone, &s, s.emitted + direct, rng)
+        self.finish_shade(ray, hit, depth, medium, cone, &s, s.emitted + direct, rng)
     }
 
     /// The first part of [`Self::shade`]: what the surface shows before its lights. `Err` holds
@@ -640,13 +651,14 @@ impl<'a> Tracer<'a> {
     }
 
     /// The last part of [`Self::shade`]: `l` (emission and direct light) plus what mirrors,
-    /// conductors and dielectrics reflect and refract.
+    /// conductors and dielectrics reflect and refract. `medium` is what the ray travels inside.
     #[allow(clippy::too_many_arguments)]
     fn finish_shade(
         &mut self,
         ray: &Ray,
         hit: &SurfaceHit,
         depth: u32,
+        medium: Option<DVec3>,
         cone: f64,
         s: &Surfaced<'_>,
         mut l: DVec3,
@@ -683,10 +695,14 @@ impl<'a> Tracer<'a> {
             }
             MaterialKind::Dielectric if can_recurse => {
                 let eta = mat.refraction_index;
-                let (n1, n2) = if entering { (1.0, eta) } else { (eta, 1.0) };
                 // The reflected ray stays on the incoming side; the refracted one crosses.
-                let (refl_medium, refr_medium) =
-                    if entering { (None, Some(mat.absorption)) } else { (Some(mat.absorption), None) };
+                let (into, refl_medium, refr_medium) = match scene.rules.dielectric_sides {
+                    DielectricSides::FaceSide if entering => (true, None, Some(mat.absorption)),
+                    DielectricSides::FaceSide => (false, Some(mat.absorption), None),
+                    DielectricSides::Flag if medium.is_none() => (true, None, Some(mat.absorption)),
+                    DielectricSides::Flag => (false, medium, None),
+                };
+                let (n1, n2) = if into { (1.0, eta) } else { (eta, 1.0) };
                 // Rough glass blurs both directions, each with its own two random numbers, as a
                 // rough mirror does (§6.7, measured on metal_glass_plates).
                 let reflected = ray.spawn(hit.point + eps * n, glossy(reflect(d, n), mat.roughness, rng));
