@@ -356,6 +356,8 @@ impl<'a> Tracer<'a> {
                 break;
             }
             let wo = -d;
+            // Whether this bounce is a refraction out of a dielectric.
+            let mut leaves = false;
             match mat.kind {
                 MaterialKind::Dielectric => {
                     let eta = mat.refraction_index;
@@ -369,6 +371,7 @@ impl<'a> Tracer<'a> {
                     ray = match refract(d, n, n1, n2) {
                         Refraction::Split { fr, dir } if xi >= fr => {
                             medium = if entering { Some(mat.absorption) } else { None };
+                            leaves = !entering;
                             ray.spawn(hit.point - eps * n, glossy(dir, mat.roughness, rng))
                         }
                         _ => ray.spawn(hit.point + eps * n, reflected),
@@ -416,9 +419,11 @@ impl<'a> Tracer<'a> {
             }
             self.stats.secondary += 1;
             bounce += 1;
-            if !specular || scene.rules.path_depth == PathDepth::EveryBounce {
-                counted += 1;
-            }
+            counted += match scene.rules.path_depth {
+                PathDepth::EveryBounce => 1,
+                PathDepth::DiffuseBounces => u32::from(!specular),
+                PathDepth::GlassOnce => u32::from(!leaves),
+            };
             if params.roulette == Roulette::Unbiased {
                 let q = beta.max_element().min(1.0);
                 if rng.next_1d() >= q {

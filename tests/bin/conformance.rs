@@ -1,7 +1,7 @@
 //! `conformance`: renders course scenes and compares them with the official reference images.
 //!
 //! Usage: cargo run --release -p tessera-tests --bin conformance -- [--ci] [--scene NAME]...
-//! [--image NAME]... [--spp N] [--rule dielectric=flag|face] [--rule path-depth=diffuse|every]
+//! [--image NAME]... [--spp N] [--rule dielectric=flag|face] [--rule path-depth=diffuse|glass-once|every]
 //! [--report FILE]
 //!
 //! Reads the table in tests/conformance/thresholds.tsv, renders each listed image with every
@@ -41,6 +41,7 @@ fn main() -> ExitCode {
                 Some("dielectric=face") => rules.dielectric_sides = DielectricSides::FaceSide,
                 Some("path-depth=diffuse") => rules.path_depth = PathDepth::DiffuseBounces,
                 Some("path-depth=every") => rules.path_depth = PathDepth::EveryBounce,
+                Some("path-depth=glass-once") => rules.path_depth = PathDepth::GlassOnce,
                 other => {
                     eprintln!("unknown rule {other:?}; see --help");
                     return ExitCode::from(2);
@@ -50,7 +51,7 @@ fn main() -> ExitCode {
             "-h" | "--help" => {
                 println!(
                     "usage: conformance [--ci] [--scene NAME]... [--image NAME]... [--spp N] \
-                     [--rule dielectric=flag|face] [--rule path-depth=diffuse|every] [--report FILE]"
+                     [--rule dielectric=flag|face] [--rule path-depth=diffuse|glass-once|every] [--report FILE]"
                 );
                 println!(
                     "Renders the scenes of tests/conformance/thresholds.tsv and compares them with ../shared/scenes/reference."

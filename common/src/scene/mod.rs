@@ -39,7 +39,8 @@ pub struct ShadingRules {
 /// How a ray that meets a dielectric decides whether it enters or leaves it.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum DielectricSides {
-    /// By the side of the surface it meets (§6.8: `d·n < 0` with the normal as given ⇒ entering).
+    /// By the side of the surface it meets (scene-format.md §6.8: `d·n < 0` with the normal as
+    /// given ⇒ entering).
     #[default]
     FaceSide,
     /// By a flag the ray carries: it starts outside and every refraction toggles it, whichever
@@ -55,6 +56,8 @@ pub enum PathDepth {
     EveryBounce,
     /// Only diffuse and glossy bounces; specular ones are free up to `PATH_DEPTH_LIMIT`.
     DiffuseBounces,
+    /// Every bounce but a refraction out of a dielectric: a pass through glass counts once.
+    GlassOnce,
 }
 
 /// Size and cost of a built scene, for logs and summaries.
