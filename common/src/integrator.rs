@@ -973,6 +973,7 @@ mod tests {
     }
     use crate::image::TileRect;
     use crate::render::{RenderSettings, render_tile};
+    use crate::scene::DielectricSides;
     use crate::scene::load::load_scene_str;
     use crate::scene::records::EnvSampler;
 
@@ -1047,6 +1048,53 @@ mod tests {
         for c in p {
             assert!((c - 6.25).abs() < 0.5, "{p:?}: the path's reflection sees the lit front face");
         }
+    }
+
+    /// A dielectric met from behind by a ray from outside is entered (`DielectricSides::Flag`,
+    /// the measured default): the ray carries whether it is inside, whatever side of a triangle
+    /// it meets. A glass sheet whose normal faces away from the camera (normal incidence,
+    /// F = 0.04), absorption 0.5, then a wall 2 further lit to 1: the refracted ray travels
+    /// inside, 0.96·e^(−0.5·2) ≈ 0.353. Reading the face's side instead leaves it (0.96,
+    /// unabsorbed). Both renderers; the path tracer picks refraction with probability 0.96.
+    #[test]
+    fn a_dielectric_met_from_behind_is_entered_by_a_ray_from_outside() {
+        let camera = |id: u32, renderer: &str| {
+            format!(
+                r#"<Camera id="{id}"><Position>0 0 5</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+              <NearPlane>-0.001 0.001 -0.001 0.001</NearPlane><NearDistance>1</NearDistance>
+              <ImageResolution>1 1</ImageResolution><ImageName>{id}.exr</ImageName>
+              <NumSamples>256</NumSamples>{renderer}</Camera>"#
+            )
+        };
+        let xml = format!(
+            r#"<Scene><MaxRecursionDepth>1</MaxRecursionDepth>
+            <Cameras>{}{}</Cameras>
+            <Lights><PointLight id="1"><Position>0 0 -1</Position><Intensity>1 1 1</Intensity></PointLight></Lights>
+            <Materials><Material id="1" type="dielectric"><RefractionIndex>1.5</RefractionIndex>
+              <AbsorptionCoefficient>0.5 0.5 0.5</AbsorptionCoefficient></Material>
+              <Material id="2"><DiffuseReflectance>1 1 1</DiffuseReflectance></Material></Materials>
+            <VertexData>-9 -9 0  9 -9 0  9 9 0  -9 9 0  -9 -9 -2  9 -9 -2  9 9 -2  -9 9 -2</VertexData>
+            <Objects><Mesh id="1"><Material>1</Material><Faces>1 3 2  1 4 3</Faces></Mesh>
+              <Mesh id="2"><Material>2</Material><Faces>5 6 7  5 7 8</Faces></Mesh></Objects>
+            </Scene>"#,
+            camera(1, ""),
+            camera(2, "<Renderer>PathTracing</Renderer><RendererParams>NextEventEstimation</RendererParams>")
+        );
+        let mut scene =
+            load_scene_str(&xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() })
+                .unwrap();
+        let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
+        let inside = 0.96 * (-0.5f32 * 1.999).exp();
+        for (rules, want) in [(DielectricSides::Flag, inside), (DielectricSides::FaceSide, 0.96)] {
+            scene.rules.dielectric_sides = rules;
+            for (cam, tolerance) in [(0, 2e-3), (1, 0.03)] {
+                let p = render_tile(&scene, cam, rect, &RenderSettings::default()).0[0];
+                for c in p {
+                    assert!((c - want).abs() < tolerance, "{rules:?}, camera {cam}: {p:?}, expected {want}");
+                }
+            }
+        }
+        assert_eq!(crate::scene::ShadingRules::default().dielectric_sides, DielectricSides::Flag);
     }
 
     /// Any number of colour maps, applied in the order the object names them; the last normal

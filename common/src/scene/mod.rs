@@ -41,10 +41,12 @@ pub struct ShadingRules {
 pub enum DielectricSides {
     /// By the side of the surface it meets (scene-format.md §6.8: `d·n < 0` with the normal as
     /// given ⇒ entering).
-    #[default]
     FaceSide,
     /// By a flag the ray carries: it starts outside and every refraction toggles it, whichever
-    /// side of a triangle it meets (the normal still faces the ray for the geometry).
+    /// side of a triangle it meets (the normal still faces the ray for the geometry). Measured
+    /// 2026-11-28: wine_glass (the liquid's skin just inside the glass wall) 0.9 dB closer to
+    /// the official image, every other dielectric row the same.
+    #[default]
     Flag,
 }
 
