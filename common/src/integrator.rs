@@ -11,10 +11,10 @@ use crate::geometry::{RayLanes, SurfaceHit};
 use crate::material::{Material, MaterialKind, Refraction, fresnel_conductor, refract};
 use crate::math::{Ray, orthonormal_pair, reflect, sincos_turns};
 use crate::sampler::{GROUP_LANES, Sampler};
-use crate::scene::Scene;
 use crate::scene::records::{
     DecalMode, EnvSampler, MAX_RECURSION_DEPTH_LIMIT, PathParams, Renderer, Roulette,
 };
+use crate::scene::{DielectricSides, PathDepth, Scene};
 use direct::{Lighting, LitPoint};
 
 use crate::texture::maps::{
@@ -329,6 +329,7 @@ impl<'a> Tracer<'a> {
                     &rays[i],
                     hit,
                     0,
+                    None,
                     self.spread * hit.t,
                     s,
                     s.emitted + direct[i],
@@ -379,6 +380,9 @@ impl<'a> Tracer<'a> {
             Roulette::Off => scene.max_recursion_depth,
             Roulette::Course | Roulette::Unbiased => PATH_DEPTH_LIMIT,
         };
+        // The bounces that count towards `max_bounces` (all of them, or by the rule only the
+        // diffuse and glossy ones); `bounce` counts every one, up to PATH_DEPTH_LIMIT.
+        let mut counted = 0;
         let eps = scene.shadow_ray_epsilon;
         let mut ray = *camera_ray;
         let mut l = DVec3::ZERO;
@@ -432,9 +436,9 @@ impl<'a> Tracer<'a> {
                 }
             };
             let d = ray.dir;
-            let entering = d.dot(hit.geo_normal) < 0.0;
+            let front = d.dot(hit.geo_normal) < 0.0;
             // The shading normal on the side the path arrives from.
-            let n = if entering { shading_normal } else { -shading_normal };
+            let n = if front { shading_normal } else { -shading_normal };
             if bounce == 0 {
                 local += mat.ambient * scene.ambient_light;
             }
@@ -453,19 +457,26 @@ impl<'a> Tracer<'a> {
                 beta /= q;
             }
             l += beta * local;
-            if bounce >= max_bounces {
+            if counted >= max_bounces || bounce >= PATH_DEPTH_LIMIT {
                 break;
             }
             let wo = -d;
+            // Whether this bounce is a refraction out of a dielectric.
+            let mut leaves = false;
             match mat.kind {
                 MaterialKind::Dielectric => {
                     let eta = mat.refraction_index;
+                    let entering = match scene.rules.dielectric_sides {
+                        DielectricSides::FaceSide => front,
+                        DielectricSides::Flag => medium.is_none(),
+                    };
                     let (n1, n2) = if entering { (1.0, eta) } else { (eta, 1.0) };
                     let reflected = glossy(reflect(d, n), mat.roughness, rng);
                     let xi = rng.next_1d();
                     ray = match refract(d, n, n1, n2) {
                         Refraction::Split { fr, dir } if xi >= fr => {
                             medium = if entering { Some(mat.absorption) } else { None };
+                            leaves = !entering;
                             ray.spawn(hit.point - eps * n, glossy(dir, mat.roughness, rng))
                         }
                         _ => ray.spawn(hit.point + eps * n, reflected),
@@ -513,6 +524,11 @@ impl<'a> Tracer<'a> {
             }
             self.stats.secondary += 1;
             bounce += 1;
+            counted += match scene.rules.path_depth {
+                PathDepth::EveryBounce => 1,
+                PathDepth::DiffuseBounces => u32::from(!specular),
+                PathDepth::GlassOnce => u32::from(!leaves),
+            };
             if params.roulette == Roulette::Unbiased {
                 let q = beta.max_element().min(1.0);
                 if rng.next_1d() >= q {
@@ -587,7 +603,7 @@ impl<'a> Tracer<'a> {
             };
         };
         let cone = cone + self.spread * hit.t;
-        let l = self.shade(ray, &hit, depth, medium.is_some(), cone, rng);
+        let l = self.shade(ray, &hit, depth, medium, cone, rng);
         match medium {
             Some(c) if c != DVec3::ZERO => l * (-c * hit.t).exp(),
             _ => l,
@@ -701,7 +717,7 @@ impl<'a> Tracer<'a> {
         ray: &Ray,
         hit: &SurfaceHit,
         depth: u32,
-        inside: bool,
+        medium: Option<DVec3>,
         cone: f64,
         rng: &mut Sampler,
     ) -> DVec3 {
@@ -710,11 +726,11 @@ impl<'a> Tracer<'a> {
             Ok(s) => s,
             Err(texel) => return texel,
         };
-        let direct = match s.lit_normal(inside) {
+        let direct = match s.lit_normal(medium.is_some()) {
             Some(n) => self.direct(ray, hit.point, n, s.mat, rng),
             None => DVec3::ZERO,
         };
-        self.finish_shade(ray, hit, depth, cone, &s, s.emitted + direct, rng)
+        self.finish_shade(ray, hit, depth, medium, cone, &s, s.emitted + direct, rng)
     }
 
     /// The first part of [`Self::shade`]: what the surface shows before its lights. `Err` holds
@@ -745,13 +761,14 @@ impl<'a> Tracer<'a> {
     }
 
     /// The last part of [`Self::shade`]: `l` (emission and direct light) plus what mirrors,
-    /// conductors and dielectrics reflect and refract.
+    /// conductors and dielectrics reflect and refract. `medium` is what the ray travels inside.
     #[allow(clippy::too_many_arguments)]
     fn finish_shade(
         &mut self,
         ray: &Ray,
         hit: &SurfaceHit,
         depth: u32,
+        medium: Option<DVec3>,
         cone: f64,
         s: &Surfaced<'_>,
         mut l: DVec3,
@@ -788,10 +805,14 @@ impl<'a> Tracer<'a> {
             }
             MaterialKind::Dielectric if can_recurse => {
                 let eta = mat.refraction_index;
-                let (n1, n2) = if entering { (1.0, eta) } else { (eta, 1.0) };
                 // The reflected ray stays on the incoming side; the refracted one crosses.
-                let (refl_medium, refr_medium) =
-                    if entering { (None, Some(mat.absorption)) } else { (Some(mat.absorption), None) };
+                let (into, refl_medium, refr_medium) = match scene.rules.dielectric_sides {
+                    DielectricSides::FaceSide if entering => (true, None, Some(mat.absorption)),
+                    DielectricSides::FaceSide => (false, Some(mat.absorption), None),
+                    DielectricSides::Flag if medium.is_none() => (true, None, Some(mat.absorption)),
+                    DielectricSides::Flag => (false, medium, None),
+                };
+                let (n1, n2) = if into { (1.0, eta) } else { (eta, 1.0) };
                 // Rough glass blurs both directions, each with its own two random numbers, as a
                 // rough mirror does (§6.7, measured on metal_glass_plates).
                 let reflected = ray.spawn(hit.point + eps * n, glossy(reflect(d, n), mat.roughness, rng));
@@ -1057,6 +1078,7 @@ mod tests {
     }
     use crate::image::TileRect;
     use crate::render::{RenderSettings, render_tile};
+    use crate::scene::DielectricSides;
     use crate::scene::load::load_scene_str;
     use crate::scene::records::EnvSampler;
 
@@ -1102,6 +1124,82 @@ mod tests {
         for c in p {
             assert!((c - 18.75).abs() < 1e-3, "{p:?}: the reflection sees the lit front face");
         }
+    }
+
+    /// The same blade in the path tracer (§6.8 holds in every renderer): its mirror bounce
+    /// starts on the front side and meets the blade's own lit front face, whose light (sampled
+    /// there with NEE, kd·I/d² = 12.5) is all the pixel gets. The vertex seen from behind picks
+    /// the mirror lobe with probability 0.5 (mirror 0.5 against kd 0.5) and keeps its weight
+    /// (0.5/0.5); its own lights and its BRDF bounce face away from the light and the scene, so
+    /// the pixel is 0.5·12.5 on average. A reflection started on the viewer's side sees nothing.
+    #[test]
+    fn a_path_traced_mirror_seen_from_behind_reflects_from_its_front_side() {
+        let xml = r#"<Scene><MaxRecursionDepth>1</MaxRecursionDepth>
+            <Cameras><Camera id="1"><Position>0 -5 0</Position><Gaze>0 1 0</Gaze><Up>0 0 -1</Up>
+              <NearPlane>-0.1 0.1 -0.1 0.1</NearPlane><NearDistance>1</NearDistance>
+              <ImageResolution>1 1</ImageResolution><ImageName>a.exr</ImageName><NumSamples>256</NumSamples>
+              <Renderer>PathTracing</Renderer><RendererParams>NextEventEstimation</RendererParams></Camera></Cameras>
+            <Lights><PointLight id="1"><Position>0 4 0</Position><Intensity>400 400 400</Intensity></PointLight></Lights>
+            <Materials><Material id="1" type="mirror"><DiffuseReflectance>0.5 0.5 0.5</DiffuseReflectance>
+              <MirrorReflectance>0.5 0.5 0.5</MirrorReflectance></Material></Materials>
+            <VertexData>-5 0 -5  5 0 -5  5 0 5  -5 0 5</VertexData>
+            <Objects><Mesh id="1"><Material>1</Material><Faces>1 3 2  1 4 3</Faces></Mesh></Objects>
+            </Scene>"#;
+        let scene =
+            load_scene_str(xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() }).unwrap();
+        assert!(matches!(scene.cameras[0].renderer, crate::scene::records::Renderer::Path(_)));
+        let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
+        let p = render_tile(&scene, 0, rect, &RenderSettings::default()).0[0];
+        for c in p {
+            assert!((c - 6.25).abs() < 0.5, "{p:?}: the path's reflection sees the lit front face");
+        }
+    }
+
+    /// A dielectric met from behind by a ray from outside is entered (`DielectricSides::Flag`,
+    /// the measured default): the ray carries whether it is inside, whatever side of a triangle
+    /// it meets. A glass sheet whose normal faces away from the camera (normal incidence,
+    /// F = 0.04), absorption 0.5, then a wall 2 further lit to 1: the refracted ray travels
+    /// inside, 0.96·e^(−0.5·2) ≈ 0.353. Reading the face's side instead leaves it (0.96,
+    /// unabsorbed). Both renderers; the path tracer picks refraction with probability 0.96.
+    #[test]
+    fn a_dielectric_met_from_behind_is_entered_by_a_ray_from_outside() {
+        let camera = |id: u32, renderer: &str| {
+            format!(
+                r#"<Camera id="{id}"><Position>0 0 5</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+              <NearPlane>-0.001 0.001 -0.001 0.001</NearPlane><NearDistance>1</NearDistance>
+              <ImageResolution>1 1</ImageResolution><ImageName>{id}.exr</ImageName>
+              <NumSamples>256</NumSamples>{renderer}</Camera>"#
+            )
+        };
+        let xml = format!(
+            r#"<Scene><MaxRecursionDepth>1</MaxRecursionDepth>
+            <Cameras>{}{}</Cameras>
+            <Lights><PointLight id="1"><Position>0 0 -1</Position><Intensity>1 1 1</Intensity></PointLight></Lights>
+            <Materials><Material id="1" type="dielectric"><RefractionIndex>1.5</RefractionIndex>
+              <AbsorptionCoefficient>0.5 0.5 0.5</AbsorptionCoefficient></Material>
+              <Material id="2"><DiffuseReflectance>1 1 1</DiffuseReflectance></Material></Materials>
+            <VertexData>-9 -9 0  9 -9 0  9 9 0  -9 9 0  -9 -9 -2  9 -9 -2  9 9 -2  -9 9 -2</VertexData>
+            <Objects><Mesh id="1"><Material>1</Material><Faces>1 3 2  1 4 3</Faces></Mesh>
+              <Mesh id="2"><Material>2</Material><Faces>5 6 7  5 7 8</Faces></Mesh></Objects>
+            </Scene>"#,
+            camera(1, ""),
+            camera(2, "<Renderer>PathTracing</Renderer><RendererParams>NextEventEstimation</RendererParams>")
+        );
+        let mut scene =
+            load_scene_str(&xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() })
+                .unwrap();
+        let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
+        let inside = 0.96 * (-0.5f32 * 1.999).exp();
+        for (rules, want) in [(DielectricSides::Flag, inside), (DielectricSides::FaceSide, 0.96)] {
+            scene.rules.dielectric_sides = rules;
+            for (cam, tolerance) in [(0, 2e-3), (1, 0.03)] {
+                let p = render_tile(&scene, cam, rect, &RenderSettings::default()).0[0];
+                for c in p {
+                    assert!((c - want).abs() < tolerance, "{rules:?}, camera {cam}: {p:?}, expected {want}");
+                }
+            }
+        }
+        assert_eq!(crate::scene::ShadingRules::default().dielectric_sides, DielectricSides::Flag);
     }
 
     /// Any number of colour maps, applied in the order the object names them; the last normal

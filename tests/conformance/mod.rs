@@ -9,6 +9,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use tessera::render::{RenderSettings, render_camera};
+use tessera::scene::ShadingRules;
 use tessera::scene::load::{LoadOptions, load_scene_file_with};
 use tessera_testkit::rgb8::{Comparison, Rgb8, compare};
 
@@ -125,11 +126,12 @@ impl RowResult {
     }
 }
 
-fn render_one(row: &Row, out_dir: &Path) -> Result<Comparison> {
+fn render_one(row: &Row, out_dir: &Path, rules: ShadingRules) -> Result<Comparison> {
     // A row whose note says `--allow-unsupported` renders its scene without the unsupported
     // elements the note names (as `tessera-worker render --allow-unsupported` would).
     let options = LoadOptions { allow_unsupported: row.note.contains("--allow-unsupported") };
-    let scene = load_scene_file_with(&row.scene_path(), options).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut scene = load_scene_file_with(&row.scene_path(), options).map_err(|e| anyhow::anyhow!("{e}"))?;
+    scene.rules = rules;
     let cam = scene
         .cameras
         .iter()
@@ -143,6 +145,10 @@ fn render_one(row: &Row, out_dir: &Path) -> Result<Comparison> {
     let out = out_dir.join(format!("{}__{}{spp}.png", row.scene.replace('/', "_"), stem.display()));
     if std::fs::create_dir_all(out_dir).is_ok() {
         let _ = tessera::hdr_io::write_png_rgb8(&out, ours.width, ours.height, &ours.data);
+        // An HDR camera's linear image too, to compare means with the official EXR.
+        if row.image.ends_with(".exr") {
+            let _ = tessera::hdr_io::write_exr(&out.with_extension("exr"), &img);
+        }
     }
     let reference = Rgb8::read_png(&row.reference_path())
         .with_context(|| format!("cannot read reference {}", row.reference_path().display()))?;
@@ -183,10 +189,20 @@ pub fn display_image(cam: &tessera::camera::Camera, img: &tessera::image::Image)
 
 /// Renders and compares every row; `log` receives one line per row as it finishes.
 pub fn render_rows(rows: &[Row], out_dir: &Path, log: &dyn Fn(String)) -> Vec<RowResult> {
+    render_rows_with(rows, out_dir, ShadingRules::default(), log)
+}
+
+/// [`render_rows`] with shading rules other than the defaults, to measure them.
+pub fn render_rows_with(
+    rows: &[Row],
+    out_dir: &Path,
+    rules: ShadingRules,
+    log: &dyn Fn(String),
+) -> Vec<RowResult> {
     rows.iter()
         .map(|row| {
             let t = Instant::now();
-            let outcome = render_one(row, out_dir).map_err(|e| format!("{e:#}"));
+            let outcome = render_one(row, out_dir, rules).map_err(|e| format!("{e:#}"));
             let r = RowResult { row: row.clone(), seconds: t.elapsed().as_secs_f64(), outcome };
             log(summary_line(&r));
             r

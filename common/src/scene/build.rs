@@ -675,6 +675,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         intersection_test_epsilon: rec.intersection_test_epsilon,
         max_recursion_depth: rec.max_recursion_depth.min(MAX_RECURSION_DEPTH_LIMIT),
         cull_camera_back_faces: rec.json,
+        rules: Default::default(),
         ambient_light: v3(rec.ambient_light),
         area_lights: lights.area,
         point_lights: lights.point,
