@@ -79,6 +79,8 @@ impl Tracer<'_> {
         let eps = scene.shadow_ray_epsilon;
         let (mut ray, mut hit) = (*ray, hit);
         let mut travelled = 0.0;
+        // Whether the feature ray is inside a dielectric (for the `Flag` rule).
+        let mut inside = false;
         for depth in 0..=AUX_CHAIN_LIMIT {
             let Some(h) = hit else {
                 let seen = match &scene.env_light {
@@ -109,11 +111,19 @@ impl Tracer<'_> {
             let smooth = mat.roughness == 0.0;
             let next = match mat.kind {
                 MaterialKind::Dielectric if smooth => {
+                    // Entering or leaving by the scene's rule, as the colour's rays decide it.
+                    let entering = match scene.rules.dielectric_sides {
+                        DielectricSides::FaceSide => s.entering,
+                        DielectricSides::Flag => !inside,
+                    };
                     let (n1, n2) =
-                        if s.entering { (1.0, mat.refraction_index) } else { (mat.refraction_index, 1.0) };
+                        if entering { (1.0, mat.refraction_index) } else { (mat.refraction_index, 1.0) };
                     Some(match refract(ray.dir, n, n1, n2) {
                         Refraction::Total => ray.spawn(h.point + eps * n, reflect(ray.dir, n)),
-                        Refraction::Split { dir, .. } => ray.spawn(h.point - eps * n, dir),
+                        Refraction::Split { dir, .. } => {
+                            inside = entering;
+                            ray.spawn(h.point - eps * n, dir)
+                        }
                     })
                 }
                 MaterialKind::Mirror | MaterialKind::Conductor
