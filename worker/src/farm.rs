@@ -6,8 +6,9 @@
 //!   so while tiles render the next one is already here and the cores never wait on the
 //!   network;
 //! - the **heartbeat** thread renews every lease the worker holds (rendering or prefetched)
-//!   every `heartbeat_seconds`; it only does HTTP, so rendering cannot starve it; leases the
-//!   server revoked are remembered and their tiles dropped;
+//!   every `heartbeat_seconds`; it only does HTTP, so rendering cannot starve it, and gives a
+//!   heartbeat up after a third of the lease, so one that hangs leaves time for the next;
+//!   leases the server revoked are remembered and their tiles dropped;
 //! - the **watcher** holds a long poll (`/api/v1/worker/watch`) on the leases being rendered,
 //!   which the server answers the moment one is revoked (its job cancelled or failed); it, or
 //!   the heartbeat, raises that tile's stop flag, and the renderer, which looks at the flag
@@ -120,9 +121,22 @@ impl Client {
     // ureq's error type is large; these calls are a few per tile, not a hot path.
     #[allow(clippy::result_large_err)]
     fn post_json<T: serde::Serialize>(&self, path: &str, body: &T) -> Result<ureq::Response, ureq::Error> {
-        self.agent
-            .post(&self.url(path))
-            .set("Authorization", &format!("Bearer {}", self.token))
+        self.post_json_within(path, body, None)
+    }
+
+    /// [`Client::post_json`] with a limit of its own on the whole request, instead of the agent's.
+    #[allow(clippy::result_large_err)]
+    fn post_json_within<T: serde::Serialize>(
+        &self,
+        path: &str,
+        body: &T,
+        timeout: Option<Duration>,
+    ) -> Result<ureq::Response, ureq::Error> {
+        let mut req = self.agent.post(&self.url(path));
+        if let Some(t) = timeout {
+            req = req.timeout(t);
+        }
+        req.set("Authorization", &format!("Bearer {}", self.token))
             .set(WORKER_SECRET_HEADER, &self.secret)
             .send_json(serde_json::to_value(body).expect("protocol types serialise"))
     }
@@ -198,6 +212,15 @@ fn heartbeat_interval(seconds: f64) -> Result<Duration> {
     Ok(Duration::from_secs_f64(seconds))
 }
 
+/// How long one heartbeat may take: a third of the lease (`lease_seconds` of the register
+/// answer), so that one that hangs (a connection gone half-open, a stalled server) is given up
+/// while the lease still has time for the next ones; 1 s to 120 s (the other requests' limit),
+/// 10 s if the server named no lease that makes sense.
+fn heartbeat_timeout(lease_seconds: f64) -> Duration {
+    let third = lease_seconds / 3.0;
+    if third > 0.0 { Duration::from_secs_f64(third.clamp(1.0, 120.0)) } else { Duration::from_secs(10) }
+}
+
 /// Registers, retrying while the server is not up yet; fails at once on a bad token. `None`
 /// when told to stop before the server answered.
 fn register(
@@ -240,8 +263,13 @@ fn register(
 
 pub fn work(opts: WorkOptions) -> Result<()> {
     let base = opts.server.trim_end_matches('/').to_string();
+    // The server's name is looked up on a thread of its own and its last addresses kept
+    // (crate::resolve): a name server that stops answering for a while must not stall the
+    // heartbeats, as glibc's lookup on the calling thread did (5 s a try, no timeout of ureq's).
+    let connect = Duration::from_secs(10);
     let agent = ureq::AgentBuilder::new()
-        .timeout_connect(Duration::from_secs(10))
+        .resolver(crate::resolve::CachingResolver::new(connect))
+        .timeout_connect(connect)
         .timeout(Duration::from_secs(120))
         .build();
     let client = Client { base, token: opts.token.clone(), secret: String::new(), agent };
@@ -266,6 +294,7 @@ pub fn work(opts: WorkOptions) -> Result<()> {
     let worker_id = reg.worker_id;
     let client = Arc::new(Client { secret: reg.worker_secret.clone(), ..client });
     let heartbeat_every = heartbeat_interval(reg.heartbeat_seconds)?;
+    let heartbeat_limit = heartbeat_timeout(reg.lease_seconds);
     eprintln!(
         "worker {} ({}, {} threads) registered with {}",
         worker_id,
@@ -290,9 +319,10 @@ pub fn work(opts: WorkOptions) -> Result<()> {
                     let l = lock(&leases);
                     (l.held.iter().copied().collect::<Vec<_>>(), l.shown())
                 };
-                match client.post_json(
+                match client.post_json_within(
                     "/api/v1/worker/heartbeat",
                     &HeartbeatRequest { worker_id, leases: held, rendering },
+                    Some(heartbeat_limit),
                 ) {
                     Ok(resp) => {
                         if let Ok(hb) = resp.into_json::<HeartbeatResponse>() {
@@ -804,6 +834,17 @@ fn upload(client: &Client, worker_id: u64, lease: u64, body: &[u8], seconds: f64
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_heartbeat_is_given_up_while_the_lease_has_time_for_the_next() {
+        assert_eq!(heartbeat_timeout(30.0), Duration::from_secs(10));
+        assert_eq!(heartbeat_timeout(0.5), Duration::from_secs(1));
+        assert_eq!(heartbeat_timeout(86_400.0), Duration::from_secs(120));
+        assert_eq!(heartbeat_timeout(f64::INFINITY), Duration::from_secs(120));
+        for odd in [0.0, -1.0, f64::NAN] {
+            assert_eq!(heartbeat_timeout(odd), Duration::from_secs(10), "{odd}");
+        }
+    }
 
     #[test]
     fn a_heartbeat_period_the_worker_cannot_keep_is_an_error_not_a_panic() {

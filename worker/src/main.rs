@@ -5,6 +5,7 @@
 //! photographic operator; `work` pulls tiles from a `tessera-server` farm (`farm.rs`).
 
 mod farm;
+mod resolve;
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
