@@ -7,8 +7,8 @@ given, then compares the raw and the denoised frame with the official image:
   - PSNR of the tone-mapped PNGs after a 4x4 box filter (forgives per-pixel noise);
   - mean FLIP (LDR, NVIDIA's flip-evaluator package) of the tone-mapped PNGs;
 and prints the render and denoise times the CLI reports, beside the time of the pyoidn wheel's
-own `oidnDenoise` program on the same raw frame (colour only: one filter where Tessera runs three)
-as the anchor of the same run. Needs numpy, OpenEXR, Pillow and
+own `oidnDenoise` program doing the same three filters on a frame of the same size, as the
+anchor of the same run. Needs numpy, OpenEXR, Pillow and
 flip-evaluator (`python3 -m pip install numpy OpenEXR pillow flip-evaluator`), OIDN (pyoidn), and
 a release build (`cargo build --release -p tessera-worker`).
 
@@ -72,20 +72,33 @@ def write_pfm(path, px):
 
 
 def oidn_denoise_seconds(raw_exr, workdir):
-    """The anchor: the pyoidn wheel's own oidnDenoise program on the raw frame (colour only, high
-    quality), its reported filter time, best of two runs."""
+    """The anchor: the pyoidn wheel's own oidnDenoise program doing the work Tessera's denoise
+    does, at high quality: an RT filter on an albedo image, one on a normal image, then one on
+    the raw frame with both as clean guides. OIDN's time does not depend on what the guides hold
+    (measured: constant, random and rendered albedo take the same time), so they are flat images
+    of the frame's size here. Each filter's time as oidnDenoise reports it (first run, as in
+    Tessera, where each filter is made anew), summed."""
     import importlib.util
 
     spec = importlib.util.find_spec("pyoidn")
     if spec is None:
         return None
     prog = os.path.join(spec.submodule_search_locations[0], "oidn", "bin", "oidnDenoise")
-    pfm = os.path.join(workdir, "raw.pfm")
-    write_pfm(pfm, read_exr(raw_exr))
-    run = subprocess.run([prog, "--hdr", pfm, "-o", os.path.join(workdir, "out.pfm"), "-q", "high", "-n", "2", "-v", "2"],
-                         capture_output=True, text=True)
-    times = [float(t) / 1000 for t in re.findall(r"Denoising\n\s*msec=([0-9.]+)", run.stdout)]
-    return min(times) if times else None
+    raw = read_exr(raw_exr)
+    paths = {k: os.path.join(workdir, k + ".pfm") for k in ("raw", "albedo", "normal", "out")}
+    write_pfm(paths["raw"], raw)
+    write_pfm(paths["albedo"], np.full(raw.shape, 0.5))
+    write_pfm(paths["normal"], np.full(raw.shape, 0.5))
+    total = 0.0
+    for args in (["--alb", paths["albedo"]], ["--nrm", paths["normal"]],
+                 ["--hdr", paths["raw"], "--alb", paths["albedo"], "--nrm", paths["normal"], "--clean_aux"]):
+        run = subprocess.run([prog, *args, "-o", paths["out"], "-q", "high", "-n", "1", "-v", "2"],
+                             capture_output=True, text=True)
+        times = re.findall(r"Denoising\n\s*msec=([0-9.]+)", run.stdout)
+        if not times:
+            return None
+        total += float(times[0]) / 1000
+    return total
 
 
 def main():
@@ -101,7 +114,7 @@ def main():
     ref_exr, ref_png = read_exr(args.reference + ".exr"), args.reference + ".png"
     ref_png_px = read_png(ref_png)
     out_root = args.keep or tempfile.mkdtemp(prefix="tessera-denoise-")
-    print(f"| spp | render s | denoise s | oidnDenoise s (colour only) | relMSE raw | relMSE denoised | box PSNR raw | box PSNR denoised | FLIP raw | FLIP denoised |")
+    print(f"| spp | render s | denoise s | oidnDenoise s (same 3 filters) | relMSE raw | relMSE denoised | box PSNR raw | box PSNR denoised | FLIP raw | FLIP denoised |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for spp in args.spp:
         out = os.path.join(out_root, f"spp{spp}")
