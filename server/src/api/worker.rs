@@ -186,7 +186,7 @@ pub(super) async fn watch(
         ("x-tessera-worker" = u64, Header, description = "The worker's id"),
         ("x-tessera-checksum" = String, Header, description = "FNV-1a 64 of the body, 16 hex digits"),
         ("x-tessera-render-seconds" = Option<f64>, Header, description = "Seconds the worker spent rendering the tile (shown in the job's log)")),
-    request_body(content = super::openapi::Binary, content_type = "application/octet-stream", description = "The tile: width x height RGB triples of little-endian f32, row-major"),
+    request_body(content = super::openapi::Binary, content_type = "application/octet-stream", description = "The tile: width x height RGB triples of little-endian f32, row-major; for a lease with `aux` (a denoised job), then the albedo and the normal the same way"),
     responses(
         (status = 204, description = "Stored (committed before this answer)"),
         (status = 400, description = "A missing header, a checksum that does not match, the wrong size, or a value that is not a finite number", body = ApiError),
@@ -228,7 +228,7 @@ pub(super) async fn result(
     };
     let wrong_size = |got: String| {
         AppError::bad_request(format!(
-            "the tile holds {got} bytes; its rectangle needs {expected} (width x height x 3 little-endian f32)"
+            "the tile holds {got} bytes; its rectangle needs {expected} (width x height x 3 little-endian f32, three times that for a denoised job)"
         ))
     };
     if let Some(n) = declared.filter(|&n| n != expected as u64) {
@@ -238,7 +238,7 @@ pub(super) async fn result(
         BodyError::TooLong => AppError::new(
             StatusCode::PAYLOAD_TOO_LARGE,
             format!(
-                "the tile's body goes past the {expected} bytes its rectangle needs (width x height x 3 little-endian f32); nothing was stored"
+                "the tile's body goes past the {expected} bytes its rectangle needs (width x height x 3 little-endian f32, three times that for a denoised job); nothing was stored"
             ),
         ),
         BodyError::Broken(e) => AppError::bad_request(format!("the tile's body could not be read: {e}")),
@@ -274,7 +274,7 @@ pub(super) async fn result(
         }
         ResultOutcome::Conflict => Err(lease_gone(lease)),
         ResultOutcome::WrongSize { expected } => Err(AppError::bad_request(format!(
-            "the tile's rectangle needs {expected} bytes (width x height x 3 little-endian f32)"
+            "the tile's rectangle needs {expected} bytes (width x height x 3 little-endian f32, three times that for a denoised job)"
         ))),
     }
 }
