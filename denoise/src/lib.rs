@@ -149,12 +149,14 @@ impl Oidn {
             }
             return Oidn::open(&file);
         }
-        let mut tried = vec![format!("{LIB_NAME} on the system's library path")];
-        match Oidn::open(Path::new(LIB_NAME)) {
+        // A bare name: the dynamic linker's own search (LD_LIBRARY_PATH, its cache).
+        let mut tried = match Oidn::open(Path::new(LIB_NAME)) {
             Ok(o) => return Ok(o),
-            Err(e) if Path::new(LIB_NAME).exists() => return Err(e),
-            Err(_) => {}
-        }
+            Err(e) => vec![format!(
+                "{LIB_NAME} on the system's library path ({})",
+                e.split("; ").next().unwrap_or(&e)
+            )],
+        };
         match pyoidn_lib_dir() {
             Ok(dir) => {
                 let file = dir.join(LIB_NAME);
