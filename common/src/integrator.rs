@@ -1111,26 +1111,34 @@ mod tests {
         render_tile(&scene, 0, rect, &RenderSettings::default()).0[0]
     }
 
-    /// A thin mirror blade seen from behind (§6.8): its reflected ray starts on its front side,
-    /// like its shadow rays, so heading back to the viewer's side it first meets the blade's own
-    /// lit front face. A blade at y = 0 facing up, lit from above by I = 400 at distance 4, seen
-    /// from below: kd·I/d² = 0.5·25 directly, plus mirror 0.5 times the front face's 12.5.
-    #[test]
-    fn a_mirror_seen_from_behind_reflects_from_its_front_side() {
-        let xml = r#"<Scene><MaxRecursionDepth>1</MaxRecursionDepth>
+    /// The pixel a camera below a thin mirror blade sees (§6.8 tests): the blade lies at y = 0,
+    /// faces up, is lit from above by I = 400 at distance 4 and has kd 0.5 and mirror 0.5;
+    /// `camera` adds to the camera (samples, renderer). Also the renderer the camera got.
+    fn blade_pixel(camera: &str) -> (crate::scene::records::Renderer, [f32; 3]) {
+        let xml = format!(
+            r#"<Scene><MaxRecursionDepth>1</MaxRecursionDepth>
             <Cameras><Camera id="1"><Position>0 -5 0</Position><Gaze>0 1 0</Gaze><Up>0 0 -1</Up>
               <NearPlane>-0.1 0.1 -0.1 0.1</NearPlane><NearDistance>1</NearDistance>
-              <ImageResolution>1 1</ImageResolution><ImageName>a.png</ImageName></Camera></Cameras>
+              <ImageResolution>1 1</ImageResolution>{camera}</Camera></Cameras>
             <Lights><PointLight id="1"><Position>0 4 0</Position><Intensity>400 400 400</Intensity></PointLight></Lights>
             <Materials><Material id="1" type="mirror"><DiffuseReflectance>0.5 0.5 0.5</DiffuseReflectance>
               <MirrorReflectance>0.5 0.5 0.5</MirrorReflectance></Material></Materials>
             <VertexData>-5 0 -5  5 0 -5  5 0 5  -5 0 5</VertexData>
             <Objects><Mesh id="1"><Material>1</Material><Faces>1 3 2  1 4 3</Faces></Mesh></Objects>
-            </Scene>"#;
-        let scene =
-            load_scene_str(xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() }).unwrap();
+            </Scene>"#
+        );
+        let scene = load_scene_str(&xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() })
+            .unwrap();
         let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
-        let p = render_tile(&scene, 0, rect, &RenderSettings::default()).0[0];
+        (scene.cameras[0].renderer, render_tile(&scene, 0, rect, &RenderSettings::default()).0[0])
+    }
+
+    /// A thin mirror blade seen from behind (§6.8): its reflected ray starts on its front side,
+    /// like its shadow rays, so heading back to the viewer's side it first meets the blade's own
+    /// lit front face: kd·I/d² = 0.5·25 directly, plus mirror 0.5 times the front face's 12.5.
+    #[test]
+    fn a_mirror_seen_from_behind_reflects_from_its_front_side() {
+        let (_, p) = blade_pixel("<ImageName>a.png</ImageName>");
         for c in p {
             assert!((c - 18.75).abs() < 1e-3, "{p:?}: the reflection sees the lit front face");
         }
@@ -1144,22 +1152,11 @@ mod tests {
     /// the pixel is 0.5·12.5 on average. A reflection started on the viewer's side sees nothing.
     #[test]
     fn a_path_traced_mirror_seen_from_behind_reflects_from_its_front_side() {
-        let xml = r#"<Scene><MaxRecursionDepth>1</MaxRecursionDepth>
-            <Cameras><Camera id="1"><Position>0 -5 0</Position><Gaze>0 1 0</Gaze><Up>0 0 -1</Up>
-              <NearPlane>-0.1 0.1 -0.1 0.1</NearPlane><NearDistance>1</NearDistance>
-              <ImageResolution>1 1</ImageResolution><ImageName>a.exr</ImageName><NumSamples>256</NumSamples>
-              <Renderer>PathTracing</Renderer><RendererParams>NextEventEstimation</RendererParams></Camera></Cameras>
-            <Lights><PointLight id="1"><Position>0 4 0</Position><Intensity>400 400 400</Intensity></PointLight></Lights>
-            <Materials><Material id="1" type="mirror"><DiffuseReflectance>0.5 0.5 0.5</DiffuseReflectance>
-              <MirrorReflectance>0.5 0.5 0.5</MirrorReflectance></Material></Materials>
-            <VertexData>-5 0 -5  5 0 -5  5 0 5  -5 0 5</VertexData>
-            <Objects><Mesh id="1"><Material>1</Material><Faces>1 3 2  1 4 3</Faces></Mesh></Objects>
-            </Scene>"#;
-        let scene =
-            load_scene_str(xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() }).unwrap();
-        assert!(matches!(scene.cameras[0].renderer, crate::scene::records::Renderer::Path(_)));
-        let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
-        let p = render_tile(&scene, 0, rect, &RenderSettings::default()).0[0];
+        let (renderer, p) = blade_pixel(
+            "<ImageName>a.exr</ImageName><NumSamples>256</NumSamples>
+              <Renderer>PathTracing</Renderer><RendererParams>NextEventEstimation</RendererParams>",
+        );
+        assert!(matches!(renderer, crate::scene::records::Renderer::Path(_)));
         for c in p {
             assert!((c - 6.25).abs() < 0.5, "{p:?}: the path's reflection sees the lit front face");
         }
