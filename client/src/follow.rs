@@ -64,6 +64,7 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
     let mut frame_bars: Vec<ProgressBar> = Vec::new();
     let mut last_state: Option<JobState> = None;
     let mut frames_reported: Vec<bool> = Vec::new();
+    let mut passes_reported: Vec<u32> = Vec::new();
     let mut last_error: Option<String> = None;
     let mut last_text = Instant::now();
     let text = !bars && !quiet;
@@ -77,6 +78,7 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
                 frame_bars.push(bar);
             }
             frames_reported = vec![false; job.frames.len()];
+            passes_reported = vec![0; job.frames.len()];
         }
         // The end has a line of its own below.
         if last_state != Some(job.state) && text && !job.state.is_final() {
@@ -98,6 +100,23 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
             let Some(bar) = frame_bars.get(i) else { continue };
             bar.set_length(u64::from(f.tiles_total));
             bar.set_position(u64::from(f.tiles_done));
+            if let Some(seen) = passes_reported.get_mut(i)
+                && f.passes_done > *seen
+                && f.outputs.is_empty()
+            {
+                *seen = f.passes_done;
+                let line = format!(
+                    "job {id}: {} pass {} of {} published ({})",
+                    frame_label(f),
+                    f.passes_done,
+                    f.passes_total,
+                    f.pass_outputs.iter().map(|o| o.url.as_str()).collect::<Vec<_>>().join(", ")
+                );
+                bar.set_message(format!("pass {}/{}", f.passes_done, f.passes_total));
+                if text {
+                    eprintln!("{line}");
+                }
+            }
             let Some(reported) = frames_reported.get_mut(i) else { continue };
             if !f.outputs.is_empty() && !*reported {
                 *reported = true;
@@ -247,6 +266,10 @@ mod tests {
                 .collect(),
             preview_url: String::new(),
             tonemap: None,
+            samples: 1,
+            passes_total: 1,
+            passes_done: 0,
+            pass_outputs: Vec::new(),
         }
     }
 

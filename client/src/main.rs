@@ -105,6 +105,15 @@ enum Command {
         /// The server refuses the job (422) if it has no denoiser.
         #[arg(long)]
         denoise: bool,
+        /// Samples per pass (whole blocks of 16; default: a sixteenth of the samples). Each
+        /// tile's passes go to workers on their own, and the frame is published after every pass
+        /// (pass.exr, pass.png; --wait reports them).
+        #[arg(long, value_name = "N")]
+        pass_samples: Option<u32>,
+        /// Stop sampling a tile once its estimated relative noise is at most this, in (0, 1]
+        /// (e.g. 0.02); the samples become a cap.
+        #[arg(long, value_name = "ERROR")]
+        noise_target: Option<f64>,
         /// Follow the job until it ends and download its outputs into --out.
         #[arg(long, short)]
         wait: bool,
@@ -208,6 +217,8 @@ fn run(cli: Cli) -> Result<ExitCode> {
             name,
             allow_unsupported,
             denoise,
+            pass_samples,
+            noise_target,
             wait,
             out,
             float_exr,
@@ -222,6 +233,8 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 name,
                 allow_unsupported,
                 denoise,
+                pass_samples,
+                noise_target,
                 quiet,
             };
             // Everything local first: a scene that cannot be packed never reaches the network.
@@ -298,6 +311,8 @@ struct SubmitOptions {
     name: Option<String>,
     allow_unsupported: bool,
     denoise: bool,
+    pass_samples: Option<u32>,
+    noise_target: Option<f64>,
     quiet: bool,
 }
 
@@ -375,6 +390,12 @@ fn submit(
     }
     if opts.denoise {
         fields.push(("denoise", "true".to_string()));
+    }
+    if let Some(p) = opts.pass_samples {
+        fields.push(("pass_samples", p.to_string()));
+    }
+    if let Some(t) = opts.noise_target {
+        fields.push(("noise_target", t.to_string()));
     }
     let (content_type, head, tail) = api::multipart_frame(&fields, "bundle", "bundle.tar.gz");
     let length = (head.len() + tar.len() + tail.len()) as u64;

@@ -26,6 +26,7 @@ pub mod lights;
 pub mod material;
 pub mod math;
 pub mod output;
+pub mod passes;
 pub mod ply;
 pub mod protocol;
 pub mod render;

@@ -124,6 +124,35 @@ pub fn denoised_plan(cam: &Camera) -> Vec<OutputFile> {
     out
 }
 
+/// The name of the map of where a noise target sent samples: `<stem>_samples.png`.
+pub fn samples_map_name(cam: &Camera) -> String {
+    let (files, _) = plan(cam);
+    let stem =
+        Path::new(&files[0].name).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    format!("{stem}_samples.png")
+}
+
+/// The samples map of a `width` x `height` frame as 8-bit grey RGB: each tile's samples per
+/// pixel over the cap `samples`, white where a tile took every sample.
+pub fn samples_map(
+    width: u32,
+    height: u32,
+    tiles: &[(crate::image::TileRect, u32)],
+    samples: u32,
+) -> Vec<u8> {
+    let mut rgb = vec![0u8; width as usize * height as usize * 3];
+    for (r, n) in tiles {
+        let v = (f64::from(*n) / f64::from(samples.max(1)) * 255.0).round().clamp(0.0, 255.0) as u8;
+        for y in r.y0..(r.y0 + r.height).min(height) {
+            for x in r.x0..(r.x0 + r.width).min(width) {
+                let i = (y as usize * width as usize + x as usize) * 3;
+                rgb[i..i + 3].fill(v);
+            }
+        }
+    }
+    rgb
+}
+
 /// A file that was written.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Written {

@@ -151,6 +151,21 @@ pub struct Lease {
     /// Send the tile's denoising features too ([`encode_tile_with_aux`]): the job is denoised.
     #[serde(default)]
     pub aux: bool,
+    /// Render only these samples of each pixel and send their block sums
+    /// ([`crate::passes::encode_pass_tile`]) instead of finished pixels. Absent: the whole tile.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pass: Option<PassLease>,
+}
+
+/// One pass of a tile: samples `start..end` of every pixel (whole blocks of
+/// [`crate::passes::BLOCK`] samples from `start`), pass `index` of `count`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct PassLease {
+    pub index: u32,
+    pub count: u32,
+    pub start: u32,
+    pub end: u32,
 }
 
 /// A long poll for revocations of the leases a worker is rendering.
@@ -274,6 +289,18 @@ pub struct FrameInfo {
     pub preview_url: String,
     /// The camera's photographic operator for HDR frames (the defaults of a re-tone-map).
     pub tonemap: Option<ToneParams>,
+    /// Samples per pixel (the cap, under a noise target).
+    #[serde(default)]
+    pub samples: u32,
+    /// Passes each tile is cut into (1: tiles render whole).
+    #[serde(default)]
+    pub passes_total: u32,
+    /// Passes every tile has finished (a tile stopped by the noise target counts as finished).
+    #[serde(default)]
+    pub passes_done: u32,
+    /// The frame after its latest finished pass (`pass.exr`, `pass.png`), until it is merged.
+    #[serde(default)]
+    pub pass_outputs: Vec<OutputInfo>,
 }
 
 /// Photographic operator parameters as the API shows them (`gamma`: a number or "sRGB").

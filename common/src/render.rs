@@ -13,6 +13,7 @@ use crate::geometry::RayLanes;
 use crate::image::{Image, TileRect};
 use crate::integrator::{RayStats, Tracer};
 use crate::math::Ray;
+use crate::passes::{BLOCK, PixelSum, SampleRange};
 use crate::sampler::{Sampler, frame_seed};
 use crate::scene::Scene;
 use crate::scene::records::EnvSampler;
@@ -88,22 +89,17 @@ impl Stop<'_> {
 
 /// How many samples pass between two looks at a [`Stop`] (a sample costs a microsecond or more,
 /// the look tens of nanoseconds).
-const STOP_CHECK_EVERY: u32 = 16;
+const STOP_CHECK_EVERY: u32 = BLOCK;
 
 /// Camera samples of a pixel traced together (a [`Packet8`](crate::geometry::bvh8::Packet8));
 /// divides [`STOP_CHECK_EVERY`], so the stop checks fall where they did.
 const GROUP: usize = crate::sampler::GROUP_LANES;
 
-/// A pixel's average as the film keeps it: `f32`, always a finite number. A NaN (a degenerate
-/// scene: a zero-length normal, an infinite intensity times zero) becomes 0 and a value beyond
-/// `f32`'s range the largest `f32` of its sign, so every output format and the farm's tiles
-/// (whose server refuses non-finite values) hold the same finite numbers. Negative values, from
-/// lights of negative power, stay as they are.
-pub fn film_value(c: glam::DVec3) -> [f32; 3] {
-    let f = |v: f64| {
-        if v.is_nan() { 0.0 } else { (v as f32).clamp(f32::MIN, f32::MAX) }
-    };
-    [f(c.x), f(c.y), f(c.z)]
+pub use crate::passes::film_value;
+
+/// The samples per pixel a camera renders under `settings`.
+pub fn samples_per_pixel(scene: &Scene, camera: usize, settings: &RenderSettings) -> u32 {
+    settings.samples.unwrap_or(scene.cameras[camera].num_samples).max(1)
 }
 
 /// Renders one tile of camera `camera`: linear float RGB, row-major within the tile.
@@ -129,11 +125,15 @@ pub fn render_tile_until(
     settings: &RenderSettings,
     stop: Stop<'_>,
 ) -> Result<(Vec<[f32; 3]>, RayStats), Stopped> {
-    render_tile_inner(scene, camera, rect, settings, stop, None)
+    let n = samples_per_pixel(scene, camera, settings);
+    let (sums, stats) =
+        render_tile_sums_until(scene, camera, rect, settings, SampleRange::all(n), stop, None)?;
+    Ok((sums.iter().map(|s| s.film(n)).collect(), stats))
 }
 
 /// A tile's features for a denoiser, pixel by pixel beside its colour: the average over the
-/// pixel's samples of each sample's [`Aux`](crate::integrator::Aux) (albedo, then normal), as film values.
+/// pixel's first block of samples (at most [`BLOCK`], whatever the passes) of each sample's
+/// [`Aux`](crate::integrator::Aux) (albedo, then normal), as film values.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct AuxTile {
     pub albedo: Vec<[f32; 3]>,
@@ -150,25 +150,40 @@ pub fn render_tile_with_aux_until(
     stop: Stop<'_>,
 ) -> Result<(Vec<[f32; 3]>, AuxTile, RayStats), Stopped> {
     let mut aux = AuxTile::default();
-    let (px, stats) = render_tile_inner(scene, camera, rect, settings, stop, Some(&mut aux))?;
-    Ok((px, aux, stats))
+    let n = samples_per_pixel(scene, camera, settings);
+    let (sums, stats) =
+        render_tile_sums_until(scene, camera, rect, settings, SampleRange::all(n), stop, Some(&mut aux))?;
+    Ok((sums.iter().map(|s| s.film(n)).collect(), aux, stats))
 }
 
-fn render_tile_inner(
+/// Renders the samples `range` (starting at a whole block) of every pixel of a tile, as
+/// [`PixelSum`]s: the unit of a pass. The sums of a pixel's passes add up to the same bits as
+/// the whole range rendered at once. `aux`, when given, is filled from the first block, so only
+/// a range that starts at sample 0 may ask for it.
+///
+/// Panics only if `camera`, `rect` or `range` is out of range (a caller bug, not input).
+pub fn render_tile_sums_until(
     scene: &Scene,
     camera: usize,
     rect: TileRect,
     settings: &RenderSettings,
+    range: SampleRange,
     stop: Stop<'_>,
     mut aux: Option<&mut AuxTile>,
-) -> Result<(Vec<[f32; 3]>, RayStats), Stopped> {
+) -> Result<(Vec<PixelSum>, RayStats), Stopped> {
     let cam = &scene.cameras[camera];
     assert!(
         rect.x0 + rect.width <= cam.width && rect.y0 + rect.height <= cam.height,
         "tile outside the frame"
     );
     let seed = frame_seed(settings.seed, camera);
-    let n = settings.samples.unwrap_or(cam.num_samples).max(1);
+    let n = samples_per_pixel(scene, camera, settings);
+    assert!(
+        range.start.is_multiple_of(BLOCK) && range.start < range.end && range.end <= n,
+        "bad sample range"
+    );
+    assert!(aux.is_none() || range.start == 0, "features come from the first block");
+    let aux_samples = n.min(BLOCK);
     let moving = scene.accel.instances.iter().any(|i| i.motion.is_some());
     let mut tracer = Tracer::new(scene);
     tracer.renderer = cam.renderer;
@@ -203,19 +218,20 @@ fn render_tile_inner(
                 let uv = glam::DVec2::new(x as f64 / cam.width as f64, y as f64 / cam.height as f64);
                 tracer.background = scene.textures[k as usize].background(uv, pixel_uv);
             }
+            let mut pixel = PixelSum::default();
             let mut sum = glam::DVec3::ZERO;
             let (mut albedo, mut normal) = (glam::DVec3::ZERO, glam::DVec3::ZERO);
             let pixel_sampler = Sampler::new(seed, x, y, 0);
             // The pixel's samples go in groups of up to eight: their camera rays are traced
             // together (they are nearly parallel and share their nodes), then each sample is
             // shaded on its own. Each sample's dimensions keep their order, so the grouping
-            // changes no bit.
-            let mut s = 0;
-            while s < n {
-                if s % STOP_CHECK_EVERY == 0 {
+            // changes no bit. A group never straddles two blocks (eight divides the block).
+            let mut s = range.start;
+            while s < range.end {
+                if s.is_multiple_of(STOP_CHECK_EVERY) {
                     stop.check()?;
                 }
-                let group = (n - s).min(GROUP as u32) as usize;
+                let group = (range.end - s).min(GROUP as u32) as usize;
                 // The group's sample values first, then its rays: the rays' square roots and
                 // divisions are one chain each, and with nothing else in between the processor
                 // overlaps the eight chains.
@@ -265,7 +281,7 @@ fn render_tile_inner(
                 } else {
                     tracer.camera_hits(&rays[..group], &mut hits[..group]);
                 }
-                if aux.is_some() {
+                if aux.is_some() && s < aux_samples {
                     for (ray, hit) in rays.iter().zip(&hits[..group]) {
                         let a = tracer.aux(ray, *hit);
                         albedo += a.albedo;
@@ -287,12 +303,15 @@ fn render_tile_inner(
                     }
                 }
                 s += group as u32;
+                if s.is_multiple_of(BLOCK) || s == range.end {
+                    pixel.add_block((s - 1) / BLOCK, sum);
+                    sum = glam::DVec3::ZERO;
+                }
             }
-            let c = sum / n as f64;
-            out.push(film_value(c));
+            out.push(pixel);
             if let Some(a) = aux.as_deref_mut() {
-                a.albedo.push(film_value(albedo / n as f64));
-                a.normal.push(film_value(normal / n as f64));
+                a.albedo.push(film_value(albedo / f64::from(aux_samples)));
+                a.normal.push(film_value(normal / f64::from(aux_samples)));
             }
         }
     }
@@ -308,8 +327,8 @@ pub fn render_camera(
     settings: &RenderSettings,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> (Image, RayStats) {
-    let (img, _, stats) = render_camera_inner(scene, camera, tile_size, settings, false, progress);
-    (img, stats)
+    let f = render_camera_inner(scene, camera, tile_size, settings, None, false, progress);
+    (f.image, f.stats)
 }
 
 /// A frame's features for a denoiser: albedo and normal images beside its colour.
@@ -327,8 +346,85 @@ pub fn render_camera_with_aux(
     settings: &RenderSettings,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> (Image, AuxImages, RayStats) {
-    let (img, aux, stats) = render_camera_inner(scene, camera, tile_size, settings, true, progress);
-    (img, aux.expect("asked for"), stats)
+    let f = render_camera_inner(scene, camera, tile_size, settings, None, true, progress);
+    (f.image, f.aux.expect("asked for"), f.stats)
+}
+
+/// How a frame's tiles are rendered pass by pass: passes of `pass_samples` samples (whole
+/// blocks), and optionally a noise target that stops a tile early ([`crate::passes::needs_more`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PassPlan {
+    pub pass_samples: u32,
+    pub noise_target: Option<f64>,
+}
+
+/// What one tile of a pass-by-pass render got: its samples per pixel and its last noise estimate.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TileOutcome {
+    pub rect: TileRect,
+    pub samples: u32,
+    pub error: Option<f64>,
+}
+
+/// A frame rendered pass by pass: the image, its features when asked for, and each tile's
+/// samples and noise (row by row, as [`tiles`] cuts them).
+#[derive(Clone, Debug)]
+pub struct PassedFrame {
+    pub image: Image,
+    pub aux: Option<AuxImages>,
+    pub tiles: Vec<TileOutcome>,
+    pub stats: RayStats,
+}
+
+/// Renders one tile pass after pass as the farm does, stopping when [`crate::passes::needs_more`]
+/// says so; the tile's film, its features (from the first pass), samples and noise.
+pub fn render_tile_passes(
+    scene: &Scene,
+    camera: usize,
+    rect: TileRect,
+    settings: &RenderSettings,
+    plan: PassPlan,
+    mut aux: Option<&mut AuxTile>,
+) -> (Vec<[f32; 3]>, TileOutcome, RayStats) {
+    let n = samples_per_pixel(scene, camera, settings);
+    let mut sums = vec![PixelSum::default(); (rect.width * rect.height) as usize];
+    let mut stats = RayStats::default();
+    let (mut done, mut error) = (0, None);
+    for k in 0..crate::passes::pass_count(n, plan.pass_samples) {
+        let range = crate::passes::pass_range(n, plan.pass_samples, k);
+        let first = if k == 0 { aux.as_deref_mut() } else { None };
+        let (pass, st) =
+            match render_tile_sums_until(scene, camera, rect, settings, range, Stop::NEVER, first) {
+                Ok(r) => r,
+                Err(_) => unreachable!("Stop::NEVER never stops"),
+            };
+        for (acc, p) in sums.iter_mut().zip(&pass) {
+            acc.add(p);
+        }
+        stats.add(&st);
+        done = range.end;
+        error = crate::passes::tile_error(&sums, done);
+        if !crate::passes::needs_more(n, plan.pass_samples, done, error, plan.noise_target) {
+            break;
+        }
+    }
+    let film = sums.iter().map(|s| s.film(done)).collect();
+    (film, TileOutcome { rect, samples: done, error }, stats)
+}
+
+/// Renders a whole camera pass by pass ([`render_tile_passes`] on every tile, rayon over tiles):
+/// with a noise target, the same bits as a farm render of the same tile size and pass size.
+/// Without one it is [`render_camera`]'s image.
+pub fn render_camera_passes(
+    scene: &Scene,
+    camera: usize,
+    tile_size: u32,
+    settings: &RenderSettings,
+    plan: PassPlan,
+    with_aux: bool,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> PassedFrame {
+    render_camera_inner(scene, camera, tile_size, settings, Some(plan), with_aux, progress)
 }
 
 fn render_camera_inner(
@@ -336,45 +432,45 @@ fn render_camera_inner(
     camera: usize,
     tile_size: u32,
     settings: &RenderSettings,
+    plan: Option<PassPlan>,
     with_aux: bool,
     progress: &(dyn Fn(usize, usize) + Sync),
-) -> (Image, Option<AuxImages>, RayStats) {
+) -> PassedFrame {
     let cam = &scene.cameras[camera];
+    let n = samples_per_pixel(scene, camera, settings);
+    // A single pass of every sample unless asked otherwise.
+    let plan =
+        plan.unwrap_or(PassPlan { pass_samples: crate::passes::round_to_blocks(n), noise_target: None });
     let rects = tiles(cam.width, cam.height, tile_size);
     let done = AtomicUsize::new(0);
     let total = rects.len();
-    type Rendered = (TileRect, Vec<[f32; 3]>, Option<AuxTile>, RayStats);
+    type Rendered = (Vec<[f32; 3]>, Option<AuxTile>, TileOutcome, RayStats);
     let results: Vec<Rendered> = rects
         .par_iter()
         .map(|&r| {
-            let (px, aux, st) = if with_aux {
-                match render_tile_with_aux_until(scene, camera, r, settings, Stop::NEVER) {
-                    Ok((px, aux, st)) => (px, Some(aux), st),
-                    Err(_) => unreachable!("Stop::NEVER never stops"),
-                }
-            } else {
-                let (px, st) = render_tile(scene, camera, r, settings);
-                (px, None, st)
-            };
+            let mut aux = with_aux.then(AuxTile::default);
+            let (px, outcome, st) = render_tile_passes(scene, camera, r, settings, plan, aux.as_mut());
             progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
-            (r, px, aux, st)
+            (px, aux, outcome, st)
         })
         .collect();
-    let mut img = Image::new(cam.width, cam.height);
+    let mut image = Image::new(cam.width, cam.height);
     let mut aux = with_aux.then(|| AuxImages {
         albedo: Image::new(cam.width, cam.height),
         normal: Image::new(cam.width, cam.height),
     });
     let mut stats = RayStats::default();
-    for (r, px, tile_aux, st) in &results {
-        img.put_tile(*r, px);
+    let mut outcomes = Vec::with_capacity(results.len());
+    for (px, tile_aux, outcome, st) in &results {
+        image.put_tile(outcome.rect, px);
         if let (Some(a), Some(t)) = (aux.as_mut(), tile_aux) {
-            a.albedo.put_tile(*r, &t.albedo);
-            a.normal.put_tile(*r, &t.normal);
+            a.albedo.put_tile(outcome.rect, &t.albedo);
+            a.normal.put_tile(outcome.rect, &t.normal);
         }
         stats.add(st);
+        outcomes.push(*outcome);
     }
-    (img, aux, stats)
+    PassedFrame { image, aux, tiles: outcomes, stats }
 }
 
 #[cfg(test)]
@@ -560,6 +656,41 @@ mod tests {
             render_tile_with_aux_until(&scene, 0, rect, &RenderSettings::default(), Stop::NEVER).unwrap();
         assert_eq!(aux.albedo[0], [0.0; 3]);
         assert_eq!(aux.normal[0], [0.0; 3]);
+    }
+
+    /// The triangle's scene at 100 samples lit by a point light through a lens (so every
+    /// sample differs), rendered whole and pass by pass in several pass sizes and tile sizes.
+    #[test]
+    fn passes_of_any_size_add_up_to_the_whole_renders_bits() {
+        let xml = r#"<Scene><Cameras><Camera id="1"><Position>0 0 5</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+              <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>6 5</ImageResolution>
+              <NumSamples>100</NumSamples><FocusDistance>3</FocusDistance><ApertureSize>0.4</ApertureSize><ImageName>a.exr</ImageName></Camera></Cameras>
+            <Lights><PointLight id="1"><Position>0.3 0.2 3</Position><Intensity>30 20 10</Intensity></PointLight></Lights>
+            <Materials><Material id="1"><DiffuseReflectance>0.8 0.7 0.6</DiffuseReflectance><SpecularReflectance>0.3 0.3 0.3</SpecularReflectance><PhongExponent>20</PhongExponent></Material></Materials>
+            <VertexData>-1 -1 0  1 -1 0  0 1 0</VertexData>
+            <Objects><Mesh id="1"><Material>1</Material><Faces>1 2 3</Faces></Mesh></Objects></Scene>"#;
+        let scene =
+            load_scene_str(xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() }).unwrap();
+        let settings = RenderSettings::default();
+        let (whole, _) = render_camera(&scene, 0, 4, &settings, &|_, _| {});
+        assert!(whole.pixels.iter().any(|p| p[0] > 0.0) && whole.pixels.iter().any(|p| p[0] == 0.0));
+        for (pass_samples, tile) in [(16, 4), (48, 2), (32, 6), (100, 3)] {
+            let plan = PassPlan { pass_samples, noise_target: None };
+            let f = render_camera_passes(&scene, 0, tile, &settings, plan, false, &|_, _| {});
+            assert_eq!(f.image.pixels, whole.pixels, "passes of {pass_samples}, tiles of {tile}");
+            assert!(f.tiles.iter().all(|t| t.samples == 100));
+        }
+        // One tile's passes summed by hand, in the reverse order: the same bits again.
+        let rect = TileRect { x0: 1, y0: 1, width: 3, height: 2 };
+        let mut sums = vec![PixelSum::default(); 6];
+        for k in (0..crate::passes::pass_count(100, 32)).rev() {
+            let range = crate::passes::pass_range(100, 32, k);
+            let (pass, _) =
+                render_tile_sums_until(&scene, 0, rect, &settings, range, Stop::NEVER, None).unwrap();
+            sums.iter_mut().zip(&pass).for_each(|(a, p)| a.add(p));
+        }
+        let (tile, _) = render_tile(&scene, 0, rect, &settings);
+        assert_eq!(sums.iter().map(|s| s.film(100)).collect::<Vec<_>>(), tile);
     }
 
     #[test]

@@ -27,6 +27,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "error",
             "math",
             "sampler",
+            "passes",
             "assets",
             "atomic_write",
             "ply",

@@ -18,6 +18,9 @@ use tessera::protocol::{JobEvent, JobState, Lease, Rect};
 
 use crate::failures::{self, TileFailures};
 
+mod passes;
+pub use passes::ResultShape;
+
 const SCHEMA: &str = "
 CREATE TABLE IF NOT EXISTS jobs(
     id INTEGER PRIMARY KEY,
@@ -33,7 +36,9 @@ CREATE TABLE IF NOT EXISTS jobs(
     finished_at REAL,
     error TEXT,
     allow_unsupported INTEGER NOT NULL DEFAULT 0,
-    denoise INTEGER NOT NULL DEFAULT 0
+    denoise INTEGER NOT NULL DEFAULT 0,
+    pass_samples INTEGER,
+    noise_target REAL
 );
 CREATE TABLE IF NOT EXISTS frames(
     job_id INTEGER NOT NULL,
@@ -45,6 +50,9 @@ CREATE TABLE IF NOT EXISTS frames(
     tiles_total INTEGER NOT NULL,
     tiles_done INTEGER NOT NULL DEFAULT 0,
     outputs TEXT,
+    samples INTEGER NOT NULL DEFAULT 1,
+    passes_total INTEGER NOT NULL DEFAULT 1,
+    passes_published INTEGER NOT NULL DEFAULT 0,
     PRIMARY KEY(job_id, idx)
 );
 CREATE TABLE IF NOT EXISTS tiles(
@@ -58,10 +66,17 @@ CREATE TABLE IF NOT EXISTS tiles(
     deadline REAL,
     pixels BLOB,
     render_seconds REAL,
-    PRIMARY KEY(job_id, frame, tile)
+    pass INTEGER NOT NULL DEFAULT 0,
+    first_sample INTEGER,
+    end_sample INTEGER,
+    sums BLOB,
+    passes_done INTEGER NOT NULL DEFAULT 0,
+    samples_done INTEGER NOT NULL DEFAULT 0,
+    error REAL,
+    finished INTEGER NOT NULL DEFAULT 0,
+    PRIMARY KEY(job_id, frame, tile, pass)
 );
 CREATE INDEX IF NOT EXISTS tiles_by_state ON tiles(state, job_id);
-CREATE INDEX IF NOT EXISTS tiles_queue ON tiles(job_id, state, frame, tile);
 CREATE INDEX IF NOT EXISTS jobs_by_state ON jobs(state, priority, id);
 CREATE UNIQUE INDEX IF NOT EXISTS tiles_by_lease ON tiles(lease_id) WHERE lease_id IS NOT NULL;
 CREATE TABLE IF NOT EXISTS tile_failures(
@@ -181,7 +196,7 @@ pub struct Expired {
 /// failure too (the worker crashed).
 fn record_failure(
     tx: &rusqlite::Transaction<'_>,
-    (job, frame, tile): (i64, i64, i64),
+    (job, frame, tile, pass): (i64, i64, i64, i64),
     worker: i64,
     failure: Failure<'_>,
     t: f64,
@@ -200,8 +215,8 @@ fn record_failure(
         [worker],
     )?;
     tx.execute_cached(
-        "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE job_id = ?1 AND frame = ?2 AND tile = ?3",
-        params![job, frame, tile],
+        "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE job_id = ?1 AND frame = ?2 AND tile = ?3 AND pass = ?4",
+        params![job, frame, tile, pass],
     )?;
     let failures = tx.query_row_cached(
         "SELECT count(DISTINCT worker_id), count(*), sum(error LIKE '% stopped answering while rendering this tile %')
@@ -298,6 +313,10 @@ pub struct NewJob {
     /// Tiles carry the denoiser's features, and each merged frame is also written denoised
     /// (`denoise=true`).
     pub denoise: bool,
+    /// Samples per pass as the job asked (`pass_samples`); `None`: the default.
+    pub pass_samples: Option<u32>,
+    /// Stop a tile once its noise is at most this (`noise_target`).
+    pub noise_target: Option<f64>,
 }
 
 pub struct NewFrame {
@@ -306,6 +325,17 @@ pub struct NewFrame {
     pub width: u32,
     pub height: u32,
     pub tiles: Vec<Rect>,
+    /// Samples per pixel (the job's `samples` or the camera's `NumSamples`).
+    pub samples: u32,
+    /// Samples per pass, whole blocks; at least `samples` renders every tile in one piece.
+    pub pass_samples: u32,
+}
+
+impl NewFrame {
+    /// The passes of each tile.
+    pub fn passes(&self) -> u32 {
+        tessera::passes::pass_count(self.samples, self.pass_samples)
+    }
 }
 
 #[derive(Clone, Debug)]
@@ -323,6 +353,8 @@ pub struct JobRow {
     pub finished_at: Option<f64>,
     pub error: Option<String>,
     pub denoise: bool,
+    pub pass_samples: Option<u32>,
+    pub noise_target: Option<f64>,
 }
 
 #[derive(Clone, Debug)]
@@ -337,6 +369,11 @@ pub struct FrameRow {
     pub tiles_done: u32,
     /// Output file names once merged.
     pub outputs: Option<Vec<String>>,
+    /// Samples per pixel, passes per tile, and the passes every tile has finished whose frame
+    /// was published (`pass.exr`, `pass.png`).
+    pub samples: u32,
+    pub passes_total: u32,
+    pub passes_published: u32,
 }
 
 #[derive(Clone, Debug)]
@@ -365,6 +402,9 @@ pub enum ResultOutcome {
         tiles_done: u32,
         tiles_total: u32,
         frame_complete: bool,
+        /// Every tile of the frame has now finished this many passes (and the frame is not
+        /// complete): publish the frame as it stands.
+        pass_published: Option<u32>,
     },
     /// No such live lease (expired, revoked, already submitted, job not running).
     Conflict,
@@ -434,6 +474,20 @@ pub fn now() -> f64 {
     std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0)
 }
 
+/// A unit's pass as a lease names it (columns pass, first_sample, end_sample, passes_total from
+/// `at`); `None` for a tile rendered whole.
+fn unit_pass(r: &rusqlite::Row, at: usize) -> rusqlite::Result<Option<tessera::protocol::PassLease>> {
+    let index: i64 = r.get(at)?;
+    let range = r.get::<_, Option<i64>>(at + 1)?.zip(r.get::<_, Option<i64>>(at + 2)?);
+    let count: i64 = r.get(at + 3)?;
+    Ok(range.map(|(start, end)| tessera::protocol::PassLease {
+        index: index as u32,
+        count: count as u32,
+        start: start as u32,
+        end: end as u32,
+    }))
+}
+
 fn job_from_row(r: &rusqlite::Row) -> rusqlite::Result<JobRow> {
     let state: String = r.get(2)?;
     Ok(JobRow {
@@ -450,10 +504,12 @@ fn job_from_row(r: &rusqlite::Row) -> rusqlite::Result<JobRow> {
         finished_at: r.get(10)?,
         error: r.get(11)?,
         denoise: r.get(12)?,
+        pass_samples: r.get::<_, Option<i64>>(13)?.map(|s| s as u32),
+        noise_target: r.get(14)?,
     })
 }
 
-const JOB_COLUMNS: &str = "id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, started_at, finished_at, error, denoise";
+const JOB_COLUMNS: &str = "id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, started_at, finished_at, error, denoise, pass_samples, noise_target";
 
 fn frame_from_row(r: &rusqlite::Row) -> rusqlite::Result<FrameRow> {
     let outputs: Option<String> = r.get(8)?;
@@ -467,11 +523,13 @@ fn frame_from_row(r: &rusqlite::Row) -> rusqlite::Result<FrameRow> {
         tiles_total: r.get::<_, i64>(6)? as u32,
         tiles_done: r.get::<_, i64>(7)? as u32,
         outputs: outputs.and_then(|o| serde_json::from_str(&o).ok()),
+        samples: r.get::<_, i64>(9)? as u32,
+        passes_total: r.get::<_, i64>(10)? as u32,
+        passes_published: r.get::<_, i64>(11)? as u32,
     })
 }
 
-const FRAME_COLUMNS: &str =
-    "job_id, idx, camera, image_name, width, height, tiles_total, tiles_done, outputs";
+const FRAME_COLUMNS: &str = "job_id, idx, camera, image_name, width, height, tiles_total, tiles_done, outputs, samples, passes_total, passes_published";
 
 /// Adds what later versions added to the tables of an older database (CREATE TABLE IF NOT
 /// EXISTS leaves an existing table as it is).
@@ -502,6 +560,40 @@ fn migrate(conn: &Connection) -> Result<()> {
         // Jobs from before denoising existed did not ask for it.
         conn.execute("ALTER TABLE jobs ADD COLUMN denoise INTEGER NOT NULL DEFAULT 0", [])?;
     }
+    if !has_column("jobs", "pass_samples")? {
+        // Jobs from before passes render each tile whole: one pass (NULL), no noise target.
+        conn.execute_batch(
+            "ALTER TABLE jobs ADD COLUMN pass_samples INTEGER;
+             ALTER TABLE jobs ADD COLUMN noise_target REAL;
+             ALTER TABLE frames ADD COLUMN samples INTEGER NOT NULL DEFAULT 1;
+             ALTER TABLE frames ADD COLUMN passes_total INTEGER NOT NULL DEFAULT 1;
+             ALTER TABLE frames ADD COLUMN passes_published INTEGER NOT NULL DEFAULT 0;",
+        )?;
+    }
+    if !has_column("tiles", "pass")? {
+        // A tile row becomes a unit of work (tile, pass): the key gains the pass, which SQLite
+        // cannot add to a table's key in place. Every existing row is its tile's only pass.
+        conn.execute_batch(
+            "BEGIN;
+             ALTER TABLE tiles RENAME TO tiles_before_passes;
+             DROP INDEX IF EXISTS tiles_by_state;
+             DROP INDEX IF EXISTS tiles_queue;
+             DROP INDEX IF EXISTS tiles_by_lease;",
+        )?;
+        conn.execute_batch(SCHEMA)?;
+        conn.execute_batch(
+            "INSERT INTO tiles(job_id, frame, tile, x0, y0, w, h, state, lease_id, worker_id, deadline, pixels, render_seconds)
+               SELECT job_id, frame, tile, x0, y0, w, h, state, lease_id, worker_id, deadline, pixels, render_seconds
+               FROM tiles_before_passes;
+             DROP TABLE tiles_before_passes;
+             COMMIT;",
+        )?;
+    }
+    conn.execute_batch(
+        "CREATE INDEX IF NOT EXISTS tiles_by_state ON tiles(state, job_id);
+         CREATE INDEX IF NOT EXISTS tiles_queue_by_pass ON tiles(job_id, state, pass, frame, tile);
+         CREATE UNIQUE INDEX IF NOT EXISTS tiles_by_lease ON tiles(lease_id) WHERE lease_id IS NOT NULL;",
+    )?;
     Ok(())
 }
 
@@ -542,7 +634,7 @@ impl Store {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         tx.execute_cached(
-            "INSERT INTO jobs(name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, allow_unsupported, denoise) VALUES (?1, 'queued', ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+            "INSERT INTO jobs(name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, allow_unsupported, denoise, pass_samples, noise_target) VALUES (?1, 'queued', ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
             params![
                 job.name,
                 job.priority,
@@ -552,46 +644,68 @@ impl Store {
                 job.scene_path,
                 now(),
                 job.allow_unsupported,
-                job.denoise
+                job.denoise,
+                job.pass_samples,
+                job.noise_target
             ],
         )?;
         let id = tx.last_insert_rowid();
         for (i, f) in job.frames.iter().enumerate() {
+            let passes = f.passes();
             tx.execute_cached(
-                "INSERT INTO frames(job_id, idx, camera, image_name, width, height, tiles_total) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
-                params![id, i as i64, f.camera, f.image_name, f.width, f.height, f.tiles.len() as i64],
+                "INSERT INTO frames(job_id, idx, camera, image_name, width, height, tiles_total, samples, passes_total) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+                params![id, i as i64, f.camera, f.image_name, f.width, f.height, f.tiles.len() as i64, f.samples, passes],
             )?;
-            // Many rows per statement: a job of hundreds of thousands of tiles goes in several
-            // times faster than row by row, and the store is held that much shorter.
+            // One row per tile and pass. A tile of one pass renders whole (no sample range); a
+            // tile of several renders pass by pass. Under a noise target a tile's pass waits
+            // until the one before it was added up and found too noisy.
             const ROWS: usize = 128;
             let insert = |n: usize| {
-                let row = "(?, ?, ?, ?, ?, ?, ?, 'queued')";
+                let row = "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)";
                 format!(
-                    "INSERT INTO tiles(job_id, frame, tile, x0, y0, w, h, state) VALUES {}",
+                    "INSERT INTO tiles(job_id, frame, tile, x0, y0, w, h, pass, first_sample, end_sample, state) VALUES {}",
                     vec![row; n].join(", ")
                 )
             };
-            for (c, chunk) in f.tiles.chunks(ROWS).enumerate() {
+            let units: Vec<(usize, &Rect, u32)> =
+                (0..passes).flat_map(|k| f.tiles.iter().enumerate().map(move |(t, r)| (t, r, k))).collect();
+            for chunk in units.chunks(ROWS) {
                 let mut stmt = tx.prepare_cached(&insert(chunk.len()))?;
-                let mut values: Vec<i64> = Vec::with_capacity(chunk.len() * 7);
-                for (k, r) in chunk.iter().enumerate() {
-                    let t = c * ROWS + k;
+                let mut values: Vec<rusqlite::types::Value> = Vec::with_capacity(chunk.len() * 11);
+                for &(t, r, k) in chunk {
+                    let range =
+                        (passes > 1).then(|| tessera::passes::pass_range(f.samples, f.pass_samples, k));
+                    let state = if k > 0 && job.noise_target.is_some() { "waiting" } else { "queued" };
+                    use rusqlite::types::Value::{Integer, Null, Text};
                     values.extend([
-                        id,
-                        i as i64,
-                        t as i64,
-                        i64::from(r.x0),
-                        i64::from(r.y0),
-                        i64::from(r.width),
-                        i64::from(r.height),
+                        Integer(id),
+                        Integer(i as i64),
+                        Integer(t as i64),
+                        Integer(i64::from(r.x0)),
+                        Integer(i64::from(r.y0)),
+                        Integer(i64::from(r.width)),
+                        Integer(i64::from(r.height)),
+                        Integer(i64::from(k)),
+                        range.map_or(Null, |r| Integer(i64::from(r.start))),
+                        range.map_or(Null, |r| Integer(i64::from(r.end))),
+                        Text(state.into()),
                     ]);
                 }
                 stmt.execute(rusqlite::params_from_iter(values))?;
             }
         }
         let tiles: usize = job.frames.iter().map(|f| f.tiles.len()).sum();
+        let passes = job.frames.iter().map(NewFrame::passes).max().unwrap_or(1);
+        let in_passes = match (passes, job.frames.first()) {
+            (1, _) | (_, None) => String::new(),
+            (_, Some(f)) => format!(
+                ", {passes} pass(es) of {} samples{}",
+                f.pass_samples,
+                job.noise_target.map(|t| format!(", noise target {t}")).unwrap_or_default()
+            ),
+        };
         let accepted = format!(
-            "accepted: {} frame(s), {tiles} tile(s) of {} px, scene {}",
+            "accepted: {} frame(s), {tiles} tile(s) of {} px{in_passes}, scene {}",
             job.frames.len(),
             job.tile_size,
             job.scene_path
@@ -647,7 +761,7 @@ impl Store {
     pub fn done_tile_rects(&self, job: u64, frame: u32) -> Result<Vec<(u32, Rect)>> {
         let conn = self.conn();
         let mut stmt = conn.prepare_cached(
-            "SELECT tile, x0, y0, w, h FROM tiles WHERE job_id = ?1 AND frame = ?2 AND state = 'done' AND pixels IS NOT NULL ORDER BY tile",
+            "SELECT tile, x0, y0, w, h FROM tiles WHERE job_id = ?1 AND frame = ?2 AND pass = 0 AND state = 'done' AND pixels IS NOT NULL ORDER BY tile",
         )?;
         let rows = stmt
             .query_map(params![job as i64, frame], |r| {
@@ -670,7 +784,7 @@ impl Store {
         let conn = self.conn();
         Ok(conn
             .query_row_cached(
-                "SELECT pixels FROM tiles WHERE job_id = ?1 AND frame = ?2 AND tile = ?3 AND pixels IS NOT NULL",
+                "SELECT pixels FROM tiles WHERE job_id = ?1 AND frame = ?2 AND tile = ?3 AND pass = 0 AND state = 'done' AND pixels IS NOT NULL",
                 params![job as i64, frame, tile],
                 |r| r.get(0),
             )
@@ -681,7 +795,7 @@ impl Store {
     pub fn frame_tiles(&self, job: u64, frame: u32) -> Result<Vec<(Rect, Vec<u8>)>> {
         let conn = self.conn();
         let mut stmt = conn.prepare_cached(
-            "SELECT x0, y0, w, h, pixels FROM tiles WHERE job_id = ?1 AND frame = ?2 AND state = 'done' AND pixels IS NOT NULL",
+            "SELECT x0, y0, w, h, pixels FROM tiles WHERE job_id = ?1 AND frame = ?2 AND pass = 0 AND state = 'done' AND pixels IS NOT NULL",
         )?;
         let rows = stmt
             .query_map(params![job as i64, frame], |r| {
@@ -752,10 +866,65 @@ impl Store {
                 log_event(&tx, job as i64, Event::new("job_done", "done: every frame is merged"))?;
             }
             // The pixels live on in the outputs; keep the database small.
-            tx.execute_cached("UPDATE tiles SET pixels = NULL WHERE job_id = ?1", [job as i64])?;
+            tx.execute_cached("UPDATE tiles SET pixels = NULL, sums = NULL WHERE job_id = ?1", [job as i64])?;
         }
         tx.commit()?;
         Ok(done)
+    }
+
+    /// Each tile's rectangle and samples per pixel (a tile rendered whole has them all).
+    pub fn tile_samples(&self, job: u64, frame: u32) -> Result<Vec<(Rect, u32)>> {
+        let conn = self.conn();
+        let mut stmt = conn.prepare_cached(
+            "SELECT t.x0, t.y0, t.w, t.h, CASE WHEN t.first_sample IS NULL THEN f.samples ELSE t.samples_done END
+             FROM tiles t JOIN frames f ON f.job_id = t.job_id AND f.idx = t.frame
+             WHERE t.job_id = ?1 AND t.frame = ?2 AND t.pass = 0 ORDER BY t.tile",
+        )?;
+        let rows = stmt
+            .query_map(params![job as i64, frame], |r| {
+                Ok((
+                    Rect {
+                        x0: r.get::<_, i64>(0)? as u32,
+                        y0: r.get::<_, i64>(1)? as u32,
+                        width: r.get::<_, i64>(2)? as u32,
+                        height: r.get::<_, i64>(3)? as u32,
+                    },
+                    r.get::<_, i64>(4)? as u32,
+                ))
+            })?
+            .collect::<rusqlite::Result<Vec<_>>>()?;
+        Ok(rows)
+    }
+
+    /// Logs that a frame was published after `passes` of its `passes_total` passes, with the
+    /// fewest samples per pixel any of its tiles has.
+    pub fn frame_passed(
+        &self,
+        job: u64,
+        frame: u32,
+        passes: u32,
+        passes_total: u32,
+        seconds: f64,
+    ) -> Result<()> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        let (least, finished, tiles): (Option<i64>, i64, i64) = tx.query_row_cached(
+            "SELECT min(samples_done), sum(finished), count(*) FROM tiles WHERE job_id = ?1 AND frame = ?2 AND pass = 0",
+            params![job as i64, frame],
+            |r| Ok((r.get(0)?, r.get::<_, Option<i64>>(1)?.unwrap_or(0), r.get(2)?)),
+        )?;
+        let message = format!(
+            "frame {frame} after pass {passes} of {passes_total}: at least {} samples per pixel, {finished} of {tiles} tiles finished; pass.exr and pass.png written",
+            least.unwrap_or(0)
+        );
+        let e = Event {
+            frame: Some(i64::from(frame)),
+            seconds: Some(seconds),
+            ..Event::new("frame_pass", &message)
+        };
+        log_event(&tx, job as i64, e)?;
+        tx.commit()?;
+        Ok(())
     }
 
     pub fn fail_job(&self, job: u64, error: &str) -> Result<()> {
@@ -882,11 +1051,11 @@ impl Store {
         for (job, bundle, scene_path, samples, allow_unsupported, aux) in jobs {
             let tile = tx
                 .prepare_cached(
-                    "SELECT t.frame, t.tile, t.x0, t.y0, t.w, t.h, f.camera
+                    "SELECT t.frame, t.tile, t.x0, t.y0, t.w, t.h, f.camera, t.pass, t.first_sample, t.end_sample, f.passes_total
                      FROM tiles t JOIN frames f ON f.job_id = t.job_id AND f.idx = t.frame
                      WHERE t.job_id = ?1 AND t.state = 'queued'
                        AND NOT EXISTS (SELECT 1 FROM tile_failures x WHERE x.job_id = t.job_id AND x.frame = t.frame AND x.tile = t.tile AND x.worker_id = ?2 AND x.at > ?3)
-                     ORDER BY t.frame, t.tile LIMIT 1",
+                     ORDER BY t.pass, t.frame, t.tile LIMIT 1",
                 )?
                 .query_row(params![job, w, recent], |r| {
                     Ok((
@@ -899,10 +1068,11 @@ impl Store {
                             height: r.get::<_, i64>(5)? as u32,
                         },
                         r.get::<_, i64>(6)?,
+                        unit_pass(r, 7)?,
                     ))
                 })
                 .optional()?;
-            if let Some((frame, tile, rect, camera)) = tile {
+            if let Some((frame, tile, rect, camera, pass)) = tile {
                 candidate = Some((
                     job,
                     frame,
@@ -914,11 +1084,12 @@ impl Store {
                     camera,
                     allow_unsupported,
                     aux,
+                    pass,
                 ));
                 break;
             }
         }
-        let Some((job, frame, tile, rect, bundle, scene_path, samples, camera, allow_unsupported, aux)) =
+        let Some((job, frame, tile, rect, bundle, scene_path, samples, camera, allow_unsupported, aux, pass)) =
             candidate
         else {
             tx.execute_cached("UPDATE workers SET last_seen = ?2 WHERE id = ?1", params![w, now()])?;
@@ -933,8 +1104,8 @@ impl Store {
         };
         let t = now();
         tx.execute_cached(
-            "UPDATE tiles SET state = 'leased', lease_id = ?4, worker_id = ?5, deadline = ?6 WHERE job_id = ?1 AND frame = ?2 AND tile = ?3",
-            params![job, frame, tile, lease_id as i64, w, t + lease_seconds],
+            "UPDATE tiles SET state = 'leased', lease_id = ?4, worker_id = ?5, deadline = ?6 WHERE job_id = ?1 AND frame = ?2 AND tile = ?3 AND pass = ?7",
+            params![job, frame, tile, lease_id as i64, w, t + lease_seconds, pass.map_or(0, |p| p.index)],
         )?;
         let failures: i64 = tx
             .prepare_cached(
@@ -967,7 +1138,9 @@ impl Store {
             lease_seconds,
             max_render_seconds: None,
             allow_unsupported,
-            aux,
+            // Features come with a tile's first samples.
+            aux: aux && pass.is_none_or(|p| p.index == 0),
+            pass,
         }))
     }
 
@@ -1025,15 +1198,15 @@ impl Store {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         let t = now();
-        let expired: Vec<(i64, i64, i64, i64)> = {
+        let expired: Vec<(i64, i64, i64, i64, i64)> = {
             let mut stmt = tx.prepare_cached(
-                "SELECT job_id, frame, tile, worker_id FROM tiles WHERE state = 'leased' AND deadline < ?1",
+                "SELECT job_id, frame, tile, worker_id, pass FROM tiles WHERE state = 'leased' AND deadline < ?1",
             )?;
-            stmt.query_map([t], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?)))?
+            stmt.query_map([t], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?)))?
                 .collect::<rusqlite::Result<_>>()?
         };
         let mut out = Expired { leases: expired.len(), failed_jobs: Vec::new() };
-        for (job, frame, tile, worker) in expired {
+        for (job, frame, tile, worker, pass) in expired {
             let error = format!(
                 "worker {worker} stopped answering while rendering this tile (it crashed, was killed or lost \
                  its connection) and its lease expired"
@@ -1042,9 +1215,13 @@ impl Store {
                 "UPDATE workers SET rendering = NULL WHERE id = ?1 AND rendering IS NOT NULL",
                 [worker],
             )?;
-            if let FailOutcome::JobFailed { job, message } =
-                record_failure(&tx, (job, frame, tile), worker, Failure::LeaseExpired { error: &error }, t)?
-            {
+            if let FailOutcome::JobFailed { job, message } = record_failure(
+                &tx,
+                (job, frame, tile, pass),
+                worker,
+                Failure::LeaseExpired { error: &error },
+                t,
+            )? {
                 out.failed_jobs.push((job, message));
             }
         }
@@ -1072,25 +1249,34 @@ impl Store {
         Ok(n > 0)
     }
 
-    /// The size in bytes of the tile a live lease of `worker` expects (width x height x 12, three
-    /// times that when its job is denoised: [`tessera::protocol::tile_bytes`]), or `None` when it
-    /// is not such a lease: the result route reads no more than this of a body.
-    pub fn result_size(&self, lease: u64, worker: u64) -> Result<Option<usize>> {
+    /// What the result of a live lease of `worker` must hold ([`ResultShape`]: finished
+    /// pixels or a pass's sums, with or without features), or `None` when it is not such a
+    /// lease: the result route reads no more than its bytes of a body.
+    pub fn result_size(&self, lease: u64, worker: u64) -> Result<Option<ResultShape>> {
         let conn = self.conn();
         let (lease, worker) = (i64::try_from(lease).unwrap_or(-1), i64::try_from(worker).unwrap_or(-1));
-        let size: Option<i64> = conn
+        Ok(conn
             .query_row_cached(
-                "SELECT t.w * t.h * 12 * (CASE WHEN j.denoise THEN 3 ELSE 1 END)
+                "SELECT t.w * t.h, t.first_sample, t.end_sample, t.pass, j.denoise
                  FROM tiles t JOIN jobs j ON j.id = t.job_id
                  WHERE t.lease_id = ?1 AND t.worker_id = ?2 AND t.state = 'leased'",
                 params![lease, worker],
-                |r| r.get(0),
+                |r| {
+                    let pass = r.get::<_, Option<i64>>(1)?.zip(r.get::<_, Option<i64>>(2)?);
+                    let index: i64 = r.get(3)?;
+                    Ok(ResultShape {
+                        pixels: r.get::<_, i64>(0)? as usize,
+                        blocks: pass.map(|(a, b)| (b - a).max(0) as u32 / tessera::passes::BLOCK + 1),
+                        aux: r.get::<_, bool>(4)? && index == 0,
+                    })
+                },
             )
-            .optional()?;
-        Ok(size.map(|s| s as usize))
+            .optional()?)
     }
 
-    /// Stores a tile's pixels for a live lease held by `worker`, once.
+    /// Stores a tile's pixels (or a pass's sums) for a live lease held by `worker`, once. A
+    /// pass is added into its tile as soon as the passes before it are (in the same
+    /// transaction: a finished pass survives any crash after its answer).
     pub fn submit_result(
         &self,
         lease: u64,
@@ -1102,32 +1288,39 @@ impl Store {
         let tx = conn.transaction()?;
         let row = tx
             .query_row_cached(
-                "SELECT t.job_id, t.frame, t.w, t.h, t.deadline, t.tile, t.x0, t.y0, j.denoise FROM tiles t JOIN jobs j ON j.id = t.job_id
+                "SELECT t.job_id, t.frame, t.w, t.h, t.deadline, t.tile, t.x0, t.y0, j.denoise, t.pass, t.first_sample IS NOT NULL
+                 FROM tiles t JOIN jobs j ON j.id = t.job_id
                  WHERE t.lease_id = ?1 AND t.worker_id = ?2 AND t.state = 'leased' AND j.state IN ('queued', 'running')",
                 params![lease as i64, worker as i64],
                 |r| {
                     Ok((
-                        r.get::<_, i64>(0)?,
-                        r.get::<_, i64>(1)?,
-                        r.get::<_, i64>(2)?,
-                        r.get::<_, i64>(3)?,
+                        (r.get::<_, i64>(0)?, r.get::<_, i64>(1)?, r.get::<_, i64>(5)?, r.get::<_, i64>(9)?),
+                        Rect {
+                            x0: r.get::<_, i64>(6)? as u32,
+                            y0: r.get::<_, i64>(7)? as u32,
+                            width: r.get::<_, i64>(2)? as u32,
+                            height: r.get::<_, i64>(3)? as u32,
+                        },
                         r.get::<_, f64>(4)?,
-                        r.get::<_, i64>(5)?,
-                        r.get::<_, i64>(6)?,
-                        r.get::<_, i64>(7)?,
                         r.get::<_, bool>(8)?,
+                        r.get::<_, bool>(10)?,
                     ))
                 },
             )
             .optional()?;
-        let Some((job, frame, w, h, deadline, tile, x0, y0, denoise)) = row else {
+        let Some(((job, frame, tile, pass), rect, deadline, denoise, in_passes)) = row else {
             return Ok(ResultOutcome::Conflict);
         };
         if deadline < now() {
             // Expired but not swept yet: the tile may already be someone else's.
             return Ok(ResultOutcome::Conflict);
         }
-        let expected = tessera::protocol::tile_bytes((w * h) as usize, denoise);
+        let px = (rect.width * rect.height) as usize;
+        let expected = if in_passes {
+            tessera::passes::pass_tile_bytes(px, denoise && pass == 0)
+        } else {
+            tessera::protocol::tile_bytes(px, denoise)
+        };
         if pixels.len() != expected {
             return Ok(ResultOutcome::WrongSize { expected });
         }
@@ -1136,25 +1329,32 @@ impl Store {
             params![lease as i64, pixels, render_seconds],
         )?;
         tx.execute_cached(
-            "UPDATE frames SET tiles_done = tiles_done + 1 WHERE job_id = ?1 AND idx = ?2",
-            params![job, frame],
+            "UPDATE workers SET tiles_done = tiles_done + 1, last_seen = ?2, rendering = NULL WHERE id = ?1",
+            params![worker as i64, now()],
         )?;
+        let mut published = None;
+        let unit = if in_passes { format!("pass {pass} of tile {tile}") } else { format!("tile {tile}") };
         let message = match render_seconds {
-            Some(s) => format!("tile {tile} of frame {frame} rendered in {s:.3} s"),
-            None => format!("tile {tile} of frame {frame} rendered"),
+            Some(s) => format!("{unit} of frame {frame} rendered in {s:.3} s"),
+            None => format!("{unit} of frame {frame} rendered"),
         };
+        let kind = if in_passes { "pass_done" } else { "tile_done" };
         log_event(
             &tx,
             job,
             Event {
                 seconds: render_seconds,
-                ..Event::new("tile_done", &message).tile(frame, tile).worker(worker as i64)
+                ..Event::new(kind, &message).tile(frame, tile).worker(worker as i64)
             },
         )?;
-        tx.execute_cached(
-            "UPDATE workers SET tiles_done = tiles_done + 1, last_seen = ?2, rendering = NULL WHERE id = ?1",
-            params![worker as i64, now()],
-        )?;
+        if in_passes {
+            published = passes::absorb(&tx, job, frame, tile, rect)?;
+        } else {
+            tx.execute_cached(
+                "UPDATE frames SET tiles_done = tiles_done + 1 WHERE job_id = ?1 AND idx = ?2",
+                params![job, frame],
+            )?;
+        }
         let (done, total): (i64, i64) = tx.query_row_cached(
             "SELECT tiles_done, tiles_total FROM frames WHERE job_id = ?1 AND idx = ?2",
             params![job, frame],
@@ -1165,10 +1365,11 @@ impl Store {
             job_id: job as u64,
             frame: frame as u32,
             tile: tile as u32,
-            rect: Rect { x0: x0 as u32, y0: y0 as u32, width: w as u32, height: h as u32 },
+            rect,
             tiles_done: done as u32,
             tiles_total: total as u32,
             frame_complete: done == total,
+            pass_published: published.filter(|_| done < total),
         })
     }
 
@@ -1181,15 +1382,15 @@ impl Store {
         let tx = conn.transaction()?;
         let row = tx
             .query_row_cached(
-                "SELECT job_id, frame, tile FROM tiles WHERE lease_id = ?1 AND worker_id = ?2 AND state = 'leased'",
+                "SELECT job_id, frame, tile, pass FROM tiles WHERE lease_id = ?1 AND worker_id = ?2 AND state = 'leased'",
                 params![lease as i64, worker as i64],
-                |r| Ok((r.get::<_, i64>(0)?, r.get::<_, i64>(1)?, r.get::<_, i64>(2)?)),
+                |r| Ok((r.get::<_, i64>(0)?, r.get::<_, i64>(1)?, r.get::<_, i64>(2)?, r.get::<_, i64>(3)?)),
             )
             .optional()?;
-        let Some((job, frame, tile)) = row else { return Ok(FailOutcome::Conflict) };
+        let Some((job, frame, tile, pass)) = row else { return Ok(FailOutcome::Conflict) };
         let outcome = record_failure(
             &tx,
-            (job, frame, tile),
+            (job, frame, tile, pass),
             worker as i64,
             Failure::Reported { error, fatal },
             now(),
@@ -1297,12 +1498,16 @@ mod tests {
             scene_path: "scene.xml".into(),
             allow_unsupported: false,
             denoise: false,
+            pass_samples: None,
+            noise_target: None,
             frames: vec![NewFrame {
                 camera: 0,
                 image_name: "j.png".into(),
                 width: tiles,
                 height: 1,
                 tiles: (0..tiles).map(|x| Rect { x0: x, y0: 0, width: 1, height: 1 }).collect(),
+                samples: 1,
+                pass_samples: 16,
             }],
             warnings: Vec::new(),
         })
@@ -1539,12 +1744,16 @@ mod tests {
                 scene_path: "scene.xml".into(),
                 allow_unsupported: false,
                 denoise: true,
+                pass_samples: None,
+                noise_target: None,
                 frames: vec![NewFrame {
                     camera: 0,
                     image_name: "d.exr".into(),
                     width: 2,
                     height: 1,
                     tiles: vec![Rect { x0: 0, y0: 0, width: 2, height: 1 }],
+                    samples: 1,
+                    pass_samples: 16,
                 }],
                 warnings: Vec::new(),
             })
@@ -1553,10 +1762,14 @@ mod tests {
         let w = worker(&s);
         let first = lease(&s, w);
         assert_eq!((first.job_id, first.aux), (plain, false));
-        assert_eq!(s.result_size(first.lease_id, w).unwrap(), Some(12));
+        assert_eq!(s.result_size(first.lease_id, w).unwrap().map(|r| r.bytes()), Some(12));
         let l = lease(&s, w);
         assert_eq!((l.job_id, l.aux), (denoised, true));
-        assert_eq!(s.result_size(l.lease_id, w).unwrap(), Some(72), "2 pixels x 3 planes x 12 bytes");
+        assert_eq!(
+            s.result_size(l.lease_id, w).unwrap().map(|r| r.bytes()),
+            Some(72),
+            "2 pixels x 3 planes x 12 bytes"
+        );
         assert_eq!(
             s.submit_result(l.lease_id, w, &[0; 24], None).unwrap(),
             ResultOutcome::WrongSize { expected: 72 },
@@ -1678,10 +1891,14 @@ mod tests {
                     width: 1,
                     height: 1,
                     tiles: vec![Rect { x0: 0, y0: 0, width: 1, height: 1 }],
+                    samples: 1,
+                    pass_samples: 16,
                 }],
                 warnings,
                 allow_unsupported: false,
                 denoise: false,
+                pass_samples: None,
+                noise_target: None,
             })
             .unwrap();
         let w = worker(&s);

@@ -313,6 +313,23 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
         // reads a small file instead of the whole float frame.
         tessera::atomic_write::write_atomic(&dir.join(PREVIEW_FILE), &final_preview_png(cam, &img)?)
             .with_context(|| format!("cannot write the preview in {}", dir.display()))?;
+        if job.noise_target.is_some() {
+            let name = tessera::output::samples_map_name(cam);
+            let tiles: Vec<_> = st
+                .store
+                .tile_samples(job_id, frame)?
+                .into_iter()
+                .map(|(r, n)| (tessera::image::TileRect::from(r), n))
+                .collect();
+            let rgb = tessera::output::samples_map(f.width, f.height, &tiles, f.samples);
+            tessera::hdr_io::write_png_rgb8(&dir.join(&name), f.width, f.height, &rgb)
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+            names.push(name);
+        }
+        // The last pass's files are superseded by the outputs.
+        for name in PASS_FILES {
+            let _ = std::fs::remove_file(dir.join(name));
+        }
         let timing = MergeTiming { merge_seconds: assembled + written, tonemap_seconds, denoise };
         st.store.frame_merged(job_id, frame, &names, timing)
     })
@@ -332,6 +349,60 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
             state.emit(ServerEvent::Job { job: job_id, state: JobState::Failed });
         }
         Err(e) => tracing::error!(job = job_id, frame, "merge task panicked: {e}"),
+    }
+}
+
+/// The frame after its latest pass (`pass.exr`, and `pass.png` tone-mapped on the whole frame
+/// like the final one), in the frame's directory until the frame is merged.
+pub const PASS_FILES: [&str; 2] = ["pass.exr", "pass.png"];
+
+/// Publishes a frame whose every tile has finished another pass: the tiles as they stand merged,
+/// written as [`PASS_FILES`] and logged with the samples reached. Skipped once the frame is
+/// merged (its outputs supersede it).
+pub async fn publish_pass(state: AppState, job_id: u64, frame: u32) {
+    let Ok(_permit) = state.merging.clone().acquire_owned().await else { return };
+    let st = state.clone();
+    let outcome = tokio::task::spawn_blocking(move || -> anyhow::Result<bool> {
+        let job = st.store.job(job_id)?.ok_or_else(|| anyhow::anyhow!("job {job_id} vanished"))?;
+        let f = st
+            .store
+            .frames(job_id)?
+            .into_iter()
+            .find(|f| f.index == frame)
+            .ok_or_else(|| anyhow::anyhow!("frame {frame} vanished"))?;
+        if f.outputs.is_some() || job.state.is_final() {
+            return Ok(false);
+        }
+        let cameras = st.job_cameras(&job)?;
+        let cam =
+            cameras.get(f.camera as usize).ok_or_else(|| anyhow::anyhow!("camera {} missing", f.camera))?;
+        let started = Instant::now();
+        let tiles = st.store.frame_tiles(job_id, frame)?;
+        let (img, _) = assemble_with_aux(f.width, f.height, &tiles, job.denoise)?;
+        drop(tiles);
+        let dir = st.frame_dir(job_id, frame);
+        std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        let exr = dir.join(PASS_FILES[0]);
+        let tmp = dir.join(".pass.exr.tmp");
+        tessera::hdr_io::write_exr(&tmp, &img).map_err(|e| anyhow::anyhow!("{e}"))?;
+        std::fs::rename(&tmp, &exr).with_context(|| format!("cannot write {}", exr.display()))?;
+        tessera::atomic_write::write_atomic(&dir.join(PASS_FILES[1]), &final_png(cam, &img)?)
+            .with_context(|| format!("cannot write the pass preview in {}", dir.display()))?;
+        st.store.frame_passed(
+            job_id,
+            frame,
+            f.passes_published,
+            f.passes_total,
+            started.elapsed().as_secs_f64(),
+        )?;
+        Ok(true)
+    })
+    .await;
+    match outcome {
+        Ok(Ok(true)) => state.emit(ServerEvent::Frame { job: job_id, frame }),
+        Ok(Ok(false)) => {}
+        Ok(Err(e)) => tracing::warn!(job = job_id, frame, "publishing a pass failed: {e:#}"),
+        Err(e) => tracing::error!(job = job_id, frame, "pass task panicked: {e}"),
     }
 }
 

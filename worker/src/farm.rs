@@ -40,8 +40,12 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, anyhow, bail};
 use tessera::bundle::{BundleSceneError, load_bundle_scene, read_tar};
 use tessera::image::TileRect;
+use tessera::passes::{BLOCK, SampleRange, encode_pass_tile};
 use tessera::protocol::*;
-use tessera::render::{RenderSettings, Stop, Stopped, render_tile_until, render_tile_with_aux_until};
+use tessera::render::{
+    AuxTile, RenderSettings, Stop, Stopped, render_tile_sums_until, render_tile_until,
+    render_tile_with_aux_until, samples_per_pixel,
+};
 use tessera::scene::Scene;
 use tessera::scene::load::LoadOptions;
 
@@ -735,9 +739,23 @@ fn render_lease(scene: &Scene, lease: &Lease, cancel: &AtomicBool) -> Result<Opt
         deadline: limit.and_then(|s| Instant::now().checked_add(Duration::from_secs_f64(s.min(1e9)))),
     };
     // The whole tile on this thread; a panic is a bug, reported instead of ending the worker.
+    let n = samples_per_pixel(scene, camera, &settings);
+    if let Some(p) = lease.pass
+        && (p.start % BLOCK != 0 || p.start >= p.end || p.end > n || (lease.aux && p.start != 0))
+    {
+        bail!("pass {p:?} is not a range of whole blocks of this frame's {n} samples");
+    }
     let rendered = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         let rect = TileRect::from(r);
-        if lease.aux {
+        if let Some(p) = lease.pass {
+            let range = SampleRange { start: p.start, end: p.end };
+            let mut aux = lease.aux.then(AuxTile::default);
+            render_tile_sums_until(scene, camera, rect, &settings, range, stop, aux.as_mut()).map(
+                |(sums, _)| {
+                    encode_pass_tile(&sums, aux.as_ref().map(|a| (a.albedo.as_slice(), a.normal.as_slice())))
+                },
+            )
+        } else if lease.aux {
             render_tile_with_aux_until(scene, camera, rect, &settings, stop)
                 .map(|(px, aux, _)| encode_tile_with_aux(&px, &aux.albedo, &aux.normal))
         } else {

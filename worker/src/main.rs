@@ -17,7 +17,9 @@ use indicatif::{ProgressBar, ProgressStyle};
 use tessera::assets::FsResolver;
 use tessera::hdr_io::{read_float_image, write_png_rgb8};
 use tessera::output;
-use tessera::render::{RenderSettings, render_camera, render_camera_with_aux};
+use tessera::render::{
+    PassPlan, RenderSettings, render_camera, render_camera_passes, render_camera_with_aux,
+};
 use tessera::scene::build::build_scene;
 use tessera::scene::load::{LoadOptions, parse_scene};
 use tessera::scene::records::EnvSampler;
@@ -95,6 +97,18 @@ enum Command {
         /// without it nothing is rendered.
         #[arg(long)]
         denoise: bool,
+        /// Stop sampling a tile once its estimated relative noise is at most this, in (0, 1]
+        /// (e.g. 0.02 for about 2 %); <NumSamples> (or --samples) becomes the cap. Tiles are then
+        /// rendered pass by pass (--pass-samples), each pass judged on the luminance of its
+        /// pixels' odd sample blocks against all of them, and <stem>_samples.png shows where
+        /// samples went. A farm job with the same noise_target, pass_samples and tile_size
+        /// renders the same bits.
+        #[arg(long, value_name = "ERROR")]
+        noise_target: Option<f64>,
+        /// Samples per pass for --noise-target (rounded up to whole blocks of 16; default: a
+        /// sixteenth of the samples). Without a noise target passes do not change the image.
+        #[arg(long, value_name = "N", requires = "noise_target")]
+        pass_samples: Option<u32>,
     },
     /// Pull tiles from a tessera-server and render them, until stopped.
     ///
@@ -222,10 +236,23 @@ fn main() -> ExitCode {
             quiet,
             allow_unsupported,
             denoise,
+            noise_target,
+            pass_samples,
         } => {
             let env_sampling = env_sampling.map(EnvSampling::into);
             let load = LoadOptions { allow_unsupported };
-            let opts = Options { threads, camera, tile_size, samples, env_sampling, quiet, load, denoise };
+            let opts = Options {
+                threads,
+                camera,
+                tile_size,
+                samples,
+                env_sampling,
+                quiet,
+                load,
+                denoise,
+                noise_target,
+                pass_samples,
+            };
             render(&scene, &out, &opts)
         }
         Command::Work { server, token, name, threads, max_tiles, exit_with_parent } => {
@@ -270,6 +297,8 @@ struct Options {
     quiet: bool,
     load: LoadOptions,
     denoise: bool,
+    noise_target: Option<f64>,
+    pass_samples: Option<u32>,
 }
 
 /// Prints `warnings` (unsupported elements too when they are allowed), then refuses the scene
@@ -292,9 +321,26 @@ fn report_warnings(scene_path: &Path, warnings: &[tessera::Warning], load: LoadO
 }
 
 fn render(scene_path: &Path, out: &Path, opts: &Options) -> Result<()> {
-    let &Options { threads, camera, tile_size, samples, env_sampling, quiet, load, denoise } = opts;
+    let &Options {
+        threads,
+        camera,
+        tile_size,
+        samples,
+        env_sampling,
+        quiet,
+        load,
+        denoise,
+        noise_target,
+        pass_samples,
+    } = opts;
     if samples == Some(0) {
         bail!("--samples must be at least 1");
+    }
+    if pass_samples == Some(0) {
+        bail!("--pass-samples must be at least 1");
+    }
+    if let Some(t) = noise_target {
+        tessera::passes::check_noise_target(t).map_err(|e| anyhow::anyhow!("--noise-target: {e}"))?;
     }
     if tile_size == 0 {
         bail!("--tile-size must be at least 1");
@@ -362,7 +408,19 @@ fn render(scene_path: &Path, out: &Path, opts: &Options) -> Result<()> {
                 bar.set_length(total as u64);
                 bar.set_position(done as u64);
             };
-            let (img, aux, stats) = if oidn.is_some() {
+            let mut outcomes = None;
+            let (img, aux, stats) = if let Some(target) = noise_target {
+                let n = tessera::render::samples_per_pixel(&scene, ci, &settings);
+                let plan = PassPlan {
+                    pass_samples: pass_samples
+                        .map(tessera::passes::round_to_blocks)
+                        .unwrap_or_else(|| tessera::passes::default_pass_samples(n)),
+                    noise_target: Some(target),
+                };
+                let f = render_camera_passes(&scene, ci, tile_size, &settings, plan, oidn.is_some(), &progress);
+                outcomes = Some((n, f.tiles));
+                (f.image, f.aux, f.stats)
+            } else if oidn.is_some() {
                 let (img, aux, stats) = render_camera_with_aux(&scene, ci, tile_size, &settings, &progress);
                 (img, Some(aux), stats)
             } else {
@@ -392,6 +450,23 @@ fn render(scene_path: &Path, out: &Path, opts: &Options) -> Result<()> {
                 stats.shadow,
                 stats.secondary
             );
+            if let Some((n, tiles)) = outcomes {
+                let name = output::samples_map_name(cam);
+                let placed: Vec<_> = tiles.iter().map(|t| (t.rect, t.samples)).collect();
+                let rgb = output::samples_map(cam.width, cam.height, &placed, n);
+                tessera::hdr_io::write_png_rgb8(&out.join(&name), cam.width, cam.height, &rgb)
+                    .map_err(|e| anyhow::anyhow!("{e}"))?;
+                let total: u64 = tiles.iter().map(|t| u64::from(t.samples) * u64::from(t.rect.width * t.rect.height)).sum();
+                let pixels = u64::from(cam.width) * u64::from(cam.height);
+                let stopped = tiles.iter().filter(|t| t.samples < n).count();
+                println!(
+                    "{}: noise target {}: {:.1} samples per pixel on average of at most {n}; {stopped} of {} tiles stopped early",
+                    out.join(&name).display(),
+                    noise_target.unwrap_or_default(),
+                    total as f64 / pixels.max(1) as f64,
+                    tiles.len()
+                );
+            }
             if let Some(oidn) = oidn {
                 let (clean, secs) = oidn
                     .denoise(&img, aux.as_ref(), tessera_denoise::Quality::High)

@@ -64,6 +64,20 @@ pub(super) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobIn
                     })
                     .collect(),
                 preview_url: format!("{url}/frames/{}/preview.png", f.index),
+                samples: f.samples,
+                passes_total: f.passes_total,
+                passes_done: f.passes_published,
+                pass_outputs: if f.outputs.is_none() && f.passes_published > 0 {
+                    crate::merge::PASS_FILES
+                        .iter()
+                        .map(|n| OutputInfo {
+                            name: n.to_string(),
+                            url: format!("{url}/frames/{}/files/{n}", f.index),
+                        })
+                        .collect()
+                } else {
+                    Vec::new()
+                },
                 tonemap: cameras
                     .as_ref()
                     .and_then(|c| c.get(f.camera as usize))
@@ -179,6 +193,21 @@ pub(super) async fn frame_file(
         let state = state.clone();
         off_thread(move || find_frame(&state, id, frame)).await?
     };
+    let pass_file = crate::merge::PASS_FILES.contains(&name.as_str());
+    if pass_file && f.outputs.is_none() {
+        let path = state.frame_dir(id, frame).join(&name);
+        let Ok(bytes) = tokio::fs::read(&path).await else {
+            return Err(AppError::new(
+                StatusCode::CONFLICT,
+                format!(
+                    "frame {frame} of job {id} has finished no pass yet ({} of {} passes); see preview.png meanwhile",
+                    f.passes_published, f.passes_total
+                ),
+            ));
+        };
+        let mime = if name.ends_with(".png") { "image/png" } else { "application/octet-stream" };
+        return Ok(([(header::CONTENT_TYPE, HeaderValue::from_static(mime))], bytes).into_response());
+    }
     let Some(outputs) = &f.outputs else {
         return Err(AppError::new(
             StatusCode::CONFLICT,

@@ -46,6 +46,13 @@ pub(super) struct SubmitForm {
     /// "true": also write each frame denoised (`<stem>_denoised.exr` and its PNG) with Intel
     /// Open Image Denoise on the server; 422 when the server has no OIDN.
     denoise: Option<bool>,
+    /// Samples per pass (rounded up to whole blocks of 16; default: a sixteenth of the samples).
+    /// Each tile's passes are leased on their own, so a frame keeps tiles x passes workers busy,
+    /// and the frame is published after every pass all its tiles have finished.
+    pass_samples: Option<u32>,
+    /// Stop sampling a tile once its estimated relative noise is at most this, in (0, 1]
+    /// (e.g. 0.02); the samples become a cap. Default: every tile takes every sample.
+    noise_target: Option<f64>,
 }
 
 /// Options of a submission (multipart text fields).
@@ -61,6 +68,8 @@ struct SubmitOptions {
     allow_unsupported: bool,
     /// Also write each frame denoised.
     denoise: bool,
+    pass_samples: Option<u32>,
+    noise_target: Option<f64>,
 }
 
 fn problem_from(e: &tessera::SceneError) -> Problem {
@@ -201,6 +210,21 @@ async fn read_fields(
             "priority" => opts.priority = number("priority")?,
             "tile_size" => opts.tile_size = Some(bounded("tile_size", number("tile_size")?, 4096, "pixels")?),
             "samples" => opts.samples = Some(bounded("samples", number("samples")?, 1_000_000, "")?),
+            "pass_samples" => {
+                opts.pass_samples = Some(bounded("pass_samples", number("pass_samples")?, 1_000_000, "")?)
+            }
+            "noise_target" => {
+                let t = text();
+                let v: f64 = t.trim().parse().map_err(|_| {
+                    AppError::bad_request(format!(
+                        "noise_target must be a number in (0, 1], e.g. 0.02; found \"{t}\""
+                    ))
+                })?;
+                opts.noise_target = Some(
+                    tessera::passes::check_noise_target(v)
+                        .map_err(|e| AppError::bad_request(format!("noise_target: {e}")))?,
+                );
+            }
             "cameras" => {
                 let mut list = Vec::new();
                 for part in text().split([',', ' ']).filter(|p| !p.is_empty()) {
@@ -232,7 +256,7 @@ async fn read_fields(
             }
             other => {
                 return Err(AppError::bad_request(format!(
-                    "unknown field \"{other}\"; send scene, asset (one per file, named by its relative path), bundle, name, priority, tile_size, samples, cameras, scene_path, allow_unsupported or denoise"
+                    "unknown field \"{other}\"; send scene, asset (one per file, named by its relative path), bundle, name, priority, tile_size, samples, pass_samples, noise_target, cameras, scene_path, allow_unsupported or denoise"
                 )));
             }
         }
@@ -316,6 +340,8 @@ pub(super) async fn submit_job(
     .await
     .map_err(|e| anyhow::anyhow!("validation task: {e}"))??;
     check_sample_budget(&state.settings, &cameras, &frames, opts.samples)?;
+    let mut frames = frames;
+    plan_passes(&mut frames, &cameras, opts.samples, opts.pass_samples, max_tiles)?;
     if opts.denoise {
         check_denoise_size(&frames)?;
     }
@@ -333,6 +359,8 @@ pub(super) async fn submit_job(
             warnings: warnings.clone(),
             allow_unsupported: opts.allow_unsupported,
             denoise: opts.denoise,
+            pass_samples: opts.pass_samples,
+            noise_target: opts.noise_target,
         };
         let id = state.store.insert_job(&job)?;
         state.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(id, Arc::new(cameras));
@@ -392,6 +420,55 @@ fn check_denoise_size(frames: &[crate::db::NewFrame]) -> ApiResult<()> {
             ),
         )),
     }
+}
+
+/// Most passes a tile may be cut into.
+const MAX_PASSES: u32 = 256;
+
+/// Sets each frame's samples and pass size (the job's `pass_samples` in whole blocks, or the
+/// default), and refuses pass sizes that would cut a tile into more than [`MAX_PASSES`] passes or
+/// the job into more than 16 times the tile limit of units.
+fn plan_passes(
+    frames: &mut [crate::db::NewFrame],
+    cameras: &[Camera],
+    samples: Option<u32>,
+    pass_samples: Option<u32>,
+    max_tiles: u64,
+) -> ApiResult<()> {
+    let mut units = 0u64;
+    for f in frames.iter_mut() {
+        f.samples = samples.unwrap_or(cameras[f.camera as usize].num_samples).max(1);
+        f.pass_samples = match pass_samples {
+            Some(p) => tessera::passes::round_to_blocks(p),
+            None => tessera::passes::default_pass_samples(f.samples),
+        };
+        let passes = f.passes();
+        if passes > MAX_PASSES {
+            let least = tessera::passes::round_to_blocks(f.samples.div_ceil(MAX_PASSES));
+            return Err(AppError::new(
+                StatusCode::UNPROCESSABLE_ENTITY,
+                format!(
+                    "pass_samples={} cuts camera {}'s {} samples into {passes} passes, more than {MAX_PASSES}; \
+                     submit with pass_samples={least} or more",
+                    pass_samples.unwrap_or_default(),
+                    f.camera + 1,
+                    f.samples
+                ),
+            ));
+        }
+        units += f.tiles.len() as u64 * u64::from(passes);
+    }
+    let max_units = max_tiles.saturating_mul(16);
+    if units > max_units {
+        return Err(AppError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!(
+                "the job would be {units} units of work (tiles x passes), more than this server's limit of \
+                 {max_units} (16 x --max-job-tiles); submit with a larger pass_samples or tile_size"
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// Tiles of frames of `sizes` cut at `tile_size`.
@@ -517,6 +594,9 @@ fn validate(
                     .into_iter()
                     .map(Rect::from)
                     .collect(),
+                // Set by `plan_passes` once the job's options are known.
+                samples: cam.num_samples.max(1),
+                pass_samples: tessera::passes::round_to_blocks(cam.num_samples),
             }
         })
         .collect();

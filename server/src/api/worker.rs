@@ -219,13 +219,14 @@ pub(super) async fn result(
         let state = state.clone();
         off_thread(move || Ok(state.store.result_size(lease, worker)?)).await?
     };
-    let Some(expected) = expected else {
+    let Some(shape) = expected else {
         // Read what a worker that writes before it reads is still sending (a tile's worth at
         // most, for a while), so that it gets the 409 rather than a broken pipe.
         drain(body, declared.unwrap_or(0).min(MAX_TILE_BYTES), DRAIN_SECONDS).await;
         state.scheduler.counters().results_refused.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         return Err(lease_gone(lease));
     };
+    let expected = shape.bytes();
     let wrong_size = |got: String| {
         AppError::bad_request(format!(
             "the tile holds {got} bytes; its rectangle needs {expected} (width x height x 3 little-endian f32, three times that for a denoised job)"
@@ -249,7 +250,23 @@ pub(super) async fn result(
     if sum != checksum(&body) {
         return Err(AppError::bad_request("the tile's checksum does not match its bytes; send it again"));
     }
-    let px = decode_tile(&body, expected / 12).ok_or_else(|| wrong_size(body.len().to_string()))?;
+    // Finished pixels (and features) must be finite numbers; a pass's sums must be within what
+    // its blocks of samples can reach.
+    let floats = match shape.blocks {
+        None => &body[..],
+        Some(blocks) => {
+            let (sums, features) = body.split_at(shape.pixels * tessera::passes::PIXEL_SUM_BYTES);
+            let sums =
+                tessera::passes::decode_sums(sums).ok_or_else(|| wrong_size(body.len().to_string()))?;
+            if !tessera::passes::sums_in_range(&sums, blocks) {
+                return Err(AppError::bad_request(
+                    "the pass's sums are larger than its samples can add up to; nothing was stored",
+                ));
+            }
+            features
+        }
+    };
+    let px = decode_tile(floats, floats.len() / 12).ok_or_else(|| wrong_size(body.len().to_string()))?;
     if let Err((i, c, v)) = check_tile_values(&px) {
         return Err(AppError::bad_request(format!(
             "the tile's pixel {i} (row-major), channel {c}, is {v}: tile values must be finite numbers; nothing was stored"
@@ -265,10 +282,13 @@ pub(super) async fn result(
         off_thread(move || Ok(state.scheduler.result(lease, worker, &body, render_seconds)?)).await?
     };
     match outcome {
-        ResultOutcome::Accepted { job_id, frame, frame_complete, .. } => {
+        ResultOutcome::Accepted { job_id, frame, frame_complete, pass_published, .. } => {
             if frame_complete {
                 let state = state.clone();
                 tokio::spawn(async move { merge_frame(state, job_id, frame).await });
+            } else if pass_published.is_some() {
+                let state = state.clone();
+                tokio::spawn(async move { crate::merge::publish_pass(state, job_id, frame).await });
             }
             Ok(StatusCode::NO_CONTENT)
         }

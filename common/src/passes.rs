@@ -1,0 +1,371 @@
+//! How a pixel's samples add up, so that any part of them can be rendered anywhere.
+//!
+//! A pixel's samples are cut into **blocks** of [`BLOCK`] samples (the last one may be short).
+//! Inside a block the samples are summed in `f64`, in sample order; each block's sum is then
+//! turned into a fixed-point integer ([`SCALE`] units per unit of radiance) and added to the
+//! pixel's [`PixelSum`]. Integer addition is exact, so the sum of a pixel's blocks is the same
+//! bits whatever order they arrive in and however they were grouped: a tile rendered whole by the
+//! CLI, or cut into **passes** (ranges of whole blocks) rendered by different farm workers and
+//! added up by the server, gives the same film values.
+//!
+//! Beside the colour, a `PixelSum` keeps the luminance of its odd blocks alone: a second,
+//! independent estimate of the pixel from half its samples, whose distance from the whole
+//! estimate measures the pixel's noise ([`tile_error`]; the two-buffer estimate of Dammertz et
+//! al. 2010 and of Cycles' adaptive sampling).
+
+use glam::DVec3;
+
+/// Samples per block: the unit of summation, of passes and of the noise estimate.
+pub const BLOCK: u32 = 16;
+
+/// Fixed-point units per unit of radiance (2^40: steps of about 1e-12).
+pub const SCALE: f64 = (1u64 << 40) as f64;
+
+/// The largest magnitude of one block's fixed-point value (2^98, about 2.9e17 units of radiance
+/// once divided by [`SCALE`]). A pixel has at most 2^28 blocks (`u32` samples), so its sum stays
+/// below 2^126 and the integer additions never overflow.
+const BLOCK_LIMIT: f64 = (1u128 << 98) as f64;
+
+/// Bytes of one [`PixelSum`] on the wire: four little-endian `i128`.
+pub const PIXEL_SUM_BYTES: usize = 64;
+
+/// A pixel's average as the film keeps it: `f32`, always a finite number. A NaN (a degenerate
+/// scene: a zero-length normal, an infinite intensity times zero) becomes 0 and a value beyond
+/// `f32`'s range the largest `f32` of its sign, so every output format and the farm's tiles
+/// (whose server refuses non-finite values) hold the same finite numbers. Negative values, from
+/// lights of negative power, stay as they are.
+pub fn film_value(c: DVec3) -> [f32; 3] {
+    let f = |v: f64| {
+        if v.is_nan() { 0.0 } else { (v as f32).clamp(f32::MIN, f32::MAX) }
+    };
+    [f(c.x), f(c.y), f(c.z)]
+}
+
+/// The Rec. 709 luminance of a linear RGB value.
+pub fn luminance(c: DVec3) -> f64 {
+    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+}
+
+fn fixed(v: f64) -> i128 {
+    // `as` maps NaN to 0; the clamp keeps every sum of a pixel's blocks inside i128.
+    (v * SCALE).clamp(-BLOCK_LIMIT, BLOCK_LIMIT) as i128
+}
+
+/// A pixel's samples summed block by block in fixed point: the colour of every block, and the
+/// luminance of the odd-numbered blocks alone.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PixelSum {
+    pub rgb: [i128; 3],
+    pub odd_luminance: i128,
+}
+
+impl PixelSum {
+    /// Adds block `block`'s sum of sample radiances.
+    pub fn add_block(&mut self, block: u32, sum: DVec3) {
+        for (acc, v) in self.rgb.iter_mut().zip(sum.to_array()) {
+            *acc += fixed(v);
+        }
+        if block % 2 == 1 {
+            self.odd_luminance += fixed(luminance(sum));
+        }
+    }
+
+    /// Adds another sum of disjoint blocks of the same pixel.
+    pub fn add(&mut self, other: &PixelSum) {
+        for (a, b) in self.rgb.iter_mut().zip(other.rgb) {
+            *a += b;
+        }
+        self.odd_luminance += other.odd_luminance;
+    }
+
+    /// The pixel's average over `samples` samples, as the film keeps it (finite `f32`).
+    pub fn film(&self, samples: u32) -> [f32; 3] {
+        let n = f64::from(samples.max(1));
+        let c = DVec3::new(self.rgb[0] as f64, self.rgb[1] as f64, self.rgb[2] as f64) / SCALE / n;
+        film_value(c)
+    }
+
+    /// The average over all `samples`, and over the odd blocks' `odd` samples, in luminance.
+    fn estimates(&self, samples: u32, odd: u32) -> (f64, f64) {
+        let all = DVec3::new(self.rgb[0] as f64, self.rgb[1] as f64, self.rgb[2] as f64) / SCALE;
+        (luminance(all) / f64::from(samples), self.odd_luminance as f64 / SCALE / f64::from(odd))
+    }
+}
+
+/// How many of the samples `0..end` fall in odd-numbered blocks.
+pub fn odd_samples(end: u32) -> u32 {
+    let full_pairs = end / (2 * BLOCK);
+    let rest = end % (2 * BLOCK);
+    full_pairs * BLOCK + rest.saturating_sub(BLOCK)
+}
+
+/// A range of a pixel's sample indices, `start..end`; a pass's `start` is a whole block.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct SampleRange {
+    pub start: u32,
+    pub end: u32,
+}
+
+impl SampleRange {
+    pub fn all(samples: u32) -> SampleRange {
+        SampleRange { start: 0, end: samples }
+    }
+    pub fn len(&self) -> u32 {
+        self.end.saturating_sub(self.start)
+    }
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// The pass size a job gets when it names none: a sixteenth of its samples, rounded up to whole
+/// blocks (at least one).
+pub fn default_pass_samples(samples: u32) -> u32 {
+    round_to_blocks(samples.div_ceil(16))
+}
+
+/// `samples` rounded up to whole blocks, at least one block.
+pub fn round_to_blocks(samples: u32) -> u32 {
+    samples.max(1).div_ceil(BLOCK).saturating_mul(BLOCK)
+}
+
+/// How many passes of `pass_samples` (whole blocks) a pixel of `samples` samples takes.
+pub fn pass_count(samples: u32, pass_samples: u32) -> u32 {
+    samples.max(1).div_ceil(round_to_blocks(pass_samples))
+}
+
+/// The samples of pass `k` of a pixel of `samples` samples.
+pub fn pass_range(samples: u32, pass_samples: u32, k: u32) -> SampleRange {
+    let p = round_to_blocks(pass_samples);
+    let samples = samples.max(1);
+    let start = k.saturating_mul(p).min(samples);
+    SampleRange { start, end: start.saturating_add(p).min(samples) }
+}
+
+/// A tile's noise after its first `samples` samples: the mean over its pixels of the relative
+/// distance between the whole estimate and the odd blocks' estimate (each pixel's term at most 1,
+/// so one firefly weighs like one wrong pixel, not like a thousand), in luminance. The distance
+/// is about the relative standard error of the pixel's average. Pixels darker than a twentieth
+/// of the tile's mean are measured against that twentieth (dark corners do not keep a bright
+/// tile sampling). `None` until both halves have samples.
+pub fn tile_error(sums: &[PixelSum], samples: u32) -> Option<f64> {
+    let odd = odd_samples(samples);
+    if sums.is_empty() || odd == 0 || odd == samples {
+        return None;
+    }
+    let est: Vec<(f64, f64)> = sums.iter().map(|s| s.estimates(samples, odd)).collect();
+    let mean = est.iter().map(|(all, _)| all.max(0.0)).sum::<f64>() / est.len() as f64;
+    let floor = (0.05 * mean).max(1e-12);
+    let total: f64 = est.iter().map(|(all, odd)| ((odd - all).abs() / all.max(floor)).min(1.0)).sum();
+    Some(total / est.len() as f64)
+}
+
+/// The samples a tile takes at least before a noise target may stop it: two passes and four
+/// blocks (an estimate from fewer misses rare bright paths), or all of them.
+pub fn min_adaptive_samples(samples: u32, pass_samples: u32) -> u32 {
+    (2 * round_to_blocks(pass_samples)).max(4 * BLOCK).min(samples.max(1))
+}
+
+/// Whether a tile that has its first `done` samples (whole passes) of `samples` renders another
+/// pass: always until all are done without a `target`; with one, until its [`tile_error`] is at
+/// most the target, once it has [`min_adaptive_samples`].
+pub fn needs_more(
+    samples: u32,
+    pass_samples: u32,
+    done: u32,
+    error: Option<f64>,
+    target: Option<f64>,
+) -> bool {
+    if done >= samples.max(1) {
+        return false;
+    }
+    match target {
+        None => true,
+        Some(t) => done < min_adaptive_samples(samples, pass_samples) || error.is_none_or(|e| e > t),
+    }
+}
+
+/// Checks a noise target given by a user: a relative error in (0, 1].
+pub fn check_noise_target(t: f64) -> Result<f64, String> {
+    if t.is_finite() && t > 0.0 && t <= 1.0 {
+        Ok(t)
+    } else {
+        Err(format!(
+            "the noise target {t} is not a relative error in (0, 1]; try 0.02 (about 2 % noise per pixel)"
+        ))
+    }
+}
+
+/// A tile's sums as bytes: each pixel's four `i128`, little-endian.
+pub fn encode_sums(sums: &[PixelSum]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(sums.len() * PIXEL_SUM_BYTES);
+    for s in sums {
+        for v in s.rgb.iter().chain(std::iter::once(&s.odd_luminance)) {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    out
+}
+
+/// The sums of [`encode_sums`]; `None` when the length is not whole pixels.
+pub fn decode_sums(bytes: &[u8]) -> Option<Vec<PixelSum>> {
+    if !bytes.len().is_multiple_of(PIXEL_SUM_BYTES) {
+        return None;
+    }
+    let word = |c: &[u8]| i128::from_le_bytes(c.try_into().expect("16 bytes"));
+    Some(
+        bytes
+            .chunks_exact(PIXEL_SUM_BYTES)
+            .map(|p| PixelSum {
+                rgb: [word(&p[0..16]), word(&p[16..32]), word(&p[32..48])],
+                odd_luminance: word(&p[48..64]),
+            })
+            .collect(),
+    )
+}
+
+/// The size of a pass's result for `pixels` pixels: the block sums ([`encode_sums`]), then with
+/// `aux` the albedo and normal planes (12 bytes a pixel each, little-endian `f32` RGB).
+pub fn pass_tile_bytes(pixels: usize, aux: bool) -> usize {
+    pixels * PIXEL_SUM_BYTES + if aux { pixels * 24 } else { 0 }
+}
+
+/// A tile's albedo and normal planes.
+pub type Features<'a> = (&'a [[f32; 3]], &'a [[f32; 3]]);
+
+/// A pass's result on the wire: its sums, then (the first pass of a denoised job) the albedo and
+/// normal planes.
+pub fn encode_pass_tile(sums: &[PixelSum], aux: Option<Features<'_>>) -> Vec<u8> {
+    let mut out = encode_sums(sums);
+    if let Some((albedo, normal)) = aux {
+        for p in albedo.iter().chain(normal) {
+            for c in p {
+                out.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+    }
+    out
+}
+
+/// Whether every value of decoded sums could come from a render (each within what
+/// [`PixelSum::add_block`] can reach for `blocks` blocks): a worker's upload is checked with it.
+pub fn sums_in_range(sums: &[PixelSum], blocks: u32) -> bool {
+    let limit = (1i128 << 98) * i128::from(blocks.max(1));
+    sums.iter().all(|s| s.rgb.iter().chain([&s.odd_luminance]).all(|v| v.abs() <= limit))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn odd_samples_counts_the_odd_blocks() {
+        assert_eq!(odd_samples(0), 0);
+        assert_eq!(odd_samples(16), 0);
+        assert_eq!(odd_samples(17), 1);
+        assert_eq!(odd_samples(32), 16);
+        assert_eq!(odd_samples(40), 16);
+        assert_eq!(odd_samples(100), 48, "blocks 1, 3 and 5; block 6 is 96..100");
+    }
+
+    #[test]
+    fn passes_are_whole_blocks_that_cover_the_samples_once() {
+        for (n, p) in [(100, 16), (100, 7), (2500, 160), (1, 1), (16, 100), (33, 16)] {
+            let k = pass_count(n, p);
+            let mut next = 0;
+            for i in 0..k {
+                let r = pass_range(n, p, i);
+                assert_eq!(r.start, next);
+                assert_eq!(r.start % BLOCK, 0);
+                assert!(!r.is_empty());
+                next = r.end;
+            }
+            assert_eq!(next, n, "{n} samples in passes of {p}");
+        }
+        assert_eq!(default_pass_samples(2500), 160);
+        assert_eq!(default_pass_samples(100), 16);
+        assert_eq!(default_pass_samples(1), 16);
+    }
+
+    #[test]
+    fn block_sums_add_to_the_same_bits_in_any_grouping() {
+        // Values of very different sizes, where f64 addition would depend on the order.
+        let blocks: Vec<DVec3> =
+            (0..40).map(|i| DVec3::new(1e6 / (i as f64 + 1.0), 0.1 * i as f64, 1e-7 * i as f64)).collect();
+        let mut whole = PixelSum::default();
+        for (b, s) in blocks.iter().enumerate() {
+            whole.add_block(b as u32, *s);
+        }
+        for cut in [1, 3, 7, 39] {
+            let (mut first, mut second) = (PixelSum::default(), PixelSum::default());
+            for (b, s) in blocks.iter().enumerate() {
+                if b < cut { &mut first } else { &mut second }.add_block(b as u32, *s);
+            }
+            second.add(&first);
+            assert_eq!(second, whole);
+        }
+    }
+
+    #[test]
+    fn a_sum_survives_the_wire_and_the_film_is_the_average() {
+        let mut s = PixelSum::default();
+        s.add_block(0, DVec3::new(16.0, 32.0, -8.0));
+        s.add_block(1, DVec3::new(16.0, 0.0, 8.0));
+        assert_eq!(s.film(32), [1.0, 1.0, 0.0]);
+        let bytes = encode_sums(&[s, PixelSum::default()]);
+        assert_eq!(bytes.len(), 2 * PIXEL_SUM_BYTES);
+        assert_eq!(decode_sums(&bytes).unwrap(), vec![s, PixelSum::default()]);
+        assert!(decode_sums(&bytes[1..]).is_none());
+        // NaN counts as nothing, an infinity as the block limit: the sum stays exact and finite.
+        let mut bad = PixelSum::default();
+        bad.add_block(0, DVec3::new(f64::NAN, f64::INFINITY, 0.0));
+        assert_eq!(bad.rgb[0], 0);
+        assert!(sums_in_range(&[bad], 1));
+        let huge = PixelSum { rgb: [i128::MAX, 0, 0], odd_luminance: 0 };
+        assert!(!sums_in_range(&[huge], 4));
+    }
+
+    /// Tile sums of `pixels` pixels whose samples are `value` plus a noise of `noise` (the same
+    /// pattern each block, alternating in sign from block to block).
+    fn tile(pixels: usize, blocks: u32, value: f64, noise: f64) -> Vec<PixelSum> {
+        (0..pixels)
+            .map(|_| {
+                let mut s = PixelSum::default();
+                for b in 0..blocks {
+                    let sign = if b % 2 == 0 { 1.0 } else { -1.0 };
+                    s.add_block(b, DVec3::splat((value + sign * noise) * f64::from(BLOCK)));
+                }
+                s
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_error_grows_with_the_noise_and_needs_both_halves() {
+        assert_eq!(tile_error(&tile(4, 1, 1.0, 0.5), 16), None);
+        let quiet = tile_error(&tile(4, 4, 1.0, 0.01), 64).unwrap();
+        let loud = tile_error(&tile(4, 4, 1.0, 0.3), 64).unwrap();
+        assert!((quiet - 0.01).abs() < 1e-9, "{quiet}");
+        assert!((loud - 0.3).abs() < 1e-9, "{loud}");
+        // A black tile has no noise.
+        assert_eq!(tile_error(&tile(4, 4, 0.0, 0.0), 64), Some(0.0));
+        // One firefly pixel counts at most as one wrong pixel.
+        let mut t = tile(4, 4, 1.0, 0.0);
+        t[0] = tile(1, 4, 1.0, 1e9)[0];
+        assert!(tile_error(&t, 64).unwrap() <= 0.25 + 1e-12);
+    }
+
+    #[test]
+    fn a_target_stops_a_tile_only_past_the_minimum_and_below_the_target() {
+        // 100 samples in passes of 16: at least 64 before a target may stop it.
+        assert!(needs_more(100, 16, 32, Some(0.0), None));
+        assert!(!needs_more(100, 16, 100, Some(1.0), None));
+        assert!(needs_more(100, 16, 48, Some(0.001), Some(0.01)), "below the minimum");
+        assert!(!needs_more(100, 16, 64, Some(0.001), Some(0.01)));
+        assert!(needs_more(100, 16, 64, Some(0.05), Some(0.01)));
+        assert!(needs_more(100, 16, 64, None, Some(0.01)));
+        assert!(!needs_more(100, 16, 100, Some(0.05), Some(0.01)), "the cap");
+        assert!(check_noise_target(0.0).is_err() && check_noise_target(f64::NAN).is_err());
+        assert_eq!(check_noise_target(0.02), Ok(0.02));
+    }
+}

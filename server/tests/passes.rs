@@ -1,0 +1,195 @@
+//! Frames in passes on the farm: real `tessera-server` and `tessera-worker` processes over HTTP,
+//! a real SQLite file. A tile's passes are leased on their own; the server adds each pass's
+//! fixed-point sums into its tile, publishes the frame after every pass all its tiles have
+//! finished, and (under a noise target) stops tiles whose noise is low enough. The final files
+//! are compared byte for byte with `tessera-worker render`'s.
+
+mod support;
+
+use std::time::{Duration, Instant};
+
+use support::*;
+use tessera_testkit::small_path_traced_box;
+
+const SHORT_LEASES: [&str; 8] =
+    ["--local-workers", "0", "--worker-token", "wtok", "--lease-seconds", "2", "--heartbeat-seconds", "0.5"];
+
+fn submit_box(server: &Server, scene: &std::path::Path, extra: &[(&str, &[u8])]) -> u64 {
+    let text = std::fs::read(scene).unwrap();
+    let mut parts: Vec<(&str, Option<&str>, &[u8])> =
+        vec![("scene", Some("box.xml"), &text), ("cameras", None, b"3"), ("tile_size", None, b"32")];
+    parts.extend(extra.iter().map(|(k, v)| (*k, None, *v)));
+    let (code, job) = submit(&server.url, None, &parts);
+    assert_eq!(code, 201, "{job}\n{}", server.log());
+    job["id"].as_u64().unwrap()
+}
+
+fn events(server: &Server, id: u64, kind: &str) -> Vec<serde_json::Value> {
+    let log = get_json(&server.url, &format!("/api/v1/jobs/{id}/log"));
+    log["events"].as_array().unwrap().iter().filter(|e| e["kind"] == kind).cloned().collect()
+}
+
+#[test]
+fn a_frame_in_passes_with_a_worker_killed_mid_pass_is_the_clis_bytes_and_is_published_after_each_pass() {
+    let _s = serial();
+    let dir = TempDir::new("passes-farm");
+    let Some(scene) = small_path_traced_box(dir.path()) else { return };
+    let data = TempDir::new("passes-farm-data");
+    let server = Server::start(&data, &SHORT_LEASES);
+    let mut a = Worker::start(&server.url, "wtok", "a");
+    let _b = Worker::start(&server.url, "wtok", "b");
+    // 9 tiles of 32 px, 64 samples in passes of 16: 36 units of work for the two workers.
+    let id = submit_box(&server, &scene, &[("samples", b"64"), ("pass_samples", b"16")]);
+    let job = get_json(&server.url, &format!("/api/v1/jobs/{id}"));
+    assert_eq!(
+        (job["frames"][0]["passes_total"].as_u64(), job["frames"][0]["samples"].as_u64()),
+        (Some(4), Some(64))
+    );
+    // The frame after its first pass is published while later passes still render: its EXR
+    // and PNG download.
+    let job = wait_job(&server, id, 120, |j| j["frames"][0]["passes_done"].as_u64() >= Some(1));
+    if job["state"] != "done" {
+        let urls: Vec<&str> = job["frames"][0]["pass_outputs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|o| o["url"].as_str().unwrap())
+            .collect();
+        assert_eq!(urls.len(), 2, "{job}");
+        let exr = get_bytes(&server.url, urls[0]);
+        assert_eq!(&exr[..4], &[0x76, 0x2f, 0x31, 0x01], "pass.exr is an OpenEXR file");
+        let png = get_bytes(&server.url, urls[1]);
+        assert_eq!(&png[1..4], b"PNG");
+    }
+    // Kill worker a while it renders a pass: its lease expires and the pass is rendered again.
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !get_json(&server.url, "/api/v1/workers")["workers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|w| w["name"] == "a" && w["state"] == "rendering" && !w["current_tile"].is_null())
+    {
+        assert!(Instant::now() < deadline, "worker a never rendered\n{}", server.log());
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    a.kill9();
+    let job = wait_job(&server, id, 300, |j| j["state"] == "done");
+    let cli = cli_render(&scene, &["--camera", "3", "--samples", "64"]);
+    assert_job_outputs_equal_cli(&server, &job, cli.path());
+    // Every pass was published before the end (the log says so), and the last pass's files
+    // gave way to the outputs.
+    let published = events(&server, id, "frame_pass");
+    assert!(!published.is_empty() && published.len() <= 3, "{published:?}");
+    assert!(
+        published[0]["message"]
+            .as_str()
+            .unwrap()
+            .contains("after pass 1 of 4: at least 16 samples per pixel")
+    );
+    assert!(events(&server, id, "pass_done").len() >= 36);
+    assert!(job["frames"][0]["pass_outputs"].as_array().unwrap().is_empty());
+}
+
+#[test]
+fn a_noise_target_stops_easy_tiles_and_samples_hard_ones_exactly_like_the_cli() {
+    let _s = serial();
+    let dir = TempDir::new("passes-target");
+    let Some(scene) = small_path_traced_box(dir.path()) else { return };
+    let server =
+        Server::start_temp("passes-target-data", &["--local-workers", "2", "--local-worker-threads", "1"]);
+    let id = submit_box(&server, &scene, &[("noise_target", b"0.1"), ("tile_size", b"16")]);
+    let job = wait_job(&server, id, 300, |j| j["state"] == "done");
+    let names: Vec<&str> =
+        job["frames"][0]["outputs"].as_array().unwrap().iter().map(|o| o["name"].as_str().unwrap()).collect();
+    assert!(names.contains(&"glass_next_importance_samples.png"), "{names:?}");
+    let cli = cli_render(&scene, &["--camera", "3", "--tile-size", "16", "--noise-target", "0.1"]);
+    assert!(cli.path().join("glass_next_importance_samples.png").exists());
+    assert_job_outputs_equal_cli(&server, &job, cli.path());
+    // The log has each tile's samples and noise: some stopped at 64 of the 100 samples (an easy
+    // region), others took all 100 (a hard one), every one of them decided on its noise.
+    let done = events(&server, id, "tile_done");
+    assert_eq!(done.len(), 36, "{done:?}");
+    let samples = |e: &serde_json::Value| {
+        let m = e["message"].as_str().unwrap();
+        let (_, rest) = m.split_once(": ").unwrap();
+        rest.split_whitespace().next().unwrap().parse::<u32>().unwrap()
+    };
+    let early = done.iter().filter(|e| samples(e) < 100).count();
+    let full = done.iter().filter(|e| samples(e) == 100).count();
+    assert!(early >= 4 && full >= 4, "{early} tiles stopped early, {full} took every sample: {done:?}");
+    assert!(done.iter().all(|e| e["message"].as_str().unwrap().contains(", noise 0.")), "{done:?}");
+}
+
+#[test]
+fn cancelling_a_job_in_passes_frees_every_worker_within_a_second() {
+    let _s = serial();
+    let dir = TempDir::new("passes-cancel");
+    let Some(scene) = small_path_traced_box(dir.path()) else { return };
+    // Heartbeats every 0.2 s: the worker list shows a worker idle as soon as it is.
+    let server = Server::start_temp(
+        "passes-cancel-data",
+        &["--local-workers", "2", "--local-worker-threads", "1", "--heartbeat-seconds", "0.2"],
+    );
+    // Thousands of samples in passes of 16: far more work than the test waits for.
+    let id = submit_box(&server, &scene, &[("samples", b"4000"), ("pass_samples", b"256")]);
+    let busy = |server: &Server| {
+        get_json(&server.url, "/api/v1/workers")["workers"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|w| w["state"] == "rendering")
+            .count()
+    };
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while busy(&server) < 2 {
+        assert!(Instant::now() < deadline, "the workers never both rendered\n{}", server.log());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let (code, job) = cancel(&server, id);
+    assert_eq!(code, 200, "{job}");
+    let cancelled = Instant::now();
+    while busy(&server) > 0 {
+        assert!(
+            cancelled.elapsed() < Duration::from_millis(1200),
+            "workers still rendering a second (and a heartbeat) after the cancel"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    // A higher-priority job's first pass goes before a running job's later passes.
+    let low = submit_box(&server, &scene, &[("samples", b"4000"), ("pass_samples", b"256")]);
+    wait_job(&server, low, 60, |j| j["state"] == "running");
+    let high = submit_box(&server, &scene, &[("samples", b"16"), ("priority", b"5")]);
+    let job = wait_job(&server, high, 120, |j| j["state"] == "done");
+    assert_eq!(job["state"], "done");
+    let low_job = get_json(&server.url, &format!("/api/v1/jobs/{low}"));
+    assert_ne!(low_job["state"], "done", "{low_job}");
+    cancel(&server, low);
+}
+
+#[test]
+fn finished_passes_survive_a_server_killed_mid_frame() {
+    let _s = serial();
+    let dir = TempDir::new("passes-kill-server");
+    let Some(scene) = small_path_traced_box(dir.path()) else { return };
+    let data = TempDir::new("passes-kill-server-data");
+    let mut server = Server::start(&data, &SHORT_LEASES);
+    let port = server.url.rsplit(':').next().unwrap().to_string();
+    let _w = Worker::start(&server.url, "wtok", "w");
+    let id = submit_box(&server, &scene, &[("samples", b"96"), ("pass_samples", b"16")]);
+    let before = wait_job(&server, id, 120, |j| j["frames"][0]["passes_done"].as_u64() >= Some(1));
+    let added_before = events(&server, id, "pass_done").len();
+    server.kill9();
+    let bind = format!("127.0.0.1:{port}");
+    let mut args = SHORT_LEASES.to_vec();
+    args.extend(["--bind", &bind]);
+    let server = Server::start(&data, &args);
+    let after = get_json(&server.url, &format!("/api/v1/jobs/{id}"));
+    assert!(
+        after["frames"][0]["passes_done"].as_u64() >= before["frames"][0]["passes_done"].as_u64(),
+        "published passes were lost: {before} -> {after}"
+    );
+    assert!(events(&server, id, "pass_done").len() >= added_before, "finished passes were lost");
+    let job = wait_job(&server, id, 300, |j| j["state"] == "done");
+    let cli = cli_render(&scene, &["--camera", "3", "--samples", "96"]);
+    assert_job_outputs_equal_cli(&server, &job, cli.path());
+}
