@@ -462,6 +462,7 @@ pub struct WorkerInfo {
     pub current_tile: Option<WorkerTile>,
     /// Unix seconds.
     pub last_heartbeat: f64,
+    /// Units rendered: whole tiles, and each pass of a tile rendered in passes.
     pub tiles_done: u64,
     pub failures: u64,
 }

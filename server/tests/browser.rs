@@ -347,3 +347,39 @@ fn a_jobs_log_shows_its_tiles_as_a_worker_renders_them() {
     let served = get_json(&server.url, &format!("/api/v1/jobs/{id}/log"));
     assert_eq!(served["events"].as_array().unwrap().len() as u64, n, "{served}");
 }
+
+/// A frame in passes refines on the page: the form sends pass samples and a noise target, the
+/// frame says which pass every tile has reached and links the latest pass's files.
+#[test]
+fn the_page_shows_a_frame_refining_pass_by_pass() {
+    let _s = serial();
+    let Some(browser) = Browser::start() else { return };
+    let dir = TempDir::new("farm-browser-passes");
+    let Some(scene) = tessera_testkit::small_path_traced_box(dir.path()) else { return };
+    let server = Server::start_temp(
+        "farm-browser-passes-data",
+        &["--local-workers", "1", "--local-worker-threads", "1", "--tile-size", "48"],
+    );
+    browser.goto(&server.url);
+    browser.wait("the live connection", 20, "document.querySelector('#live').textContent === 'live'");
+    browser.type_into("#files", &scene.canonicalize().unwrap().display().to_string());
+    browser.type_into("#samples", "320");
+    browser.type_into("#pass-samples", "32");
+    browser.type_into("#noise-target", "0.001");
+    browser.click("#submit-button");
+    browser.wait("the job to be accepted", 60, "!document.querySelector('#submit-ok').hidden");
+    // The first camera's frame: after its first pass it says so and links pass.exr and pass.png.
+    let frame = "document.querySelector('.frame')";
+    browser.wait("a published pass", 120, &format!("{frame} && Number({frame}.dataset.passes) >= 1"));
+    let text = browser.wait(
+        "the pass's files",
+        30,
+        &format!("{frame}.querySelector('.links').innerText.includes('pass.exr (after pass')"),
+    );
+    assert_eq!(text, json!(true));
+    let progress = browser.exec(&format!("return {frame}.querySelector('.progress-text').textContent;"));
+    assert!(progress.as_str().unwrap().starts_with("pass "), "{progress}");
+    let job = get_json(&server.url, "/api/v1/jobs")["jobs"][0].clone();
+    assert_eq!(job["frames"][0]["passes_total"], 10, "{job}");
+    cancel(&server, job["id"].as_u64().unwrap());
+}

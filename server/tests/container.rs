@@ -334,7 +334,9 @@ fn the_image_runs_a_farm_that_renders_like_the_cli_with_a_worker_container_stopp
         Some(a_at_stop),
         "worker a rendered after its stop: {workers}"
     );
-    assert_eq!(a_at_stop + b_tiles, total, "{workers}");
+    // Workers count units: a tile's passes each count once.
+    let units = total * job["frames"][0]["passes_total"].as_u64().unwrap();
+    assert_eq!(a_at_stop + b_tiles, units, "{workers}");
     // No worker went silent: worker a gave its leases back when it stopped, so none expired.
     // (A worker whose heartbeats stalled for a whole lease, as on lookups of the server's name
     // through a gateway whose MAC address changed, shows here first.)

@@ -38,7 +38,8 @@ fn a_denoised_job_writes_the_clis_denoised_files_to_the_bit() {
         &[
             ("scene", Some("box.xml"), &text),
             ("cameras", None, b"3"),
-            ("samples", None, b"8"),
+            ("samples", None, b"40"),
+            ("pass_samples", None, b"16"),
             ("tile_size", None, b"32"),
             ("denoise", None, b"true"),
         ],
@@ -54,8 +55,9 @@ fn a_denoised_job_writes_the_clis_denoised_files_to_the_bit() {
             && names.contains(&"glass_next_importance_denoised.png"),
         "{names:?}"
     );
-    // Tiles of 32 pixels from two workers, merged, then denoised once: the CLI's files, every one.
-    let cli = cli_render(&scene, &["--camera", "3", "--samples", "8", "--denoise"]);
+    // Tiles of 32 pixels in three passes (the features come with the first) from two workers,
+    // merged, then denoised once: the CLI's files, every one.
+    let cli = cli_render(&scene, &["--camera", "3", "--samples", "40", "--denoise"]);
     assert_eq!(std::fs::read_dir(cli.path()).unwrap().count(), 4);
     assert_job_outputs_equal_cli(&server, &job, cli.path());
     let log = get_json(&server.url, &format!("/api/v1/jobs/{id}/log"));

@@ -186,7 +186,7 @@ pub(super) async fn watch(
         ("x-tessera-worker" = u64, Header, description = "The worker's id"),
         ("x-tessera-checksum" = String, Header, description = "FNV-1a 64 of the body, 16 hex digits"),
         ("x-tessera-render-seconds" = Option<f64>, Header, description = "Seconds the worker spent rendering the tile (shown in the job's log)")),
-    request_body(content = super::openapi::Binary, content_type = "application/octet-stream", description = "The tile: width x height RGB triples of little-endian f32, row-major; for a lease with `aux` (a denoised job), then the albedo and the normal the same way"),
+    request_body(content = super::openapi::Binary, content_type = "application/octet-stream", description = "The tile: width x height RGB triples of little-endian f32, row-major; for a lease with `aux` (a denoised job), then the albedo and the normal the same way. For a lease with `pass`: each pixel's block sums instead of the colour (four little-endian i128: R, G, B in units of 2^-40, and the odd blocks' luminance), then the features when `aux` is set"),
     responses(
         (status = 204, description = "Stored (committed before this answer)"),
         (status = 400, description = "A missing header, a checksum that does not match, the wrong size, or a value that is not a finite number", body = ApiError),
@@ -229,7 +229,7 @@ pub(super) async fn result(
     let expected = shape.bytes();
     let wrong_size = |got: String| {
         AppError::bad_request(format!(
-            "the tile holds {got} bytes; its rectangle needs {expected} (width x height x 3 little-endian f32, three times that for a denoised job)"
+            "the tile holds {got} bytes; its lease needs {expected} (width x height x 3 little-endian f32, three times that for a denoised job; 64 bytes a pixel for a pass's sums)"
         ))
     };
     if let Some(n) = declared.filter(|&n| n != expected as u64) {
@@ -239,7 +239,7 @@ pub(super) async fn result(
         BodyError::TooLong => AppError::new(
             StatusCode::PAYLOAD_TOO_LARGE,
             format!(
-                "the tile's body goes past the {expected} bytes its rectangle needs (width x height x 3 little-endian f32, three times that for a denoised job); nothing was stored"
+                "the tile's body goes past the {expected} bytes its lease needs (width x height x 3 little-endian f32, three times that for a denoised job; 64 bytes a pixel for a pass's sums); nothing was stored"
             ),
         ),
         BodyError::Broken(e) => AppError::bad_request(format!("the tile's body could not be read: {e}")),
@@ -294,7 +294,7 @@ pub(super) async fn result(
         }
         ResultOutcome::Conflict => Err(lease_gone(lease)),
         ResultOutcome::WrongSize { expected } => Err(AppError::bad_request(format!(
-            "the tile's rectangle needs {expected} bytes (width x height x 3 little-endian f32, three times that for a denoised job)"
+            "the tile's lease needs {expected} bytes (width x height x 3 little-endian f32, three times that for a denoised job; 64 bytes a pixel for a pass's sums)"
         ))),
     }
 }

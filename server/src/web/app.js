@@ -162,11 +162,21 @@ function frameNode(entry, job, f) {
 function renderFrame(entry, job, f) {
   const fr = frameNode(entry, job, f);
   const pct = f.tiles_total ? Math.floor((100 * f.tiles_done) / f.tiles_total) : 0;
-  $(".progress-text", fr.node).textContent = f.tiles_done + "/" + f.tiles_total + " tiles · " + pct + "%";
+  let text = f.tiles_done + "/" + f.tiles_total + " tiles · " + pct + "%";
+  // A frame in passes refines: say how far every tile has got.
+  if (f.passes_total > 1 && !f.outputs.length) {
+    text = "pass " + f.passes_done + "/" + f.passes_total + " · " + text;
+  }
+  $(".progress-text", fr.node).textContent = text;
+  fr.node.dataset.passes = String(f.passes_done || 0);
   fr.node.dataset.percent = String(pct);
   $(".bar > div", fr.node).style.width = pct + "%";
   const links = $(".links", fr.node);
-  links.replaceChildren(...f.outputs.map((o) => el("a", { href: withToken(o.url), download: o.name, text: o.name })));
+  const files = f.outputs.length ? f.outputs : (f.pass_outputs || []);
+  links.replaceChildren(...files.map((o) => el("a", {
+    href: withToken(o.url), download: o.name,
+    text: f.outputs.length ? o.name : o.name + " (after pass " + f.passes_done + ")",
+  })));
   if (f.outputs.length) {
     // The finished picture: the first PNG output (tone-mapped for HDR frames).
     const png = f.outputs.find((o) => o.name.toLowerCase().endsWith(".png"));
@@ -378,7 +388,8 @@ $("#submit").addEventListener("submit", async (ev) => {
     form.append("scene", scene, relPath(scene));
     for (const f of files) if (f !== scene) form.append("asset", f, relPath(f));
   }
-  for (const [id, field] of [["priority", "priority"], ["tile-size", "tile_size"], ["samples", "samples"]]) {
+  for (const [id, field] of [["priority", "priority"], ["tile-size", "tile_size"], ["samples", "samples"],
+    ["pass-samples", "pass_samples"], ["noise-target", "noise_target"]]) {
     const v = $("#" + id).value.trim();
     if (v !== "" && !(field === "priority" && v === "0")) form.append(field, v);
   }
