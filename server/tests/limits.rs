@@ -161,7 +161,8 @@ fn a_tile_that_keeps_crashing_its_workers_fails_its_job_and_restarts_back_off() 
             "0.5",
         ],
     );
-    let doomed = submit_environment(&server, "100000", "16");
+    // One pass a tile: a tile too heavy to finish, not 16 passes that each finish in a moment.
+    let doomed = submit_environment_with(&server, "100000", "16", &[("pass_samples", "100000")]);
     let deadline = Instant::now() + Duration::from_secs(180);
     let mut killed: Vec<u64> = Vec::new();
     let job = loop {
@@ -172,10 +173,11 @@ fn a_tile_that_keeps_crashing_its_workers_fails_its_job_and_restarts_back_off() 
         assert!(job["state"] == "queued" || job["state"] == "running", "{job}");
         assert!(
             Instant::now() < deadline,
-            "the job is still {} after {} kills\n{}",
+            "the job is still {} after {} kills\n{}\n{}",
             job["state"],
             killed.len(),
-            server.log()
+            server.log(),
+            get_json(&server.url, &format!("/api/v1/jobs/{doomed}/log"))
         );
         // Kill the worker process as soon as a worker we have not killed yet is rendering.
         let list = get_json(&server.url, "/api/v1/workers");

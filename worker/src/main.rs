@@ -459,8 +459,15 @@ fn render(scene_path: &Path, out: &Path, opts: &Options) -> Result<()> {
                 let total: u64 = tiles.iter().map(|t| u64::from(t.samples) * u64::from(t.rect.width * t.rect.height)).sum();
                 let pixels = u64::from(cam.width) * u64::from(cam.height);
                 let stopped = tiles.iter().filter(|t| t.samples < n).count();
+                let mut noise: Vec<f64> = tiles.iter().filter_map(|t| t.error).collect();
+                noise.sort_by(f64::total_cmp);
+                let quantile = |q: f64| noise.get(((noise.len() as f64 - 1.0) * q).round() as usize).copied();
+                let spread = match (quantile(0.1), quantile(0.5), quantile(0.9)) {
+                    (Some(a), Some(b), Some(c)) => format!("; tile noise 10/50/90 %: {a:.4} / {b:.4} / {c:.4}"),
+                    _ => String::new(),
+                };
                 println!(
-                    "{}: noise target {}: {:.1} samples per pixel on average of at most {n}; {stopped} of {} tiles stopped early",
+                    "{}: noise target {}: {:.1} samples per pixel on average of at most {n}; {stopped} of {} tiles stopped early{spread}",
                     out.join(&name).display(),
                     noise_target.unwrap_or_default(),
                     total as f64 / pixels.max(1) as f64,

@@ -282,18 +282,21 @@ pub fn tiles_done(job: &Value) -> u64 {
 /// Submits the demo environment scene (HDR output, an image asset) at `samples` spp in tiles of
 /// `tile` pixels; returns the job id.
 pub fn submit_environment(server: &Server, samples: &str, tile: &str) -> u64 {
+    submit_environment_with(server, samples, tile, &[])
+}
+
+/// [`submit_environment`] with more fields (`pass_samples`, `priority`, ...).
+pub fn submit_environment_with(server: &Server, samples: &str, tile: &str, extra: &[(&str, &str)]) -> u64 {
     let scene = std::fs::read(repo().join("scenes/environment.xml")).unwrap();
     let sky = std::fs::read(repo().join("scenes/textures/sky.hdr")).unwrap();
-    let (code, job) = submit(
-        &server.url,
-        None,
-        &[
-            ("scene", Some("environment.xml"), &scene),
-            ("asset", Some("textures/sky.hdr"), &sky),
-            ("samples", None, samples.as_bytes()),
-            ("tile_size", None, tile.as_bytes()),
-        ],
-    );
+    let mut parts: Vec<(&str, Option<&str>, &[u8])> = vec![
+        ("scene", Some("environment.xml"), &scene),
+        ("asset", Some("textures/sky.hdr"), &sky),
+        ("samples", None, samples.as_bytes()),
+        ("tile_size", None, tile.as_bytes()),
+    ];
+    parts.extend(extra.iter().map(|(k, v)| (*k, None, v.as_bytes())));
+    let (code, job) = submit(&server.url, None, &parts);
     assert_eq!(code, 201, "{job}\n{}", server.log());
     job["id"].as_u64().unwrap()
 }
