@@ -146,7 +146,15 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
             last_text = Instant::now();
             let done: u32 = job.frames.iter().map(|f| f.tiles_done).sum();
             let total: u32 = job.frames.iter().map(|f| f.tiles_total).sum();
-            eprintln!("job {id}: {done}/{total} tiles");
+            // Frames in passes finish their tiles late: say how far the passes are.
+            let passes: Vec<String> = job
+                .frames
+                .iter()
+                .filter(|f| f.passes_total > 1 && f.outputs.is_empty())
+                .map(|f| format!("{} pass {}/{}", frame_label(f), f.passes_done, f.passes_total))
+                .collect();
+            let passes = if passes.is_empty() { String::new() } else { format!(" ({})", passes.join(", ")) };
+            eprintln!("job {id}: {done}/{total} tiles finished{passes}");
         }
         std::thread::sleep(POLL);
     }

@@ -86,7 +86,8 @@ enum Command {
         /// --samples).
         #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
         samples: Option<u32>,
-        /// Tile edge in pixels (the farm's unit of work; does not change the image) [default: the
+        /// Tile edge in pixels (the farm's unit of work; does not change the image, except under a
+        /// noise target, which decides tile by tile) [default: the
         /// server's].
         #[arg(long, value_name = "PX", value_parser = clap::value_parser!(u32).range(1..=4096))]
         tile_size: Option<u32>,

@@ -1514,6 +1514,143 @@ mod tests {
         .unwrap()
     }
 
+    /// A job of one 2-pixel tile of 48 samples in passes of 16 (`target`: its noise target).
+    fn passes_job(s: &Store, target: Option<f64>) -> u64 {
+        s.insert_job(&NewJob {
+            name: "p".into(),
+            priority: 0,
+            tile_size: 2,
+            samples: Some(48),
+            bundle: "0".repeat(64),
+            scene_path: "scene.xml".into(),
+            allow_unsupported: false,
+            denoise: false,
+            pass_samples: Some(16),
+            noise_target: target,
+            frames: vec![NewFrame {
+                camera: 0,
+                image_name: "p.exr".into(),
+                width: 2,
+                height: 1,
+                tiles: vec![Rect { x0: 0, y0: 0, width: 2, height: 1 }],
+                samples: 48,
+                pass_samples: 16,
+            }],
+            warnings: Vec::new(),
+        })
+        .unwrap()
+    }
+
+    /// A pass's sums for two pixels: every sample of block `b` is `value(b)`.
+    fn pass_sums(range: std::ops::Range<u32>, value: impl Fn(u32) -> f64) -> Vec<u8> {
+        let mut px = [tessera::passes::PixelSum::default(); 2];
+        for b in range.start / 16..range.end / 16 {
+            for p in &mut px {
+                p.add_block(b, glam::DVec3::splat(value(b) * 16.0));
+            }
+        }
+        tessera::passes::encode_sums(&px)
+    }
+
+    #[test]
+    fn passes_arriving_in_any_order_add_up_and_publish_the_frame_once_each_is_everywhere() {
+        let (_d, s) = store("passes");
+        let id = passes_job(&s, None);
+        let w1 = s.register_worker("a", 8, "h").unwrap();
+        let leases: Vec<Lease> = (0..3).map(|_| lease(&s, w1)).collect();
+        let ranges: Vec<_> = leases.iter().map(|l| l.pass.expect("a pass")).collect();
+        assert_eq!(
+            ranges.iter().map(|p| (p.index, p.start, p.end)).collect::<Vec<_>>(),
+            [(0, 0, 16), (1, 16, 32), (2, 32, 48)]
+        );
+        assert_eq!(s.result_size(leases[0].lease_id, w1).unwrap().map(|r| r.bytes()), Some(128));
+        let value = |b: u32| f64::from(b + 1);
+        let submit = |k: usize| {
+            let p = ranges[k];
+            s.submit_result(leases[k].lease_id, w1, &pass_sums(p.start..p.end, value), None).unwrap()
+        };
+        // The last pass first: kept aside, nothing published.
+        assert!(matches!(
+            submit(2),
+            ResultOutcome::Accepted { pass_published: None, frame_complete: false, .. }
+        ));
+        assert!(s.frame_tiles(id, 0).unwrap().is_empty(), "no film before pass 0");
+        // Pass 0: the tile has 16 samples, the frame is published after pass 1.
+        assert!(matches!(submit(0), ResultOutcome::Accepted { pass_published: Some(1), .. }));
+        let film = tessera::protocol::decode_tile(&s.frame_tiles(id, 0).unwrap()[0].1, 2).unwrap();
+        assert_eq!(film, [[1.0; 3]; 2]);
+        // Pass 1 brings pass 2 in with it: the frame is complete, averaged over 48 samples.
+        assert!(matches!(submit(1), ResultOutcome::Accepted { frame_complete: true, .. }));
+        let film = tessera::protocol::decode_tile(&s.frame_tiles(id, 0).unwrap()[0].1, 2).unwrap();
+        assert_eq!(film, [[2.0; 3]; 2], "(1 + 2 + 3) / 3");
+    }
+
+    #[test]
+    fn under_a_noise_target_a_tiles_next_pass_waits_for_the_verdict_on_the_last() {
+        let (_d, s) = store("passes-target");
+        let id = passes_job(&s, Some(0.01));
+        let w = s.register_worker("a", 8, "h").unwrap();
+        let first = lease(&s, w);
+        assert_eq!(first.pass.map(|p| p.index), Some(0));
+        assert!(s.lease(w, 30.0).unwrap().granted().is_none(), "pass 1 waits for pass 0");
+        let p = first.pass.unwrap();
+        s.submit_result(first.lease_id, w, &pass_sums(p.start..p.end, |_| 1.0), None).unwrap();
+        // Noise-free sums: after the minimum (48 samples here, the cap) the tile is done; before
+        // it the next pass is queued.
+        let second = lease(&s, w);
+        assert_eq!(second.pass.map(|p| p.index), Some(1));
+        let p = second.pass.unwrap();
+        s.submit_result(second.lease_id, w, &pass_sums(p.start..p.end, |_| 1.0), None).unwrap();
+        let third = lease(&s, w);
+        let p = third.pass.unwrap();
+        let done = s.submit_result(third.lease_id, w, &pass_sums(p.start..p.end, |_| 1.0), None).unwrap();
+        assert!(matches!(done, ResultOutcome::Accepted { frame_complete: true, .. }), "{done:?}");
+        assert_eq!(s.tile_samples(id, 0).unwrap(), [(Rect { x0: 0, y0: 0, width: 2, height: 1 }, 48)]);
+    }
+
+    #[test]
+    fn a_database_from_before_passes_keeps_its_tiles_as_whole_tile_units() {
+        let dir = tessera_testkit::TempDir::new("db-migrate-passes");
+        let path = dir.path().join("tessera.db");
+        {
+            // The tables as they were before passes: no pass columns, tiles keyed by tile.
+            let mut old = SCHEMA.to_string();
+            for gone in [
+                ",\n    pass_samples INTEGER,\n    noise_target REAL",
+                ",\n    samples INTEGER NOT NULL DEFAULT 1,\n    passes_total INTEGER NOT NULL DEFAULT 1,\n    passes_published INTEGER NOT NULL DEFAULT 0",
+                "\n    pass INTEGER NOT NULL DEFAULT 0,\n    first_sample INTEGER,\n    end_sample INTEGER,\n    sums BLOB,\n    passes_done INTEGER NOT NULL DEFAULT 0,\n    samples_done INTEGER NOT NULL DEFAULT 0,\n    error REAL,\n    finished INTEGER NOT NULL DEFAULT 0,",
+            ] {
+                assert!(old.contains(gone), "the schema changed: {gone}");
+                old = old.replace(gone, "");
+            }
+            let old = old
+                .replace("PRIMARY KEY(job_id, frame, tile, pass)", "PRIMARY KEY(job_id, frame, tile)")
+                + "CREATE INDEX IF NOT EXISTS tiles_queue ON tiles(job_id, state, frame, tile);";
+            assert!(!old.contains("pass"), "{old}");
+            let conn = Connection::open(&path).unwrap();
+            conn.execute_batch(&old).unwrap();
+            conn.execute_batch(
+                "INSERT INTO jobs(name, state, priority, tile_size, bundle, scene_path, submitted_at) VALUES ('old', 'running', 0, 1, 'b', 's.xml', 0);
+                 INSERT INTO frames(job_id, idx, camera, image_name, width, height, tiles_total, tiles_done) VALUES (1, 0, 0, 'o.png', 2, 1, 2, 1);
+                 INSERT INTO tiles(job_id, frame, tile, x0, y0, w, h, state, pixels) VALUES (1, 0, 0, 0, 0, 1, 1, 'done', x'0000803f0000803f0000803f');
+                 INSERT INTO tiles(job_id, frame, tile, x0, y0, w, h, state) VALUES (1, 0, 1, 1, 0, 1, 1, 'queued');",
+            )
+            .unwrap();
+        }
+        let s = Store::open(&path).unwrap();
+        // The rendered tile is still there; the queued one is leased whole and completes the frame.
+        assert_eq!(s.frame_tiles(1, 0).unwrap().len(), 1);
+        let w = worker(&s);
+        let l = lease(&s, w);
+        assert_eq!((l.job_id, l.tile, l.pass), (1, 1, None));
+        assert_eq!(s.result_size(l.lease_id, w).unwrap().map(|r| r.bytes()), Some(12));
+        let done = s.submit_result(l.lease_id, w, &[0; 12], None).unwrap();
+        assert!(matches!(done, ResultOutcome::Accepted { frame_complete: true, .. }), "{done:?}");
+        assert_eq!(s.frames(1).unwrap()[0].passes_total, 1);
+        drop(s);
+        Store::open(&path).unwrap();
+    }
+
     #[test]
     fn an_older_database_gains_allow_unsupported_and_its_jobs_keep_rendering_as_accepted() {
         let dir = tessera_testkit::TempDir::new("db-migrate");

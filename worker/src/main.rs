@@ -66,7 +66,8 @@ enum Command {
         /// Render only camera K (1 = the first camera in the file).
         #[arg(long, value_name = "K")]
         camera: Option<usize>,
-        /// Tile edge in pixels (the unit of parallel work; does not change the image).
+        /// Tile edge in pixels (the unit of parallel work; does not change the image, except under
+        /// --noise-target, which decides tile by tile).
         #[arg(long, default_value_t = 32, value_name = "PX")]
         tile_size: u32,
         /// Samples per pixel for every camera instead of its <NumSamples> (e.g. 4 for a quick,
