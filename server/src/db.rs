@@ -1333,20 +1333,22 @@ impl Store {
             params![worker as i64, now()],
         )?;
         let mut published = None;
-        let unit = if in_passes { format!("pass {pass} of tile {tile}") } else { format!("tile {tile}") };
-        let message = match render_seconds {
-            Some(s) => format!("{unit} of frame {frame} rendered in {s:.3} s"),
-            None => format!("{unit} of frame {frame} rendered"),
-        };
-        let kind = if in_passes { "pass_done" } else { "tile_done" };
-        log_event(
-            &tx,
-            job,
-            Event {
-                seconds: render_seconds,
-                ..Event::new(kind, &message).tile(frame, tile).worker(worker as i64)
-            },
-        )?;
+        // A pass is not logged on its own: a frame in passes is tiles x passes results, which
+        // would fill the bounded log before the tiles' `tile_done` events (samples, noise).
+        if !in_passes {
+            let message = match render_seconds {
+                Some(s) => format!("tile {tile} of frame {frame} rendered in {s:.3} s"),
+                None => format!("tile {tile} of frame {frame} rendered"),
+            };
+            log_event(
+                &tx,
+                job,
+                Event {
+                    seconds: render_seconds,
+                    ..Event::new("tile_done", &message).tile(frame, tile).worker(worker as i64)
+                },
+            )?;
+        }
         if in_passes {
             published = passes::absorb(&tx, job, frame, tile, rect)?;
         } else {

@@ -86,7 +86,9 @@ fn a_frame_in_passes_with_a_worker_killed_mid_pass_is_the_clis_bytes_and_is_publ
             .unwrap()
             .contains("after pass 1 of 4: at least 16 samples per pixel")
     );
-    assert!(events(&server, id, "pass_done").len() >= 36);
+    // The log has each tile once, when its last pass is in, not each pass.
+    assert_eq!(events(&server, id, "tile_done").len(), 9);
+    assert!(events(&server, id, "pass_done").is_empty());
     assert!(job["frames"][0]["pass_outputs"].as_array().unwrap().is_empty());
 }
 
@@ -177,7 +179,7 @@ fn finished_passes_survive_a_server_killed_mid_frame() {
     let _w = Worker::start(&server.url, "wtok", "w");
     let id = submit_box(&server, &scene, &[("samples", b"96"), ("pass_samples", b"16")]);
     let before = wait_job(&server, id, 120, |j| j["frames"][0]["passes_done"].as_u64() >= Some(1));
-    let added_before = events(&server, id, "pass_done").len();
+    let added_before = before["frames"][0]["passes_done"].as_u64();
     server.kill9();
     let bind = format!("127.0.0.1:{port}");
     let mut args = SHORT_LEASES.to_vec();
@@ -188,7 +190,10 @@ fn finished_passes_survive_a_server_killed_mid_frame() {
         after["frames"][0]["passes_done"].as_u64() >= before["frames"][0]["passes_done"].as_u64(),
         "published passes were lost: {before} -> {after}"
     );
-    assert!(events(&server, id, "pass_done").len() >= added_before, "finished passes were lost");
+    assert!(
+        after["frames"][0]["passes_done"].as_u64() >= added_before,
+        "finished passes were lost: {added_before:?} -> {after}"
+    );
     let job = wait_job(&server, id, 300, |j| j["state"] == "done");
     let cli = cli_render(&scene, &["--camera", "3", "--samples", "96"]);
     assert_job_outputs_equal_cli(&server, &job, cli.path());
