@@ -106,7 +106,8 @@ enum Command {
         /// The server refuses the job (422) if it has no denoiser.
         #[arg(long)]
         denoise: bool,
-        /// Samples per pass (whole blocks of 16; default: a sixteenth of the samples). Each
+        /// Samples per pass (whole blocks of 16; default: a sixteenth of the samples, at least 256
+        /// without --noise-target). Each
         /// tile's passes go to workers on their own, and the frame is published after every pass
         /// (pass.exr, pass.png; --wait reports them).
         #[arg(long, value_name = "N")]

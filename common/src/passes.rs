@@ -124,6 +124,19 @@ pub fn default_pass_samples(samples: u32) -> u32 {
     round_to_blocks(samples.div_ceil(16))
 }
 
+/// The fewest samples of a pass the farm cuts a frame into by default when no noise target
+/// needs finer steps: each pass costs the server an addition of its sums and a store of the
+/// tile (a few milliseconds), which should be noise beside its render.
+pub const MIN_DEFAULT_PASS: u32 = 256;
+
+/// The farm's pass size when a job names none: [`default_pass_samples`] under a noise target
+/// (the steps at which tiles may stop), else at least [`MIN_DEFAULT_PASS`] samples, so that a
+/// frame of up to 256 samples renders its tiles whole.
+pub fn default_farm_pass_samples(samples: u32, noise_target: bool) -> u32 {
+    let p = default_pass_samples(samples);
+    if noise_target { p } else { p.max(MIN_DEFAULT_PASS) }
+}
+
 /// `samples` rounded up to whole blocks, at least one block.
 pub fn round_to_blocks(samples: u32) -> u32 {
     samples.max(1).div_ceil(BLOCK).saturating_mul(BLOCK)

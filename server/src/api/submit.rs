@@ -46,7 +46,8 @@ pub(super) struct SubmitForm {
     /// "true": also write each frame denoised (`<stem>_denoised.exr` and its PNG) with Intel
     /// Open Image Denoise on the server; 422 when the server has no OIDN.
     denoise: Option<bool>,
-    /// Samples per pass (rounded up to whole blocks of 16; default: a sixteenth of the samples).
+    /// Samples per pass (rounded up to whole blocks of 16; default: a sixteenth of the samples,
+    /// at least 256 unless the job has a noise target).
     /// Each tile's passes are leased on their own, so a frame keeps tiles x passes workers busy,
     /// and the frame is published after every pass all its tiles have finished.
     pass_samples: Option<u32>,
@@ -341,7 +342,14 @@ pub(super) async fn submit_job(
     .map_err(|e| anyhow::anyhow!("validation task: {e}"))??;
     check_sample_budget(&state.settings, &cameras, &frames, opts.samples)?;
     let mut frames = frames;
-    plan_passes(&mut frames, &cameras, opts.samples, opts.pass_samples, max_tiles)?;
+    plan_passes(
+        &mut frames,
+        &cameras,
+        opts.samples,
+        opts.pass_samples,
+        opts.noise_target.is_some(),
+        max_tiles,
+    )?;
     if opts.denoise {
         check_denoise_size(&frames)?;
     }
@@ -433,6 +441,7 @@ fn plan_passes(
     cameras: &[Camera],
     samples: Option<u32>,
     pass_samples: Option<u32>,
+    noise_target: bool,
     max_tiles: u64,
 ) -> ApiResult<()> {
     let mut units = 0u64;
@@ -440,7 +449,7 @@ fn plan_passes(
         f.samples = samples.unwrap_or(cameras[f.camera as usize].num_samples).max(1);
         f.pass_samples = match pass_samples {
             Some(p) => tessera::passes::round_to_blocks(p),
-            None => tessera::passes::default_pass_samples(f.samples),
+            None => tessera::passes::default_farm_pass_samples(f.samples, noise_target),
         };
         let passes = f.passes();
         if passes > MAX_PASSES {
