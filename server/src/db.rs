@@ -474,6 +474,16 @@ pub fn now() -> f64 {
     std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0)
 }
 
+/// The tile rectangle in columns `at`..`at + 4` (x0, y0, w, h) of a row.
+fn rect_at(r: &rusqlite::Row, at: usize) -> rusqlite::Result<Rect> {
+    Ok(Rect {
+        x0: r.get::<_, i64>(at)? as u32,
+        y0: r.get::<_, i64>(at + 1)? as u32,
+        width: r.get::<_, i64>(at + 2)? as u32,
+        height: r.get::<_, i64>(at + 3)? as u32,
+    })
+}
+
 /// A unit's pass as a lease names it (columns pass, first_sample, end_sample, passes_total from
 /// `at`); `None` for a tile rendered whole.
 fn unit_pass(r: &rusqlite::Row, at: usize) -> rusqlite::Result<Option<tessera::protocol::PassLease>> {
@@ -764,17 +774,7 @@ impl Store {
             "SELECT tile, x0, y0, w, h FROM tiles WHERE job_id = ?1 AND frame = ?2 AND pass = 0 AND state = 'done' AND pixels IS NOT NULL ORDER BY tile",
         )?;
         let rows = stmt
-            .query_map(params![job as i64, frame], |r| {
-                Ok((
-                    r.get::<_, i64>(0)? as u32,
-                    Rect {
-                        x0: r.get::<_, i64>(1)? as u32,
-                        y0: r.get::<_, i64>(2)? as u32,
-                        width: r.get::<_, i64>(3)? as u32,
-                        height: r.get::<_, i64>(4)? as u32,
-                    },
-                ))
-            })?
+            .query_map(params![job as i64, frame], |r| Ok((r.get::<_, i64>(0)? as u32, rect_at(r, 1)?)))?
             .collect::<rusqlite::Result<Vec<_>>>()?;
         Ok(rows)
     }
@@ -798,17 +798,7 @@ impl Store {
             "SELECT x0, y0, w, h, pixels FROM tiles WHERE job_id = ?1 AND frame = ?2 AND pass = 0 AND state = 'done' AND pixels IS NOT NULL",
         )?;
         let rows = stmt
-            .query_map(params![job as i64, frame], |r| {
-                Ok((
-                    Rect {
-                        x0: r.get::<_, i64>(0)? as u32,
-                        y0: r.get::<_, i64>(1)? as u32,
-                        width: r.get::<_, i64>(2)? as u32,
-                        height: r.get::<_, i64>(3)? as u32,
-                    },
-                    r.get::<_, Vec<u8>>(4)?,
-                ))
-            })?
+            .query_map(params![job as i64, frame], |r| Ok((rect_at(r, 0)?, r.get::<_, Vec<u8>>(4)?)))?
             .collect::<rusqlite::Result<Vec<_>>>()?;
         Ok(rows)
     }
@@ -881,17 +871,7 @@ impl Store {
              WHERE t.job_id = ?1 AND t.frame = ?2 AND t.pass = 0 ORDER BY t.tile",
         )?;
         let rows = stmt
-            .query_map(params![job as i64, frame], |r| {
-                Ok((
-                    Rect {
-                        x0: r.get::<_, i64>(0)? as u32,
-                        y0: r.get::<_, i64>(1)? as u32,
-                        width: r.get::<_, i64>(2)? as u32,
-                        height: r.get::<_, i64>(3)? as u32,
-                    },
-                    r.get::<_, i64>(4)? as u32,
-                ))
-            })?
+            .query_map(params![job as i64, frame], |r| Ok((rect_at(r, 0)?, r.get::<_, i64>(4)? as u32)))?
             .collect::<rusqlite::Result<Vec<_>>>()?;
         Ok(rows)
     }
@@ -1061,12 +1041,7 @@ impl Store {
                     Ok((
                         r.get::<_, i64>(0)?,
                         r.get::<_, i64>(1)?,
-                        Rect {
-                            x0: r.get::<_, i64>(2)? as u32,
-                            y0: r.get::<_, i64>(3)? as u32,
-                            width: r.get::<_, i64>(4)? as u32,
-                            height: r.get::<_, i64>(5)? as u32,
-                        },
+                        rect_at(r, 2)?,
                         r.get::<_, i64>(6)?,
                         unit_pass(r, 7)?,
                     ))
@@ -1288,21 +1263,16 @@ impl Store {
         let tx = conn.transaction()?;
         let row = tx
             .query_row_cached(
-                "SELECT t.job_id, t.frame, t.w, t.h, t.deadline, t.tile, t.x0, t.y0, j.denoise, t.pass, t.first_sample IS NOT NULL
+                "SELECT t.job_id, t.frame, t.tile, t.pass, t.deadline, j.denoise, t.x0, t.y0, t.w, t.h, t.first_sample IS NOT NULL
                  FROM tiles t JOIN jobs j ON j.id = t.job_id
                  WHERE t.lease_id = ?1 AND t.worker_id = ?2 AND t.state = 'leased' AND j.state IN ('queued', 'running')",
                 params![lease as i64, worker as i64],
                 |r| {
                     Ok((
-                        (r.get::<_, i64>(0)?, r.get::<_, i64>(1)?, r.get::<_, i64>(5)?, r.get::<_, i64>(9)?),
-                        Rect {
-                            x0: r.get::<_, i64>(6)? as u32,
-                            y0: r.get::<_, i64>(7)? as u32,
-                            width: r.get::<_, i64>(2)? as u32,
-                            height: r.get::<_, i64>(3)? as u32,
-                        },
+                        (r.get::<_, i64>(0)?, r.get::<_, i64>(1)?, r.get::<_, i64>(2)?, r.get::<_, i64>(3)?),
+                        rect_at(r, 6)?,
                         r.get::<_, f64>(4)?,
-                        r.get::<_, bool>(8)?,
+                        r.get::<_, bool>(5)?,
                         r.get::<_, bool>(10)?,
                     ))
                 },

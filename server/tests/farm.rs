@@ -105,16 +105,7 @@ fn a_worker_killed_mid_job_loses_nothing() {
     wait_job(&server, id, 120, |j| tiles_done(j) >= 6);
     // Kill worker a while it holds a tile (it renders one and has fetched the next), so there
     // is a lease to expire.
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while !get_json(&server.url, "/api/v1/workers")["workers"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .any(|w| w["name"] == "a" && w["state"] == "rendering" && !w["current_tile"].is_null())
-    {
-        assert!(Instant::now() < deadline, "worker a never rendered\n{}", server.log());
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    wait_until_rendering(&server, "a");
     a.kill9();
     wait_job(&server, id, 180, |j| j["state"] == "done");
     assert_outputs_equal_cli(&server, id, "24");

@@ -62,16 +62,7 @@ fn a_frame_in_passes_with_a_worker_killed_mid_pass_is_the_clis_bytes_and_is_publ
         assert_eq!(&png[1..4], b"PNG");
     }
     // Kill worker a while it renders a pass: its lease expires and the pass is rendered again.
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while !get_json(&server.url, "/api/v1/workers")["workers"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .any(|w| w["name"] == "a" && w["state"] == "rendering" && !w["current_tile"].is_null())
-    {
-        assert!(Instant::now() < deadline, "worker a never rendered\n{}", server.log());
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    wait_until_rendering(&server, "a");
     a.kill9();
     let job = wait_job(&server, id, 300, |j| j["state"] == "done");
     let cli = cli_render(&scene, &["--camera", "3", "--samples", "64"]);

@@ -390,3 +390,18 @@ pub fn metric(server: &Server, name: &str) -> String {
         .find_map(|l| l.strip_prefix(name).and_then(|v| v.strip_prefix(' ')).map(str::to_string))
         .unwrap_or_else(|| panic!("no {name} in\n{metrics}"))
 }
+
+/// Waits (up to a minute) until the worker named `name` is rendering a tile of its own: killing
+/// it then leaves a lease to expire.
+pub fn wait_until_rendering(server: &Server, name: &str) {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !get_json(&server.url, "/api/v1/workers")["workers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|w| w["name"] == name && w["state"] == "rendering" && !w["current_tile"].is_null())
+    {
+        assert!(Instant::now() < deadline, "worker {name} never rendered\n{}", server.log());
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
