@@ -102,17 +102,17 @@ impl Camera {
         Ray::new(self.position, (self.image_point(x, y, dx, dy) - self.position).normalize())
     }
 
-    /// The directions of [`Camera::ray`] through image positions (x + `dx[k]`, y + `dy[k]`) of
-    /// eight lanes, written into `d` by axis then lane (every ray starts at `position`). Each
+    /// The directions of [`Camera::ray`] through image positions (`x[k]` + `dx[k]`, `y[k]` +
+    /// `dy[k]`) of eight lanes (pixels given as `f64`; one pixel's samples or one sample of
+    /// several pixels), written into `d` by axis then lane (every ray starts at `position`). Each
     /// lane's operations are `ray`'s in their order (no fused multiply-adds), so the bits are
     /// the same; with AVX they run four lanes to an instruction (the compiler left the lanes'
     /// arithmetic scalar), without it each lane is `ray`'s.
     #[inline(always)]
-    pub fn ray_dirs8(&self, x: u32, y: u32, dx: &[f64; 8], dy: &[f64; 8], d: &mut [[f64; 8]; 3]) {
+    pub fn ray_dirs8(&self, x: &[f64; 8], y: &[f64; 8], dx: &[f64; 8], dy: &[f64; 8], d: &mut [[f64; 8]; 3]) {
         #[cfg(all(target_arch = "x86_64", target_feature = "avx"))]
         {
             use std::arch::x86_64::*;
-            let (px, py) = (x as f64, y as f64);
             let (c, u, v, o) =
                 (self.corner.to_array(), self.u.to_array(), self.v.to_array(), self.position.to_array());
             // SAFETY: the target has AVX (cfg above); the loads and stores read and write four
@@ -121,11 +121,11 @@ impl Camera {
                 let all = _mm256_set1_pd;
                 for h in [0, 4] {
                     let a = _mm256_mul_pd(
-                        _mm256_add_pd(all(px), _mm256_loadu_pd(dx[h..].as_ptr())),
+                        _mm256_add_pd(_mm256_loadu_pd(x[h..].as_ptr()), _mm256_loadu_pd(dx[h..].as_ptr())),
                         all(self.pixel_w),
                     );
                     let b = _mm256_mul_pd(
-                        _mm256_add_pd(all(py), _mm256_loadu_pd(dy[h..].as_ptr())),
+                        _mm256_add_pd(_mm256_loadu_pd(y[h..].as_ptr()), _mm256_loadu_pd(dy[h..].as_ptr())),
                         all(self.pixel_h),
                     );
                     let s: [__m256d; 3] = std::array::from_fn(|i| {
@@ -143,7 +143,7 @@ impl Camera {
         }
         #[cfg(not(all(target_arch = "x86_64", target_feature = "avx")))]
         for k in 0..8 {
-            let dir = self.ray(x, y, dx[k], dy[k]).dir;
+            let dir = self.ray(x[k] as u32, y[k] as u32, dx[k], dy[k]).dir;
             for (row, v) in d.iter_mut().zip(dir.to_array()) {
                 row[k] = v;
             }
@@ -232,13 +232,16 @@ mod tests {
             bits ^= bits << 17;
             (bits >> 11) as f64 / (1u64 << 53) as f64
         };
-        for (x, y) in [(0, 0), (400, 166), (800, 332), (13, 297)] {
+        // One pixel's eight samples, and eight pixels of a row (the last one wrapping).
+        let one = |x: u32, y: u32| ([x; 8], [y; 8]);
+        let row = |x: u32, y: u32| (std::array::from_fn(|k| (x + k as u32) % 801), [y; 8]);
+        for (xs, ys) in [one(0, 0), one(400, 166), one(800, 332), one(13, 297), row(795, 3), row(0, 332)] {
             let dx: [f64; 8] = std::array::from_fn(|_| unit());
             let dy: [f64; 8] = std::array::from_fn(|_| unit());
             let mut d = [[f64::NAN; 8]; 3];
-            c.ray_dirs8(x, y, &dx, &dy, &mut d);
+            c.ray_dirs8(&xs.map(f64::from), &ys.map(f64::from), &dx, &dy, &mut d);
             for k in 0..8 {
-                let single = c.ray(x, y, dx[k], dy[k]).dir;
+                let single = c.ray(xs[k], ys[k], dx[k], dy[k]).dir;
                 assert_eq!(
                     [d[0][k], d[1][k], d[2][k]].map(f64::to_bits),
                     single.to_array().map(f64::to_bits)

@@ -47,8 +47,27 @@ pub fn luminance(c: DVec3) -> f64 {
 }
 
 fn fixed(v: f64) -> i128 {
+    let x = v * SCALE;
+    // Nearly every block fits in an i64, whose conversion is one instruction where i128's is a
+    // library call; both truncate towards zero, so the value is the same.
+    if x.abs() < I64_LIMIT {
+        return i128::from(x as i64);
+    }
     // `as` maps NaN to 0; the clamp keeps every sum of a pixel's blocks inside i128.
-    (v * SCALE).clamp(-BLOCK_LIMIT, BLOCK_LIMIT) as i128
+    x.clamp(-BLOCK_LIMIT, BLOCK_LIMIT) as i128
+}
+
+/// 2^63: below it in magnitude an `f64` converts to `i64` exactly as to `i128`.
+const I64_LIMIT: f64 = 9_223_372_036_854_775_808.0;
+
+/// `v` as the nearest `f64`: through `i64` when it fits (one instruction, the same rounding to
+/// nearest as the `i128` conversion's library call).
+#[inline]
+fn float(v: i128) -> f64 {
+    match i64::try_from(v) {
+        Ok(small) => small as f64,
+        Err(_) => v as f64,
+    }
 }
 
 /// A pixel's samples summed block by block in fixed point: the colour of every block, and the
@@ -81,14 +100,14 @@ impl PixelSum {
     /// The pixel's average over `samples` samples, as the film keeps it (finite `f32`).
     pub fn film(&self, samples: u32) -> [f32; 3] {
         let n = f64::from(samples.max(1));
-        let c = DVec3::new(self.rgb[0] as f64, self.rgb[1] as f64, self.rgb[2] as f64) / SCALE / n;
+        let c = DVec3::new(float(self.rgb[0]), float(self.rgb[1]), float(self.rgb[2])) / SCALE / n;
         film_value(c)
     }
 
     /// The average over all `samples`, and over the odd blocks' `odd` samples, in luminance.
     fn estimates(&self, samples: u32, odd: u32) -> (f64, f64) {
-        let all = DVec3::new(self.rgb[0] as f64, self.rgb[1] as f64, self.rgb[2] as f64) / SCALE;
-        (luminance(all) / f64::from(samples), self.odd_luminance as f64 / SCALE / f64::from(odd))
+        let all = DVec3::new(float(self.rgb[0]), float(self.rgb[1]), float(self.rgb[2])) / SCALE;
+        (luminance(all) / f64::from(samples), float(self.odd_luminance) / SCALE / f64::from(odd))
     }
 }
 
@@ -270,6 +289,47 @@ pub fn sums_in_range(sums: &[PixelSum], blocks: u32) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_i64_shortcuts_convert_as_i128_does() {
+        let edge = I64_LIMIT / SCALE;
+        let values = [
+            0.0,
+            -0.0,
+            1e-13,
+            0.3,
+            -0.7,
+            1.0 / 3.0,
+            12345.678,
+            -9e7,
+            edge,
+            -edge,
+            edge * (1.0 - 1e-16),
+            -edge * (1.0 - 1e-16),
+            edge * 1.5,
+            1e30,
+            -1e30,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+        ];
+        for v in values {
+            let slow = (v * SCALE).clamp(-BLOCK_LIMIT, BLOCK_LIMIT) as i128;
+            assert_eq!(fixed(v), slow, "{v}");
+            assert_eq!(float(slow).to_bits(), (slow as f64).to_bits(), "{v}");
+        }
+        // Integers that round: just past 2^53, and either side of the i64 range.
+        for i in [
+            (1i128 << 53) + 1,
+            (1 << 60) + 3,
+            i128::from(i64::MAX),
+            i128::from(i64::MIN),
+            1 << 70,
+            -(1 << 90) - 7,
+        ] {
+            assert_eq!(float(i).to_bits(), (i as f64).to_bits(), "{i}");
+        }
+    }
 
     #[test]
     fn odd_samples_counts_the_odd_blocks() {

@@ -192,3 +192,39 @@ fn the_distribution_scene_exercises_every_effect() {
     };
     assert_ne!(full.pixels, one.pixels);
 }
+
+/// With fewer than eight samples a pixel, a group of camera rays takes the samples of several
+/// pixels (see `render_tile_sums_until`): each pixel must still get the bits it gets alone, in a
+/// one-pixel tile, where its group holds its own samples only.
+#[test]
+fn groups_across_pixels_give_each_pixel_its_own_bits() {
+    for name in ["distribution.xml", "environment.xml", "path_traced.xml", "textures.xml"] {
+        let scene = load(&scenes_dir().join(name));
+        let cam = &scene.cameras[0];
+        // A rectangle of 13 x 5 pixels: 65 pixels, so groups straddle rows and pixels.
+        let rect = TileRect { x0: cam.width / 3, y0: cam.height / 2, width: 13, height: 5 };
+        for samples in [1, 3, 5] {
+            let settings = RenderSettings { samples: Some(samples), ..RenderSettings::default() };
+            let (px, stats) = render_tile(&scene, 0, rect, &settings);
+            assert_eq!(stats.primary, 65 * u64::from(samples), "{name}: one camera ray a sample");
+            let mut alone_primary = 0;
+            for ty in 0..rect.height {
+                for tx in 0..rect.width {
+                    let one = TileRect { x0: rect.x0 + tx, y0: rect.y0 + ty, width: 1, height: 1 };
+                    let (alone, s) = render_tile(&scene, 0, one, &settings);
+                    alone_primary += s.primary;
+                    let grouped = px[(ty * rect.width + tx) as usize];
+                    assert_eq!(
+                        grouped.map(f32::to_bits),
+                        alone[0].map(f32::to_bits),
+                        "{name}, {samples} spp, pixel ({}, {}): {grouped:?} grouped, {:?} alone",
+                        one.x0,
+                        one.y0,
+                        alone[0]
+                    );
+                }
+            }
+            assert_eq!(alone_primary, stats.primary, "{name}: the same rays either way");
+        }
+    }
+}
