@@ -1,0 +1,298 @@
+//! Speed against the anchors where the farm's time goes (issue #54): path tracing against
+//! Mitsuba 3, and the primary-ray render phase against Embree 4 and Mitsuba's first-hit render.
+//!
+//! ```text
+//! cargo run --release -p tessera-tests --bin pathbench -- [--rounds N] [--samples N] [--threads N]
+//! cargo run --release -p tessera-tests --bin pathbench -- --primary [--rounds N] [--width W --height H]
+//! ```
+//! The default is the path-tracing workload: `../shared/bench/jaroslav_path.xml`
+//! (cornellbox_jaroslav_path_diffuse's `diffuse_next_importance` camera: NEE, cosine sampling,
+//! MaxRecursionDepth 3, no roulette, 512x512) rendered by Tessera in this process and by
+//! Mitsuba 3 (`mitsuba_jaroslav_path.py` beside it: `path`, max_depth 5, no roulette, the same
+//! geometry, lights and diffuse reflectances) alternately, `--rounds` times, both on
+//! `--threads` threads (default 1: the per-core figure). Both time the render only. It prints
+//! each round's Msamples/s and the medians' ratio, and how far apart the two images' means over
+//! a 4x4 grid of regions are (the last round's images, at `--samples`, default 16: a check that
+//! both render the same picture, looser at few samples).
+//!
+//! `--primary` is the camera-ray workload: head.ply at 3840x2160, one ray through each pixel
+//! centre (`../shared/bench/head_primary.xml`), no lights and no bounces. Tessera's render
+//! phase on one thread against Embree 4 (`embree_primary.py`: embreex, one ray a call, one
+//! thread) in alternating rounds, then Tessera on two threads against Mitsuba's first-hit render
+//! (`tests/bench/mitsuba_head_first_hit.py`, the `aov` integrator, one thread per core).
+//!
+//! The Python anchors run with `$TESSERA_ANCHORS_PY` (default `~/.cache/anchors/bin/python`; see
+//! ../shared/bench/README.md); Mitsuba's llvm variant needs `DRJIT_LIBLLVM_PATH`.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use tessera::hdr_io::read_exr;
+use tessera::image::Image;
+use tessera::integrator::RayStats;
+use tessera::render::{RenderSettings, render_camera};
+use tessera::scene::Scene;
+use tessera::scene::load::load_scene_file;
+
+struct Args {
+    primary: bool,
+    rounds: usize,
+    samples: u32,
+    threads: usize,
+    width: u32,
+    height: u32,
+}
+
+fn parse_args() -> Result<Args> {
+    let mut a = Args { primary: false, rounds: 5, samples: 16, threads: 1, width: 3840, height: 2160 };
+    let mut it = std::env::args().skip(1);
+    while let Some(arg) = it.next() {
+        let mut number = |name: &str| -> Result<u64> {
+            it.next()
+                .with_context(|| format!("{name} needs a value"))?
+                .parse()
+                .with_context(|| format!("{name}: a number"))
+        };
+        match arg.as_str() {
+            "--primary" => a.primary = true,
+            "--rounds" => a.rounds = number("--rounds")?.max(1) as usize,
+            "--samples" => a.samples = number("--samples")?.max(1) as u32,
+            "--threads" => a.threads = number("--threads")?.max(1) as usize,
+            "--width" => a.width = number("--width")?.max(1) as u32,
+            "--height" => a.height = number("--height")?.max(1) as u32,
+            "-h" | "--help" => {
+                println!(
+                    "{}",
+                    include_str!("pathbench.rs")
+                        .lines()
+                        .take_while(|l| l.starts_with("//!"))
+                        .map(|l| l.trim_start_matches("//!").trim_start())
+                        .collect::<Vec<_>>()
+                        .join("\n")
+                );
+                std::process::exit(0);
+            }
+            other => bail!("unknown argument {other} (see --help)"),
+        }
+    }
+    Ok(a)
+}
+
+/// Renders camera 0 on a pool of `threads` threads: the image, the render's seconds, its rays.
+fn render(scene: &Scene, settings: &RenderSettings, threads: usize) -> (Image, f64, RayStats) {
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("thread pool");
+    pool.install(|| {
+        let start = Instant::now();
+        let (img, stats) = render_camera(scene, 0, 32, settings, &|_, _| {});
+        (img, start.elapsed().as_secs_f64(), stats)
+    })
+}
+
+/// Runs an anchor script; its standard output. Its last lines of errors say why it failed.
+fn anchor(script: &Path, args: &[String]) -> Result<String> {
+    let python = tessera_tests::anchor_python();
+    let o = Command::new(&python)
+        .arg(script)
+        .args(args)
+        .output()
+        .with_context(|| format!("running {} with {}", script.display(), python.display()))?;
+    if !o.status.success() {
+        let err = String::from_utf8_lossy(&o.stderr);
+        let lines: Vec<&str> = err.lines().collect();
+        bail!(
+            "{} failed ({}):\n{}",
+            script.display(),
+            o.status,
+            lines[lines.len().saturating_sub(12)..].join("\n")
+        );
+    }
+    Ok(String::from_utf8_lossy(&o.stdout).into_owned())
+}
+
+/// A number in an anchor's JSON line.
+fn json_number(text: &str, key: &str) -> Result<f64> {
+    let line = text
+        .lines()
+        .rev()
+        .find(|l| l.trim_start().starts_with('{'))
+        .with_context(|| format!("no JSON line in: {text}"))?;
+    let v: serde_json::Value = serde_json::from_str(line)?;
+    v[key].as_f64().with_context(|| format!("no {key} in {line}"))
+}
+
+fn median(v: &[f64]) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    s[s.len() / 2]
+}
+
+fn need_llvm() -> Result<()> {
+    if std::env::var_os("DRJIT_LIBLLVM_PATH").is_none() {
+        bail!(
+            "Mitsuba's llvm_ad_rgb variant needs DRJIT_LIBLLVM_PATH, the path of libLLVM (Debian: apt install libllvm19; see ../shared/bench/README.md)"
+        );
+    }
+    Ok(())
+}
+
+/// The mean of each of 4x4 regions of an image, in luminance.
+fn region_means(img: &Image) -> Vec<f64> {
+    let mut out = Vec::new();
+    for ry in 0..4 {
+        for rx in 0..4 {
+            let (mut sum, mut n) = (0.0, 0.0);
+            for y in ry * img.height / 4..(ry + 1) * img.height / 4 {
+                for x in rx * img.width / 4..(rx + 1) * img.width / 4 {
+                    let p = img.pixels[(y * img.width + x) as usize];
+                    sum += 0.2126 * f64::from(p[0]) + 0.7152 * f64::from(p[1]) + 0.0722 * f64::from(p[2]);
+                    n += 1.0;
+                }
+            }
+            out.push(sum / n);
+        }
+    }
+    out
+}
+
+fn path_figures(args: &Args, out: &Path) -> Result<()> {
+    need_llvm()?;
+    let bench = tessera_tests::shared_bench();
+    let xml =
+        std::fs::read_to_string(bench.join("jaroslav_path.xml"))?.replace("SPP", &args.samples.to_string());
+    let scene_path = out.join("jaroslav_path.xml");
+    std::fs::write(&scene_path, xml)?;
+    let scene = load_scene_file(&scene_path)?;
+    let (w, h) = (scene.cameras[0].width, scene.cameras[0].height);
+    let samples = f64::from(w * h) * f64::from(args.samples);
+    let settings = RenderSettings::default();
+    let script = bench.join("mitsuba_jaroslav_path.py");
+    let theirs_exr = out.join("mitsuba.exr");
+    println!(
+        "jaroslav_path (cornellbox_jaroslav_path_diffuse, diffuse_next_importance), {w}x{h}, {} spp, {} thread(s), {} rounds",
+        args.samples, args.threads, args.rounds
+    );
+    let (mut ours, mut theirs, mut last) = (Vec::new(), Vec::new(), None);
+    for round in 0..args.rounds {
+        let (img, secs, stats) = render(&scene, &settings, args.threads);
+        ours.push(samples / secs / 1e6);
+        if round == 0 {
+            println!(
+                "  Tessera: {:.2} rays a sample ({:.2} shadow, {:.2} bounce)",
+                stats.total() as f64 / samples,
+                stats.shadow as f64 / samples,
+                stats.secondary as f64 / samples
+            );
+        }
+        let text = anchor(
+            &script,
+            &[
+                args.samples.to_string(),
+                "llvm_ad_rgb".into(),
+                args.threads.to_string(),
+                theirs_exr.display().to_string(),
+            ],
+        )?;
+        let m: f64 = text
+            .lines()
+            .last()
+            .and_then(|l| l.split_whitespace().next())
+            .and_then(|v| v.parse().ok())
+            .with_context(|| format!("Mitsuba printed no figure: {text}"))?;
+        theirs.push(m);
+        println!(
+            "  round {round}: Tessera {:.3} Msamples/s, Mitsuba {m:.3}, ratio {:.3}",
+            ours[round],
+            ours[round] / m
+        );
+        last = Some(img);
+    }
+    let (om, tm) = (median(&ours), median(&theirs));
+    println!("  median: Tessera {om:.3}, Mitsuba {tm:.3} Msamples/s, ratio {:.3}", om / tm);
+    let ours_img = last.expect("at least one round");
+    let theirs_img = read_exr(&theirs_exr).with_context(|| format!("reading {}", theirs_exr.display()))?;
+    if (theirs_img.width, theirs_img.height) != (w, h) {
+        bail!("Mitsuba's image is {}x{}, not {w}x{h}", theirs_img.width, theirs_img.height);
+    }
+    let (a, b) = (region_means(&ours_img), region_means(&theirs_img));
+    let worst = a.iter().zip(&b).map(|(x, y)| (x - y).abs() / y.abs().max(1e-6)).fold(0.0, f64::max);
+    let whole = a.iter().sum::<f64>() / b.iter().sum::<f64>();
+    println!(
+        "  images: whole-frame mean ratio {whole:.4}, largest region-mean difference {:.1} % (4x4 regions)",
+        100.0 * worst
+    );
+    Ok(())
+}
+
+fn primary_figures(args: &Args, out: &Path) -> Result<()> {
+    let bench = tessera_tests::shared_bench();
+    let ply = tessera_tests::shared_scenes().join("xml/ply/head.ply");
+    let (w, h) = (args.width, args.height);
+    let xml = std::fs::read_to_string(bench.join("head_primary.xml"))?
+        .replace("RES", &format!("{w} {h}"))
+        .replace("PLY", &ply.display().to_string());
+    let scene_path = out.join("head_primary.xml");
+    std::fs::write(&scene_path, xml)?;
+    let scene = load_scene_file(&scene_path)?;
+    let settings = RenderSettings::default();
+    let rays = f64::from(w * h);
+    let camera = ["0.322839", "0.0534825", "0.504299", "-0.140808", "-0.162727", "-0.35493", "30"];
+    let mut embree_args = vec![ply.display().to_string(), w.to_string(), h.to_string()];
+    embree_args.extend(camera.iter().map(|s| s.to_string()));
+    embree_args.push("1".into());
+    println!("head.ply primary rays, {w}x{h}, one a pixel, {} rounds", args.rounds);
+    let (mut ours, mut theirs) = (Vec::new(), Vec::new());
+    for round in 0..args.rounds {
+        let (img, secs, _) = render(&scene, &settings, 1);
+        ours.push(rays / secs / 1e6);
+        if round == 0 {
+            let hit = img.pixels.iter().filter(|p| p[0] > 0.0).count() as f64 / rays;
+            println!("  Tessera: {:.4} of the rays hit the head", hit);
+        }
+        let text = anchor(&bench.join("embree_primary.py"), &embree_args)?;
+        let e = json_number(&text, "embree_mrays_s")?;
+        if round == 0 {
+            println!("  Embree: {:.4} of the rays hit the head", json_number(&text, "hit")?);
+        }
+        theirs.push(e);
+        println!(
+            "  round {round}: Tessera {:.2} Mrays/s (render phase, one thread), Embree {e:.2}, ratio {:.3}",
+            ours[round],
+            ours[round] / e
+        );
+    }
+    let (om, em) = (median(&ours), median(&theirs));
+    println!("  median: Tessera {om:.2}, Embree {em:.2} Mrays/s, ratio {:.3}", om / em);
+    need_llvm()?;
+    let script = tessera_tests::repo_root().join("tests/bench/mitsuba_head_first_hit.py");
+    let (mut ours2, mut mits) = (Vec::new(), Vec::new());
+    for round in 0..args.rounds {
+        let (_, secs, _) = render(&scene, &settings, 2);
+        ours2.push(rays / secs / 1e6);
+        let text = anchor(
+            &script,
+            &[ply.display().to_string(), w.to_string(), h.to_string(), "llvm_ad_rgb".into()],
+        )?;
+        let m = json_number(&text, "mrays_per_s")?;
+        if round == 0 {
+            println!("  Mitsuba first hit: {:.4} of the rays hit the head", json_number(&text, "hit")?);
+        }
+        mits.push(m);
+        println!(
+            "  round {round}: Tessera {:.2} Mrays/s (two threads), Mitsuba aov {m:.2}, ratio {:.3}",
+            ours2[round],
+            ours2[round] / m
+        );
+    }
+    let (om, mm) = (median(&ours2), median(&mits));
+    println!("  median: Tessera {om:.2}, Mitsuba {mm:.2} Mrays/s, ratio {:.3}", om / mm);
+    Ok(())
+}
+
+fn main() -> Result<()> {
+    let args = parse_args()?;
+    let out: PathBuf = tessera_tests::repo_root().join("target/pathbench");
+    std::fs::create_dir_all(&out)?;
+    if args.primary { primary_figures(&args, &out) } else { path_figures(&args, &out) }
+}
