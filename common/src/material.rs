@@ -72,19 +72,22 @@ impl Material {
         // α_r: between wo and wi mirrored about n. α_h: between n and the half vector.
         let cos_r = || (2.0 * cos_i * n - wi).dot(wo).max(0.0);
         let cos_h = || n.dot((wi + wo).normalize()).max(0.0);
+        // The specular lobe times k_s; for a material without one (k_s = 0, the course's matte
+        // BRDF materials) the lobe's power is skipped: the lobe is finite and at least 0, so
+        // k_s times it is k_s times 0, the same signed zeros.
+        let ks = self.specular;
+        let spec = |lobe: &dyn Fn() -> f64| if ks == DVec3::ZERO { ks * 0.0 } else { ks * lobe() };
         match (brdf.kind, brdf.normalized) {
             // k_d + k_s cos^p α_r / cos θ_i, times cos θ_i.
-            (BrdfKind::OriginalPhong, _) => self.diffuse * cos_i + self.specular * self.lobe(cos_r()),
-            (BrdfKind::ModifiedPhong, false) => (self.diffuse + self.specular * self.lobe(cos_r())) * cos_i,
+            (BrdfKind::OriginalPhong, _) => self.diffuse * cos_i + spec(&|| self.lobe(cos_r())),
+            (BrdfKind::ModifiedPhong, false) => (self.diffuse + spec(&|| self.lobe(cos_r()))) * cos_i,
             (BrdfKind::ModifiedPhong, true) => {
-                (self.diffuse / PI + self.specular * ((p + 2.0) / (2.0 * PI) * self.lobe(cos_r()))) * cos_i
+                (self.diffuse / PI + spec(&|| (p + 2.0) / (2.0 * PI) * self.lobe(cos_r()))) * cos_i
             }
-            (BrdfKind::OriginalBlinnPhong, _) => self.diffuse * cos_i + self.specular * self.lobe(cos_h()),
-            (BrdfKind::ModifiedBlinnPhong, false) => {
-                (self.diffuse + self.specular * self.lobe(cos_h())) * cos_i
-            }
+            (BrdfKind::OriginalBlinnPhong, _) => self.diffuse * cos_i + spec(&|| self.lobe(cos_h())),
+            (BrdfKind::ModifiedBlinnPhong, false) => (self.diffuse + spec(&|| self.lobe(cos_h()))) * cos_i,
             (BrdfKind::ModifiedBlinnPhong, true) => {
-                (self.diffuse / PI + self.specular * ((p + 8.0) / (8.0 * PI) * self.lobe(cos_h()))) * cos_i
+                (self.diffuse / PI + spec(&|| (p + 8.0) / (8.0 * PI) * self.lobe(cos_h()))) * cos_i
             }
             (BrdfKind::TorranceSparrow, _) => {
                 let cos_o = n.dot(wo);
