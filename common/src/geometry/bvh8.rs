@@ -670,7 +670,15 @@ impl Bvh8 {
                             ];
                             // The operations of `tri4_closest`, one triangle against eight rays.
                             let (ok, tt, adet) = mt8(c(&tri.e1), c(&tri.e2), s, [dx, dy, dz], tmin);
-                            let ok = below(_mm256_and_ps(live, ok), tt, adet, tmax);
+                            let mut ok = below(_mm256_and_ps(live, ok), tt, adet, tmax);
+                            if ANY {
+                                // The single-ray any-hit test's second far test, on the
+                                // distance itself (`tri8_any`), so each lane answers as it does.
+                                ok = _mm256_and_ps(
+                                    ok,
+                                    _mm256_cmp_ps(_mm256_div_ps(tt, adet), tmax, _CMP_LT_OQ),
+                                );
+                            }
                             let m = _mm256_movemask_ps(ok) as u32;
                             if m == 0 {
                                 continue;
@@ -707,7 +715,13 @@ impl Bvh8 {
                     sp -= 1;
                     // SAFETY: entries below `sp` were written by the pushes above.
                     let (c, m, d) = stack[sp].assume_init();
-                    let reach = _mm256_movemask_ps(_mm256_cmp_ps(_mm256_set1_ps(d), tmax, _CMP_LE_OQ)) as u32;
+                    // A closest-hit lane drops a node that starts beyond its hit, as the single
+                    // walk does. An any-hit lane that has not hit keeps every node it entered
+                    // (the single any-hit walk never drops one): its far bound has not moved,
+                    // and its box test let it in up to the far bound times `grow`.
+                    let bound = if ANY { _mm256_mul_ps(tmax, grow) } else { tmax };
+                    let reach =
+                        _mm256_movemask_ps(_mm256_cmp_ps(_mm256_set1_ps(d), bound, _CMP_LE_OQ)) as u32;
                     if m & reach != 0 {
                         cur = (c, m & reach);
                         break;
@@ -1106,6 +1120,40 @@ mod tests {
             }
         }
         assert!(lanes_hit > lanes / 5, "{lanes_hit} of {lanes} lanes hit");
+    }
+
+    /// Any-hit packets answer as each lane's single query does where it matters most: far
+    /// bounds within rounding of a triangle's distance (a shadow ray stopping just short of a
+    /// light's surface), in scattered packets whose lanes point every way.
+    #[test]
+    fn any_hit_packets_agree_with_single_rays_at_the_far_bound() {
+        let mut r = xorshift(4242);
+        let (_, bvh) = soup(&mut r, 2000);
+        let (mut blocked, mut lanes) = (0, 0);
+        for k in 0..4000 {
+            let n = 2 + k % 7;
+            let rays: Vec<(Vec3A, Vec3A)> = (0..n)
+                .map(|_| {
+                    let o = Vec3A::new(r(), r(), r()) * 10.0;
+                    (o, Vec3A::new(r() - 0.5, r() - 0.5, r() - 0.5).normalize())
+                })
+                .collect();
+            let packet = Packet8::new(&rays, 1e-4);
+            let mut far = [f32::NEG_INFINITY; 8];
+            for (lane, f) in far.iter_mut().enumerate().take(n) {
+                let nearest = bvh.intersect(&packet.lane(lane, f32::INFINITY)).map_or(1.0, |h| h.0);
+                let nudge = [-2e-6, -1e-6, -3e-7, -1e-7, 0.0, 1e-7, 1e-6][(k + lane) % 7];
+                *f = nearest * (1.0 + nudge);
+            }
+            let got = bvh.occluded_packet(&packet, &far);
+            for (lane, &f) in far.iter().enumerate().take(n) {
+                let single = bvh.occluded(&packet.lane(lane, f));
+                assert_eq!(got & (1 << lane) != 0, single, "packet {k} lane {lane}, far {f}");
+                blocked += usize::from(single);
+                lanes += 1;
+            }
+        }
+        assert!(blocked > lanes / 10 && blocked < lanes * 9 / 10, "{blocked} of {lanes} blocked");
     }
 
     /// Two packets tested in one pass find what `tri4_closest` finds testing one packet, then
