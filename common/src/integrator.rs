@@ -456,7 +456,11 @@ impl<'a> Tracer<'a> {
             // way in), nothing without; dielectrics only on their outside (§15 #20).
             let shaded = !(mat.kind == MaterialKind::Dielectric && medium.is_some());
             if nee && shaded {
-                local += self.lights(&ray, hit.point, n, mat, true, rng);
+                local += if params.one_light {
+                    self.one_light(&ray, hit.point, n, mat, rng)
+                } else {
+                    self.lights(&ray, hit.point, n, mat, true, rng)
+                };
             }
             if params.roulette == Roulette::Course {
                 let q = potential.max_element().min(1.0);
@@ -869,6 +873,17 @@ impl<'a> Tracer<'a> {
         l[0]
     }
 
+    /// `SampleOneLight`'s estimate of [`Self::lights`]: one light chosen by power
+    /// ([`crate::lights::LightChoice`], one number drawn), its light divided by the choice's
+    /// probability.
+    fn one_light(&mut self, ray: &Ray, x: DVec3, n: DVec3, mat: &Material, rng: &mut Sampler) -> DVec3 {
+        let Some((light, p)) = self.scene.light_choice.pick(rng.next_1d()) else { return DVec3::ZERO };
+        let mut rngs = [rng.clone()];
+        let l = self.lights_of::<1>(&[LitPoint { ray, x, n, mat }], true, Some(light), &mut rngs);
+        *rng = rngs[0].clone();
+        l[0] / p
+    }
+
     /// [`Lighting::reflected`] in this tracer's scene, counting its shadow rays.
     fn lights_lanes<const N: usize>(
         &mut self,
@@ -876,7 +891,19 @@ impl<'a> Tracer<'a> {
         env: bool,
         rngs: &mut [Sampler],
     ) -> [DVec3; N] {
-        let mut lighting = Lighting { scene: self.scene, env_sampler: self.env_sampler, shadow_rays: 0 };
+        self.lights_of(pts, env, None, rngs)
+    }
+
+    /// [`Self::lights_lanes`] of every light (`only` `None`) or of one.
+    fn lights_of<const N: usize>(
+        &mut self,
+        pts: &[LitPoint<'_>],
+        env: bool,
+        only: Option<usize>,
+        rngs: &mut [Sampler],
+    ) -> [DVec3; N] {
+        let mut lighting =
+            Lighting { scene: self.scene, env_sampler: self.env_sampler, shadow_rays: 0, only };
         let l = lighting.reflected(pts, env, rngs);
         self.stats.shadow += lighting.shadow_rays;
         l
@@ -1478,7 +1505,12 @@ mod tests {
             let x = if i % 2 == 0 { 0.05 * i as f64 } else { 0.3 + 0.05 * i as f64 };
             Ray::new(DVec3::new(0.0, 0.0, 5.0), DVec3::new(x, 0.02 * i as f64, -1.0).normalize())
         });
-        let path = Renderer::Path(PathParams { next_event: true, importance: true, roulette: Roulette::Off });
+        let path = Renderer::Path(PathParams {
+            next_event: true,
+            importance: true,
+            roulette: Roulette::Off,
+            one_light: false,
+        });
         for renderer in [Renderer::Classic, path] {
             for group in [GROUP_LANES, 5, 2] {
                 let samplers: Vec<Sampler> = (0..group as u32).map(|k| Sampler::new(9, 3, 4, k)).collect();
@@ -1686,6 +1718,83 @@ mod tests {
                 "{params}: roulette traced {rr_rays} rays, full depth {full_rays}"
             );
         }
+    }
+
+    /// `SampleOneLight` gives every-light NEE's image in expectation with half the shadow rays
+    /// or fewer: a closed box lit by a point light, an emitting square on its ceiling and a
+    /// small emitting sphere, one pixel on its floor, 16 renders of 256 samples each way.
+    /// Also pins how the choice weighs the lights: by power, none for a dark light.
+    #[test]
+    fn one_light_a_vertex_gives_the_image_of_every_light() {
+        let means = |params: &str| {
+            let xml = format!(
+                r#"<Scene><MaxRecursionDepth>3</MaxRecursionDepth>
+                <Cameras><Camera id="1"><Position>0 0.5 0</Position><Gaze>0 -1 0</Gaze><Up>0 0 -1</Up>
+                  <NearPlane>-0.1 0.1 -0.1 0.1</NearPlane><NearDistance>1</NearDistance>
+                  <ImageResolution>1 1</ImageResolution><ImageName>a.exr</ImageName><NumSamples>256</NumSamples>
+                  <Renderer>PathTracing</Renderer><RendererParams>{params}</RendererParams></Camera></Cameras>
+                <Lights><PointLight id="1"><Position>0.5 0.5 0.5</Position><Intensity>2 1 1</Intensity></PointLight>
+                  <PointLight id="2"><Position>-0.5 0.5 0.5</Position><Intensity>0 0 0</Intensity></PointLight></Lights>
+                <BRDFs><ModifiedPhong id="1" normalized="true"><Exponent>1</Exponent></ModifiedPhong></BRDFs>
+                <Materials><Material id="1" BRDF="1"><DiffuseReflectance>0.5 0.5 0.5</DiffuseReflectance></Material>
+                  <Material id="2"></Material></Materials>
+                <VertexData>-1 -1 -1  1 -1 -1  1 1 -1  -1 1 -1  -1 -1 1  1 -1 1  1 1 1  -1 1 1
+                  -0.5 0.99 -0.5  0.5 0.99 -0.5  0.5 0.99 0.5  -0.5 0.99 0.5  -0.6 0.2 -0.6</VertexData>
+                <Objects><Mesh id="1"><Material>1</Material><Faces>
+                  1 2 6  1 6 5  4 8 7  4 7 3  1 5 8  1 8 4  2 3 7  2 7 6  1 4 3  1 3 2  5 6 7  5 7 8</Faces></Mesh>
+                  <LightMesh id="2"><Material>2</Material><Radiance>4 4 4</Radiance><Faces>9 10 11  9 11 12</Faces></LightMesh>
+                  <LightSphere id="3"><Material>2</Material><Center>13</Center><Radius>0.1</Radius><Radiance>1 3 1</Radiance></LightSphere>
+                </Objects></Scene>"#
+            );
+            let scene =
+                load_scene_str(&xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() })
+                    .unwrap();
+            let rect = TileRect { x0: 0, y0: 0, width: 1, height: 1 };
+            let mut shadow = 0;
+            let px: Vec<f64> = (0..16)
+                .map(|seed| {
+                    let (px, stats) =
+                        render_tile(&scene, 0, rect, &RenderSettings { seed, ..RenderSettings::default() });
+                    shadow += stats.shadow;
+                    px[0][0] as f64
+                })
+                .collect();
+            (scene, px, shadow)
+        };
+        let (scene, every, every_rays) = means("NextEventEstimation ImportanceSampling");
+        let (_, one, one_rays) = means("NextEventEstimation ImportanceSampling SampleOneLight");
+        let ((me, ee), (mo, eo)) = (mean_and_error(&every), mean_and_error(&one));
+        assert!(me > 0.05, "the floor is lit: {me}");
+        assert!(
+            (me - mo).abs() < 4.0 * (ee * ee + eo * eo).sqrt(),
+            "every light {me} ± {ee}, one light {mo} ± {eo}"
+        );
+        assert!(
+            one_rays * 2 <= every_rays,
+            "one light traced {one_rays} shadow rays, every light {every_rays}"
+        );
+        // Lights in order: the two point lights, the square, the sphere.
+        let choice = &scene.light_choice;
+        use std::f64::consts::PI;
+        let lum = |r: f64, g: f64, b: f64| 0.2126 * r + 0.7152 * g + 0.0722 * b;
+        let powers =
+            [4.0 * PI * lum(2.0, 1.0, 1.0), 0.0, PI * 4.0 * 1.0, PI * lum(1.0, 3.0, 1.0) * 4.0 * PI * 0.01];
+        let total: f64 = powers.iter().sum();
+        let mut start = 0.0;
+        for (i, p) in powers.iter().enumerate() {
+            let share = p / total;
+            if share > 0.0 {
+                let (picked, prob) = choice.pick(start + share / 2.0).unwrap();
+                assert_eq!(picked, i, "the middle of light {i}'s share picks it");
+                assert!((prob - share).abs() < 1e-9, "light {i}: {prob} against {share}");
+            }
+            start += share;
+        }
+        assert!(
+            (0..1000).all(|k| choice.pick(k as f64 / 1000.0).unwrap().0 != 1),
+            "a dark light is never chosen"
+        );
+        assert_eq!(crate::lights::LightChoice::default().pick(0.5), None, "no lights, no choice");
     }
 
     /// The course's roulette, pinned on a scene whose paths have three outcomes: a camera

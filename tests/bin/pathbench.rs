@@ -2,7 +2,7 @@
 //! Mitsuba 3, and the primary-ray render phase against Embree 4 and Mitsuba's first-hit render.
 //!
 //! ```text
-//! cargo run --release -p tessera-tests --bin pathbench -- [--rounds N] [--samples N] [--threads N]
+//! cargo run --release -p tessera-tests --bin pathbench -- [--rounds N] [--samples N] [--threads N] [--one-light]
 //! cargo run --release -p tessera-tests --bin pathbench -- --primary [--rounds N] [--width W --height H]
 //! ```
 //! The default is the path-tracing workload: `../shared/bench/jaroslav_path.xml`
@@ -13,7 +13,9 @@
 //! `--threads` threads (default 1: the per-core figure). Both time the render only. It prints
 //! each round's Msamples/s and the medians' ratio, and how far apart the two images' means over
 //! a 4x4 grid of regions are (the last round's images, at `--samples`, default 16: a check that
-//! both render the same picture, looser at few samples).
+//! both render the same picture, looser at few samples). `--one-light` adds Tessera's
+//! `SampleOneLight` to the camera's `RendererParams`: one light a vertex, chosen by power, as
+//! Mitsuba samples one emitter a vertex (the course's estimator, the default, samples both).
 //!
 //! `--primary` is the camera-ray workload: head.ply at 3840x2160, one ray through each pixel
 //! centre (`../shared/bench/head_primary.xml`), no lights and no bounces. Tessera's render
@@ -38,6 +40,7 @@ use tessera::scene::load::load_scene_file;
 
 struct Args {
     primary: bool,
+    one_light: bool,
     rounds: usize,
     samples: u32,
     threads: usize,
@@ -46,7 +49,15 @@ struct Args {
 }
 
 fn parse_args() -> Result<Args> {
-    let mut a = Args { primary: false, rounds: 5, samples: 16, threads: 1, width: 3840, height: 2160 };
+    let mut a = Args {
+        primary: false,
+        one_light: false,
+        rounds: 5,
+        samples: 16,
+        threads: 1,
+        width: 3840,
+        height: 2160,
+    };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
         let mut number = |name: &str| -> Result<u64> {
@@ -57,6 +68,7 @@ fn parse_args() -> Result<Args> {
         };
         match arg.as_str() {
             "--primary" => a.primary = true,
+            "--one-light" => a.one_light = true,
             "--rounds" => a.rounds = number("--rounds")?.max(1) as usize,
             "--samples" => a.samples = number("--samples")?.max(1) as u32,
             "--threads" => a.threads = number("--threads")?.max(1) as usize,
@@ -159,8 +171,15 @@ fn region_means(img: &Image) -> Vec<f64> {
 fn path_figures(args: &Args, out: &Path) -> Result<()> {
     need_llvm()?;
     let bench = tessera_tests::shared_bench();
-    let xml =
+    let mut xml =
         std::fs::read_to_string(bench.join("jaroslav_path.xml"))?.replace("SPP", &args.samples.to_string());
+    if args.one_light {
+        let params = "NextEventEstimation ImportanceSampling";
+        if !xml.contains(params) {
+            bail!("jaroslav_path.xml: `{params}` not found, so --one-light cannot add SampleOneLight");
+        }
+        xml = xml.replace(params, &format!("{params} SampleOneLight"));
+    }
     let scene_path = out.join("jaroslav_path.xml");
     std::fs::write(&scene_path, xml)?;
     let scene = load_scene_file(&scene_path)?;
@@ -170,8 +189,11 @@ fn path_figures(args: &Args, out: &Path) -> Result<()> {
     let script = bench.join("mitsuba_jaroslav_path.py");
     let theirs_exr = out.join("mitsuba.exr");
     println!(
-        "jaroslav_path (cornellbox_jaroslav_path_diffuse, diffuse_next_importance), {w}x{h}, {} spp, {} thread(s), {} rounds",
-        args.samples, args.threads, args.rounds
+        "jaroslav_path (cornellbox_jaroslav_path_diffuse, diffuse_next_importance), {w}x{h}, {} spp, {} thread(s), {} rounds{}",
+        args.samples,
+        args.threads,
+        args.rounds,
+        if args.one_light { ", Tessera with SampleOneLight" } else { "" }
     );
     let (mut ours, mut theirs, mut last) = (Vec::new(), Vec::new(), None);
     for round in 0..args.rounds {

@@ -668,7 +668,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
             w.message = json_words(&w.message);
         }
     }
-    Ok(Scene {
+    let mut scene = Scene {
         source: rec.source.clone(),
         background: v3(rec.background_color),
         shadow_ray_epsilon: rec.shadow_ray_epsilon,
@@ -693,7 +693,10 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         background_texture: textures.background,
         warnings,
         stats,
-    })
+        light_choice: Default::default(),
+    };
+    scene.light_choice = crate::lights::LightChoice::new(&scene);
+    Ok(scene)
 }
 
 /// Warnings about epsilons that no scene means: negative ones, and offsets beyond a tenth of

@@ -116,4 +116,6 @@ pub struct Scene {
     /// Parser and builder warnings (unknown elements, skipped triangles, ...).
     pub warnings: Vec<Warning>,
     pub stats: SceneStats,
+    /// How a path tracer with `SampleOneLight` picks the one light of a vertex.
+    pub light_choice: crate::lights::LightChoice,
 }

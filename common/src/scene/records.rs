@@ -179,6 +179,13 @@ pub struct PathParams {
     /// `RussianRoulette` or `UnbiasedRussianRoulette`: paths end at random instead of at the
     /// depth limit.
     pub roulette: Roulette,
+    /// `SampleOneLight` (Tessera's own flag, not in the course format): next-event estimation
+    /// samples one light a vertex, chosen by its power ([`crate::lights::LightChoice`]), and
+    /// divides its light by the choice's probability, instead of sampling every light. The
+    /// same image in expectation for a fraction of the shadow rays in scenes of several lights;
+    /// more noise per sample where the lights' shares of a point's light differ from their
+    /// shares of the power.
+    pub one_light: bool,
 }
 
 /// How a path tracer's paths end (§13.2 step 5).

@@ -1757,14 +1757,33 @@ fn homework_6_elements() {
     assert_eq!(
         camera(&cam("<Renderer>PathTracing</Renderer><RendererParams>RussianRoulette NextEventEstimation</RendererParams>"))
             .renderer,
-        Renderer::Path(PathParams { next_event: true, importance: false, roulette: Roulette::Course })
+        Renderer::Path(PathParams { next_event: true, importance: false, roulette: Roulette::Course, one_light: false })
+    );
+    assert_eq!(
+        camera(&cam("<Renderer>PathTracing</Renderer><RendererParams>SampleOneLight NextEventEstimation</RendererParams>"))
+            .renderer,
+        Renderer::Path(PathParams { next_event: true, importance: false, roulette: Roulette::Off, one_light: true })
     );
     assert_eq!(
         camera(&cam(
             "<Renderer>PathTracing</Renderer><RendererParams>UnbiasedRussianRoulette</RendererParams>"
         ))
         .renderer,
-        Renderer::Path(PathParams { next_event: false, importance: false, roulette: Roulette::Unbiased })
+        Renderer::Path(PathParams {
+            next_event: false,
+            importance: false,
+            roulette: Roulette::Unbiased,
+            one_light: false
+        })
+    );
+    let lone = parse(&format!(
+        "<Scene><Cameras>{}</Cameras></Scene>",
+        cam("<Renderer>PathTracing</Renderer><RendererParams>SampleOneLight</RendererParams>")
+    ));
+    assert!(
+        lone.warnings.iter().any(|w| w.message.contains("without it, it does nothing")),
+        "{:?}",
+        lone.warnings
     );
     assert_eq!(
         camera(&cam("<Renderer>PathTracing</Renderer><RendererParams></RendererParams>")).renderer,
@@ -1821,7 +1840,7 @@ fn homework_6_errors() {
         ),
         (
             &params,
-            "scene.xml:4: <Camera id=\"1\"> / <RendererParams>: unknown renderer parameter \"NextEvent\" (expected any of NextEventEstimation, ImportanceSampling, RussianRoulette, UnbiasedRussianRoulette)",
+            "scene.xml:4: <Camera id=\"1\"> / <RendererParams>: unknown renderer parameter \"NextEvent\" (expected any of NextEventEstimation, ImportanceSampling, RussianRoulette, UnbiasedRussianRoulette, SampleOneLight)",
         ),
         (
             &both,

@@ -31,8 +31,13 @@ const CAMERA: Schema = Schema {
     ..Schema::EMPTY
 };
 /// The words of `<RendererParams>` (§13.1).
-const RENDERER_PARAMS: &[&str] =
-    &["NextEventEstimation", "ImportanceSampling", "RussianRoulette", "UnbiasedRussianRoulette"];
+const RENDERER_PARAMS: &[&str] = &[
+    "NextEventEstimation",
+    "ImportanceSampling",
+    "RussianRoulette",
+    "UnbiasedRussianRoulette",
+    "SampleOneLight",
+];
 
 impl Parser<'_> {
     pub(super) fn cameras(&mut self, block: &Node) -> Result<()> {
@@ -204,6 +209,7 @@ impl Parser<'_> {
             match word {
                 "NextEventEstimation" => out.next_event = true,
                 "ImportanceSampling" => out.importance = true,
+                "SampleOneLight" => out.one_light = true,
                 "RussianRoulette" | "UnbiasedRussianRoulette" => {
                     let wanted =
                         if word == "RussianRoulette" { Roulette::Course } else { Roulette::Unbiased };
@@ -228,6 +234,12 @@ impl Parser<'_> {
                     ));
                 }
             }
+        }
+        if out.one_light
+            && !out.next_event
+            && let Some(p) = params
+        {
+            self.warn(p, "SampleOneLight changes how NextEventEstimation samples the lights; without it, it does nothing");
         }
         Ok(Renderer::Path(out))
     }
