@@ -3,6 +3,7 @@
 //! The course's scene corpus lives outside the repository in `../shared/scenes` (never copied
 //! in); [`shared_scenes`] finds it.
 
+pub mod anchors;
 pub mod conformance;
 pub mod envmaps;
 

@@ -382,7 +382,6 @@ fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
     }
     let script_path = dir.join("mitsuba_head_env.py");
     std::fs::write(&script_path, script)?;
-    let python = tessera_tests::anchor_python();
     let scene = tessera::scene::load::load_scene_file(&scene_path)?;
     let settings = RenderSettings {
         samples: Some(spp),
@@ -403,27 +402,14 @@ fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
             // What the view does to the work: a shadow ray per lit sample that faces its light.
             println!("  Tessera: {:.3} shadow rays per camera sample", stats.shadow as f64 / samples);
         }
-        let mut cmd = std::process::Command::new(&python);
-        cmd.arg(&script_path).arg(&ply).arg(&hdri).arg(spp.to_string()).arg(&args.variant);
-        let o = cmd.output().with_context(|| format!("running Mitsuba ({})", python.display()))?;
-        let text = String::from_utf8_lossy(&o.stdout);
-        if !o.status.success() {
-            // Its last lines say why (a missing package, libLLVM, or drjit entry point).
-            let err = String::from_utf8_lossy(&o.stderr);
-            let lines: Vec<&str> = err.lines().collect();
-            let tail = lines[lines.len().saturating_sub(12)..].join("\n");
-            bail!("{} failed ({}):\n{tail}", script_path.display(), o.status);
-        }
+        let args =
+            [ply.display().to_string(), hdri.display().to_string(), spp.to_string(), args.variant.clone()];
+        let text = tessera_tests::anchors::run(&script_path, &args)?;
         if !width_shown && let Some(w) = text.lines().find_map(|l| l.strip_prefix(WIDTH_TAG).map(str::trim)) {
             println!("  Mitsuba's kernels: {w} lanes per instruction");
             width_shown = true;
         }
-        let m: f64 = text
-            .lines()
-            .last()
-            .and_then(|l| l.split_whitespace().next())
-            .and_then(|v| v.parse().ok())
-            .with_context(|| format!("Mitsuba printed no figure: {text}"))?;
+        let m = tessera_tests::anchors::last_figure(&text)?;
         theirs.push(m);
         println!(
             "  round {round}: Tessera {:.3} Msamples/s, Mitsuba {m:.3} Msamples/s, ratio {:.3}",

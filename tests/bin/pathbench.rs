@@ -27,7 +27,6 @@
 //! ../shared/bench/README.md); Mitsuba's llvm variant needs `DRJIT_LIBLLVM_PATH`.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
@@ -37,6 +36,7 @@ use tessera::integrator::RayStats;
 use tessera::render::{RenderSettings, render_camera};
 use tessera::scene::Scene;
 use tessera::scene::load::load_scene_file;
+use tessera_tests::anchors::{json_number, last_figure, run as anchor};
 
 struct Args {
     primary: bool,
@@ -100,38 +100,6 @@ fn render(scene: &Scene, settings: &RenderSettings, threads: usize) -> (Image, f
         let (img, stats) = render_camera(scene, 0, 32, settings, &|_, _| {});
         (img, start.elapsed().as_secs_f64(), stats)
     })
-}
-
-/// Runs an anchor script; its standard output. Its last lines of errors say why it failed.
-fn anchor(script: &Path, args: &[String]) -> Result<String> {
-    let python = tessera_tests::anchor_python();
-    let o = Command::new(&python)
-        .arg(script)
-        .args(args)
-        .output()
-        .with_context(|| format!("running {} with {}", script.display(), python.display()))?;
-    if !o.status.success() {
-        let err = String::from_utf8_lossy(&o.stderr);
-        let lines: Vec<&str> = err.lines().collect();
-        bail!(
-            "{} failed ({}):\n{}",
-            script.display(),
-            o.status,
-            lines[lines.len().saturating_sub(12)..].join("\n")
-        );
-    }
-    Ok(String::from_utf8_lossy(&o.stdout).into_owned())
-}
-
-/// A number in an anchor's JSON line.
-fn json_number(text: &str, key: &str) -> Result<f64> {
-    let line = text
-        .lines()
-        .rev()
-        .find(|l| l.trim_start().starts_with('{'))
-        .with_context(|| format!("no JSON line in: {text}"))?;
-    let v: serde_json::Value = serde_json::from_str(line)?;
-    v[key].as_f64().with_context(|| format!("no {key} in {line}"))
 }
 
 fn median(v: &[f64]) -> f64 {
@@ -216,12 +184,7 @@ fn path_figures(args: &Args, out: &Path) -> Result<()> {
                 theirs_exr.display().to_string(),
             ],
         )?;
-        let m: f64 = text
-            .lines()
-            .last()
-            .and_then(|l| l.split_whitespace().next())
-            .and_then(|v| v.parse().ok())
-            .with_context(|| format!("Mitsuba printed no figure: {text}"))?;
+        let m = last_figure(&text)?;
         theirs.push(m);
         println!(
             "  round {round}: Tessera {:.3} Msamples/s, Mitsuba {m:.3}, ratio {:.3}",
