@@ -61,11 +61,12 @@ fn fixed(v: f64) -> i128 {
 const I64_LIMIT: f64 = 9_223_372_036_854_775_808.0;
 
 /// `v` as the nearest `f64`: through `i64` when it fits (one instruction, the same rounding to
-/// nearest as the `i128` conversion's library call).
+/// nearest as the `i128` conversion's library call). The optimiser knows the two conversions
+/// agree and would merge the branches into the library call, so the `i64` is hidden from it.
 #[inline]
 fn float(v: i128) -> f64 {
     match i64::try_from(v) {
-        Ok(small) => small as f64,
+        Ok(small) => std::hint::black_box(small) as f64,
         Err(_) => v as f64,
     }
 }
