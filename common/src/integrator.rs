@@ -874,7 +874,7 @@ impl<'a> Tracer<'a> {
     }
 
     /// `SampleOneLight`'s estimate of [`Self::lights`]: one light chosen by power
-    /// ([`crate::lights::LightChoice`], one number drawn), its light divided by the choice's
+    /// ([`crate::lights::choice::LightChoice`], one number drawn), its light divided by the choice's
     /// probability.
     fn one_light(&mut self, ray: &Ray, x: DVec3, n: DVec3, mat: &Material, rng: &mut Sampler) -> DVec3 {
         let Some((light, p)) = self.scene.light_choice.pick(rng.next_1d()) else { return DVec3::ZERO };
@@ -1794,7 +1794,7 @@ mod tests {
             (0..1000).all(|k| choice.pick(k as f64 / 1000.0).unwrap().0 != 1),
             "a dark light is never chosen"
         );
-        assert_eq!(crate::lights::LightChoice::default().pick(0.5), None, "no lights, no choice");
+        assert_eq!(crate::lights::choice::LightChoice::default().pick(0.5), None, "no lights, no choice");
     }
 
     /// The course's roulette, pinned on a scene whose paths have three outcomes: a camera

@@ -6,6 +6,8 @@
 //! shading formula multiplies (§5). Random choices take their numbers from the sample's
 //! [`Sampler`], so lighting is as deterministic as everything else.
 
+pub mod choice;
+
 use std::f64::consts::{PI, TAU};
 use std::sync::Arc;
 
@@ -1910,91 +1912,4 @@ mod tests {
         assert!(sampled_irradiance(&floor, DVec3::new(0.0, 0.0, 1.0), -DVec3::Z, 256) > 0.0);
         assert_eq!(sampled_irradiance(&floor, DVec3::new(0.0, 0.0, -5.0), DVec3::Z, 256), 0.0);
     }
-}
-
-/// One light chosen per shading event with probability proportional to its power (Tessera's
-/// `SampleOneLight` renderer parameter): an unbiased stand-in for the course's estimator, which
-/// samples every light at every vertex. Lights are numbered in the order
-/// [`crate::integrator`]'s direct lighting visits them: point, area, directional, spot, object,
-/// then environment lights (the first one, then the others).
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct LightChoice {
-    /// Cumulative powers, one entry per light; the last is the total.
-    cdf: Vec<f64>,
-}
-
-impl LightChoice {
-    /// The choice among `scene`'s lights. A light's power is estimated from its luminance: a
-    /// point light's intensity over the sphere (4π I), a spot's over its coverage cone, an area
-    /// or object light's radiance over its area (π L A), and a light from infinitely far
-    /// (directional, environment) over a disk of the scene's radius `radius` (its mean radiance
-    /// over the sphere of directions for an environment). Any positive weights keep the
-    /// estimate unbiased; these put the samples where the light is. A light of no power is
-    /// never chosen (it adds nothing).
-    pub fn new(scene: &crate::scene::Scene) -> Self {
-        let lum = |c: DVec3| luminance(c.to_array()).max(0.0);
-        let radius = scene.accel.extent().filter(|e| e.is_finite() && *e > 0.0).unwrap_or(1.0) / 2.0;
-        let disk = PI * radius * radius;
-        let mut power: Vec<f64> = Vec::new();
-        power.extend(scene.point_lights.iter().map(|l| 4.0 * PI * lum(l.intensity)));
-        power.extend(scene.area_lights.iter().map(|l| PI * lum(l.radiance) * l.size * l.size));
-        power.extend(scene.directional_lights.iter().map(|l| disk * lum(l.radiance)));
-        power.extend(scene.spot_lights.iter().map(|l| 2.0 * PI * (1.0 - l.cos_coverage) * lum(l.intensity)));
-        power.extend(scene.object_lights.iter().map(|l| {
-            let area = match &l.shape {
-                EmitterShape::Triangles { cdf, .. } => cdf.last().copied().unwrap_or(0.0),
-                EmitterShape::Sphere { radius, .. } | EmitterShape::Ellipsoid { radius, .. } => {
-                    4.0 * PI * radius * radius
-                }
-            };
-            PI * lum(l.radiance) * area
-        }));
-        power.extend(
-            scene
-                .env_light
-                .iter()
-                .chain(&scene.extra_env_lights)
-                .map(|l| 4.0 * PI * disk * mean_luminance(l)),
-        );
-        let mut total = 0.0;
-        let cdf = power
-            .into_iter()
-            .map(|p| {
-                total += if p.is_finite() { p } else { 0.0 };
-                total
-            })
-            .collect();
-        LightChoice { cdf }
-    }
-
-    /// The light that `u` in [0, 1) picks, and the probability of picking it; `None` when no
-    /// light has any power.
-    pub fn pick(&self, u: f64) -> Option<(usize, f64)> {
-        let total = *self.cdf.last()?;
-        if total <= 0.0 || !total.is_finite() {
-            return None;
-        }
-        let target = u * total;
-        let i = self.cdf.partition_point(|&c| c <= target).min(self.cdf.len() - 1);
-        let below = if i == 0 { 0.0 } else { self.cdf[i - 1] };
-        let p = (self.cdf[i] - below) / total;
-        (p > 0.0).then_some((i, p))
-    }
-}
-
-/// An environment light's mean luminance over the sphere of directions, from 4096 directions
-/// spread evenly over it (a Fibonacci sphere). Plain IEEE arithmetic and [`sincos_turns`], so
-/// every worker computes the same value, and so picks the same lights.
-fn mean_luminance(light: &EnvLight) -> f64 {
-    const N: usize = 4096;
-    // The golden angle in turns.
-    let golden = (3.0 - 5f64.sqrt()) / 2.0;
-    let mut sum = 0.0;
-    for k in 0..N {
-        let z = 1.0 - (2.0 * k as f64 + 1.0) / N as f64;
-        let r = (1.0 - z * z).max(0.0).sqrt();
-        let (sin, cos) = sincos_turns((golden * k as f64).fract());
-        sum += luminance(light.radiance(DVec3::new(r * cos, z, r * sin)).to_array()).max(0.0);
-    }
-    sum / N as f64
 }

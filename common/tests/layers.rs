@@ -67,7 +67,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "hdr_io",
         ],
     ),
-    ("geometry", &["geometry"]),
+    ("geometry", &["geometry", "lights::choice"]),
     ("scene", &["scene"]),
     ("build", &["scene::build"]),
     ("load", &["scene::load"]),

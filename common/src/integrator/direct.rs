@@ -162,7 +162,7 @@ pub struct Lighting<'s> {
     pub env_sampler: EnvSampler,
     /// Shadow rays traced so far (and degenerate ones counted as blocked).
     pub shadow_rays: u64,
-    /// Only this light, numbered as [`crate::lights::LightChoice`] numbers them (`None`: every
+    /// Only this light, numbered as [`crate::lights::choice::LightChoice`] numbers them (`None`: every
     /// light).
     pub only: Option<usize>,
 }

@@ -695,7 +695,15 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         stats,
         light_choice: Default::default(),
     };
-    scene.light_choice = crate::lights::LightChoice::new(&scene);
+    scene.light_choice = crate::lights::choice::LightChoice::new(
+        &scene.point_lights,
+        &scene.area_lights,
+        &scene.directional_lights,
+        &scene.spot_lights,
+        &scene.object_lights,
+        scene.env_light.iter().chain(&scene.extra_env_lights),
+        scene.accel.extent().unwrap_or(2.0) / 2.0,
+    );
     Ok(scene)
 }
 

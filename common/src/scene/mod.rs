@@ -117,5 +117,5 @@ pub struct Scene {
     pub warnings: Vec<Warning>,
     pub stats: SceneStats,
     /// How a path tracer with `SampleOneLight` picks the one light of a vertex.
-    pub light_choice: crate::lights::LightChoice,
+    pub light_choice: crate::lights::choice::LightChoice,
 }

@@ -180,7 +180,7 @@ pub struct PathParams {
     /// depth limit.
     pub roulette: Roulette,
     /// `SampleOneLight` (Tessera's own flag, not in the course format): next-event estimation
-    /// samples one light a vertex, chosen by its power ([`crate::lights::LightChoice`]), and
+    /// samples one light a vertex, chosen by its power ([`crate::lights::choice::LightChoice`]), and
     /// divides its light by the choice's probability, instead of sampling every light. The
     /// same image in expectation for a fraction of the shadow rays in scenes of several lights;
     /// more noise per sample where the lights' shares of a point's light differ from their
