@@ -254,13 +254,15 @@ pub fn render_tile_sums_until(
         // The group's sample values first, then its rays: the rays' square roots and
         // divisions are one chain each, and with nothing else in between the processor
         // overlaps the eight chains.
-        let mut keyed = (u32::MAX, u32::MAX, Sampler::new(seed, x, y, 0));
+        // The current lane's pixel and its sampler, made once per pixel of the group.
+        let mut keyed: Option<(u32, u32, Sampler)> = None;
         for (i, (sampler, lane)) in samplers.iter_mut().zip(&mut lanes).enumerate().take(group) {
             let (lx, ly, ls) = if across_pixels { at(next + i as u64) } else { (x, y, s + i as u32) };
-            if (lx, ly) != (keyed.0, keyed.1) {
-                keyed = (lx, ly, Sampler::new(seed, lx, ly, 0));
-            }
-            *sampler = keyed.2.with_sample(ls);
+            let pixel_sampler = match &keyed {
+                Some((kx, ky, k)) if (*kx, *ky) == (lx, ly) => k,
+                _ => &keyed.insert((lx, ly, Sampler::new(seed, lx, ly, 0))).2,
+            };
+            *sampler = pixel_sampler.with_sample(ls);
             *lane = (lx, ly, ls);
         }
         let samplers_in_use = &mut samplers[..group];

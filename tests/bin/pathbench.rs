@@ -102,6 +102,27 @@ fn render(scene: &Scene, settings: &RenderSettings, threads: usize) -> (Image, f
     })
 }
 
+/// `rounds` alternating rounds of `ours` and then `theirs` (each gives its figure in `unit` for
+/// the round it is told), each round printed, then the medians and their ratio.
+fn alternate(
+    rounds: usize,
+    unit: &str,
+    theirs_name: &str,
+    mut ours: impl FnMut(usize) -> Result<f64>,
+    mut theirs: impl FnMut(usize) -> Result<f64>,
+) -> Result<()> {
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    for round in 0..rounds {
+        let (o, t) = (ours(round)?, theirs(round)?);
+        println!("  round {round}: Tessera {o:.3} {unit}, {theirs_name} {t:.3}, ratio {:.3}", o / t);
+        a.push(o);
+        b.push(t);
+    }
+    let (om, tm) = (median(&a), median(&b));
+    println!("  median: Tessera {om:.3}, {theirs_name} {tm:.3} {unit}, ratio {:.3}", om / tm);
+    Ok(())
+}
+
 fn median(v: &[f64]) -> f64 {
     let mut s = v.to_vec();
     s.sort_by(f64::total_cmp);
@@ -163,38 +184,32 @@ fn path_figures(args: &Args, out: &Path) -> Result<()> {
         args.rounds,
         if args.one_light { ", Tessera with SampleOneLight" } else { "" }
     );
-    let (mut ours, mut theirs, mut last) = (Vec::new(), Vec::new(), None);
-    for round in 0..args.rounds {
-        let (img, secs, stats) = render(&scene, &settings, args.threads);
-        ours.push(samples / secs / 1e6);
-        if round == 0 {
-            println!(
-                "  Tessera: {:.2} rays a sample ({:.2} shadow, {:.2} bounce)",
-                stats.total() as f64 / samples,
-                stats.shadow as f64 / samples,
-                stats.secondary as f64 / samples
-            );
-        }
-        let text = anchor(
-            &script,
-            &[
-                args.samples.to_string(),
-                "llvm_ad_rgb".into(),
-                args.threads.to_string(),
-                theirs_exr.display().to_string(),
-            ],
-        )?;
-        let m = last_figure(&text)?;
-        theirs.push(m);
-        println!(
-            "  round {round}: Tessera {:.3} Msamples/s, Mitsuba {m:.3}, ratio {:.3}",
-            ours[round],
-            ours[round] / m
-        );
-        last = Some(img);
-    }
-    let (om, tm) = (median(&ours), median(&theirs));
-    println!("  median: Tessera {om:.3}, Mitsuba {tm:.3} Msamples/s, ratio {:.3}", om / tm);
+    let mut last = None;
+    let mitsuba_args = [
+        args.samples.to_string(),
+        "llvm_ad_rgb".into(),
+        args.threads.to_string(),
+        theirs_exr.display().to_string(),
+    ];
+    alternate(
+        args.rounds,
+        "Msamples/s",
+        "Mitsuba",
+        |round| {
+            let (img, secs, stats) = render(&scene, &settings, args.threads);
+            if round == 0 {
+                println!(
+                    "  Tessera: {:.2} rays a sample ({:.2} shadow, {:.2} bounce)",
+                    stats.total() as f64 / samples,
+                    stats.shadow as f64 / samples,
+                    stats.secondary as f64 / samples
+                );
+            }
+            last = Some(img);
+            Ok(samples / secs / 1e6)
+        },
+        |_| last_figure(&anchor(&script, &mitsuba_args)?),
+    )?;
     let ours_img = last.expect("at least one round");
     let theirs_img = read_exr(&theirs_exr).with_context(|| format!("reading {}", theirs_exr.display()))?;
     if (theirs_img.width, theirs_img.height) != (w, h) {
@@ -227,51 +242,46 @@ fn primary_figures(args: &Args, out: &Path) -> Result<()> {
     embree_args.extend(camera.iter().map(|s| s.to_string()));
     embree_args.push("1".into());
     println!("head.ply primary rays, {w}x{h}, one a pixel, {} rounds", args.rounds);
-    let (mut ours, mut theirs) = (Vec::new(), Vec::new());
-    for round in 0..args.rounds {
-        let (img, secs, _) = render(&scene, &settings, 1);
-        ours.push(rays / secs / 1e6);
-        if round == 0 {
-            let hit = img.pixels.iter().filter(|p| p[0] > 0.0).count() as f64 / rays;
-            println!("  Tessera: {:.4} of the rays hit the head", hit);
-        }
-        let text = anchor(&bench.join("embree_primary.py"), &embree_args)?;
-        let e = json_number(&text, "embree_mrays_s")?;
-        if round == 0 {
-            println!("  Embree: {:.4} of the rays hit the head", json_number(&text, "hit")?);
-        }
-        theirs.push(e);
-        println!(
-            "  round {round}: Tessera {:.2} Mrays/s (render phase, one thread), Embree {e:.2}, ratio {:.3}",
-            ours[round],
-            ours[round] / e
-        );
-    }
-    let (om, em) = (median(&ours), median(&theirs));
-    println!("  median: Tessera {om:.2}, Embree {em:.2} Mrays/s, ratio {:.3}", om / em);
+    let embree = bench.join("embree_primary.py");
+    alternate(
+        args.rounds,
+        "Mrays/s (render phase, one thread)",
+        "Embree",
+        |round| {
+            let (img, secs, _) = render(&scene, &settings, 1);
+            if round == 0 {
+                let hit = img.pixels.iter().filter(|p| p[0] > 0.0).count() as f64 / rays;
+                println!("  Tessera: {hit:.4} of the rays hit the head");
+            }
+            Ok(rays / secs / 1e6)
+        },
+        |round| {
+            let text = anchor(&embree, &embree_args)?;
+            if round == 0 {
+                println!("  Embree: {:.4} of the rays hit the head", json_number(&text, "hit")?);
+            }
+            json_number(&text, "embree_mrays_s")
+        },
+    )?;
     need_llvm()?;
     let script = tessera_tests::repo_root().join("tests/bench/mitsuba_head_first_hit.py");
-    let (mut ours2, mut mits) = (Vec::new(), Vec::new());
-    for round in 0..args.rounds {
-        let (_, secs, _) = render(&scene, &settings, 2);
-        ours2.push(rays / secs / 1e6);
-        let text = anchor(
-            &script,
-            &[ply.display().to_string(), w.to_string(), h.to_string(), "llvm_ad_rgb".into()],
-        )?;
-        let m = json_number(&text, "mrays_per_s")?;
-        if round == 0 {
-            println!("  Mitsuba first hit: {:.4} of the rays hit the head", json_number(&text, "hit")?);
-        }
-        mits.push(m);
-        println!(
-            "  round {round}: Tessera {:.2} Mrays/s (two threads), Mitsuba aov {m:.2}, ratio {:.3}",
-            ours2[round],
-            ours2[round] / m
-        );
-    }
-    let (om, mm) = (median(&ours2), median(&mits));
-    println!("  median: Tessera {om:.2}, Mitsuba {mm:.2} Mrays/s, ratio {:.3}", om / mm);
+    let mitsuba_args = [ply.display().to_string(), w.to_string(), h.to_string(), "llvm_ad_rgb".into()];
+    alternate(
+        args.rounds,
+        "Mrays/s (two threads)",
+        "Mitsuba first hit",
+        |_| {
+            let (_, secs, _) = render(&scene, &settings, 2);
+            Ok(rays / secs / 1e6)
+        },
+        |round| {
+            let text = anchor(&script, &mitsuba_args)?;
+            if round == 0 {
+                println!("  Mitsuba first hit: {:.4} of the rays hit the head", json_number(&text, "hit")?);
+            }
+            json_number(&text, "mrays_per_s")
+        },
+    )?;
     Ok(())
 }
 

@@ -125,11 +125,10 @@ impl<const N: usize> Views<N> {
     }
 }
 
-/// A filter of a kind of light's `enumerate()`d lights numbered from `base`: the one `only`
-/// names, or all of them.
+/// Of a kind of lights numbered from `base`, the one `only` names, or all of them.
 #[inline(always)]
-fn wanted<T>(only: Option<usize>, base: usize) -> impl Fn(&(usize, T)) -> bool {
-    move |&(i, _)| only.is_none_or(|o| o == base + i)
+fn chosen<I: Iterator>(lights: I, only: Option<usize>, base: usize) -> impl Iterator<Item = I::Item> {
+    lights.enumerate().filter(move |&(i, _)| only.is_none_or(|o| o == base + i)).map(|(_, l)| l)
 }
 
 /// Shadow rays of a group, lane by lane: origin, unit direction, far bound.
@@ -205,14 +204,14 @@ impl Lighting<'_> {
         let spot_base = directional_base + scene.directional_lights.len();
         let object_base = spot_base + scene.spot_lights.len();
         let env_base = object_base + scene.object_lights.len();
-        for light in scene.point_lights.iter().enumerate().filter(wanted(only, 0)).map(|(_, l)| l) {
+        for light in chosen(scene.point_lights.iter(), only, 0) {
             let (wis, d2, shadows) = towards_lanes(pts, &origin, &[light.position; N], live);
             let clear = self.clear_lanes(pts, &shadows, true);
             // Every lane (a loop of fixed length: the divisions overlap); unlit ones unused.
             let e: [DVec3; N] = std::array::from_fn(|k| light.intensity / d2[k]);
             reflect_lanes(pts, &views, clear, &wis, &e, &mut l);
         }
-        for light in scene.area_lights.iter().enumerate().filter(wanted(only, area_base)).map(|(_, l)| l) {
+        for light in chosen(scene.area_lights.iter(), only, area_base) {
             // One point of the square per shading event; the pixel's samples average them.
             let uv = draw_2d::<N>(rngs, live);
             let mut q = [DVec3::ZERO; N];
@@ -226,9 +225,7 @@ impl Lighting<'_> {
             });
             reflect_lanes(pts, &views, clear, &wis, &e, &mut l);
         }
-        for light in
-            scene.directional_lights.iter().enumerate().filter(wanted(only, directional_base)).map(|(_, l)| l)
-        {
+        for light in chosen(scene.directional_lights.iter(), only, directional_base) {
             let mut shadows = Shadows::new(origin);
             for k in lanes(live) {
                 // Only a light below the surface is skipped (a NaN cosine still traces its ray).
@@ -240,7 +237,7 @@ impl Lighting<'_> {
             let clear = self.clear_lanes(pts, &shadows, true);
             reflect_lanes(pts, &views, clear, &[light.to_light; N], &[light.radiance; N], &mut l);
         }
-        for light in scene.spot_lights.iter().enumerate().filter(wanted(only, spot_base)).map(|(_, l)| l) {
+        for light in chosen(scene.spot_lights.iter(), only, spot_base) {
             let mut factor = [0.0; N];
             let mut inside = 0u32;
             for k in lanes(live) {
@@ -254,8 +251,7 @@ impl Lighting<'_> {
             let e: [DVec3; N] = std::array::from_fn(|k| light.intensity * (factor[k] / d2[k]));
             reflect_lanes(pts, &views, clear, &wis, &e, &mut l);
         }
-        for light in scene.object_lights.iter().enumerate().filter(wanted(only, object_base)).map(|(_, l)| l)
-        {
+        for light in chosen(scene.object_lights.iter(), only, object_base) {
             // One point per shading event (§13.3); the random numbers are drawn whatever the
             // outcome, so later dimensions keep their places.
             let mut u = [0.0; N];
@@ -293,9 +289,8 @@ impl Lighting<'_> {
         // the traversal, and a blocked ray needs no lookup.
         // Every environment light, the first (the one rays that miss see) first: each draws its
         // own directions.
-        let envs =
-            scene.env_light.iter().chain(&scene.extra_env_lights).enumerate().filter(wanted(only, env_base));
-        for (_, light) in envs.filter(|_| env) {
+        let envs = chosen(scene.env_light.iter().chain(&scene.extra_env_lights), only, env_base);
+        for light in envs.filter(|_| env) {
             let xi = draw_env::<N>(rngs, live, EnvLight::requests(self.env_sampler));
             let mut dirs = EnvDirections::NONE;
             light.sample_directions(&views.n, self.env_sampler, &xi, live, &mut dirs);
