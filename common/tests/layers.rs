@@ -38,7 +38,7 @@ const LAYERS: &[(&str, &[&str])] = &[
         ],
     ),
     ("BVH", &["geometry::bvh8"]),
-    ("pixels and records", &["image", "scene::records", "texture::mip"]),
+    ("pixels and records", &["image", "scene::records", "texture::mip", "lights::object"]),
     ("element tree", &["scene::tree"]),
     (
         "element rules",

@@ -2,7 +2,7 @@
 //! Mitsuba 3, and the primary-ray render phase against Embree 4 and Mitsuba's first-hit render.
 //!
 //! ```text
-//! cargo run --release -p tessera-tests --bin pathbench -- [--rounds N] [--samples N] [--threads N] [--one-light]
+//! cargo run --release -p tessera-tests --bin pathbench -- [--rounds N] [--samples N] [--threads N] [--one-light] [--mis]
 //! cargo run --release -p tessera-tests --bin pathbench -- --primary [--rounds N] [--width W --height H]
 //! ```
 //! The default is the path-tracing workload: `../shared/bench/jaroslav_path.xml`
@@ -16,6 +16,9 @@
 //! both render the same picture, looser at few samples). `--one-light` adds Tessera's
 //! `SampleOneLight` to the camera's `RendererParams`: one light a vertex, chosen by power, as
 //! Mitsuba samples one emitter a vertex (the course's estimator, the default, samples both).
+//! `--mis` adds `MultipleImportanceSampling`: the light box's light weighed between its sampled
+//! points and the bounces that find it, as Mitsuba's `path` integrator weighs them (with both
+//! flags, Tessera's estimator is Mitsuba's).
 //!
 //! `--primary` is the camera-ray workload: head.ply at 3840x2160, one ray through each pixel
 //! centre (`../shared/bench/head_primary.xml`), no lights and no bounces. Tessera's render
@@ -41,6 +44,7 @@ use tessera_tests::anchors::{json_number, last_figure, run as anchor};
 struct Args {
     primary: bool,
     one_light: bool,
+    mis: bool,
     rounds: usize,
     samples: u32,
     threads: usize,
@@ -52,6 +56,7 @@ fn parse_args() -> Result<Args> {
     let mut a = Args {
         primary: false,
         one_light: false,
+        mis: false,
         rounds: 5,
         samples: 16,
         threads: 1,
@@ -69,6 +74,7 @@ fn parse_args() -> Result<Args> {
         match arg.as_str() {
             "--primary" => a.primary = true,
             "--one-light" => a.one_light = true,
+            "--mis" => a.mis = true,
             "--rounds" => a.rounds = number("--rounds")?.max(1) as usize,
             "--samples" => a.samples = number("--samples")?.max(1) as u32,
             "--threads" => a.threads = number("--threads")?.max(1) as usize,
@@ -162,12 +168,16 @@ fn path_figures(args: &Args, out: &Path) -> Result<()> {
     let bench = tessera_tests::shared_bench();
     let mut xml =
         std::fs::read_to_string(bench.join("jaroslav_path.xml"))?.replace("SPP", &args.samples.to_string());
-    if args.one_light {
-        let params = "NextEventEstimation ImportanceSampling";
+    let params = "NextEventEstimation ImportanceSampling";
+    let flags: Vec<&str> = [(args.one_light, "SampleOneLight"), (args.mis, "MultipleImportanceSampling")]
+        .into_iter()
+        .filter_map(|(on, flag)| on.then_some(flag))
+        .collect();
+    if !flags.is_empty() {
         if !xml.contains(params) {
-            bail!("jaroslav_path.xml: `{params}` not found, so --one-light cannot add SampleOneLight");
+            bail!("jaroslav_path.xml: `{params}` not found, so {} cannot be added", flags.join(" and "));
         }
-        xml = xml.replace(params, &format!("{params} SampleOneLight"));
+        xml = xml.replace(params, &format!("{params} {}", flags.join(" ")));
     }
     let scene_path = out.join("jaroslav_path.xml");
     std::fs::write(&scene_path, xml)?;
@@ -182,7 +192,7 @@ fn path_figures(args: &Args, out: &Path) -> Result<()> {
         args.samples,
         args.threads,
         args.rounds,
-        if args.one_light { ", Tessera with SampleOneLight" } else { "" }
+        if flags.is_empty() { String::new() } else { format!(", Tessera with {}", flags.join(" ")) }
     );
     let mut last = None;
     let mitsuba_args = [

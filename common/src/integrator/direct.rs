@@ -153,6 +153,57 @@ impl<const N: usize> Shadows<N> {
     }
 }
 
+/// How a diffuse or glossy vertex draws its bounce direction, for the weights of multiple
+/// importance sampling (`MultipleImportanceSampling`): from the cosine lobe (density
+/// cos θ/π) or uniformly over the hemisphere (1/2π), taken with probability `chance` (a
+/// mirror's or conductor's BRDF lobe is one of two; 0 when no bounce follows).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BounceDensity {
+    pub cosine: bool,
+    pub chance: f64,
+}
+
+impl BounceDensity {
+    /// The solid-angle density of drawing `wi` at a vertex of normal `n`.
+    #[inline]
+    pub fn pdf(&self, n: DVec3, wi: DVec3) -> f64 {
+        let p = if self.cosine {
+            n.dot(wi).max(0.0) * std::f64::consts::FRAC_1_PI
+        } else {
+            0.5 * std::f64::consts::FRAC_1_PI
+        };
+        self.chance * p
+    }
+}
+
+/// Veach's power heuristic (exponent 2): the weight of a sample drawn with density `f` when
+/// another strategy would have drawn it with density `g`. 1 when `g` is 0 (the other strategy
+/// cannot make it), 0 when `f` is.
+#[inline]
+pub fn power_heuristic(f: f64, g: f64) -> f64 {
+    let (f2, g2) = (f * f, g * g);
+    if g2 == 0.0 {
+        return if f2 > 0.0 { 1.0 } else { 0.0 };
+    }
+    let w = f2 / (f2 + g2);
+    if w.is_finite() {
+        w
+    } else if f2.is_infinite() {
+        1.0
+    } else {
+        0.0
+    }
+}
+
+/// Object lights' samples under multiple importance sampling: the bounce they are weighed
+/// against, and the probability with which their light was chosen (1 when every light is
+/// sampled).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LightWeights {
+    pub bounce: BounceDensity,
+    pub pick: f64,
+}
+
 /// Direct lighting in one scene: the light reflected at shading points, and how many shadow
 /// rays it took.
 pub struct Lighting<'s> {
@@ -164,6 +215,9 @@ pub struct Lighting<'s> {
     /// Only this light, numbered as [`crate::lights::choice::LightChoice`] numbers them (`None`: every
     /// light).
     pub only: Option<usize>,
+    /// With multiple importance sampling, how object lights' samples are weighed (`None`:
+    /// each counts in full). Every lane shares it: the path tracer lights one point at a time.
+    pub mis: Option<LightWeights>,
 }
 
 impl Lighting<'_> {
@@ -276,7 +330,12 @@ impl Lighting<'_> {
                         self.shadow_rays += 1;
                     } else {
                         wis[k] = s.wi;
-                        irradiance[k] = s.irradiance;
+                        irradiance[k] = match (self.mis, s.inv_pdf) {
+                            (Some(m), Some(inv)) => {
+                                s.irradiance * power_heuristic(m.pick / inv, m.bounce.pdf(p.n, s.wi))
+                            }
+                            _ => s.irradiance,
+                        };
                         shadows.add(k, to_light / len, len * (1.0 - 1e-6));
                     }
                 }

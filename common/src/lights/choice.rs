@@ -66,6 +66,15 @@ impl LightChoice {
         LightChoice { cdf }
     }
 
+    /// The probability of picking light `i` (0 for a light of no power or no such light).
+    pub fn probability(&self, i: usize) -> f64 {
+        let Some(&total) = self.cdf.last() else { return 0.0 };
+        let Some(&upto) = self.cdf.get(i) else { return 0.0 };
+        let below = if i == 0 { 0.0 } else { self.cdf[i - 1] };
+        let p = (upto - below) / total;
+        if p.is_finite() && p > 0.0 { p } else { 0.0 }
+    }
+
     /// The light that `u` in [0, 1) picks, and the probability of picking it; `None` when no
     /// light has any power.
     pub fn pick(&self, u: f64) -> Option<(usize, f64)> {

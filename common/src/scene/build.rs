@@ -656,7 +656,8 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
 
     let accel = Accel::new(geoms, instances);
     epsilons(&ctx, accel.extent(), &mut warnings);
-    let (object_lights, instance_emission) = object_lights(&ctx, &accel, &emitters, &mut warnings);
+    let (object_lights, instance_emission, instance_light) =
+        object_lights(&ctx, &accel, &emitters, &mut warnings);
     let stats = SceneStats {
         triangles: accel.instanced_triangle_count(),
         instances: accel.instances.len(),
@@ -683,6 +684,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         spot_lights: lights.spot,
         object_lights,
         instance_emission,
+        instance_light,
         env_light: textures.env_light,
         extra_env_lights: textures.extra_env_lights,
         more_colour_maps: textures.more_colour.into_inner().unwrap_or_default(),
@@ -1153,8 +1155,9 @@ fn object_lights(
     accel: &Accel,
     emitters: &[Emitter],
     warnings: &mut Vec<Warning>,
-) -> (Vec<ObjectLight>, Vec<Option<DVec3>>) {
+) -> (Vec<ObjectLight>, Vec<Option<DVec3>>, Vec<u32>) {
     let mut emission = vec![None; if emitters.is_empty() { 0 } else { accel.instances.len() }];
+    let mut light_of = vec![u32::MAX; emission.len()];
     let mut lights = Vec::with_capacity(emitters.len());
     for e in emitters {
         emission[e.instance as usize] = Some(e.radiance);
@@ -1176,11 +1179,14 @@ fn object_lights(
             Shape::Plane { .. } => None,
         };
         match light {
-            Some(l) => lights.push(l),
+            Some(l) => {
+                light_of[e.instance as usize] = lights.len() as u32;
+                lights.push(l);
+            }
             None => ctx.warn(warnings, &e.loc, "the light has no area; it is visible but lights nothing"),
         }
     }
-    (lights, emission)
+    (lights, emission, light_of)
 }
 
 /// An object's `<MotionBlur>` velocity; none when absent or zero.

@@ -97,6 +97,9 @@ pub struct Scene {
     /// The radiance each instance emits from its front, by instance index: `None` for objects
     /// that are not lights. Empty when the scene has no object lights.
     pub instance_emission: Vec<Option<DVec3>>,
+    /// Each instance's index in `object_lights`, `u32::MAX` for the others (and for emitters
+    /// of no area, which are seen but not sampled). Empty when the scene has no object lights.
+    pub instance_light: Vec<u32>,
     /// The colour maps of objects with more than two, after their first two
     /// ([`crate::geometry::ObjectTextures::more_colour`]).
     pub more_colour_maps: Vec<Vec<u32>>,

@@ -186,6 +186,13 @@ pub struct PathParams {
     /// more noise per sample where the lights' shares of a point's light differ from their
     /// shares of the power.
     pub one_light: bool,
+    /// `MultipleImportanceSampling` (Tessera's own flag, not in the course format): with
+    /// next-event estimation, an object light's light reaches a diffuse or glossy vertex both
+    /// through its sampled point and through the bounce ray that hits it, each weighted by the
+    /// power heuristic of the two strategies' densities (Veach 1997), instead of through the
+    /// sampled point alone. The same image in expectation; less noise where a bounce finds a
+    /// light more easily than a sampled point does (large lights near a surface).
+    pub mis: bool,
 }
 
 /// How a path tracer's paths end (§13.2 step 5).

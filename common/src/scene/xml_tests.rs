@@ -1757,12 +1757,12 @@ fn homework_6_elements() {
     assert_eq!(
         camera(&cam("<Renderer>PathTracing</Renderer><RendererParams>RussianRoulette NextEventEstimation</RendererParams>"))
             .renderer,
-        Renderer::Path(PathParams { next_event: true, importance: false, roulette: Roulette::Course, one_light: false })
+        Renderer::Path(PathParams { next_event: true, importance: false, roulette: Roulette::Course, one_light: false, mis: false })
     );
     assert_eq!(
         camera(&cam("<Renderer>PathTracing</Renderer><RendererParams>SampleOneLight NextEventEstimation</RendererParams>"))
             .renderer,
-        Renderer::Path(PathParams { next_event: true, importance: false, roulette: Roulette::Off, one_light: true })
+        Renderer::Path(PathParams { next_event: true, importance: false, roulette: Roulette::Off, one_light: true, mis: false })
     );
     assert_eq!(
         camera(&cam(
@@ -1773,7 +1773,8 @@ fn homework_6_elements() {
             next_event: false,
             importance: false,
             roulette: Roulette::Unbiased,
-            one_light: false
+            one_light: false,
+            mis: false,
         })
     );
     let lone = parse(&format!(
@@ -1782,6 +1783,22 @@ fn homework_6_elements() {
     ));
     assert!(
         lone.warnings.iter().any(|w| w.message.contains("without it, it does nothing")),
+        "{:?}",
+        lone.warnings
+    );
+    assert_eq!(
+        camera(&cam(
+            "<Renderer>PathTracing</Renderer><RendererParams>NextEventEstimation MultipleImportanceSampling</RendererParams>"
+        ))
+        .renderer,
+        Renderer::Path(PathParams { next_event: true, importance: false, roulette: Roulette::Off, one_light: false, mis: true })
+    );
+    let lone = parse(&format!(
+        "<Scene><Cameras>{}</Cameras></Scene>",
+        cam("<Renderer>PathTracing</Renderer><RendererParams>MultipleImportanceSampling</RendererParams>")
+    ));
+    assert!(
+        lone.warnings.iter().any(|w| w.message.contains("MultipleImportanceSampling weighs")),
         "{:?}",
         lone.warnings
     );
@@ -1840,7 +1857,7 @@ fn homework_6_errors() {
         ),
         (
             &params,
-            "scene.xml:4: <Camera id=\"1\"> / <RendererParams>: unknown renderer parameter \"NextEvent\" (expected any of NextEventEstimation, ImportanceSampling, RussianRoulette, UnbiasedRussianRoulette, SampleOneLight)",
+            "scene.xml:4: <Camera id=\"1\"> / <RendererParams>: unknown renderer parameter \"NextEvent\" (expected any of NextEventEstimation, ImportanceSampling, RussianRoulette, UnbiasedRussianRoulette, SampleOneLight, MultipleImportanceSampling)",
         ),
         (
             &both,

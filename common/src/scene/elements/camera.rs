@@ -37,6 +37,7 @@ const RENDERER_PARAMS: &[&str] = &[
     "RussianRoulette",
     "UnbiasedRussianRoulette",
     "SampleOneLight",
+    "MultipleImportanceSampling",
 ];
 
 impl Parser<'_> {
@@ -210,6 +211,7 @@ impl Parser<'_> {
                 "NextEventEstimation" => out.next_event = true,
                 "ImportanceSampling" => out.importance = true,
                 "SampleOneLight" => out.one_light = true,
+                "MultipleImportanceSampling" => out.mis = true,
                 "RussianRoulette" | "UnbiasedRussianRoulette" => {
                     let wanted =
                         if word == "RussianRoulette" { Roulette::Course } else { Roulette::Unbiased };
@@ -240,6 +242,15 @@ impl Parser<'_> {
             && let Some(p) = params
         {
             self.warn(p, "SampleOneLight changes how NextEventEstimation samples the lights; without it, it does nothing");
+        }
+        if out.mis
+            && !out.next_event
+            && let Some(p) = params
+        {
+            self.warn(
+                p,
+                "MultipleImportanceSampling weighs NextEventEstimation's light samples against bounces; without it, it does nothing",
+            );
         }
         Ok(Renderer::Path(out))
     }
