@@ -8,6 +8,9 @@ the cap), and compares each frame with the course's official image:
   - mean FLIP (LDR, NVIDIA's flip-evaluator package) of the tone-mapped PNGs;
 beside the CPU seconds of each render process (user + system, from the kernel) and the samples
 per pixel a noise target left on average. The fixed render is the anchor of the same run.
+With --side-by-side the renders run at the same time, one process each, so that whatever else
+the machine does weighs on all of them alike (each one's CPU seconds are its own, from wait4);
+give them --threads 1 on a machine with fewer cores than renders.
 Needs numpy, OpenEXR, Pillow and flip-evaluator, and a release build
 (`cargo build --release -p tessera-worker`).
 
@@ -34,18 +37,44 @@ def cpu_seconds():
     return r.ru_utime + r.ru_stime
 
 
-def render(args, out, extra):
+def command(args, out, extra):
     cmd = [args.bin, "render", args.scene, "--camera", args.camera, "--quiet", "--out", out,
            "--tile-size", str(args.tile_size)] + extra
     if args.samples:
         cmd += ["--samples", str(args.samples)]
     if args.threads:
         cmd += ["--threads", args.threads]
+    return cmd
+
+
+def render(args, out, extra):
+    cmd = command(args, out, extra)
     before = cpu_seconds()
     run = subprocess.run(cmd, capture_output=True, text=True)
     if run.returncode != 0:
         sys.exit(f"{' '.join(cmd)} failed:\n{run.stderr}")
     return cpu_seconds() - before, run.stdout
+
+
+def render_side_by_side(args, jobs):
+    """Every (out, extra) of `jobs` at once; their (CPU seconds, stdout) in the same order."""
+    procs = {}
+    for i, (out, extra) in enumerate(jobs):
+        cmd = command(args, out, extra)
+        log = open(os.path.join(os.path.dirname(out), f"render{i}.log"), "w+")
+        procs[subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT).pid] = (i, cmd, log)
+    results = [None] * len(jobs)
+    while procs:
+        pid, status, usage = os.wait4(-1, 0)
+        if pid not in procs:
+            continue
+        i, cmd, log = procs.pop(pid)
+        log.seek(0)
+        text = log.read()
+        if os.waitstatus_to_exitcode(status) != 0:
+            sys.exit(f"{' '.join(cmd)} failed:\n{text}")
+        results[i] = (usage.ru_utime + usage.ru_stime, text)
+    return results
 
 
 def main():
@@ -59,17 +88,21 @@ def main():
     ap.add_argument("--bin", default=os.path.join(os.path.dirname(__file__), "../../target/release/tessera-worker"))
     ap.add_argument("--threads", default=None)
     ap.add_argument("--keep", default=None, help="keep the renders in this folder")
+    ap.add_argument("--side-by-side", action="store_true", help="run all renders at the same time")
     args = ap.parse_args()
     ref_png = args.reference + ".png"
     ref = read_png(ref_png)
     root = args.keep or tempfile.mkdtemp(prefix="tessera-noise-target-")
+    os.makedirs(root, exist_ok=True)
     print("| render | samples per pixel (mean) | CPU s | CPU / fixed | box PSNR (dB) | mean FLIP |")
     print("|---|---|---|---|---|---|")
+    targets = [None] + args.targets
+    jobs = [(os.path.join(root, "fixed" if t is None else f"target{t}"),
+             [] if t is None else ["--noise-target", str(t)]) for t in targets]
+    done = render_side_by_side(args, jobs) if args.side_by_side else None
     fixed_cpu = None
-    for target in [None] + args.targets:
-        out = os.path.join(root, "fixed" if target is None else f"target{target}")
-        extra = [] if target is None else ["--noise-target", str(target)]
-        cpu, stdout = render(args, out, extra)
+    for k, (target, (out, extra)) in enumerate(zip(targets, jobs)):
+        cpu, stdout = done[k] if done else render(args, out, extra)
         png = [f for f in os.listdir(out) if f.endswith(".png") and not f.endswith("_samples.png")][0]
         spp = re.search(r"([0-9.]+) samples per pixel on average", stdout)
         spp = spp.group(1) if spp else re.search(r", (\d+) spp,", stdout).group(1)
