@@ -912,8 +912,10 @@ impl<'a> Tracer<'a> {
         let scene = self.scene;
         let Some(&j) = scene.instance_light.get(hit.instance as usize) else { return 0.0 };
         let Some(light) = scene.object_lights.get(j as usize) else { return 0.0 };
-        let cos_y = -ray.dir.dot(hit.geo_normal);
-        let Some(pdf) = light.pdf(from, hit.t, cos_y) else { return f64::INFINITY };
+        // The distance from the vertex itself, as its light samples measure it (the ray left
+        // from a point just off the surface).
+        let (cos_y, dist) = (-ray.dir.dot(hit.geo_normal), (hit.point - from).length());
+        let Some(pdf) = light.pdf(from, dist, cos_y) else { return f64::INFINITY };
         if one_light {
             let first = scene.point_lights.len()
                 + scene.area_lights.len()

@@ -208,3 +208,52 @@ fn sample_sphere_cone(
     }
     Some(EmitterSample { wi, dist, irradiance: radiance * solid_angle, inv_pdf: Some(solid_angle) })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// What a bounce that finds a light is told of its density (`pdf`) is what the light's own
+    /// sample of that direction says (`inv_pdf`): multiple importance sampling's two weights sum
+    /// to one only if both halves agree.
+    #[test]
+    fn the_density_of_a_found_point_is_that_of_the_sample() {
+        let square = ObjectLight::triangles(
+            vec![
+                // Counter-clockwise seen from below: the front faces down, towards `x`.
+                [DVec3::new(-1.0, 2.0, -1.0), DVec3::new(1.0, 2.0, 1.0), DVec3::new(-1.0, 2.0, 1.0)],
+                [DVec3::new(-1.0, 2.0, -1.0), DVec3::new(1.0, 2.0, -1.0), DVec3::new(1.0, 2.0, 1.0)],
+            ],
+            DVec3::ONE,
+            0,
+        )
+        .unwrap();
+        let sphere = ObjectLight::sphere(DVec3::new(0.5, 3.0, 0.2), 0.4, None, DVec3::ONE, 1);
+        let x = DVec3::new(0.3, -0.5, 0.1);
+        let mut checked = 0;
+        for (i, light) in [square, sphere].iter().enumerate() {
+            for k in 0..64 {
+                let u = |j: u32| ((k * 7 + j * 13) % 64) as f64 / 64.0 + 1.0 / 128.0;
+                let Some(s) = light.sample(x, u(0), u(1), u(2)) else { continue };
+                let normal = match &light.shape {
+                    EmitterShape::Triangles { .. } => DVec3::new(0.0, -1.0, 0.0),
+                    _ => (x + s.wi * s.dist - DVec3::new(0.5, 3.0, 0.2)).normalize(),
+                };
+                let pdf = light.pdf(x, s.dist, -s.wi.dot(normal)).unwrap();
+                let inv = s.inv_pdf.unwrap();
+                assert!((pdf * inv - 1.0).abs() < 1e-9, "light {i}, sample {k}: {pdf} against 1/{inv}");
+                checked += 1;
+            }
+        }
+        assert!(checked > 100, "{checked} samples faced the point");
+        let ellipsoid = ObjectLight::sphere(
+            DVec3::ZERO,
+            1.0,
+            Some(DAffine3::from_scale(DVec3::new(3.0, 1.0, 1.0))),
+            DVec3::ONE,
+            2,
+        );
+        assert_eq!(ellipsoid.pdf(DVec3::new(0.0, 5.0, 0.0), 4.0, 1.0), None, "no density for an ellipsoid");
+        assert_eq!(ellipsoid.sample(DVec3::new(0.0, 5.0, 0.0), 0.5, 0.5, 0.5).unwrap().inv_pdf, None);
+    }
+}
