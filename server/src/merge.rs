@@ -326,12 +326,15 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
                 .map_err(|e| anyhow::anyhow!("{e}"))?;
             names.push(name);
         }
-        // The last pass's files are superseded by the outputs.
+        let timing = MergeTiming { merge_seconds: assembled + written, tonemap_seconds, denoise };
+        let done = st.store.frame_merged(job_id, frame, &names, timing)?;
+        // The last pass's files are superseded by the outputs, which their names now serve
+        // (`api::jobs::frame_file`). Removed only once the outputs are recorded, so that a
+        // download of them never finds neither.
         for name in PASS_FILES {
             let _ = std::fs::remove_file(dir.join(name));
         }
-        let timing = MergeTiming { merge_seconds: assembled + written, tonemap_seconds, denoise };
-        st.store.frame_merged(job_id, frame, &names, timing)
+        Ok(done)
     })
     .await;
     match outcome {

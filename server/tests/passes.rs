@@ -81,6 +81,25 @@ fn a_frame_in_passes_with_a_worker_killed_mid_pass_is_the_clis_bytes_and_is_publ
     assert_eq!(events(&server, id, "tile_done").len(), 9);
     assert!(events(&server, id, "pass_done").is_empty());
     assert!(job["frames"][0]["pass_outputs"].as_array().unwrap().is_empty());
+    // The pass names still answer, with the finished frame's own files: a client that follows
+    // the passes is not left with an error when the last one lands.
+    let base = format!("/api/v1/jobs/{id}/frames/0/files");
+    let image = job["frames"][0]["image_name"].as_str().unwrap();
+    let stem = image.rsplit_once('.').unwrap().0;
+    for ext in ["exr", "png"] {
+        let output = job["frames"][0]["outputs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|o| o["url"].as_str().unwrap())
+            .find(|u| u.ends_with(&format!("/{stem}.{ext}")))
+            .unwrap_or_else(|| panic!("no .{ext} output: {job}"));
+        assert_eq!(
+            get_bytes(&server.url, &format!("{base}/pass.{ext}")),
+            get_bytes(&server.url, output),
+            "pass.{ext} after the end"
+        );
+    }
 }
 
 #[test]

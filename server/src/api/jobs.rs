@@ -168,6 +168,16 @@ fn find_frame(state: &AppState, id: u64, frame: u32) -> ApiResult<crate::db::Fra
         .ok_or_else(|| AppError::not_found(format!("job {id} has no frame {frame}")))
 }
 
+/// The output of a finished frame that its pass file `pass` (`pass.exr` or `pass.png`) stands
+/// for: the image of the same kind under the camera's `image_name` stem, if the frame has one
+/// (a `.png` frame has no EXR, for one).
+fn final_of_pass(image_name: &str, pass: &str, outputs: &[String]) -> Option<String> {
+    let stem = std::path::Path::new(image_name).file_stem()?.to_str()?;
+    let ext = std::path::Path::new(pass).extension()?.to_str()?;
+    let wanted = format!("{stem}.{ext}");
+    outputs.iter().find(|o| o.eq_ignore_ascii_case(&wanted)).cloned()
+}
+
 /// Job `id` and its frame `frame`, or a 404 naming the first that is missing.
 fn job_and_frame(
     state: &AppState,
@@ -179,7 +189,7 @@ fn job_and_frame(
 }
 
 #[utoipa::path(get, path = "/api/v1/jobs/{id}/frames/{frame}/files/{name}", tag = "jobs", security((), ("api_token" = [])),
-    params(("id" = u64, Path, description = "The job's id"), ("frame" = u32, Path, description = "The frame's index in the job (0-based)"), ("name" = String, Path, description = "An output file's name, as the frame's `outputs` list it")),
+    params(("id" = u64, Path, description = "The job's id"), ("frame" = u32, Path, description = "The frame's index in the job (0-based)"), ("name" = String, Path, description = "An output file's name, as the frame's `outputs` list it, or `pass.exr` / `pass.png`: the frame after its latest pass (once the frame is finished, its own EXR / PNG)")),
     responses(
         (status = 200, description = "The file (PNG, OpenEXR or Radiance HDR)", content_type = "application/octet-stream", body = super::openapi::Binary),
         (status = 400, description = "A path parameter or query does not parse", body = ApiError), (status = 401, description = "The server needs an API token", body = ApiError),
@@ -194,6 +204,13 @@ pub(super) async fn frame_file(
         off_thread(move || find_frame(&state, id, frame)).await?
     };
     let pass_file = crate::merge::PASS_FILES.contains(&name.as_str());
+    // Once the frame is finished, the frame after its latest pass is the frame itself: the
+    // pass names serve its image (so a client that follows a frame's passes is never left
+    // with a 409 at the end).
+    let name = match &f.outputs {
+        Some(outputs) if pass_file => final_of_pass(&f.image_name, &name, outputs).unwrap_or(name),
+        _ => name,
+    };
     if pass_file && f.outputs.is_none() {
         let path = state.frame_dir(id, frame).join(&name);
         let Ok(bytes) = tokio::fs::read(&path).await else {
