@@ -1882,9 +1882,10 @@ mod tests {
     }
 
     /// One pixel rendered `k` times (seeds 0..k) at `spp` samples a pixel: a camera at `eye`
-    /// looking straight down at the floor of a closed box (a 2x2x2 cube of diffuse walls,
-    /// reflectance 0.5), with `rest` (lights, materials and objects: what is under test) inside.
-    /// Vertices 1-8 are the cube's corners, material 1 its walls and 2 a black emitter.
+    /// looking straight down at the floor of a box (a 2x2x2 cube of diffuse walls, reflectance
+    /// 0.5, open at z = -1 unless `rest` closes it), with `rest` (lights, materials and
+    /// objects: what is under test) inside. Vertices 1-8 are the cube's corners, material 1 its
+    /// walls and 2 a black emitter.
     fn lit_box_pixels(params: &str, eye: f64, spp: u32, k: u64, rest: (&str, &str, &str, &str)) -> Vec<f64> {
         let (lights, materials, vertices, objects) = rest;
         let xml = format!(
@@ -1916,7 +1917,7 @@ mod tests {
     }
 
     /// `MultipleImportanceSampling` gives the image of plain next-event estimation in
-    /// expectation, with cosine or uniform bounces, with every light or one: a box with a point
+    /// expectation, with cosine or uniform bounces, with every light or one: a closed box with a point
     /// light, an emitting square under its ceiling, an emitting sphere, an ellipsoid light
     /// (sampled without a density, so by NEE alone) and a back wall that is half mirror, half
     /// diffuse (its bounces are drawn from the BRDF one time in two). Leaving out either side
