@@ -199,21 +199,21 @@ pub(super) async fn frame_file(
     State(state): State<AppState>,
     Path((id, frame, name)): Path<(u64, u32, String)>,
 ) -> ApiResult<Response> {
-    let f = {
+    let look_up = || {
         let state = state.clone();
-        off_thread(move || find_frame(&state, id, frame)).await?
+        off_thread(move || find_frame(&state, id, frame))
     };
+    let mut f = look_up().await?;
     let pass_file = crate::merge::PASS_FILES.contains(&name.as_str());
-    // Once the frame is finished, the frame after its latest pass is the frame itself: the
-    // pass names serve its image (so a client that follows a frame's passes is never left
-    // with a 409 at the end).
-    let name = match &f.outputs {
-        Some(outputs) if pass_file => final_of_pass(&f.image_name, &name, outputs).unwrap_or(name),
-        _ => name,
-    };
     if pass_file && f.outputs.is_none() {
         let path = state.frame_dir(id, frame).join(&name);
-        let Ok(bytes) = tokio::fs::read(&path).await else {
+        if let Ok(bytes) = tokio::fs::read(&path).await {
+            let mime = if name.ends_with(".png") { "image/png" } else { "application/octet-stream" };
+            return Ok(([(header::CONTENT_TYPE, HeaderValue::from_static(mime))], bytes).into_response());
+        }
+        // No pass yet, or the frame finished (and its pass files went) since it was looked up.
+        f = look_up().await?;
+        if f.outputs.is_none() {
             return Err(AppError::new(
                 StatusCode::CONFLICT,
                 format!(
@@ -221,10 +221,15 @@ pub(super) async fn frame_file(
                     f.passes_published, f.passes_total
                 ),
             ));
-        };
-        let mime = if name.ends_with(".png") { "image/png" } else { "application/octet-stream" };
-        return Ok(([(header::CONTENT_TYPE, HeaderValue::from_static(mime))], bytes).into_response());
+        }
     }
+    // Once the frame is finished, the frame after its latest pass is the frame itself: the
+    // pass names serve its image (so a client that follows a frame's passes is never left
+    // with an error at the end).
+    let name = match &f.outputs {
+        Some(outputs) if pass_file => final_of_pass(&f.image_name, &name, outputs).unwrap_or(name),
+        _ => name,
+    };
     let Some(outputs) = &f.outputs else {
         return Err(AppError::new(
             StatusCode::CONFLICT,
