@@ -298,7 +298,8 @@ pub struct FrameInfo {
     /// Passes every tile has finished (a tile stopped by the noise target counts as finished).
     #[serde(default)]
     pub passes_done: u32,
-    /// The frame after its latest finished pass (`pass.exr`, `pass.png`), until it is merged.
+    /// The frame after its latest finished pass (`pass.exr`, `pass.png`), once written (a moment
+    /// after `passes_done` counts the pass), until the frame is merged.
     #[serde(default)]
     pub pass_outputs: Vec<OutputInfo>,
 }

@@ -47,7 +47,10 @@ fn a_frame_in_passes_with_a_worker_killed_mid_pass_is_the_clis_bytes_and_is_publ
     );
     // The frame after its first pass is published while later passes still render: its EXR
     // and PNG download.
-    let job = wait_job(&server, id, 120, |j| j["frames"][0]["passes_done"].as_u64() >= Some(1));
+    // (`pass_outputs` lists them once written, just after the pass is counted.)
+    let job = wait_job(&server, id, 120, |j| {
+        j["state"] == "done" || j["frames"][0]["pass_outputs"].as_array().is_some_and(|a| !a.is_empty())
+    });
     if job["state"] != "done" {
         let urls: Vec<&str> = job["frames"][0]["pass_outputs"]
             .as_array()

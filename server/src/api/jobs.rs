@@ -67,7 +67,13 @@ pub(super) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobIn
                 samples: f.samples,
                 passes_total: f.passes_total,
                 passes_done: f.passes_published,
-                pass_outputs: if f.outputs.is_none() && f.passes_published > 0 {
+                // Listed once written: the store counts a pass as published in the transaction
+                // of its last tile, and `merge::publish_pass` writes the files just after (the
+                // PNG last).
+                pass_outputs: if f.outputs.is_none()
+                    && f.passes_published > 0
+                    && state.frame_dir(id, f.index).join(crate::merge::PASS_FILES[1]).exists()
+                {
                     crate::merge::PASS_FILES
                         .iter()
                         .map(|n| OutputInfo {
@@ -214,13 +220,18 @@ pub(super) async fn frame_file(
         // No pass yet, or the frame finished (and its pass files went) since it was looked up.
         f = look_up().await?;
         if f.outputs.is_none() {
-            return Err(AppError::new(
-                StatusCode::CONFLICT,
+            let message = if f.passes_published == 0 {
                 format!(
-                    "frame {frame} of job {id} has finished no pass yet ({} of {} passes); see preview.png meanwhile",
+                    "frame {frame} of job {id} has finished no pass yet (0 of {} passes); see preview.png meanwhile",
+                    f.passes_total
+                )
+            } else {
+                format!(
+                    "frame {frame} of job {id} after pass {} of {} is being written; ask again in a moment (the job lists it in pass_outputs once written)",
                     f.passes_published, f.passes_total
-                ),
-            ));
+                )
+            };
+            return Err(AppError::new(StatusCode::CONFLICT, message));
         }
     }
     // Once the frame is finished, the frame after its latest pass is the frame itself: the

@@ -247,7 +247,10 @@ pub fn get_json(url: &str, path: &str) -> Value {
 }
 
 pub fn get_bytes(url: &str, path: &str) -> Vec<u8> {
-    let r = ureq::get(&format!("{url}{path}")).call().unwrap_or_else(|e| panic!("GET {path}: {e}"));
+    let r = ureq::get(&format!("{url}{path}")).call().unwrap_or_else(|e| match e {
+        ureq::Error::Status(code, r) => panic!("GET {path}: {code}: {}", r.into_string().unwrap_or_default()),
+        e => panic!("GET {path}: {e}"),
+    });
     let mut out = Vec::new();
     r.into_reader().read_to_end(&mut out).unwrap();
     out
