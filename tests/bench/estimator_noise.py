@@ -71,9 +71,10 @@ def main():
     if len(cameras) != 1:
         raise SystemExit(f"{args.scene}: no single <Camera id=\"{args.camera}\">")
     cam = cameras[0]
-    for other in [c for c in root.iter("Cameras")][0].findall("Camera"):
+    block = next(root.iter("Cameras"))
+    for other in block.findall("Camera"):
         if other is not cam:
-            [c for c in root.iter("Cameras")][0].remove(other)
+            block.remove(other)
     set_child(cam, "ImageResolution", f"{args.size} {args.size}")
     set_child(cam, "ImageName", "frame.exr")
     base = args.params if args.params is not None else (cam.findtext("RendererParams") or "")
