@@ -461,10 +461,11 @@ impl<'a> Tracer<'a> {
             // Light sampled at this vertex: every light with NEE (virtual lights have no other
             // way in), nothing without; dielectrics only on their outside (§15 #20).
             let shaded = !(mat.kind == MaterialKind::Dielectric && medium.is_some());
-            // A mirror's or conductor's choice between its mirror lobe and its BRDF.
-            let mirror = matches!(mat.kind, MaterialKind::Mirror | MaterialKind::Conductor)
-                .then(|| mirror_choice(mat, d, n));
             let continues = counted < max_bounces && bounce < PATH_DEPTH_LIMIT;
+            // A mirror's or conductor's choice between its mirror lobe and its BRDF, when a
+            // bounce follows.
+            let mirror = (continues && matches!(mat.kind, MaterialKind::Mirror | MaterialKind::Conductor))
+                .then(|| mirror_choice(mat, d, n));
             if nee && shaded {
                 let weights = mis.then(|| {
                     let chance = match (mat.kind, mirror) {
@@ -475,10 +476,11 @@ impl<'a> Tracer<'a> {
                     };
                     LightWeights { bounce: BounceDensity { cosine: params.importance, chance }, pick: 1.0 }
                 });
+                let pt = LitPoint { ray: &ray, x: hit.point, n, mat };
                 local += if params.one_light {
-                    self.one_light(&ray, hit.point, n, mat, weights, rng)
+                    self.one_light(pt, weights, rng)
                 } else {
-                    self.lights_weighed(&ray, hit.point, n, mat, weights, rng)
+                    self.lit_point(pt, true, None, weights, rng)
                 };
             }
             if params.roulette == Roulette::Course {
@@ -880,25 +882,21 @@ impl<'a> Tracer<'a> {
         env: bool,
         rng: &mut Sampler,
     ) -> DVec3 {
-        let mut rngs = [rng.clone()];
-        let l = self.lights_lanes::<1>(&[LitPoint { ray, x, n, mat }], env, &mut rngs);
-        *rng = rngs[0].clone();
-        l[0]
+        self.lit_point(LitPoint { ray, x, n, mat }, env, None, None, rng)
     }
 
-    /// [`Self::lights`] at a path vertex (the environment included), object lights' samples
-    /// weighed by `weights` under multiple importance sampling.
-    fn lights_weighed(
+    /// [`Self::lights_of`] for one point with its sampler: every light or `only` one, object
+    /// lights' samples weighed by `weights` under multiple importance sampling.
+    fn lit_point(
         &mut self,
-        ray: &Ray,
-        x: DVec3,
-        n: DVec3,
-        mat: &Material,
+        pt: LitPoint<'_>,
+        env: bool,
+        only: Option<usize>,
         weights: Option<LightWeights>,
         rng: &mut Sampler,
     ) -> DVec3 {
         let mut rngs = [rng.clone()];
-        let l = self.lights_of::<1>(&[LitPoint { ray, x, n, mat }], true, None, weights, &mut rngs);
+        let l = self.lights_of::<1>(&[pt], env, only, weights, &mut rngs);
         *rng = rngs[0].clone();
         l[0]
     }
@@ -917,11 +915,7 @@ impl<'a> Tracer<'a> {
         let (cos_y, dist) = (-ray.dir.dot(hit.geo_normal), (hit.point - from).length());
         let Some(pdf) = light.pdf(from, dist, cos_y) else { return f64::INFINITY };
         if one_light {
-            let first = scene.point_lights.len()
-                + scene.area_lights.len()
-                + scene.directional_lights.len()
-                + scene.spot_lights.len();
-            pdf * scene.light_choice.probability(first + j as usize)
+            pdf * scene.light_choice.probability(scene.first_object_light() + j as usize)
         } else {
             pdf
         }
@@ -930,21 +924,10 @@ impl<'a> Tracer<'a> {
     /// `SampleOneLight`'s estimate of [`Self::lights`]: one light chosen by power
     /// ([`crate::lights::choice::LightChoice`], one number drawn), its light divided by the choice's
     /// probability.
-    fn one_light(
-        &mut self,
-        ray: &Ray,
-        x: DVec3,
-        n: DVec3,
-        mat: &Material,
-        weights: Option<LightWeights>,
-        rng: &mut Sampler,
-    ) -> DVec3 {
+    fn one_light(&mut self, pt: LitPoint<'_>, weights: Option<LightWeights>, rng: &mut Sampler) -> DVec3 {
         let Some((light, p)) = self.scene.light_choice.pick(rng.next_1d()) else { return DVec3::ZERO };
-        let mut rngs = [rng.clone()];
         let weights = weights.map(|w| LightWeights { pick: p, ..w });
-        let l = self.lights_of::<1>(&[LitPoint { ray, x, n, mat }], true, Some(light), weights, &mut rngs);
-        *rng = rngs[0].clone();
-        l[0] / p
+        self.lit_point(pt, true, Some(light), weights, rng) / p
     }
 
     /// [`Lighting::reflected`] in this tracer's scene, counting its shadow rays.

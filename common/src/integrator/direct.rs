@@ -256,7 +256,7 @@ impl Lighting<'_> {
         let area_base = scene.point_lights.len();
         let directional_base = area_base + scene.area_lights.len();
         let spot_base = directional_base + scene.directional_lights.len();
-        let object_base = spot_base + scene.spot_lights.len();
+        let object_base = scene.first_object_light();
         let env_base = object_base + scene.object_lights.len();
         for light in chosen(scene.point_lights.iter(), only, 0) {
             let (wis, d2, shadows) = towards_lanes(pts, &origin, &[light.position; N], live);

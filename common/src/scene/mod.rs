@@ -122,3 +122,15 @@ pub struct Scene {
     /// How a path tracer with `SampleOneLight` picks the one light of a vertex.
     pub light_choice: crate::lights::choice::LightChoice,
 }
+
+impl Scene {
+    /// The number of the first object light among all lights, as direct lighting and
+    /// [`crate::lights::choice::LightChoice`] number them: point, area, directional and spot
+    /// lights come before.
+    pub fn first_object_light(&self) -> usize {
+        self.point_lights.len()
+            + self.area_lights.len()
+            + self.directional_lights.len()
+            + self.spot_lights.len()
+    }
+}

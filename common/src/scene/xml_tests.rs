@@ -1777,15 +1777,15 @@ fn homework_6_elements() {
             mis: false,
         })
     );
-    let lone = parse(&format!(
-        "<Scene><Cameras>{}</Cameras></Scene>",
-        cam("<Renderer>PathTracing</Renderer><RendererParams>SampleOneLight</RendererParams>")
-    ));
-    assert!(
-        lone.warnings.iter().any(|w| w.message.contains("without it, it does nothing")),
-        "{:?}",
-        lone.warnings
-    );
+    // A flag that needs NextEventEstimation, alone: a warning containing `says`.
+    let warns_alone = |flag: &str, says: &str| {
+        let lone = parse(&format!(
+            "<Scene><Cameras>{}</Cameras></Scene>",
+            cam(&format!("<Renderer>PathTracing</Renderer><RendererParams>{flag}</RendererParams>"))
+        ));
+        assert!(lone.warnings.iter().any(|w| w.message.contains(says)), "{flag}: {:?}", lone.warnings);
+    };
+    warns_alone("SampleOneLight", "without it, it does nothing");
     assert_eq!(
         camera(&cam(
             "<Renderer>PathTracing</Renderer><RendererParams>NextEventEstimation MultipleImportanceSampling</RendererParams>"
@@ -1793,15 +1793,7 @@ fn homework_6_elements() {
         .renderer,
         Renderer::Path(PathParams { next_event: true, importance: false, roulette: Roulette::Off, one_light: false, mis: true })
     );
-    let lone = parse(&format!(
-        "<Scene><Cameras>{}</Cameras></Scene>",
-        cam("<Renderer>PathTracing</Renderer><RendererParams>MultipleImportanceSampling</RendererParams>")
-    ));
-    assert!(
-        lone.warnings.iter().any(|w| w.message.contains("MultipleImportanceSampling weighs")),
-        "{:?}",
-        lone.warnings
-    );
+    warns_alone("MultipleImportanceSampling", "MultipleImportanceSampling weighs");
     assert_eq!(
         camera(&cam("<Renderer>PathTracing</Renderer><RendererParams></RendererParams>")).renderer,
         Renderer::Path(PathParams::default())
