@@ -54,63 +54,7 @@ enum Command {
     /// with its line, unless --allow-unsupported.
     ///
     /// Example: tessera-worker render scenes/cornell_box.xml --out out/
-    Render {
-        /// The scene file (CENG795 XML or 2025 JSON; told apart by content).
-        scene: PathBuf,
-        /// Directory for the output images (created if missing).
-        #[arg(long, short, default_value = ".", value_name = "DIR")]
-        out: PathBuf,
-        /// Render threads; default: every core.
-        #[arg(long, short = 'j', value_name = "N")]
-        threads: Option<usize>,
-        /// Render only camera K (1 = the first camera in the file).
-        #[arg(long, value_name = "K")]
-        camera: Option<usize>,
-        /// Tile edge in pixels (the unit of parallel work; does not change the image, except under
-        /// --noise-target, which decides tile by tile).
-        #[arg(long, default_value_t = 32, value_name = "PX")]
-        tile_size: u32,
-        /// Samples per pixel for every camera instead of its <NumSamples> (e.g. 4 for a quick,
-        /// noisy preview of a 900-sample scene).
-        #[arg(long, value_name = "N")]
-        samples: Option<u32>,
-        /// How environment lights pick their one direction per shading event, instead of the
-        /// light's <Sampler>: uniform (the course's estimator: the hemisphere around the normal,
-        /// radiance divided by the pdf 1/(2π)), cosine (pdf cos θ/π) or importance (by the map's
-        /// luminance; far less noise for maps with a small bright sun). All converge to the same
-        /// image.
-        #[arg(long, value_enum, value_name = "MODE")]
-        env_sampling: Option<EnvSampling>,
-        /// Do not draw a progress bar.
-        #[arg(long, short)]
-        quiet: bool,
-        /// Render a scene that uses elements Tessera does not implement although they change the
-        /// picture (each one is then a warning, and the image is rendered without it). Without
-        /// this option such a scene is an error that names every one of them.
-        #[arg(long)]
-        allow_unsupported: bool,
-        /// Also write a denoised copy of each image beside the course's outputs, never over them:
-        /// <stem>_denoised.exr and its tone-mapped (or, for .png image names, clamped) PNG. Uses
-        /// Intel Open Image Denoise 2 (its RT filter, high quality, guided by the albedo and
-        /// normal of the first surface each pixel sees that is not a perfect mirror or glass,
-        /// which are rendered along). The library is looked for in TESSERA_OIDN_LIB, then the
-        /// system's library path, then the pyoidn Python wheel (python3 -m pip install pyoidn);
-        /// without it nothing is rendered.
-        #[arg(long)]
-        denoise: bool,
-        /// Stop sampling a tile once its estimated relative noise is at most this, in (0, 1]
-        /// (e.g. 0.02 for about 2 %); <NumSamples> (or --samples) becomes the cap. Tiles are then
-        /// rendered pass by pass (--pass-samples), each pass judged on the luminance of its
-        /// pixels' odd sample blocks against all of them, and <stem>_samples.png shows where
-        /// samples went. A farm job with the same noise_target, pass_samples and tile_size
-        /// renders the same bits.
-        #[arg(long, value_name = "ERROR")]
-        noise_target: Option<f64>,
-        /// Samples per pass for --noise-target (rounded up to whole blocks of 16; default: a
-        /// sixteenth of the samples). Without a noise target passes do not change the image.
-        #[arg(long, value_name = "N", requires = "noise_target")]
-        pass_samples: Option<u32>,
-    },
+    Render(RenderArgs),
     /// Pull tiles from a tessera-server and render them, until stopped.
     ///
     /// Registers with the server, then long-polls for tiles (one fetched ahead while the
@@ -194,6 +138,66 @@ enum Command {
     },
 }
 
+/// `render`'s arguments: the scene, where to write, and how to render it.
+#[derive(clap::Args)]
+struct RenderArgs {
+    /// The scene file (CENG795 XML or 2025 JSON; told apart by content).
+    scene: PathBuf,
+    /// Directory for the output images (created if missing).
+    #[arg(long, short, default_value = ".", value_name = "DIR")]
+    out: PathBuf,
+    /// Render threads; default: every core.
+    #[arg(long, short = 'j', value_name = "N")]
+    threads: Option<usize>,
+    /// Render only camera K (1 = the first camera in the file).
+    #[arg(long, value_name = "K")]
+    camera: Option<usize>,
+    /// Tile edge in pixels (the unit of parallel work; does not change the image, except under
+    /// --noise-target, which decides tile by tile).
+    #[arg(long, default_value_t = 32, value_name = "PX")]
+    tile_size: u32,
+    /// Samples per pixel for every camera instead of its <NumSamples> (e.g. 4 for a quick,
+    /// noisy preview of a 900-sample scene).
+    #[arg(long, value_name = "N")]
+    samples: Option<u32>,
+    /// How environment lights pick their one direction per shading event, instead of the
+    /// light's <Sampler>: uniform (the course's estimator: the hemisphere around the normal,
+    /// radiance divided by the pdf 1/(2π)), cosine (pdf cos θ/π) or importance (by the map's
+    /// luminance; far less noise for maps with a small bright sun). All converge to the same
+    /// image.
+    #[arg(long, value_enum, value_name = "MODE")]
+    env_sampling: Option<EnvSampling>,
+    /// Do not draw a progress bar.
+    #[arg(long, short)]
+    quiet: bool,
+    /// Render a scene that uses elements Tessera does not implement although they change the
+    /// picture (each one is then a warning, and the image is rendered without it). Without
+    /// this option such a scene is an error that names every one of them.
+    #[arg(long)]
+    allow_unsupported: bool,
+    /// Also write a denoised copy of each image beside the course's outputs, never over them:
+    /// <stem>_denoised.exr and its tone-mapped (or, for .png image names, clamped) PNG. Uses
+    /// Intel Open Image Denoise 2 (its RT filter, high quality, guided by the albedo and
+    /// normal of the first surface each pixel sees that is not a perfect mirror or glass,
+    /// which are rendered along). The library is looked for in TESSERA_OIDN_LIB, then the
+    /// system's library path, then the pyoidn Python wheel (python3 -m pip install pyoidn);
+    /// without it nothing is rendered.
+    #[arg(long)]
+    denoise: bool,
+    /// Stop sampling a tile once its estimated relative noise is at most this, in (0, 1]
+    /// (e.g. 0.02 for about 2 %); <NumSamples> (or --samples) becomes the cap. Tiles are then
+    /// rendered pass by pass (--pass-samples), each pass judged on the luminance of its
+    /// pixels' odd sample blocks against all of them, and <stem>_samples.png shows where
+    /// samples went. A farm job with the same noise_target, pass_samples and tile_size
+    /// renders the same bits.
+    #[arg(long, value_name = "ERROR")]
+    noise_target: Option<f64>,
+    /// Samples per pass for --noise-target (rounded up to whole blocks of 16; default: a
+    /// sixteenth of the samples). Without a noise target passes do not change the image.
+    #[arg(long, value_name = "N", requires = "noise_target")]
+    pass_samples: Option<u32>,
+}
+
 /// The host name (from /etc/hostname or $HOSTNAME) and the process id.
 fn default_worker_name() -> String {
     let host = std::fs::read_to_string("/etc/hostname")
@@ -226,36 +230,7 @@ impl From<EnvSampling> for EnvSampler {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Render {
-            scene,
-            out,
-            threads,
-            camera,
-            tile_size,
-            samples,
-            env_sampling,
-            quiet,
-            allow_unsupported,
-            denoise,
-            noise_target,
-            pass_samples,
-        } => {
-            let env_sampling = env_sampling.map(EnvSampling::into);
-            let load = LoadOptions { allow_unsupported };
-            let opts = Options {
-                threads,
-                camera,
-                tile_size,
-                samples,
-                env_sampling,
-                quiet,
-                load,
-                denoise,
-                noise_target,
-                pass_samples,
-            };
-            render(&scene, &out, &opts)
-        }
+        Command::Render(args) => render(&args),
         Command::Work { server, token, name, threads, max_tiles, exit_with_parent } => {
             if exit_with_parent {
                 farm::exit_with_parent();
@@ -288,20 +263,6 @@ fn main() -> ExitCode {
     }
 }
 
-/// What `render` was asked to do besides which scene and where.
-struct Options {
-    threads: Option<usize>,
-    camera: Option<usize>,
-    tile_size: u32,
-    samples: Option<u32>,
-    env_sampling: Option<EnvSampler>,
-    quiet: bool,
-    load: LoadOptions,
-    denoise: bool,
-    noise_target: Option<f64>,
-    pass_samples: Option<u32>,
-}
-
 /// Prints `warnings` (unsupported elements too when they are allowed), then refuses the scene
 /// if it has unsupported elements that are not: each one is printed as an error with its line.
 fn report_warnings(scene_path: &Path, warnings: &[tessera::Warning], load: LoadOptions) -> Result<()> {
@@ -321,19 +282,24 @@ fn report_warnings(scene_path: &Path, warnings: &[tessera::Warning], load: LoadO
     Ok(())
 }
 
-fn render(scene_path: &Path, out: &Path, opts: &Options) -> Result<()> {
-    let &Options {
+fn render(args: &RenderArgs) -> Result<()> {
+    let RenderArgs {
+        ref scene,
+        ref out,
         threads,
         camera,
         tile_size,
         samples,
         env_sampling,
         quiet,
-        load,
+        allow_unsupported,
         denoise,
         noise_target,
         pass_samples,
-    } = opts;
+    } = *args;
+    let (scene_path, out) = (scene.as_path(), out.as_path());
+    let env_sampling = env_sampling.map(EnvSampler::from);
+    let load = LoadOptions { allow_unsupported };
     if samples == Some(0) {
         bail!("--samples must be at least 1");
     }
