@@ -8,6 +8,7 @@
 //! `spawn_blocking`.
 
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
@@ -19,7 +20,7 @@ use tessera::render::AuxImages;
 use tessera::tonemap::params::{Operator, Photographic};
 use tessera::tonemap::tonemap_with;
 
-use crate::db::MergeTiming;
+use crate::db::{FrameRow, JobRow, MergeTiming};
 use crate::state::AppState;
 
 /// Assembles `tiles` into a `width` x `height` image; missing tiles stay black.
@@ -273,29 +274,48 @@ pub fn encode_png(width: u32, height: u32, rgb: &[u8]) -> Result<Vec<u8>> {
         .map_err(|m| anyhow::anyhow!("cannot encode the PNG: {m}"))
 }
 
+/// A job, all its frames and where among them frame `frame` is; an error if either is gone.
+fn look_up_frame(st: &AppState, job_id: u64, frame: u32) -> Result<(JobRow, Vec<FrameRow>, usize)> {
+    let job = st.store.job(job_id)?.ok_or_else(|| anyhow::anyhow!("job {job_id} vanished"))?;
+    let frames = st.store.frames(job_id)?;
+    let at = frames
+        .iter()
+        .position(|f| f.index == frame)
+        .ok_or_else(|| anyhow::anyhow!("frame {frame} vanished"))?;
+    Ok((job, frames, at))
+}
+
+/// The job's cameras (`f.camera` among them) and frame `f`'s stored tiles as one image, with
+/// the denoising features when the job asked for them.
+fn assemble_frame(
+    st: &AppState,
+    job: &JobRow,
+    f: &FrameRow,
+) -> Result<(Arc<Vec<Camera>>, Image, Option<AuxImages>)> {
+    let cameras = st.job_cameras(job)?;
+    if cameras.get(f.camera as usize).is_none() {
+        bail!("camera {} missing", f.camera);
+    }
+    let tiles = st.store.frame_tiles(job.id, f.index)?;
+    let (img, aux) = assemble_with_aux(f.width, f.height, &tiles, job.denoise)?;
+    Ok((cameras, img, aux))
+}
+
 /// Merges a complete frame off the executor; a failure fails the job with the reason.
 pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
     // A merge holds its whole frame in memory: one at a time.
     let Ok(_permit) = state.merging.clone().acquire_owned().await else { return };
     let st = state.clone();
     let outcome = tokio::task::spawn_blocking(move || -> anyhow::Result<bool> {
-        let job = st.store.job(job_id)?.ok_or_else(|| anyhow::anyhow!("job {job_id} vanished"))?;
-        let frames = st.store.frames(job_id)?;
-        let f = frames
-            .iter()
-            .find(|f| f.index == frame)
-            .ok_or_else(|| anyhow::anyhow!("frame {frame} vanished"))?;
+        let (job, frames, at) = look_up_frame(&st, job_id, frame)?;
+        let f = &frames[at];
         if f.outputs.is_some() {
             // Merged already (a second trigger of one frame): the outputs stand.
             return Ok(frames.iter().all(|f| f.outputs.is_some()));
         }
-        let cameras = st.job_cameras(&job)?;
-        let cam =
-            cameras.get(f.camera as usize).ok_or_else(|| anyhow::anyhow!("camera {} missing", f.camera))?;
         let started = Instant::now();
-        let tiles = st.store.frame_tiles(job_id, frame)?;
-        let (img, aux) = assemble_with_aux(f.width, f.height, &tiles, job.denoise)?;
-        drop(tiles);
+        let (cameras, img, aux) = assemble_frame(&st, &job, f)?;
+        let cam = &cameras[f.camera as usize];
         let assembled = started.elapsed().as_secs_f64();
         let dir = st.frame_dir(job_id, frame);
         let (mut names, written, tonemap_seconds) = write_outputs(&dir, cam, &img)?;
@@ -366,23 +386,14 @@ pub async fn publish_pass(state: AppState, job_id: u64, frame: u32) {
     let Ok(_permit) = state.merging.clone().acquire_owned().await else { return };
     let st = state.clone();
     let outcome = tokio::task::spawn_blocking(move || -> anyhow::Result<bool> {
-        let job = st.store.job(job_id)?.ok_or_else(|| anyhow::anyhow!("job {job_id} vanished"))?;
-        let f = st
-            .store
-            .frames(job_id)?
-            .into_iter()
-            .find(|f| f.index == frame)
-            .ok_or_else(|| anyhow::anyhow!("frame {frame} vanished"))?;
+        let (job, frames, at) = look_up_frame(&st, job_id, frame)?;
+        let f = &frames[at];
         if f.outputs.is_some() || job.state.is_final() {
             return Ok(false);
         }
-        let cameras = st.job_cameras(&job)?;
-        let cam =
-            cameras.get(f.camera as usize).ok_or_else(|| anyhow::anyhow!("camera {} missing", f.camera))?;
         let started = Instant::now();
-        let tiles = st.store.frame_tiles(job_id, frame)?;
-        let (img, _) = assemble_with_aux(f.width, f.height, &tiles, job.denoise)?;
-        drop(tiles);
+        let (cameras, img, _) = assemble_frame(&st, &job, f)?;
+        let cam = &cameras[f.camera as usize];
         let dir = st.frame_dir(job_id, frame);
         std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
         let exr = dir.join(PASS_FILES[0]);
