@@ -12,13 +12,14 @@ use std::time::Duration;
 
 use serde_json::Value;
 pub use tessera_testkit::TempDir;
+// For the tests that include this module, whichever of them each one uses.
+#[allow(unused_imports)]
+pub use tessera_testkit::{first_line, signal, start_server, wait_timeout};
 
 /// How long one test may run before its test binary is stopped (a hang fails with a name).
 const HANG_LIMIT: Duration = Duration::from_secs(600);
 
 /// Takes the lock that runs these tests one at a time, and starts the hang watchdog.
-pub use tessera_testkit::{first_line, signal, wait_timeout};
-
 pub fn serial() -> tessera_testkit::Serial {
     tessera_testkit::serial(HANG_LIMIT)
 }
@@ -64,25 +65,12 @@ impl Server {
     pub fn start(tag: &str, args: &[&str]) -> Server {
         let data = TempDir::new(tag);
         let log = data.with_extension("log");
-        let mut child = Command::new(farm_bin("tessera-server"))
-            .arg("--data-dir")
+        let mut cmd = Command::new(farm_bin("tessera-server"));
+        cmd.arg("--data-dir")
             .arg(data.path())
             .args(["--bind", "127.0.0.1:0", "--local-workers", "0", "--worker-token", WORKER_TOKEN])
-            .args(args)
-            .env_remove("TESSERA_API_TOKEN")
-            .env_remove("TESSERA_WORKER_TOKEN")
-            .stdout(Stdio::piped())
-            .stderr(std::fs::File::create(&log).unwrap())
-            .spawn()
-            .expect("start tessera-server");
-        let line = first_line(child.stdout.take().unwrap(), Duration::from_secs(30)).unwrap_or_else(|| {
-            let _ = child.kill();
-            panic!("the server did not start:\n{}", std::fs::read_to_string(&log).unwrap_or_default())
-        });
-        let url = line
-            .strip_prefix("listening on ")
-            .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
-            .to_string();
+            .args(args);
+        let (child, url) = start_server(cmd, &log);
         Server { child, url, data, log }
     }
 

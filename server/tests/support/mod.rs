@@ -9,6 +9,9 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 pub use tessera_testkit::TempDir;
+// For the tests that include this module, whichever of them each one uses.
+#[allow(unused_imports)]
+pub use tessera_testkit::{first_line, signal, start_server, wait_timeout};
 
 /// How long one farm test may run before the whole test binary is stopped: a hang (a child that
 /// never exits, a pipe that never closes) must fail CI with the test's name, not eat its clock.
@@ -16,8 +19,6 @@ pub use tessera_testkit::TempDir;
 const HANG_LIMIT: Duration = Duration::from_secs(600);
 
 /// Takes the lock that runs these tests one at a time, and starts the hang watchdog.
-pub use tessera_testkit::{first_line, signal, wait_timeout};
-
 pub fn serial() -> tessera_testkit::Serial {
     tessera_testkit::serial(HANG_LIMIT)
 }
@@ -110,20 +111,7 @@ impl Server {
             cmd.args(["--bind", "127.0.0.1:0"]);
         }
         cmd.arg("--worker-bin").arg(worker_bin());
-        cmd.env_remove("TESSERA_API_TOKEN").env_remove("TESSERA_WORKER_TOKEN");
-        let mut child = cmd
-            .stdout(Stdio::piped())
-            .stderr(std::fs::File::create(&log).unwrap())
-            .spawn()
-            .expect("start tessera-server");
-        let line = first_line(child.stdout.take().unwrap(), Duration::from_secs(30)).unwrap_or_else(|| {
-            let _ = child.kill();
-            panic!("the server did not start:\n{}", std::fs::read_to_string(&log).unwrap_or_default())
-        });
-        let url = line
-            .strip_prefix("listening on ")
-            .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
-            .to_string();
+        let (child, url) = start_server(cmd, &log);
         Server { child, url, log, data: None }
     }
 

@@ -237,6 +237,29 @@ pub fn first_line(stdout: std::process::ChildStdout, limit: Duration) -> Option<
     rx.recv_timeout(limit).ok()
 }
 
+/// Starts `tessera-server` as `cmd` says (its binary, data directory and options; the API and
+/// worker tokens of the caller's environment are removed), its stderr into `log`, and waits for
+/// the line that says where it listens: the child and the server's base URL. Panics with the log
+/// when the server does not start within 30 s.
+pub fn start_server(mut cmd: std::process::Command, log: &Path) -> (std::process::Child, String) {
+    let mut child = cmd
+        .env_remove("TESSERA_API_TOKEN")
+        .env_remove("TESSERA_WORKER_TOKEN")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::fs::File::create(log).unwrap_or_else(|e| panic!("{}: {e}", log.display())))
+        .spawn()
+        .expect("start tessera-server");
+    let line = first_line(child.stdout.take().unwrap(), Duration::from_secs(30)).unwrap_or_else(|| {
+        let _ = child.kill();
+        panic!("the server did not start:\n{}", std::fs::read_to_string(log).unwrap_or_default())
+    });
+    let url = line
+        .strip_prefix("listening on ")
+        .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
+        .to_string();
+    (child, url)
+}
+
 /// Whether a test that needs Intel Open Image Denoise may run, given the outcome of looking for
 /// it (`tessera_denoise::oidn()`, mapped to `()`): when it is missing, the test should skip, and
 /// this says why, or panics when `TESSERA_REQUIRE_OIDN` is set (`.ci/run` installs the pyoidn
