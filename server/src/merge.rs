@@ -8,7 +8,6 @@
 //! `spawn_blocking`.
 
 use std::path::Path;
-use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
@@ -285,20 +284,14 @@ fn look_up_frame(st: &AppState, job_id: u64, frame: u32) -> Result<(JobRow, Vec<
     Ok((job, frames, at))
 }
 
-/// The job's cameras (`f.camera` among them) and frame `f`'s stored tiles as one image, with
-/// the denoising features when the job asked for them.
-fn assemble_frame(
-    st: &AppState,
-    job: &JobRow,
-    f: &FrameRow,
-) -> Result<(Arc<Vec<Camera>>, Image, Option<AuxImages>)> {
-    let cameras = st.job_cameras(job)?;
-    if cameras.get(f.camera as usize).is_none() {
-        bail!("camera {} missing", f.camera);
-    }
+/// Frame `f`'s camera and its stored tiles as one image, with the denoising features when the
+/// job asked for them.
+fn assemble_frame(st: &AppState, job: &JobRow, f: &FrameRow) -> Result<(Camera, Image, Option<AuxImages>)> {
+    let cam = st.job_cameras(job)?.get(f.camera as usize).cloned();
+    let cam = cam.ok_or_else(|| anyhow::anyhow!("camera {} missing", f.camera))?;
     let tiles = st.store.frame_tiles(job.id, f.index)?;
     let (img, aux) = assemble_with_aux(f.width, f.height, &tiles, job.denoise)?;
-    Ok((cameras, img, aux))
+    Ok((cam, img, aux))
 }
 
 /// Merges a complete frame off the executor; a failure fails the job with the reason.
@@ -314,16 +307,15 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
             return Ok(frames.iter().all(|f| f.outputs.is_some()));
         }
         let started = Instant::now();
-        let (cameras, img, aux) = assemble_frame(&st, &job, f)?;
-        let cam = &cameras[f.camera as usize];
+        let (cam, img, aux) = assemble_frame(&st, &job, f)?;
         let assembled = started.elapsed().as_secs_f64();
         let dir = st.frame_dir(job_id, frame);
-        let (mut names, written, tonemap_seconds) = write_outputs(&dir, cam, &img)?;
+        let (mut names, written, tonemap_seconds) = write_outputs(&dir, &cam, &img)?;
         // The denoised frame goes beside the course's outputs, from the merged frame (never
         // tile by tile: the filter would leave seams).
         let denoise = match &aux {
             Some(aux) => {
-                let (more, seconds, what) = write_denoised(&dir, cam, &img, aux)?;
+                let (more, seconds, what) = write_denoised(&dir, &cam, &img, aux)?;
                 names.extend(more);
                 Some((seconds, what))
             }
@@ -331,10 +323,10 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
         };
         // The page's picture of the finished frame, made once here: a preview request then
         // reads a small file instead of the whole float frame.
-        tessera::atomic_write::write_atomic(&dir.join(PREVIEW_FILE), &final_preview_png(cam, &img)?)
+        tessera::atomic_write::write_atomic(&dir.join(PREVIEW_FILE), &final_preview_png(&cam, &img)?)
             .with_context(|| format!("cannot write the preview in {}", dir.display()))?;
         if job.noise_target.is_some() {
-            let name = tessera::output::samples_map_name(cam);
+            let name = tessera::output::samples_map_name(&cam);
             let tiles: Vec<_> = st
                 .store
                 .tile_samples(job_id, frame)?
@@ -392,15 +384,14 @@ pub async fn publish_pass(state: AppState, job_id: u64, frame: u32) {
             return Ok(false);
         }
         let started = Instant::now();
-        let (cameras, img, _) = assemble_frame(&st, &job, f)?;
-        let cam = &cameras[f.camera as usize];
+        let (cam, img, _) = assemble_frame(&st, &job, f)?;
         let dir = st.frame_dir(job_id, frame);
         std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
         let exr = dir.join(PASS_FILES[0]);
         let tmp = dir.join(".pass.exr.tmp");
         tessera::hdr_io::write_exr(&tmp, &img).map_err(|e| anyhow::anyhow!("{e}"))?;
         std::fs::rename(&tmp, &exr).with_context(|| format!("cannot write {}", exr.display()))?;
-        tessera::atomic_write::write_atomic(&dir.join(PASS_FILES[1]), &final_png(cam, &img)?)
+        tessera::atomic_write::write_atomic(&dir.join(PASS_FILES[1]), &final_png(&cam, &img)?)
             .with_context(|| format!("cannot write the pass preview in {}", dir.display()))?;
         st.store.frame_passed(
             job_id,
