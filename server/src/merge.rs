@@ -284,14 +284,17 @@ fn look_up_frame(st: &AppState, job_id: u64, frame: u32) -> Result<(JobRow, Vec<
     Ok((job, frames, at))
 }
 
-/// Frame `f`'s camera and its stored tiles as one image, with the denoising features when the
-/// job asked for them.
-fn assemble_frame(st: &AppState, job: &JobRow, f: &FrameRow) -> Result<(Camera, Image, Option<AuxImages>)> {
+/// The camera frame `f` renders.
+fn frame_camera(st: &AppState, job: &JobRow, f: &FrameRow) -> Result<Camera> {
     let cam = st.job_cameras(job)?.get(f.camera as usize).cloned();
-    let cam = cam.ok_or_else(|| anyhow::anyhow!("camera {} missing", f.camera))?;
+    cam.ok_or_else(|| anyhow::anyhow!("camera {} missing", f.camera))
+}
+
+/// Frame `f`'s stored tiles as one image, with the denoising features when the job asked for
+/// them.
+fn assemble_frame(st: &AppState, job: &JobRow, f: &FrameRow) -> Result<(Image, Option<AuxImages>)> {
     let tiles = st.store.frame_tiles(job.id, f.index)?;
-    let (img, aux) = assemble_with_aux(f.width, f.height, &tiles, job.denoise)?;
-    Ok((cam, img, aux))
+    assemble_with_aux(f.width, f.height, &tiles, job.denoise)
 }
 
 /// Merges a complete frame off the executor; a failure fails the job with the reason.
@@ -306,8 +309,9 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
             // Merged already (a second trigger of one frame): the outputs stand.
             return Ok(frames.iter().all(|f| f.outputs.is_some()));
         }
+        let cam = frame_camera(&st, &job, f)?;
         let started = Instant::now();
-        let (cam, img, aux) = assemble_frame(&st, &job, f)?;
+        let (img, aux) = assemble_frame(&st, &job, f)?;
         let assembled = started.elapsed().as_secs_f64();
         let dir = st.frame_dir(job_id, frame);
         let (mut names, written, tonemap_seconds) = write_outputs(&dir, &cam, &img)?;
@@ -383,8 +387,9 @@ pub async fn publish_pass(state: AppState, job_id: u64, frame: u32) {
         if f.outputs.is_some() || job.state.is_final() {
             return Ok(false);
         }
+        let cam = frame_camera(&st, &job, f)?;
         let started = Instant::now();
-        let (cam, img, _) = assemble_frame(&st, &job, f)?;
+        let (img, _) = assemble_frame(&st, &job, f)?;
         let dir = st.frame_dir(job_id, frame);
         std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
         let exr = dir.join(PASS_FILES[0]);
