@@ -63,6 +63,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "lights",
             "texture::maps",
             "geometry::mesh",
+            "geometry::shapes",
             "tonemap",
             "hdr_io",
         ],

@@ -14,6 +14,7 @@
 
 pub mod bvh8;
 pub mod mesh;
+mod shapes;
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -24,6 +25,7 @@ use obvhs::{BvhBuildParams, aabb::Aabb, cwbvh::CwBvh, cwbvh::builder::build_cwbv
 use crate::math::{Ray, Transform};
 use bvh8::{BoxRays8, Bvh8, Lanes8, Packet8, Ray8};
 pub use mesh::MeshGeom;
+use shapes::{plane_t, plane_uv_frame, sphere_lanes, sphere_t, sphere_uv_frame};
 
 /// What an instance is made of.
 #[derive(Clone, Debug)]
@@ -216,33 +218,6 @@ fn to_f32_ray(r: &Ray, tmin: f64, tmax: f64) -> obvhs::ray::Ray {
     obvhs::ray::Ray::new(r.origin.as_vec3a(), r.dir.as_vec3a(), tmin as f32, tmax as f32)
 }
 
-/// Smallest root in (tmin, tmax) of the sphere test, in the ray's own space.
-#[inline]
-fn sphere_t(center: DVec3, radius: f64, r: &Ray, tmin: f64, tmax: f64) -> Option<f64> {
-    let oc = r.origin - center;
-    let a = r.dir.length_squared();
-    let half_b = oc.dot(r.dir);
-    let c = oc.length_squared() - radius * radius;
-    let disc = half_b * half_b - a * c;
-    if disc < 0.0 {
-        return None;
-    }
-    let sq = disc.sqrt();
-    // Numerically stable pair of roots.
-    let q = -half_b - half_b.signum() * sq;
-    let (mut t0, mut t1) = if q != 0.0 { (q / a, c / q) } else { (-half_b / a, -half_b / a) };
-    if t0 > t1 {
-        std::mem::swap(&mut t0, &mut t1);
-    }
-    if t0 > tmin && t0 < tmax {
-        Some(t0)
-    } else if t1 > tmin && t1 < tmax {
-        Some(t1)
-    } else {
-        None
-    }
-}
-
 /// Up to eight `f64` rays side by side (unused lanes repeat the first ray): what a group's
 /// `f32` lanes ([`Lanes8`]) are converted from, and what eight-lane tests in `f64` (spheres) read.
 pub struct RayLanes {
@@ -307,72 +282,6 @@ impl RayLanes {
                 && self.d[a][k].to_bits() == ray.dir[a].to_bits()
         })
     }
-}
-
-/// [`sphere_t`] of the eight lanes of `r` (world-space rays) against the sphere (`center`,
-/// `radius`) of an instance with transform `xf`, each lane within (tmin, `tmax[lane]`):
-/// infinity where `sphere_t` says `None`, else its distance. Every lane's operations are those
-/// of [`Transform::ray_to_object`] and `sphere_t`, in their order (so the same bits), without
-/// branches: the compiler makes four-lane vector code of the transform, square root and
-/// divisions. (`q / a` is `-half_b / a` bit for bit when `q` is zero: both are then a zero of
-/// the same sign.)
-#[inline(always)]
-fn sphere_lanes(
-    center: DVec3,
-    radius: f64,
-    xf: Option<&Transform>,
-    r: &RayLanes,
-    tmin: f64,
-    tmax: &[f64; 8],
-) -> [f64; 8] {
-    let (mut o, mut d) = (r.o, r.d);
-    if let Some(xf) = xf {
-        let (m, tr) = (&xf.to_object.matrix3, xf.to_object.translation);
-        for lane in 0..8 {
-            let (x, y, z) = (r.o[0][lane], r.o[1][lane], r.o[2][lane]);
-            let (dx, dy, dz) = (r.d[0][lane], r.d[1][lane], r.d[2][lane]);
-            for a in 0..3 {
-                o[a][lane] = m.x_axis[a] * x + m.y_axis[a] * y + m.z_axis[a] * z + tr[a];
-                d[a][lane] = m.x_axis[a] * dx + m.y_axis[a] * dy + m.z_axis[a] * dz;
-            }
-        }
-    }
-    let r2 = radius * radius;
-    let mut out = [f64::INFINITY; 8];
-    for lane in 0..8 {
-        let oc = [o[0][lane] - center.x, o[1][lane] - center.y, o[2][lane] - center.z];
-        let dd = [d[0][lane], d[1][lane], d[2][lane]];
-        let a = dd[0] * dd[0] + dd[1] * dd[1] + dd[2] * dd[2];
-        let half_b = oc[0] * dd[0] + oc[1] * dd[1] + oc[2] * dd[2];
-        let c = (oc[0] * oc[0] + oc[1] * oc[1] + oc[2] * oc[2]) - r2;
-        let disc = half_b * half_b - a * c;
-        let sq = disc.sqrt();
-        let q = -half_b - half_b.signum() * sq;
-        let t0 = q / a;
-        let t1 = if q != 0.0 { c / q } else { t0 };
-        let (t0, t1) = if t0 > t1 { (t1, t0) } else { (t0, t1) };
-        let t = if t0 > tmin && t0 < tmax[lane] {
-            t0
-        } else if t1 > tmin && t1 < tmax[lane] {
-            t1
-        } else {
-            f64::INFINITY
-        };
-        out[lane] = if disc < 0.0 { f64::INFINITY } else { t };
-    }
-    out
-}
-
-/// Distance in (tmin, tmax) to the plane through `point` with normal `normal`, in the ray's own
-/// space; `None` for rays parallel to it.
-#[inline]
-fn plane_t(point: DVec3, normal: DVec3, r: &Ray, tmin: f64, tmax: f64) -> Option<f64> {
-    let denom = normal.dot(r.dir);
-    if denom == 0.0 || !denom.is_finite() {
-        return None;
-    }
-    let t = (point - r.origin).dot(normal) / denom;
-    (t > tmin && t < tmax).then_some(t)
 }
 
 /// World bounds of a bounded instance; `None` for planes.
@@ -623,9 +532,55 @@ impl Accel {
         if self.unbounded.is_empty() && self.bounded.is_empty() {
             return self.found(ray, best);
         }
+        if self.unbounded.is_empty() && self.bounded.len() <= LINEAR_MAX {
+            return self.intersect_short_list(ray, tmin, tmax, best, near);
+        }
         let mut fr = to_f32_ray(ray, tmin, tmax);
         fr.tmax = near;
         self.intersect_rest(ray, tmin, best, fr)
+    }
+
+    /// [`Self::intersect`] beyond the world tree when the bounded instances are a short list
+    /// and there are no planes: each instance in turn, from the world tree's candidate `best`
+    /// (`near` its distance in `f32`). A sphere in world space is tested exactly at once: its
+    /// test costs about what its box test does, and needs no `f32` ray with its inverse
+    /// direction, which is made only for an instance that needs it. The same hits as
+    /// [`Self::intersect_rest`] (a box is padded, so it never turns away a hit of its sphere).
+    #[inline]
+    fn intersect_short_list(
+        &self,
+        ray: &Ray,
+        tmin: f64,
+        tmax: f64,
+        mut best: Candidate,
+        mut near: f32,
+    ) -> Option<SurfaceHit> {
+        let mut fr: Option<obvhs::ray::Ray> = None;
+        for (&idx, b) in self.bounded.iter().zip(&self.bounds) {
+            if let Some((center, radius)) = self.world_sphere(idx) {
+                if let Some(t) = sphere_t(center, radius, ray, tmin, best.t) {
+                    best = Candidate { t, instance: idx, tri: 0, merged: u32::MAX };
+                    near = near.min(t as f32);
+                }
+                continue;
+            }
+            let fr = fr.get_or_insert_with(|| to_f32_ray(ray, tmin, tmax));
+            fr.tmax = near;
+            if enters(b, fr) {
+                near = near.min(self.hit_instance(idx, ray, fr, tmin, &mut best));
+            }
+        }
+        self.found(ray, best)
+    }
+
+    /// Instance `idx`'s centre and radius when it is a sphere whose object space is world space.
+    #[inline]
+    fn world_sphere(&self, idx: u32) -> Option<(DVec3, f64)> {
+        let inst = &self.instances[idx as usize];
+        match inst.shape {
+            Shape::Sphere { center, radius } if inst.is_world_space() => Some((center, radius)),
+            _ => None,
+        }
     }
 
     /// The closest hits of up to eight rays with `t` in (tmin, ∞), each what
@@ -695,7 +650,7 @@ impl Accel {
                     && let Some((center, radius, xf)) = self.lane_sphere(idx)
                 {
                     // Two lanes or more in a sphere's box: its test for all eight at once.
-                    let ts = sphere_lanes(center, radius, xf, wide, tmin, &best.map(|c| c.t));
+                    let ts = sphere_lanes(center, radius, xf, &wide.o, &wide.d, tmin, &best.map(|c| c.t));
                     while hit != 0 {
                         let lane = hit.trailing_zeros() as usize;
                         hit &= hit - 1;
@@ -775,6 +730,18 @@ impl Accel {
         if self.unbounded.is_empty() && self.bounded.is_empty() {
             return false;
         }
+        if self.unbounded.is_empty() && self.bounded.len() <= LINEAR_MAX {
+            // As in `intersect_short_list`: spheres in world space exactly, with no box test
+            // and no `f32` ray; that ray made only for an instance that needs it.
+            let mut fr: Option<obvhs::ray::Ray> = None;
+            return self.bounded.iter().zip(&self.bounds).any(|(&idx, b)| match self.world_sphere(idx) {
+                Some((center, radius)) => sphere_t(center, radius, ray, tmin, tmax).is_some(),
+                None => {
+                    let fr = fr.get_or_insert_with(|| to_f32_ray(ray, tmin, tmax));
+                    enters(b, fr) && self.blocks(idx, ray, fr, tmin, tmax)
+                }
+            });
+        }
         let fr = to_f32_ray(ray, tmin, tmax);
         if self.unbounded_block(ray, &fr, tmin, tmax) {
             return true;
@@ -851,7 +818,7 @@ impl Accel {
                 {
                     let far64: [f64; 8] =
                         std::array::from_fn(|i| tmax.get(i).map_or(f64::NEG_INFINITY, |&t| t));
-                    let ts = sphere_lanes(center, radius, xf, &wide, tmin, &far64);
+                    let ts = sphere_lanes(center, radius, xf, &wide.o, &wide.d, tmin, &far64);
                     for (lane, t) in ts.iter().enumerate() {
                         if lanes & (1 << lane) != 0 && *t < f64::INFINITY {
                             blocked |= 1 << lane;
@@ -1139,36 +1106,6 @@ fn refined_t(t64: f64, t32: f64) -> f64 {
 #[inline(always)]
 fn side_of(n: DVec3, reference: DVec3) -> DVec3 {
     if n.dot(reference) < 0.0 { -n } else { n }
-}
-
-/// Texture coordinates and ∂p/∂u, ∂p/∂v of a plane at object-space offset `d` from its point:
-/// distances along a fixed unit tangent pair (u along the axis least aligned with the normal,
-/// projected into the plane), so a texture repeats with period 1 in object units.
-fn plane_uv_frame(d: DVec3, n: DVec3) -> (DVec2, DVec3, DVec3) {
-    let a = n.abs();
-    let axis = if a.x <= a.y && a.x <= a.z {
-        DVec3::X
-    } else if a.y <= a.z {
-        DVec3::Y
-    } else {
-        DVec3::Z
-    };
-    let t = (axis - n * n.dot(axis)).normalize_or_zero();
-    let b = n.cross(t);
-    (DVec2::new(d.dot(t), d.dot(b)), t, b)
-}
-
-/// Texture coordinates and ∂p/∂u, ∂p/∂v of a sphere at object-space offset `d` from its centre
-/// (§11.4, §11.6a): θ from +Y, φ = atan2(z, x), u = (π - φ)/2π, v = θ/π.
-fn sphere_uv_frame(d: DVec3, r: f64) -> (DVec2, DVec3, DVec3) {
-    let theta = (d.y / r).clamp(-1.0, 1.0).acos();
-    let phi = d.z.atan2(d.x);
-    let uv =
-        DVec2::new((std::f64::consts::PI - phi) / (2.0 * std::f64::consts::PI), theta / std::f64::consts::PI);
-    let pi = std::f64::consts::PI;
-    let dpdu = DVec3::new(2.0 * pi * d.z, 0.0, -2.0 * pi * d.x);
-    let dpdv = DVec3::new(pi * d.y * phi.cos(), -pi * r * theta.sin(), pi * d.y * phi.sin());
-    (uv, dpdu, dpdv)
 }
 
 #[cfg(test)]
@@ -1886,7 +1823,7 @@ mod tests {
                 let tmax: [f64; 8] =
                     std::array::from_fn(|l| if l % 3 == 0 { f64::INFINITY } else { 4.0 + l as f64 });
                 let lanes = RayLanes::new(&rays[..len]);
-                let got = sphere_lanes(center, radius, xf.as_ref(), &lanes, 1e-6, &tmax);
+                let got = sphere_lanes(center, radius, xf.as_ref(), &lanes.o, &lanes.d, 1e-6, &tmax);
                 for l in 0..len {
                     let local = xf.as_ref().map_or(rays[l], |xf| xf.ray_to_object(&rays[l]));
                     let want = sphere_t(center, radius, &local, 1e-6, tmax[l]).unwrap_or(f64::INFINITY);
