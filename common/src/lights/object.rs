@@ -116,7 +116,15 @@ impl ObjectLight {
             EmitterShape::Triangles { tris, cdf, normals } => {
                 let total = *cdf.last()?;
                 let target = u * total;
-                let k = cdf.partition_point(|&c| c <= target).min(tris.len() - 1);
+                // The first entry above the target. A short table is counted through without
+                // branches (a binary search's are taken at random); the same index, as the
+                // running sums never decrease.
+                let k = if cdf.len() <= 32 {
+                    cdf.iter().map(|&c| usize::from(c <= target)).sum()
+                } else {
+                    cdf.partition_point(|&c| c <= target)
+                };
+                let k = k.min(tris.len() - 1);
                 let [p0, p1, p2] = tris[k];
                 let s = u1.sqrt();
                 let y = (1.0 - s) * p0 + s * (1.0 - u2) * p1 + s * u2 * p2;
