@@ -219,8 +219,10 @@ impl Bvh8 {
                 // Two packets per test; an odd last one alone.
                 for pair in self.tris[first..first + n].chunks(2) {
                     let hit = match pair {
-                        [a, b] => tri8_closest(a, b, ray, tmax).map(|(t, l)| (t, [a, b][l / 4].id[l % 4])),
-                        [a] => tri4_closest(a, ray, tmax).map(|(t, l)| (t, a.id[l])),
+                        [a, b] => {
+                            tri8_closest(a, b, ray, tmax, found).map(|(t, l)| (t, [a, b][l / 4].id[l % 4]))
+                        }
+                        [a] => tri4_closest(a, ray, tmax, found).map(|(t, l)| (t, a.id[l])),
                         _ => None,
                     };
                     if let Some((t, id)) = hit {
@@ -237,7 +239,9 @@ impl Bvh8 {
                 sp -= 1;
                 // SAFETY: entries below `sp` were written by the pushes above.
                 let (c, d) = unsafe { stack[sp].assume_init() };
-                if d <= tmax {
+                // With the box test's slack: a box's entry can round past a hit on its own
+                // surface, and a triangle there at the same distance may still win on its id.
+                if d <= tmax * (1.0 + 4.0 * f32::EPSILON) {
                     cur = c;
                     break;
                 }
@@ -357,13 +361,15 @@ impl Lanes8 {
 
 /// Up to eight rays traced together through one traversal (structure of arrays): coherent rays,
 /// such as the camera rays of one pixel, share their node visits and test every triangle of a
-/// leaf eight at a time. Each lane gets the hit its own [`Ray8`] query would find (up to exact
-/// ties of `t` between two triangles, which the two traversals may break differently).
+/// leaf eight at a time. Each lane gets the hit its own [`Ray8`] query would find, ties of `t`
+/// between triangles included (both go to the lowest id, [`kernels::nearer`]).
 pub struct Packet8 {
     o: [[f32; 8]; 3],
     d: [[f32; 8]; 3],
     inv: [[f32; 8]; 3],
-    o_inv: [[f32; 8]; 3],
+    /// Each lane's `o · inv`, nudged as a single ray's ([`kernels::o_inv_bounds`]).
+    o_inv_near: [[f32; 8]; 3],
+    o_inv_far: [[f32; 8]; 3],
     tmin: [f32; 8],
     /// Lanes that hold a ray.
     active: u32,
@@ -398,7 +404,8 @@ impl Packet8 {
             o,
             d,
             inv: [[0.0; 8]; 3],
-            o_inv: [[0.0; 8]; 3],
+            o_inv_near: [[0.0; 8]; 3],
+            o_inv_far: [[0.0; 8]; 3],
             tmin: [tmin; 8],
             active: (1u32 << len) - 1,
         };
@@ -407,7 +414,8 @@ impl Packet8 {
         for a in 0..3 {
             for lane in 0..8 {
                 p.inv[a][lane] = safe_inv(p.d[a][lane]);
-                p.o_inv[a][lane] = p.o[a][lane] * p.inv[a][lane];
+                (p.o_inv_near[a][lane], p.o_inv_far[a][lane]) =
+                    kernels::o_inv_bounds(p.o[a][lane] * p.inv[a][lane]);
             }
         }
         p
@@ -500,7 +508,8 @@ impl Bvh8 {
             let (ox, oy, oz) = (ld(&p.o[0]), ld(&p.o[1]), ld(&p.o[2]));
             let (dx, dy, dz) = (ld(&p.d[0]), ld(&p.d[1]), ld(&p.d[2]));
             let (ix, iy, iz) = (ld(&p.inv[0]), ld(&p.inv[1]), ld(&p.inv[2]));
-            let (oix, oiy, oiz) = (ld(&p.o_inv[0]), ld(&p.o_inv[1]), ld(&p.o_inv[2]));
+            let (oix, oiy, oiz) = (ld(&p.o_inv_near[0]), ld(&p.o_inv_near[1]), ld(&p.o_inv_near[2]));
+            let (ofx, ofy, ofz) = (ld(&p.o_inv_far[0]), ld(&p.o_inv_far[1]), ld(&p.o_inv_far[2]));
             let tmin = ld(&p.tmin);
             let mut tmax = ld(tmax_out);
             let mut ids = _mm256_loadu_si256(id_out.as_ptr().cast());
@@ -514,6 +523,11 @@ impl Bvh8 {
             // Where the lanes enter a box given as its six planes broadcast (minima x, y, z,
             // then maxima) before their far bounds `tmax`: the entry distances, and the lanes
             // that enter (conservative by a few ulps, as the single-ray test).
+            // Each plane's distance at most the exact one (the lanes' near terms); a lane's
+            // exits are those plus the gap between its near and far terms, which makes them at
+            // least the exact ones (which plane is a lane's near one depends on its direction,
+            // and the min and max pick it).
+            let (gx, gy, gz) = (_mm256_sub_ps(oix, ofx), _mm256_sub_ps(oiy, ofy), _mm256_sub_ps(oiz, ofz));
             let enter = move |b: [__m256; 6], tmax: __m256| {
                 let t0x = _mm256_fmsub_ps(b[0], ix, oix);
                 let t1x = _mm256_fmsub_ps(b[3], ix, oix);
@@ -526,8 +540,11 @@ impl Bvh8 {
                     _mm256_max_ps(_mm256_min_ps(t0z, t1z), tmin),
                 );
                 let tf = _mm256_min_ps(
-                    _mm256_min_ps(_mm256_max_ps(t0x, t1x), _mm256_max_ps(t0y, t1y)),
-                    _mm256_min_ps(_mm256_max_ps(t0z, t1z), tmax),
+                    _mm256_min_ps(
+                        _mm256_add_ps(_mm256_max_ps(t0x, t1x), gx),
+                        _mm256_add_ps(_mm256_max_ps(t0y, t1y), gy),
+                    ),
+                    _mm256_min_ps(_mm256_add_ps(_mm256_max_ps(t0z, t1z), gz), tmax),
                 );
                 (tn, _mm256_cmp_ps(tn, _mm256_mul_ps(tf, grow), _CMP_LE_OQ))
             };
@@ -570,11 +587,14 @@ impl Bvh8 {
             let keep_all = if nan_lanes == 0 { 0 } else { 0xff };
             let inv_lo = [hmin(ix), hmin(iy), hmin(iz)];
             let inv_hi = [hmax(ix), hmax(iy), hmax(iz)];
-            let oinv_lo = [hmin(oix), hmin(oiy), hmin(oiz)];
+            // The least of the far terms and the greatest of the near ones: the intervals
+            // bound the nudged distances, so they stay conservative.
+            let oinv_lo = [hmin(ofx), hmin(ofy), hmin(ofz)];
             let oinv_hi = [hmax(oix), hmax(oiy), hmax(oiz)];
             // The slots of `node` that some lane of the packet may enter before `far` (the
             // greatest far bound of its lanes). Per lane the exact test computes each plane's
-            // distance as round(b·inv − o_inv), which is monotonic in the exact value; the
+            // distance as round(b·inv − o), o the lane's nudged near or far term, which is
+            // monotonic in the exact value; the
             // exact value is least at an end of the inverse's interval and at the greatest
             // scaled origin, greatest at an end and at the least origin, so one rounded
             // product per end bounds every lane's. Mins, maxes and the product by `grow` keep
@@ -691,10 +711,19 @@ impl Bvh8 {
                                 }
                                 continue;
                             }
-                            // Where the scaled test passed, t < tmax up to the rounding of the
-                            // division: keep the strict comparison of the single-ray test.
+                            // The scaled test has slack: the divided distance decides, as
+                            // `nearer` does for a single ray (ties to the lower id; "none",
+                            // u32::MAX, is -1 in the signed comparison and loses every tie).
                             let t = _mm256_div_ps(tt, adet);
-                            let closer = _mm256_and_ps(ok, _mm256_cmp_ps(t, tmax, _CMP_LT_OQ));
+                            let tie = _mm256_and_ps(
+                                _mm256_cmp_ps(t, tmax, _CMP_EQ_OQ),
+                                _mm256_castsi256_ps(_mm256_cmpgt_epi32(
+                                    ids,
+                                    _mm256_set1_epi32(tri.id[l] as i32),
+                                )),
+                            );
+                            let closer =
+                                _mm256_and_ps(ok, _mm256_or_ps(_mm256_cmp_ps(t, tmax, _CMP_LT_OQ), tie));
                             tmax = _mm256_blendv_ps(tmax, t, closer);
                             ids = _mm256_castps_si256(_mm256_blendv_ps(
                                 _mm256_castsi256_ps(ids),
@@ -719,7 +748,9 @@ impl Bvh8 {
                     // walk does. An any-hit lane that has not hit keeps every node it entered
                     // (the single any-hit walk never drops one): its far bound has not moved,
                     // and its box test let it in up to the far bound times `grow`.
-                    let bound = if ANY { _mm256_mul_ps(tmax, grow) } else { tmax };
+                    // A closest-hit lane keeps the box test's slack too: a triangle on the box's
+                    // surface at the hit's own distance may still win on its id.
+                    let bound = _mm256_mul_ps(tmax, grow);
                     let reach =
                         _mm256_movemask_ps(_mm256_cmp_ps(_mm256_set1_ps(d), bound, _CMP_LE_OQ)) as u32;
                     if m & reach != 0 {
@@ -859,24 +890,14 @@ impl Builder<'_> {
         } else {
             vec![n.first_index as usize, n.first_index as usize + 1]
         };
-        while kids.len() < 8 {
-            // Open the largest child that is not to be a leaf.
-            let best = kids
-                .iter()
-                .enumerate()
-                .filter(|&(_, &k)| !self.bvh2.nodes[k].is_leaf() && self.count[k] > LEAF_MAX)
-                .max_by(|a, b| {
-                    let (x, y) =
-                        (self.bvh2.nodes[*a.1].aabb.half_area(), self.bvh2.nodes[*b.1].aabb.half_area());
-                    x.total_cmp(&y)
-                })
-                .map(|(j, _)| j);
-            let Some(j) = best else { break };
-            let k = kids.swap_remove(j);
-            let f = self.bvh2.nodes[k].first_index as usize;
-            kids.push(f);
-            kids.push(f + 1);
-        }
+        // Open the largest child that is not to be a leaf, while slots are free.
+        while kids.len() < 8 && self.open_largest(&mut kids, |k| self.count[k] > LEAF_MAX) {}
+        // The root's free slots then go to leaves split further (a tree of at most about 64
+        // triangles: a Cornell box): one node of small leaves with tight boxes, where a few
+        // leaves would each span the room and every ray would test them all. Below the root a
+        // free slot stays free: split leaves there cost a large mesh's shadow rays more than
+        // they save.
+        while depth == 1 && kids.len() < 8 && self.open_largest(&mut kids, |_| true) {}
         for (slot, &k) in kids.iter().enumerate() {
             let kn = &self.bvh2.nodes[k];
             let (lo, hi) = (kn.aabb.min, kn.aabb.max);
@@ -893,6 +914,24 @@ impl Builder<'_> {
             self.out.nodes[idx].child[slot] = child;
         }
         idx as u32
+    }
+
+    /// Replaces the child in `kids` with the largest box, of those that are inner BVH2 nodes
+    /// and pass `can`, by its two children; false when there is none.
+    fn open_largest(&self, kids: &mut Vec<usize>, can: impl Fn(usize) -> bool) -> bool {
+        let area = |k: usize| self.bvh2.nodes[k].aabb.half_area();
+        let best = kids
+            .iter()
+            .enumerate()
+            .filter(|&(_, &k)| !self.bvh2.nodes[k].is_leaf() && can(k))
+            .max_by(|a, b| area(*a.1).total_cmp(&area(*b.1)))
+            .map(|(j, _)| j);
+        let Some(j) = best else { return false };
+        let k = kids.swap_remove(j);
+        let f = self.bvh2.nodes[k].first_index as usize;
+        kids.push(f);
+        kids.push(f + 1);
+        true
     }
 
     /// Packs the triangles under BVH2 node `i` into packets; returns the leaf reference.
@@ -1190,25 +1229,109 @@ mod tests {
             let probe = Ray8::new(o, d, 0.0, f32::INFINITY);
             // Far bounds at infinity, at the nearest hit itself and one ulp either side of it
             // (where the scaled test and the divided distance must agree), and short of it.
-            let hit = tri4_closest(&a, &probe, f32::INFINITY).or(tri4_closest(&b, &probe, f32::INFINITY));
+            let none = u32::MAX;
+            let hit = tri4_closest(&a, &probe, f32::INFINITY, none).or(tri4_closest(
+                &b,
+                &probe,
+                f32::INFINITY,
+                none,
+            ));
             let bounds = match hit {
                 Some((t, _)) => vec![f32::INFINITY, t, t.next_up(), t.next_down(), 0.5 * t],
                 None => vec![f32::INFINITY, 3.0],
             };
             for tmax in bounds {
                 let ray = Ray8::new(o, d, 0.0, tmax);
-                let expect = tri4_closest(&a, &ray, tmax).is_some() || tri4_closest(&b, &ray, tmax).is_some();
+                let expect = tri4_closest(&a, &ray, tmax, none).is_some()
+                    || tri4_closest(&b, &ray, tmax, none).is_some();
                 assert_eq!(tri8_any(&a, &b, &ray, tmax), expect, "ray {k}, tmax {tmax}");
                 // The nearest: `a`'s, then `b`'s below it (equal packets: `a`'s lane wins).
-                let first = tri4_closest(&a, &ray, tmax);
-                let second = tri4_closest(&b, &ray, first.map_or(tmax, |h| h.0));
+                let first = tri4_closest(&a, &ray, tmax, none);
+                let (bound, bid) = first.map_or((tmax, none), |h| (h.0, a.id[h.1]));
+                let second = tri4_closest(&b, &ray, bound, bid);
                 let nearest = second.map(|(t, l)| (t, l + 4)).or(first);
-                assert_eq!(tri8_closest(&a, &b, &ray, tmax), nearest, "ray {k}, tmax {tmax}");
+                assert_eq!(tri8_closest(&a, &b, &ray, tmax, none), nearest, "ray {k}, tmax {tmax}");
                 blocked += expect as u32;
                 at_bound += (hit.is_some_and(|h| h.0 == tmax)) as u32;
             }
         }
         assert!(blocked > 1000 && at_bound > 100, "{blocked} blocked, {at_bound} at the bound");
+    }
+
+    /// Rays aimed at the corners of a grid of triangles (each corner shared by up to six, all
+    /// at one distance): the closest hit is the least (distance, id) of the triangles hit, as
+    /// brute force finds it, whichever walk meets them and in whatever order: a single ray, and
+    /// the same ray as any lane of packets of other rays.
+    #[test]
+    fn ties_go_to_the_lowest_id_in_every_walk() {
+        let mut r = xorshift(4242);
+        // A 6x6 grid of squares in the plane z = 1, two triangles each, ids shuffled.
+        let mut tris = Vec::new();
+        for i in 0..6 {
+            for j in 0..6 {
+                let p = Vec3A::new(i as f32, j as f32, 1.0);
+                let (x, y) = (Vec3A::X, Vec3A::Y);
+                tris.push([p, x, x + y]);
+                tris.push([p, x + y, y]);
+            }
+        }
+        let mut ids: Vec<u32> = (0..tris.len() as u32).collect();
+        for k in (1..ids.len()).rev() {
+            ids.swap(k, (r() * (k + 1) as f32) as usize % (k + 1));
+        }
+        let aabbs: Vec<Aabb> =
+            tris.iter().map(|t| Aabb::from_points(&[t[0], t[0] + t[1], t[0] + t[2]])).collect();
+        let bvh = Bvh8::build(&tris, &aabbs, &ids);
+        let brute = |ray: &Ray8| {
+            let mut best: Option<(f32, u32)> = None;
+            for (t, &id) in tris.iter().zip(&ids) {
+                let p = Tri4 {
+                    v0: [[t[0].x; 4], [t[0].y; 4], [t[0].z; 4]],
+                    e1: [[t[1].x; 4], [t[1].y; 4], [t[1].z; 4]],
+                    e2: [[t[2].x; 4], [t[2].y; 4], [t[2].z; 4]],
+                    id: [id; 4],
+                };
+                let (bound, bid) = best.map_or((ray.tmax, u32::MAX), |b| b);
+                if let Some((tt, _)) = tri4_closest(&p, ray, bound, bid) {
+                    best = Some((tt, id));
+                }
+            }
+            best
+        };
+        let mut ties = 0;
+        for k in 0..400 {
+            // Eight rays from one origin below the grid, each at a grid corner.
+            let o = Vec3A::new(r() * 6.0, r() * 6.0, -2.0 - 3.0 * r());
+            let rays: Vec<(Vec3A, Vec3A)> = (0..8)
+                .map(|_| {
+                    let c = Vec3A::new((r() * 7.0).floor().min(6.0), (r() * 7.0).floor().min(6.0), 1.0);
+                    (o, (c - o).normalize())
+                })
+                .collect();
+            let packet = Packet8::new(&rays, 0.0);
+            let (mut tmax, mut id) = ([f32::INFINITY; 8], [u32::MAX; 8]);
+            let hit = bvh.intersect_packet(&packet, &mut tmax, &mut id);
+            for (lane, &(o, d)) in rays.iter().enumerate() {
+                let ray = Ray8::new(o, d, 0.0, f32::INFINITY);
+                let expect = brute(&ray);
+                assert_eq!(bvh.intersect(&ray), expect, "rays {k}, lane {lane}: single walk");
+                let got = (hit & (1 << lane) != 0).then_some((tmax[lane], id[lane]));
+                assert_eq!(got, expect, "rays {k}, lane {lane}: packet walk");
+                // Rays whose hit another triangle also takes at the same distance.
+                ties += usize::from(expect.is_some_and(|(t, id)| {
+                    tris.iter().zip(&ids).filter(|&(_, &other)| other != id).any(|(tri, &other)| {
+                        let p = Tri4 {
+                            v0: [[tri[0].x; 4], [tri[0].y; 4], [tri[0].z; 4]],
+                            e1: [[tri[1].x; 4], [tri[1].y; 4], [tri[1].z; 4]],
+                            e2: [[tri[2].x; 4], [tri[2].y; 4], [tri[2].z; 4]],
+                            id: [other; 4],
+                        };
+                        tri4_closest(&p, &ray, f32::INFINITY, u32::MAX).is_some_and(|h| h.0 == t)
+                    })
+                }));
+            }
+        }
+        assert!(ties > 500, "only {ties} rays met a tie");
     }
 
     /// Brute force over every triangle agrees with the BVH on random rays through a random soup.
@@ -1233,12 +1356,13 @@ mod tests {
                     e2: [[t[2].x; 4], [t[2].y; 4], [t[2].z; 4]],
                     id: [i as u32; 4],
                 };
-                if let Some((tt, _)) = tri4_closest(&p, &ray, expect.map_or(tmax, |e| e.0)) {
+                let (bound, bid) = expect.map_or((tmax, u32::MAX), |e| e);
+                if let Some((tt, _)) = tri4_closest(&p, &ray, bound, bid) {
                     expect = Some((tt, i as u32));
                 }
             }
             let got = bvh.intersect(&ray);
-            assert_eq!(got.map(|g| g.0), expect.map(|e| e.0), "ray {k}");
+            assert_eq!(got, expect, "ray {k}");
             assert_eq!(bvh.occluded(&ray), expect.is_some(), "ray {k}");
             hits += expect.is_some() as u32;
         }

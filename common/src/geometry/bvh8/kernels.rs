@@ -33,7 +33,10 @@ pub struct Ray8 {
     pub(super) o: [f32; 3],
     pub(super) d: [f32; 3],
     pub(super) inv: [f32; 3],
-    pub(super) o_inv: [f32; 3],
+    /// `o · inv` per axis, nudged by [`o_inv_bounds`]: a box plane's distance
+    /// `b · inv − o_inv_near` is at most the exact one, `b · inv − o_inv_far` at least.
+    pub(super) o_inv_near: [f32; 3],
+    pub(super) o_inv_far: [f32; 3],
     /// Plane index (into `Node::b`) of the near and far side per axis.
     pub(super) near: [usize; 3],
     pub(super) far: [usize; 3],
@@ -43,6 +46,21 @@ pub struct Ray8 {
     /// worked out while the values are in registers: a walk that began by loading the fields
     /// it was just built from, several at once, waited for their stores.
     pub(super) nan: bool,
+}
+
+/// `o · inv` rounded, then moved by at least one ulp each way: the rounded product is within half
+/// an ulp of the exact one, so `b · inv − near` (one fused operation) is at most the plane's
+/// distance `(b − o) · inv` up to the rounding of that difference, and `b · inv − far` at least.
+/// Box tests with them are conservative however the subtraction cancels (a ray whose origin is
+/// far from a box along a nearly perpendicular axis), which keeps a box touched at a corner or
+/// an edge from being culled: every walk then meets every triangle that could tie with its
+/// hit, and ties go to the lowest id ([`nearer`]) whatever the walk.
+#[inline(always)]
+pub(super) fn o_inv_bounds(o_inv: f32) -> (f32, f32) {
+    // EPSILON·|x| is one to two ulps of x (x normal); a subnormal or zero product gets the
+    // least normal's.
+    let slack = (o_inv.abs() * f32::EPSILON).max(f32::MIN_POSITIVE);
+    (o_inv + slack, o_inv - slack)
 }
 
 /// `1 / d` of a direction component, with components of magnitude below 1e-18 taken as ±1e-18
@@ -58,19 +76,23 @@ impl Ray8 {
         let o = origin.to_array();
         let d = dir.to_array();
         let mut inv = [0.0f32; 3];
-        let mut o_inv = [0.0f32; 3];
+        let mut o_inv_near = [0.0f32; 3];
+        let mut o_inv_far = [0.0f32; 3];
         let mut near = [0usize; 3];
         let mut far = [0usize; 3];
         for a in 0..3 {
             inv[a] = safe_inv(d[a]);
-            o_inv[a] = o[a] * inv[a];
+            (o_inv_near[a], o_inv_far[a]) = o_inv_bounds(o[a] * inv[a]);
             let neg = (inv[a] < 0.0) as usize;
             near[a] = a + 3 * neg;
             far[a] = a + 3 * (1 - neg);
         }
-        let nan =
-            o_inv[0].is_nan() || o_inv[1].is_nan() || o_inv[2].is_nan() || tmin.is_nan() || tmax.is_nan();
-        Ray8 { o, d, inv, o_inv, near, far, tmin, tmax, nan }
+        let nan = o_inv_near[0].is_nan()
+            || o_inv_near[1].is_nan()
+            || o_inv_near[2].is_nan()
+            || tmin.is_nan()
+            || tmax.is_nan();
+        Ray8 { o, d, inv, o_inv_near, o_inv_far, near, far, tmin, tmax, nan }
     }
 
     /// Whether the ray has a NaN in its origin, direction or bounds: such a ray hits nothing
@@ -108,16 +130,17 @@ pub(super) fn node_hits(node: &Node, ray: &Ray8, tmax: f32) -> (u32, [f32; 8]) {
         let base: *const f32 = node.b.as_ptr().cast();
         // `near`/`far` are plane indices below 6 (see `Ray8::new`): in bounds.
         let plane = |i: usize| _mm256_load_ps(base.add(i * 8));
-        let t = |i: usize, a: usize| {
-            _mm256_fmsub_ps(plane(i), _mm256_set1_ps(ray.inv[a]), _mm256_set1_ps(ray.o_inv[a]))
+        let t = |i: usize, a: usize, o_inv: &[f32; 3]| {
+            _mm256_fmsub_ps(plane(i), _mm256_set1_ps(ray.inv[a]), _mm256_set1_ps(o_inv[a]))
         };
+        let (on, of) = (&ray.o_inv_near, &ray.o_inv_far);
         let tn = _mm256_max_ps(
-            _mm256_max_ps(t(ray.near[0], 0), t(ray.near[1], 1)),
-            _mm256_max_ps(t(ray.near[2], 2), _mm256_set1_ps(ray.tmin)),
+            _mm256_max_ps(t(ray.near[0], 0, on), t(ray.near[1], 1, on)),
+            _mm256_max_ps(t(ray.near[2], 2, on), _mm256_set1_ps(ray.tmin)),
         );
         let tf = _mm256_min_ps(
-            _mm256_min_ps(t(ray.far[0], 0), t(ray.far[1], 1)),
-            _mm256_min_ps(t(ray.far[2], 2), _mm256_set1_ps(tmax)),
+            _mm256_min_ps(t(ray.far[0], 0, of), t(ray.far[1], 1, of)),
+            _mm256_min_ps(t(ray.far[2], 2, of), _mm256_set1_ps(tmax)),
         );
         // Conservative by a few ulps, so rounding never culls a box the ray touches.
         let tf = _mm256_mul_ps(tf, _mm256_set1_ps(1.0 + 4.0 * f32::EPSILON));
@@ -139,9 +162,10 @@ pub(super) fn node_hits(node: &Node, ray: &Ray8, tmax: f32) -> (u32, [f32; 8]) {
     let mut mask = 0u32;
     let mut dist = [0f32; 8];
     for s in 0..8 {
-        let t = |i: usize, a: usize| node.b[i][s].mul_add(ray.inv[a], -ray.o_inv[a]);
-        let tn = t(ray.near[0], 0).max(t(ray.near[1], 1)).max(t(ray.near[2], 2)).max(ray.tmin);
-        let tf = t(ray.far[0], 0).min(t(ray.far[1], 1)).min(t(ray.far[2], 2)).min(tmax);
+        let t = |i: usize, a: usize, o_inv: &[f32; 3]| node.b[i][s].mul_add(ray.inv[a], -o_inv[a]);
+        let (on, of) = (&ray.o_inv_near, &ray.o_inv_far);
+        let tn = t(ray.near[0], 0, on).max(t(ray.near[1], 1, on)).max(t(ray.near[2], 2, on)).max(ray.tmin);
+        let tf = t(ray.far[0], 0, of).min(t(ray.far[1], 1, of)).min(t(ray.far[2], 2, of)).min(tmax);
         // Only slots with a box (see the AVX2 version).
         if tn <= tf * (1.0 + 4.0 * f32::EPSILON) && node.b[0][s] <= node.b[3][s] {
             mask |= 1 << s;
@@ -149,6 +173,23 @@ pub(super) fn node_hits(node: &Node, ray: &Ray8, tmax: f32) -> (u32, [f32; 8]) {
         dist[s] = tn;
     }
     (mask, dist)
+}
+
+/// The far pre-tests' slack: `tt <= tmax·|det|·FAR_SLACK` holds for every lane whose divided
+/// distance is at most `tmax` (the product's two roundings and the division's are each half an
+/// ulp).
+const FAR_SLACK: f32 = 1.0 + 4.0 * f32::EPSILON;
+
+/// Whether a hit at `t` on triangle `id` is nearer than the best so far (`bt` on `bid`;
+/// `bid == u32::MAX`: none, `bt` is the ray's far bound): nearer, or as near on a triangle of
+/// lower id. So the closest hit is the least (distance, id) of the triangles hit, whatever the
+/// order the walk meets them in: a packet of other rays, another tree shape or another tile
+/// finds the same triangle on a corner or an edge where two triangles' distances are equal.
+/// Ids are below 2^31 (the trees' triangle counts), so a signed comparison orders them and puts
+/// "none" (-1) before every one, which a tie then cannot beat.
+#[inline(always)]
+pub(super) fn nearer(t: f32, id: u32, bt: f32, bid: u32) -> bool {
+    t < bt || (t == bt && (id as i32) < (bid as i32))
 }
 
 /// Möller–Trumbore in AVX registers, eight (triangle, ray) pairs side by side: edges `e1`, `e2`,
@@ -217,8 +258,9 @@ unsafe fn tri8_tests(
     }
 }
 
-/// The lanes of `ok` whose `tt` lies below the far bound `tmax` scaled by `|det|`:
-/// `tri4_closest`'s far test.
+/// The lanes of `ok` whose `tt` may lie at or below the far bound `tmax` scaled by `|det|`, with
+/// a few ulps to spare ([`FAR_SLACK`]): a pre-test that saves the division of the lanes beyond
+/// the bound, never dropping one whose divided distance `tt / |det|` the exact tests would take.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
 #[inline(always)]
 pub(super) unsafe fn below(
@@ -229,7 +271,10 @@ pub(super) unsafe fn below(
 ) -> std::arch::x86_64::__m256 {
     use std::arch::x86_64::*;
     // SAFETY (the caller's): the target has AVX.
-    unsafe { _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(tt, _mm256_mul_ps(tmax, adet))) }
+    unsafe {
+        let bound = _mm256_mul_ps(_mm256_mul_ps(tmax, adet), _mm256_set1_ps(FAR_SLACK));
+        _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(tt, bound))
+    }
 }
 
 /// Whether any triangle of packets `a` and `b` is hit with t in (ray.tmin, tmax): exactly when
@@ -251,12 +296,12 @@ pub(super) fn tri8_any(a: &Tri4, b: &Tri4, ray: &Ray8, tmax: f32) -> bool {
     }
 }
 
-/// The nearest hit of packets `a` then `b` with t in (ray.tmin, tmax): (t, lane), lanes 0-3
-/// of `a` and 4-7 of `b`. Exactly what `tri4_closest` of `a`, then of `b` with the far bound
-/// lowered to `a`'s hit, finds: `b`'s far test is redone with that bound.
+/// The nearest hit of packets `a` then `b` [`nearer`] than (`tmax`, `bid`), t above
+/// ray.tmin: (t, lane), lanes 0-3 of `a` and 4-7 of `b`. Exactly what `tri4_closest` of `a`,
+/// then of `b` against `a`'s hit, finds: `b`'s far test is redone with that bound.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
 #[inline(always)]
-pub(super) fn tri8_closest(a: &Tri4, b: &Tri4, ray: &Ray8, tmax: f32) -> Option<(f32, usize)> {
+pub(super) fn tri8_closest(a: &Tri4, b: &Tri4, ray: &Ray8, tmax: f32, bid: u32) -> Option<(f32, usize)> {
     use std::arch::x86_64::*;
     // SAFETY: the target has AVX2 and FMA (cfg above); one store into a local array of eight.
     unsafe {
@@ -268,25 +313,26 @@ pub(super) fn tri8_closest(a: &Tri4, b: &Tri4, ray: &Ray8, tmax: f32) -> Option<
         }
         let mut t = [0f32; 8];
         _mm256_storeu_ps(t.as_mut_ptr(), _mm256_div_ps(tt, adet));
+        let id = |l: usize| if l < 4 { a.id[l] } else { b.id[l - 4] };
         // The lanes of `mask` in order, each kept when nearer than the nearest so far.
-        let pick = |mask: u32, bt: &mut f32, best: &mut Option<(f32, usize)>| {
+        let pick = |mask: u32, bt: &mut f32, bid: &mut u32, best: &mut Option<(f32, usize)>| {
             let mut m = mask;
             while m != 0 {
                 let l = m.trailing_zeros() as usize;
                 m &= m - 1;
-                if t[l] < *bt {
-                    *bt = t[l];
+                if nearer(t[l], id(l), *bt, *bid) {
+                    (*bt, *bid) = (t[l], id(l));
                     *best = Some((t[l], l));
                 }
             }
         };
-        let (mut best, mut bt) = (None, tmax);
-        pick(mask & 0x0f, &mut bt, &mut best);
+        let (mut best, mut bt, mut bid) = (None, tmax, bid);
+        pick(mask & 0x0f, &mut bt, &mut bid, &mut best);
         if best.is_some() {
             // `a` hit: `b` is tested against the nearer bound.
             mask = _mm256_movemask_ps(below(ok, tt, adet, _mm256_set1_ps(bt))) as u32;
         }
-        pick(mask & 0xf0, &mut bt, &mut best);
+        pick(mask & 0xf0, &mut bt, &mut bid, &mut best);
         best
     }
 }
@@ -296,24 +342,25 @@ pub(super) fn tri8_closest(a: &Tri4, b: &Tri4, ray: &Ray8, tmax: f32) -> Option<
 #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma")))]
 #[inline(always)]
 pub(super) fn tri8_any(a: &Tri4, b: &Tri4, ray: &Ray8, tmax: f32) -> bool {
-    tri4_closest(a, ray, tmax).is_some() || tri4_closest(b, ray, tmax).is_some()
+    tri4_closest(a, ray, tmax, u32::MAX).is_some() || tri4_closest(b, ray, tmax, u32::MAX).is_some()
 }
 
 /// The nearest hit of packets `a` then `b`: `tri4_closest` of each in turn, lanes of `b` 4-7.
 #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma")))]
 #[inline(always)]
-pub(super) fn tri8_closest(a: &Tri4, b: &Tri4, ray: &Ray8, tmax: f32) -> Option<(f32, usize)> {
-    let first = tri4_closest(a, ray, tmax);
-    let bound = first.map_or(tmax, |h| h.0);
-    tri4_closest(b, ray, bound).map(|(t, l)| (t, l + 4)).or(first)
+pub(super) fn tri8_closest(a: &Tri4, b: &Tri4, ray: &Ray8, tmax: f32, bid: u32) -> Option<(f32, usize)> {
+    let first = tri4_closest(a, ray, tmax, bid);
+    let (bound, bid) = first.map_or((tmax, bid), |h| (h.0, a.id[h.1]));
+    tri4_closest(b, ray, bound, bid).map(|(t, l)| (t, l + 4)).or(first)
 }
 
-/// The nearest of four triangles hit with t in (ray.tmin, tmax): (t, lane). Möller–Trumbore
-/// with the division deferred: barycentrics and t are compared scaled by |det|; four lanes in
-/// SSE registers.
+/// The nearest of four triangles hit [`nearer`] than (`tmax`, `bid`), t above ray.tmin: (t,
+/// lane). Möller–Trumbore with the division deferred: barycentrics and t are compared scaled by
+/// |det| (the far bound with slack, as [`below`]), the distances of the lanes that pass divided
+/// out and compared exactly; four lanes in SSE registers.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
 #[inline(always)]
-pub(super) fn tri4_closest(p: &Tri4, ray: &Ray8, tmax: f32) -> Option<(f32, usize)> {
+pub(super) fn tri4_closest(p: &Tri4, ray: &Ray8, tmax: f32, bid: u32) -> Option<(f32, usize)> {
     use std::arch::x86_64::*;
     // SAFETY: the target has AVX2 and FMA (cfg above); `Tri4` is 16-byte aligned, every row 16
     // bytes.
@@ -347,20 +394,19 @@ pub(super) fn tri4_closest(p: &Tri4, ray: &Ray8, tmax: f32) -> Option<(f32, usiz
         ok = _mm_and_ps(ok, _mm_cmpge_ps(v, zero));
         ok = _mm_and_ps(ok, _mm_cmple_ps(_mm_add_ps(u, v), adet));
         ok = _mm_and_ps(ok, _mm_cmpgt_ps(tt, _mm_mul_ps(set(ray.tmin), adet)));
-        ok = _mm_and_ps(ok, _mm_cmplt_ps(tt, _mm_mul_ps(set(tmax), adet)));
+        ok = _mm_and_ps(ok, _mm_cmple_ps(tt, _mm_mul_ps(_mm_mul_ps(set(tmax), adet), set(FAR_SLACK))));
         let mut mask = _mm_movemask_ps(ok) as u32;
         if mask == 0 {
             return None;
         }
         let mut t = [0f32; 4];
         _mm_storeu_ps(t.as_mut_ptr(), _mm_div_ps(tt, adet));
-        let mut best = None;
-        let mut bt = tmax;
+        let (mut best, mut bt, mut bid) = (None, tmax, bid);
         while mask != 0 {
             let l = mask.trailing_zeros() as usize;
             mask &= mask - 1;
-            if t[l] < bt {
-                bt = t[l];
+            if nearer(t[l], p.id[l], bt, bid) {
+                (bt, bid) = (t[l], p.id[l]);
                 best = Some((t[l], l));
             }
         }
@@ -372,8 +418,9 @@ pub(super) fn tri4_closest(p: &Tri4, ray: &Ray8, tmax: f32) -> Option<(f32, usiz
 /// with the division deferred: barycentrics and t are compared scaled by |det|.
 #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma")))]
 #[inline(always)]
-pub(super) fn tri4_closest(p: &Tri4, ray: &Ray8, tmax: f32) -> Option<(f32, usize)> {
-    let mut t = [f32::INFINITY; 4];
+pub(super) fn tri4_closest(p: &Tri4, ray: &Ray8, tmax: f32, bid: u32) -> Option<(f32, usize)> {
+    // NaN where a lane fails its tests: never nearer than anything.
+    let mut t = [f32::NAN; 4];
     // Written lane by lane over arrays: LLVM turns this into one SSE/AVX sequence.
     for l in 0..4 {
         let e1 = [p.e1[0][l], p.e1[1][l], p.e1[2][l]];
@@ -390,15 +437,18 @@ pub(super) fn tri4_closest(p: &Tri4, ray: &Ray8, tmax: f32) -> Option<(f32, usiz
         let u = flip(s[0] * pv[0] + s[1] * pv[1] + s[2] * pv[2]);
         let v = flip(d[0] * qv[0] + d[1] * qv[1] + d[2] * qv[2]);
         let tt = flip(e2[0] * qv[0] + e2[1] * qv[1] + e2[2] * qv[2]);
-        let ok =
-            adet > 0.0 && u >= 0.0 && v >= 0.0 && u + v <= adet && tt > ray.tmin * adet && tt < tmax * adet;
-        t[l] = if ok { tt / adet } else { f32::INFINITY };
+        let ok = adet > 0.0
+            && u >= 0.0
+            && v >= 0.0
+            && u + v <= adet
+            && tt > ray.tmin * adet
+            && tt <= tmax * adet * FAR_SLACK;
+        t[l] = if ok { tt / adet } else { f32::NAN };
     }
-    let mut best = None;
-    let mut bt = tmax;
+    let (mut best, mut bt, mut bid) = (None, tmax, bid);
     for (l, &tl) in t.iter().enumerate() {
-        if tl < bt {
-            bt = tl;
+        if nearer(tl, p.id[l], bt, bid) {
+            (bt, bid) = (tl, p.id[l]);
             best = Some((tl, l));
         }
     }
