@@ -10,7 +10,8 @@
 //! the first hit in any order.
 //!
 //! The results are those of a plain `f32` Möller–Trumbore test (two-sided) of every triangle, so
-//! which surface a ray finds does not depend on the BVH's shape beyond exact ties.
+//! which surface a ray finds does not depend on the BVH's shape, ties included: box tests are
+//! conservative, so every triangle at the hit's distance is met, and the lowest id wins.
 //!
 //! Coherent rays (a pixel's camera rays) can also walk the tree together as a [`Packet8`]: one
 //! traversal for up to eight rays, every box and triangle test done for all lanes at once with

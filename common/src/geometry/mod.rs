@@ -584,7 +584,7 @@ impl Accel {
     }
 
     /// The closest hits of up to eight rays with `t` in (tmin, ∞), each what
-    /// [`Self::intersect`] finds (up to exact ties): the world tree is walked by all of them
+    /// [`Self::intersect`] finds: the world tree is walked by all of them
     /// together as a [`Packet8`], and each instance of a short list is box-tested against all of
     /// them at once ([`BoxRays8`]); every ray meets the instances in the order it would alone.
     /// Every slot of `out` is written (`None` for a ray that hits nothing), whatever it held.
