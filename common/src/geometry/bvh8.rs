@@ -30,7 +30,7 @@ use obvhs::ploc::{PlocBuilder, PlocSearchDistance, SortPrecision};
 mod kernels;
 
 pub use kernels::Ray8;
-use kernels::{Node, Tri4, node_hits, safe_inv, tri4_closest, tri8_any, tri8_closest};
+use kernels::{Node, SLACK, Tri4, node_hits, safe_inv, tri4_closest, tri8_any, tri8_closest};
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
 use kernels::{below, lane_mask, mt8};
 
@@ -242,7 +242,7 @@ impl Bvh8 {
                 let (c, d) = unsafe { stack[sp].assume_init() };
                 // With the box test's slack: a box's entry can round past a hit on its own
                 // surface, and a triangle there at the same distance may still win on its id.
-                if d <= tmax * (1.0 + 4.0 * f32::EPSILON) {
+                if d <= tmax * SLACK {
                     cur = c;
                     break;
                 }
@@ -515,7 +515,7 @@ impl Bvh8 {
             let mut tmax = ld(tmax_out);
             let mut ids = _mm256_loadu_si256(id_out.as_ptr().cast());
             let mut hit_lanes = 0u32;
-            let grow = _mm256_set1_ps(1.0 + 4.0 * f32::EPSILON);
+            let grow = _mm256_set1_ps(SLACK);
             let inf = _mm256_set1_ps(f32::INFINITY);
             // The lanes that reach the root's own box (the union of its children's, by the
             // same test, so no lane that would enter a child is dropped): a packet that misses
@@ -1002,6 +1002,13 @@ mod tests {
         (tris, bvh)
     }
 
+    /// A packet of four copies of triangle `t` (vertex 0 and edges), all reporting `id`: one
+    /// triangle's test through the packet kernels.
+    fn splat(t: &Tri, id: u32) -> Tri4 {
+        let lanes = |v: Vec3A| [[v.x; 4], [v.y; 4], [v.z; 4]];
+        Tri4 { v0: lanes(t[0]), e1: lanes(t[1]), e2: lanes(t[2]), id: [id; 4] }
+    }
+
     /// A soup of 3,000 triangles and a ray from inside it that hits one (the probes of the walk's
     /// odd rays vary that ray).
     fn soup_and_ray() -> (Bvh8, Vec3A, Vec3A) {
@@ -1286,12 +1293,7 @@ mod tests {
         let brute = |ray: &Ray8| {
             let mut best: Option<(f32, u32)> = None;
             for (t, &id) in tris.iter().zip(&ids) {
-                let p = Tri4 {
-                    v0: [[t[0].x; 4], [t[0].y; 4], [t[0].z; 4]],
-                    e1: [[t[1].x; 4], [t[1].y; 4], [t[1].z; 4]],
-                    e2: [[t[2].x; 4], [t[2].y; 4], [t[2].z; 4]],
-                    id: [id; 4],
-                };
+                let p = splat(t, id);
                 let (bound, bid) = best.map_or((ray.tmax, u32::MAX), |b| b);
                 if let Some((tt, _)) = tri4_closest(&p, ray, bound, bid) {
                     best = Some((tt, id));
@@ -1321,12 +1323,7 @@ mod tests {
                 // Rays whose hit another triangle also takes at the same distance.
                 ties += usize::from(expect.is_some_and(|(t, id)| {
                     tris.iter().zip(&ids).filter(|&(_, &other)| other != id).any(|(tri, &other)| {
-                        let p = Tri4 {
-                            v0: [[tri[0].x; 4], [tri[0].y; 4], [tri[0].z; 4]],
-                            e1: [[tri[1].x; 4], [tri[1].y; 4], [tri[1].z; 4]],
-                            e2: [[tri[2].x; 4], [tri[2].y; 4], [tri[2].z; 4]],
-                            id: [other; 4],
-                        };
+                        let p = splat(tri, other);
                         tri4_closest(&p, &ray, f32::INFINITY, u32::MAX).is_some_and(|h| h.0 == t)
                     })
                 }));
@@ -1351,12 +1348,7 @@ mod tests {
             let ray = Ray8::new(o, d, 0.0, tmax);
             let mut expect: Option<(f32, u32)> = None;
             for (i, t) in tris.iter().enumerate() {
-                let p = Tri4 {
-                    v0: [[t[0].x; 4], [t[0].y; 4], [t[0].z; 4]],
-                    e1: [[t[1].x; 4], [t[1].y; 4], [t[1].z; 4]],
-                    e2: [[t[2].x; 4], [t[2].y; 4], [t[2].z; 4]],
-                    id: [i as u32; 4],
-                };
+                let p = splat(t, i as u32);
                 let (bound, bid) = expect.map_or((tmax, u32::MAX), |e| e);
                 if let Some((tt, _)) = tri4_closest(&p, &ray, bound, bid) {
                     expect = Some((tt, i as u32));

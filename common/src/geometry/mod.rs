@@ -532,7 +532,7 @@ impl Accel {
         if self.unbounded.is_empty() && self.bounded.is_empty() {
             return self.found(ray, best);
         }
-        if self.unbounded.is_empty() && self.bounded.len() <= LINEAR_MAX {
+        if self.bounded.len() <= LINEAR_MAX {
             return self.intersect_short_list(ray, tmin, tmax, best, near);
         }
         let mut fr = to_f32_ray(ray, tmin, tmax);
@@ -540,12 +540,12 @@ impl Accel {
         self.intersect_rest(ray, tmin, best, fr)
     }
 
-    /// [`Self::intersect`] beyond the world tree when the bounded instances are a short list
-    /// and there are no planes: each instance in turn, from the world tree's candidate `best`
-    /// (`near` its distance in `f32`). A sphere in world space is tested exactly at once: its
-    /// test costs about what its box test does, and needs no `f32` ray with its inverse
-    /// direction, which is made only for an instance that needs it. The same hits as
-    /// [`Self::intersect_rest`] (a box is padded, so it never turns away a hit of its sphere).
+    /// [`Self::intersect`] beyond the world tree when the bounded instances are a short list:
+    /// the unbounded ones (planes), then each bounded one in turn, from the world tree's
+    /// candidate `best` (`near` its distance in `f32`). A sphere in world space is tested exactly
+    /// at once: its test costs about what its box test does, and needs no `f32` ray with its
+    /// inverse direction, which is made only for an instance that needs it. (A box is padded, so
+    /// it never turns away a hit of its sphere: the same hits as behind the boxes.)
     #[inline]
     fn intersect_short_list(
         &self,
@@ -556,6 +556,12 @@ impl Accel {
         mut near: f32,
     ) -> Option<SurfaceHit> {
         let mut fr: Option<obvhs::ray::Ray> = None;
+        if !self.unbounded.is_empty() {
+            let f = fr.insert(to_f32_ray(ray, tmin, tmax));
+            f.tmax = near;
+            self.unbounded_hits(ray, f, tmin, &mut best);
+            near = f.tmax;
+        }
         for (&idx, b) in self.bounded.iter().zip(&self.bounds) {
             if let Some((center, radius)) = self.world_sphere(idx) {
                 if let Some(t) = sphere_t(center, radius, ray, tmin, best.t) {
@@ -573,12 +579,12 @@ impl Accel {
         self.found(ray, best)
     }
 
-    /// Instance `idx`'s centre and radius when it is a sphere whose object space is world space.
+    /// Instance `idx`'s centre and radius when it is a sphere whose object space is world space
+    /// (a [`Self::lane_sphere`] without a transform).
     #[inline]
     fn world_sphere(&self, idx: u32) -> Option<(DVec3, f64)> {
-        let inst = &self.instances[idx as usize];
-        match inst.shape {
-            Shape::Sphere { center, radius } if inst.is_world_space() => Some((center, radius)),
+        match self.lane_sphere(idx) {
+            Some((center, radius, None)) => Some((center, radius)),
             _ => None,
         }
     }
@@ -693,8 +699,9 @@ impl Accel {
         }
     }
 
-    /// [`Self::intersect`] beyond the world tree: the unbounded and bounded instances, starting
-    /// from the world tree's candidate `best` (`fr.tmax` its distance).
+    /// [`Self::intersect`] beyond the world tree when the bounded instances are too many for
+    /// a short list: the unbounded ones (planes), then the top level, starting from the world
+    /// tree's candidate `best` (`fr.tmax` its distance).
     #[inline]
     fn intersect_rest(
         &self,
@@ -704,19 +711,10 @@ impl Accel {
         mut fr: obvhs::ray::Ray,
     ) -> Option<SurfaceHit> {
         self.unbounded_hits(ray, &mut fr, tmin, &mut best);
-        if self.bounded.len() <= LINEAR_MAX {
-            for (&idx, b) in self.bounded.iter().zip(&self.bounds) {
-                if enters(b, &fr) {
-                    let t = self.hit_instance(idx, ray, &fr, tmin, &mut best);
-                    fr.tmax = fr.tmax.min(t);
-                }
-            }
-        } else {
-            let mut hit = RayHit::none();
-            self.tlas.ray_traverse(fr, &mut hit, |fr, id| {
-                self.hit_instance(self.tlas_order[id], ray, fr, tmin, &mut best)
-            });
-        }
+        let mut hit = RayHit::none();
+        self.tlas.ray_traverse(fr, &mut hit, |fr, id| {
+            self.hit_instance(self.tlas_order[id], ray, fr, tmin, &mut best)
+        });
         self.found(ray, best)
     }
 
@@ -730,10 +728,15 @@ impl Accel {
         if self.unbounded.is_empty() && self.bounded.is_empty() {
             return false;
         }
-        if self.unbounded.is_empty() && self.bounded.len() <= LINEAR_MAX {
-            // As in `intersect_short_list`: spheres in world space exactly, with no box test
-            // and no `f32` ray; that ray made only for an instance that needs it.
+        if self.bounded.len() <= LINEAR_MAX {
+            // As in `intersect_short_list`: spheres in world space exactly, with no box test;
+            // the `f32` ray made only for an instance that needs it.
             let mut fr: Option<obvhs::ray::Ray> = None;
+            if !self.unbounded.is_empty()
+                && self.unbounded_block(ray, fr.insert(to_f32_ray(ray, tmin, tmax)), tmin, tmax)
+            {
+                return true;
+            }
             return self.bounded.iter().zip(&self.bounds).any(|(&idx, b)| match self.world_sphere(idx) {
                 Some((center, radius)) => sphere_t(center, radius, ray, tmin, tmax).is_some(),
                 None => {
@@ -745,13 +748,6 @@ impl Accel {
         let fr = to_f32_ray(ray, tmin, tmax);
         if self.unbounded_block(ray, &fr, tmin, tmax) {
             return true;
-        }
-        if self.bounded.len() <= LINEAR_MAX {
-            return self
-                .bounded
-                .iter()
-                .zip(&self.bounds)
-                .any(|(&idx, b)| enters(b, &fr) && self.blocks(idx, ray, &fr, tmin, tmax));
         }
         self.tlas_blocks(ray, fr, tmin, tmax)
     }

@@ -143,7 +143,7 @@ pub(super) fn node_hits(node: &Node, ray: &Ray8, tmax: f32) -> (u32, [f32; 8]) {
             _mm256_min_ps(t(ray.far[2], 2, of), _mm256_set1_ps(tmax)),
         );
         // Conservative by a few ulps, so rounding never culls a box the ray touches.
-        let tf = _mm256_mul_ps(tf, _mm256_set1_ps(1.0 + 4.0 * f32::EPSILON));
+        let tf = _mm256_mul_ps(tf, _mm256_set1_ps(SLACK));
         // Only slots with a box (empty ones have min > max, and their child reference is the
         // root): a ray whose plane distances come out NaN in the empty slots' infinite planes
         // (an infinite origin or direction component, ∞ − ∞ or ∞·0) would enter them
@@ -167,7 +167,7 @@ pub(super) fn node_hits(node: &Node, ray: &Ray8, tmax: f32) -> (u32, [f32; 8]) {
         let tn = t(ray.near[0], 0, on).max(t(ray.near[1], 1, on)).max(t(ray.near[2], 2, on)).max(ray.tmin);
         let tf = t(ray.far[0], 0, of).min(t(ray.far[1], 1, of)).min(t(ray.far[2], 2, of)).min(tmax);
         // Only slots with a box (see the AVX2 version).
-        if tn <= tf * (1.0 + 4.0 * f32::EPSILON) && node.b[0][s] <= node.b[3][s] {
+        if tn <= tf * SLACK && node.b[0][s] <= node.b[3][s] {
             mask |= 1 << s;
         }
         dist[s] = tn;
@@ -175,10 +175,12 @@ pub(super) fn node_hits(node: &Node, ray: &Ray8, tmax: f32) -> (u32, [f32; 8]) {
     (mask, dist)
 }
 
-/// The far pre-tests' slack: `tt <= tmax·|det|·FAR_SLACK` holds for every lane whose divided
+/// The relative slack of the walks' far bounds, a few ulps: box tests compare entries with
+/// exits times it (rounding never culls a box the ray touches), popped nodes' entries with the
+/// hit times it, and the far pre-tests `tt <= tmax·|det|·SLACK` hold for every lane whose divided
 /// distance is at most `tmax` (the product's two roundings and the division's are each half an
 /// ulp).
-const FAR_SLACK: f32 = 1.0 + 4.0 * f32::EPSILON;
+pub(super) const SLACK: f32 = 1.0 + 4.0 * f32::EPSILON;
 
 /// Whether a hit at `t` on triangle `id` is nearer than the best so far (`bt` on `bid`;
 /// `bid == u32::MAX`: none, `bt` is the ray's far bound): nearer, or as near on a triangle of
@@ -259,7 +261,7 @@ unsafe fn tri8_tests(
 }
 
 /// The lanes of `ok` whose `tt` may lie at or below the far bound `tmax` scaled by `|det|`, with
-/// a few ulps to spare ([`FAR_SLACK`]): a pre-test that saves the division of the lanes beyond
+/// a few ulps to spare ([`SLACK`]): a pre-test that saves the division of the lanes beyond
 /// the bound, never dropping one whose divided distance `tt / |det|` the exact tests would take.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
 #[inline(always)]
@@ -272,7 +274,7 @@ pub(super) unsafe fn below(
     use std::arch::x86_64::*;
     // SAFETY (the caller's): the target has AVX.
     unsafe {
-        let bound = _mm256_mul_ps(_mm256_mul_ps(tmax, adet), _mm256_set1_ps(FAR_SLACK));
+        let bound = _mm256_mul_ps(_mm256_mul_ps(tmax, adet), _mm256_set1_ps(SLACK));
         _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(tt, bound))
     }
 }
@@ -394,7 +396,7 @@ pub(super) fn tri4_closest(p: &Tri4, ray: &Ray8, tmax: f32, bid: u32) -> Option<
         ok = _mm_and_ps(ok, _mm_cmpge_ps(v, zero));
         ok = _mm_and_ps(ok, _mm_cmple_ps(_mm_add_ps(u, v), adet));
         ok = _mm_and_ps(ok, _mm_cmpgt_ps(tt, _mm_mul_ps(set(ray.tmin), adet)));
-        ok = _mm_and_ps(ok, _mm_cmple_ps(tt, _mm_mul_ps(_mm_mul_ps(set(tmax), adet), set(FAR_SLACK))));
+        ok = _mm_and_ps(ok, _mm_cmple_ps(tt, _mm_mul_ps(_mm_mul_ps(set(tmax), adet), set(SLACK))));
         let mut mask = _mm_movemask_ps(ok) as u32;
         if mask == 0 {
             return None;
@@ -442,7 +444,7 @@ pub(super) fn tri4_closest(p: &Tri4, ray: &Ray8, tmax: f32, bid: u32) -> Option<
             && v >= 0.0
             && u + v <= adet
             && tt > ray.tmin * adet
-            && tt <= tmax * adet * FAR_SLACK;
+            && tt <= tmax * adet * SLACK;
         t[l] = if ok { tt / adet } else { f32::NAN };
     }
     let (mut best, mut bt, mut bid) = (None, tmax, bid);
