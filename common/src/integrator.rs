@@ -3,6 +3,7 @@
 //! `MaxRecursionDepth`, with Beer's law inside dielectrics.
 
 mod direct;
+mod paths;
 
 use glam::{DVec2, DVec3};
 
@@ -174,6 +175,11 @@ pub struct Tracer<'a> {
     budget: u32,
     /// The camera's renderer: the recursive tracer or a path tracer (§13.1).
     pub renderer: Renderer,
+    /// Path parameters and whether the scene's paths with them go side by side
+    /// ([`Self::paths_fit`]), once asked.
+    lane_paths: Option<(PathParams, bool)>,
+    /// Each material's matte form, when the paths go side by side.
+    mattes: Vec<Option<paths::Matte>>,
 }
 
 /// Most rays traced for one camera sample. Glass splits every ray in two, so the tree of a
@@ -202,6 +208,8 @@ impl<'a> Tracer<'a> {
             spread: 0.0,
             budget: 0,
             renderer: Renderer::Classic,
+            lane_paths: None,
+            mattes: Vec::new(),
         }
     }
 
@@ -248,8 +256,32 @@ impl<'a> Tracer<'a> {
             }
             _ => None,
         };
-        if self.renderer == Renderer::Classic {
-            return self.classic_group(rays, hits, samplers, seen.as_ref());
+        let params = match self.renderer {
+            Renderer::Classic => return self.classic_group(rays, hits, samplers, seen.as_ref()),
+            Renderer::Path(params) => params,
+        };
+        let fit = match self.lane_paths {
+            Some((p, fit)) if p == params => fit,
+            _ => {
+                let fit = paths::fits(self.scene, &params);
+                self.lane_paths = Some((params, fit));
+                if fit && self.mattes.is_empty() {
+                    self.mattes = paths::mattes(self.scene);
+                }
+                fit
+            }
+        };
+        if fit {
+            let mut lanes = paths::PathLanes {
+                scene: self.scene,
+                mattes: &self.mattes,
+                background: self.background,
+                counts: paths::Counts::default(),
+            };
+            let l = lanes.trace(rays, hits, params, samplers);
+            let c = lanes.counts;
+            self.stats.add(&RayStats { primary: c.primary, shadow: c.shadow, secondary: c.secondary });
+            return l;
         }
         let mut out = [DVec3::ZERO; GROUP_LANES];
         for (i, (hit, rng)) in hits.iter().zip(samplers).enumerate() {

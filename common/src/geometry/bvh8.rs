@@ -392,6 +392,13 @@ impl Packet8 {
         Self::from_axes(o, d, rays.len(), tmin)
     }
 
+    /// Only the lanes of `mask` among those in use take part (the others' results are not
+    /// written).
+    #[inline]
+    pub fn set_active(&mut self, mask: u32) {
+        self.active &= mask;
+    }
+
     /// The packet of `lanes`, all with `tmin`: what [`Self::new`] makes of the same rays.
     #[inline]
     pub fn from_lanes(lanes: &Lanes8, tmin: f32) -> Self {

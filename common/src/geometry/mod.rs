@@ -14,6 +14,7 @@
 
 pub mod bvh8;
 pub mod mesh;
+mod rays;
 mod shapes;
 
 use std::sync::Arc;
@@ -25,6 +26,7 @@ use obvhs::{BvhBuildParams, aabb::Aabb, cwbvh::CwBvh, cwbvh::builder::build_cwbv
 use crate::math::{Ray, Transform};
 use bvh8::{BoxRays8, Bvh8, Lanes8, Packet8, Ray8};
 pub use mesh::MeshGeom;
+pub use rays::{Axes, HitLanes, RayLanes};
 use shapes::{plane_t, plane_uv_frame, sphere_lanes, sphere_t, sphere_uv_frame};
 
 /// What an instance is made of.
@@ -218,69 +220,124 @@ fn to_f32_ray(r: &Ray, tmin: f64, tmax: f64) -> obvhs::ray::Ray {
     obvhs::ray::Ray::new(r.origin.as_vec3a(), r.dir.as_vec3a(), tmin as f32, tmax as f32)
 }
 
-/// Up to eight `f64` rays side by side (unused lanes repeat the first ray): what a group's
-/// `f32` lanes ([`Lanes8`]) are converted from, and what eight-lane tests in `f64` (spheres) read.
-pub struct RayLanes {
-    /// Origins and directions, by axis then lane.
-    o: [[f64; 8]; 3],
-    d: [[f64; 8]; 3],
-    /// How many lanes hold a ray.
-    len: usize,
-}
-
-impl RayLanes {
-    /// One to eight rays, by axis then lane (a loop of fixed length). Always inlined: built in
-    /// the caller's frame, not copied there.
-    #[inline(always)]
-    pub fn new(rays: &[Ray]) -> Self {
-        let len = rays.len();
-        assert!((1..=8).contains(&len), "one to eight rays");
-        let mut l = RayLanes { o: [[0.0; 8]; 3], d: [[0.0; 8]; 3], len };
-        for lane in 0..8 {
-            let r = &rays[if lane < len { lane } else { 0 }];
-            for a in 0..3 {
-                l.o[a][lane] = r.origin[a];
-                l.d[a][lane] = r.dir[a];
-            }
+/// Queries of eight rays given side by side, answered side by side: what the path tracer's
+/// lanes ask (`integrator::paths`). They serve scenes of flat, untextured meshes in the world
+/// tree and spheres in world space, whose hits need no per-instance record. Each lane's answer
+/// is bit for bit what [`Accel::intersect`] or [`Accel::occluded`] says of its ray alone.
+impl Accel {
+    /// Whether [`Self::closest_lanes`] and [`Self::occluded_lanes`] answer for this scene:
+    /// every instance is a flat untextured mesh in the world tree with its world planes kept,
+    /// or one of a short list of unmoving, untransformed spheres; nothing else (no planes).
+    pub fn lanes_fit(&self) -> bool {
+        if !self.unbounded.is_empty() || self.bounded.len() > LINEAR_MAX {
+            return false;
         }
-        l
-    }
-
-    /// The first `len` (one to eight) of the rays from `origin` along `d` (directions by axis,
-    /// then lane): camera rays made side by side, which need not be gathered from [`Ray`]s.
-    #[inline(always)]
-    pub fn from_origin(origin: DVec3, d: &[[f64; 8]; 3], len: usize) -> Self {
-        let mut l = RayLanes { o: origin.to_array().map(|c| [c; 8]), d: [[0.0; 8]; 3], len: 1 };
-        l.refill_dirs(len, |to| *to = *d);
-        l
-    }
-
-    /// New directions for these rays from one origin ([`Self::from_origin`]'s): `fill` writes
-    /// them (by axis, then lane) where they are kept, the first `len` (one to eight) in use.
-    #[inline(always)]
-    pub fn refill_dirs(&mut self, len: usize, fill: impl FnOnce(&mut [[f64; 8]; 3])) {
-        assert!((1..=8).contains(&len), "one to eight rays");
-        fill(&mut self.d);
-        self.len = len;
-        for a in 0..3 {
-            for lane in len..8 {
-                self.d[a][lane] = self.d[a][0];
-            }
+        if !self.bounded.iter().all(|&idx| self.world_sphere(idx).is_some()) {
+            return false;
         }
-    }
-
-    /// Lane `k`'s direction.
-    #[inline(always)]
-    pub fn dir(&self, k: usize) -> DVec3 {
-        DVec3::new(self.d[0][k], self.d[1][k], self.d[2][k])
-    }
-
-    /// Whether lane `k` holds `ray`'s origin and direction, bit for bit.
-    fn holds(&self, k: usize, ray: &Ray) -> bool {
-        (0..3).all(|a| {
-            self.o[a][k].to_bits() == ray.origin[a].to_bits()
-                && self.d[a][k].to_bits() == ray.dir[a].to_bits()
+        let prims = match self.lone {
+            Some(lone) => self.meshes[lone.mesh as usize].triangle_count(),
+            None => self.merged_prims.len(),
+        };
+        if self.planes.len() != prims {
+            return false;
+        }
+        self.instances.iter().enumerate().all(|(i, inst)| {
+            self.bounded.contains(&(i as u32))
+                || (matches!(inst.shape, Shape::Mesh { smooth: false, .. })
+                    && inst.textures == ObjectTextures::default()
+                    && inst.motion.is_none())
         })
+    }
+
+    /// The closest hits with `t` in (tmin, ∞) of the rays of `mask` (origins `o`, unit
+    /// directions `d`; other lanes must hold finite rays, whose answers are not read). The
+    /// scene must [`Self::lanes_fit`].
+    pub fn closest_lanes(&self, o: &Axes, d: &Axes, mask: u32, tmin: f64) -> HitLanes {
+        let mut t = [f64::INFINITY; 8];
+        let mut instance = [u32::MAX; 8];
+        let mut merged = [u32::MAX; 8];
+        if let Some(tree) = self.world_tree() {
+            let mut packet = Packet8::from_lanes(&Lanes8::new(o, d, 8), tmin as f32);
+            packet.set_active(mask);
+            let (mut tmax, mut id) = ([f32::INFINITY; 8], [u32::MAX; 8]);
+            let hit = tree.intersect_packet(&packet, &mut tmax, &mut id);
+            for k in crate::math::lanes(hit) {
+                t[k] = tmax[k] as f64;
+                instance[k] = self.world_prim(id[k]).0;
+                merged[k] = id[k];
+            }
+        }
+        for &idx in &self.bounded {
+            let Some((center, radius)) = self.world_sphere(idx) else { continue };
+            let ts = sphere_lanes(center, radius, None, o, d, tmin, &t);
+            for k in 0..8 {
+                if ts[k] < f64::INFINITY {
+                    t[k] = ts[k];
+                    instance[k] = idx;
+                    merged[k] = u32::MAX;
+                }
+            }
+        }
+        let mut out =
+            HitLanes { mask: 0, t, point: [[0.0; 8]; 3], normal: [[0.0; 8]; 3], material: [0; 8], instance };
+        for k in crate::math::lanes(mask) {
+            if instance[k] == u32::MAX {
+                continue;
+            }
+            out.mask |= 1 << k;
+            let inst = &self.instances[instance[k] as usize];
+            out.material[k] = inst.material;
+            let (ok, dk) = ([o[0][k], o[1][k], o[2][k]], [d[0][k], d[1][k], d[2][k]]);
+            let (tk, n) = match inst.shape {
+                Shape::Sphere { center, radius } => {
+                    let tk = t[k];
+                    let p = glam::DVec3::from(ok) + glam::DVec3::from(dk) * tk;
+                    (tk, (p - center) / radius)
+                }
+                _ => {
+                    // As `surface`: the world plane's exact distance, the f32 one where the ray
+                    // runs along the plane.
+                    let plane = &self.planes[merged[k] as usize];
+                    let n = plane.n;
+                    let tk = n.dot(plane.p0 - glam::DVec3::from(ok)) / n.dot(glam::DVec3::from(dk));
+                    (refined_t(tk, t[k]), n)
+                }
+            };
+            out.t[k] = tk;
+            let p = glam::DVec3::from(ok) + glam::DVec3::from(dk) * tk;
+            for a in 0..3 {
+                out.point[a][k] = p[a];
+                out.normal[a][k] = n[a];
+            }
+        }
+        out
+    }
+
+    /// The lanes of `mask` whose rays (origins `o`, unit directions `d`) are blocked within
+    /// (tmin, `far[lane]`). The scene must [`Self::lanes_fit`]; other lanes must hold finite
+    /// rays.
+    pub fn occluded_lanes(&self, o: &Axes, d: &Axes, far: &[f64; 8], mask: u32, tmin: f64) -> u32 {
+        let mut blocked = 0;
+        if let Some(tree) = self.world_tree() {
+            let mut packet = Packet8::from_lanes(&Lanes8::new(o, d, 8), tmin as f32);
+            packet.set_active(mask);
+            let far32: [f32; 8] =
+                std::array::from_fn(|k| if mask & (1 << k) != 0 { far[k] as f32 } else { f32::NEG_INFINITY });
+            blocked = tree.occluded_packet(&packet, &far32) & mask;
+        }
+        for &idx in &self.bounded {
+            if blocked == mask {
+                break;
+            }
+            let Some((center, radius)) = self.world_sphere(idx) else { continue };
+            let ts = sphere_lanes(center, radius, None, o, d, tmin, far);
+            for (k, t) in ts.iter().enumerate() {
+                blocked |= u32::from(*t < f64::INFINITY) << k;
+            }
+            blocked &= mask;
+        }
+        blocked
     }
 }
 

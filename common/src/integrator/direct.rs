@@ -37,7 +37,10 @@ pub struct LitPoint<'m> {
 /// mask holds them all (it draws them together when they stand at the same dimension of one
 /// pixel), one by one otherwise.
 #[inline(always)]
-fn draw_requests<const N: usize, const M: usize>(rngs: &mut [Sampler], mask: u32) -> [[(f64, f64); M]; N] {
+pub(super) fn draw_requests<const N: usize, const M: usize>(
+    rngs: &mut [Sampler],
+    mask: u32,
+) -> [[(f64, f64); M]; N] {
     let mut out = [[(0.0, 0.0); M]; N];
     if rngs.len() > 1 && mask == (1u32 << rngs.len()) - 1 {
         let drawn = Sampler::next_2d_groups::<M>(rngs);
@@ -58,7 +61,7 @@ fn draw_requests<const N: usize, const M: usize>(rngs: &mut [Sampler], mask: u32
 
 /// The next two numbers of each sampler in `mask`: one request of [`draw_requests`].
 #[inline(always)]
-fn draw_2d<const N: usize>(rngs: &mut [Sampler], mask: u32) -> [(f64, f64); N] {
+pub(super) fn draw_2d<const N: usize>(rngs: &mut [Sampler], mask: u32) -> [(f64, f64); N] {
     draw_requests::<N, 1>(rngs, mask).map(|[r]| r)
 }
 

@@ -1,0 +1,89 @@
+//! Rays side by side (structure of arrays, eight lanes by axis): how a group's rays are handed
+//! to [`super::Accel`]'s packet queries, and the hits its lane queries give back.
+
+use glam::DVec3;
+
+use crate::math::Ray;
+
+/// Up to eight `f64` rays side by side (unused lanes repeat the first ray): what a group's
+/// `f32` lanes ([`super::bvh8::Lanes8`]) are converted from, and what eight-lane tests in `f64` (spheres) read.
+pub struct RayLanes {
+    /// Origins and directions, by axis then lane.
+    pub(crate) o: [[f64; 8]; 3],
+    pub(crate) d: [[f64; 8]; 3],
+    /// How many lanes hold a ray.
+    pub(crate) len: usize,
+}
+
+impl RayLanes {
+    /// One to eight rays, by axis then lane (a loop of fixed length). Always inlined: built in
+    /// the caller's frame, not copied there.
+    #[inline(always)]
+    pub fn new(rays: &[Ray]) -> Self {
+        let len = rays.len();
+        assert!((1..=8).contains(&len), "one to eight rays");
+        let mut l = RayLanes { o: [[0.0; 8]; 3], d: [[0.0; 8]; 3], len };
+        for lane in 0..8 {
+            let r = &rays[if lane < len { lane } else { 0 }];
+            for a in 0..3 {
+                l.o[a][lane] = r.origin[a];
+                l.d[a][lane] = r.dir[a];
+            }
+        }
+        l
+    }
+
+    /// The first `len` (one to eight) of the rays from `origin` along `d` (directions by axis,
+    /// then lane): camera rays made side by side, which need not be gathered from [`Ray`]s.
+    #[inline(always)]
+    pub fn from_origin(origin: DVec3, d: &[[f64; 8]; 3], len: usize) -> Self {
+        let mut l = RayLanes { o: origin.to_array().map(|c| [c; 8]), d: [[0.0; 8]; 3], len: 1 };
+        l.refill_dirs(len, |to| *to = *d);
+        l
+    }
+
+    /// New directions for these rays from one origin ([`Self::from_origin`]'s): `fill` writes
+    /// them (by axis, then lane) where they are kept, the first `len` (one to eight) in use.
+    #[inline(always)]
+    pub fn refill_dirs(&mut self, len: usize, fill: impl FnOnce(&mut [[f64; 8]; 3])) {
+        assert!((1..=8).contains(&len), "one to eight rays");
+        fill(&mut self.d);
+        self.len = len;
+        for a in 0..3 {
+            for lane in len..8 {
+                self.d[a][lane] = self.d[a][0];
+            }
+        }
+    }
+
+    /// Lane `k`'s direction.
+    #[inline(always)]
+    pub fn dir(&self, k: usize) -> DVec3 {
+        DVec3::new(self.d[0][k], self.d[1][k], self.d[2][k])
+    }
+
+    /// Whether lane `k` holds `ray`'s origin and direction, bit for bit.
+    pub(crate) fn holds(&self, k: usize, ray: &Ray) -> bool {
+        (0..3).all(|a| {
+            self.o[a][k].to_bits() == ray.origin[a].to_bits()
+                && self.d[a][k].to_bits() == ray.dir[a].to_bits()
+        })
+    }
+}
+
+/// Eight rays by axis, then lane.
+pub type Axes = [[f64; 8]; 3];
+
+/// The closest hits of eight rays, by lane (see [`Accel::closest_lanes`]).
+#[derive(Clone, Copy, Debug)]
+pub struct HitLanes {
+    /// The lanes that hit something.
+    pub mask: u32,
+    pub t: [f64; 8],
+    /// The hit point, `origin + dir * t` as [`crate::math::Ray::at`] makes it.
+    pub point: Axes,
+    /// The unit geometric normal, which is also the shading normal (flat faces and spheres).
+    pub normal: Axes,
+    pub material: [u32; 8],
+    pub instance: [u32; 8],
+}

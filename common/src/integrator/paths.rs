@@ -1,0 +1,790 @@
+//! Path tracing a group of camera samples side by side: the paths of up to eight camera samples
+//! (a pixel's, or consecutive pixels') advance one vertex at a time together, so that their
+//! bounce rays are traced as one packet, their lights are sampled together ([`Lighting`]), and
+//! their random numbers are drawn together when they stand at the same dimension of one pixel.
+//!
+//! Every path gets exactly the value, random numbers and ray counts that
+//! [`Tracer::trace_primary`] gives it alone: per lane the operations are the same and in the
+//! same order, each ray query answers what the single ray's query answers, and a lane draws its
+//! numbers from its own sampler in its own order. The group changes when the work is done,
+//! never what it computes, so a tile renders to the same bits whatever its size.
+//!
+//! The lanes take the scenes whose paths stay simple ([`Tracer::paths_fit`]): next-event
+//! estimation of every light without multiple importance sampling or roulette, every material
+//! of an object plain (diffuse and glossy BRDFs: no mirror, conductor or glass), no texture maps and no
+//! environment light. Any other scene's paths go one by one.
+
+use glam::DVec3;
+
+use super::direct::draw_requests;
+use crate::geometry::{Axes, HitLanes, SurfaceHit};
+use crate::lights::{EmitterShape, ObjectLight};
+use crate::material::{Material, MaterialKind};
+use crate::math::{Ray, lanes, sincos_turns};
+use crate::sampler::{GROUP_LANES, Sampler};
+use crate::scene::Scene;
+use crate::scene::records::{MAX_RECURSION_DEPTH_LIMIT, PathParams, Roulette};
+
+const N: usize = GROUP_LANES;
+
+/// A material's [`Material::reflectance`] when it has no specular lobe (`k_s = 0`, the course's
+/// matte materials): a coefficient times the cosine, computed with the same operations.
+#[derive(Clone, Copy, Debug)]
+pub struct Matte {
+    /// `c`: the diffuse term as `reflectance` forms it.
+    c: DVec3,
+    /// `k_s · 0` (a zero, of `k_s`'s signs), added after the product by the original models.
+    zero: DVec3,
+    form: MatteForm,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum MatteForm {
+    /// `c · cos θ`, whatever the cosine (the classic shading).
+    Plain,
+    /// `c · cos θ`, zero below the surface (or for a NaN cosine).
+    Checked,
+    /// `c · cos θ + zero`, zero below the surface.
+    CheckedPlusZero,
+}
+
+impl Matte {
+    /// The matte form of `mat`, if it has one.
+    pub fn of(mat: &Material) -> Option<Matte> {
+        use crate::material::BrdfKind::*;
+        use std::f64::consts::PI;
+        if mat.specular != DVec3::ZERO {
+            return None;
+        }
+        let zero = mat.specular * 0.0;
+        let (c, form) = match mat.brdf {
+            None => (mat.diffuse, MatteForm::Plain),
+            Some(b) => match (b.kind, b.normalized) {
+                (OriginalPhong | OriginalBlinnPhong, _) => (mat.diffuse, MatteForm::CheckedPlusZero),
+                (ModifiedPhong | ModifiedBlinnPhong, true) => (mat.diffuse / PI + zero, MatteForm::Checked),
+                (ModifiedPhong | ModifiedBlinnPhong, false) => (mat.diffuse + zero, MatteForm::Checked),
+                (TorranceSparrow, _) => return None,
+            },
+        };
+        Some(Matte { c, zero, form })
+    }
+
+    /// [`Material::reflectance`] for a light from a direction of cosine `cos` to the normal.
+    #[inline(always)]
+    fn at(&self, cos: f64) -> DVec3 {
+        match self.form {
+            MatteForm::Plain => self.c * cos,
+            _ if cos.is_nan() || cos <= 0.0 => DVec3::ZERO,
+            MatteForm::Checked => self.c * cos,
+            MatteForm::CheckedPlusZero => self.c * cos + self.zero,
+        }
+    }
+}
+
+/// Each lane's material and, when it has one, its matte form.
+struct Shading<'m> {
+    mats: [&'m Material; N],
+    matte: [Option<Matte>; N],
+}
+
+impl Shading<'_> {
+    /// Lane `k`'s [`Material::reflectance`] at normal `n`, from `wi` towards `wo`.
+    #[inline(always)]
+    fn reflectance(&self, k: usize, n: DVec3, wi: DVec3, wo: DVec3) -> DVec3 {
+        match &self.matte[k] {
+            Some(m) => m.at(n.dot(wi)),
+            None => self.mats[k].reflectance(n, wi, wo),
+        }
+    }
+}
+
+/// Whether [`PathLanes::trace`] traces `scene`'s paths with `params` (see the module's
+/// documentation).
+pub fn fits(scene: &Scene, params: &PathParams) -> bool {
+    params.next_event
+        && !params.mis
+        && !params.one_light
+        && params.roulette == Roulette::Off
+        && scene.env_light.is_none()
+        && scene.extra_env_lights.is_empty()
+        && scene.area_lights.is_empty()
+        && scene.directional_lights.is_empty()
+        && scene.spot_lights.is_empty()
+        && scene.accel.lanes_fit()
+        && scene
+            .accel
+            .instances
+            .iter()
+            .all(|i| scene.materials.get(i.material as usize).is_some_and(|m| m.kind == MaterialKind::Plain))
+}
+
+/// Ray counts, by kind (what the tracer's `RayStats` adds them to).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Counts {
+    pub primary: u64,
+    pub shadow: u64,
+    pub secondary: u64,
+}
+
+/// Paths of one scene traced side by side (see the module's documentation).
+pub struct PathLanes<'a> {
+    pub scene: &'a Scene,
+    /// Each material's [`Matte`] form ([`mattes`]).
+    pub mattes: &'a [Option<Matte>],
+    /// What rays that miss everything see (the tracer's background for the current pixel).
+    pub background: DVec3,
+    /// The rays traced so far.
+    pub counts: Counts,
+}
+
+/// Each of `scene`'s materials' [`Matte`] form, by index.
+pub fn mattes(scene: &Scene) -> Vec<Option<Matte>> {
+    scene.materials.iter().map(Matte::of).collect()
+}
+
+impl<'a> PathLanes<'a> {
+    /// What the tracer's `trace_primary` gives each of a group of camera samples
+    /// (`hits.len()` of the eight rays in `rays`, with their samplers) in a scene that
+    /// [`fits`], the paths side by side.
+    pub fn trace(
+        &mut self,
+        rays: &[Ray; N],
+        hits: &[Option<SurfaceHit>],
+        params: PathParams,
+        samplers: &mut [Sampler],
+    ) -> [DVec3; N] {
+        #[cfg(test)]
+        tests::PATH_GROUPS.with(|c| c.set(c.get() + 1));
+        let scene = self.scene;
+        let n = hits.len();
+        let eps = scene.shadow_ray_epsilon;
+        let tmin = scene.intersection_test_epsilon;
+        let max_bounces = scene.max_recursion_depth;
+        self.counts.primary += n as u64;
+        let mut l = [DVec3::ZERO; N];
+        let mut beta = [DVec3::ONE; N];
+        // The lanes' rays (unused lanes repeat the first) and what they found.
+        let (mut o, mut d) = ([[0.0; N]; 3], [[0.0; N]; 3]);
+        let mut found =
+            HitLanes { mask: 0, t: [0.0; N], point: o, normal: o, material: [0; N], instance: [0; N] };
+        for k in 0..N {
+            let (r, h) = (&rays[k.min(n - 1)], hits.get(k).copied().flatten());
+            for a in 0..3 {
+                o[a][k] = r.origin[a];
+                d[a][k] = r.dir[a];
+            }
+            if let Some(h) = h {
+                found.mask |= 1 << k;
+                found.t[k] = h.t;
+                found.material[k] = h.material;
+                found.instance[k] = h.instance;
+                for a in 0..3 {
+                    found.point[a][k] = h.point[a];
+                    found.normal[a][k] = h.geo_normal[a];
+                }
+            }
+        }
+        let mut alive = (1u32 << n) - 1;
+        let mut bounce = 0u32;
+        loop {
+            let misses = alive & !found.mask;
+            for k in lanes(misses) {
+                l[k] += beta[k] * self.background;
+            }
+            alive &= found.mask;
+            if alive == 0 {
+                break;
+            }
+            // Each lane's surface: what it emits (seen from the camera), its material and its
+            // normal on the side the path arrives from.
+            let mut local = [DVec3::ZERO; N];
+            let lead = found.material[alive.trailing_zeros() as usize] as usize;
+            let mut sh = Shading { mats: [&scene.materials[lead]; N], matte: [None; N] };
+            let mut x = [DVec3::ZERO; N];
+            let mut nn = [DVec3::ZERO; N];
+            let mut wo = [DVec3::ZERO; N];
+            let mut live = 0u32;
+            for k in lanes(alive) {
+                let dir = lane(&d, k);
+                let ng = lane(&found.normal, k);
+                let front = dir.dot(ng) < 0.0;
+                if bounce == 0
+                    && front
+                    && let Some(Some(le)) = scene.instance_emission.get(found.instance[k] as usize)
+                {
+                    local[k] += *le;
+                }
+                let mat = &scene.materials[found.material[k] as usize];
+                nn[k] = if front { ng } else { -ng };
+                x[k] = lane(&found.point, k);
+                wo[k] = -dir;
+                if bounce == 0 {
+                    local[k] += mat.ambient * scene.ambient_light;
+                }
+                sh.mats[k] = mat;
+                sh.matte[k] = self.mattes[found.material[k] as usize];
+                if mat.diffuse != DVec3::ZERO || mat.specular != DVec3::ZERO {
+                    live |= 1 << k;
+                }
+            }
+            // (Zero where nothing is reflected, added all the same: the same sums as alone.)
+            let lit = if live != 0 {
+                self.lights_of_lanes(&x, &nn, &wo, &sh, live, samplers)
+            } else {
+                [DVec3::ZERO; N]
+            };
+            for k in lanes(alive) {
+                local[k] += lit[k];
+            }
+            for k in lanes(alive) {
+                l[k] += beta[k] * local[k];
+            }
+            // Every living lane has bounced as often as the others (each bounce counts: every
+            // material is plain).
+            if !(bounce < max_bounces && bounce < MAX_RECURSION_DEPTH_LIMIT) {
+                break;
+            }
+            let u = draw_requests::<N, 1>(samplers, alive);
+            let (wis, fs, ok) = bounce_lanes(&nn, &wo, &sh, params.importance, &u);
+            alive &= ok;
+            for k in lanes(alive) {
+                let (wi, f) = (wis[k], fs[k]);
+                beta[k] *= f;
+                let origin = x[k] + eps * nn[k];
+                for a in 0..3 {
+                    o[a][k] = origin[a];
+                    d[a][k] = wi[a];
+                }
+                self.counts.secondary += 1;
+                if beta[k] == DVec3::ZERO || !beta[k].is_finite() {
+                    alive &= !(1 << k);
+                }
+            }
+            bounce += 1;
+            if alive == 0 {
+                break;
+            }
+            fill_unused(&mut o, &mut d, alive);
+            found = scene.accel.closest_lanes(&o, &d, alive, tmin);
+        }
+        l
+    }
+
+    /// What [`super::direct::Lighting::reflected`] gives the points `x[k]` (normals `n[k]`,
+    /// towards their viewers `wo[k]`, materials in `sh`) of the lanes in `live`, with the same
+    /// numbers drawn and shadow rays counted: point lights, then object lights, in the scene's
+    /// order. Each step runs over all eight lanes without branches (the compiler makes vector
+    /// code of the square roots and divisions); lanes outside `live` compute values nobody
+    /// reads.
+    fn lights_of_lanes(
+        &mut self,
+        x: &[DVec3; N],
+        n: &[DVec3; N],
+        wo: &[DVec3; N],
+        sh: &Shading<'_>,
+        live: u32,
+        samplers: &mut [Sampler],
+    ) -> [DVec3; N] {
+        let scene = self.scene;
+        let eps = scene.shadow_ray_epsilon;
+        let tmin = scene.intersection_test_epsilon;
+        let first = live.trailing_zeros() as usize;
+        // The points, normals and shadow-ray origins by axis; unused lanes repeat the first.
+        let (mut xs, mut ns, mut origin) = ([[0.0; N]; 3], [[0.0; N]; 3], [[0.0; N]; 3]);
+        for k in 0..N {
+            let j = if live & (1 << k) != 0 { k } else { first };
+            let p = x[j] + eps * n[j];
+            for a in 0..3 {
+                xs[a][k] = x[j][a];
+                ns[a][k] = n[j][a];
+                origin[a][k] = p[a];
+            }
+        }
+        let matte = MatteLanes::of(sh, live);
+        let mut l = [[0.0; N]; 3];
+        for light in &scene.point_lights {
+            // `towards_lanes`' operations, lane by lane.
+            let p = light.position.to_array();
+            let (mut dir, mut wi) = ([[0.0; N]; 3], [[0.0; N]; 3]);
+            let (mut far, mut d2, mut cos) = ([0.0; N], [0.0; N], [0.0; N]);
+            for k in 0..N {
+                let v = [p[0] - xs[0][k], p[1] - xs[1][k], p[2] - xs[2][k]];
+                d2[k] = (v[0] * v[0]) + (v[1] * v[1]) + (v[2] * v[2]);
+                let recip = 1.0 / d2[k].sqrt();
+                let w = [v[0] * recip, v[1] * recip, v[2] * recip];
+                cos[k] = (ns[0][k] * w[0]) + (ns[1][k] * w[1]) + (ns[2][k] * w[2]);
+                let t = [p[0] - origin[0][k], p[1] - origin[1][k], p[2] - origin[2][k]];
+                let len = ((t[0] * t[0]) + (t[1] * t[1]) + (t[2] * t[2])).sqrt();
+                for a in 0..3 {
+                    dir[a][k] = t[a] / len;
+                    wi[a][k] = w[a];
+                }
+                far[k] = len;
+            }
+            let mask = (0..N).fold(0u32, |m, k| m | u32::from(cos[k] > 0.0) << k) & live;
+            let clear = self.clear_lanes_of(&origin, &mut dir, &far, mask, tmin);
+            let e = light.intensity.to_array();
+            let f = matte.reflectance(sh, &ns, &wi, wo);
+            for k in 0..N {
+                let on = clear & (1 << k) != 0;
+                for a in 0..3 {
+                    let add = l[a][k] + f[a][k] * (e[a] / d2[k]);
+                    l[a][k] = if on { add } else { l[a][k] };
+                }
+            }
+        }
+        for light in &scene.object_lights {
+            // One point per shading event; the numbers are drawn whatever the outcome.
+            let u = draw_requests::<N, 2>(samplers, live);
+            let Some(s) = light_samples(light, &xs, &u, live) else {
+                // Another kind of light, one lane at a time.
+                self.object_light_by_lane(light, x, n, &origin, wo, sh, &u, live, &mut l);
+                continue;
+            };
+            let (mut dir, mut far) = ([[0.0; N]; 3], [0.0; N]);
+            let (mut mask, mut degenerate) = (0u32, 0u32);
+            for k in 0..N {
+                // The shadow ray stops just short of the light's surface.
+                let cos = (ns[0][k] * s.wi[0][k]) + (ns[1][k] * s.wi[1][k]) + (ns[2][k] * s.wi[2][k]);
+                let to: [f64; 3] = std::array::from_fn(|a| xs[a][k] + s.wi[a][k] * s.dist[k] - origin[a][k]);
+                let len = ((to[0] * to[0]) + (to[1] * to[1]) + (to[2] * to[2])).sqrt();
+                for a in 0..3 {
+                    dir[a][k] = to[a] / len;
+                }
+                far[k] = len * (1.0 - 1e-6);
+                let valid = s.ok & (1 << k) != 0 && cos > 0.0;
+                let bad = len.is_nan() || len <= 0.0;
+                mask |= u32::from(valid && !bad) << k;
+                degenerate |= u32::from(valid && bad) << k;
+            }
+            // A degenerate segment: counted as a shadow ray that is blocked.
+            self.counts.shadow += u64::from((degenerate & live).count_ones());
+            let clear = self.clear_lanes_of(&origin, &mut dir, &far, mask & live, tmin);
+            let f = matte.reflectance(sh, &ns, &s.wi, wo);
+            let e = light.radiance.to_array();
+            for k in 0..N {
+                let on = clear & (1 << k) != 0;
+                for a in 0..3 {
+                    let add = l[a][k] + f[a][k] * (e[a] * s.g[k]);
+                    l[a][k] = if on { add } else { l[a][k] };
+                }
+            }
+        }
+        std::array::from_fn(|k| DVec3::new(l[0][k], l[1][k], l[2][k]))
+    }
+
+    /// An object light that is not a small mesh (a sphere, an ellipsoid, a mesh of more than
+    /// 32 triangles) for the lanes of `live`, one at a time, with [`ObjectLight::sample`]; adds
+    /// to `l`.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(never)]
+    fn object_light_by_lane(
+        &mut self,
+        light: &ObjectLight,
+        x: &[DVec3; N],
+        n: &[DVec3; N],
+        origin: &Axes,
+        wo: &[DVec3; N],
+        sh: &Shading<'_>,
+        u: &[[(f64, f64); 2]; N],
+        live: u32,
+        l: &mut Axes,
+    ) {
+        let mut dir = [[0.0; N]; 3];
+        let mut far = [0.0; N];
+        let mut wi = [DVec3::ZERO; N];
+        let mut irradiance = [DVec3::ZERO; N];
+        let mut mask = 0u32;
+        for k in lanes(live) {
+            let [(u0, _), (u1, u2)] = u[k];
+            if let Some(s) = light.sample(x[k], u0, u1, u2)
+                && n[k].dot(s.wi) > 0.0
+            {
+                let to_light = x[k] + s.wi * s.dist - lane(origin, k);
+                let len = to_light.length();
+                if len.is_nan() || len <= 0.0 {
+                    self.counts.shadow += 1;
+                } else {
+                    wi[k] = s.wi;
+                    irradiance[k] = s.irradiance;
+                    let unit = to_light / len;
+                    for a in 0..3 {
+                        dir[a][k] = unit[a];
+                    }
+                    far[k] = len * (1.0 - 1e-6);
+                    mask |= 1 << k;
+                }
+            }
+        }
+        let clear = self.clear_lanes_of(origin, &mut dir, &far, mask, tmin_of(self.scene));
+        for k in lanes(clear) {
+            let add = sh.reflectance(k, n[k], wi[k], wo[k]) * irradiance[k];
+            for a in 0..3 {
+                l[a][k] += add[a];
+            }
+        }
+    }
+
+    /// The lanes of `mask` whose shadow rays (from `origin`, along `dir`, up to `far`) are not
+    /// blocked; counts the rays.
+    #[inline]
+    fn clear_lanes_of(&mut self, origin: &Axes, dir: &mut Axes, far: &[f64; N], mask: u32, tmin: f64) -> u32 {
+        if mask == 0 {
+            return 0;
+        }
+        self.counts.shadow += u64::from(mask.count_ones());
+        let mut o = *origin;
+        fill_unused(&mut o, dir, mask);
+        mask & !self.scene.accel.occluded_lanes(&o, dir, far, mask, tmin)
+    }
+}
+
+/// The tracer's `bounce` of every lane (materials in `sh`), the directions side by side (a
+/// loop of fixed length without branches, which the compiler makes vector code of): each
+/// lane's direction, throughput factor, and the mask of lanes for which they are defined.
+#[inline(always)]
+fn bounce_lanes(
+    n: &[DVec3; N],
+    wo: &[DVec3; N],
+    sh: &Shading<'_>,
+    importance: bool,
+    u: &[[(f64, f64); 1]; N],
+) -> ([DVec3; N], [DVec3; N], u32) {
+    let mut wi = [DVec3::ZERO; N];
+    let mut cos = [0.0; N];
+    let mut cos_t = [0.0; N];
+    let mut pdf = [0.0; N];
+    for k in 0..N {
+        let nk = n[k];
+        let (u1, u2) = u[k][0];
+        // `orthonormal_pair`, its choice of component made by selection.
+        let a = nk.abs();
+        let cx = a.x <= a.y && a.x <= a.z;
+        let cy = !cx && a.y <= a.z;
+        let cz = !cx && !cy;
+        let r =
+            DVec3::new(if cx { 1.0 } else { nk.x }, if cy { 1.0 } else { nk.y }, if cz { 1.0 } else { nk.z });
+        let t = r.cross(nk).normalize();
+        let b = nk.cross(t);
+        let (ct, pdf_over_cos) =
+            if importance { ((1.0 - u1).sqrt(), 1.0 / std::f64::consts::PI) } else { (u1, 0.0) };
+        let sin_t = (1.0 - ct * ct).max(0.0).sqrt();
+        let (sp, cp) = sincos_turns(u2);
+        wi[k] = (sin_t * cp) * t + (sin_t * sp) * b + ct * nk;
+        cos_t[k] = ct;
+        pdf[k] = if importance { ct * pdf_over_cos } else { 1.0 / std::f64::consts::TAU };
+        cos[k] = nk.dot(wi[k]);
+    }
+    let mut f = [DVec3::ZERO; N];
+    let mut ok = 0u32;
+    for k in 0..N {
+        if cos_t[k] <= 0.0 {
+            continue;
+        }
+        let fk = match &sh.matte[k] {
+            Some(m) => m.at(cos[k]),
+            None => sh.mats[k].reflectance(n[k], wi[k], wo[k]),
+        } / pdf[k];
+        f[k] = fk;
+        ok |= u32::from(fk != DVec3::ZERO && fk.is_finite()) << k;
+    }
+    (wi, f, ok)
+}
+
+/// Samples of a light mesh of at most 32 triangles for eight lanes (see [`light_samples`]).
+struct LightLanes {
+    /// Unit directions towards the points, by axis.
+    wi: Axes,
+    dist: [f64; N],
+    /// `cos θ_y / (d² · p_A)`: what the light's radiance is multiplied by.
+    g: [f64; N],
+    /// The lanes where the sample is defined ([`ObjectLight::sample`] gives `Some`).
+    ok: u32,
+}
+
+/// [`ObjectLight::sample`] from each lane `k` at `x[k]` (by axis), with the numbers `u[k]` (the
+/// first of the first request picks a triangle, the second request the point), for a light of
+/// at most 32 triangles, all lanes side by side with `sample`'s operations (its `irradiance` is
+/// the light's radiance times `g`). `None` for other lights.
+#[inline(always)]
+fn light_samples(light: &ObjectLight, x: &Axes, u: &[[(f64, f64); 2]; N], mask: u32) -> Option<LightLanes> {
+    let EmitterShape::Triangles { tris, cdf, normals } = &light.shape else { return None };
+    let &total = cdf.last().filter(|_| cdf.len() <= 32)?;
+    // The first running area above each lane's target, counted.
+    let target: [f64; N] = std::array::from_fn(|k| u[k][0].0 * total);
+    let mut idx = [0usize; N];
+    for &c in cdf {
+        for k in 0..N {
+            idx[k] += usize::from(c <= target[k]);
+        }
+    }
+    let last = tris.len() - 1;
+    let (mut p0, mut p1, mut p2, mut ny) = ([[0.0; N]; 3], [[0.0; N]; 3], [[0.0; N]; 3], [[0.0; N]; 3]);
+    for k in 0..N {
+        let i = idx[k].min(last);
+        let [a, b, c] = tris[i];
+        for ax in 0..3 {
+            p0[ax][k] = a[ax];
+            p1[ax][k] = b[ax];
+            p2[ax][k] = c[ax];
+            ny[ax][k] = normals[i][ax];
+        }
+    }
+    let pdf_area = 1.0 / total;
+    let mut out = LightLanes { wi: [[0.0; N]; 3], dist: [0.0; N], g: [0.0; N], ok: 0 };
+    let mut ok = [false; N];
+    for k in 0..N {
+        let (u1, u2) = u[k][1];
+        let s = u1.sqrt();
+        let (w0, w1, w2) = (1.0 - s, s * (1.0 - u2), s * u2);
+        let to: [f64; 3] =
+            std::array::from_fn(|a| w0 * p0[a][k] + w1 * p1[a][k] + w2 * p2[a][k] - x[a][k]);
+        let d2 = (to[0] * to[0]) + (to[1] * to[1]) + (to[2] * to[2]);
+        let dist = d2.sqrt();
+        let wi = [to[0] / dist, to[1] / dist, to[2] / dist];
+        let cos_y = -((ny[0][k] * wi[0]) + (ny[1][k] * wi[1]) + (ny[2][k] * wi[2]));
+        ok[k] = !(cos_y.is_nan() || cos_y <= 0.0 || d2.is_nan() || d2 <= 0.0 || !pdf_area.is_finite());
+        out.g[k] = cos_y / (d2 * pdf_area);
+        out.dist[k] = dist;
+        for a in 0..3 {
+            out.wi[a][k] = wi[a];
+        }
+    }
+    out.ok = (0..N).fold(0u32, |m, k| m | u32::from(ok[k]) << k) & mask;
+    Some(out)
+}
+
+/// Each lane's matte reflectance coefficients by axis, for [`MatteLanes::reflectance`].
+struct MatteLanes {
+    c: Axes,
+    zero: Axes,
+    /// Lanes whose cosine is checked (zero below the surface), and those that add `zero`.
+    checked: u32,
+    plus_zero: u32,
+    /// Lanes of `live` whose material has no matte form.
+    other: u32,
+}
+
+impl MatteLanes {
+    fn of(sh: &Shading<'_>, live: u32) -> Self {
+        let mut m = MatteLanes { c: [[0.0; N]; 3], zero: [[0.0; N]; 3], checked: 0, plus_zero: 0, other: 0 };
+        for k in 0..N {
+            match &sh.matte[k] {
+                Some(mt) => {
+                    for a in 0..3 {
+                        m.c[a][k] = mt.c[a];
+                        m.zero[a][k] = mt.zero[a];
+                    }
+                    m.checked |= u32::from(mt.form != MatteForm::Plain) << k;
+                    m.plus_zero |= u32::from(mt.form == MatteForm::CheckedPlusZero) << k;
+                }
+                None => m.other |= live & 1 << k,
+            }
+        }
+        m
+    }
+
+    /// Each lane's [`Material::reflectance`] at normal `n`, from `wi` towards `wo`, by axis:
+    /// [`Matte::at`]'s operations side by side, and the lanes without a matte form one by one.
+    #[inline(always)]
+    fn reflectance(&self, sh: &Shading<'_>, n: &Axes, wi: &Axes, wo: &[DVec3; N]) -> Axes {
+        let mut f = [[0.0; N]; 3];
+        for k in 0..N {
+            let cos = (n[0][k] * wi[0][k]) + (n[1][k] * wi[1][k]) + (n[2][k] * wi[2][k]);
+            let below = self.checked & (1 << k) != 0 && (cos.is_nan() || cos <= 0.0);
+            let plus = self.plus_zero & (1 << k) != 0;
+            for a in 0..3 {
+                let v = self.c[a][k] * cos;
+                let v = if plus { v + self.zero[a][k] } else { v };
+                f[a][k] = if below { 0.0 } else { v };
+            }
+        }
+        for k in lanes(self.other) {
+            let v = sh.mats[k].reflectance(lane(n, k), lane(wi, k), wo[k]);
+            for a in 0..3 {
+                f[a][k] = v[a];
+            }
+        }
+        f
+    }
+}
+
+/// The scene's `IntersectionTestEpsilon`: where every ray query starts.
+fn tmin_of(scene: &Scene) -> f64 {
+    scene.intersection_test_epsilon
+}
+
+/// Lane `k` of `v` as a vector.
+#[inline(always)]
+fn lane(v: &Axes, k: usize) -> DVec3 {
+    DVec3::new(v[0][k], v[1][k], v[2][k])
+}
+
+/// The lanes outside `mask` (which is not empty) take the first lane of `mask`'s ray, so a
+/// packet holds finite rays only.
+#[inline(always)]
+fn fill_unused(o: &mut Axes, d: &mut Axes, mask: u32) {
+    let first = mask.trailing_zeros() as usize;
+    for k in 0..N {
+        if mask & (1 << k) == 0 {
+            for a in 0..3 {
+                o[a][k] = o[a][first];
+                d[a][k] = d[a][first];
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::cell::Cell;
+
+    use glam::DVec3;
+
+    use crate::assets::FsResolver;
+    use crate::math::Ray;
+    use crate::sampler::{GROUP_LANES, Sampler};
+    use crate::scene::load::load_scene_str;
+    use crate::scene::records::{PathParams, Renderer, Roulette};
+
+    thread_local! {
+        /// How many groups [`super::PathLanes::trace`] traced on this thread.
+        pub static PATH_GROUPS: Cell<u64> = const { Cell::new(0) };
+    }
+
+    /// A box open towards the camera, two spheres (one in the light's way), a point light and
+    /// a light mesh; materials with and without BRDFs, one glossy, one reflecting nothing.
+    /// `extra` adds materials; the second sphere's material is `second`.
+    fn scene(extra: &str, second: u32) -> crate::scene::Scene {
+        let xml = format!(
+            r#"<Scene><MaxRecursionDepth>3</MaxRecursionDepth>
+            <Cameras><Camera id="1"><Position>0 -3 0</Position><Gaze>0 1 0</Gaze><Up>0 0 1</Up>
+              <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance>
+              <ImageResolution>4 4</ImageResolution><ImageName>a.exr</ImageName><NumSamples>8</NumSamples>
+              <Renderer>PathTracing</Renderer><RendererParams>NextEventEstimation</RendererParams></Camera></Cameras>
+            <Lights><AmbientLight>0.1 0.1 0.1</AmbientLight>
+              <PointLight id="1"><Position>0.3 0 0.8</Position><Intensity>2 2 2</Intensity></PointLight></Lights>
+            <BRDFs><ModifiedPhong id="1" normalized="true"><Exponent>20</Exponent></ModifiedPhong>
+              <OriginalBlinnPhong id="2"><Exponent>5</Exponent></OriginalBlinnPhong></BRDFs>
+            <Materials><Material id="1" BRDF="1"><AmbientReflectance>0.2 0.2 0.2</AmbientReflectance>
+                <DiffuseReflectance>0.7 0.6 0.5</DiffuseReflectance></Material>
+              <Material id="2"></Material>
+              <Material id="3"><DiffuseReflectance>0.2 0.8 0.3</DiffuseReflectance>
+                <SpecularReflectance>0.3 0.3 0.3</SpecularReflectance><PhongExponent>10</PhongExponent></Material>
+              <Material id="4" BRDF="2"><DiffuseReflectance>0.5 0.5 0.9</DiffuseReflectance>
+                <SpecularReflectance>0.4 0.4 0.4</SpecularReflectance></Material>{extra}</Materials>
+            <VertexData>-1 -1 -1  1 -1 -1  1 1 -1  -1 1 -1  -1 -1 1  1 -1 1  1 1 1  -1 1 1
+              -0.2 -0.2 0.95  0.2 -0.2 0.95  0.2 0.2 0.95  -0.2 0.2 0.95  -0.4 0.3 -0.6  0.4 0.2 -0.5</VertexData>
+            <Objects><Mesh id="1"><Material>1</Material><Faces>
+              4 8 7  4 7 3  1 5 8  1 8 4  2 3 7  2 7 6  1 4 3  1 3 2  5 6 7  5 7 8</Faces></Mesh>
+              <LightMesh id="2"><Material>2</Material><Radiance>6 6 6</Radiance><Faces>9 12 11  9 11 10</Faces></LightMesh>
+              <Sphere id="1"><Material>3</Material><Center>13</Center><Radius>0.35</Radius></Sphere>
+              <Sphere id="2"><Material>{second}</Material><Center>14</Center><Radius>0.3</Radius></Sphere>
+            </Objects></Scene>"#
+        );
+        let scene = load_scene_str(&xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() })
+            .unwrap();
+        assert!(scene.warnings.is_empty(), "{:?}", scene.warnings);
+        scene
+    }
+
+    /// Camera rays into the box: at the walls, the spheres, the light, and out of the box.
+    fn rays() -> [Ray; GROUP_LANES] {
+        let dirs = [
+            (0.0, 1.0, 0.0),
+            (-0.15, 1.0, -0.3),
+            (0.13, 1.0, -0.2),
+            (0.0, 1.0, 0.33),
+            (0.2, 1.0, 0.1),
+            (-0.3, 1.0, 0.25),
+            (0.0, -1.0, 0.0),
+            (0.31, 1.0, -0.3),
+        ];
+        dirs.map(|(x, y, z)| Ray::new(DVec3::new(0.0, -3.0, 0.0), DVec3::new(x, y, z).normalize()))
+    }
+
+    /// Paths traced side by side give each camera sample the radiance, random numbers and ray
+    /// counts it gets alone, bit for bit: with uniform and cosine bounces, for groups shorter
+    /// than eight, for samples of one pixel (which draw their numbers together) and of several.
+    #[test]
+    fn paths_side_by_side_trace_what_each_path_traces_alone() {
+        let scene = scene("", 4);
+        let rays = rays();
+        for importance in [false, true] {
+            let params = PathParams {
+                next_event: true,
+                importance,
+                roulette: Roulette::Off,
+                one_light: false,
+                mis: false,
+            };
+            assert!(super::fits(&scene, &params));
+            for group in [GROUP_LANES, 5, 2, 1] {
+                for one_pixel in [true, false] {
+                    let samplers: Vec<Sampler> = (0..group as u32)
+                        .map(|k| if one_pixel { Sampler::new(7, 1, 2, k) } else { Sampler::new(7, k, 2, 3) })
+                        .collect();
+                    let mut together = crate::integrator::Tracer::new(&scene);
+                    together.renderer = Renderer::Path(params);
+                    let mut hits = [None; GROUP_LANES];
+                    together.camera_hits(&rays[..group], &mut hits[..group]);
+                    let before = PATH_GROUPS.with(Cell::get);
+                    let mut group_samplers = samplers.clone();
+                    let got = together.trace_primary_group(&rays, &hits[..group], &mut group_samplers);
+                    assert_eq!(PATH_GROUPS.with(Cell::get), before + 1, "the group went side by side");
+                    let mut alone = crate::integrator::Tracer::new(&scene);
+                    alone.renderer = Renderer::Path(params);
+                    for i in 0..group {
+                        let mut rng = samplers[i].clone();
+                        let want = alone.trace_primary(&rays[i], hits[i], &mut rng);
+                        let lane =
+                            format!("lane {i} of {group}, importance {importance}, one pixel {one_pixel}");
+                        assert_eq!(
+                            got[i].to_array().map(f64::to_bits),
+                            want.to_array().map(f64::to_bits),
+                            "{lane}"
+                        );
+                        // The same numbers drawn: the next one agrees.
+                        assert_eq!(group_samplers[i].next_1d(), rng.next_1d(), "{lane}");
+                    }
+                    assert_eq!(together.stats, alone.stats, "{group} lanes");
+                    if group == GROUP_LANES {
+                        assert!(hits.iter().any(Option::is_none), "a camera ray leaves the box");
+                        assert!(
+                            together.stats.shadow > 0 && together.stats.secondary > 0,
+                            "the paths bounce, lit"
+                        );
+                        assert!(got.iter().any(|l| l.max_element() > 0.0), "light arrives");
+                    }
+                }
+            }
+        }
+    }
+
+    /// Scenes whose paths the lanes do not take: other estimators, an object of mirror.
+    #[test]
+    fn other_paths_go_one_by_one() {
+        let plain = scene("", 4);
+        let nee = PathParams {
+            next_event: true,
+            importance: true,
+            roulette: Roulette::Off,
+            one_light: false,
+            mis: false,
+        };
+        assert!(super::fits(&plain, &nee));
+        for other in [
+            PathParams { next_event: false, ..nee },
+            PathParams { roulette: Roulette::Course, ..nee },
+            PathParams { one_light: true, ..nee },
+            PathParams { mis: true, ..nee },
+        ] {
+            assert!(!super::fits(&plain, &other), "{other:?}");
+        }
+        // A material no object uses does not matter; one that an object uses does.
+        let mirror =
+            r#"<Material id="5" type="mirror"><MirrorReflectance>1 1 1</MirrorReflectance></Material>"#;
+        assert!(super::fits(&scene(mirror, 4), &nee));
+        assert!(!super::fits(&scene(mirror, 5), &nee));
+    }
+}
