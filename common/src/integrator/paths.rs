@@ -161,8 +161,10 @@ impl<'a> PathLanes<'a> {
         let tmin = scene.intersection_test_epsilon;
         let max_bounces = scene.max_recursion_depth;
         self.counts.primary += n as u64;
-        let mut l = [DVec3::ZERO; N];
-        let mut beta = [DVec3::ONE; N];
+        // Radiance so far and throughput, by axis then lane.
+        let mut l = [[0.0; N]; 3];
+        let mut beta = [[1.0; N]; 3];
+        let bg = self.background.to_array();
         // The lanes' rays (unused lanes repeat the first) and what they found.
         let (mut o, mut d) = ([[0.0; N]; 3], [[0.0; N]; 3]);
         let mut found =
@@ -188,56 +190,65 @@ impl<'a> PathLanes<'a> {
         let mut bounce = 0u32;
         loop {
             let misses = alive & !found.mask;
-            for k in lanes(misses) {
-                l[k] += beta[k] * self.background;
+            if misses != 0 {
+                for k in 0..N {
+                    let on = misses & (1 << k) != 0;
+                    for a in 0..3 {
+                        l[a][k] = if on { l[a][k] + beta[a][k] * bg[a] } else { l[a][k] };
+                    }
+                }
             }
             alive &= found.mask;
             if alive == 0 {
                 break;
             }
-            // Each lane's surface: what it emits (seen from the camera), its material and its
-            // normal on the side the path arrives from.
-            let mut local = [DVec3::ZERO; N];
+            // Each lane's normal on the side the path arrives from, and where it looks from.
+            let (mut ns, mut front) = ([[0.0; N]; 3], [false; N]);
+            let mut wo = [DVec3::ZERO; N];
+            let g = &found.normal;
+            for k in 0..N {
+                let cos = (d[0][k] * g[0][k]) + (d[1][k] * g[1][k]) + (d[2][k] * g[2][k]);
+                front[k] = cos < 0.0;
+                for a in 0..3 {
+                    ns[a][k] = if front[k] { g[a][k] } else { -g[a][k] };
+                }
+                wo[k] = -lane(&d, k);
+            }
+            // Each lane's material; what it emits (seen from the camera) and the ambient term.
+            let mut local = [[0.0; N]; 3];
             let lead = found.material[alive.trailing_zeros() as usize] as usize;
             let mut sh = Shading { mats: [&scene.materials[lead]; N], matte: [None; N] };
-            let mut x = [DVec3::ZERO; N];
-            let mut nn = [DVec3::ZERO; N];
-            let mut wo = [DVec3::ZERO; N];
             let mut live = 0u32;
             for k in lanes(alive) {
-                let dir = lane(&d, k);
-                let ng = lane(&found.normal, k);
-                let front = dir.dot(ng) < 0.0;
-                if bounce == 0
-                    && front
-                    && let Some(Some(le)) = scene.instance_emission.get(found.instance[k] as usize)
-                {
-                    local[k] += *le;
-                }
                 let mat = &scene.materials[found.material[k] as usize];
-                nn[k] = if front { ng } else { -ng };
-                x[k] = lane(&found.point, k);
-                wo[k] = -dir;
                 if bounce == 0 {
-                    local[k] += mat.ambient * scene.ambient_light;
+                    let mut first = DVec3::ZERO;
+                    if front[k]
+                        && let Some(Some(le)) = scene.instance_emission.get(found.instance[k] as usize)
+                    {
+                        first += *le;
+                    }
+                    first += mat.ambient * scene.ambient_light;
+                    for a in 0..3 {
+                        local[a][k] = first[a];
+                    }
                 }
                 sh.mats[k] = mat;
                 sh.matte[k] = self.mattes[found.material[k] as usize];
-                if mat.diffuse != DVec3::ZERO || mat.specular != DVec3::ZERO {
-                    live |= 1 << k;
-                }
+                live |= u32::from(mat.diffuse != DVec3::ZERO || mat.specular != DVec3::ZERO) << k;
             }
             // (Zero where nothing is reflected, added all the same: the same sums as alone.)
             let lit = if live != 0 {
-                self.lights_of_lanes(&x, &nn, &wo, &sh, live, samplers)
+                self.lights_of_lanes(&found.point, &ns, &wo, &sh, live, samplers)
             } else {
-                [DVec3::ZERO; N]
+                [[0.0; N]; 3]
             };
-            for k in lanes(alive) {
-                local[k] += lit[k];
-            }
-            for k in lanes(alive) {
-                l[k] += beta[k] * local[k];
+            for k in 0..N {
+                let on = alive & (1 << k) != 0;
+                for a in 0..3 {
+                    let local_k = local[a][k] + lit[a][k];
+                    l[a][k] = if on { l[a][k] + beta[a][k] * local_k } else { l[a][k] };
+                }
             }
             // Every living lane has bounced as often as the others (each bounce counts: every
             // material is plain).
@@ -245,21 +256,23 @@ impl<'a> PathLanes<'a> {
                 break;
             }
             let u = draw_requests::<N, 1>(samplers, alive);
-            let (wis, fs, ok) = bounce_lanes(&nn, &wo, &sh, params.importance, &u);
+            let (wi, f, ok) = bounce_lanes(&ns, &wo, &sh, params.importance, &u);
             alive &= ok;
-            for k in lanes(alive) {
-                let (wi, f) = (wis[k], fs[k]);
-                beta[k] *= f;
-                let origin = x[k] + eps * nn[k];
+            self.counts.secondary += u64::from(alive.count_ones());
+            let mut dead = 0u32;
+            for k in 0..N {
+                let on = alive & (1 << k) != 0;
                 for a in 0..3 {
-                    o[a][k] = origin[a];
-                    d[a][k] = wi[a];
+                    beta[a][k] = if on { beta[a][k] * f[a][k] } else { beta[a][k] };
+                    let origin = found.point[a][k] + eps * ns[a][k];
+                    o[a][k] = if on { origin } else { o[a][k] };
+                    d[a][k] = if on { wi[a][k] } else { d[a][k] };
                 }
-                self.counts.secondary += 1;
-                if beta[k] == DVec3::ZERO || !beta[k].is_finite() {
-                    alive &= !(1 << k);
-                }
+                let zero = beta[0][k] == 0.0 && beta[1][k] == 0.0 && beta[2][k] == 0.0;
+                let finite = beta[0][k].is_finite() && beta[1][k].is_finite() && beta[2][k].is_finite();
+                dead |= u32::from(zero || !finite) << k;
             }
+            alive &= !dead;
             bounce += 1;
             if alive == 0 {
                 break;
@@ -267,7 +280,7 @@ impl<'a> PathLanes<'a> {
             fill_unused(&mut o, &mut d, alive);
             found = scene.accel.closest_lanes(&o, &d, alive, tmin);
         }
-        l
+        std::array::from_fn(|k| lane(&l, k))
     }
 
     /// What [`super::direct::Lighting::reflected`] gives the points `x[k]` (normals `n[k]`,
@@ -278,26 +291,21 @@ impl<'a> PathLanes<'a> {
     /// reads.
     fn lights_of_lanes(
         &mut self,
-        x: &[DVec3; N],
-        n: &[DVec3; N],
+        xs: &Axes,
+        ns: &Axes,
         wo: &[DVec3; N],
         sh: &Shading<'_>,
         live: u32,
         samplers: &mut [Sampler],
-    ) -> [DVec3; N] {
+    ) -> Axes {
         let scene = self.scene;
         let eps = scene.shadow_ray_epsilon;
         let tmin = scene.intersection_test_epsilon;
-        let first = live.trailing_zeros() as usize;
-        // The points, normals and shadow-ray origins by axis; unused lanes repeat the first.
-        let (mut xs, mut ns, mut origin) = ([[0.0; N]; 3], [[0.0; N]; 3], [[0.0; N]; 3]);
-        for k in 0..N {
-            let j = if live & (1 << k) != 0 { k } else { first };
-            let p = x[j] + eps * n[j];
-            for a in 0..3 {
-                xs[a][k] = x[j][a];
-                ns[a][k] = n[j][a];
-                origin[a][k] = p[a];
+        // The shadow rays' origins, by axis.
+        let mut origin = [[0.0; N]; 3];
+        for a in 0..3 {
+            for k in 0..N {
+                origin[a][k] = xs[a][k] + eps * ns[a][k];
             }
         }
         let matte = MatteLanes::of(sh, live);
@@ -324,7 +332,7 @@ impl<'a> PathLanes<'a> {
             let mask = (0..N).fold(0u32, |m, k| m | u32::from(cos[k] > 0.0) << k) & live;
             let clear = self.clear_lanes_of(&origin, &mut dir, &far, mask, tmin);
             let e = light.intensity.to_array();
-            let f = matte.reflectance(sh, &ns, &wi, wo);
+            let f = matte.reflectance(sh, ns, &wi, wo);
             for k in 0..N {
                 let on = clear & (1 << k) != 0;
                 for a in 0..3 {
@@ -336,9 +344,9 @@ impl<'a> PathLanes<'a> {
         for light in &scene.object_lights {
             // One point per shading event; the numbers are drawn whatever the outcome.
             let u = draw_requests::<N, 2>(samplers, live);
-            let Some(s) = light_samples(light, &xs, &u, live) else {
+            let Some(s) = light_samples(light, xs, &u, live) else {
                 // Another kind of light, one lane at a time.
-                self.object_light_by_lane(light, x, n, &origin, wo, sh, &u, live, &mut l);
+                self.object_light_by_lane(light, xs, ns, &origin, wo, sh, &u, live, &mut l);
                 continue;
             };
             let (mut dir, mut far) = ([[0.0; N]; 3], [0.0; N]);
@@ -360,7 +368,7 @@ impl<'a> PathLanes<'a> {
             // A degenerate segment: counted as a shadow ray that is blocked.
             self.counts.shadow += u64::from((degenerate & live).count_ones());
             let clear = self.clear_lanes_of(&origin, &mut dir, &far, mask & live, tmin);
-            let f = matte.reflectance(sh, &ns, &s.wi, wo);
+            let f = matte.reflectance(sh, ns, &s.wi, wo);
             let e = light.radiance.to_array();
             for k in 0..N {
                 let on = clear & (1 << k) != 0;
@@ -370,7 +378,7 @@ impl<'a> PathLanes<'a> {
                 }
             }
         }
-        std::array::from_fn(|k| DVec3::new(l[0][k], l[1][k], l[2][k]))
+        l
     }
 
     /// An object light that is not a small mesh (a sphere, an ellipsoid, a mesh of more than
@@ -381,8 +389,8 @@ impl<'a> PathLanes<'a> {
     fn object_light_by_lane(
         &mut self,
         light: &ObjectLight,
-        x: &[DVec3; N],
-        n: &[DVec3; N],
+        xs: &Axes,
+        ns: &Axes,
         origin: &Axes,
         wo: &[DVec3; N],
         sh: &Shading<'_>,
@@ -397,10 +405,11 @@ impl<'a> PathLanes<'a> {
         let mut mask = 0u32;
         for k in lanes(live) {
             let [(u0, _), (u1, u2)] = u[k];
-            if let Some(s) = light.sample(x[k], u0, u1, u2)
-                && n[k].dot(s.wi) > 0.0
+            let (x, n) = (lane(xs, k), lane(ns, k));
+            if let Some(s) = light.sample(x, u0, u1, u2)
+                && n.dot(s.wi) > 0.0
             {
-                let to_light = x[k] + s.wi * s.dist - lane(origin, k);
+                let to_light = x + s.wi * s.dist - lane(origin, k);
                 let len = to_light.length();
                 if len.is_nan() || len <= 0.0 {
                     self.counts.shadow += 1;
@@ -418,7 +427,7 @@ impl<'a> PathLanes<'a> {
         }
         let clear = self.clear_lanes_of(origin, &mut dir, &far, mask, tmin_of(self.scene));
         for k in lanes(clear) {
-            let add = sh.reflectance(k, n[k], wi[k], wo[k]) * irradiance[k];
+            let add = sh.reflectance(k, lane(ns, k), wi[k], wo[k]) * irradiance[k];
             for a in 0..3 {
                 l[a][k] += add[a];
             }
@@ -444,18 +453,18 @@ impl<'a> PathLanes<'a> {
 /// lane's direction, throughput factor, and the mask of lanes for which they are defined.
 #[inline(always)]
 fn bounce_lanes(
-    n: &[DVec3; N],
+    ns: &Axes,
     wo: &[DVec3; N],
     sh: &Shading<'_>,
     importance: bool,
     u: &[[(f64, f64); 1]; N],
-) -> ([DVec3; N], [DVec3; N], u32) {
-    let mut wi = [DVec3::ZERO; N];
+) -> (Axes, Axes, u32) {
+    let mut wi = [[0.0; N]; 3];
     let mut cos = [0.0; N];
     let mut cos_t = [0.0; N];
     let mut pdf = [0.0; N];
     for k in 0..N {
-        let nk = n[k];
+        let nk = lane(ns, k);
         let (u1, u2) = u[k][0];
         // `orthonormal_pair`, its choice of component made by selection.
         let a = nk.abs();
@@ -470,12 +479,15 @@ fn bounce_lanes(
             if importance { ((1.0 - u1).sqrt(), 1.0 / std::f64::consts::PI) } else { (u1, 0.0) };
         let sin_t = (1.0 - ct * ct).max(0.0).sqrt();
         let (sp, cp) = sincos_turns(u2);
-        wi[k] = (sin_t * cp) * t + (sin_t * sp) * b + ct * nk;
+        let w = (sin_t * cp) * t + (sin_t * sp) * b + ct * nk;
         cos_t[k] = ct;
         pdf[k] = if importance { ct * pdf_over_cos } else { 1.0 / std::f64::consts::TAU };
-        cos[k] = nk.dot(wi[k]);
+        cos[k] = nk.dot(w);
+        for ax in 0..3 {
+            wi[ax][k] = w[ax];
+        }
     }
-    let mut f = [DVec3::ZERO; N];
+    let mut f = [[0.0; N]; 3];
     let mut ok = 0u32;
     for k in 0..N {
         if cos_t[k] <= 0.0 {
@@ -483,9 +495,11 @@ fn bounce_lanes(
         }
         let fk = match &sh.matte[k] {
             Some(m) => m.at(cos[k]),
-            None => sh.mats[k].reflectance(n[k], wi[k], wo[k]),
+            None => sh.mats[k].reflectance(lane(ns, k), lane(&wi, k), wo[k]),
         } / pdf[k];
-        f[k] = fk;
+        for ax in 0..3 {
+            f[ax][k] = fk[ax];
+        }
         ok |= u32::from(fk != DVec3::ZERO && fk.is_finite()) << k;
     }
     (wi, f, ok)
@@ -537,8 +551,7 @@ fn light_samples(light: &ObjectLight, x: &Axes, u: &[[(f64, f64); 2]; N], mask: 
         let (u1, u2) = u[k][1];
         let s = u1.sqrt();
         let (w0, w1, w2) = (1.0 - s, s * (1.0 - u2), s * u2);
-        let to: [f64; 3] =
-            std::array::from_fn(|a| w0 * p0[a][k] + w1 * p1[a][k] + w2 * p2[a][k] - x[a][k]);
+        let to: [f64; 3] = std::array::from_fn(|a| w0 * p0[a][k] + w1 * p1[a][k] + w2 * p2[a][k] - x[a][k]);
         let d2 = (to[0] * to[0]) + (to[1] * to[1]) + (to[2] * to[2]);
         let dist = d2.sqrt();
         let wi = [to[0] / dist, to[1] / dist, to[2] / dist];
