@@ -1,18 +1,21 @@
 //! Path tracing a group of camera samples side by side: the paths of up to eight camera samples
 //! (a pixel's, or consecutive pixels') advance one vertex at a time together, so that their
-//! bounce rays are traced as one packet, their lights are sampled together ([`Lighting`]), and
-//! their random numbers are drawn together when they stand at the same dimension of one pixel.
+//! bounce and shadow rays are traced as packets ([`crate::geometry::Accel::closest_lanes`],
+//! [`crate::geometry::Accel::occluded_lanes`]), their lights are sampled side by side, and their
+//! random numbers are drawn together when they stand at the same dimension of one pixel. The
+//! state of the paths (radiance, throughput, rays, hits) is kept by axis, then lane.
 //!
-//! Every path gets exactly the value, random numbers and ray counts that
-//! [`Tracer::trace_primary`] gives it alone: per lane the operations are the same and in the
-//! same order, each ray query answers what the single ray's query answers, and a lane draws its
-//! numbers from its own sampler in its own order. The group changes when the work is done,
-//! never what it computes, so a tile renders to the same bits whatever its size.
+//! Every path gets exactly the value, random numbers and ray counts that the tracer's
+//! `trace_primary` gives it alone: per lane the operations are the same and in the same order,
+//! each ray query answers what the single ray's query answers, and a lane draws its numbers
+//! from its own sampler in its own order. The group changes when the work is done, never what it
+//! computes, so a tile renders to the same bits whatever its size.
 //!
-//! The lanes take the scenes whose paths stay simple ([`Tracer::paths_fit`]): next-event
-//! estimation of every light without multiple importance sampling or roulette, every material
-//! of an object plain (diffuse and glossy BRDFs: no mirror, conductor or glass), no texture maps and no
-//! environment light. Any other scene's paths go one by one.
+//! The lanes take the scenes whose paths stay simple ([`fits`]): next-event estimation of every
+//! light, without multiple importance sampling or `SampleOneLight` (with or without either
+//! roulette); every object's material plain (diffuse and glossy BRDFs: no mirror, conductor or
+//! glass); no texture maps; point and object lights only; flat meshes and spheres that
+//! [`crate::geometry::Accel::lanes_fit`]. Any other scene's paths go one by one.
 
 use glam::DVec3;
 
@@ -104,7 +107,6 @@ pub fn fits(scene: &Scene, params: &PathParams) -> bool {
     params.next_event
         && !params.mis
         && !params.one_light
-        && params.roulette == Roulette::Off
         && scene.env_light.is_none()
         && scene.extra_env_lights.is_empty()
         && scene.area_lights.is_empty()
@@ -159,11 +161,17 @@ impl<'a> PathLanes<'a> {
         let n = hits.len();
         let eps = scene.shadow_ray_epsilon;
         let tmin = scene.intersection_test_epsilon;
-        let max_bounces = scene.max_recursion_depth;
+        let max_bounces = match params.roulette {
+            Roulette::Off => scene.max_recursion_depth,
+            Roulette::Course | Roulette::Unbiased => MAX_RECURSION_DEPTH_LIMIT,
+        };
         self.counts.primary += n as u64;
         // Radiance so far and throughput, by axis then lane.
         let mut l = [[0.0; N]; 3];
         let mut beta = [[1.0; N]; 3];
+        // The product of the BRDF values of the path's vertices so far: the course roulette's
+        // potential.
+        let mut potential = [[1.0; N]; 3];
         let bg = self.background.to_array();
         // The lanes' rays (unused lanes repeat the first) and what they found.
         let (mut o, mut d) = ([[0.0; N]; 3], [[0.0; N]; 3]);
@@ -243,6 +251,24 @@ impl<'a> PathLanes<'a> {
             } else {
                 [[0.0; N]; 3]
             };
+            if params.roulette == Roulette::Course {
+                // The course's roulette on the product of the path's BRDF values: a path that
+                // ends keeps this vertex's light at the throughput it arrived with.
+                let u = draw_requests::<N, 1>(samplers, alive);
+                for k in lanes(alive) {
+                    let q = lane(&potential, k).max_element().min(1.0);
+                    if u[k][0].0 >= q {
+                        for a in 0..3 {
+                            l[a][k] += beta[a][k] * (local[a][k] + lit[a][k]);
+                        }
+                        alive &= !(1 << k);
+                    } else {
+                        for b in &mut beta {
+                            b[k] /= q;
+                        }
+                    }
+                }
+            }
             for k in 0..N {
                 let on = alive & (1 << k) != 0;
                 for a in 0..3 {
@@ -250,16 +276,20 @@ impl<'a> PathLanes<'a> {
                     l[a][k] = if on { l[a][k] + beta[a][k] * local_k } else { l[a][k] };
                 }
             }
+            if alive == 0 {
+                break;
+            }
             // Every living lane has bounced as often as the others (each bounce counts: every
             // material is plain).
             if !(bounce < max_bounces && bounce < MAX_RECURSION_DEPTH_LIMIT) {
                 break;
             }
             let u = draw_requests::<N, 1>(samplers, alive);
-            let (wi, f, ok) = bounce_lanes(&ns, &wo, &sh, params.importance, &u);
+            let course = params.roulette == Roulette::Course;
+            let mut brdf = [[0.0; N]; 3];
+            let (wi, f, ok) = bounce_lanes(&ns, &wo, &sh, params.importance, course.then_some(&mut brdf), &u);
             alive &= ok;
             self.counts.secondary += u64::from(alive.count_ones());
-            let mut dead = 0u32;
             for k in 0..N {
                 let on = alive & (1 << k) != 0;
                 for a in 0..3 {
@@ -268,6 +298,30 @@ impl<'a> PathLanes<'a> {
                     o[a][k] = if on { origin } else { o[a][k] };
                     d[a][k] = if on { wi[a][k] } else { d[a][k] };
                 }
+            }
+            if course {
+                for k in lanes(alive) {
+                    for a in 0..3 {
+                        potential[a][k] *= brdf[a][k];
+                    }
+                }
+            }
+            if params.roulette == Roulette::Unbiased && alive != 0 {
+                // Roulette on the throughput, after the bounce.
+                let u = draw_requests::<N, 1>(samplers, alive);
+                for k in lanes(alive) {
+                    let q = lane(&beta, k).max_element().min(1.0);
+                    if u[k][0].0 >= q {
+                        alive &= !(1 << k);
+                    } else {
+                        for b in &mut beta {
+                            b[k] /= q;
+                        }
+                    }
+                }
+            }
+            let mut dead = 0u32;
+            for k in 0..N {
                 let zero = beta[0][k] == 0.0 && beta[1][k] == 0.0 && beta[2][k] == 0.0;
                 let finite = beta[0][k].is_finite() && beta[1][k].is_finite() && beta[2][k].is_finite();
                 dead |= u32::from(zero || !finite) << k;
@@ -450,13 +504,15 @@ impl<'a> PathLanes<'a> {
 
 /// The tracer's `bounce` of every lane (materials in `sh`), the directions side by side (a
 /// loop of fixed length without branches, which the compiler makes vector code of): each
-/// lane's direction, throughput factor, and the mask of lanes for which they are defined.
+/// lane's direction, throughput factor and the mask of lanes for which they are defined; with
+/// `brdf`, each lane's BRDF value there too (the course roulette's factor).
 #[inline(always)]
 fn bounce_lanes(
     ns: &Axes,
     wo: &[DVec3; N],
     sh: &Shading<'_>,
     importance: bool,
+    mut brdf: Option<&mut Axes>,
     u: &[[(f64, f64); 1]; N],
 ) -> (Axes, Axes, u32) {
     let mut wi = [[0.0; N]; 3];
@@ -493,10 +549,17 @@ fn bounce_lanes(
         if cos_t[k] <= 0.0 {
             continue;
         }
-        let fk = match &sh.matte[k] {
+        let f_cos = match &sh.matte[k] {
             Some(m) => m.at(cos[k]),
             None => sh.mats[k].reflectance(lane(ns, k), lane(&wi, k), wo[k]),
-        } / pdf[k];
+        };
+        let fk = f_cos / pdf[k];
+        if let Some(brdf) = brdf.as_deref_mut() {
+            let bk = f_cos / cos_t[k];
+            for ax in 0..3 {
+                brdf[ax][k] = bk[ax];
+            }
+        }
         for ax in 0..3 {
             f[ax][k] = fk[ax];
         }
@@ -717,20 +780,20 @@ mod tests {
     }
 
     /// Paths traced side by side give each camera sample the radiance, random numbers and ray
-    /// counts it gets alone, bit for bit: with uniform and cosine bounces, for groups shorter
-    /// than eight, for samples of one pixel (which draw their numbers together) and of several.
+    /// counts it gets alone, bit for bit: with uniform and cosine bounces, with either roulette
+    /// (paths of different lengths), for groups shorter than eight, for samples of one pixel
+    /// (which draw their numbers together) and of several.
     #[test]
     fn paths_side_by_side_trace_what_each_path_traces_alone() {
         let scene = scene("", 4);
         let rays = rays();
-        for importance in [false, true] {
-            let params = PathParams {
-                next_event: true,
-                importance,
-                roulette: Roulette::Off,
-                one_light: false,
-                mis: false,
-            };
+        for (importance, roulette) in [
+            (false, Roulette::Off),
+            (true, Roulette::Off),
+            (true, Roulette::Course),
+            (false, Roulette::Unbiased),
+        ] {
+            let params = PathParams { next_event: true, importance, roulette, one_light: false, mis: false };
             assert!(super::fits(&scene, &params));
             for group in [GROUP_LANES, 5, 2, 1] {
                 for one_pixel in [true, false] {
@@ -750,8 +813,7 @@ mod tests {
                     for i in 0..group {
                         let mut rng = samplers[i].clone();
                         let want = alone.trace_primary(&rays[i], hits[i], &mut rng);
-                        let lane =
-                            format!("lane {i} of {group}, importance {importance}, one pixel {one_pixel}");
+                        let lane = format!("lane {i} of {group}, {params:?}, one pixel {one_pixel}");
                         assert_eq!(
                             got[i].to_array().map(f64::to_bits),
                             want.to_array().map(f64::to_bits),
@@ -788,7 +850,6 @@ mod tests {
         assert!(super::fits(&plain, &nee));
         for other in [
             PathParams { next_event: false, ..nee },
-            PathParams { roulette: Roulette::Course, ..nee },
             PathParams { one_light: true, ..nee },
             PathParams { mis: true, ..nee },
         ] {
