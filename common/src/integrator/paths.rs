@@ -17,6 +17,10 @@
 //! glass); no texture maps; point and object lights only; flat meshes and spheres that
 //! [`crate::geometry::Accel::lanes_fit`]. Any other scene's paths go one by one.
 
+// Loops run over lanes and axes by index: each step reads and writes several arrays of the
+// same lane side by side, which is what the compiler turns into vector code.
+#![allow(clippy::needless_range_loop)]
+
 use glam::DVec3;
 
 use super::direct::draw_requests;
