@@ -163,6 +163,9 @@ impl<'a> PathLanes<'a> {
         tests::PATH_GROUPS.with(|c| c.set(c.get() + 1));
         let scene = self.scene;
         let n = hits.len();
+        if n == 0 {
+            return [DVec3::ZERO; N];
+        }
         let eps = scene.shadow_ray_epsilon;
         let tmin = scene.intersection_test_epsilon;
         let max_bounces = match params.roulette {
@@ -736,6 +739,11 @@ mod tests {
     /// a light mesh; materials with and without BRDFs, one glossy, one reflecting nothing.
     /// `extra` adds materials; the second sphere's material is `second`.
     fn scene(extra: &str, second: u32) -> crate::scene::Scene {
+        scene_with(extra, second, "")
+    }
+
+    /// [`scene`] with more objects.
+    fn scene_with(extra: &str, second: u32, objects: &str) -> crate::scene::Scene {
         let xml = format!(
             r#"<Scene><MaxRecursionDepth>3</MaxRecursionDepth>
             <Cameras><Camera id="1"><Position>0 -3 0</Position><Gaze>0 1 0</Gaze><Up>0 0 1</Up>
@@ -754,12 +762,14 @@ mod tests {
               <Material id="4" BRDF="2"><DiffuseReflectance>0.5 0.5 0.9</DiffuseReflectance>
                 <SpecularReflectance>0.4 0.4 0.4</SpecularReflectance></Material>{extra}</Materials>
             <VertexData>-1 -1 -1  1 -1 -1  1 1 -1  -1 1 -1  -1 -1 1  1 -1 1  1 1 1  -1 1 1
-              -0.2 -0.2 0.95  0.2 -0.2 0.95  0.2 0.2 0.95  -0.2 0.2 0.95  -0.4 0.3 -0.6  0.4 0.2 -0.5</VertexData>
+              -0.2 -0.2 0.95  0.2 -0.2 0.95  0.2 0.2 0.95  -0.2 0.2 0.95  -0.4 0.3 -0.6  0.4 0.2 -0.5
+              0.6 0.5 0.6</VertexData>
             <Objects><Mesh id="1"><Material>1</Material><Faces>
               4 8 7  4 7 3  1 5 8  1 8 4  2 3 7  2 7 6  1 4 3  1 3 2  5 6 7  5 7 8</Faces></Mesh>
               <LightMesh id="2"><Material>2</Material><Radiance>6 6 6</Radiance><Faces>9 12 11  9 11 10</Faces></LightMesh>
               <Sphere id="1"><Material>3</Material><Center>13</Center><Radius>0.35</Radius></Sphere>
               <Sphere id="2"><Material>{second}</Material><Center>14</Center><Radius>0.3</Radius></Sphere>
+              {objects}
             </Objects></Scene>"#
         );
         let scene = load_scene_str(&xml, std::path::Path::new("t.xml"), &FsResolver { base_dir: ".".into() })
@@ -789,7 +799,20 @@ mod tests {
     /// (which draw their numbers together) and of several.
     #[test]
     fn paths_side_by_side_trace_what_each_path_traces_alone() {
-        let scene = scene("", 4);
+        // Also a sphere light, which the lanes sample one by one, and a light mesh of more
+        // than 32 triangles.
+        let many: String = (0..40).map(|_| "9 12 11  ").collect();
+        let lights = format!(
+            r#"<LightSphere id="3"><Material>2</Material><Center>15</Center><Radius>0.1</Radius>
+                <Radiance>3 2 1</Radiance></LightSphere>
+              <LightMesh id="4"><Material>2</Material><Radiance>0.5 0.5 0.5</Radiance><Faces>{many}</Faces></LightMesh>"#
+        );
+        for scene in [scene("", 4), scene_with("", 4, &lights)] {
+            side_by_side_matches_alone(&scene);
+        }
+    }
+
+    fn side_by_side_matches_alone(scene: &crate::scene::Scene) {
         let rays = rays();
         for (importance, roulette) in [
             (false, Roulette::Off),
