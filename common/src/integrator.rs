@@ -176,7 +176,7 @@ pub struct Tracer<'a> {
     /// The camera's renderer: the recursive tracer or a path tracer (§13.1).
     pub renderer: Renderer,
     /// Path parameters and whether the scene's paths with them go side by side
-    /// ([`Self::paths_fit`]), once asked.
+    /// ([`paths::fits`]), once asked.
     lane_paths: Option<(PathParams, bool)>,
     /// Each material's matte form, when the paths go side by side.
     mattes: Vec<Option<paths::Matte>>,

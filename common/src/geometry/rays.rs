@@ -74,7 +74,7 @@ impl RayLanes {
 /// Eight rays by axis, then lane.
 pub type Axes = [[f64; 8]; 3];
 
-/// The closest hits of eight rays, by lane (see [`Accel::closest_lanes`]).
+/// The closest hits of eight rays, by lane (see [`super::Accel::closest_lanes`]).
 #[derive(Clone, Copy, Debug)]
 pub struct HitLanes {
     /// The lanes that hit something.

@@ -61,7 +61,7 @@ pub(super) fn draw_requests<const N: usize, const M: usize>(
 
 /// The next two numbers of each sampler in `mask`: one request of [`draw_requests`].
 #[inline(always)]
-pub(super) fn draw_2d<const N: usize>(rngs: &mut [Sampler], mask: u32) -> [(f64, f64); N] {
+fn draw_2d<const N: usize>(rngs: &mut [Sampler], mask: u32) -> [(f64, f64); N] {
     draw_requests::<N, 1>(rngs, mask).map(|[r]| r)
 }
 

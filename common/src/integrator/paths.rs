@@ -821,13 +821,13 @@ mod tests {
             (false, Roulette::Unbiased),
         ] {
             let params = PathParams { next_event: true, importance, roulette, one_light: false, mis: false };
-            assert!(super::fits(&scene, &params));
+            assert!(super::fits(scene, &params));
             for group in [GROUP_LANES, 5, 2, 1] {
                 for one_pixel in [true, false] {
                     let samplers: Vec<Sampler> = (0..group as u32)
                         .map(|k| if one_pixel { Sampler::new(7, 1, 2, k) } else { Sampler::new(7, k, 2, 3) })
                         .collect();
-                    let mut together = crate::integrator::Tracer::new(&scene);
+                    let mut together = crate::integrator::Tracer::new(scene);
                     together.renderer = Renderer::Path(params);
                     let mut hits = [None; GROUP_LANES];
                     together.camera_hits(&rays[..group], &mut hits[..group]);
@@ -835,7 +835,7 @@ mod tests {
                     let mut group_samplers = samplers.clone();
                     let got = together.trace_primary_group(&rays, &hits[..group], &mut group_samplers);
                     assert_eq!(PATH_GROUPS.with(Cell::get), before + 1, "the group went side by side");
-                    let mut alone = crate::integrator::Tracer::new(&scene);
+                    let mut alone = crate::integrator::Tracer::new(scene);
                     alone.renderer = Renderer::Path(params);
                     for i in 0..group {
                         let mut rng = samplers[i].clone();
