@@ -183,6 +183,15 @@ struct WorldPlane {
     n: DVec3,
 }
 
+impl WorldPlane {
+    /// The exact distance along the ray (`origin`, `dir`) to this plane, `n·(p0−o)/n·d`; the
+    /// traversal's `f32` distance `t32` where the ray runs along the plane.
+    #[inline(always)]
+    fn distance(&self, origin: DVec3, dir: DVec3, t32: f64) -> f64 {
+        refined_t(self.n.dot(self.p0 - origin) / self.n.dot(dir), t32)
+    }
+}
+
 /// Most world-tree triangles (merged, or of the lone mesh) that get a [`WorldPlane`] (48 bytes
 /// each, so 96 MB at most): beyond it, hits take the general path.
 const PLANES_MAX: usize = 1 << 21;
@@ -280,7 +289,7 @@ impl Accel {
             }
         }
         let mut out =
-            HitLanes { mask: 0, t, point: [[0.0; 8]; 3], normal: [[0.0; 8]; 3], material: [0; 8], instance };
+            HitLanes { mask: 0, point: [[0.0; 8]; 3], normal: [[0.0; 8]; 3], material: [0; 8], instance };
         for k in crate::math::lanes(mask) {
             if instance[k] == u32::MAX {
                 continue;
@@ -288,24 +297,18 @@ impl Accel {
             out.mask |= 1 << k;
             let inst = &self.instances[instance[k] as usize];
             out.material[k] = inst.material;
-            let (ok, dk) = ([o[0][k], o[1][k], o[2][k]], [d[0][k], d[1][k], d[2][k]]);
-            let (tk, n) = match inst.shape {
-                Shape::Sphere { center, radius } => {
-                    let tk = t[k];
-                    let p = glam::DVec3::from(ok) + glam::DVec3::from(dk) * tk;
-                    (tk, (p - center) / radius)
-                }
-                _ => {
-                    // As `surface`: the world plane's exact distance, the f32 one where the ray
-                    // runs along the plane.
-                    let plane = &self.planes[merged[k] as usize];
-                    let n = plane.n;
-                    let tk = n.dot(plane.p0 - glam::DVec3::from(ok)) / n.dot(glam::DVec3::from(dk));
-                    (refined_t(tk, t[k]), n)
-                }
+            let (ok, dk) = (DVec3::new(o[0][k], o[1][k], o[2][k]), DVec3::new(d[0][k], d[1][k], d[2][k]));
+            // As `surface`: a sphere's distance as found, a face's from its world plane.
+            let plane = match inst.shape {
+                Shape::Sphere { center, radius } => Err((center, radius)),
+                _ => Ok(&self.planes[merged[k] as usize]),
             };
-            out.t[k] = tk;
-            let p = glam::DVec3::from(ok) + glam::DVec3::from(dk) * tk;
+            let tk = plane.map_or(t[k], |plane| plane.distance(ok, dk, t[k]));
+            let p = ok + dk * tk;
+            let n = match plane {
+                Ok(plane) => plane.n,
+                Err((center, radius)) => (p - center) / radius,
+            };
             for a in 0..3 {
                 out.point[a][k] = p[a];
                 out.normal[a][k] = n[a];
@@ -1061,8 +1064,7 @@ impl Accel {
             // A flat face with no texture frame: its world plane gives the exact distance
             // (the f32 one kept where the ray runs along the plane) and the normal.
             let n = plane.n;
-            let t = n.dot(plane.p0 - ray.origin) / n.dot(ray.dir);
-            let t = refined_t(t, c.t);
+            let t = plane.distance(ray.origin, ray.dir, c.t);
             *out = SurfaceHit {
                 t,
                 point: ray.at(t),

@@ -79,7 +79,6 @@ pub type Axes = [[f64; 8]; 3];
 pub struct HitLanes {
     /// The lanes that hit something.
     pub mask: u32,
-    pub t: [f64; 8],
     /// The hit point, `origin + dir * t` as [`crate::math::Ray::at`] makes it.
     pub point: Axes,
     /// The unit geometric normal, which is also the shading normal (flat faces and spheres).

@@ -182,8 +182,7 @@ impl<'a> PathLanes<'a> {
         let bg = self.background.to_array();
         // The lanes' rays (unused lanes repeat the first) and what they found.
         let (mut o, mut d) = ([[0.0; N]; 3], [[0.0; N]; 3]);
-        let mut found =
-            HitLanes { mask: 0, t: [0.0; N], point: o, normal: o, material: [0; N], instance: [0; N] };
+        let mut found = HitLanes { mask: 0, point: o, normal: o, material: [0; N], instance: [0; N] };
         for k in 0..N {
             let (r, h) = (&rays[k.min(n - 1)], hits.get(k).copied().flatten());
             for a in 0..3 {
@@ -192,7 +191,6 @@ impl<'a> PathLanes<'a> {
             }
             if let Some(h) = h {
                 found.mask |= 1 << k;
-                found.t[k] = h.t;
                 found.material[k] = h.material;
                 found.instance[k] = h.instance;
                 for a in 0..3 {
@@ -486,7 +484,7 @@ impl<'a> PathLanes<'a> {
                 }
             }
         }
-        let clear = self.clear_lanes_of(origin, &mut dir, &far, mask, tmin_of(self.scene));
+        let clear = self.clear_lanes_of(origin, &mut dir, &far, mask, self.scene.intersection_test_epsilon);
         for k in lanes(clear) {
             let add = sh.reflectance(k, lane(ns, k), wi[k], wo[k]) * irradiance[k];
             for a in 0..3 {
@@ -523,7 +521,6 @@ fn bounce_lanes(
     u: &[[(f64, f64); 1]; N],
 ) -> (Axes, Axes, u32) {
     let mut wi = [[0.0; N]; 3];
-    let mut cos = [0.0; N];
     let mut cos_t = [0.0; N];
     let mut pdf = [0.0; N];
     for k in 0..N {
@@ -545,7 +542,6 @@ fn bounce_lanes(
         let w = (sin_t * cp) * t + (sin_t * sp) * b + ct * nk;
         cos_t[k] = ct;
         pdf[k] = if importance { ct * pdf_over_cos } else { 1.0 / std::f64::consts::TAU };
-        cos[k] = nk.dot(w);
         for ax in 0..3 {
             wi[ax][k] = w[ax];
         }
@@ -556,10 +552,7 @@ fn bounce_lanes(
         if cos_t[k] <= 0.0 {
             continue;
         }
-        let f_cos = match &sh.matte[k] {
-            Some(m) => m.at(cos[k]),
-            None => sh.mats[k].reflectance(lane(ns, k), lane(&wi, k), wo[k]),
-        };
+        let f_cos = sh.reflectance(k, lane(ns, k), lane(&wi, k), wo[k]);
         let fk = f_cos / pdf[k];
         if let Some(brdf) = brdf.as_deref_mut() {
             let bk = f_cos / cos_t[k];
@@ -690,11 +683,6 @@ impl MatteLanes {
         }
         f
     }
-}
-
-/// The scene's `IntersectionTestEpsilon`: where every ray query starts.
-fn tmin_of(scene: &Scene) -> f64 {
-    scene.intersection_test_epsilon
 }
 
 /// Lane `k` of `v` as a vector.
