@@ -16,7 +16,7 @@ use crate::scene::records::{
     DecalMode, EnvSampler, MAX_RECURSION_DEPTH_LIMIT, PathParams, Renderer, Roulette,
 };
 use crate::scene::{DielectricSides, PathDepth, Scene};
-use direct::{BounceDensity, LightWeights, Lighting, LitPoint, power_heuristic};
+use direct::{BounceDensity, LightWeights, Lighting, LitPoint, light_pdf, power_heuristic};
 
 use crate::texture::maps::{
     Source, TextureMap, TexturePoint, bump_by_gradient, image_height, perlin_gradient,
@@ -472,7 +472,14 @@ impl<'a> Tracer<'a> {
                 if specular || !nee {
                     local += le;
                 } else if let Some((from, pdf)) = drawn {
-                    local += le * power_heuristic(pdf, self.light_pdf(from, &ray, &hit, params.one_light));
+                    let light = light_pdf(
+                        scene,
+                        from,
+                        ray.dir,
+                        (hit.point, hit.geo_normal, hit.instance),
+                        params.one_light,
+                    );
+                    local += le * power_heuristic(pdf, light);
                 }
             }
             let mut slot = None;
@@ -931,26 +938,6 @@ impl<'a> Tracer<'a> {
         let l = self.lights_of::<1>(&[pt], env, only, weights, &mut rngs);
         *rng = rngs[0].clone();
         l[0]
-    }
-
-    /// The density with which a path vertex at `from` samples, as next-event estimation, the
-    /// point `hit` of an object light that its bounce `ray` found: the light's own density
-    /// ([`crate::lights::ObjectLight::pdf`]) times the chance of choosing it (with
-    /// `SampleOneLight`). Infinite for a light sampled without a density (an ellipsoid), whose
-    /// bounce then weighs nothing.
-    fn light_pdf(&self, from: DVec3, ray: &Ray, hit: &SurfaceHit, one_light: bool) -> f64 {
-        let scene = self.scene;
-        let Some(&j) = scene.instance_light.get(hit.instance as usize) else { return 0.0 };
-        let Some(light) = scene.object_lights.get(j as usize) else { return 0.0 };
-        // The distance from the vertex itself, as its light samples measure it (the ray left
-        // from a point just off the surface).
-        let (cos_y, dist) = (-ray.dir.dot(hit.geo_normal), (hit.point - from).length());
-        let Some(pdf) = light.pdf(from, dist, cos_y) else { return f64::INFINITY };
-        if one_light {
-            pdf * scene.light_choice.probability(scene.first_object_light() + j as usize)
-        } else {
-            pdf
-        }
     }
 
     /// `SampleOneLight`'s estimate of [`Self::lights`]: one light chosen by power

@@ -198,6 +198,32 @@ pub fn power_heuristic(f: f64, g: f64) -> f64 {
     }
 }
 
+/// The density with which a path vertex at `from` samples, as next-event estimation, the
+/// point `point` (geometric normal `normal`) of the object `instance` that its bounce along
+/// `dir` found, when that object is an object light: the light's own density
+/// ([`crate::lights::ObjectLight::pdf`]) times the chance of choosing it (with
+/// `SampleOneLight`). Infinite for a light sampled without a density (an ellipsoid), whose
+/// bounce then weighs nothing; 0 for a surface that is no object light.
+pub(super) fn light_pdf(
+    scene: &Scene,
+    from: DVec3,
+    dir: DVec3,
+    (point, normal, instance): (DVec3, DVec3, u32),
+    one_light: bool,
+) -> f64 {
+    let Some(&j) = scene.instance_light.get(instance as usize) else { return 0.0 };
+    let Some(light) = scene.object_lights.get(j as usize) else { return 0.0 };
+    // The distance from the vertex itself, as its light samples measure it (the ray left
+    // from a point just off the surface).
+    let (cos_y, dist) = (-dir.dot(normal), (point - from).length());
+    let Some(pdf) = light.pdf(from, dist, cos_y) else { return f64::INFINITY };
+    if one_light {
+        pdf * scene.light_choice.probability(scene.first_object_light() + j as usize)
+    } else {
+        pdf
+    }
+}
+
 /// Object lights' samples under multiple importance sampling: the bounce they are weighed
 /// against, and the probability with which their light was chosen (1 when every light is
 /// sampled).

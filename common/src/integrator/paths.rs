@@ -12,8 +12,8 @@
 //! computes, so a tile renders to the same bits whatever its size.
 //!
 //! The lanes take the scenes whose paths stay simple ([`fits`]): next-event estimation of every
-//! light, without multiple importance sampling or `SampleOneLight` (with or without either
-//! roulette); every object's material plain (diffuse and glossy BRDFs: no mirror, conductor or
+//! light or of one light a vertex (`SampleOneLight`), with or without multiple importance
+//! sampling and either roulette; every object's material plain (diffuse and glossy BRDFs: no mirror, conductor or
 //! glass); no texture maps; point and object lights only; flat meshes and spheres that
 //! [`crate::geometry::Accel::lanes_fit`]. Any other scene's paths go one by one.
 
@@ -23,7 +23,7 @@
 
 use glam::DVec3;
 
-use super::direct::draw_requests;
+use super::direct::{BounceDensity, draw_requests, light_pdf, power_heuristic};
 use crate::geometry::{Axes, HitLanes, SurfaceHit};
 use crate::lights::{EmitterShape, ObjectLight};
 use crate::material::{Material, MaterialKind};
@@ -109,8 +109,6 @@ impl Shading<'_> {
 /// documentation).
 pub fn fits(scene: &Scene, params: &PathParams) -> bool {
     params.next_event
-        && !params.mis
-        && !params.one_light
         && scene.env_light.is_none()
         && scene.extra_env_lights.is_empty()
         && scene.area_lights.is_empty()
@@ -179,6 +177,10 @@ impl<'a> PathLanes<'a> {
         // The product of the BRDF values of the path's vertices so far: the course roulette's
         // potential.
         let mut potential = [[1.0; N]; 3];
+        // With multiple importance sampling, where each lane's last bounce left from and the
+        // density it was drawn with: what an object light it hits weighs.
+        let mut from = [[0.0; N]; 3];
+        let mut drawn = [0.0; N];
         let bg = self.background.to_array();
         // The lanes' rays (unused lanes repeat the first) and what they found.
         let (mut o, mut d) = ([[0.0; N]; 3], [[0.0; N]; 3]);
@@ -227,7 +229,9 @@ impl<'a> PathLanes<'a> {
                 }
                 wo[k] = -lane(&d, k);
             }
-            // Each lane's material; what it emits (seen from the camera) and the ambient term.
+            // Each lane's material; what it emits (seen from the camera, or, with multiple
+            // importance sampling, weighed against the light's own samples) and the ambient
+            // term.
             let mut local = [[0.0; N]; 3];
             let lead = found.material[alive.trailing_zeros() as usize] as usize;
             let mut sh = Shading { mats: [&scene.materials[lead]; N], matte: [None; N] };
@@ -250,9 +254,30 @@ impl<'a> PathLanes<'a> {
                 sh.matte[k] = self.mattes[found.material[k] as usize];
                 live |= u32::from(mat.diffuse != DVec3::ZERO || mat.specular != DVec3::ZERO) << k;
             }
+            // With `SampleOneLight`, each lane's light (drawn whatever its material reflects).
+            let picks = params.one_light.then(|| Picks::draw(scene, alive, samplers));
+            // With multiple importance sampling, the bounce that object lights' samples are
+            // weighed against (none after the last vertex).
+            let continues = bounce < max_bounces && bounce < MAX_RECURSION_DEPTH_LIMIT;
+            let weigh = params.mis.then_some(BounceDensity {
+                cosine: params.importance,
+                chance: if continues { 1.0 } else { 0.0 },
+            });
+            if params.mis && bounce > 0 {
+                weighed_emission(
+                    scene,
+                    &found,
+                    &d,
+                    &front,
+                    alive,
+                    (&from, &drawn),
+                    params.one_light,
+                    &mut local,
+                );
+            }
             // (Zero where nothing is reflected, added all the same: the same sums as alone.)
             let lit = if live != 0 {
-                self.lights_of_lanes(&found.point, &ns, &wo, &sh, live, samplers)
+                self.lights_of_lanes(&found.point, &ns, &wo, &sh, live, picks.as_ref(), weigh, samplers)
             } else {
                 [[0.0; N]; 3]
             };
@@ -286,7 +311,7 @@ impl<'a> PathLanes<'a> {
             }
             // Every living lane has bounced as often as the others (each bounce counts: every
             // material is plain).
-            if !(bounce < max_bounces && bounce < MAX_RECURSION_DEPTH_LIMIT) {
+            if !continues {
                 break;
             }
             let u = draw_requests::<N, 1>(samplers, alive);
@@ -310,6 +335,9 @@ impl<'a> PathLanes<'a> {
                         potential[a][k] *= brdf[a][k];
                     }
                 }
+            }
+            if params.mis {
+                remember_bounces(params.importance, &found.point, &ns, &wi, alive, (&mut from, &mut drawn));
             }
             if params.roulette == Roulette::Unbiased && alive != 0 {
                 // Roulette on the throughput, after the bounce.
@@ -347,7 +375,11 @@ impl<'a> PathLanes<'a> {
     /// numbers drawn and shadow rays counted: point lights, then object lights, in the scene's
     /// order. Each step runs over all eight lanes without branches (the compiler makes vector
     /// code of the square roots and divisions); lanes outside `live` compute values nobody
-    /// reads.
+    /// reads. With `picks` (`SampleOneLight`), each lane samples only the light it picked, all
+    /// lanes' shadow rays go through the tree as one packet, and a lane's light is divided by
+    /// the probability of its pick, as the tracer's `one_light` does. With `weigh` (multiple
+    /// importance sampling), object lights' samples are weighed against that bounce.
+    #[allow(clippy::too_many_arguments)]
     fn lights_of_lanes(
         &mut self,
         xs: &Axes,
@@ -355,11 +387,12 @@ impl<'a> PathLanes<'a> {
         wo: &[DVec3; N],
         sh: &Shading<'_>,
         live: u32,
+        picks: Option<&Picks>,
+        weigh: Option<BounceDensity>,
         samplers: &mut [Sampler],
     ) -> Axes {
         let scene = self.scene;
         let eps = scene.shadow_ray_epsilon;
-        let tmin = scene.intersection_test_epsilon;
         // The shadow rays' origins, by axis.
         let mut origin = [[0.0; N]; 3];
         for a in 0..3 {
@@ -367,96 +400,87 @@ impl<'a> PathLanes<'a> {
                 origin[a][k] = xs[a][k] + eps * ns[a][k];
             }
         }
-        let matte = MatteLanes::of(sh, live);
+        // With multiple importance sampling, the bounce density and each lane's chance of its
+        // light.
+        let weigh = weigh.map(|b| (b, picks.map_or([1.0; N], |p| p.p)));
+        let at = Vertices { xs, ns, origin: &origin, wo, sh, matte: MatteLanes::of(sh, live), weigh };
         let mut l = [[0.0; N]; 3];
-        for light in &scene.point_lights {
-            // `towards_lanes`' operations, lane by lane.
-            let p = light.position.to_array();
-            let (mut dir, mut wi) = ([[0.0; N]; 3], [[0.0; N]; 3]);
-            let (mut far, mut d2, mut cos) = ([0.0; N], [0.0; N], [0.0; N]);
-            for k in 0..N {
-                let v = [p[0] - xs[0][k], p[1] - xs[1][k], p[2] - xs[2][k]];
-                d2[k] = (v[0] * v[0]) + (v[1] * v[1]) + (v[2] * v[2]);
-                let recip = 1.0 / d2[k].sqrt();
-                let w = [v[0] * recip, v[1] * recip, v[2] * recip];
-                cos[k] = (ns[0][k] * w[0]) + (ns[1][k] * w[1]) + (ns[2][k] * w[2]);
-                let t = [p[0] - origin[0][k], p[1] - origin[1][k], p[2] - origin[2][k]];
-                let len = ((t[0] * t[0]) + (t[1] * t[1]) + (t[2] * t[2])).sqrt();
-                for a in 0..3 {
-                    dir[a][k] = t[a] / len;
-                    wi[a][k] = w[a];
-                }
-                far[k] = len;
+        // The lanes that sample light number `i` (numbered as `LightChoice` numbers them).
+        let lit_by = |i: usize| picks.map_or(live, |p| live & p.of(i));
+        // With `picks`, every lane's shadow ray, whichever light it aims at.
+        let mut picked = Shadows::NONE;
+        for (i, light) in scene.point_lights.iter().enumerate() {
+            let live = lit_by(i);
+            if live == 0 {
+                continue;
             }
-            let mask = (0..N).fold(0u32, |m, k| m | u32::from(cos[k] > 0.0) << k) & live;
-            let clear = self.clear_lanes_of(&origin, &mut dir, &far, mask, tmin);
-            let e = light.intensity.to_array();
-            let f = matte.reflectance(sh, ns, &wi, wo);
-            for k in 0..N {
-                let on = clear & (1 << k) != 0;
-                for a in 0..3 {
-                    let add = l[a][k] + f[a][k] * (e[a] / d2[k]);
-                    l[a][k] = if on { add } else { l[a][k] };
-                }
+            let s = point_shadows(light, &at, live);
+            match picks {
+                Some(_) => picked.take(&s, live),
+                None => self.shine(&at, s, &mut l),
             }
         }
-        for light in &scene.object_lights {
+        let object_base = scene.first_object_light();
+        for (i, light) in scene.object_lights.iter().enumerate() {
+            let live = lit_by(object_base + i);
+            if live == 0 {
+                continue;
+            }
             // One point per shading event; the numbers are drawn whatever the outcome.
             let u = draw_requests::<N, 2>(samplers, live);
-            let Some(s) = light_samples(light, xs, &u, live) else {
+            let Some(samples) = light_samples(light, xs, &u, live) else {
                 // Another kind of light, one lane at a time.
-                self.object_light_by_lane(light, xs, ns, &origin, wo, sh, &u, live, &mut l);
+                self.object_light_by_lane(light, &at, &u, live, &mut l);
                 continue;
             };
-            let (mut dir, mut far) = ([[0.0; N]; 3], [0.0; N]);
-            let (mut mask, mut degenerate) = (0u32, 0u32);
-            for k in 0..N {
-                // The shadow ray stops just short of the light's surface.
-                let cos = (ns[0][k] * s.wi[0][k]) + (ns[1][k] * s.wi[1][k]) + (ns[2][k] * s.wi[2][k]);
-                let to: [f64; 3] = std::array::from_fn(|a| xs[a][k] + s.wi[a][k] * s.dist[k] - origin[a][k]);
-                let len = ((to[0] * to[0]) + (to[1] * to[1]) + (to[2] * to[2])).sqrt();
-                for a in 0..3 {
-                    dir[a][k] = to[a] / len;
-                }
-                far[k] = len * (1.0 - 1e-6);
-                let valid = s.ok & (1 << k) != 0 && cos > 0.0;
-                let bad = len.is_nan() || len <= 0.0;
-                mask |= u32::from(valid && !bad) << k;
-                degenerate |= u32::from(valid && bad) << k;
-            }
+            let (s, degenerate) = object_shadows(light, &samples, &at, live);
             // A degenerate segment: counted as a shadow ray that is blocked.
-            self.counts.shadow += u64::from((degenerate & live).count_ones());
-            let clear = self.clear_lanes_of(&origin, &mut dir, &far, mask & live, tmin);
-            let f = matte.reflectance(sh, ns, &s.wi, wo);
-            let e = light.radiance.to_array();
-            for k in 0..N {
-                let on = clear & (1 << k) != 0;
+            self.counts.shadow += u64::from(degenerate.count_ones());
+            match picks {
+                Some(_) => picked.take(&s, live),
+                None => self.shine(&at, s, &mut l),
+            }
+        }
+        if let Some(p) = picks {
+            self.shine(&at, picked, &mut l);
+            for k in lanes(p.mask & live) {
                 for a in 0..3 {
-                    let add = l[a][k] + f[a][k] * (e[a] * s.g[k]);
-                    l[a][k] = if on { add } else { l[a][k] };
+                    l[a][k] /= p.p[k];
                 }
             }
         }
         l
     }
 
+    /// Traces the shadow rays of `s` from the vertices `at` and adds what the clear ones bring
+    /// to `l`.
+    #[inline(always)]
+    fn shine(&mut self, at: &Vertices<'_, '_>, mut s: Shadows, l: &mut Axes) {
+        let tmin = self.scene.intersection_test_epsilon;
+        let clear = self.clear_lanes_of(at.origin, &mut s.dir, &s.far, s.mask, tmin);
+        let f = at.matte.reflectance(at.sh, at.ns, &s.wi, at.wo);
+        for k in 0..N {
+            let on = clear & (1 << k) != 0;
+            for a in 0..3 {
+                let add = l[a][k] + f[a][k] * s.e[a][k];
+                l[a][k] = if on { add } else { l[a][k] };
+            }
+        }
+    }
+
     /// An object light that is not a small mesh (a sphere, an ellipsoid, a mesh of more than
     /// 32 triangles) for the lanes of `live`, one at a time, with [`ObjectLight::sample`]; adds
     /// to `l`.
-    #[allow(clippy::too_many_arguments)]
     #[inline(never)]
     fn object_light_by_lane(
         &mut self,
         light: &ObjectLight,
-        xs: &Axes,
-        ns: &Axes,
-        origin: &Axes,
-        wo: &[DVec3; N],
-        sh: &Shading<'_>,
+        at: &Vertices<'_, '_>,
         u: &[[(f64, f64); 2]; N],
         live: u32,
         l: &mut Axes,
     ) {
+        let (xs, ns, origin, wo, sh) = (at.xs, at.ns, at.origin, at.wo, at.sh);
         let mut dir = [[0.0; N]; 3];
         let mut far = [0.0; N];
         let mut wi = [DVec3::ZERO; N];
@@ -474,7 +498,10 @@ impl<'a> PathLanes<'a> {
                     self.counts.shadow += 1;
                 } else {
                     wi[k] = s.wi;
-                    irradiance[k] = s.irradiance;
+                    irradiance[k] = match s.inv_pdf {
+                        Some(inv) if at.weigh.is_some() => s.irradiance * at.weight(k, s.wi, inv),
+                        _ => s.irradiance,
+                    };
                     let unit = to_light / len;
                     for a in 0..3 {
                         dir[a][k] = unit[a];
@@ -504,6 +531,218 @@ impl<'a> PathLanes<'a> {
         let mut o = *origin;
         fill_unused(&mut o, dir, mask);
         mask & !self.scene.accel.occluded_lanes(&o, dir, far, mask, tmin)
+    }
+}
+
+/// With multiple importance sampling, what the object lights that the lanes of `alive` found
+/// (at `found`, along `d`, on their front side where `front`) emit, weighed against the
+/// lights' own samples from where the lanes' bounces left (`from`, with their densities
+/// `drawn`); added to `local`.
+#[allow(clippy::too_many_arguments)]
+#[inline(never)]
+fn weighed_emission(
+    scene: &Scene,
+    found: &HitLanes,
+    d: &Axes,
+    front: &[bool; N],
+    alive: u32,
+    (from, drawn): (&Axes, &[f64; N]),
+    one_light: bool,
+    local: &mut Axes,
+) {
+    for k in lanes(alive) {
+        if front[k]
+            && let Some(Some(le)) = scene.instance_emission.get(found.instance[k] as usize)
+        {
+            let hit = (lane(&found.point, k), lane(&found.normal, k), found.instance[k]);
+            let light = light_pdf(scene, lane(from, k), lane(d, k), hit, one_light);
+            let add = *le * power_heuristic(drawn[k], light);
+            for a in 0..3 {
+                local[a][k] += add[a];
+            }
+        }
+    }
+}
+
+/// With multiple importance sampling, where the bounces of the lanes of `alive` leave from
+/// (`points`) and the densities of their directions `wi` at normals `ns`.
+#[inline(never)]
+fn remember_bounces(
+    cosine: bool,
+    points: &Axes,
+    ns: &Axes,
+    wi: &Axes,
+    alive: u32,
+    (from, drawn): (&mut Axes, &mut [f64; N]),
+) {
+    let density = BounceDensity { cosine, chance: 1.0 };
+    for k in lanes(alive) {
+        drawn[k] = density.pdf(lane(ns, k), lane(wi, k));
+        for a in 0..3 {
+            from[a][k] = points[a][k];
+        }
+    }
+}
+
+/// The vertices of a group's lanes where lights are sampled.
+struct Vertices<'v, 'm> {
+    /// The points, their normals (on the side the path arrives from) and the shadow rays'
+    /// origins, by axis.
+    xs: &'v Axes,
+    ns: &'v Axes,
+    origin: &'v Axes,
+    /// Towards each lane's viewer.
+    wo: &'v [DVec3; N],
+    sh: &'v Shading<'m>,
+    matte: MatteLanes,
+    /// With multiple importance sampling, the bounce object lights' samples are weighed
+    /// against and the probability with which each lane's light was chosen.
+    weigh: Option<(BounceDensity, [f64; N])>,
+}
+
+impl Vertices<'_, '_> {
+    /// The weight of lane `k`'s sample of an object light towards `wi` drawn with density
+    /// `1 / inv_pdf` (1 without multiple importance sampling).
+    #[inline(always)]
+    fn weight(&self, k: usize, wi: DVec3, inv_pdf: f64) -> f64 {
+        match &self.weigh {
+            Some((bounce, pick)) => power_heuristic(pick[k] / inv_pdf, bounce.pdf(lane(self.ns, k), wi)),
+            None => 1.0,
+        }
+    }
+}
+
+/// Shadow rays of a group's lanes towards lights, and what each brings when it is clear.
+struct Shadows {
+    /// Unit directions from the vertices' shadow-ray origins, by axis, and how far they go.
+    dir: Axes,
+    far: [f64; N],
+    /// Unit directions from the vertices themselves towards the light, by axis: what the
+    /// BRDFs see.
+    wi: Axes,
+    /// What the BRDF value is multiplied by, by axis.
+    e: Axes,
+    /// The lanes with a ray.
+    mask: u32,
+}
+
+impl Shadows {
+    const NONE: Shadows =
+        Shadows { dir: [[0.0; N]; 3], far: [0.0; N], wi: [[0.0; N]; 3], e: [[0.0; N]; 3], mask: 0 };
+
+    /// Takes the lanes of `lanes` from `other` (whose rays are all in `lanes`).
+    #[inline(always)]
+    fn take(&mut self, other: &Shadows, lanes: u32) {
+        for k in 0..N {
+            let on = lanes & (1 << k) != 0;
+            for a in 0..3 {
+                self.dir[a][k] = if on { other.dir[a][k] } else { self.dir[a][k] };
+                self.wi[a][k] = if on { other.wi[a][k] } else { self.wi[a][k] };
+                self.e[a][k] = if on { other.e[a][k] } else { self.e[a][k] };
+            }
+            self.far[k] = if on { other.far[k] } else { self.far[k] };
+        }
+        self.mask |= other.mask & lanes;
+    }
+}
+
+/// The shadow rays of the lanes of `live` towards a point light: `towards_lanes`' operations,
+/// lane by lane.
+#[inline(always)]
+fn point_shadows(light: &crate::lights::PointLight, at: &Vertices<'_, '_>, live: u32) -> Shadows {
+    let (xs, ns, origin) = (at.xs, at.ns, at.origin);
+    let p = light.position.to_array();
+    let i = light.intensity.to_array();
+    let mut s = Shadows::NONE;
+    let mut cos = [0.0; N];
+    for k in 0..N {
+        let v = [p[0] - xs[0][k], p[1] - xs[1][k], p[2] - xs[2][k]];
+        let d2 = (v[0] * v[0]) + (v[1] * v[1]) + (v[2] * v[2]);
+        let recip = 1.0 / d2.sqrt();
+        let w = [v[0] * recip, v[1] * recip, v[2] * recip];
+        cos[k] = (ns[0][k] * w[0]) + (ns[1][k] * w[1]) + (ns[2][k] * w[2]);
+        let t = [p[0] - origin[0][k], p[1] - origin[1][k], p[2] - origin[2][k]];
+        let len = ((t[0] * t[0]) + (t[1] * t[1]) + (t[2] * t[2])).sqrt();
+        for a in 0..3 {
+            s.dir[a][k] = t[a] / len;
+            s.wi[a][k] = w[a];
+            s.e[a][k] = i[a] / d2;
+        }
+        s.far[k] = len;
+    }
+    s.mask = (0..N).fold(0u32, |m, k| m | u32::from(cos[k] > 0.0) << k) & live;
+    s
+}
+
+/// The shadow rays of the lanes of `live` towards their points of a light mesh, and the lanes
+/// whose segment is degenerate.
+#[inline(always)]
+fn object_shadows(
+    light: &ObjectLight,
+    samples: &LightLanes,
+    at: &Vertices<'_, '_>,
+    live: u32,
+) -> (Shadows, u32) {
+    let (xs, ns, origin) = (at.xs, at.ns, at.origin);
+    let e = light.radiance.to_array();
+    let mut s = Shadows { wi: samples.wi, ..Shadows::NONE };
+    let (mut mask, mut degenerate) = (0u32, 0u32);
+    for k in 0..N {
+        // The shadow ray stops just short of the light's surface.
+        let wi = &samples.wi;
+        let cos = (ns[0][k] * wi[0][k]) + (ns[1][k] * wi[1][k]) + (ns[2][k] * wi[2][k]);
+        let to: [f64; 3] = std::array::from_fn(|a| xs[a][k] + wi[a][k] * samples.dist[k] - origin[a][k]);
+        let len = ((to[0] * to[0]) + (to[1] * to[1]) + (to[2] * to[2])).sqrt();
+        for a in 0..3 {
+            s.dir[a][k] = to[a] / len;
+            s.e[a][k] = e[a] * samples.g[k];
+        }
+        s.far[k] = len * (1.0 - 1e-6);
+        let valid = samples.ok & (1 << k) != 0 && cos > 0.0;
+        let bad = len.is_nan() || len <= 0.0;
+        mask |= u32::from(valid && !bad) << k;
+        degenerate |= u32::from(valid && bad) << k;
+    }
+    s.mask = mask & live;
+    if at.weigh.is_some() {
+        for k in lanes(s.mask) {
+            let w = at.weight(k, lane(&samples.wi, k), samples.g[k]);
+            for a in 0..3 {
+                s.e[a][k] *= w;
+            }
+        }
+    }
+    (s, degenerate & live)
+}
+
+/// `SampleOneLight`'s choice at one vertex of each lane: the light it samples, numbered as
+/// [`crate::lights::choice::LightChoice`] numbers them, and the probability of that choice.
+struct Picks {
+    light: [usize; N],
+    p: [f64; N],
+    /// The lanes that picked a light (none is picked when no light has any power).
+    mask: u32,
+}
+
+impl Picks {
+    /// One number drawn for each lane of `alive`, and the light it picks (the tracer's
+    /// `one_light`).
+    fn draw(scene: &Scene, alive: u32, samplers: &mut [Sampler]) -> Picks {
+        let u = draw_requests::<N, 1>(samplers, alive);
+        let mut picks = Picks { light: [usize::MAX; N], p: [0.0; N], mask: 0 };
+        for k in lanes(alive) {
+            if let Some((i, p)) = scene.light_choice.pick(u[k][0].0) {
+                picks.light[k] = i;
+                picks.p[k] = p;
+                picks.mask |= 1 << k;
+            }
+        }
+        picks
+    }
+
+    /// The lanes that picked light `i`.
+    fn of(&self, i: usize) -> u32 {
+        (0..N).fold(0, |m, k| m | u32::from(self.light[k] == i) << k) & self.mask
     }
 }
 
@@ -783,7 +1022,8 @@ mod tests {
 
     /// Paths traced side by side give each camera sample the radiance, random numbers and ray
     /// counts it gets alone, bit for bit: with uniform and cosine bounces, with either roulette
-    /// (paths of different lengths), for groups shorter than eight, for samples of one pixel
+    /// (paths of different lengths), with every light or one a vertex (`SampleOneLight`), with
+    /// and without multiple importance sampling, for groups shorter than eight, for samples of one pixel
     /// (which draw their numbers together) and of several.
     #[test]
     fn paths_side_by_side_trace_what_each_path_traces_alone() {
@@ -802,13 +1042,20 @@ mod tests {
 
     fn side_by_side_matches_alone(scene: &crate::scene::Scene) {
         let rays = rays();
-        for (importance, roulette) in [
-            (false, Roulette::Off),
-            (true, Roulette::Off),
-            (true, Roulette::Course),
-            (false, Roulette::Unbiased),
+        for (importance, roulette, one_light, mis) in [
+            (false, Roulette::Off, false, false),
+            (true, Roulette::Off, false, false),
+            (true, Roulette::Course, false, false),
+            (false, Roulette::Unbiased, false, false),
+            (true, Roulette::Off, true, false),
+            (false, Roulette::Course, true, false),
+            (true, Roulette::Unbiased, true, false),
+            (true, Roulette::Off, false, true),
+            (false, Roulette::Course, false, true),
+            (true, Roulette::Off, true, true),
+            (false, Roulette::Unbiased, true, true),
         ] {
-            let params = PathParams { next_event: true, importance, roulette, one_light: false, mis: false };
+            let params = PathParams { next_event: true, importance, roulette, one_light, mis };
             assert!(super::fits(scene, &params));
             for group in [GROUP_LANES, 5, 2, 1] {
                 for one_pixel in [true, false] {
@@ -851,7 +1098,8 @@ mod tests {
         }
     }
 
-    /// Scenes whose paths the lanes do not take: other estimators, an object of mirror.
+    /// Scenes whose paths the lanes do not take: paths without next-event estimation, an object
+    /// of mirror.
     #[test]
     fn other_paths_go_one_by_one() {
         let plain = scene("", 4);
@@ -863,13 +1111,9 @@ mod tests {
             mis: false,
         };
         assert!(super::fits(&plain, &nee));
-        for other in [
-            PathParams { next_event: false, ..nee },
-            PathParams { one_light: true, ..nee },
-            PathParams { mis: true, ..nee },
-        ] {
-            assert!(!super::fits(&plain, &other), "{other:?}");
-        }
+        let without = PathParams { next_event: false, ..nee };
+        assert!(!super::fits(&plain, &without));
+        assert!(!super::fits(&plain, &PathParams { one_light: true, mis: true, ..without }));
         // A material no object uses does not matter; one that an object uses does.
         let mirror =
             r#"<Material id="5" type="mirror"><MirrorReflectance>1 1 1</MirrorReflectance></Material>"#;
