@@ -175,11 +175,6 @@ pub struct Tracer<'a> {
     budget: u32,
     /// The camera's renderer: the recursive tracer or a path tracer (§13.1).
     pub renderer: Renderer,
-    /// Path parameters and whether the scene's paths with them go side by side
-    /// ([`paths::fits`]), once asked.
-    lane_paths: Option<(PathParams, bool)>,
-    /// Each material's matte form, when the paths go side by side.
-    mattes: Vec<Option<paths::Matte>>,
 }
 
 /// Most rays traced for one camera sample. Glass splits every ray in two, so the tree of a
@@ -208,8 +203,6 @@ impl<'a> Tracer<'a> {
             spread: 0.0,
             budget: 0,
             renderer: Renderer::Classic,
-            lane_paths: None,
-            mattes: Vec::new(),
         }
     }
 
@@ -260,21 +253,10 @@ impl<'a> Tracer<'a> {
             Renderer::Classic => return self.classic_group(rays, hits, samplers, seen.as_ref()),
             Renderer::Path(params) => params,
         };
-        let fit = match self.lane_paths {
-            Some((p, fit)) if p == params => fit,
-            _ => {
-                let fit = paths::fits(self.scene, &params);
-                self.lane_paths = Some((params, fit));
-                if fit && self.mattes.is_empty() {
-                    self.mattes = paths::mattes(self.scene);
-                }
-                fit
-            }
-        };
-        if fit {
+        if let Some(mattes) = paths::fits(self.scene, &params) {
             let mut lanes = paths::PathLanes {
                 scene: self.scene,
-                mattes: &self.mattes,
+                mattes,
                 background: self.background,
                 counts: paths::Counts::default(),
             };

@@ -26,67 +26,13 @@ use glam::DVec3;
 use super::direct::{BounceDensity, draw_requests, light_pdf, power_heuristic};
 use crate::geometry::{Axes, HitLanes, SurfaceHit};
 use crate::lights::{EmitterShape, ObjectLight};
-use crate::material::{Material, MaterialKind};
+use crate::material::{Material, MaterialKind, Matte, MatteForm};
 use crate::math::{Ray, lanes, sincos_turns};
 use crate::sampler::{GROUP_LANES, Sampler};
 use crate::scene::Scene;
 use crate::scene::records::{MAX_RECURSION_DEPTH_LIMIT, PathParams, Roulette};
 
 const N: usize = GROUP_LANES;
-
-/// A material's [`Material::reflectance`] when it has no specular lobe (`k_s = 0`, the course's
-/// matte materials): a coefficient times the cosine, computed with the same operations.
-#[derive(Clone, Copy, Debug)]
-pub struct Matte {
-    /// `c`: the diffuse term as `reflectance` forms it.
-    c: DVec3,
-    /// `k_s · 0` (a zero, of `k_s`'s signs), added after the product by the original models.
-    zero: DVec3,
-    form: MatteForm,
-}
-
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum MatteForm {
-    /// `c · cos θ`, whatever the cosine (the classic shading).
-    Plain,
-    /// `c · cos θ`, zero below the surface (or for a NaN cosine).
-    Checked,
-    /// `c · cos θ + zero`, zero below the surface.
-    CheckedPlusZero,
-}
-
-impl Matte {
-    /// The matte form of `mat`, if it has one.
-    pub fn of(mat: &Material) -> Option<Matte> {
-        use crate::material::BrdfKind::*;
-        use std::f64::consts::PI;
-        if mat.specular != DVec3::ZERO {
-            return None;
-        }
-        let zero = mat.specular * 0.0;
-        let (c, form) = match mat.brdf {
-            None => (mat.diffuse, MatteForm::Plain),
-            Some(b) => match (b.kind, b.normalized) {
-                (OriginalPhong | OriginalBlinnPhong, _) => (mat.diffuse, MatteForm::CheckedPlusZero),
-                (ModifiedPhong | ModifiedBlinnPhong, true) => (mat.diffuse / PI + zero, MatteForm::Checked),
-                (ModifiedPhong | ModifiedBlinnPhong, false) => (mat.diffuse + zero, MatteForm::Checked),
-                (TorranceSparrow, _) => return None,
-            },
-        };
-        Some(Matte { c, zero, form })
-    }
-
-    /// [`Material::reflectance`] for a light from a direction of cosine `cos` to the normal.
-    #[inline(always)]
-    fn at(&self, cos: f64) -> DVec3 {
-        match self.form {
-            MatteForm::Plain => self.c * cos,
-            _ if cos.is_nan() || cos <= 0.0 => DVec3::ZERO,
-            MatteForm::Checked => self.c * cos,
-            MatteForm::CheckedPlusZero => self.c * cos + self.zero,
-        }
-    }
-}
 
 /// Each lane's material and, when it has one, its matte form.
 struct Shading<'m> {
@@ -105,21 +51,26 @@ impl Shading<'_> {
     }
 }
 
-/// Whether [`PathLanes::trace`] traces `scene`'s paths with `params` (see the module's
-/// documentation).
-pub fn fits(scene: &Scene, params: &PathParams) -> bool {
-    params.next_event
-        && scene.env_light.is_none()
-        && scene.extra_env_lights.is_empty()
-        && scene.area_lights.is_empty()
-        && scene.directional_lights.is_empty()
-        && scene.spot_lights.is_empty()
-        && scene.accel.lanes_fit()
-        && scene
-            .accel
-            .instances
-            .iter()
-            .all(|i| scene.materials.get(i.material as usize).is_some_and(|m| m.kind == MaterialKind::Plain))
+/// Each of `scene`'s materials' [`Matte`] form, by index, when [`PathLanes::trace`] traces
+/// its paths with `params` (see the module's documentation); `None` when they go one by one.
+/// What depends on the scene alone is worked out once per scene, on the first call.
+pub fn fits<'s>(scene: &'s Scene, params: &PathParams) -> Option<&'s [Option<Matte>]> {
+    if !params.next_event {
+        return None;
+    }
+    let mattes = scene.path_lanes.get_or_init(|| {
+        let fit = scene.env_light.is_none()
+            && scene.extra_env_lights.is_empty()
+            && scene.area_lights.is_empty()
+            && scene.directional_lights.is_empty()
+            && scene.spot_lights.is_empty()
+            && scene.accel.lanes_fit()
+            && scene.accel.instances.iter().all(|i| {
+                scene.materials.get(i.material as usize).is_some_and(|m| m.kind == MaterialKind::Plain)
+            });
+        fit.then(|| scene.materials.iter().map(Material::matte).collect())
+    });
+    mattes.as_deref()
 }
 
 /// Ray counts, by kind (what the tracer's `RayStats` adds them to).
@@ -133,17 +84,12 @@ pub struct Counts {
 /// Paths of one scene traced side by side (see the module's documentation).
 pub struct PathLanes<'a> {
     pub scene: &'a Scene,
-    /// Each material's [`Matte`] form ([`mattes`]).
+    /// Each material's [`Matte`] form ([`fits`]).
     pub mattes: &'a [Option<Matte>],
     /// What rays that miss everything see (the tracer's background for the current pixel).
     pub background: DVec3,
     /// The rays traced so far.
     pub counts: Counts,
-}
-
-/// Each of `scene`'s materials' [`Matte`] form, by index.
-pub fn mattes(scene: &Scene) -> Vec<Option<Matte>> {
-    scene.materials.iter().map(Matte::of).collect()
 }
 
 impl<'a> PathLanes<'a> {
@@ -407,17 +353,17 @@ impl<'a> PathLanes<'a> {
         let mut l = [[0.0; N]; 3];
         // The lanes that sample light number `i` (numbered as `LightChoice` numbers them).
         let lit_by = |i: usize| picks.map_or(live, |p| live & p.of(i));
-        // With `picks`, every lane's shadow ray, whichever light it aims at.
-        let mut picked = Shadows::NONE;
+        // Each light's shadow rays in turn; with `picks`, every lane's, whichever light it
+        // aims at.
+        let mut s = Shadows::NONE;
         for (i, light) in scene.point_lights.iter().enumerate() {
             let live = lit_by(i);
             if live == 0 {
                 continue;
             }
-            let s = point_shadows(light, &at, live);
-            match picks {
-                Some(_) => picked.take(&s, live),
-                None => self.shine(&at, s, &mut l),
+            point_shadows(light, &at, live, &mut s);
+            if picks.is_none() {
+                self.shine(&at, &mut s, &mut l);
             }
         }
         let object_base = scene.first_object_light();
@@ -433,16 +379,15 @@ impl<'a> PathLanes<'a> {
                 self.object_light_by_lane(light, &at, &u, live, &mut l);
                 continue;
             };
-            let (s, degenerate) = object_shadows(light, &samples, &at, live);
+            let degenerate = object_shadows(light, &samples, &at, live, &mut s);
             // A degenerate segment: counted as a shadow ray that is blocked.
             self.counts.shadow += u64::from(degenerate.count_ones());
-            match picks {
-                Some(_) => picked.take(&s, live),
-                None => self.shine(&at, s, &mut l),
+            if picks.is_none() {
+                self.shine(&at, &mut s, &mut l);
             }
         }
         if let Some(p) = picks {
-            self.shine(&at, picked, &mut l);
+            self.shine(&at, &mut s, &mut l);
             for k in lanes(p.mask & live) {
                 for a in 0..3 {
                     l[a][k] /= p.p[k];
@@ -453,9 +398,10 @@ impl<'a> PathLanes<'a> {
     }
 
     /// Traces the shadow rays of `s` from the vertices `at` and adds what the clear ones bring
-    /// to `l`.
-    #[inline(always)]
-    fn shine(&mut self, at: &Vertices<'_, '_>, mut s: Shadows, l: &mut Axes) {
+    /// to `l`. Not inlined: its three calls would copy the reflectance's code into the
+    /// vertex loop three times (a loop larger than the instruction cache ran 5 % slower).
+    #[inline(never)]
+    fn shine(&mut self, at: &Vertices<'_, '_>, s: &mut Shadows, l: &mut Axes) {
         let tmin = self.scene.intersection_test_epsilon;
         let clear = self.clear_lanes_of(at.origin, &mut s.dir, &s.far, s.mask, tmin);
         let f = at.matte.reflectance(at.sh, at.ns, &s.wi, at.wo);
@@ -629,31 +575,15 @@ struct Shadows {
 impl Shadows {
     const NONE: Shadows =
         Shadows { dir: [[0.0; N]; 3], far: [0.0; N], wi: [[0.0; N]; 3], e: [[0.0; N]; 3], mask: 0 };
-
-    /// Takes the lanes of `lanes` from `other` (whose rays are all in `lanes`).
-    #[inline(always)]
-    fn take(&mut self, other: &Shadows, lanes: u32) {
-        for k in 0..N {
-            let on = lanes & (1 << k) != 0;
-            for a in 0..3 {
-                self.dir[a][k] = if on { other.dir[a][k] } else { self.dir[a][k] };
-                self.wi[a][k] = if on { other.wi[a][k] } else { self.wi[a][k] };
-                self.e[a][k] = if on { other.e[a][k] } else { self.e[a][k] };
-            }
-            self.far[k] = if on { other.far[k] } else { self.far[k] };
-        }
-        self.mask |= other.mask & lanes;
-    }
 }
 
-/// The shadow rays of the lanes of `live` towards a point light: `towards_lanes`' operations,
-/// lane by lane.
+/// The shadow rays of the lanes of `live` towards a point light, into those lanes of `s`:
+/// `towards_lanes`' operations, lane by lane.
 #[inline(always)]
-fn point_shadows(light: &crate::lights::PointLight, at: &Vertices<'_, '_>, live: u32) -> Shadows {
+fn point_shadows(light: &crate::lights::PointLight, at: &Vertices<'_, '_>, live: u32, s: &mut Shadows) {
     let (xs, ns, origin) = (at.xs, at.ns, at.origin);
     let p = light.position.to_array();
     let i = light.intensity.to_array();
-    let mut s = Shadows::NONE;
     let mut cos = [0.0; N];
     for k in 0..N {
         let v = [p[0] - xs[0][k], p[1] - xs[1][k], p[2] - xs[2][k]];
@@ -663,29 +593,30 @@ fn point_shadows(light: &crate::lights::PointLight, at: &Vertices<'_, '_>, live:
         cos[k] = (ns[0][k] * w[0]) + (ns[1][k] * w[1]) + (ns[2][k] * w[2]);
         let t = [p[0] - origin[0][k], p[1] - origin[1][k], p[2] - origin[2][k]];
         let len = ((t[0] * t[0]) + (t[1] * t[1]) + (t[2] * t[2])).sqrt();
+        let on = live & (1 << k) != 0;
         for a in 0..3 {
-            s.dir[a][k] = t[a] / len;
-            s.wi[a][k] = w[a];
-            s.e[a][k] = i[a] / d2;
+            s.dir[a][k] = if on { t[a] / len } else { s.dir[a][k] };
+            s.wi[a][k] = if on { w[a] } else { s.wi[a][k] };
+            s.e[a][k] = if on { i[a] / d2 } else { s.e[a][k] };
         }
-        s.far[k] = len;
+        s.far[k] = if on { len } else { s.far[k] };
     }
-    s.mask = (0..N).fold(0u32, |m, k| m | u32::from(cos[k] > 0.0) << k) & live;
-    s
+    let lit = (0..N).fold(0u32, |m, k| m | u32::from(cos[k] > 0.0) << k);
+    s.mask = (s.mask & !live) | (lit & live);
 }
 
-/// The shadow rays of the lanes of `live` towards their points of a light mesh, and the lanes
-/// whose segment is degenerate.
+/// The shadow rays of the lanes of `live` towards their points of a light mesh, into those
+/// lanes of `s`; the lanes whose segment is degenerate.
 #[inline(always)]
 fn object_shadows(
     light: &ObjectLight,
     samples: &LightLanes,
     at: &Vertices<'_, '_>,
     live: u32,
-) -> (Shadows, u32) {
+    s: &mut Shadows,
+) -> u32 {
     let (xs, ns, origin) = (at.xs, at.ns, at.origin);
     let e = light.radiance.to_array();
-    let mut s = Shadows { wi: samples.wi, ..Shadows::NONE };
     let (mut mask, mut degenerate) = (0u32, 0u32);
     for k in 0..N {
         // The shadow ray stops just short of the light's surface.
@@ -693,26 +624,28 @@ fn object_shadows(
         let cos = (ns[0][k] * wi[0][k]) + (ns[1][k] * wi[1][k]) + (ns[2][k] * wi[2][k]);
         let to: [f64; 3] = std::array::from_fn(|a| xs[a][k] + wi[a][k] * samples.dist[k] - origin[a][k]);
         let len = ((to[0] * to[0]) + (to[1] * to[1]) + (to[2] * to[2])).sqrt();
+        let on = live & (1 << k) != 0;
         for a in 0..3 {
-            s.dir[a][k] = to[a] / len;
-            s.e[a][k] = e[a] * samples.g[k];
+            s.dir[a][k] = if on { to[a] / len } else { s.dir[a][k] };
+            s.wi[a][k] = if on { wi[a][k] } else { s.wi[a][k] };
+            s.e[a][k] = if on { e[a] * samples.g[k] } else { s.e[a][k] };
         }
-        s.far[k] = len * (1.0 - 1e-6);
+        s.far[k] = if on { len * (1.0 - 1e-6) } else { s.far[k] };
         let valid = samples.ok & (1 << k) != 0 && cos > 0.0;
         let bad = len.is_nan() || len <= 0.0;
         mask |= u32::from(valid && !bad) << k;
         degenerate |= u32::from(valid && bad) << k;
     }
-    s.mask = mask & live;
+    s.mask = (s.mask & !live) | (mask & live);
     if at.weigh.is_some() {
-        for k in lanes(s.mask) {
+        for k in lanes(mask & live) {
             let w = at.weight(k, lane(&samples.wi, k), samples.g[k]);
             for a in 0..3 {
                 s.e[a][k] *= w;
             }
         }
     }
-    (s, degenerate & live)
+    degenerate & live
 }
 
 /// `SampleOneLight`'s choice at one vertex of each lane: the light it samples, numbered as
@@ -1056,7 +989,7 @@ mod tests {
             (false, Roulette::Unbiased, true, true),
         ] {
             let params = PathParams { next_event: true, importance, roulette, one_light, mis };
-            assert!(super::fits(scene, &params));
+            assert!(super::fits(scene, &params).is_some());
             for group in [GROUP_LANES, 5, 2, 1] {
                 for one_pixel in [true, false] {
                     let samplers: Vec<Sampler> = (0..group as u32)
@@ -1110,14 +1043,14 @@ mod tests {
             one_light: false,
             mis: false,
         };
-        assert!(super::fits(&plain, &nee));
+        assert!(super::fits(&plain, &nee).is_some());
         let without = PathParams { next_event: false, ..nee };
-        assert!(!super::fits(&plain, &without));
-        assert!(!super::fits(&plain, &PathParams { one_light: true, mis: true, ..without }));
+        assert!(super::fits(&plain, &without).is_none());
+        assert!(super::fits(&plain, &PathParams { one_light: true, mis: true, ..without }).is_none());
         // A material no object uses does not matter; one that an object uses does.
         let mirror =
             r#"<Material id="5" type="mirror"><MirrorReflectance>1 1 1</MirrorReflectance></Material>"#;
-        assert!(super::fits(&scene(mirror, 4), &nee));
-        assert!(!super::fits(&scene(mirror, 5), &nee));
+        assert!(super::fits(&scene(mirror, 4), &nee).is_some());
+        assert!(super::fits(&scene(mirror, 5), &nee).is_none());
     }
 }

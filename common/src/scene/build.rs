@@ -696,6 +696,7 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         warnings,
         stats,
         light_choice: Default::default(),
+        path_lanes: Default::default(),
     };
     scene.light_choice = crate::lights::choice::LightChoice::new(
         &scene.point_lights,

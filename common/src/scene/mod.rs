@@ -121,6 +121,9 @@ pub struct Scene {
     pub stats: SceneStats,
     /// How a path tracer with `SampleOneLight` picks the one light of a vertex.
     pub light_choice: crate::lights::choice::LightChoice,
+    /// Each material's matte form when the scene's paths go side by side, `None` when they go
+    /// one by one: worked out by `integrator::paths::fits` on its first call.
+    pub path_lanes: std::sync::OnceLock<Option<Vec<Option<crate::material::Matte>>>>,
 }
 
 impl Scene {
