@@ -253,7 +253,7 @@ impl<'a> Tracer<'a> {
             Renderer::Classic => return self.classic_group(rays, hits, samplers, seen.as_ref()),
             Renderer::Path(params) => params,
         };
-        if let Some(mattes) = paths::fits(self.scene, &params) {
+        if let Some(mattes) = paths::fits(self.scene) {
             let mut lanes = paths::PathLanes {
                 scene: self.scene,
                 mattes,

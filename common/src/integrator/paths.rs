@@ -11,10 +11,11 @@
 //! from its own sampler in its own order. The group changes when the work is done, never what it
 //! computes, so a tile renders to the same bits whatever its size.
 //!
-//! The lanes take the scenes whose paths stay simple ([`fits`]): next-event estimation of every
-//! light or of one light a vertex (`SampleOneLight`), with or without multiple importance
-//! sampling and either roulette; every object's material plain (diffuse and glossy BRDFs: no mirror, conductor or
-//! glass); no texture maps; point and object lights only; flat meshes and spheres that
+//! The lanes take the scenes whose paths stay simple ([`fits`]), with any of the path tracer's
+//! estimators (lights found by bounces alone, or next-event estimation of every light or of
+//! one a vertex, with or without multiple importance sampling; either roulette or none): every
+//! object's material plain (diffuse and glossy BRDFs: no mirror, conductor or glass); no
+//! texture maps; point and object lights only; flat meshes and spheres that
 //! [`crate::geometry::Accel::lanes_fit`]. Any other scene's paths go one by one.
 
 // Loops run over lanes and axes by index: each step reads and writes several arrays of the
@@ -52,12 +53,10 @@ impl Shading<'_> {
 }
 
 /// Each of `scene`'s materials' [`Matte`] form, by index, when [`PathLanes::trace`] traces
-/// its paths with `params` (see the module's documentation); `None` when they go one by one.
-/// What depends on the scene alone is worked out once per scene, on the first call.
-pub fn fits<'s>(scene: &'s Scene, params: &PathParams) -> Option<&'s [Option<Matte>]> {
-    if !params.next_event {
-        return None;
-    }
+/// its paths (see the module's documentation); `None` when they go one by one. Every path
+/// estimator takes the lanes, so this depends on the scene alone, and is worked out once per
+/// scene, on the first call.
+pub fn fits(scene: &Scene) -> Option<&[Option<Matte>]> {
     let mattes = scene.path_lanes.get_or_init(|| {
         let fit = scene.env_light.is_none()
             && scene.extra_env_lights.is_empty()
@@ -117,6 +116,10 @@ impl<'a> PathLanes<'a> {
             Roulette::Course | Roulette::Unbiased => MAX_RECURSION_DEPTH_LIMIT,
         };
         self.counts.primary += n as u64;
+        // Lights are sampled only with next-event estimation, and so one a vertex and multiple
+        // importance sampling only with it.
+        let nee = params.next_event;
+        let (one_light, mis) = (params.one_light && nee, params.mis && nee);
         // Radiance so far and throughput, by axis then lane.
         let mut l = [[0.0; N]; 3];
         let mut beta = [[1.0; N]; 3];
@@ -195,34 +198,35 @@ impl<'a> PathLanes<'a> {
                     for a in 0..3 {
                         local[a][k] = first[a];
                     }
+                } else if !nee
+                    && front[k]
+                    && let Some(Some(le)) = scene.instance_emission.get(found.instance[k] as usize)
+                {
+                    // Without next-event estimation, a light counts where a bounce finds it.
+                    #[cfg(test)]
+                    tests::LIGHTS_FOUND.with(|c| c.set(c.get() + 1));
+                    for a in 0..3 {
+                        local[a][k] += le[a];
+                    }
                 }
                 sh.mats[k] = mat;
                 sh.matte[k] = self.mattes[found.material[k] as usize];
                 live |= u32::from(mat.diffuse != DVec3::ZERO || mat.specular != DVec3::ZERO) << k;
             }
             // With `SampleOneLight`, each lane's light (drawn whatever its material reflects).
-            let picks = params.one_light.then(|| Picks::draw(scene, alive, samplers));
+            let picks = one_light.then(|| Picks::draw(scene, alive, samplers));
             // With multiple importance sampling, the bounce that object lights' samples are
             // weighed against (none after the last vertex).
             let continues = bounce < max_bounces && bounce < MAX_RECURSION_DEPTH_LIMIT;
-            let weigh = params.mis.then_some(BounceDensity {
+            let weigh = mis.then_some(BounceDensity {
                 cosine: params.importance,
                 chance: if continues { 1.0 } else { 0.0 },
             });
-            if params.mis && bounce > 0 {
-                weighed_emission(
-                    scene,
-                    &found,
-                    &d,
-                    &front,
-                    alive,
-                    (&from, &drawn),
-                    params.one_light,
-                    &mut local,
-                );
+            if mis && bounce > 0 {
+                weighed_emission(scene, &found, &d, &front, alive, (&from, &drawn), one_light, &mut local);
             }
             // (Zero where nothing is reflected, added all the same: the same sums as alone.)
-            let lit = if live != 0 {
+            let lit = if nee && live != 0 {
                 self.lights_of_lanes(&found.point, &ns, &wo, &sh, live, picks.as_ref(), weigh, samplers)
             } else {
                 [[0.0; N]; 3]
@@ -282,7 +286,7 @@ impl<'a> PathLanes<'a> {
                     }
                 }
             }
-            if params.mis {
+            if mis {
                 remember_bounces(params.importance, &found.point, &ns, &wi, alive, (&mut from, &mut drawn));
             }
             if params.roulette == Roulette::Unbiased && alive != 0 {
@@ -893,6 +897,8 @@ mod tests {
     thread_local! {
         /// How many groups [`super::PathLanes::trace`] traced on this thread.
         pub static PATH_GROUPS: Cell<u64> = const { Cell::new(0) };
+        /// How many lanes found an object light by a bounce, without next-event estimation.
+        pub static LIGHTS_FOUND: Cell<u64> = const { Cell::new(0) };
     }
 
     /// A box open towards the camera, two spheres (one in the light's way), a point light and
@@ -968,28 +974,36 @@ mod tests {
                 <Radiance>3 2 1</Radiance></LightSphere>
               <LightMesh id="4"><Material>2</Material><Radiance>0.5 0.5 0.5</Radiance><Faces>{many}</Faces></LightMesh>"#
         );
-        for scene in [scene("", 4), scene_with("", 4, &lights)] {
+        // A large sphere light, which bounces find often.
+        let large = r#"<LightSphere id="3"><Material>2</Material><Center>15</Center><Radius>0.3</Radius>
+                <Radiance>2 3 4</Radiance></LightSphere>"#;
+        let found = LIGHTS_FOUND.with(Cell::get);
+        for scene in [scene("", 4), scene_with("", 4, &lights), scene_with("", 4, large)] {
             side_by_side_matches_alone(&scene);
         }
+        assert!(LIGHTS_FOUND.with(Cell::get) > found, "bounces found lights without NEE");
     }
 
     fn side_by_side_matches_alone(scene: &crate::scene::Scene) {
         let rays = rays();
-        for (importance, roulette, one_light, mis) in [
-            (false, Roulette::Off, false, false),
-            (true, Roulette::Off, false, false),
-            (true, Roulette::Course, false, false),
-            (false, Roulette::Unbiased, false, false),
-            (true, Roulette::Off, true, false),
-            (false, Roulette::Course, true, false),
-            (true, Roulette::Unbiased, true, false),
-            (true, Roulette::Off, false, true),
-            (false, Roulette::Course, false, true),
-            (true, Roulette::Off, true, true),
-            (false, Roulette::Unbiased, true, true),
+        for (next_event, importance, roulette, one_light, mis) in [
+            (true, false, Roulette::Off, false, false),
+            (true, true, Roulette::Off, false, false),
+            (true, true, Roulette::Course, false, false),
+            (true, false, Roulette::Unbiased, false, false),
+            (true, true, Roulette::Off, true, false),
+            (true, false, Roulette::Course, true, false),
+            (true, true, Roulette::Unbiased, true, false),
+            (true, true, Roulette::Off, false, true),
+            (true, false, Roulette::Course, false, true),
+            (true, true, Roulette::Off, true, true),
+            (true, false, Roulette::Unbiased, true, true),
+            (false, false, Roulette::Off, false, false),
+            (false, true, Roulette::Course, false, false),
+            (false, true, Roulette::Unbiased, false, false),
         ] {
-            let params = PathParams { next_event: true, importance, roulette, one_light, mis };
-            assert!(super::fits(scene, &params).is_some());
+            let params = PathParams { next_event, importance, roulette, one_light, mis };
+            assert!(super::fits(scene).is_some());
             for group in [GROUP_LANES, 5, 2, 1] {
                 for one_pixel in [true, false] {
                     let samplers: Vec<Sampler> = (0..group as u32)
@@ -1020,10 +1034,8 @@ mod tests {
                     assert_eq!(together.stats, alone.stats, "{group} lanes");
                     if group == GROUP_LANES {
                         assert!(hits.iter().any(Option::is_none), "a camera ray leaves the box");
-                        assert!(
-                            together.stats.shadow > 0 && together.stats.secondary > 0,
-                            "the paths bounce, lit"
-                        );
+                        assert!(together.stats.secondary > 0, "the paths bounce");
+                        assert_eq!(together.stats.shadow > 0, next_event, "lights sampled with NEE only");
                         assert!(got.iter().any(|l| l.max_element() > 0.0), "light arrives");
                     }
                 }
@@ -1031,26 +1043,14 @@ mod tests {
         }
     }
 
-    /// Scenes whose paths the lanes do not take: paths without next-event estimation, an object
-    /// of mirror.
+    /// Scenes whose paths the lanes do not take: an object of mirror.
     #[test]
     fn other_paths_go_one_by_one() {
-        let plain = scene("", 4);
-        let nee = PathParams {
-            next_event: true,
-            importance: true,
-            roulette: Roulette::Off,
-            one_light: false,
-            mis: false,
-        };
-        assert!(super::fits(&plain, &nee).is_some());
-        let without = PathParams { next_event: false, ..nee };
-        assert!(super::fits(&plain, &without).is_none());
-        assert!(super::fits(&plain, &PathParams { one_light: true, mis: true, ..without }).is_none());
+        assert!(super::fits(&scene("", 4)).is_some());
         // A material no object uses does not matter; one that an object uses does.
         let mirror =
             r#"<Material id="5" type="mirror"><MirrorReflectance>1 1 1</MirrorReflectance></Material>"#;
-        assert!(super::fits(&scene(mirror, 4), &nee).is_some());
-        assert!(super::fits(&scene(mirror, 5), &nee).is_none());
+        assert!(super::fits(&scene(mirror, 4)).is_some());
+        assert!(super::fits(&scene(mirror, 5)).is_none());
     }
 }
