@@ -235,6 +235,62 @@ pub fn refract(d: DVec3, n: DVec3, n1: f64, n2: f64) -> Refraction {
     Refraction::Split { fr: 0.5 * (r_par * r_par + r_perp * r_perp), dir }
 }
 
+/// A material's [`Material::reflectance`] when it has no specular lobe (`k_s = 0`, the course's
+/// matte materials): a coefficient times the cosine, computed with the same operations.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Matte {
+    /// `c`: the diffuse term as `reflectance` forms it.
+    pub c: DVec3,
+    /// `k_s · 0` (a zero, of `k_s`'s signs), added after the product by the original models.
+    pub zero: DVec3,
+    /// How `c` meets the cosine.
+    pub form: MatteForm,
+}
+
+/// How a [`Matte`] material's coefficient meets the cosine.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum MatteForm {
+    /// `c · cos θ`, whatever the cosine (the classic shading).
+    Plain,
+    /// `c · cos θ`, zero below the surface (or for a NaN cosine).
+    Checked,
+    /// `c · cos θ + zero`, zero below the surface.
+    CheckedPlusZero,
+}
+
+impl Matte {
+    /// The matte form of `mat`, if it has one (see [`Material::matte`]).
+    fn of(mat: &Material) -> Option<Matte> {
+        use BrdfKind::*;
+        use std::f64::consts::PI;
+        if mat.specular != DVec3::ZERO {
+            return None;
+        }
+        let zero = mat.specular * 0.0;
+        let (c, form) = match mat.brdf {
+            None => (mat.diffuse, MatteForm::Plain),
+            Some(b) => match (b.kind, b.normalized) {
+                (OriginalPhong | OriginalBlinnPhong, _) => (mat.diffuse, MatteForm::CheckedPlusZero),
+                (ModifiedPhong | ModifiedBlinnPhong, true) => (mat.diffuse / PI + zero, MatteForm::Checked),
+                (ModifiedPhong | ModifiedBlinnPhong, false) => (mat.diffuse + zero, MatteForm::Checked),
+                (TorranceSparrow, _) => return None,
+            },
+        };
+        Some(Matte { c, zero, form })
+    }
+
+    /// [`Material::reflectance`] for a light from a direction of cosine `cos` to the normal.
+    #[inline(always)]
+    pub fn at(&self, cos: f64) -> DVec3 {
+        match self.form {
+            MatteForm::Plain => self.c * cos,
+            _ if cos.is_nan() || cos <= 0.0 => DVec3::ZERO,
+            MatteForm::Checked => self.c * cos,
+            MatteForm::CheckedPlusZero => self.c * cos + self.zero,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -449,60 +505,5 @@ mod tests {
         classic.brdf = None;
         let plain = classic.reflectance(n, at(60.0), wo);
         assert!((plain - blinn).abs().max_element() < 1e-15, "{plain} vs {blinn}");
-    }
-}
-
-/// A material's [`Material::reflectance`] when it has no specular lobe (`k_s = 0`, the course's
-/// matte materials): a coefficient times the cosine, computed with the same operations.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Matte {
-    /// `c`: the diffuse term as `reflectance` forms it.
-    pub c: DVec3,
-    /// `k_s · 0` (a zero, of `k_s`'s signs), added after the product by the original models.
-    pub zero: DVec3,
-    pub form: MatteForm,
-}
-
-/// How a [`Matte`] material's coefficient meets the cosine.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum MatteForm {
-    /// `c · cos θ`, whatever the cosine (the classic shading).
-    Plain,
-    /// `c · cos θ`, zero below the surface (or for a NaN cosine).
-    Checked,
-    /// `c · cos θ + zero`, zero below the surface.
-    CheckedPlusZero,
-}
-
-impl Matte {
-    /// The matte form of `mat`, if it has one (see [`Material::matte`]).
-    fn of(mat: &Material) -> Option<Matte> {
-        use crate::material::BrdfKind::*;
-        use std::f64::consts::PI;
-        if mat.specular != DVec3::ZERO {
-            return None;
-        }
-        let zero = mat.specular * 0.0;
-        let (c, form) = match mat.brdf {
-            None => (mat.diffuse, MatteForm::Plain),
-            Some(b) => match (b.kind, b.normalized) {
-                (OriginalPhong | OriginalBlinnPhong, _) => (mat.diffuse, MatteForm::CheckedPlusZero),
-                (ModifiedPhong | ModifiedBlinnPhong, true) => (mat.diffuse / PI + zero, MatteForm::Checked),
-                (ModifiedPhong | ModifiedBlinnPhong, false) => (mat.diffuse + zero, MatteForm::Checked),
-                (TorranceSparrow, _) => return None,
-            },
-        };
-        Some(Matte { c, zero, form })
-    }
-
-    /// [`Material::reflectance`] for a light from a direction of cosine `cos` to the normal.
-    #[inline(always)]
-    pub fn at(&self, cos: f64) -> DVec3 {
-        match self.form {
-            MatteForm::Plain => self.c * cos,
-            _ if cos.is_nan() || cos <= 0.0 => DVec3::ZERO,
-            MatteForm::Checked => self.c * cos,
-            MatteForm::CheckedPlusZero => self.c * cos + self.zero,
-        }
     }
 }

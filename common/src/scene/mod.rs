@@ -122,7 +122,8 @@ pub struct Scene {
     /// How a path tracer with `SampleOneLight` picks the one light of a vertex.
     pub light_choice: crate::lights::choice::LightChoice,
     /// Each material's matte form when the scene's paths go side by side, `None` when they go
-    /// one by one: worked out by `integrator::paths::fits` on its first call.
+    /// one by one: worked out by `integrator::paths::fits` on its first call, from the scene as
+    /// it is then (a scene is not changed once built).
     pub path_lanes: std::sync::OnceLock<Option<Vec<Option<crate::material::Matte>>>>,
 }
 
