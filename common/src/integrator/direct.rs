@@ -233,6 +233,15 @@ pub struct LightWeights {
     pub pick: f64,
 }
 
+impl LightWeights {
+    /// The power-heuristic weight of an object light's sample towards `wi`, drawn with density
+    /// `1 / inv_pdf` times the pick, at a vertex of normal `n`.
+    #[inline]
+    pub fn weight(&self, n: DVec3, wi: DVec3, inv_pdf: f64) -> f64 {
+        power_heuristic(self.pick / inv_pdf, self.bounce.pdf(n, wi))
+    }
+}
+
 /// Direct lighting in one scene: the light reflected at shading points, and how many shadow
 /// rays it took.
 pub struct Lighting<'s> {
@@ -360,9 +369,7 @@ impl Lighting<'_> {
                     } else {
                         wis[k] = s.wi;
                         irradiance[k] = match (self.mis, s.inv_pdf) {
-                            (Some(m), Some(inv)) => {
-                                s.irradiance * power_heuristic(m.pick / inv, m.bounce.pdf(p.n, s.wi))
-                            }
+                            (Some(m), Some(inv)) => s.irradiance * m.weight(p.n, s.wi, inv),
                             _ => s.irradiance,
                         };
                         shadows.add(k, to_light / len, len * (1.0 - 1e-6));

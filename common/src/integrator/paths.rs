@@ -24,7 +24,7 @@
 
 use glam::DVec3;
 
-use super::direct::{BounceDensity, draw_requests, light_pdf, power_heuristic};
+use super::direct::{BounceDensity, LightWeights, draw_requests, light_pdf, power_heuristic};
 use crate::geometry::{Axes, HitLanes, SurfaceHit};
 use crate::lights::{EmitterShape, ObjectLight};
 use crate::material::{Material, MaterialKind, Matte, MatteForm};
@@ -189,19 +189,14 @@ impl<'a> PathLanes<'a> {
                 let mat = &scene.materials[found.material[k] as usize];
                 if bounce == 0 {
                     let mut first = DVec3::ZERO;
-                    if front[k]
-                        && let Some(Some(le)) = scene.instance_emission.get(found.instance[k] as usize)
-                    {
-                        first += *le;
+                    if let Some(le) = emitted(scene, &found, &front, k) {
+                        first += le;
                     }
                     first += mat.ambient * scene.ambient_light;
                     for a in 0..3 {
                         local[a][k] = first[a];
                     }
-                } else if !nee
-                    && front[k]
-                    && let Some(Some(le)) = scene.instance_emission.get(found.instance[k] as usize)
-                {
+                } else if !nee && let Some(le) = emitted(scene, &found, &front, k) {
                     // Without next-event estimation, a light counts where a bounce finds it.
                     #[cfg(test)]
                     tests::LIGHTS_FOUND.with(|c| c.set(c.get() + 1));
@@ -484,6 +479,14 @@ impl<'a> PathLanes<'a> {
     }
 }
 
+/// What the surface lane `k` found emits towards it (the tracer's `emitted`): an object
+/// light's radiance on its front side.
+#[inline(always)]
+fn emitted(scene: &Scene, found: &HitLanes, front: &[bool; N], k: usize) -> Option<DVec3> {
+    let le = (*scene.instance_emission.get(found.instance[k] as usize)?)?;
+    front[k].then_some(le)
+}
+
 /// With multiple importance sampling, what the object lights that the lanes of `alive` found
 /// (at `found`, along `d`, on their front side where `front`) emit, weighed against the
 /// lights' own samples from where the lanes' bounces left (`from`, with their densities
@@ -501,12 +504,10 @@ fn weighed_emission(
     local: &mut Axes,
 ) {
     for k in lanes(alive) {
-        if front[k]
-            && let Some(Some(le)) = scene.instance_emission.get(found.instance[k] as usize)
-        {
+        if let Some(le) = emitted(scene, found, front, k) {
             let hit = (lane(&found.point, k), lane(&found.normal, k), found.instance[k]);
             let light = light_pdf(scene, lane(from, k), lane(d, k), hit, one_light);
-            let add = *le * power_heuristic(drawn[k], light);
+            let add = le * power_heuristic(drawn[k], light);
             for a in 0..3 {
                 local[a][k] += add[a];
             }
@@ -556,7 +557,9 @@ impl Vertices<'_, '_> {
     #[inline(always)]
     fn weight(&self, k: usize, wi: DVec3, inv_pdf: f64) -> f64 {
         match &self.weigh {
-            Some((bounce, pick)) => power_heuristic(pick[k] / inv_pdf, bounce.pdf(lane(self.ns, k), wi)),
+            Some((bounce, pick)) => {
+                LightWeights { bounce: *bounce, pick: pick[k] }.weight(lane(self.ns, k), wi, inv_pdf)
+            }
             None => 1.0,
         }
     }
