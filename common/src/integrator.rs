@@ -16,7 +16,9 @@ use crate::scene::records::{
     DecalMode, EnvSampler, MAX_RECURSION_DEPTH_LIMIT, PathParams, Renderer, Roulette,
 };
 use crate::scene::{DielectricSides, PathDepth, Scene};
-use direct::{BounceDensity, LightWeights, Lighting, LitPoint, light_pdf, power_heuristic};
+use direct::{
+    BounceDensity, LightWeights, Lighting, LitPoint, ONE_LIGHT_REQUESTS, light_pdf, power_heuristic,
+};
 
 use crate::texture::maps::{
     Source, TextureMap, TexturePoint, bump_by_gradient, image_height, perlin_gradient,
@@ -924,11 +926,21 @@ impl<'a> Tracer<'a> {
 
     /// `SampleOneLight`'s estimate of [`Self::lights`]: one light chosen by power
     /// ([`crate::lights::choice::LightChoice`], one number drawn), its light divided by the choice's
-    /// probability.
+    /// probability. The light's numbers come from the [`ONE_LIGHT_REQUESTS`] requests that
+    /// follow the pick, whichever light it is.
     fn one_light(&mut self, pt: LitPoint<'_>, weights: Option<LightWeights>, rng: &mut Sampler) -> DVec3 {
-        let Some((light, p)) = self.scene.light_choice.pick(rng.next_1d()) else { return DVec3::ZERO };
-        let weights = weights.map(|w| LightWeights { pick: p, ..w });
-        self.lit_point(pt, true, Some(light), weights, rng) / p
+        let pick = self.scene.light_choice.pick(rng.next_1d());
+        let start = rng.drawn();
+        let l = match pick {
+            Some((light, p)) => {
+                let weights = weights.map(|w| LightWeights { pick: p, ..w });
+                self.lit_point(pt, true, Some(light), weights, rng) / p
+            }
+            None => DVec3::ZERO,
+        };
+        debug_assert!(rng.drawn() <= start + ONE_LIGHT_REQUESTS, "a light drew more than it reserves");
+        rng.skip_to(start + ONE_LIGHT_REQUESTS);
+        l
     }
 
     /// [`Lighting::reflected`] in this tracer's scene, counting its shadow rays.

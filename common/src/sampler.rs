@@ -101,6 +101,20 @@ impl Sampler {
         Sampler { key: self.key, index: sample, dim: 0 }
     }
 
+    /// How many requests this sampler has drawn: the dimension the next one follows.
+    #[inline]
+    pub fn drawn(&self) -> u64 {
+        self.dim
+    }
+
+    /// Moves on to request number `drawn`, when fewer have been drawn: a step that reserves a
+    /// fixed number of requests and uses fewer leaves later requests at the same dimensions
+    /// whatever it used.
+    #[inline]
+    pub fn skip_to(&mut self, drawn: u64) {
+        self.dim = self.dim.max(drawn);
+    }
+
     /// The next request's point of the scrambled (0, 2)-sequence, as fixed-point values.
     #[inline]
     fn next_bits(&mut self) -> (u32, u32) {

@@ -32,6 +32,13 @@ pub struct LitPoint<'m> {
     pub mat: &'m Material,
 }
 
+/// The requests a `SampleOneLight` vertex reserves for its light, after the one that picks it:
+/// the most any light draws at one point (an object light's two, an environment light's two
+/// with its two-number sampler). Whichever light is picked, the vertex draws this many, so
+/// every path's later numbers stand at the same dimensions and a group of paths keeps drawing
+/// side by side.
+pub(super) const ONE_LIGHT_REQUESTS: u64 = 2;
+
 /// `M` requests of two numbers from each sampler in `mask` (`rngs` holds one sampler per
 /// point): `out[k][m]` is sampler `k`'s `m`-th. One [`Sampler::next_2d_groups`] call when the
 /// mask holds them all (it draws them together when they stand at the same dimension of one

@@ -24,7 +24,9 @@
 
 use glam::DVec3;
 
-use super::direct::{BounceDensity, LightWeights, draw_requests, light_pdf, power_heuristic};
+use super::direct::{
+    BounceDensity, LightWeights, ONE_LIGHT_REQUESTS, draw_requests, light_pdf, power_heuristic,
+};
 use crate::geometry::{Axes, HitLanes, SurfaceHit};
 use crate::lights::{EmitterShape, ObjectLight};
 use crate::material::{Material, MaterialKind, Matte, MatteForm};
@@ -371,8 +373,12 @@ impl<'a> PathLanes<'a> {
             if live == 0 {
                 continue;
             }
-            // One point per shading event; the numbers are drawn whatever the outcome.
-            let u = draw_requests::<N, 2>(samplers, live);
+            // One point per shading event; the numbers are drawn whatever the outcome (with
+            // `picks`, drawn with the pick).
+            let u = match picks {
+                Some(p) => p.u,
+                None => draw_requests::<N, 2>(samplers, live),
+            };
             let Some(samples) = light_samples(light, xs, &u, live) else {
                 // Another kind of light, one lane at a time.
                 self.object_light_by_lane(light, &at, &u, live, &mut l);
@@ -662,16 +668,21 @@ struct Picks {
     p: [f64; N],
     /// The lanes that picked a light (none is picked when no light has any power).
     mask: u32,
+    /// Each lane's numbers for its light: the [`ONE_LIGHT_REQUESTS`] requests after the pick.
+    u: [[(f64, f64); 2]; N],
 }
 
 impl Picks {
-    /// One number drawn for each lane of `alive`, and the light it picks (the tracer's
-    /// `one_light`).
+    /// One number drawn for each lane of `alive`, the light it picks and the requests reserved
+    /// for that light (the tracer's `one_light`), every lane's together whichever light it
+    /// picks: the lanes' samplers stay at the same dimension.
     fn draw(scene: &Scene, alive: u32, samplers: &mut [Sampler]) -> Picks {
-        let u = draw_requests::<N, 1>(samplers, alive);
-        let mut picks = Picks { light: [usize::MAX; N], p: [0.0; N], mask: 0 };
+        const { assert!(ONE_LIGHT_REQUESTS == 2, "the light's requests are drawn with the pick's") };
+        let drawn = draw_requests::<N, 3>(samplers, alive);
+        let mut picks =
+            Picks { light: [usize::MAX; N], p: [0.0; N], mask: 0, u: drawn.map(|[_, a, b]| [a, b]) };
         for k in lanes(alive) {
-            if let Some((i, p)) = scene.light_choice.pick(u[k][0].0) {
+            if let Some((i, p)) = scene.light_choice.pick(drawn[k][0].0) {
                 picks.light[k] = i;
                 picks.p[k] = p;
                 picks.mask |= 1 << k;
