@@ -48,6 +48,47 @@ pub fn json_number(text: &str, key: &str) -> Result<f64> {
     v[key].as_f64().with_context(|| format!("no {key} in {line}"))
 }
 
+/// How the Mitsuba scripts' line with their kernels' width begins (see [`with_llvm_target`]).
+const WIDTH_TAG: &str = "mitsuba vector width";
+
+/// Mitsuba script `script` with lines after its `mi.set_variant(variant)` (at that line's
+/// indentation): with `avx2`, drjit's LLVM backend is told to compile for AVX2 at eight lanes,
+/// the instruction set Tessera's binaries are built for (on an AVX-512 host it would use
+/// sixteen); either way the script prints the width its kernels use ([`vector_width`]). The
+/// functions are drjit-core's C++ entry points, by their mangled names as drjit 1.5 exports
+/// them: without them the width reads "unknown" (a default run goes on) and `avx2` fails with
+/// Python's error, which the bench shows.
+pub fn with_llvm_target(script: &str, avx2: bool) -> Result<String> {
+    let call = "mi.set_variant(variant)\n";
+    let at = script.find(call).context("the script sets no variant (`mi.set_variant(variant)`)")?;
+    let line_start = script[..at].rfind('\n').map_or(0, |i| i + 1);
+    let indent = &script[line_start..at];
+    let mut lines = String::from(
+        "import ctypes\n\
+         try:\n    _jit = ctypes.CDLL(dr.__path__[0] + '/libdrjit-core.so')\n\
+         except OSError:\n    _jit = None\n",
+    );
+    if avx2 {
+        lines += "_jit._Z19jit_llvm_set_targetPKcS0_j(b'haswell', \
+                  b'+avx,+avx2,+fma,+f16c,+bmi,+bmi2,+lzcnt,+popcnt,+sse4.2,+movbe', 8)\n";
+    }
+    lines += &format!(
+        "try:\n    _w = _jit._Z21jit_llvm_vector_widthv\n    _w.restype = ctypes.c_uint32\n    \
+         print('{WIDTH_TAG}', _w(), flush=True)\n\
+         except AttributeError:\n    print('{WIDTH_TAG} unknown', flush=True)\n"
+    );
+    let indented: String = lines.lines().map(|l| format!("{indent}{l}\n")).collect();
+    let mut out = script.to_string();
+    out.insert_str(at + call.len(), &indented);
+    Ok(out)
+}
+
+/// The width a script made by [`with_llvm_target`] printed: its kernels' lanes per
+/// instruction, or "unknown".
+pub fn vector_width(text: &str) -> Option<&str> {
+    text.lines().find_map(|l| l.strip_prefix(WIDTH_TAG).map(str::trim))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -60,5 +101,22 @@ mod tests {
         assert_eq!(json_number(text, "embree_mrays_s").unwrap(), 13.92);
         assert!(json_number(text, "hit").is_err());
         assert!(json_number("nothing", "hit").is_err());
+    }
+
+    #[test]
+    fn the_llvm_target_lines_follow_the_variant_at_its_indentation() {
+        let script = "import drjit as dr\ndef main():\n    mi.set_variant(variant)\n    go()\n";
+        let out = with_llvm_target(script, true).unwrap();
+        let after: Vec<&str> = out.lines().skip_while(|l| !l.contains("set_variant")).skip(1).collect();
+        assert_eq!(after[0], "    import ctypes");
+        assert!(after.iter().any(|l| l.starts_with("    _jit._Z19jit_llvm_set_target")), "{out}");
+        assert_eq!(after.last(), Some(&"    go()"));
+        // Every inserted line keeps the function's indentation or more.
+        assert!(after.iter().all(|l| l.starts_with("    ")), "{out}");
+        let plain = with_llvm_target(script, false).unwrap();
+        assert!(!plain.contains("jit_llvm_set_target") && plain.contains("jit_llvm_vector_width"));
+        assert!(with_llvm_target("print(1)\n", false).is_err());
+        assert_eq!(vector_width("x\nmitsuba vector width 8\n1.0 2.0"), Some("8"));
+        assert_eq!(vector_width("1.0 2.0"), None);
     }
 }

@@ -39,6 +39,7 @@ use tessera::integrator::RayStats;
 use tessera::render::{RenderSettings, render_camera};
 use tessera::scene::Scene;
 use tessera::scene::records::{EnvSampler, SceneRecords};
+use tessera_tests::anchors::{vector_width, with_llvm_target};
 use tessera_tests::conformance::display_image;
 use tessera_tests::envmaps::{ENV_SCENES, load_substituted};
 
@@ -313,33 +314,6 @@ fn noise_figures(out: &std::path::Path) -> Result<()> {
     Ok(())
 }
 
-/// How the Mitsuba script's line with its kernels' width begins.
-const WIDTH_TAG: &str = "mitsuba vector width";
-
-/// Python lines for the Mitsuba script, after its `mi.set_variant`: with `avx2`, drjit's LLVM
-/// backend is told to compile for AVX2 at eight lanes; either way the script prints the width
-/// its kernels use. The functions are drjit-core's C++ entry points, by their mangled names as
-/// drjit 1.5 exports them: without them the width reads "unknown" (the default run goes on) and
-/// `avx2` fails with Python's error, which the bench shows.
-fn llvm_target_lines(avx2: bool) -> String {
-    let tag = WIDTH_TAG;
-    let mut lines = String::from(
-        "import ctypes\n\
-         try:\n    _jit = ctypes.CDLL(dr.__path__[0] + '/libdrjit-core.so')\n\
-         except OSError:\n    _jit = None\n",
-    );
-    if avx2 {
-        lines += "_jit._Z19jit_llvm_set_targetPKcS0_j(b'haswell', \
-                  b'+avx,+avx2,+fma,+f16c,+bmi,+bmi2,+lzcnt,+popcnt,+sse4.2,+movbe', 8)\n";
-    }
-    lines += &format!(
-        "try:\n    _w = _jit._Z21jit_llvm_vector_widthv\n    _w.restype = ctypes.c_uint32\n    \
-         print('{tag}', _w(), flush=True)\n\
-         except AttributeError:\n    print('{tag} unknown', flush=True)\n"
-    );
-    lines
-}
-
 /// Issue #18's whole-render bench: Tessera and Mitsuba 3 on head_env_light, alternately.
 fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
     let bench = tessera_tests::shared_bench();
@@ -376,9 +350,7 @@ fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
     let mut script: String =
         script.lines().filter(|l| !l.starts_with("dr.set_thread_count")).map(|l| format!("{l}\n")).collect();
     if args.variant.starts_with("llvm") {
-        let at = script.find("mi.set_variant(variant)\n").context("mitsuba_head_env.py sets no variant")?;
-        let at = at + "mi.set_variant(variant)\n".len();
-        script.insert_str(at, &llvm_target_lines(args.mitsuba_avx2));
+        script = with_llvm_target(&script, args.mitsuba_avx2).context("mitsuba_head_env.py")?;
     }
     let script_path = dir.join("mitsuba_head_env.py");
     std::fs::write(&script_path, script)?;
@@ -405,7 +377,7 @@ fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
         let args =
             [ply.display().to_string(), hdri.display().to_string(), spp.to_string(), args.variant.clone()];
         let text = tessera_tests::anchors::run(&script_path, &args)?;
-        if !width_shown && let Some(w) = text.lines().find_map(|l| l.strip_prefix(WIDTH_TAG).map(str::trim)) {
+        if !width_shown && let Some(w) = vector_width(&text) {
             println!("  Mitsuba's kernels: {w} lanes per instruction");
             width_shown = true;
         }

@@ -2,7 +2,7 @@
 //! Mitsuba 3, and the primary-ray render phase against Embree 4 and Mitsuba's first-hit render.
 //!
 //! ```text
-//! cargo run --release -p tessera-tests --bin pathbench -- [--rounds N] [--samples N] [--threads N] [--one-light] [--mis]
+//! cargo run --release -p tessera-tests --bin pathbench -- [--rounds N] [--samples N] [--threads N] [--one-light] [--mis] [--mitsuba-avx2]
 //! cargo run --release -p tessera-tests --bin pathbench -- --primary [--rounds N] [--width W --height H]
 //! ```
 //! The default is the path-tracing workload: `../shared/bench/jaroslav_path.xml`
@@ -18,7 +18,9 @@
 //! Mitsuba samples one emitter a vertex (the course's estimator, the default, samples both).
 //! `--mis` adds `MultipleImportanceSampling`: the light box's light weighed between its sampled
 //! points and the bounces that find it, as Mitsuba's `path` integrator weighs them (with both
-//! flags, Tessera's estimator is Mitsuba's).
+//! flags, Tessera's estimator is Mitsuba's). Mitsuba's LLVM variant compiles its kernels for
+//! the host: sixteen lanes an instruction where it has AVX-512 (the bench prints the width);
+//! `--mitsuba-avx2` has it compile for AVX2 at eight lanes, the instruction set Tessera ships.
 //!
 //! `--primary` is the camera-ray workload: head.ply at 3840x2160, one ray through each pixel
 //! centre (`../shared/bench/head_primary.xml`), no lights and no bounces. Tessera's render
@@ -39,12 +41,13 @@ use tessera::integrator::RayStats;
 use tessera::render::{RenderSettings, render_camera};
 use tessera::scene::Scene;
 use tessera::scene::load::load_scene_file;
-use tessera_tests::anchors::{json_number, last_figure, run as anchor};
+use tessera_tests::anchors::{json_number, last_figure, run as anchor, vector_width, with_llvm_target};
 
 struct Args {
     primary: bool,
     one_light: bool,
     mis: bool,
+    mitsuba_avx2: bool,
     rounds: usize,
     samples: u32,
     threads: usize,
@@ -57,6 +60,7 @@ fn parse_args() -> Result<Args> {
         primary: false,
         one_light: false,
         mis: false,
+        mitsuba_avx2: false,
         rounds: 5,
         samples: 16,
         threads: 1,
@@ -75,6 +79,7 @@ fn parse_args() -> Result<Args> {
             "--primary" => a.primary = true,
             "--one-light" => a.one_light = true,
             "--mis" => a.mis = true,
+            "--mitsuba-avx2" => a.mitsuba_avx2 = true,
             "--rounds" => a.rounds = number("--rounds")?.max(1) as usize,
             "--samples" => a.samples = number("--samples")?.max(1) as u32,
             "--threads" => a.threads = number("--threads")?.max(1) as usize,
@@ -185,7 +190,15 @@ fn path_figures(args: &Args, out: &Path) -> Result<()> {
     let (w, h) = (scene.cameras[0].width, scene.cameras[0].height);
     let samples = f64::from(w * h) * f64::from(args.samples);
     let settings = RenderSettings::default();
-    let script = bench.join("mitsuba_jaroslav_path.py");
+    // The anchor's script with the lines that print (and with `--mitsuba-avx2`, set) its
+    // kernels' width, in a folder of its own beside the scene it reads.
+    let source = bench.join("mitsuba_jaroslav_path.py");
+    let text = std::fs::read_to_string(&source).with_context(|| format!("reading {}", source.display()))?;
+    let anchor_dir = out.join("mitsuba");
+    std::fs::create_dir_all(&anchor_dir)?;
+    std::fs::copy(bench.join("jaroslav_path.xml"), anchor_dir.join("jaroslav_path.xml"))?;
+    let script = anchor_dir.join("mitsuba_jaroslav_path.py");
+    std::fs::write(&script, with_llvm_target(&text, args.mitsuba_avx2).context("mitsuba_jaroslav_path.py")?)?;
     let theirs_exr = out.join("mitsuba.exr");
     println!(
         "jaroslav_path (cornellbox_jaroslav_path_diffuse, diffuse_next_importance), {w}x{h}, {} spp, {} thread(s), {} rounds{}",
@@ -218,7 +231,16 @@ fn path_figures(args: &Args, out: &Path) -> Result<()> {
             last = Some(img);
             Ok(samples / secs / 1e6)
         },
-        |_| last_figure(&anchor(&script, &mitsuba_args)?),
+        |round| {
+            let text = anchor(&script, &mitsuba_args)?;
+            if round == 0 {
+                println!(
+                    "  Mitsuba's kernels: {} lanes an instruction",
+                    vector_width(&text).unwrap_or("unknown")
+                );
+            }
+            last_figure(&text)
+        },
     )?;
     let ours_img = last.expect("at least one round");
     let theirs_img = read_exr(&theirs_exr).with_context(|| format!("reading {}", theirs_exr.display()))?;
@@ -299,5 +321,8 @@ fn main() -> Result<()> {
     let args = parse_args()?;
     let out: PathBuf = tessera_tests::repo_root().join("target/pathbench");
     std::fs::create_dir_all(&out)?;
+    if args.primary && (args.mitsuba_avx2 || args.one_light || args.mis) {
+        bail!("--mitsuba-avx2, --one-light and --mis apply to the path-tracing workload, not --primary");
+    }
     if args.primary { primary_figures(&args, &out) } else { path_figures(&args, &out) }
 }
