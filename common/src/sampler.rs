@@ -321,6 +321,22 @@ mod tests {
     }
 
     #[test]
+    fn skipping_to_a_request_draws_what_follows_the_skipped_ones() {
+        let pixel = Sampler::new(0x5eed, 3, 4, 7);
+        let mut drew = pixel.clone();
+        drew.next_2d();
+        drew.next_2d();
+        let mut skipped = pixel.clone();
+        assert_eq!(skipped.drawn(), 0);
+        skipped.skip_to(2);
+        assert_eq!(skipped.drawn(), drew.drawn());
+        // Never back: a sampler that has drawn more stays where it is.
+        skipped.skip_to(1);
+        assert_eq!(skipped.drawn(), 2);
+        assert_eq!(skipped.next_2d(), drew.next_2d());
+    }
+
+    #[test]
     fn requests_drawn_together_are_those_drawn_in_a_row() {
         let pixel = Sampler::new(0x5eed, 12, 34, 0);
         let mut group: Vec<Sampler> = (0..8).map(|k| pixel.with_sample(16 + k)).collect();
