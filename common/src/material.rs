@@ -40,7 +40,22 @@ impl Material {
     /// This material's [`Matte`] form: its reflectance when it has no specular lobe (`k_s = 0`)
     /// and no Torrance-Sparrow BRDF; `None` otherwise.
     pub fn matte(&self) -> Option<Matte> {
-        Matte::of(self)
+        use BrdfKind::*;
+        use std::f64::consts::PI;
+        if self.specular != DVec3::ZERO {
+            return None;
+        }
+        let zero = self.specular * 0.0;
+        let (c, form) = match self.brdf {
+            None => (self.diffuse, MatteForm::Plain),
+            Some(b) => match (b.kind, b.normalized) {
+                (OriginalPhong | OriginalBlinnPhong, _) => (self.diffuse, MatteForm::CheckedPlusZero),
+                (ModifiedPhong | ModifiedBlinnPhong, true) => (self.diffuse / PI + zero, MatteForm::Checked),
+                (ModifiedPhong | ModifiedBlinnPhong, false) => (self.diffuse + zero, MatteForm::Checked),
+                (TorranceSparrow, _) => return None,
+            },
+        };
+        Some(Matte { c, zero, form })
     }
 
     /// `cos^p` of an angle's cosine with the material's exponent (`powi` for whole exponents:
@@ -259,26 +274,6 @@ pub enum MatteForm {
 }
 
 impl Matte {
-    /// The matte form of `mat`, if it has one (see [`Material::matte`]).
-    fn of(mat: &Material) -> Option<Matte> {
-        use BrdfKind::*;
-        use std::f64::consts::PI;
-        if mat.specular != DVec3::ZERO {
-            return None;
-        }
-        let zero = mat.specular * 0.0;
-        let (c, form) = match mat.brdf {
-            None => (mat.diffuse, MatteForm::Plain),
-            Some(b) => match (b.kind, b.normalized) {
-                (OriginalPhong | OriginalBlinnPhong, _) => (mat.diffuse, MatteForm::CheckedPlusZero),
-                (ModifiedPhong | ModifiedBlinnPhong, true) => (mat.diffuse / PI + zero, MatteForm::Checked),
-                (ModifiedPhong | ModifiedBlinnPhong, false) => (mat.diffuse + zero, MatteForm::Checked),
-                (TorranceSparrow, _) => return None,
-            },
-        };
-        Some(Matte { c, zero, form })
-    }
-
     /// [`Material::reflectance`] for a light from a direction of cosine `cos` to the normal.
     #[inline(always)]
     pub fn at(&self, cos: f64) -> DVec3 {

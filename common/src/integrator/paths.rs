@@ -1000,6 +1000,7 @@ mod tests {
 
     fn side_by_side_matches_alone(scene: &crate::scene::Scene) {
         let rays = rays();
+        assert!(super::fits(scene).is_some());
         for (next_event, importance, roulette, one_light, mis) in [
             (true, false, Roulette::Off, false, false),
             (true, true, Roulette::Off, false, false),
@@ -1017,7 +1018,6 @@ mod tests {
             (false, true, Roulette::Unbiased, false, false),
         ] {
             let params = PathParams { next_event, importance, roulette, one_light, mis };
-            assert!(super::fits(scene).is_some());
             for group in [GROUP_LANES, 5, 2, 1] {
                 for one_pixel in [true, false] {
                     let samplers: Vec<Sampler> = (0..group as u32)
