@@ -2,6 +2,7 @@
 //! point lights with shadow rays, then mirror, conductor and dielectric recursion bounded by
 //! `MaxRecursionDepth`, with Beer's law inside dielectrics.
 
+mod bounces;
 mod direct;
 mod paths;
 
@@ -10,12 +11,13 @@ use glam::{DVec2, DVec3};
 use crate::geometry::Instance;
 use crate::geometry::{RayLanes, SurfaceHit};
 use crate::material::{Material, MaterialKind, Refraction, fresnel_conductor, refract};
-use crate::math::{Ray, orthonormal_pair, reflect, sincos_turns};
+use crate::math::{Ray, orthonormal_pair, reflect};
 use crate::sampler::{GROUP_LANES, Sampler};
 use crate::scene::records::{
     DecalMode, EnvSampler, MAX_RECURSION_DEPTH_LIMIT, PathParams, Renderer, Roulette,
 };
 use crate::scene::{DielectricSides, PathDepth, Scene};
+use bounces::{brdf_bounce, density, glossy, mirror_choice};
 use direct::{
     BounceDensity, LightWeights, Lighting, LitPoint, ONE_LIGHT_REQUESTS, light_pdf, power_heuristic,
 };
@@ -555,7 +557,7 @@ impl<'a> Tracer<'a> {
                         ray = ray.spawn(o, glossy(reflect(d, n), mat.roughness, rng));
                         specular = true;
                     } else {
-                        let Some((wi, f, brdf)) = self.bounce(n, wo, mat, params.importance, rng) else {
+                        let Some((wi, f, brdf)) = brdf_bounce(n, wo, mat, params.importance, rng) else {
                             break;
                         };
                         beta *= f / (1.0 - p_spec);
@@ -566,7 +568,7 @@ impl<'a> Tracer<'a> {
                     }
                 }
                 MaterialKind::Plain => {
-                    let Some((wi, f, brdf)) = self.bounce(n, wo, mat, params.importance, rng) else { break };
+                    let Some((wi, f, brdf)) = brdf_bounce(n, wo, mat, params.importance, rng) else { break };
                     beta *= f;
                     potential *= brdf;
                     drawn = mis.then(|| (hit.point, density(params.importance, n, wi)));
@@ -593,38 +595,6 @@ impl<'a> Tracer<'a> {
             }
         }
         l
-    }
-
-    /// One bounce direction at a diffuse or glossy vertex: uniform in the hemisphere of `n`
-    /// (pdf 1/2π) or cosine-distributed (pdf cos θ/π), the throughput factor
-    /// `f(wi, wo)·cos θ / pdf` and the BRDF value `f(wi, wo)`. `None` when the material
-    /// reflects nothing that way.
-    fn bounce(
-        &mut self,
-        n: DVec3,
-        wo: DVec3,
-        mat: &Material,
-        importance: bool,
-        rng: &mut Sampler,
-    ) -> Option<(DVec3, DVec3, DVec3)> {
-        let (u1, u2) = rng.next_2d();
-        let (t, b) = orthonormal_pair(n);
-        let (cos_t, pdf_over_cos) = if importance {
-            let c = (1.0 - u1).sqrt();
-            (c, 1.0 / std::f64::consts::PI)
-        } else {
-            (u1, 0.0)
-        };
-        let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
-        let (sp, cp) = sincos_turns(u2);
-        let wi = (sin_t * cp) * t + (sin_t * sp) * b + cos_t * n;
-        if cos_t <= 0.0 {
-            return None;
-        }
-        let pdf = if importance { cos_t * pdf_over_cos } else { 1.0 / std::f64::consts::TAU };
-        let f_cos = mat.reflectance(n, wi, wo);
-        let f = f_cos / pdf;
-        (f != DVec3::ZERO && f.is_finite()).then_some((wi, f, f_cos / cos_t))
     }
 
     /// Radiance arriving along `ray`. `medium` is the absorption coefficient of the dielectric
@@ -970,25 +940,6 @@ impl<'a> Tracer<'a> {
     }
 }
 
-/// A mirror's or conductor's mirror-lobe weight for a ray of direction `d` arriving at normal
-/// `n`, and the probability with which a path takes that lobe rather than the material's BRDF:
-/// each by its largest channel (the chosen one's weight is then divided by its probability).
-fn mirror_choice(mat: &Material, d: DVec3, n: DVec3) -> (DVec3, f64) {
-    let weight = if mat.kind == MaterialKind::Conductor {
-        mat.mirror * fresnel_conductor(-d.dot(n), mat.refraction_index, mat.absorption_index)
-    } else {
-        mat.mirror
-    };
-    let w_spec = weight.max_element();
-    let w_brdf = (mat.diffuse + mat.specular).max_element();
-    (weight, if w_brdf > 0.0 { w_spec / (w_spec + w_brdf) } else { 1.0 })
-}
-
-/// The solid-angle density of a BRDF bounce towards `wi` at normal `n` (see [`BounceDensity`]).
-fn density(cosine: bool, n: DVec3, wi: DVec3) -> f64 {
-    BounceDensity { cosine, chance: 1.0 }.pdf(n, wi)
-}
-
 /// What [`Tracer::surface`] finds: the material and shading normal after the texture maps, or
 /// (`Err`) the texel of a `replace_all` map.
 type Looks<'m> = Result<(&'m Material, DVec3), DVec3>;
@@ -1133,17 +1084,6 @@ fn tangent_basis(n: DVec3, dpdu: DVec3, dpdv: DVec3) -> Option<(DVec3, DVec3)> {
     let t = (dpdu - n * n.dot(dpdu)).try_normalize()?;
     let b = (dpdv - n * n.dot(dpdv) - t * t.dot(dpdv)).try_normalize()?;
     Some((t, b))
-}
-
-/// Glossy perturbation of a reflection direction (§6.7); identity for roughness 0.
-fn glossy(r: DVec3, roughness: f64, rng: &mut Sampler) -> DVec3 {
-    if roughness <= 0.0 {
-        return r;
-    }
-    let (u, v) = orthonormal_pair(r);
-    let (a, b) = rng.next_2d();
-    let (a, b) = (a - 0.5, b - 0.5);
-    (r + roughness * (a * u + b * v)).normalize()
 }
 
 #[cfg(test)]

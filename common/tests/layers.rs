@@ -75,6 +75,7 @@ const LAYERS: &[(&str, &[&str])] = &[
     ("load", &["scene::load"]),
     ("bundle", &["bundle"]),
     ("direct light", &["integrator::direct"]),
+    ("bounces", &["integrator::bounces"]),
     ("path lanes", &["integrator::paths"]),
     ("integrator", &["integrator"]),
     ("render", &["render"]),

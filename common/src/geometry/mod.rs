@@ -288,8 +288,14 @@ impl Accel {
                 }
             }
         }
-        let mut out =
-            HitLanes { mask: 0, point: [[0.0; 8]; 3], normal: [[0.0; 8]; 3], material: [0; 8], instance };
+        let mut out = HitLanes {
+            mask: 0,
+            point: [[0.0; 8]; 3],
+            normal: [[0.0; 8]; 3],
+            t: [0.0; 8],
+            material: [0; 8],
+            instance,
+        };
         for k in crate::math::lanes(mask) {
             if instance[k] == u32::MAX {
                 continue;
@@ -305,6 +311,7 @@ impl Accel {
             };
             let tk = plane.map_or(t[k], |plane| plane.distance(ok, dk, t[k]));
             let p = ok + dk * tk;
+            out.t[k] = tk;
             let n = match plane {
                 Ok(plane) => plane.n,
                 Err((center, radius)) => (p - center) / radius,

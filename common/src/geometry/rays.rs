@@ -83,6 +83,8 @@ pub struct HitLanes {
     pub point: Axes,
     /// The unit geometric normal, which is also the shading normal (flat faces and spheres).
     pub normal: Axes,
+    /// The distance along the ray ([`crate::geometry::SurfaceHit::t`]).
+    pub t: [f64; 8],
     pub material: [u32; 8],
     pub instance: [u32; 8],
 }

@@ -13,10 +13,12 @@
 //!
 //! The lanes take the scenes whose paths stay simple ([`fits`]), with any of the path tracer's
 //! estimators (lights found by bounces alone, or next-event estimation of every light or of
-//! one a vertex, with or without multiple importance sampling; either roulette or none): every
-//! object's material plain (diffuse and glossy BRDFs: no mirror, conductor or glass); no
+//! one a vertex, with or without multiple importance sampling; either roulette or none): no
 //! texture maps; point and object lights only; flat meshes and spheres that
-//! [`crate::geometry::Accel::lanes_fit`]. Any other scene's paths go one by one.
+//! [`crate::geometry::Accel::lanes_fit`]. Any other scene's paths go one by one. Diffuse and
+//! glossy vertices bounce side by side; mirror, conductor and dielectric vertices (whose paths
+//! then differ in what they draw, and in which bounces count towards the depth) bounce one
+//! lane at a time, the lanes still sharing the packets of their next rays.
 
 // Loops run over lanes and axes by index: each step reads and writes several arrays of the
 // same lane side by side, which is what the compiler turns into vector code.
@@ -24,16 +26,17 @@
 
 use glam::DVec3;
 
+use super::bounces::{brdf_bounce, density, glossy, mirror_choice};
 use super::direct::{
     BounceDensity, LightWeights, ONE_LIGHT_REQUESTS, draw_requests, light_pdf, power_heuristic,
 };
 use crate::geometry::{Axes, HitLanes, SurfaceHit};
 use crate::lights::{EmitterShape, ObjectLight};
-use crate::material::{Material, MaterialKind, Matte, MatteForm};
-use crate::math::{Ray, lanes, sincos_turns};
+use crate::material::{Material, MaterialKind, Matte, MatteForm, Refraction, refract};
+use crate::math::{Ray, lanes, reflect, sincos_turns};
 use crate::sampler::{GROUP_LANES, Sampler};
-use crate::scene::Scene;
 use crate::scene::records::{MAX_RECURSION_DEPTH_LIMIT, PathParams, Roulette};
+use crate::scene::{DielectricSides, PathDepth, Scene};
 
 const N: usize = GROUP_LANES;
 
@@ -66,9 +69,7 @@ pub fn fits(scene: &Scene) -> Option<&[Option<Matte>]> {
             && scene.directional_lights.is_empty()
             && scene.spot_lights.is_empty()
             && scene.accel.lanes_fit()
-            && scene.accel.instances.iter().all(|i| {
-                scene.materials.get(i.material as usize).is_some_and(|m| m.kind == MaterialKind::Plain)
-            });
+            && scene.accel.instances.iter().all(|i| scene.materials.get(i.material as usize).is_some());
         fit.then(|| scene.materials.iter().map(Material::matte).collect())
     });
     mattes.as_deref()
@@ -122,20 +123,21 @@ impl<'a> PathLanes<'a> {
         // importance sampling only with it.
         let nee = params.next_event;
         let (one_light, mis) = (params.one_light && nee, params.mis && nee);
-        // Radiance so far and throughput, by axis then lane.
+        // Radiance so far, by axis then lane, and the rest of the paths' state.
         let mut l = [[0.0; N]; 3];
         let mut beta = [[1.0; N]; 3];
-        // The product of the BRDF values of the path's vertices so far: the course roulette's
-        // potential.
         let mut potential = [[1.0; N]; 3];
-        // With multiple importance sampling, where each lane's last bounce left from and the
-        // density it was drawn with: what an object light it hits weighs.
+        let (mut o, mut d) = ([[0.0; N]; 3], [[0.0; N]; 3]);
         let mut from = [[0.0; N]; 3];
         let mut drawn = [0.0; N];
+        let mut specular = u32::MAX;
+        let mut inside = 0u32;
+        let mut absorb = [DVec3::ZERO; N];
+        let mut counted = [0u32; N];
         let bg = self.background.to_array();
         // The lanes' rays (unused lanes repeat the first) and what they found.
-        let (mut o, mut d) = ([[0.0; N]; 3], [[0.0; N]; 3]);
-        let mut found = HitLanes { mask: 0, point: o, normal: o, material: [0; N], instance: [0; N] };
+        let mut found =
+            HitLanes { mask: 0, point: o, normal: o, t: [0.0; N], material: [0; N], instance: [0; N] };
         for k in 0..N {
             let (r, h) = (&rays[k.min(n - 1)], hits.get(k).copied().flatten());
             for a in 0..3 {
@@ -146,6 +148,7 @@ impl<'a> PathLanes<'a> {
                 found.mask |= 1 << k;
                 found.material[k] = h.material;
                 found.instance[k] = h.instance;
+                found.t[k] = h.t;
                 for a in 0..3 {
                     found.point[a][k] = h.point[a];
                     found.normal[a][k] = h.geo_normal[a];
@@ -168,6 +171,9 @@ impl<'a> PathLanes<'a> {
             if alive == 0 {
                 break;
             }
+            if alive & inside != 0 {
+                beta = absorbed(beta, &absorb, &found.t, alive & inside);
+            }
             // Each lane's normal on the side the path arrives from, and where it looks from.
             let (mut ns, mut front) = ([[0.0; N]; 3], [false; N]);
             let mut wo = [DVec3::ZERO; N];
@@ -180,47 +186,68 @@ impl<'a> PathLanes<'a> {
                 }
                 wo[k] = -lane(&d, k);
             }
-            // Each lane's material; what it emits (seen from the camera, or, with multiple
-            // importance sampling, weighed against the light's own samples) and the ambient
-            // term.
+            // Each lane's material; what it emits (after the camera or a specular vertex, or
+            // without next-event estimation; with multiple importance sampling, weighed
+            // against the light's own samples) and the ambient term.
             let mut local = [[0.0; N]; 3];
             let lead = found.material[alive.trailing_zeros() as usize] as usize;
             let mut sh = Shading { mats: [&scene.materials[lead]; N], matte: [None; N] };
+            // The lanes whose vertex is diffuse or glossy, and those whose lights are sampled
+            // (every one but a dielectric seen from inside).
+            let (mut plain, mut shaded) = (0u32, 0u32);
             let mut live = 0u32;
             for k in lanes(alive) {
                 let mat = &scene.materials[found.material[k] as usize];
-                if bounce == 0 {
-                    let mut first = DVec3::ZERO;
-                    if let Some(le) = emitted(scene, &found, &front, k) {
-                        first += le;
-                    }
-                    first += mat.ambient * scene.ambient_light;
-                    for a in 0..3 {
-                        local[a][k] = first[a];
-                    }
-                } else if !nee && let Some(le) = emitted(scene, &found, &front, k) {
-                    // Without next-event estimation, a light counts where a bounce finds it.
+                if (!nee || specular & (1 << k) != 0)
+                    && let Some(le) = emitted(scene, &found, &front, k)
+                {
                     #[cfg(test)]
-                    tests::LIGHTS_FOUND.with(|c| c.set(c.get() + 1));
+                    if bounce > 0 && !nee {
+                        // Without next-event estimation, a light counts where a bounce finds it.
+                        tests::LIGHTS_FOUND.with(|c| c.set(c.get() + 1));
+                    }
                     for a in 0..3 {
                         local[a][k] += le[a];
                     }
                 }
+                if bounce == 0 {
+                    let ambient = mat.ambient * scene.ambient_light;
+                    for a in 0..3 {
+                        local[a][k] += ambient[a];
+                    }
+                }
                 sh.mats[k] = mat;
                 sh.matte[k] = self.mattes[found.material[k] as usize];
-                live |= u32::from(mat.diffuse != DVec3::ZERO || mat.specular != DVec3::ZERO) << k;
+                plain |= u32::from(mat.kind == MaterialKind::Plain) << k;
+                let lit = !(mat.kind == MaterialKind::Dielectric && inside & (1 << k) != 0);
+                shaded |= u32::from(lit) << k;
+                let reflects = mat.diffuse != DVec3::ZERO || mat.specular != DVec3::ZERO;
+                live |= u32::from(lit && reflects) << k;
+            }
+            // The lanes whose paths go on after this vertex.
+            let mut continues = 0u32;
+            if bounce < MAX_RECURSION_DEPTH_LIMIT {
+                for k in 0..N {
+                    continues |= u32::from(counted[k] < max_bounces) << k;
+                }
             }
             // With `SampleOneLight`, each lane's light (drawn whatever its material reflects).
-            let picks = one_light.then(|| Picks::draw(scene, alive, samplers));
-            // With multiple importance sampling, the bounce that object lights' samples are
-            // weighed against (none after the last vertex).
-            let continues = bounce < max_bounces && bounce < MAX_RECURSION_DEPTH_LIMIT;
-            let weigh = mis.then_some(BounceDensity {
-                cosine: params.importance,
-                chance: if continues { 1.0 } else { 0.0 },
+            let picks = one_light.then(|| Picks::draw(scene, shaded, samplers));
+            // With multiple importance sampling, the chance of a BRDF bounce that object
+            // lights' samples are weighed against (none after the last vertex).
+            let weigh = mis.then(|| {
+                let mut chance = [0.0; N];
+                for k in lanes(alive & continues & plain) {
+                    chance[k] = 1.0;
+                }
+                if alive & continues & !plain != 0 {
+                    specular_chances(&sh, &d, &ns, alive & continues & !plain, &mut chance);
+                }
+                (params.importance, chance)
             });
             if mis && bounce > 0 {
-                weighed_emission(scene, &found, &d, &front, alive, (&from, &drawn), one_light, &mut local);
+                let drawn_by = alive & !specular;
+                weighed_emission(scene, &found, &d, &front, drawn_by, (&from, &drawn), one_light, &mut local);
             }
             // (Zero where nothing is reflected, added all the same: the same sums as alone.)
             let lit = if nee && live != 0 {
@@ -253,39 +280,51 @@ impl<'a> PathLanes<'a> {
                     l[a][k] = if on { l[a][k] + beta[a][k] * local_k } else { l[a][k] };
                 }
             }
+            alive &= continues;
             if alive == 0 {
                 break;
             }
-            // Every living lane has bounced as often as the others (each bounce counts: every
-            // material is plain).
-            if !continues {
-                break;
-            }
-            let u = draw_requests::<N, 1>(samplers, alive);
+            // The diffuse and glossy lanes' bounces side by side.
+            let bent = alive & plain;
+            let u = draw_requests::<N, 1>(samplers, bent);
             let course = params.roulette == Roulette::Course;
             let mut brdf = [[0.0; N]; 3];
             let (wi, f, ok) = bounce_lanes(&ns, &wo, &sh, params.importance, course.then_some(&mut brdf), &u);
-            alive &= ok;
-            self.counts.secondary += u64::from(alive.count_ones());
+            let bent = bent & ok;
+            alive &= ok | !plain;
             for k in 0..N {
-                let on = alive & (1 << k) != 0;
+                let on = bent & (1 << k) != 0;
                 for a in 0..3 {
                     beta[a][k] = if on { beta[a][k] * f[a][k] } else { beta[a][k] };
                     let origin = found.point[a][k] + eps * ns[a][k];
                     o[a][k] = if on { origin } else { o[a][k] };
                     d[a][k] = if on { wi[a][k] } else { d[a][k] };
                 }
+                counted[k] += u32::from(on);
             }
+            specular &= !bent;
             if course {
-                for k in lanes(alive) {
+                for k in lanes(bent) {
                     for a in 0..3 {
                         potential[a][k] *= brdf[a][k];
                     }
                 }
             }
             if mis {
-                remember_bounces(params.importance, &found.point, &ns, &wi, alive, (&mut from, &mut drawn));
+                remember_bounces(params.importance, &found.point, &ns, &wi, bent, (&mut from, &mut drawn));
             }
+            // The mirror, conductor and dielectric lanes' bounces, one by one.
+            let turned = alive & !plain;
+            if turned != 0 {
+                alive &= !turned;
+                // (The state goes in and out by value: a local whose address escapes is kept
+                // in memory throughout the loop.)
+                let mut p = Paths { beta, potential, o, d, from, drawn, specular, inside, absorb, counted };
+                alive |=
+                    specular_bounces(scene, &found, &sh, &ns, (&front, turned), params, &mut p, samplers);
+                Paths { beta, potential, o, d, from, drawn, specular, inside, absorb, counted } = p;
+            }
+            self.counts.secondary += u64::from(alive.count_ones());
             if params.roulette == Roulette::Unbiased && alive != 0 {
                 // Roulette on the throughput, after the bounce.
                 let u = draw_requests::<N, 1>(samplers, alive);
@@ -302,8 +341,9 @@ impl<'a> PathLanes<'a> {
             }
             let mut dead = 0u32;
             for k in 0..N {
-                let zero = beta[0][k] == 0.0 && beta[1][k] == 0.0 && beta[2][k] == 0.0;
-                let finite = beta[0][k].is_finite() && beta[1][k].is_finite() && beta[2][k].is_finite();
+                let b = &beta;
+                let zero = b[0][k] == 0.0 && b[1][k] == 0.0 && b[2][k] == 0.0;
+                let finite = b[0][k].is_finite() && b[1][k].is_finite() && b[2][k].is_finite();
                 dead |= u32::from(zero || !finite) << k;
             }
             alive &= !dead;
@@ -325,7 +365,8 @@ impl<'a> PathLanes<'a> {
     /// reads. With `picks` (`SampleOneLight`), each lane samples only the light it picked, all
     /// lanes' shadow rays go through the tree as one packet, and a lane's light is divided by
     /// the probability of its pick, as the tracer's `one_light` does. With `weigh` (multiple
-    /// importance sampling), object lights' samples are weighed against that bounce.
+    /// importance sampling: whether bounces are cosine-distributed, and each lane's chance of
+    /// a BRDF bounce), object lights' samples are weighed against the lanes' bounces.
     #[allow(clippy::too_many_arguments)]
     fn lights_of_lanes(
         &mut self,
@@ -335,7 +376,7 @@ impl<'a> PathLanes<'a> {
         sh: &Shading<'_>,
         live: u32,
         picks: Option<&Picks>,
-        weigh: Option<BounceDensity>,
+        weigh: Option<(bool, [f64; N])>,
         samplers: &mut [Sampler],
     ) -> Axes {
         let scene = self.scene;
@@ -347,9 +388,9 @@ impl<'a> PathLanes<'a> {
                 origin[a][k] = xs[a][k] + eps * ns[a][k];
             }
         }
-        // With multiple importance sampling, the bounce density and each lane's chance of its
-        // light.
-        let weigh = weigh.map(|b| (b, picks.map_or([1.0; N], |p| p.p)));
+        // With multiple importance sampling, whether bounces are cosine-distributed, each
+        // lane's chance of a BRDF bounce and its chance of its light.
+        let weigh = weigh.map(|(cosine, chance)| (cosine, chance, picks.map_or([1.0; N], |p| p.p)));
         let at = Vertices { xs, ns, origin: &origin, wo, sh, matte: MatteLanes::of(sh, live), weigh };
         let mut l = [[0.0; N]; 3];
         // The lanes that sample light number `i` (numbered as `LightChoice` numbers them).
@@ -485,6 +526,164 @@ impl<'a> PathLanes<'a> {
     }
 }
 
+/// The state of a group's paths besides their radiance, by axis then lane.
+struct Paths {
+    /// Throughput.
+    beta: Axes,
+    /// The product of the BRDF values of the path's diffuse and glossy vertices so far: the
+    /// course roulette's potential.
+    potential: Axes,
+    /// The lanes' rays (unused lanes repeat a living one's).
+    o: Axes,
+    d: Axes,
+    /// With multiple importance sampling, where each lane's last BRDF bounce left from and
+    /// the density it was drawn with: what an object light it hits weighs.
+    from: Axes,
+    drawn: [f64; N],
+    /// The lanes whose last vertex was the camera or a specular one: lights they reach count
+    /// in full, not having been sampled there.
+    specular: u32,
+    /// The lanes inside a dielectric, and its absorption coefficient (Beer's law).
+    inside: u32,
+    absorb: [DVec3; N],
+    /// The bounces that count towards the depth limit (`ShadingRules::path_depth`).
+    counted: [u32; N],
+}
+
+/// `beta` after Beer's law over the segments (of lengths `t`) of the lanes of `mask`, which are
+/// inside a dielectric of absorption coefficient `absorb` (out of line: glass is rare).
+#[inline(never)]
+fn absorbed(mut beta: Axes, absorb: &[DVec3; N], t: &[f64; N], mask: u32) -> Axes {
+    for k in lanes(mask) {
+        let c = absorb[k];
+        if c != DVec3::ZERO {
+            let f = (-c * t[k]).exp();
+            for a in 0..3 {
+                beta[a][k] *= f[a];
+            }
+        }
+    }
+    beta
+}
+
+/// With multiple importance sampling, the chance of a BRDF bounce at the mirror, conductor
+/// and dielectric vertices of the lanes of `mask` (arrived along `d`, normals `ns`), into
+/// `chance`: 1 minus the mirror lobe's at mirrors and conductors, none at glass.
+#[inline(never)]
+fn specular_chances(sh: &Shading<'_>, d: &Axes, ns: &Axes, mask: u32, chance: &mut [f64; N]) {
+    for k in lanes(mask) {
+        let mat = sh.mats[k];
+        chance[k] = match mat.kind {
+            MaterialKind::Mirror | MaterialKind::Conductor => {
+                1.0 - mirror_choice(mat, lane(d, k), lane(ns, k)).1
+            }
+            MaterialKind::Plain => 1.0,
+            MaterialKind::Dielectric => 0.0,
+        };
+    }
+}
+
+/// The tracer's bounces at the mirror, conductor and dielectric vertices of the lanes of
+/// `turned`, one lane at a time with `trace_path`'s operations (at `found`, normals `ns` on
+/// the side each path arrives from, which is the front where `front`): each lane's new ray,
+/// throughput, medium and counted bounces go into `p`. Gives the lanes whose paths go on.
+#[inline(never)]
+#[allow(clippy::too_many_arguments)]
+fn specular_bounces(
+    scene: &Scene,
+    found: &HitLanes,
+    sh: &Shading<'_>,
+    ns: &Axes,
+    (front, turned): (&[bool; N], u32),
+    params: PathParams,
+    p: &mut Paths,
+    samplers: &mut [Sampler],
+) -> u32 {
+    let eps = scene.shadow_ray_epsilon;
+    let mis = params.mis && params.next_event;
+    let mut on = 0u32;
+    for k in lanes(turned) {
+        let (mat, rng) = (sh.mats[k], &mut samplers[k]);
+        let (x, n, d) = (lane(&found.point, k), lane(ns, k), lane(&p.d, k));
+        let bit = 1u32 << k;
+        let mut beta = lane(&p.beta, k);
+        let mut leaves = false;
+        let (origin, dir, specular) = match mat.kind {
+            MaterialKind::Dielectric => {
+                let eta = mat.refraction_index;
+                let entering = match scene.rules.dielectric_sides {
+                    DielectricSides::FaceSide => front[k],
+                    DielectricSides::Flag => p.inside & bit == 0,
+                };
+                let (n1, n2) = if entering { (1.0, eta) } else { (eta, 1.0) };
+                let reflected = glossy(reflect(d, n), mat.roughness, rng);
+                let xi = rng.next_1d();
+                match refract(d, n, n1, n2) {
+                    Refraction::Split { fr, dir } if xi >= fr => {
+                        if entering {
+                            #[cfg(test)]
+                            tests::ENTRIES.with(|c| c.set(c.get() + 1));
+                            p.inside |= bit;
+                            p.absorb[k] = mat.absorption;
+                        } else {
+                            p.inside &= !bit;
+                        }
+                        leaves = !entering;
+                        (x - eps * n, glossy(dir, mat.roughness, rng), true)
+                    }
+                    _ => (x + eps * n, reflected, true),
+                }
+            }
+            MaterialKind::Mirror | MaterialKind::Conductor => {
+                let (weight, p_spec) = mirror_choice(mat, d, n);
+                let w_spec = weight.max_element();
+                let xi = rng.next_1d();
+                if xi < p_spec {
+                    if w_spec <= 0.0 {
+                        continue;
+                    }
+                    beta *= weight / p_spec;
+                    // From the front side, as in the recursive renderer (§6.8).
+                    let o = x + eps * lane(&found.normal, k);
+                    (o, glossy(reflect(d, n), mat.roughness, rng), true)
+                } else {
+                    let Some((wi, f, brdf)) = brdf_bounce(n, -d, mat, params.importance, rng) else {
+                        continue;
+                    };
+                    beta *= f / (1.0 - p_spec);
+                    for a in 0..3 {
+                        p.potential[a][k] *= brdf[a];
+                    }
+                    if mis {
+                        p.drawn[k] = (1.0 - p_spec) * density(params.importance, n, wi);
+                        for a in 0..3 {
+                            p.from[a][k] = x[a];
+                        }
+                    }
+                    (x + eps * n, wi, false)
+                }
+            }
+            // Bounced side by side by the caller.
+            MaterialKind::Plain => continue,
+        };
+        for a in 0..3 {
+            p.beta[a][k] = beta[a];
+            p.o[a][k] = origin[a];
+            p.d[a][k] = dir[a];
+        }
+        p.specular = if specular { p.specular | bit } else { p.specular & !bit };
+        p.counted[k] += match scene.rules.path_depth {
+            PathDepth::EveryBounce => 1,
+            PathDepth::DiffuseBounces => u32::from(!specular),
+            PathDepth::GlassOnce => u32::from(!leaves),
+        };
+        on |= bit;
+        #[cfg(test)]
+        tests::TURNS.with(|c| c.set(c.get() + 1));
+    }
+    on
+}
+
 /// What the surface lane `k` found emits towards it (the tracer's `emitted`): an object
 /// light's radiance on its front side.
 #[inline(always)]
@@ -532,9 +731,8 @@ fn remember_bounces(
     alive: u32,
     (from, drawn): (&mut Axes, &mut [f64; N]),
 ) {
-    let density = BounceDensity { cosine, chance: 1.0 };
     for k in lanes(alive) {
-        drawn[k] = density.pdf(lane(ns, k), lane(wi, k));
+        drawn[k] = density(cosine, lane(ns, k), lane(wi, k));
         for a in 0..3 {
             from[a][k] = points[a][k];
         }
@@ -552,9 +750,10 @@ struct Vertices<'v, 'm> {
     wo: &'v [DVec3; N],
     sh: &'v Shading<'m>,
     matte: MatteLanes,
-    /// With multiple importance sampling, the bounce object lights' samples are weighed
-    /// against and the probability with which each lane's light was chosen.
-    weigh: Option<(BounceDensity, [f64; N])>,
+    /// With multiple importance sampling, what object lights' samples are weighed against:
+    /// whether bounces are cosine-distributed, each lane's chance of a BRDF bounce, and the
+    /// probability with which each lane's light was chosen.
+    weigh: Option<(bool, [f64; N], [f64; N])>,
 }
 
 impl Vertices<'_, '_> {
@@ -563,8 +762,9 @@ impl Vertices<'_, '_> {
     #[inline(always)]
     fn weight(&self, k: usize, wi: DVec3, inv_pdf: f64) -> f64 {
         match &self.weigh {
-            Some((bounce, pick)) => {
-                LightWeights { bounce: *bounce, pick: pick[k] }.weight(lane(self.ns, k), wi, inv_pdf)
+            Some((cosine, chance, pick)) => {
+                let bounce = BounceDensity { cosine: *cosine, chance: chance[k] };
+                LightWeights { bounce, pick: pick[k] }.weight(lane(self.ns, k), wi, inv_pdf)
             }
             None => 1.0,
         }
@@ -913,6 +1113,10 @@ mod tests {
         pub static PATH_GROUPS: Cell<u64> = const { Cell::new(0) };
         /// How many lanes found an object light by a bounce, without next-event estimation.
         pub static LIGHTS_FOUND: Cell<u64> = const { Cell::new(0) };
+        /// How many lanes bounced off a mirror, conductor or dielectric, and how many of them
+        /// went into a dielectric.
+        pub static TURNS: Cell<u64> = const { Cell::new(0) };
+        pub static ENTRIES: Cell<u64> = const { Cell::new(0) };
     }
 
     /// A box open towards the camera, two spheres (one in the light's way), a point light and
@@ -993,13 +1197,12 @@ mod tests {
                 <Radiance>2 3 4</Radiance></LightSphere>"#;
         let found = LIGHTS_FOUND.with(Cell::get);
         for scene in [scene("", 4), scene_with("", 4, &lights), scene_with("", 4, large)] {
-            side_by_side_matches_alone(&scene);
+            side_by_side_matches_alone(&scene, &rays(), 7);
         }
         assert!(LIGHTS_FOUND.with(Cell::get) > found, "bounces found lights without NEE");
     }
 
-    fn side_by_side_matches_alone(scene: &crate::scene::Scene) {
-        let rays = rays();
+    fn side_by_side_matches_alone(scene: &crate::scene::Scene, rays: &[Ray; GROUP_LANES], seed: u64) {
         assert!(super::fits(scene).is_some());
         for (next_event, importance, roulette, one_light, mis) in [
             (true, false, Roulette::Off, false, false),
@@ -1021,7 +1224,9 @@ mod tests {
             for group in [GROUP_LANES, 5, 2, 1] {
                 for one_pixel in [true, false] {
                     let samplers: Vec<Sampler> = (0..group as u32)
-                        .map(|k| if one_pixel { Sampler::new(7, 1, 2, k) } else { Sampler::new(7, k, 2, 3) })
+                        .map(|k| {
+                            if one_pixel { Sampler::new(seed, 1, 2, k) } else { Sampler::new(seed, k, 2, 3) }
+                        })
                         .collect();
                     let mut together = crate::integrator::Tracer::new(scene);
                     together.renderer = Renderer::Path(params);
@@ -1029,7 +1234,7 @@ mod tests {
                     together.camera_hits(&rays[..group], &mut hits[..group]);
                     let before = PATH_GROUPS.with(Cell::get);
                     let mut group_samplers = samplers.clone();
-                    let got = together.trace_primary_group(&rays, &hits[..group], &mut group_samplers);
+                    let got = together.trace_primary_group(rays, &hits[..group], &mut group_samplers);
                     assert_eq!(PATH_GROUPS.with(Cell::get), before + 1, "the group went side by side");
                     let mut alone = crate::integrator::Tracer::new(scene);
                     alone.renderer = Renderer::Path(params);
@@ -1057,14 +1262,71 @@ mod tests {
         }
     }
 
-    /// Scenes whose paths the lanes do not take: an object of mirror.
+    /// Mirrors, conductors and glass (with and without roughness and absorption) among the
+    /// plain materials: their lanes bounce one at a time, into and out of the glass, and every
+    /// path still gets its own radiance, numbers and rays, bit for bit, under each of the
+    /// shading rules that decide how glass is entered and which bounces count.
+    #[test]
+    fn specular_paths_side_by_side_trace_what_each_path_traces_alone() {
+        use crate::scene::{DielectricSides, PathDepth, ShadingRules};
+        let materials = r#"<Material id="5" type="dielectric"><SpecularReflectance>0.3 0.3 0.3</SpecularReflectance>
+                <PhongExponent>3</PhongExponent><AbsorptionCoefficient>0.4 0.1 0.01</AbsorptionCoefficient>
+                <RefractionIndex>1.5</RefractionIndex></Material>
+              <Material id="6" type="mirror"><DiffuseReflectance>0.7 0.5 0.5</DiffuseReflectance>
+                <MirrorReflectance>0.9 0.9 0.8</MirrorReflectance></Material>
+              <Material id="7" type="dielectric"><RefractionIndex>1.33</RefractionIndex>
+                <Roughness>0.1</Roughness></Material>
+              <Material id="8" type="conductor"><MirrorReflectance>1 0.86 0.57</MirrorReflectance>
+                <DiffuseReflectance>0.1 0.1 0.1</DiffuseReflectance><RefractionIndex>0.37</RefractionIndex>
+                <AbsorptionIndex>2.82</AbsorptionIndex><Roughness>0.05</Roughness></Material>"#;
+        let third = |m: u32| {
+            format!(
+                r#"<Sphere id="3"><Material>{m}</Material><Center>15</Center><Radius>0.3</Radius></Sphere>"#
+            )
+        };
+        // Camera rays at the upper halves of the second sphere (which the light sees) and the
+        // third, at a wall, and out of the box.
+        let eye = DVec3::new(0.0, -3.0, 0.0);
+        let towards = |c: DVec3, r: f64, n: DVec3| Ray::new(eye, (c + r * n.normalize() - eye).normalize());
+        let (second_at, third_at) = (DVec3::new(0.4, 0.2, -0.5), DVec3::new(0.6, 0.5, 0.6));
+        let rays: [Ray; GROUP_LANES] = [
+            towards(second_at, 0.29, DVec3::new(0.0, -0.5, 0.87)),
+            towards(second_at, 0.29, DVec3::new(0.4, -0.6, 0.7)),
+            towards(second_at, 0.29, DVec3::new(-0.5, -0.5, 0.7)),
+            towards(second_at, 0.29, DVec3::new(0.1, -0.2, 1.0)),
+            towards(third_at, 0.29, DVec3::new(0.0, -0.8, 0.6)),
+            towards(third_at, 0.2, DVec3::new(-0.3, -1.0, -0.2)),
+            Ray::new(eye, DVec3::new(-0.3, 1.0, 0.25).normalize()),
+            Ray::new(eye, DVec3::new(0.0, -1.0, 0.0)),
+        ];
+        let (turns, entries) = (TURNS.with(Cell::get), ENTRIES.with(Cell::get));
+        for (second, other) in [(6, 5), (8, 7)] {
+            for dielectric_sides in [DielectricSides::Flag, DielectricSides::FaceSide] {
+                for path_depth in [PathDepth::EveryBounce, PathDepth::DiffuseBounces, PathDepth::GlassOnce] {
+                    let mut scene = scene_with(materials, second, &third(other));
+                    scene.rules = ShadingRules { dielectric_sides, path_depth };
+                    let before = TURNS.with(Cell::get);
+                    for seed in 0..4 {
+                        side_by_side_matches_alone(&scene, &rays, seed);
+                    }
+                    assert!(TURNS.with(Cell::get) > before, "{second}, {other}: specular bounces");
+                }
+            }
+        }
+        assert!(TURNS.with(Cell::get) > turns, "the lanes bounced off mirrors and glass");
+        assert!(ENTRIES.with(Cell::get) > entries, "the lanes went into the glass");
+    }
+
+    /// Scenes whose paths the lanes do not take: an object of smooth shading.
     #[test]
     fn other_paths_go_one_by_one() {
         assert!(super::fits(&scene("", 4)).is_some());
-        // A material no object uses does not matter; one that an object uses does.
+        // A mirror fits.
         let mirror =
             r#"<Material id="5" type="mirror"><MirrorReflectance>1 1 1</MirrorReflectance></Material>"#;
-        assert!(super::fits(&scene(mirror, 4)).is_some());
-        assert!(super::fits(&scene(mirror, 5)).is_none());
+        assert!(super::fits(&scene(mirror, 5)).is_some());
+        let smooth =
+            r#"<Mesh id="9" shadingMode="smooth"><Material>1</Material><Faces>13 14 15</Faces></Mesh>"#;
+        assert!(super::fits(&scene_with("", 4, smooth)).is_none());
     }
 }
