@@ -17,7 +17,7 @@ use crate::scene::records::{
     DecalMode, EnvSampler, MAX_RECURSION_DEPTH_LIMIT, PathParams, Renderer, Roulette,
 };
 use crate::scene::{DielectricSides, PathDepth, Scene};
-use bounces::{brdf_bounce, density, glossy, mirror_choice};
+use bounces::{Arrival, brdf_bounce, brdf_chance, density, glossy, scatter};
 use direct::{
     BounceDensity, LightWeights, Lighting, LitPoint, ONE_LIGHT_REQUESTS, light_pdf, power_heuristic,
 };
@@ -487,18 +487,9 @@ impl<'a> Tracer<'a> {
             // way in), nothing without; dielectrics only on their outside (§15 #20).
             let shaded = !(mat.kind == MaterialKind::Dielectric && medium.is_some());
             let continues = counted < max_bounces && bounce < PATH_DEPTH_LIMIT;
-            // A mirror's or conductor's choice between its mirror lobe and its BRDF, when a
-            // bounce follows.
-            let mirror = (continues && matches!(mat.kind, MaterialKind::Mirror | MaterialKind::Conductor))
-                .then(|| mirror_choice(mat, d, n));
             if nee && shaded {
                 let weights = mis.then(|| {
-                    let chance = match (mat.kind, mirror) {
-                        _ if !continues => 0.0,
-                        (MaterialKind::Plain, _) => 1.0,
-                        (_, Some((_, p_spec))) => 1.0 - p_spec,
-                        _ => 0.0,
-                    };
+                    let chance = if continues { brdf_chance(mat, d, n) } else { 0.0 };
                     LightWeights { bounce: BounceDensity { cosine: params.importance, chance }, pick: 1.0 }
                 });
                 let pt = LitPoint { ray: &ray, x: hit.point, n, mat };
@@ -520,61 +511,32 @@ impl<'a> Tracer<'a> {
             if !continues {
                 break;
             }
-            let wo = -d;
             // Whether this bounce is a refraction out of a dielectric.
             let mut leaves = false;
-            match mat.kind {
-                MaterialKind::Dielectric => {
-                    let eta = mat.refraction_index;
-                    let entering = match scene.rules.dielectric_sides {
-                        DielectricSides::FaceSide => front,
-                        DielectricSides::Flag => medium.is_none(),
-                    };
-                    let (n1, n2) = if entering { (1.0, eta) } else { (eta, 1.0) };
-                    let reflected = glossy(reflect(d, n), mat.roughness, rng);
-                    let xi = rng.next_1d();
-                    ray = match refract(d, n, n1, n2) {
-                        Refraction::Split { fr, dir } if xi >= fr => {
-                            medium = if entering { Some(mat.absorption) } else { None };
-                            leaves = !entering;
-                            ray.spawn(hit.point - eps * n, glossy(dir, mat.roughness, rng))
-                        }
-                        _ => ray.spawn(hit.point + eps * n, reflected),
-                    };
-                    specular = true;
+            if mat.kind == MaterialKind::Plain {
+                let Some((wi, f, brdf)) = brdf_bounce(n, -d, mat, params.importance, rng) else { break };
+                beta *= f;
+                potential *= brdf;
+                drawn = mis.then(|| (hit.point, density(params.importance, n, wi)));
+                ray = ray.spawn(hit.point + eps * n, wi);
+                specular = false;
+            } else {
+                let at = Arrival { x: hit.point, n, shading_normal, d, front, inside: medium.is_some() };
+                let sides = scene.rules.dielectric_sides;
+                let Some(next) = scatter(mat, &at, sides, params.importance, eps, rng) else { break };
+                if let Some(w) = next.weight {
+                    beta *= w;
                 }
-                MaterialKind::Mirror | MaterialKind::Conductor => {
-                    let (weight, p_spec) = mirror.expect("chosen above for mirrors and conductors");
-                    let w_spec = weight.max_element();
-                    let xi = rng.next_1d();
-                    if xi < p_spec {
-                        if w_spec <= 0.0 {
-                            break;
-                        }
-                        beta *= weight / p_spec;
-                        // From the front side, as in the recursive renderer (§6.8).
-                        let o = hit.point + eps * shading_normal;
-                        ray = ray.spawn(o, glossy(reflect(d, n), mat.roughness, rng));
-                        specular = true;
-                    } else {
-                        let Some((wi, f, brdf)) = brdf_bounce(n, wo, mat, params.importance, rng) else {
-                            break;
-                        };
-                        beta *= f / (1.0 - p_spec);
-                        potential *= brdf;
-                        drawn = mis.then(|| (hit.point, (1.0 - p_spec) * density(params.importance, n, wi)));
-                        ray = ray.spawn(hit.point + eps * n, wi);
-                        specular = false;
-                    }
-                }
-                MaterialKind::Plain => {
-                    let Some((wi, f, brdf)) = brdf_bounce(n, wo, mat, params.importance, rng) else { break };
-                    beta *= f;
+                if let Some((brdf, pdf)) = next.brdf {
                     potential *= brdf;
-                    drawn = mis.then(|| (hit.point, density(params.importance, n, wi)));
-                    ray = ray.spawn(hit.point + eps * n, wi);
-                    specular = false;
+                    drawn = mis.then_some((hit.point, pdf));
                 }
+                if let Some(m) = next.refracted {
+                    medium = m;
+                }
+                leaves = next.leaves();
+                specular = next.specular();
+                ray = ray.spawn(next.origin, next.dir);
             }
             self.stats.secondary += 1;
             bounce += 1;

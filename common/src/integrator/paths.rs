@@ -26,17 +26,17 @@
 
 use glam::DVec3;
 
-use super::bounces::{brdf_bounce, density, glossy, mirror_choice};
+use super::bounces::{Arrival, brdf_chance, density, scatter};
 use super::direct::{
     BounceDensity, LightWeights, ONE_LIGHT_REQUESTS, draw_requests, light_pdf, power_heuristic,
 };
 use crate::geometry::{Axes, HitLanes, SurfaceHit};
 use crate::lights::{EmitterShape, ObjectLight};
-use crate::material::{Material, MaterialKind, Matte, MatteForm, Refraction, refract};
-use crate::math::{Ray, lanes, reflect, sincos_turns};
+use crate::material::{Material, MaterialKind, Matte, MatteForm};
+use crate::math::{Ray, lanes, sincos_turns};
 use crate::sampler::{GROUP_LANES, Sampler};
 use crate::scene::records::{MAX_RECURSION_DEPTH_LIMIT, PathParams, Roulette};
-use crate::scene::{DielectricSides, PathDepth, Scene};
+use crate::scene::{PathDepth, Scene};
 
 const N: usize = GROUP_LANES;
 
@@ -572,14 +572,7 @@ fn absorbed(mut beta: Axes, absorb: &[DVec3; N], t: &[f64; N], mask: u32) -> Axe
 #[inline(never)]
 fn specular_chances(sh: &Shading<'_>, d: &Axes, ns: &Axes, mask: u32, chance: &mut [f64; N]) {
     for k in lanes(mask) {
-        let mat = sh.mats[k];
-        chance[k] = match mat.kind {
-            MaterialKind::Mirror | MaterialKind::Conductor => {
-                1.0 - mirror_choice(mat, lane(d, k), lane(ns, k)).1
-            }
-            MaterialKind::Plain => 1.0,
-            MaterialKind::Dielectric => 0.0,
-        };
+        chance[k] = brdf_chance(sh.mats[k], lane(d, k), lane(ns, k));
     }
 }
 
@@ -603,79 +596,55 @@ fn specular_bounces(
     let mis = params.mis && params.next_event;
     let mut on = 0u32;
     for k in lanes(turned) {
-        let (mat, rng) = (sh.mats[k], &mut samplers[k]);
-        let (x, n, d) = (lane(&found.point, k), lane(ns, k), lane(&p.d, k));
         let bit = 1u32 << k;
-        let mut beta = lane(&p.beta, k);
-        let mut leaves = false;
-        let (origin, dir, specular) = match mat.kind {
-            MaterialKind::Dielectric => {
-                let eta = mat.refraction_index;
-                let entering = match scene.rules.dielectric_sides {
-                    DielectricSides::FaceSide => front[k],
-                    DielectricSides::Flag => p.inside & bit == 0,
-                };
-                let (n1, n2) = if entering { (1.0, eta) } else { (eta, 1.0) };
-                let reflected = glossy(reflect(d, n), mat.roughness, rng);
-                let xi = rng.next_1d();
-                match refract(d, n, n1, n2) {
-                    Refraction::Split { fr, dir } if xi >= fr => {
-                        if entering {
-                            #[cfg(test)]
-                            tests::ENTRIES.with(|c| c.set(c.get() + 1));
-                            p.inside |= bit;
-                            p.absorb[k] = mat.absorption;
-                        } else {
-                            p.inside &= !bit;
-                        }
-                        leaves = !entering;
-                        (x - eps * n, glossy(dir, mat.roughness, rng), true)
-                    }
-                    _ => (x + eps * n, reflected, true),
-                }
-            }
-            MaterialKind::Mirror | MaterialKind::Conductor => {
-                let (weight, p_spec) = mirror_choice(mat, d, n);
-                let w_spec = weight.max_element();
-                let xi = rng.next_1d();
-                if xi < p_spec {
-                    if w_spec <= 0.0 {
-                        continue;
-                    }
-                    beta *= weight / p_spec;
-                    // From the front side, as in the recursive renderer (§6.8).
-                    let o = x + eps * lane(&found.normal, k);
-                    (o, glossy(reflect(d, n), mat.roughness, rng), true)
-                } else {
-                    let Some((wi, f, brdf)) = brdf_bounce(n, -d, mat, params.importance, rng) else {
-                        continue;
-                    };
-                    beta *= f / (1.0 - p_spec);
-                    for a in 0..3 {
-                        p.potential[a][k] *= brdf[a];
-                    }
-                    if mis {
-                        p.drawn[k] = (1.0 - p_spec) * density(params.importance, n, wi);
-                        for a in 0..3 {
-                            p.from[a][k] = x[a];
-                        }
-                    }
-                    (x + eps * n, wi, false)
-                }
-            }
-            // Bounced side by side by the caller.
-            MaterialKind::Plain => continue,
+        let at = Arrival {
+            x: lane(&found.point, k),
+            n: lane(ns, k),
+            shading_normal: lane(&found.normal, k),
+            d: lane(&p.d, k),
+            front: front[k],
+            inside: p.inside & bit != 0,
         };
-        for a in 0..3 {
-            p.beta[a][k] = beta[a];
-            p.o[a][k] = origin[a];
-            p.d[a][k] = dir[a];
+        let sides = scene.rules.dielectric_sides;
+        let Some(next) = scatter(sh.mats[k], &at, sides, params.importance, eps, &mut samplers[k]) else {
+            continue;
+        };
+        if let Some(w) = next.weight {
+            for a in 0..3 {
+                p.beta[a][k] *= w[a];
+            }
         }
+        if let Some((brdf, pdf)) = next.brdf {
+            for a in 0..3 {
+                p.potential[a][k] *= brdf[a];
+            }
+            if mis {
+                p.drawn[k] = pdf;
+                for a in 0..3 {
+                    p.from[a][k] = at.x[a];
+                }
+            }
+        }
+        match next.refracted {
+            Some(Some(absorption)) => {
+                #[cfg(test)]
+                tests::ENTRIES.with(|c| c.set(c.get() + 1));
+                p.inside |= bit;
+                p.absorb[k] = absorption;
+            }
+            Some(None) => p.inside &= !bit,
+            None => {}
+        }
+        for a in 0..3 {
+            p.o[a][k] = next.origin[a];
+            p.d[a][k] = next.dir[a];
+        }
+        let specular = next.specular();
         p.specular = if specular { p.specular | bit } else { p.specular & !bit };
         p.counted[k] += match scene.rules.path_depth {
             PathDepth::EveryBounce => 1,
             PathDepth::DiffuseBounces => u32::from(!specular),
-            PathDepth::GlassOnce => u32::from(!leaves),
+            PathDepth::GlassOnce => u32::from(!next.leaves()),
         };
         on |= bit;
         #[cfg(test)]
