@@ -57,9 +57,9 @@ impl Scattered {
 /// at mirrors and conductors the mirror lobe or the BRDF, chosen by [`mirror_choice`]; at
 /// dielectrics reflection or refraction, chosen by the Fresnel reflectance, entering by the
 /// `sides` rule. New rays start `eps` off the surface. `None` ends the path (nothing is
-/// reflected that way). The tracer's paths and the path lanes bounce diffuse and glossy
-/// vertices with [`brdf_bounce`] themselves (an out-of-line call returning this record cost
-/// the one-by-one paths 3-4 %) and call it for the others.
+/// reflected that way). Its callers bounce diffuse and glossy vertices themselves (the
+/// tracer's paths with [`brdf_bounce`], to the same bits: an out-of-line call returning this
+/// record cost them 3-4 %; the path lanes side by side) and call it for the others.
 pub(super) fn scatter(
     mat: &Material,
     at: &Arrival,

@@ -341,9 +341,8 @@ impl<'a> PathLanes<'a> {
             }
             let mut dead = 0u32;
             for k in 0..N {
-                let b = &beta;
-                let zero = b[0][k] == 0.0 && b[1][k] == 0.0 && b[2][k] == 0.0;
-                let finite = b[0][k].is_finite() && b[1][k].is_finite() && b[2][k].is_finite();
+                let zero = beta[0][k] == 0.0 && beta[1][k] == 0.0 && beta[2][k] == 0.0;
+                let finite = beta[0][k].is_finite() && beta[1][k].is_finite() && beta[2][k].is_finite();
                 dead |= u32::from(zero || !finite) << k;
             }
             alive &= !dead;
@@ -526,7 +525,8 @@ impl<'a> PathLanes<'a> {
     }
 }
 
-/// The state of a group's paths besides their radiance, by axis then lane.
+/// The state of a group's paths besides their radiance, by axis then lane: what a specular
+/// vertex's bounce changes ([`specular_bounces`]).
 struct Paths {
     /// Throughput.
     beta: Axes,
