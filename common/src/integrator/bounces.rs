@@ -112,27 +112,34 @@ pub(super) fn scatter(
                     refracted: None,
                 })
             } else {
-                let (wi, f, brdf) = brdf_bounce(n, -d, mat, importance, rng)?;
-                Some(Scattered {
-                    origin: x + eps * n,
-                    dir: wi,
-                    weight: Some(f / (1.0 - p_spec)),
-                    brdf: Some((brdf, (1.0 - p_spec) * density(importance, n, wi))),
-                    refracted: None,
-                })
+                brdf_scattered(mat, at, 1.0 - p_spec, importance, eps, rng)
             }
         }
-        MaterialKind::Plain => {
-            let (wi, f, brdf) = brdf_bounce(n, -d, mat, importance, rng)?;
-            Some(Scattered {
-                origin: x + eps * n,
-                dir: wi,
-                weight: Some(f),
-                brdf: Some((brdf, density(importance, n, wi))),
-                refracted: None,
-            })
-        }
+        // (Dividing by a chance of 1 and multiplying by it are exact: the same bits as the
+        // callers' own diffuse bounces.)
+        MaterialKind::Plain => brdf_scattered(mat, at, 1.0, importance, eps, rng),
     }
+}
+
+/// A BRDF bounce from `at`, taken with probability `chance`: its throughput factor and density
+/// carry the chance.
+#[inline(always)]
+fn brdf_scattered(
+    mat: &Material,
+    at: &Arrival,
+    chance: f64,
+    importance: bool,
+    eps: f64,
+    rng: &mut Sampler,
+) -> Option<Scattered> {
+    let (wi, f, brdf) = brdf_bounce(at.n, -at.d, mat, importance, rng)?;
+    Some(Scattered {
+        origin: at.x + eps * at.n,
+        dir: wi,
+        weight: Some(f / chance),
+        brdf: Some((brdf, chance * density(importance, at.n, wi))),
+        refracted: None,
+    })
 }
 
 /// The chance that a path arriving along `d` at normal `n` (on its side) leaves by a BRDF
@@ -205,4 +212,55 @@ pub(super) fn glossy(r: DVec3, roughness: f64, rng: &mut Sampler) -> DVec3 {
     let (a, b) = rng.next_2d();
     let (a, b) = (a - 0.5, b - 0.5);
     (r + roughness * (a * u + b * v)).normalize()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// At a diffuse material `scatter` gives what the tracer's own diffuse bounce gives
+    /// (`brdf_bounce` from the normal's side, the factor and density as they are), bit for bit.
+    #[test]
+    fn a_diffuse_scatter_is_the_plain_brdf_bounce() {
+        let mat = Material {
+            kind: MaterialKind::Plain,
+            ambient: DVec3::ZERO,
+            diffuse: DVec3::new(0.5, 0.3, 0.2),
+            specular: DVec3::splat(0.2),
+            mirror: DVec3::ZERO,
+            phong_exponent: 12.0,
+            phong_exponent_int: Some(12),
+            refraction_index: 1.0,
+            absorption_index: 0.0,
+            absorption: DVec3::ZERO,
+            roughness: 0.0,
+            brdf: None,
+        };
+        let n = DVec3::new(0.2, -0.3, 0.9).normalize();
+        let at = Arrival {
+            x: DVec3::new(1.0, 2.0, 3.0),
+            n,
+            shading_normal: n,
+            d: DVec3::new(0.1, 0.4, -1.0).normalize(),
+            front: true,
+            inside: false,
+        };
+        for (importance, sample) in [(false, 0), (true, 1), (true, 5)] {
+            let rng = Sampler::new(11, 3, 4, sample);
+            let (mut a, mut b) = (rng.clone(), rng);
+            let got = scatter(&mat, &at, DielectricSides::Flag, importance, 1e-4, &mut a).unwrap();
+            let (wi, f, brdf) = brdf_bounce(n, -at.d, &mat, importance, &mut b).unwrap();
+            assert_eq!(got.dir, wi);
+            assert_eq!(got.origin, at.x + 1e-4 * n);
+            assert_eq!(
+                got.weight.map(|w| w.to_array().map(f64::to_bits)),
+                Some(f.to_array().map(f64::to_bits))
+            );
+            let (got_brdf, pdf) = got.brdf.unwrap();
+            assert_eq!(got_brdf, brdf);
+            assert_eq!(pdf.to_bits(), density(importance, n, wi).to_bits());
+            assert!(!got.specular() && !got.leaves());
+            assert_eq!(a.drawn(), b.drawn());
+        }
+    }
 }

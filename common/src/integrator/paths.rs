@@ -231,7 +231,8 @@ impl<'a> PathLanes<'a> {
                     continues |= u32::from(counted[k] < max_bounces) << k;
                 }
             }
-            // With `SampleOneLight`, each lane's light (drawn whatever its material reflects).
+            // With `SampleOneLight`, each lane's light (drawn wherever lights are sampled,
+            // whatever the material reflects).
             let picks = one_light.then(|| Picks::draw(scene, shaded, samplers));
             // With multiple importance sampling, the chance of a BRDF bounce that object
             // lights' samples are weighed against (none after the last vertex).
@@ -866,7 +867,7 @@ impl Picks {
     }
 }
 
-/// The tracer's `bounce` of every lane (materials in `sh`), the directions side by side (a
+/// [`super::bounces::brdf_bounce`] of every lane (materials in `sh`), the directions side by side (a
 /// loop of fixed length without branches, which the compiler makes vector code of): each
 /// lane's direction, throughput factor and the mask of lanes for which they are defined; with
 /// `brdf`, each lane's BRDF value there too (the course roulette's factor).
