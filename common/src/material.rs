@@ -262,6 +262,26 @@ pub struct Matte {
     pub form: MatteForm,
 }
 
+/// A material's [`Matte`] form where every material needs one, as the path lanes read it by
+/// material: the form, or zeros and `none` for a material without one. A lane copies it and
+/// tests `none` without a branch, where an `Option<Matte>` is matched with one.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MatteSlot {
+    pub matte: Matte,
+    pub none: bool,
+}
+
+impl MatteSlot {
+    pub const NONE: MatteSlot =
+        MatteSlot { matte: Matte { c: DVec3::ZERO, zero: DVec3::ZERO, form: MatteForm::Plain }, none: true };
+}
+
+impl From<Option<Matte>> for MatteSlot {
+    fn from(m: Option<Matte>) -> Self {
+        m.map_or(MatteSlot::NONE, |matte| MatteSlot { matte, none: false })
+    }
+}
+
 /// How a [`Matte`] material's coefficient meets the cosine.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum MatteForm {

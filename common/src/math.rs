@@ -387,6 +387,21 @@ pub fn lanes(mut mask: u32) -> impl Iterator<Item = usize> {
     })
 }
 
+/// Each of eight lanes as a word of all ones where `mask` has its bit, of zeros elsewhere:
+/// what [`pick`] selects with. Lane masks made from a bit mask by comparisons compile, in some
+/// loops, to a branch per lane, which random lanes mispredict about one time in three.
+#[inline(always)]
+pub fn lane_words(mask: u32) -> [u64; 8] {
+    std::array::from_fn(|k| 0u64.wrapping_sub(u64::from((mask >> k) & 1)))
+}
+
+/// `a` where `word` (one of [`lane_words`]) is all ones, `b` where it is zero, by their bits
+/// (NaNs and signed zeros pass as they are), without a branch.
+#[inline(always)]
+pub fn pick(word: u64, a: f64, b: f64) -> f64 {
+    f64::from_bits((a.to_bits() & word) | (b.to_bits() & !word))
+}
+
 /// Converts a `[f64; 3]` record value into a vector.
 #[inline]
 pub fn v3(a: [f64; 3]) -> DVec3 {
@@ -407,6 +422,22 @@ mod tests {
         }
         prefetch::<u8>(&[], 0);
         assert!(v.iter().all(|&x| x == 1.0));
+    }
+
+    /// `pick` gives the bits of the lane's chosen value, whatever they are, for every mask.
+    #[test]
+    fn lane_words_pick_each_lane_by_its_bit() {
+        let a = [1.5, f64::NAN, -0.0, f64::INFINITY, 2.0, -3.0, 0.0, f64::MIN_POSITIVE];
+        let b = [-1.0, 0.0, 0.0, f64::NEG_INFINITY, f64::NAN, 7.0, -0.0, 9.0];
+        for mask in 0..256u32 {
+            let words = lane_words(mask);
+            for k in 0..8 {
+                let want = if mask & (1 << k) != 0 { a[k] } else { b[k] };
+                assert_eq!(pick(words[k], a[k], b[k]).to_bits(), want.to_bits(), "mask {mask:#b}, lane {k}");
+            }
+        }
+        // Bits beyond the eighth lane are ignored.
+        assert_eq!(lane_words(0xffff_ff00), [0; 8]);
     }
 
     #[test]

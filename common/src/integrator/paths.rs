@@ -32,18 +32,18 @@ use super::direct::{
 };
 use crate::geometry::{Axes, HitLanes, SurfaceHit};
 use crate::lights::{EmitterShape, ObjectLight};
-use crate::material::{Material, MaterialKind, Matte, MatteForm};
-use crate::math::{Ray, lanes, sincos_turns};
+use crate::material::{Material, MaterialKind, MatteForm, MatteSlot};
+use crate::math::{Ray, lane_words, lanes, pick, sincos_turns};
 use crate::sampler::{GROUP_LANES, Sampler};
 use crate::scene::records::{MAX_RECURSION_DEPTH_LIMIT, PathParams, Roulette};
 use crate::scene::{PathDepth, Scene};
 
 const N: usize = GROUP_LANES;
 
-/// Each lane's material and, when it has one, its matte form.
+/// Each lane's material and its matte form, if it has one.
 struct Shading<'m> {
     mats: [&'m Material; N],
-    matte: [Option<Matte>; N],
+    matte: [MatteSlot; N],
 }
 
 impl Shading<'_> {
@@ -51,8 +51,8 @@ impl Shading<'_> {
     #[inline(always)]
     fn reflectance(&self, k: usize, n: DVec3, wi: DVec3, wo: DVec3) -> DVec3 {
         match &self.matte[k] {
-            Some(m) => m.at(n.dot(wi)),
-            None => self.mats[k].reflectance(n, wi, wo),
+            MatteSlot { none: true, .. } => self.mats[k].reflectance(n, wi, wo),
+            MatteSlot { matte, .. } => matte.at(n.dot(wi)),
         }
     }
 }
@@ -61,7 +61,7 @@ impl Shading<'_> {
 /// its paths (see the module's documentation); `None` when they go one by one. Every path
 /// estimator takes the lanes, so this depends on the scene alone, and is worked out once per
 /// scene, on the first call.
-pub fn fits(scene: &Scene) -> Option<&[Option<Matte>]> {
+pub fn fits(scene: &Scene) -> Option<&[MatteSlot]> {
     let mattes = scene.path_lanes.get_or_init(|| {
         let fit = scene.env_light.is_none()
             && scene.extra_env_lights.is_empty()
@@ -70,7 +70,7 @@ pub fn fits(scene: &Scene) -> Option<&[Option<Matte>]> {
             && scene.spot_lights.is_empty()
             && scene.accel.lanes_fit()
             && scene.accel.instances.iter().all(|i| scene.materials.get(i.material as usize).is_some());
-        fit.then(|| scene.materials.iter().map(Material::matte).collect())
+        fit.then(|| scene.materials.iter().map(|m| MatteSlot::from(m.matte())).collect())
     });
     mattes.as_deref()
 }
@@ -87,7 +87,7 @@ pub struct Counts {
 pub struct PathLanes<'a> {
     pub scene: &'a Scene,
     /// Each material's [`Matte`] form ([`fits`]).
-    pub mattes: &'a [Option<Matte>],
+    pub mattes: &'a [MatteSlot],
     /// What rays that miss everything see (the tracer's background for the current pixel).
     pub background: DVec3,
     /// The rays traced so far.
@@ -160,10 +160,10 @@ impl<'a> PathLanes<'a> {
         loop {
             let misses = alive & !found.mask;
             if misses != 0 {
-                for k in 0..N {
-                    let on = misses & (1 << k) != 0;
-                    for a in 0..3 {
-                        l[a][k] = if on { l[a][k] + beta[a][k] * bg[a] } else { l[a][k] };
+                let on = lane_words(misses);
+                for a in 0..3 {
+                    for k in 0..N {
+                        l[a][k] = pick(on[k], l[a][k] + beta[a][k] * bg[a], l[a][k]);
                     }
                 }
             }
@@ -191,7 +191,7 @@ impl<'a> PathLanes<'a> {
             // against the light's own samples) and the ambient term.
             let mut local = [[0.0; N]; 3];
             let lead = found.material[alive.trailing_zeros() as usize] as usize;
-            let mut sh = Shading { mats: [&scene.materials[lead]; N], matte: [None; N] };
+            let mut sh = Shading { mats: [&scene.materials[lead]; N], matte: [MatteSlot::NONE; N] };
             // The lanes whose vertex is diffuse or glossy, and those whose lights are sampled
             // (every one but a dielectric seen from inside).
             let (mut plain, mut shaded) = (0u32, 0u32);
@@ -224,6 +224,9 @@ impl<'a> PathLanes<'a> {
                 let reflects = mat.diffuse != DVec3::ZERO || mat.specular != DVec3::ZERO;
                 live |= u32::from(lit && reflects) << k;
             }
+            // The matte coefficients of the lanes whose lights are sampled or that bounce off a
+            // diffuse or glossy surface, for both.
+            let matte = MatteLanes::of(&sh, alive & (live | plain));
             // The lanes whose paths go on after this vertex.
             let mut continues = 0u32;
             if bounce < MAX_RECURSION_DEPTH_LIMIT {
@@ -252,7 +255,16 @@ impl<'a> PathLanes<'a> {
             }
             // (Zero where nothing is reflected, added all the same: the same sums as alone.)
             let lit = if nee && live != 0 {
-                self.lights_of_lanes(&found.point, &ns, &wo, &sh, live, picks.as_ref(), weigh, samplers)
+                self.lights_of_lanes(
+                    &found.point,
+                    &ns,
+                    &wo,
+                    (&sh, &matte),
+                    live,
+                    picks.as_ref(),
+                    weigh,
+                    samplers,
+                )
             } else {
                 [[0.0; N]; 3]
             };
@@ -274,11 +286,11 @@ impl<'a> PathLanes<'a> {
                     }
                 }
             }
-            for k in 0..N {
-                let on = alive & (1 << k) != 0;
-                for a in 0..3 {
+            let on = lane_words(alive);
+            for a in 0..3 {
+                for k in 0..N {
                     let local_k = local[a][k] + lit[a][k];
-                    l[a][k] = if on { l[a][k] + beta[a][k] * local_k } else { l[a][k] };
+                    l[a][k] = pick(on[k], l[a][k] + beta[a][k] * local_k, l[a][k]);
                 }
             }
             alive &= continues;
@@ -290,18 +302,21 @@ impl<'a> PathLanes<'a> {
             let u = draw_requests::<N, 1>(samplers, bent);
             let course = params.roulette == Roulette::Course;
             let mut brdf = [[0.0; N]; 3];
-            let (wi, f, ok) = bounce_lanes(&ns, &wo, &sh, params.importance, course.then_some(&mut brdf), &u);
+            let (wi, f, ok) =
+                bounce_lanes(&ns, &wo, (&sh, &matte), params.importance, course.then_some(&mut brdf), &u);
             let bent = bent & ok;
             alive &= ok | !plain;
-            for k in 0..N {
-                let on = bent & (1 << k) != 0;
-                for a in 0..3 {
-                    beta[a][k] = if on { beta[a][k] * f[a][k] } else { beta[a][k] };
+            let on = lane_words(bent);
+            for a in 0..3 {
+                for k in 0..N {
+                    beta[a][k] = pick(on[k], beta[a][k] * f[a][k], beta[a][k]);
                     let origin = found.point[a][k] + eps * ns[a][k];
-                    o[a][k] = if on { origin } else { o[a][k] };
-                    d[a][k] = if on { wi[a][k] } else { d[a][k] };
+                    o[a][k] = pick(on[k], origin, o[a][k]);
+                    d[a][k] = pick(on[k], wi[a][k], d[a][k]);
                 }
-                counted[k] += u32::from(on);
+            }
+            for (k, c) in counted.iter_mut().enumerate() {
+                *c += (bent >> k) & 1;
             }
             specular &= !bent;
             if course {
@@ -373,7 +388,7 @@ impl<'a> PathLanes<'a> {
         xs: &Axes,
         ns: &Axes,
         wo: &[DVec3; N],
-        sh: &Shading<'_>,
+        (sh, matte): (&Shading<'_>, &MatteLanes),
         live: u32,
         picks: Option<&Picks>,
         weigh: Option<(bool, [f64; N])>,
@@ -391,7 +406,7 @@ impl<'a> PathLanes<'a> {
         // With multiple importance sampling, whether bounces are cosine-distributed, each
         // lane's chance of a BRDF bounce and its chance of its light.
         let weigh = weigh.map(|(cosine, chance)| (cosine, chance, picks.map_or([1.0; N], |p| p.p)));
-        let at = Vertices { xs, ns, origin: &origin, wo, sh, matte: MatteLanes::of(sh, live), weigh };
+        let at = Vertices { xs, ns, origin: &origin, wo, sh, matte, weigh };
         let mut l = [[0.0; N]; 3];
         // The lanes that sample light number `i` (numbered as `LightChoice` numbers them).
         let lit_by = |i: usize| picks.map_or(live, |p| live & p.of(i));
@@ -451,11 +466,11 @@ impl<'a> PathLanes<'a> {
         let tmin = self.scene.intersection_test_epsilon;
         let clear = self.clear_lanes_of(at.origin, &mut s.dir, &s.far, s.mask, tmin);
         let f = at.matte.reflectance(at.sh, at.ns, &s.wi, at.wo);
-        for k in 0..N {
-            let on = clear & (1 << k) != 0;
-            for a in 0..3 {
+        let on = lane_words(clear);
+        for a in 0..3 {
+            for k in 0..N {
                 let add = l[a][k] + f[a][k] * s.e[a][k];
-                l[a][k] = if on { add } else { l[a][k] };
+                l[a][k] = pick(on[k], add, l[a][k]);
             }
         }
     }
@@ -719,7 +734,8 @@ struct Vertices<'v, 'm> {
     /// Towards each lane's viewer.
     wo: &'v [DVec3; N],
     sh: &'v Shading<'m>,
-    matte: MatteLanes,
+    /// The lanes' matte coefficients (those of `live`, at least).
+    matte: &'v MatteLanes,
     /// With multiple importance sampling, what object lights' samples are weighed against:
     /// whether bounces are cosine-distributed, each lane's chance of a BRDF bounce, and the
     /// probability with which each lane's light was chosen.
@@ -875,9 +891,9 @@ impl Picks {
 fn bounce_lanes(
     ns: &Axes,
     wo: &[DVec3; N],
-    sh: &Shading<'_>,
+    (sh, matte): (&Shading<'_>, &MatteLanes),
     importance: bool,
-    mut brdf: Option<&mut Axes>,
+    brdf: Option<&mut Axes>,
     u: &[[(f64, f64); 1]; N],
 ) -> (Axes, Axes, u32) {
     let mut wi = [[0.0; N]; 3];
@@ -906,24 +922,27 @@ fn bounce_lanes(
             wi[ax][k] = w[ax];
         }
     }
+    // Every lane's BRDF value side by side (the lanes below the surface, or unused, compute
+    // one that is not kept).
+    let f_cos = matte.reflectance(sh, ns, &wi, wo);
+    let up: [u64; N] = std::array::from_fn(|k| 0u64.wrapping_sub(u64::from((cos_t[k] > 0.0) | cos_t[k].is_nan())));
     let mut f = [[0.0; N]; 3];
-    let mut ok = 0u32;
-    for k in 0..N {
-        if cos_t[k] <= 0.0 {
-            continue;
+    for ax in 0..3 {
+        for k in 0..N {
+            f[ax][k] = pick(up[k], f_cos[ax][k] / pdf[k], 0.0);
         }
-        let f_cos = sh.reflectance(k, lane(ns, k), lane(&wi, k), wo[k]);
-        let fk = f_cos / pdf[k];
-        if let Some(brdf) = brdf.as_deref_mut() {
-            let bk = f_cos / cos_t[k];
-            for ax in 0..3 {
-                brdf[ax][k] = bk[ax];
+    }
+    if let Some(brdf) = brdf {
+        for ax in 0..3 {
+            for k in 0..N {
+                brdf[ax][k] = pick(up[k], f_cos[ax][k] / cos_t[k], brdf[ax][k]);
             }
         }
-        for ax in 0..3 {
-            f[ax][k] = fk[ax];
-        }
-        ok |= u32::from(fk != DVec3::ZERO && fk.is_finite()) << k;
+    }
+    let mut ok = 0u32;
+    for k in 0..N {
+        let fk = lane(&f, k);
+        ok |= u32::from(up[k] != 0 && fk != DVec3::ZERO && fk.is_finite()) << k;
     }
     (wi, f, ok)
 }
@@ -1005,18 +1024,16 @@ impl MatteLanes {
     fn of(sh: &Shading<'_>, live: u32) -> Self {
         let mut m = MatteLanes { c: [[0.0; N]; 3], zero: [[0.0; N]; 3], checked: 0, plus_zero: 0, other: 0 };
         for k in 0..N {
-            match &sh.matte[k] {
-                Some(mt) => {
-                    for a in 0..3 {
-                        m.c[a][k] = mt.c[a];
-                        m.zero[a][k] = mt.zero[a];
-                    }
-                    m.checked |= u32::from(mt.form != MatteForm::Plain) << k;
-                    m.plus_zero |= u32::from(mt.form == MatteForm::CheckedPlusZero) << k;
-                }
-                None => m.other |= live & 1 << k,
+            let MatteSlot { matte: mt, none } = &sh.matte[k];
+            for a in 0..3 {
+                m.c[a][k] = mt.c[a];
+                m.zero[a][k] = mt.zero[a];
             }
+            m.checked |= u32::from(mt.form != MatteForm::Plain) << k;
+            m.plus_zero |= u32::from(mt.form == MatteForm::CheckedPlusZero) << k;
+            m.other |= u32::from(*none) << k;
         }
+        m.other &= live;
         m
     }
 
@@ -1025,14 +1042,18 @@ impl MatteLanes {
     #[inline(always)]
     fn reflectance(&self, sh: &Shading<'_>, n: &Axes, wi: &Axes, wo: &[DVec3; N]) -> Axes {
         let mut f = [[0.0; N]; 3];
+        let (checked, plus) = (lane_words(self.checked), lane_words(self.plus_zero));
+        let mut cos = [0.0; N];
+        let mut below = [0u64; N];
         for k in 0..N {
-            let cos = (n[0][k] * wi[0][k]) + (n[1][k] * wi[1][k]) + (n[2][k] * wi[2][k]);
-            let below = self.checked & (1 << k) != 0 && (cos.is_nan() || cos <= 0.0);
-            let plus = self.plus_zero & (1 << k) != 0;
-            for a in 0..3 {
-                let v = self.c[a][k] * cos;
-                let v = if plus { v + self.zero[a][k] } else { v };
-                f[a][k] = if below { 0.0 } else { v };
+            cos[k] = (n[0][k] * wi[0][k]) + (n[1][k] * wi[1][k]) + (n[2][k] * wi[2][k]);
+            below[k] = checked[k] & 0u64.wrapping_sub(u64::from(cos[k].is_nan() | (cos[k] <= 0.0)));
+        }
+        for a in 0..3 {
+            for k in 0..N {
+                let v = self.c[a][k] * cos[k];
+                let v = pick(plus[k], v + self.zero[a][k], v);
+                f[a][k] = pick(below[k], 0.0, v);
             }
         }
         for k in lanes(self.other) {
@@ -1056,12 +1077,12 @@ fn lane(v: &Axes, k: usize) -> DVec3 {
 #[inline(always)]
 fn fill_unused(o: &mut Axes, d: &mut Axes, mask: u32) {
     let first = mask.trailing_zeros() as usize;
-    for k in 0..N {
-        if mask & (1 << k) == 0 {
-            for a in 0..3 {
-                o[a][k] = o[a][first];
-                d[a][k] = d[a][first];
-            }
+    let used = lane_words(mask);
+    for a in 0..3 {
+        let (of, df) = (o[a][first], d[a][first]);
+        for k in 0..N {
+            o[a][k] = pick(used[k], o[a][k], of);
+            d[a][k] = pick(used[k], d[a][k], df);
         }
     }
 }

@@ -124,7 +124,7 @@ pub struct Scene {
     /// Each material's matte form when the scene's paths go side by side, `None` when they go
     /// one by one: worked out by `integrator::paths::fits` on its first call, from the scene as
     /// it is then (a scene is not changed once built).
-    pub path_lanes: std::sync::OnceLock<Option<Vec<Option<crate::material::Matte>>>>,
+    pub path_lanes: std::sync::OnceLock<Option<Vec<crate::material::MatteSlot>>>,
 }
 
 impl Scene {
