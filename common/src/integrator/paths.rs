@@ -357,9 +357,9 @@ impl<'a> PathLanes<'a> {
             }
             let mut dead = 0u32;
             for k in 0..N {
-                let zero = beta[0][k] == 0.0 && beta[1][k] == 0.0 && beta[2][k] == 0.0;
-                let finite = beta[0][k].is_finite() && beta[1][k].is_finite() && beta[2][k].is_finite();
-                dead |= u32::from(zero || !finite) << k;
+                let zero = (beta[0][k] == 0.0) & (beta[1][k] == 0.0) & (beta[2][k] == 0.0);
+                let finite = beta[0][k].is_finite() & beta[1][k].is_finite() & beta[2][k].is_finite();
+                dead |= u32::from(zero | !finite) << k;
             }
             alive &= !dead;
             bounce += 1;
@@ -925,7 +925,8 @@ fn bounce_lanes(
     // Every lane's BRDF value side by side (the lanes below the surface, or unused, compute
     // one that is not kept).
     let f_cos = matte.reflectance(sh, ns, &wi, wo);
-    let up: [u64; N] = std::array::from_fn(|k| 0u64.wrapping_sub(u64::from((cos_t[k] > 0.0) | cos_t[k].is_nan())));
+    let up: [u64; N] =
+        std::array::from_fn(|k| 0u64.wrapping_sub(u64::from((cos_t[k] > 0.0) | cos_t[k].is_nan())));
     let mut f = [[0.0; N]; 3];
     for ax in 0..3 {
         for k in 0..N {
@@ -941,8 +942,10 @@ fn bounce_lanes(
     }
     let mut ok = 0u32;
     for k in 0..N {
-        let fk = lane(&f, k);
-        ok |= u32::from(up[k] != 0 && fk != DVec3::ZERO && fk.is_finite()) << k;
+        // `fk != 0 && fk.is_finite()`, without short-circuits.
+        let nonzero = (f[0][k] != 0.0) | (f[1][k] != 0.0) | (f[2][k] != 0.0);
+        let finite = f[0][k].is_finite() & f[1][k].is_finite() & f[2][k].is_finite();
+        ok |= u32::from((up[k] != 0) & nonzero & finite) << k;
     }
     (wi, f, ok)
 }
