@@ -27,7 +27,7 @@ use crate::math::{Ray, Transform, pick};
 use bvh8::{BoxRays8, Bvh8, Lanes8, Packet8, Ray8};
 pub use mesh::MeshGeom;
 pub use rays::{Axes, HitLanes, RayLanes};
-use shapes::{plane_t, plane_uv_frame, sphere_lanes, sphere_t, sphere_uv_frame};
+use shapes::{plane_t, plane_uv_frame, sphere_lanes, sphere_may_block, sphere_t, sphere_uv_frame};
 
 /// What an instance is made of.
 #[derive(Clone, Debug)]
@@ -341,6 +341,9 @@ impl Accel {
                 break;
             }
             let Some((center, radius)) = self.world_sphere(idx) else { continue };
+            if sphere_may_block(center, radius, o, d, tmin, far) & mask & !blocked == 0 {
+                continue;
+            }
             let ts = sphere_lanes(center, radius, None, o, d, tmin, far);
             for (k, t) in ts.iter().enumerate() {
                 blocked |= u32::from(*t < f64::INFINITY) << k;
@@ -1895,6 +1898,94 @@ mod tests {
             }
         }
         assert!(hits > 200 && misses > 100, "{hits} hits, {misses} misses");
+    }
+
+    /// The shadow rays' cull before a sphere's exact test drops only lanes the exact test
+    /// misses: rays grazing the sphere, segments ending just before, at and just after a root,
+    /// origins on the surface heading away or along it, tiny and huge spheres far from the
+    /// origin, NaN lanes. And it does drop the rays that pass far from the sphere.
+    #[test]
+    fn the_sphere_cull_keeps_every_lane_the_exact_test_hits() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let (mut kept_hits, mut dropped) = (0, 0);
+        for (center, radius) in [
+            (DVec3::new(0.5, -0.25, 1.0), 1.5),
+            (DVec3::new(1e5, -3e4, 2e5), 1e-3),
+            (DVec3::new(-7.0, 2.0, 0.0), 1e4),
+            (DVec3::new(0.0, 0.0, 0.0), 0.3),
+        ] {
+            for round in 0..400 {
+                let mut o = [[0.0; 8]; 3];
+                let mut d = [[0.0; 8]; 3];
+                let mut tmax = [0.0; 8];
+                for l in 0..8 {
+                    let unit = DVec3::new(next(), next(), next()).normalize();
+                    let (origin, dir, far) = match (round + l) % 4 {
+                        // Towards a point just inside or outside the surface, the segment
+                        // ending anywhere from well before to well after the sphere.
+                        0 => {
+                            let aim = center + unit * radius * (1.0 + next() * 1e-9);
+                            let origin = aim + DVec3::new(next(), next(), next()).normalize() * radius * 3.0;
+                            let dir = (aim - origin).normalize();
+                            (origin, dir, (aim - origin).length() * (1.0 + next() * 0.5))
+                        }
+                        // From the surface (a shading point), heading out, along or in.
+                        1 => {
+                            let origin = center + unit * radius;
+                            let dir = (unit * next() + DVec3::new(next(), next(), next())).normalize();
+                            (origin, dir, radius * (2.0 + next()))
+                        }
+                        // Far from the sphere, heading anywhere.
+                        2 => {
+                            let origin = center + unit * radius * 50.0;
+                            let dir = DVec3::new(next(), next(), next()).normalize();
+                            (origin, dir, radius * 10.0 * (1.0 + next()))
+                        }
+                        // Through the sphere, the far bound near the first root.
+                        _ => {
+                            let origin = center + unit * radius * 4.0;
+                            let aim = center + DVec3::new(next(), next(), next()) * radius * 0.5;
+                            let dir = (aim - origin).normalize();
+                            let ray = Ray::new(origin, dir);
+                            let root = sphere_t(center, radius, &ray, 1e-9, f64::INFINITY).unwrap_or(1.0);
+                            let ulps = (next() * 4.0).round() as i64;
+                            (origin, dir, f64::from_bits((root.to_bits() as i64 + ulps) as u64))
+                        }
+                    };
+                    for a in 0..3 {
+                        o[a][l] = origin[a];
+                        d[a][l] = dir[a];
+                    }
+                    tmax[l] = far;
+                }
+                if round == 7 {
+                    o[0][3] = f64::NAN;
+                    tmax[5] = f64::INFINITY;
+                    tmax[6] = f64::NAN;
+                }
+                let tmin = 1e-9 * radius;
+                let kept = sphere_may_block(center, radius, &o, &d, tmin, &tmax);
+                let exact = sphere_lanes(center, radius, None, &o, &d, tmin, &tmax);
+                for (l, &t) in exact.iter().enumerate() {
+                    if t < f64::INFINITY {
+                        assert!(
+                            kept & (1 << l) != 0,
+                            "lane {l} of round {round} hits at {t} but was dropped"
+                        );
+                        kept_hits += 1;
+                    } else if kept & (1 << l) == 0 {
+                        dropped += 1;
+                    }
+                }
+            }
+        }
+        assert!(kept_hits > 1500 && dropped > 1500, "{kept_hits} hits kept, {dropped} misses dropped");
     }
 
     #[test]

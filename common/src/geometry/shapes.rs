@@ -89,6 +89,36 @@ pub(super) fn sphere_lanes(
     out
 }
 
+/// The lanes whose segments (`tmin`, `tmax[lane]`) along unit directions may meet the sphere:
+/// a lane left out is one [`sphere_lanes`] answers `INFINITY` for. A lane is left out only
+/// when the segment's nearest point to the centre lies outside the sphere by a margin a
+/// billion times the rounding of `sphere_lanes`' roots (which then lie at least that margin
+/// beyond the segment's ends); NaNs keep a lane. No square root or division.
+#[inline(always)]
+pub(super) fn sphere_may_block(
+    center: DVec3,
+    radius: f64,
+    o: &[[f64; 8]; 3],
+    d: &[[f64; 8]; 3],
+    tmin: f64,
+    tmax: &[f64; 8],
+) -> u32 {
+    let r2 = radius * radius;
+    let mut near = [false; 8];
+    for lane in 0..8 {
+        let oc = [o[0][lane] - center.x, o[1][lane] - center.y, o[2][lane] - center.z];
+        let tc = -(oc[0] * d[0][lane] + oc[1] * d[1][lane] + oc[2] * d[2][lane]);
+        let t = tc.max(tmin).min(tmax[lane]);
+        let p = [oc[0] + d[0][lane] * t, oc[1] + d[1][lane] * t, oc[2] + d[2][lane] * t];
+        let dist2 = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
+        let scale = oc[0] * oc[0] + oc[1] * oc[1] + oc[2] * oc[2] + r2 + t * t;
+        let bound = r2 + 1e-9 * scale;
+        // Kept unless clearly outside; NaN keeps it.
+        near[lane] = (dist2 <= bound) | dist2.is_nan() | bound.is_nan();
+    }
+    (0..8).fold(0, |m, k| m | u32::from(near[k]) << k)
+}
+
 /// Distance in (tmin, tmax) to the plane through `point` with normal `normal`, in the ray's own
 /// space; `None` for rays parallel to it.
 #[inline]
