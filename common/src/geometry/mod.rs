@@ -261,8 +261,9 @@ impl Accel {
 
     /// The closest hits with `t` in (tmin, ∞) of the rays of `mask` (origins `o`, unit
     /// directions `d`; other lanes must hold finite rays, whose answers are not read). The
-    /// scene must [`Self::lanes_fit`].
-    pub fn closest_lanes(&self, o: &Axes, d: &Axes, mask: u32, tmin: f64) -> HitLanes {
+    /// scene must [`Self::lanes_fit`]. Written into `out` (every field), not returned: a
+    /// returned record is copied once more.
+    pub fn closest_lanes(&self, o: &Axes, d: &Axes, mask: u32, tmin: f64, out: &mut HitLanes) {
         let mut t = [f64::INFINITY; 8];
         let mut instance = [u32::MAX; 8];
         let mut merged = [u32::MAX; 8];
@@ -288,14 +289,13 @@ impl Accel {
                 merged[k] = if nearer { u32::MAX } else { merged[k] };
             }
         }
-        let mut out = HitLanes {
-            mask: 0,
-            point: [[0.0; 8]; 3],
-            normal: [[0.0; 8]; 3],
-            t: [0.0; 8],
-            material: [0; 8],
-            instance,
-        };
+        // Field by field: a whole record built and assigned is a copy.
+        out.mask = 0;
+        out.point = [[0.0; 8]; 3];
+        out.normal = [[0.0; 8]; 3];
+        out.t = [0.0; 8];
+        out.material = [0; 8];
+        out.instance = instance;
         for k in crate::math::lanes(mask) {
             if instance[k] == u32::MAX {
                 continue;
@@ -321,7 +321,6 @@ impl Accel {
                 out.normal[a][k] = n[a];
             }
         }
-        out
     }
 
     /// The lanes of `mask` whose rays (origins `o`, unit directions `d`) are blocked within

@@ -43,14 +43,14 @@ const N: usize = GROUP_LANES;
 /// Each lane's material and its matte form, if it has one.
 struct Shading<'m> {
     mats: [&'m Material; N],
-    matte: [MatteSlot; N],
+    matte: [&'m MatteSlot; N],
 }
 
 impl Shading<'_> {
     /// Lane `k`'s [`Material::reflectance`] at normal `n`, from `wi` towards `wo`.
     #[inline(always)]
     fn reflectance(&self, k: usize, n: DVec3, wi: DVec3, wo: DVec3) -> DVec3 {
-        match &self.matte[k] {
+        match self.matte[k] {
             MatteSlot { none: true, .. } => self.mats[k].reflectance(n, wi, wo),
             MatteSlot { matte, .. } => matte.at(n.dot(wi)),
         }
@@ -190,8 +190,13 @@ impl<'a> PathLanes<'a> {
             // without next-event estimation; with multiple importance sampling, weighed
             // against the light's own samples) and the ambient term.
             let mut local = [[0.0; N]; 3];
-            let lead = found.material[alive.trailing_zeros() as usize] as usize;
-            let mut sh = Shading { mats: [&scene.materials[lead]; N], matte: [MatteSlot::NONE; N] };
+            // (Every lane's, from the materials of the hits: a lane that hit nothing has 0,
+            // and some lane hit, so there is a material 0. Filled in place, not copied from a
+            // default.)
+            let sh = Shading {
+                mats: std::array::from_fn(|k| &scene.materials[found.material[k] as usize]),
+                matte: std::array::from_fn(|k| &self.mattes[found.material[k] as usize]),
+            };
             // The lanes whose vertex is diffuse or glossy, and those whose lights are sampled
             // (every one but a dielectric seen from inside).
             let (mut plain, mut shaded) = (0u32, 0u32);
@@ -216,8 +221,6 @@ impl<'a> PathLanes<'a> {
                         local[a][k] += ambient[a];
                     }
                 }
-                sh.mats[k] = mat;
-                sh.matte[k] = self.mattes[found.material[k] as usize];
                 plain |= u32::from(mat.kind == MaterialKind::Plain) << k;
                 let lit = !(mat.kind == MaterialKind::Dielectric && inside & (1 << k) != 0);
                 shaded |= u32::from(lit) << k;
@@ -367,7 +370,7 @@ impl<'a> PathLanes<'a> {
                 break;
             }
             fill_unused(&mut o, &mut d, alive);
-            found = scene.accel.closest_lanes(&o, &d, alive, tmin);
+            scene.accel.closest_lanes(&o, &d, alive, tmin, &mut found);
         }
         std::array::from_fn(|k| lane(&l, k))
     }
@@ -1027,7 +1030,7 @@ impl MatteLanes {
     fn of(sh: &Shading<'_>, live: u32) -> Self {
         let mut m = MatteLanes { c: [[0.0; N]; 3], zero: [[0.0; N]; 3], checked: 0, plus_zero: 0, other: 0 };
         for k in 0..N {
-            let MatteSlot { matte: mt, none } = &sh.matte[k];
+            let MatteSlot { matte: mt, none } = sh.matte[k];
             for a in 0..3 {
                 m.c[a][k] = mt.c[a];
                 m.zero[a][k] = mt.zero[a];
