@@ -57,7 +57,7 @@ impl Shading<'_> {
     }
 }
 
-/// Each of `scene`'s materials' [`Matte`] form, by index, when [`PathLanes::trace`] traces
+/// Each of `scene`'s materials' [`MatteSlot`], by index, when [`PathLanes::trace`] traces
 /// its paths (see the module's documentation); `None` when they go one by one. Every path
 /// estimator takes the lanes, so this depends on the scene alone, and is worked out once per
 /// scene, on the first call.
@@ -86,7 +86,7 @@ pub struct Counts {
 /// Paths of one scene traced side by side (see the module's documentation).
 pub struct PathLanes<'a> {
     pub scene: &'a Scene,
-    /// Each material's [`Matte`] form ([`fits`]).
+    /// Each material's [`MatteSlot`] ([`fits`]).
     pub mattes: &'a [MatteSlot],
     /// What rays that miss everything see (the tracer's background for the current pixel).
     pub background: DVec3,
@@ -1044,7 +1044,8 @@ impl MatteLanes {
     }
 
     /// Each lane's [`Material::reflectance`] at normal `n`, from `wi` towards `wo`, by axis:
-    /// [`Matte::at`]'s operations side by side, and the lanes without a matte form one by one.
+    /// [`crate::material::Matte::at`]'s operations side by side, and the lanes without a matte
+    /// form one by one.
     #[inline(always)]
     fn reflectance(&self, sh: &Shading<'_>, n: &Axes, wi: &Axes, wo: &[DVec3; N]) -> Axes {
         let mut f = [[0.0; N]; 3];
