@@ -1844,18 +1844,22 @@ mod tests {
         assert!((h.dpdu.cross(h.dpdv) - DVec3::Y).length() < 1e-12, "{:?} {:?}", h.dpdu, h.dpdv);
     }
 
+    /// Numbers in [-1, 1) from a xorshift generator seeded with `seed`.
+    fn uniform_pm1(mut state: u64) -> impl FnMut() -> f64 {
+        move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        }
+    }
+
     #[test]
     fn eight_lane_sphere_tests_are_the_single_ray_test_bit_for_bit() {
         // Rays through, tangent to, inside, behind and beside a sphere, with and without a
         // transform (rotation, uniform and non-uniform scale, translation), a zero direction
         // and a NaN: every lane's distance is what `sphere_t` finds in the object-space ray.
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut next = uniform_pm1(0x2545_f491_4f6c_dd1d);
         let (center, radius) = (DVec3::new(0.5, -0.25, 1.0), 1.5);
         let transforms = [
             None,
@@ -1905,13 +1909,7 @@ mod tests {
     /// origin, NaN lanes. And it does drop the rays that pass far from the sphere.
     #[test]
     fn the_sphere_cull_keeps_every_lane_the_exact_test_hits() {
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut next = uniform_pm1(0x9e37_79b9_7f4a_7c15);
         let (mut kept_hits, mut dropped) = (0, 0);
         for (center, radius) in [
             (DVec3::new(0.5, -0.25, 1.0), 1.5),
