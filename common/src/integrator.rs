@@ -16,7 +16,7 @@ use crate::sampler::{GROUP_LANES, Sampler};
 use crate::scene::records::{
     DecalMode, EnvSampler, MAX_RECURSION_DEPTH_LIMIT, PathParams, Renderer, Roulette,
 };
-use crate::scene::{DielectricSides, PathDepth, Scene};
+use crate::scene::{DielectricSides, Scene};
 use bounces::{Arrival, brdf_bounce, brdf_chance, density, glossy, scatter};
 use direct::{
     BounceDensity, LightWeights, Lighting, LitPoint, ONE_LIGHT_REQUESTS, light_pdf, power_heuristic,
@@ -540,11 +540,7 @@ impl<'a> Tracer<'a> {
             }
             self.stats.secondary += 1;
             bounce += 1;
-            counted += match scene.rules.path_depth {
-                PathDepth::EveryBounce => 1,
-                PathDepth::DiffuseBounces => u32::from(!specular),
-                PathDepth::GlassOnce => u32::from(!leaves),
-            };
+            counted += scene.rules.path_depth.counts(specular, leaves);
             if params.roulette == Roulette::Unbiased {
                 let q = beta.max_element().min(1.0);
                 if rng.next_1d() >= q {

@@ -387,12 +387,18 @@ pub fn lanes(mut mask: u32) -> impl Iterator<Item = usize> {
     })
 }
 
-/// Each of eight lanes as a word of all ones where `mask` has its bit, of zeros elsewhere:
-/// what [`pick`] selects with. Lane masks made from a bit mask by comparisons compile, in some
-/// loops, to a branch per lane, which random lanes mispredict about one time in three.
+/// A word of all ones for `true`, of zeros for `false`: what [`pick`] selects with.
+#[inline(always)]
+pub fn word(c: bool) -> u64 {
+    0u64.wrapping_sub(u64::from(c))
+}
+
+/// Each of eight lanes as a [`word`] of whether `mask` has its bit. Lane masks made from a bit
+/// mask by comparisons compile, in some loops, to a branch per lane, which random lanes
+/// mispredict about one time in three.
 #[inline(always)]
 pub fn lane_words(mask: u32) -> [u64; 8] {
-    std::array::from_fn(|k| 0u64.wrapping_sub(u64::from((mask >> k) & 1)))
+    std::array::from_fn(|k| word((mask >> k) & 1 != 0))
 }
 
 /// `a` where `word` (one of [`lane_words`]) is all ones, `b` where it is zero, by their bits

@@ -23,7 +23,7 @@ use std::time::Duration;
 use glam::{DVec2, DVec3, Vec3A};
 use obvhs::{BvhBuildParams, aabb::Aabb, cwbvh::CwBvh, cwbvh::builder::build_cwbvh, ray::RayHit};
 
-use crate::math::{Ray, Transform, pick};
+use crate::math::{Ray, Transform, pick, word};
 use bvh8::{BoxRays8, Bvh8, Lanes8, Packet8, Ray8};
 pub use mesh::MeshGeom;
 pub use rays::{Axes, HitLanes, RayLanes};
@@ -284,7 +284,7 @@ impl Accel {
             // Selects, not a branch a lane: which lanes the sphere is nearest for is random.
             for k in 0..8 {
                 let nearer = ts[k] < f64::INFINITY;
-                t[k] = pick(0u64.wrapping_sub(u64::from(nearer)), ts[k], t[k]);
+                t[k] = pick(word(nearer), ts[k], t[k]);
                 instance[k] = if nearer { idx } else { instance[k] };
                 merged[k] = if nearer { u32::MAX } else { merged[k] };
             }

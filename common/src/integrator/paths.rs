@@ -33,10 +33,10 @@ use super::direct::{
 use crate::geometry::{Axes, HitLanes, SurfaceHit};
 use crate::lights::{EmitterShape, ObjectLight};
 use crate::material::{Material, MaterialKind, MatteForm, MatteSlot};
-use crate::math::{Ray, lane_words, lanes, pick, sincos_turns};
+use crate::math::{Ray, lane_words, lanes, pick, sincos_turns, word};
 use crate::sampler::{GROUP_LANES, Sampler};
+use crate::scene::Scene;
 use crate::scene::records::{MAX_RECURSION_DEPTH_LIMIT, PathParams, Roulette};
-use crate::scene::{PathDepth, Scene};
 
 const N: usize = GROUP_LANES;
 
@@ -202,7 +202,7 @@ impl<'a> PathLanes<'a> {
             let (mut plain, mut shaded) = (0u32, 0u32);
             let mut live = 0u32;
             for k in lanes(alive) {
-                let mat = &scene.materials[found.material[k] as usize];
+                let mat = sh.mats[k];
                 if (!nee || specular & (1 << k) != 0)
                     && let Some(le) = emitted(scene, &found, &front, k)
                 {
@@ -611,7 +611,7 @@ fn specular_bounces(
     p: &mut Paths,
     samplers: &mut [Sampler],
 ) -> u32 {
-    let eps = scene.shadow_ray_epsilon;
+    let (eps, sides) = (scene.shadow_ray_epsilon, scene.rules.dielectric_sides);
     let mis = params.mis && params.next_event;
     let mut on = 0u32;
     for k in lanes(turned) {
@@ -624,7 +624,6 @@ fn specular_bounces(
             front: front[k],
             inside: p.inside & bit != 0,
         };
-        let sides = scene.rules.dielectric_sides;
         let Some(next) = scatter(sh.mats[k], &at, sides, params.importance, eps, &mut samplers[k]) else {
             continue;
         };
@@ -660,11 +659,7 @@ fn specular_bounces(
         }
         let specular = next.specular();
         p.specular = if specular { p.specular | bit } else { p.specular & !bit };
-        p.counted[k] += match scene.rules.path_depth {
-            PathDepth::EveryBounce => 1,
-            PathDepth::DiffuseBounces => u32::from(!specular),
-            PathDepth::GlassOnce => u32::from(!next.leaves()),
-        };
+        p.counted[k] += scene.rules.path_depth.counts(specular, next.leaves());
         on |= bit;
         #[cfg(test)]
         tests::TURNS.with(|c| c.set(c.get() + 1));
@@ -928,8 +923,7 @@ fn bounce_lanes(
     // Every lane's BRDF value side by side (the lanes below the surface, or unused, compute
     // one that is not kept).
     let f_cos = matte.reflectance(sh, ns, &wi, wo);
-    let up: [u64; N] =
-        std::array::from_fn(|k| 0u64.wrapping_sub(u64::from((cos_t[k] > 0.0) | cos_t[k].is_nan())));
+    let up: [u64; N] = std::array::from_fn(|k| word((cos_t[k] > 0.0) | cos_t[k].is_nan()));
     let mut f = [[0.0; N]; 3];
     for ax in 0..3 {
         for k in 0..N {
@@ -1054,7 +1048,7 @@ impl MatteLanes {
         let mut below = [0u64; N];
         for k in 0..N {
             cos[k] = (n[0][k] * wi[0][k]) + (n[1][k] * wi[1][k]) + (n[2][k] * wi[2][k]);
-            below[k] = checked[k] & 0u64.wrapping_sub(u64::from(cos[k].is_nan() | (cos[k] <= 0.0)));
+            below[k] = checked[k] & word(cos[k].is_nan() | (cos[k] <= 0.0));
         }
         for a in 0..3 {
             for k in 0..N {

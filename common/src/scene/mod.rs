@@ -62,6 +62,18 @@ pub enum PathDepth {
     GlassOnce,
 }
 
+impl PathDepth {
+    /// How many a bounce counts for (0 or 1): a `specular` one (mirror lobe, reflection or
+    /// refraction at glass), or one that `leaves` a dielectric.
+    pub fn counts(self, specular: bool, leaves: bool) -> u32 {
+        match self {
+            PathDepth::EveryBounce => 1,
+            PathDepth::DiffuseBounces => u32::from(!specular),
+            PathDepth::GlassOnce => u32::from(!leaves),
+        }
+    }
+}
+
 /// Size and cost of a built scene, for logs and summaries.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SceneStats {
