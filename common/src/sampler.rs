@@ -16,6 +16,8 @@
 //! (e.g. 8x8 squares for 64 samples), and different requests are decorrelated. Any sample
 //! count works; powers of two are stratified best.
 
+use crate::math::lanes;
+
 /// Murmur3's 64-bit finaliser: a bijective mixer with full avalanche.
 #[inline]
 fn fmix64(mut k: u64) -> u64 {
@@ -152,15 +154,32 @@ impl Sampler {
     /// processor's throughput, is what they cost), so drawing them together lets the processor
     /// overlap them.
     pub fn next_2d_groups<const M: usize>(samplers: &mut [Sampler]) -> [[[f64; GROUP_LANES]; 2]; M] {
+        Self::next_2d_groups_of::<M>(samplers, u32::MAX)
+    }
+
+    /// [`Self::next_2d_groups`] of the samplers whose bit is set in `mask` (bit `l` for
+    /// `samplers[l]`): they draw the values they would draw alone, and the others neither draw
+    /// nor move on (their values are zero). When the drawing samplers stand at the same
+    /// dimension of one pixel, every lane's scramble runs as one eight-lane computation and
+    /// the lanes outside `mask` are dropped afterwards: a group of paths that lost some lanes
+    /// still draws side by side.
+    pub fn next_2d_groups_of<const M: usize>(
+        samplers: &mut [Sampler],
+        mask: u32,
+    ) -> [[[f64; GROUP_LANES]; 2]; M] {
         assert!(samplers.len() <= GROUP_LANES, "at most {GROUP_LANES} samplers a group");
+        let mask = mask & (u32::MAX >> (32 - samplers.len().max(1)));
         let mut out = [[[0.0; GROUP_LANES]; 2]; M];
-        let Some(first) = samplers.first() else { return out };
+        if mask == 0 || samplers.is_empty() {
+            return out;
+        }
+        let first = &samplers[mask.trailing_zeros() as usize];
         let (key, dim) = (first.key, first.dim);
-        if samplers.iter().any(|s| s.key != key || s.dim != dim) {
+        if lanes(mask).any(|l| samplers[l].key != key || samplers[l].dim != dim) {
             // Each sampler's requests in its own order.
-            for (l, s) in samplers.iter_mut().enumerate() {
+            for l in lanes(mask) {
                 for o in out.iter_mut() {
-                    (o[0][l], o[1][l]) = s.next_2d();
+                    (o[0][l], o[1][l]) = samplers[l].next_2d();
                 }
             }
             return out;
@@ -174,13 +193,18 @@ impl Sampler {
                 (a[m][l], b[m][l]) = point(index[l], seeds[m]);
             }
         }
-        for s in samplers.iter_mut() {
-            s.dim = dim + M as u64;
+        for l in lanes(mask) {
+            samplers[l].dim = dim + M as u64;
         }
         for m in 0..M {
             for l in 0..GROUP_LANES {
                 out[m][0][l] = unit(a[m][l]);
                 out[m][1][l] = unit(b[m][l]);
+            }
+        }
+        for l in lanes(!mask & ((1 << GROUP_LANES) - 1)) {
+            for o in out.iter_mut() {
+                (o[0][l], o[1][l]) = (0.0, 0.0);
             }
         }
         out
@@ -357,6 +381,51 @@ mod tests {
             let (first, second) = ((got[0][0][l], got[0][1][l]), (got[1][0][l], got[1][1][l]));
             assert_eq!((first, second), (s.next_2d(), s.next_2d()), "mixed lane {l}");
         }
+    }
+
+    #[test]
+    fn a_masked_group_draws_for_its_lanes_only() {
+        let pixel = Sampler::new(0x5eed, 12, 34, 0);
+        for mask in [0b1011_0110u32, 0b1000_0001, 0b0000_0100, 0, 0xff] {
+            // Eight samples of one pixel at one dimension, and the same with one sampler of
+            // the mask a request ahead (each then draws alone).
+            for ahead in [false, true] {
+                let mut group: Vec<Sampler> = (0..8).map(|k| pixel.with_sample(40 + k)).collect();
+                group.iter_mut().for_each(|s| _ = s.next_2d());
+                if ahead && mask != 0 {
+                    group[mask.trailing_zeros() as usize].next_1d();
+                }
+                let mut each = group.clone();
+                let got = Sampler::next_2d_groups_of::<2>(&mut group, mask);
+                for (l, s) in each.iter_mut().enumerate() {
+                    if mask & 1 << l != 0 {
+                        for (m, req) in got.iter().enumerate() {
+                            assert_eq!(
+                                (req[0][l], req[1][l]),
+                                s.next_2d(),
+                                "mask {mask:#b}, lane {l}, request {m}"
+                            );
+                        }
+                    } else {
+                        assert_eq!(
+                            got.map(|req| (req[0][l], req[1][l])),
+                            [(0.0, 0.0); 2],
+                            "lane {l} outside"
+                        );
+                    }
+                    // A lane outside the mask did not move on; one inside did.
+                    assert_eq!(group[l].drawn(), s.drawn(), "mask {mask:#b}, lane {l}");
+                    assert_eq!(group[l].next_1d(), s.next_1d(), "mask {mask:#b}, lane {l} continues");
+                }
+            }
+        }
+        // Fewer samplers than lanes: mask bits past them are ignored.
+        let mut three: Vec<Sampler> = (0..3).map(|k| pixel.with_sample(k)).collect();
+        let mut each = three.clone();
+        let got = Sampler::next_2d_groups_of::<1>(&mut three, 0b1111_0110);
+        assert_eq!((got[0][0][1], got[0][1][1]), each[1].next_2d());
+        assert_eq!((got[0][0][2], got[0][1][2]), each[2].next_2d());
+        assert_eq!(three[0].drawn(), 0);
     }
 
     #[test]

@@ -40,17 +40,17 @@ pub struct LitPoint<'m> {
 pub(super) const ONE_LIGHT_REQUESTS: u64 = 2;
 
 /// `M` requests of two numbers from each sampler in `mask` (`rngs` holds one sampler per
-/// point): `out[k][m]` is sampler `k`'s `m`-th. One [`Sampler::next_2d_groups`] call when the
-/// mask holds them all (it draws them together when they stand at the same dimension of one
-/// pixel), one by one otherwise.
+/// point): `out[k][m]` is sampler `k`'s `m`-th, zero for the lanes outside `mask`. One
+/// [`Sampler::next_2d_groups_of`] call when the mask holds two or more (it draws them together
+/// when they stand at the same dimension of one pixel), the lone sampler's own draw otherwise.
 #[inline(always)]
 pub(super) fn draw_requests<const N: usize, const M: usize>(
     rngs: &mut [Sampler],
     mask: u32,
 ) -> [[(f64, f64); M]; N] {
     let mut out = [[(0.0, 0.0); M]; N];
-    if rngs.len() > 1 && mask == (1u32 << rngs.len()) - 1 {
-        let drawn = Sampler::next_2d_groups::<M>(rngs);
+    if mask & mask.wrapping_sub(1) != 0 {
+        let drawn = Sampler::next_2d_groups_of::<M>(rngs, mask);
         for (k, o) in out.iter_mut().enumerate().take(rngs.len()) {
             for (m, req) in drawn.iter().enumerate() {
                 o[m] = (req[0][k], req[1][k]);
