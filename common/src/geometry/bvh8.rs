@@ -473,15 +473,19 @@ impl Bvh8 {
         let need = self.depth * 7 + 1;
         if need <= STACK {
             let mut stack = [const { MaybeUninit::<(u32, u32, f32)>::uninit() }; STACK];
-            self.closest_packet::<ANY>(p, tmax, id, &mut stack)
+            if self.nodes.len() == 1 {
+                self.closest_packet::<ANY, true>(p, tmax, id, &mut stack)
+            } else {
+                self.closest_packet::<ANY, false>(p, tmax, id, &mut stack)
+            }
         } else {
             let mut stack = vec![MaybeUninit::<(u32, u32, f32)>::uninit(); need];
-            self.closest_packet::<ANY>(p, tmax, id, &mut stack)
+            self.closest_packet::<ANY, false>(p, tmax, id, &mut stack)
         }
     }
 
     #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma")))]
-    fn closest_packet<const ANY: bool>(
+    fn closest_packet<const ANY: bool, const ONE_NODE: bool>(
         &self,
         p: &Packet8,
         tmax: &mut [f32; 8],
@@ -510,8 +514,13 @@ impl Bvh8 {
 
     /// `ANY`: a lane that hits anything is done (its `tmax` drops to -inf, so no box or
     /// triangle test passes for it again) and the walk ends when every lane is.
+    ///
+    /// `ONE_NODE`: the tree is one node of leaves (a scene of a few dozen triangles). Its
+    /// packets enter the root anyway, and testing each of its slots exactly costs less than
+    /// reducing the packet's intervals for that one node (`maybe` below): 0.955x the time on
+    /// the path-traced Cornell box, whose tree is one node of eight leaves.
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
-    fn closest_packet<const ANY: bool>(
+    fn closest_packet<const ANY: bool, const ONE_NODE: bool>(
         &self,
         p: &Packet8,
         tmax_out: &mut [f32; 8],
@@ -600,26 +609,18 @@ impl Bvh8 {
             // scaled origin NaN, and a sum with a NaN term is NaN (an infinite sum that is NaN,
             // ∞ − ∞, only keeps every slot: still correct). Far bounds only fall during the
             // walk, to a hit's distance or −∞, so the first ones are the ones to check.
-            //
-            // A tree of one node (a scene of a few dozen triangles) has no intervals: its
-            // packets enter the root anyway, and testing each slot exactly costs less than
-            // reducing the intervals for one node (0.955x the time on the path-traced
-            // Cornell box, whose tree is one node of eight leaves).
-            let intervals = (self.nodes.len() > 1)
-                .then(|| {
-                    let sum = _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(oix, oiy), oiz), tmax);
-                    let nan_lanes =
-                        _mm256_movemask_ps(_mm256_cmp_ps(sum, sum, _CMP_UNORD_Q)) as u32 & p.active;
-                    // The least of the far terms and the greatest of the near ones: the
-                    // intervals bound the nudged distances, so they stay conservative.
-                    (nan_lanes == 0).then(|| Intervals {
-                        inv_lo: [hmin(ix), hmin(iy), hmin(iz)],
-                        inv_hi: [hmax(ix), hmax(iy), hmax(iz)],
-                        oinv_lo: [hmin(ofx), hmin(ofy), hmin(ofz)],
-                        oinv_hi: [hmax(oix), hmax(oiy), hmax(oiz)],
-                    })
-                })
-                .flatten();
+            let sum = _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(oix, oiy), oiz), tmax);
+            let nan_lanes = _mm256_movemask_ps(_mm256_cmp_ps(sum, sum, _CMP_UNORD_Q)) as u32 & p.active;
+            let keep_all = if nan_lanes == 0 { 0 } else { 0xff };
+            // The least of the far terms and the greatest of the near ones: the intervals
+            // bound the nudged distances, so they stay conservative. (`ONE_NODE` walks never
+            // read them, and the compiler drops them there.)
+            let iv = Intervals {
+                inv_lo: [hmin(ix), hmin(iy), hmin(iz)],
+                inv_hi: [hmax(ix), hmax(iy), hmax(iz)],
+                oinv_lo: [hmin(ofx), hmin(ofy), hmin(ofz)],
+                oinv_hi: [hmax(oix), hmax(oiy), hmax(oiz)],
+            };
             // The slots of `node` that some lane of the packet may enter before `far` (the
             // greatest far bound of its lanes). Per lane the exact test computes each plane's
             // distance as round(b·inv − o), o the lane's nudged near or far term, which is
@@ -670,10 +671,8 @@ impl Bvh8 {
                     )) as u32;
                     let mut kids = [(0u32, 0u32, 0f32); 8];
                     let mut n = 0;
-                    let mut slots = match &intervals {
-                        Some(iv) => filled & maybe(iv, node, hmax(tmax)),
-                        None => filled,
-                    };
+                    let mut slots =
+                        if ONE_NODE { filled } else { filled & (maybe(&iv, node, hmax(tmax)) | keep_all) };
                     while slots != 0 {
                         let i = slots.trailing_zeros() as usize;
                         slots &= slots - 1;
