@@ -16,8 +16,6 @@
 //! (e.g. 8x8 squares for 64 samples), and different requests are decorrelated. Any sample
 //! count works; powers of two are stratified best.
 
-use crate::math::lanes;
-
 /// Murmur3's 64-bit finaliser: a bijective mixer with full avalanche.
 #[inline]
 fn fmix64(mut k: u64) -> u64 {
@@ -175,9 +173,16 @@ impl Sampler {
         }
         let first = &samplers[mask.trailing_zeros() as usize];
         let (key, dim) = (first.key, first.dim);
-        if lanes(mask).any(|l| samplers[l].key != key || samplers[l].dim != dim) {
+        let apart = samplers
+            .iter()
+            .enumerate()
+            .fold(0u32, |m, (l, s)| m | u32::from(s.key != key || s.dim != dim) << l);
+        if apart & mask != 0 {
             // Each sampler's requests in its own order.
-            for l in lanes(mask) {
+            let mut rest = mask;
+            while rest != 0 {
+                let l = rest.trailing_zeros() as usize;
+                rest &= rest - 1;
                 for o in out.iter_mut() {
                     (o[0][l], o[1][l]) = samplers[l].next_2d();
                 }
@@ -193,8 +198,8 @@ impl Sampler {
                 (a[m][l], b[m][l]) = point(index[l], seeds[m]);
             }
         }
-        for l in lanes(mask) {
-            samplers[l].dim = dim + M as u64;
+        for (l, s) in samplers.iter_mut().enumerate() {
+            s.dim = if mask >> l & 1 != 0 { dim + M as u64 } else { s.dim };
         }
         for m in 0..M {
             for l in 0..GROUP_LANES {
@@ -202,7 +207,10 @@ impl Sampler {
                 out[m][1][l] = unit(b[m][l]);
             }
         }
-        for l in lanes(!mask & ((1 << GROUP_LANES) - 1)) {
+        let mut outside = !mask & ((1 << GROUP_LANES) - 1);
+        while outside != 0 {
+            let l = outside.trailing_zeros() as usize;
+            outside &= outside - 1;
             for o in out.iter_mut() {
                 (o[0][l], o[1][l]) = (0.0, 0.0);
             }
