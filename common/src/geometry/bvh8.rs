@@ -614,7 +614,7 @@ impl Bvh8 {
             let keep_all = if nan_lanes == 0 { 0 } else { 0xff };
             // The least of the far terms and the greatest of the near ones: the intervals
             // bound the nudged distances, so they stay conservative. (`ONE_NODE` walks never
-            // read them, and the compiler drops them there.)
+            // read them: nothing of theirs depends on these values.)
             let iv = Intervals {
                 inv_lo: [hmin(ix), hmin(iy), hmin(iz)],
                 inv_hi: [hmax(ix), hmax(iy), hmax(iz)],
