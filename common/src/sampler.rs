@@ -166,9 +166,12 @@ impl Sampler {
         mask: u32,
     ) -> [[[f64; GROUP_LANES]; 2]; M] {
         assert!(samplers.len() <= GROUP_LANES, "at most {GROUP_LANES} samplers a group");
-        let mask = mask & (u32::MAX >> (32 - samplers.len().max(1)));
         let mut out = [[[0.0; GROUP_LANES]; 2]; M];
-        if mask == 0 || samplers.is_empty() {
+        if samplers.is_empty() {
+            return out;
+        }
+        let mask = mask & (u32::MAX >> (32 - samplers.len()));
+        if mask == 0 {
             return out;
         }
         let first = &samplers[mask.trailing_zeros() as usize];

@@ -34,16 +34,6 @@ use kernels::{Node, SLACK, Tri4, node_hits, safe_inv, tri4_closest, tri8_any, tr
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
 use kernels::{below, lane_mask, mt8};
 
-/// A packet's lanes as intervals, per axis: the least and greatest inverse direction, and the
-/// least far and greatest near scaled origin (`closest_packet`'s `maybe` test).
-#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
-struct Intervals {
-    inv_lo: [std::arch::x86_64::__m256; 3],
-    inv_hi: [std::arch::x86_64::__m256; 3],
-    oinv_lo: [std::arch::x86_64::__m256; 3],
-    oinv_hi: [std::arch::x86_64::__m256; 3],
-}
-
 /// Subtrees of at most this many triangles become one leaf.
 /// (Measured with the rays bench: 8, two packets, traces faster than 2, 4 or 6 on both meshes;
 /// with two packets tested per pass, 12 and 16 take 3 % and 5 % more instructions on
@@ -612,15 +602,13 @@ impl Bvh8 {
             let sum = _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(oix, oiy), oiz), tmax);
             let nan_lanes = _mm256_movemask_ps(_mm256_cmp_ps(sum, sum, _CMP_UNORD_Q)) as u32 & p.active;
             let keep_all = if nan_lanes == 0 { 0 } else { 0xff };
+            let inv_lo = [hmin(ix), hmin(iy), hmin(iz)];
+            let inv_hi = [hmax(ix), hmax(iy), hmax(iz)];
             // The least of the far terms and the greatest of the near ones: the intervals
             // bound the nudged distances, so they stay conservative. (`ONE_NODE` walks never
             // read them: nothing of theirs depends on these values.)
-            let iv = Intervals {
-                inv_lo: [hmin(ix), hmin(iy), hmin(iz)],
-                inv_hi: [hmax(ix), hmax(iy), hmax(iz)],
-                oinv_lo: [hmin(ofx), hmin(ofy), hmin(ofz)],
-                oinv_hi: [hmax(oix), hmax(oiy), hmax(oiz)],
-            };
+            let oinv_lo = [hmin(ofx), hmin(ofy), hmin(ofz)];
+            let oinv_hi = [hmax(oix), hmax(oiy), hmax(oiz)];
             // The slots of `node` that some lane of the packet may enter before `far` (the
             // greatest far bound of its lanes). Per lane the exact test computes each plane's
             // distance as round(b·inv − o), o the lane's nudged near or far term, which is
@@ -630,8 +618,7 @@ impl Bvh8 {
             // product per end bounds every lane's. Mins, maxes and the product by `grow` keep
             // the order, so a slot is dropped only when every lane's own test would drop it.
             // A NaN bound keeps the slot.
-            let maybe = |iv: &Intervals, node: &Node, far: __m256| {
-                let Intervals { inv_lo, inv_hi, oinv_lo, oinv_hi } = iv;
+            let maybe = |node: &Node, far: __m256| {
                 let plane = |k: usize| _mm256_load_ps(node.b[k].as_ptr());
                 let lo = |b: __m256, a: usize| {
                     _mm256_min_ps(
@@ -672,7 +659,7 @@ impl Bvh8 {
                     let mut kids = [(0u32, 0u32, 0f32); 8];
                     let mut n = 0;
                     let mut slots =
-                        if ONE_NODE { filled } else { filled & (maybe(&iv, node, hmax(tmax)) | keep_all) };
+                        if ONE_NODE { filled } else { filled & (maybe(node, hmax(tmax)) | keep_all) };
                     while slots != 0 {
                         let i = slots.trailing_zeros() as usize;
                         slots &= slots - 1;
