@@ -158,9 +158,10 @@ impl Sampler {
     /// [`Self::next_2d_groups`] of the samplers whose bit is set in `mask` (bit `l` for
     /// `samplers[l]`): they draw the values they would draw alone, and the others neither draw
     /// nor move on (their values are zero). When the drawing samplers stand at the same
-    /// dimension of one pixel, every lane's scramble runs as one eight-lane computation and
-    /// the lanes outside `mask` are dropped afterwards: a group of paths that lost some lanes
-    /// still draws side by side.
+    /// dimension, every lane's scramble runs as one eight-lane computation and the lanes
+    /// outside `mask` are dropped afterwards: a group of paths that lost some lanes still
+    /// draws side by side. Samplers of one pixel share the dimension's seeds; samplers of
+    /// several (paths gathered from several groups) hash each lane's own in the same loop.
     pub fn next_2d_groups_of<const M: usize>(
         samplers: &mut [Sampler],
         mask: u32,
@@ -176,11 +177,12 @@ impl Sampler {
         }
         let first = &samplers[mask.trailing_zeros() as usize];
         let (key, dim) = (first.key, first.dim);
-        let apart = samplers
-            .iter()
-            .enumerate()
-            .fold(0u32, |m, (l, s)| m | u32::from(s.key != key || s.dim != dim) << l);
-        if apart & mask != 0 {
+        let (mut off_dim, mut off_key) = (0u32, 0u32);
+        for (l, s) in samplers.iter().enumerate() {
+            off_dim |= u32::from(s.dim != dim) << l;
+            off_key |= u32::from(s.key != key) << l;
+        }
+        if off_dim & mask != 0 {
             // Each sampler's requests in its own order.
             let mut rest = mask;
             while rest != 0 {
@@ -192,13 +194,25 @@ impl Sampler {
             }
             return out;
         }
-        let seeds: [DimSeeds; M] = std::array::from_fn(|m| DimSeeds::of(key, dim + 1 + m as u64));
         let index: [u32; GROUP_LANES] = std::array::from_fn(|l| samplers.get(l).map_or(0, |s| s.index));
         let mut a = [[0u32; GROUP_LANES]; M];
         let mut b = [[0u32; GROUP_LANES]; M];
-        for m in 0..M {
-            for l in 0..GROUP_LANES {
-                (a[m][l], b[m][l]) = point(index[l], seeds[m]);
+        if off_key & mask == 0 {
+            // Samples of one pixel: the dimension's seeds hashed once.
+            let seeds: [DimSeeds; M] = std::array::from_fn(|m| DimSeeds::of(key, dim + 1 + m as u64));
+            for m in 0..M {
+                for l in 0..GROUP_LANES {
+                    (a[m][l], b[m][l]) = point(index[l], seeds[m]);
+                }
+            }
+        } else {
+            // Samples of several pixels (paths gathered from several groups): each lane hashes
+            // its pixel's seeds, side by side.
+            let keys: [u64; GROUP_LANES] = std::array::from_fn(|l| samplers.get(l).map_or(key, |s| s.key));
+            for m in 0..M {
+                for l in 0..GROUP_LANES {
+                    (a[m][l], b[m][l]) = point(index[l], DimSeeds::of(keys[l], dim + 1 + m as u64));
+                }
             }
         }
         for (l, s) in samplers.iter_mut().enumerate() {
@@ -398,10 +412,16 @@ mod tests {
     fn a_masked_group_draws_for_its_lanes_only() {
         let pixel = Sampler::new(0x5eed, 12, 34, 0);
         for mask in [0b1011_0110u32, 0b1000_0001, 0b0000_0100, 0, 0xff] {
-            // Eight samples of one pixel at one dimension, and the same with one sampler of
-            // the mask a request ahead (each then draws alone).
-            for ahead in [false, true] {
-                let mut group: Vec<Sampler> = (0..8).map(|k| pixel.with_sample(40 + k)).collect();
+            // Eight samples of one pixel at one dimension, the same with one sampler of the
+            // mask a request ahead (each then draws alone), and samples of three pixels at one
+            // dimension (each lane with its pixel's seeds).
+            for (ahead, pixels) in [(false, 1), (true, 1), (false, 3)] {
+                let mut group: Vec<Sampler> = (0..8)
+                    .map(|k| match pixels {
+                        1 => pixel.with_sample(40 + k),
+                        _ => Sampler::new(0x5eed, 12 + k % pixels, 34, 40 + k),
+                    })
+                    .collect();
                 group.iter_mut().for_each(|s| _ = s.next_2d());
                 if ahead && mask != 0 {
                     group[mask.trailing_zeros() as usize].next_1d();

@@ -42,7 +42,7 @@ pub(super) const ONE_LIGHT_REQUESTS: u64 = 2;
 /// `M` requests of two numbers from each sampler in `mask` (`rngs` holds one sampler per
 /// point): `out[k][m]` is sampler `k`'s `m`-th, zero for the lanes outside `mask`. One
 /// [`Sampler::next_2d_groups_of`] call when the mask holds two or more (it draws them together
-/// when they stand at the same dimension of one pixel), the lone sampler's own draw otherwise.
+/// when they stand at the same dimension), the lone sampler's own draw otherwise.
 #[inline(always)]
 pub(super) fn draw_requests<const N: usize, const M: usize>(
     rngs: &mut [Sampler],
