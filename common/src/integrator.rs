@@ -5,6 +5,9 @@
 mod bounces;
 mod direct;
 mod paths;
+mod pool;
+
+pub use pool::CameraGroup;
 
 use glam::{DVec2, DVec3};
 
@@ -179,6 +182,8 @@ pub struct Tracer<'a> {
     budget: u32,
     /// The camera's renderer: the recursive tracer or a path tracer (§13.1).
     pub renderer: Renderer,
+    /// Where [`Self::trace_path_groups`] keeps its paths between calls.
+    path_pool: pool::Pool,
 }
 
 /// Most rays traced for one camera sample. Glass splits every ray in two, so the tree of a
@@ -207,6 +212,7 @@ impl<'a> Tracer<'a> {
             spread: 0.0,
             budget: 0,
             renderer: Renderer::Classic,
+            path_pool: pool::Pool::default(),
         }
     }
 
@@ -280,6 +286,38 @@ impl<'a> Tracer<'a> {
             };
         }
         out
+    }
+
+    /// The path tracer's settings when this camera's paths go through
+    /// [`Self::trace_path_groups`] (a path-traced camera of a scene that [`paths::fits`]).
+    pub fn pools_paths(&self) -> Option<PathParams> {
+        match self.renderer {
+            Renderer::Path(params) => paths::fits(self.scene).map(|_| params),
+            Renderer::Classic => None,
+        }
+    }
+
+    /// [`Self::trace_primary`] of every camera sample of `groups` (see
+    /// [`paths::PathLanes::trace_groups`]) into `out`, one entry a group, when
+    /// [`Self::pools_paths`] gives `params`: the same values as [`Self::trace_primary_group`]
+    /// of each group, with the paths of all the groups gathered into full groups after each
+    /// vertex.
+    pub fn trace_path_groups(
+        &mut self,
+        groups: &mut [CameraGroup],
+        params: PathParams,
+        out: &mut [[DVec3; GROUP_LANES]],
+    ) {
+        let mattes = paths::fits(self.scene).expect("pools_paths said the paths fit");
+        let mut lanes = paths::PathLanes {
+            scene: self.scene,
+            mattes,
+            background: self.background,
+            counts: paths::Counts::default(),
+        };
+        lanes.trace_groups(&mut self.path_pool, groups, params, out);
+        let c = lanes.counts;
+        self.stats.add(&RayStats { primary: c.primary, shadow: c.shadow, secondary: c.secondary });
     }
 
     /// [`Self::trace_primary_group`] for the recursive renderer: [`Self::shade`] of every lane

@@ -11,7 +11,7 @@ use rayon::prelude::*;
 
 use crate::geometry::RayLanes;
 use crate::image::{Image, TileRect};
-use crate::integrator::{RayStats, Tracer};
+use crate::integrator::{CameraGroup, RayStats, Tracer};
 use crate::math::Ray;
 use crate::passes::{BLOCK, PixelSum, SampleRange};
 use crate::sampler::{Sampler, frame_seed};
@@ -94,6 +94,10 @@ const STOP_CHECK_EVERY: u32 = BLOCK;
 /// Camera samples of a pixel traced together (a [`Packet8`](crate::geometry::bvh8::Packet8));
 /// divides [`STOP_CHECK_EVERY`], so the stop checks fall where they did.
 const GROUP: usize = crate::sampler::GROUP_LANES;
+
+/// Groups of camera samples whose paths are traced together (see
+/// [`Tracer::trace_path_groups`]): the more, the fuller the groups stay as paths end.
+const POOL_GROUPS: usize = 32;
 
 pub use crate::passes::film_value;
 
@@ -210,16 +214,29 @@ pub fn render_tile_sums_until(
     // straddles two blocks of a pixel (eight divides the block).
     let per_pixel = range.end - range.start;
     let across_pixels = per_pixel < GROUP as u32 && scene.background_texture.is_none();
-    // A group's samplers, drawn numbers and camera hits, made once per tile: every group
-    // writes the entries it reads (`camera_hits` writes a hit or `None` to each of its slots),
-    // and a group's arrays zeroed anew cost more stores than all the rest of its setup.
-    let mut samplers: [Sampler; GROUP] = std::array::from_fn(|_| Sampler::new(seed, 0, 0, 0));
+    // A path-traced camera of a scene whose paths go side by side takes up to `POOL_GROUPS`
+    // groups at once: after each vertex their paths are gathered into full groups
+    // ([`Tracer::trace_path_groups`]). Every path computes what it computes alone, so this
+    // changes no bit either. A background image is looked up per group, so its scenes trace
+    // one group at a time.
+    let pooled = tracer.pools_paths().filter(|_| scene.background_texture.is_none());
+    let batch = if pooled.is_some() { POOL_GROUPS } else { 1 };
+    // The groups' rays, camera hits and samplers, each lane's pixel and sample index, and
+    // their radiance, made once per tile: every group writes the entries it reads
+    // (`camera_hits` writes a hit or `None` to each of its slots), and a group's arrays zeroed
+    // anew cost more stores than all the rest of its setup.
+    let blank = CameraGroup {
+        rays: [Ray::new(cam.position, glam::DVec3::Z); GROUP],
+        hits: [None; GROUP],
+        n: 0,
+        samplers: std::array::from_fn(|_| Sampler::new(seed, 0, 0, 0)),
+    };
+    let mut groups = vec![blank; batch];
+    let mut lanes = vec![[(0u32, 0u32, 0u32); GROUP]; batch];
+    let mut radiance = vec![[glam::DVec3::ZERO; GROUP]; batch];
     let mut drawn = [[[0.0; GROUP]; 2]; 3];
-    let mut hits = [None; GROUP];
     // A pinhole group's camera rays side by side, their directions made in place.
     let mut wide = RayLanes::from_origin(cam.position, &[[0.0; GROUP]; 3], GROUP);
-    // Each lane's pixel and sample index.
-    let mut lanes = [(0u32, 0u32, 0u32); GROUP];
     // The pixel being summed: its position, samples so far, and features.
     let mut pixel = PixelSum::default();
     let mut sum = glam::DVec3::ZERO;
@@ -234,112 +251,126 @@ pub fn render_tile_sums_until(
     let mut since_check = STOP_CHECK_EVERY;
     let mut next = 0u64;
     while next < total {
-        let (x, y, s) = at(next);
         if since_check >= STOP_CHECK_EVERY {
             stop.check()?;
             since_check = 0;
         }
-        let group = if across_pixels {
-            (total - next).min(GROUP as u64) as usize
-        } else {
-            (range.end - s).min(GROUP as u32) as usize
-        };
-        if let Some(k) = scene.background_texture {
-            // The background image is stretched over the frame with pixel (x, y) at
-            // u = x / width, v = y / height (its corner, not its centre): measured,
-            // galactica_static matches at 55.9 dB this way and 35.5 dB with centres.
-            let uv = glam::DVec2::new(x as f64 / cam.width as f64, y as f64 / cam.height as f64);
-            tracer.background = scene.textures[k as usize].background(uv, pixel_uv);
-        }
-        // The group's sample values first, then its rays: the rays' square roots and
-        // divisions are one chain each, and with nothing else in between the processor
-        // overlaps the eight chains.
-        // The current lane's pixel and its sampler, made once per pixel of the group.
-        let mut keyed: Option<(u32, u32, Sampler)> = None;
-        for (i, (sampler, lane)) in samplers.iter_mut().zip(&mut lanes).enumerate().take(group) {
-            let (lx, ly, ls) = if across_pixels { at(next + i as u64) } else { (x, y, s + i as u32) };
-            let pixel_sampler = match &keyed {
-                Some((kx, ky, k)) if (*kx, *ky) == (lx, ly) => k,
-                _ => &keyed.insert((lx, ly, Sampler::new(seed, lx, ly, 0))).2,
-            };
-            *sampler = pixel_sampler.with_sample(ls);
-            *lane = (lx, ly, ls);
-        }
-        let samplers_in_use = &mut samplers[..group];
-        // Dimensions in a fixed order: pixel position, lens, time, then shading; the group
-        // draws each of the first ones for its eight samples at once. One sample goes through
-        // the pixel centre (§4.5); several are stratified over the pixel by the sampler, like
-        // every other dimension. The requests in use are drawn together (their scrambles
-        // overlap), each as two coordinates of eight lanes.
-        let count = usize::from(n > 1) + usize::from(cam.lens.is_some()) + usize::from(moving);
-        match count {
-            3 => drawn = Sampler::next_2d_groups::<3>(samplers_in_use),
-            2 => drawn[..2].copy_from_slice(&Sampler::next_2d_groups::<2>(samplers_in_use)),
-            1 => drawn[..1].copy_from_slice(&Sampler::next_2d_groups::<1>(samplers_in_use)),
-            _ => {}
-        }
-        let mut drawn_next = drawn.iter();
-        // The next drawn request if this one is wanted, else the fixed value.
-        let mut take = |wanted: bool, otherwise: f64| match wanted.then(|| drawn_next.next()).flatten() {
-            Some(v) => *v,
-            None => [[otherwise; GROUP]; 2],
-        };
-        let film = take(n > 1, 0.5);
-        let lens = take(cam.lens.is_some(), 0.5);
-        let time = take(moving, 0.0)[0];
-        // All eight lanes, used or not: loops of fixed length the compiler vectorises.
-        let pinhole = cam.lens.is_none();
-        if pinhole {
-            let px: [f64; GROUP] = std::array::from_fn(|i| f64::from(lanes[i.min(group - 1)].0));
-            let py: [f64; GROUP] = std::array::from_fn(|i| f64::from(lanes[i.min(group - 1)].1));
-            wide.refill_dirs(group, |d| cam.ray_dirs8(&px, &py, &film[0], &film[1], d));
-        }
-        let rays: [Ray; GROUP] = std::array::from_fn(|i| {
-            let mut ray = if pinhole {
-                Ray::new(cam.position, wide.dir(i))
+        let mut made = 0;
+        while made < batch && next < total {
+            let (x, y, s) = at(next);
+            let group = if across_pixels {
+                (total - next).min(GROUP as u64) as usize
             } else {
-                let (lx, ly, _) = lanes[i.min(group - 1)];
-                cam.lens_ray(lx, ly, film[0][i], film[1][i], lens[0][i], lens[1][i])
+                (range.end - s).min(GROUP as u32) as usize
             };
-            // A 1-D request is the first coordinate of the 2-D one.
-            ray.time = time[i];
-            ray
-        });
-        if pinhole {
-            tracer.camera_hits_lanes(&rays[..group], &wide, &mut hits[..group]);
-        } else {
-            tracer.camera_hits(&rays[..group], &mut hits[..group]);
+            if let Some(k) = scene.background_texture {
+                // The background image is stretched over the frame with pixel (x, y) at
+                // u = x / width, v = y / height (its corner, not its centre): measured,
+                // galactica_static matches at 55.9 dB this way and 35.5 dB with centres.
+                let uv = glam::DVec2::new(x as f64 / cam.width as f64, y as f64 / cam.height as f64);
+                tracer.background = scene.textures[k as usize].background(uv, pixel_uv);
+            }
+            let (cg, lanes) = (&mut groups[made], &mut lanes[made]);
+            cg.n = group;
+            // The group's sample values first, then its rays: the rays' square roots and
+            // divisions are one chain each, and with nothing else in between the processor
+            // overlaps the eight chains.
+            // The current lane's pixel and its sampler, made once per pixel of the group.
+            let mut keyed: Option<(u32, u32, Sampler)> = None;
+            for (i, (sampler, lane)) in cg.samplers.iter_mut().zip(lanes.iter_mut()).enumerate().take(group) {
+                let (lx, ly, ls) = if across_pixels { at(next + i as u64) } else { (x, y, s + i as u32) };
+                let pixel_sampler = match &keyed {
+                    Some((kx, ky, k)) if (*kx, *ky) == (lx, ly) => k,
+                    _ => &keyed.insert((lx, ly, Sampler::new(seed, lx, ly, 0))).2,
+                };
+                *sampler = pixel_sampler.with_sample(ls);
+                *lane = (lx, ly, ls);
+            }
+            let samplers_in_use = &mut cg.samplers[..group];
+            // Dimensions in a fixed order: pixel position, lens, time, then shading; the group
+            // draws each of the first ones for its eight samples at once. One sample goes
+            // through the pixel centre (§4.5); several are stratified over the pixel by the
+            // sampler, like every other dimension. The requests in use are drawn together
+            // (their scrambles overlap), each as two coordinates of eight lanes.
+            let count = usize::from(n > 1) + usize::from(cam.lens.is_some()) + usize::from(moving);
+            match count {
+                3 => drawn = Sampler::next_2d_groups::<3>(samplers_in_use),
+                2 => drawn[..2].copy_from_slice(&Sampler::next_2d_groups::<2>(samplers_in_use)),
+                1 => drawn[..1].copy_from_slice(&Sampler::next_2d_groups::<1>(samplers_in_use)),
+                _ => {}
+            }
+            let mut drawn_next = drawn.iter();
+            // The next drawn request if this one is wanted, else the fixed value.
+            let mut take = |wanted: bool, otherwise: f64| match wanted.then(|| drawn_next.next()).flatten() {
+                Some(v) => *v,
+                None => [[otherwise; GROUP]; 2],
+            };
+            let film = take(n > 1, 0.5);
+            let lens = take(cam.lens.is_some(), 0.5);
+            let time = take(moving, 0.0)[0];
+            // All eight lanes, used or not: loops of fixed length the compiler vectorises.
+            let pinhole = cam.lens.is_none();
+            if pinhole {
+                let px: [f64; GROUP] = std::array::from_fn(|i| f64::from(lanes[i.min(group - 1)].0));
+                let py: [f64; GROUP] = std::array::from_fn(|i| f64::from(lanes[i.min(group - 1)].1));
+                wide.refill_dirs(group, |d| cam.ray_dirs8(&px, &py, &film[0], &film[1], d));
+            }
+            cg.rays = std::array::from_fn(|i| {
+                let mut ray = if pinhole {
+                    Ray::new(cam.position, wide.dir(i))
+                } else {
+                    let (lx, ly, _) = lanes[i.min(group - 1)];
+                    cam.lens_ray(lx, ly, film[0][i], film[1][i], lens[0][i], lens[1][i])
+                };
+                // A 1-D request is the first coordinate of the 2-D one.
+                ray.time = time[i];
+                ray
+            });
+            if pinhole {
+                tracer.camera_hits_lanes(&cg.rays[..group], &wide, &mut cg.hits[..group]);
+            } else {
+                tracer.camera_hits(&cg.rays[..group], &mut cg.hits[..group]);
+            }
+            if pooled.is_none() {
+                radiance[made] =
+                    tracer.trace_primary_group(&cg.rays, &cg.hits[..group], &mut cg.samplers[..group]);
+            }
+            since_check += group as u32;
+            next += group as u64;
+            made += 1;
         }
-        let radiance = tracer.trace_primary_group(&rays, &hits[..group], &mut samplers[..group]);
-        for i in 0..group {
-            let (_, _, ls) = lanes[i];
-            if aux.is_some() && ls < aux_samples {
-                let a = tracer.aux(&rays[i], hits[i]);
-                albedo += a.albedo;
-                normal += a.normal;
-            }
-            sum += match cam.clamp_samples {
-                None => radiance[i],
-                // 2019 `ClampSamples`: each sample's radiance clamped before the average.
-                Some(c) => radiance[i].min(glam::DVec3::splat(c)),
-            };
-            let done = ls + 1;
-            if done.is_multiple_of(BLOCK) || done == range.end {
-                pixel.add_block(ls / BLOCK, sum);
-                sum = glam::DVec3::ZERO;
-            }
-            if done == range.end {
-                out.push(pixel);
-                pixel = PixelSum::default();
-                if let Some(a) = aux.as_deref_mut() {
-                    a.albedo.push(film_value(albedo / f64::from(aux_samples)));
-                    a.normal.push(film_value(normal / f64::from(aux_samples)));
+        if let Some(params) = pooled {
+            tracer.trace_path_groups(&mut groups[..made], params, &mut radiance[..made]);
+        }
+        for ((cg, lanes), radiance) in groups.iter().zip(&lanes).zip(&radiance).take(made) {
+            for i in 0..cg.n {
+                let (_, _, ls) = lanes[i];
+                if aux.is_some() && ls < aux_samples {
+                    let a = tracer.aux(&cg.rays[i], cg.hits[i]);
+                    albedo += a.albedo;
+                    normal += a.normal;
                 }
-                (albedo, normal) = (glam::DVec3::ZERO, glam::DVec3::ZERO);
+                sum += match cam.clamp_samples {
+                    None => radiance[i],
+                    // 2019 `ClampSamples`: each sample's radiance clamped before the average.
+                    Some(c) => radiance[i].min(glam::DVec3::splat(c)),
+                };
+                let done = ls + 1;
+                if done.is_multiple_of(BLOCK) || done == range.end {
+                    pixel.add_block(ls / BLOCK, sum);
+                    sum = glam::DVec3::ZERO;
+                }
+                if done == range.end {
+                    out.push(pixel);
+                    pixel = PixelSum::default();
+                    if let Some(a) = aux.as_deref_mut() {
+                        a.albedo.push(film_value(albedo / f64::from(aux_samples)));
+                        a.normal.push(film_value(normal / f64::from(aux_samples)));
+                    }
+                    (albedo, normal) = (glam::DVec3::ZERO, glam::DVec3::ZERO);
+                }
             }
         }
-        since_check += group as u32;
-        next += group as u64;
     }
     Ok((out, tracer.stats))
 }

@@ -76,6 +76,7 @@ const LAYERS: &[(&str, &[&str])] = &[
     ("bundle", &["bundle"]),
     ("direct light", &["integrator::direct"]),
     ("bounces", &["integrator::bounces"]),
+    ("path groups", &["integrator::pool"]),
     ("path lanes", &["integrator::paths"]),
     ("integrator", &["integrator"]),
     ("render", &["render"]),

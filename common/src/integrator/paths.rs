@@ -1,15 +1,17 @@
-//! Path tracing a group of camera samples side by side: the paths of up to eight camera samples
-//! (a pixel's, or consecutive pixels') advance one vertex at a time together, so that their
-//! bounce and shadow rays are traced as packets ([`crate::geometry::Accel::closest_lanes`],
+//! Path tracing groups of camera samples side by side: the paths of up to eight camera samples
+//! a group advance one vertex at a time together, so that their bounce and shadow rays are
+//! traced as packets ([`crate::geometry::Accel::closest_lanes`],
 //! [`crate::geometry::Accel::occluded_lanes`]), their lights are sampled side by side, and their
-//! random numbers are drawn together when they stand at the same dimension of one pixel. The
+//! random numbers are drawn together when they stand at the same dimension. Many groups advance
+//! together ([`PathLanes::trace_groups`]): between steps, the paths that go on are gathered into
+//! as few groups as hold them ([`super::pool::gather`]), so lanes stay busy as paths end. The
 //! state of the paths (radiance, throughput, rays, hits) is kept by axis, then lane.
 //!
 //! Every path gets exactly the value, random numbers and ray counts that the tracer's
 //! `trace_primary` gives it alone: per lane the operations are the same and in the same order,
 //! each ray query answers what the single ray's query answers, and a lane draws its numbers
-//! from its own sampler in its own order. The group changes when the work is done, never what it
-//! computes, so a tile renders to the same bits whatever its size.
+//! from its own sampler in its own order. The group a path travels in changes when the work is
+//! done, never what it computes, so a tile renders to the same bits whatever its size.
 //!
 //! The lanes take the scenes whose paths stay simple ([`fits`]), with any of the path tracer's
 //! estimators (lights found by bounces alone, or next-event estimation of every light or of
@@ -30,6 +32,7 @@ use super::bounces::{Arrival, brdf_chance, density, scatter};
 use super::direct::{
     BounceDensity, LightWeights, ONE_LIGHT_REQUESTS, draw_requests, light_pdf, power_heuristic,
 };
+use super::pool::{CameraGroup, Lanes, Paths, Pool, gather, lane};
 use crate::geometry::{Axes, HitLanes, SurfaceHit};
 use crate::lights::{EmitterShape, ObjectLight};
 use crate::material::{Material, MaterialKind, MatteForm, MatteSlot};
@@ -97,7 +100,7 @@ pub struct PathLanes<'a> {
 impl<'a> PathLanes<'a> {
     /// What the tracer's `trace_primary` gives each of a group of camera samples
     /// (`hits.len()` of the eight rays in `rays`, with their samplers) in a scene that
-    /// [`fits`], the paths side by side.
+    /// [`fits`], the paths side by side: [`Self::trace_groups`] of one group.
     pub fn trace(
         &mut self,
         rays: &[Ray; N],
@@ -105,86 +108,125 @@ impl<'a> PathLanes<'a> {
         params: PathParams,
         samplers: &mut [Sampler],
     ) -> [DVec3; N] {
-        #[cfg(test)]
-        tests::PATH_GROUPS.with(|c| c.set(c.get() + 1));
-        let scene = self.scene;
         let n = hits.len();
         if n == 0 {
             return [DVec3::ZERO; N];
         }
+        let mut group = CameraGroup {
+            rays: *rays,
+            hits: std::array::from_fn(|k| hits.get(k).copied().flatten()),
+            n,
+            samplers: std::array::from_fn(|k| samplers[k.min(n - 1)].clone()),
+        };
+        let mut out = [[DVec3::ZERO; N]];
+        self.trace_groups(&mut Pool::default(), std::slice::from_mut(&mut group), params, &mut out);
+        samplers.clone_from_slice(&group.samplers[..n]);
+        out[0]
+    }
+
+    /// What the tracer's `trace_primary` gives each camera sample of `groups` (the first `n`
+    /// lanes of each), into `out` (one entry a group, by lane); each lane's sampler moves on
+    /// as it does alone. The groups' paths advance together, one vertex at a time: after each
+    /// vertex, the paths that go on are gathered into as few groups as hold them, so that the
+    /// lanes, packets and draws of the next vertex are as full as they can be (a path keeps
+    /// its own state, numbers and order of operations wherever it goes).
+    pub fn trace_groups(
+        &mut self,
+        pool: &mut Pool,
+        groups: &mut [CameraGroup],
+        params: PathParams,
+        out: &mut [[DVec3; N]],
+    ) {
+        assert_eq!(groups.len(), out.len(), "one output a group");
+        let tmin = self.scene.intersection_test_epsilon;
+        let mut open = 0;
+        for (i, g) in groups.iter().enumerate() {
+            out[i] = [DVec3::ZERO; N];
+            if g.n > 0 {
+                #[cfg(test)]
+                tests::PATH_GROUPS.with(|c| c.set(c.get() + 1));
+                self.counts.primary += g.n as u64;
+                if pool.0.len() == open {
+                    pool.0.push(Lanes::blank());
+                }
+                pool.0[open].restart(g, i);
+                open += 1;
+            }
+        }
+        let pool = &mut pool.0[..open];
+        let mut bounce = 0u32;
+        loop {
+            // The paths that found nothing end there; those that found a surface are gathered
+            // before their vertex, then those that go on before their next rays.
+            for g in &mut pool[..open] {
+                self.misses(g);
+            }
+            open = gather(&mut pool[..open], groups, out);
+            if open == 0 {
+                break;
+            }
+            for g in &mut pool[..open] {
+                self.vertex(g, bounce, params);
+            }
+            bounce += 1;
+            open = gather(&mut pool[..open], groups, out);
+            if open == 0 {
+                break;
+            }
+            for g in &mut pool[..open] {
+                fill_unused(&mut g.p.o, &mut g.p.d, g.alive);
+                self.scene.accel.closest_lanes(&g.p.o, &g.p.d, g.alive, tmin, &mut g.found);
+            }
+        }
+    }
+
+    /// The paths of `g` whose last ray found nothing: they see the background, and end.
+    #[inline(always)]
+    fn misses(&self, g: &mut Lanes) {
+        let misses = g.alive & !g.found.mask;
+        if misses != 0 {
+            let bg = self.background.to_array();
+            let on = lane_words(misses);
+            for a in 0..3 {
+                for k in 0..N {
+                    g.l[a][k] = pick(on[k], g.l[a][k] + g.p.beta[a][k] * bg[a], g.l[a][k]);
+                }
+            }
+            g.alive &= g.found.mask;
+        }
+    }
+
+    /// One vertex of the living paths of `g` (at `bounce` vertices from the camera): what they
+    /// find there and what its lights bring, then the bounces of those that go on (the others
+    /// leave `g.alive`).
+    fn vertex(&mut self, g: &mut Lanes, bounce: u32, params: PathParams) {
+        let scene = self.scene;
         let eps = scene.shadow_ray_epsilon;
-        let tmin = scene.intersection_test_epsilon;
         let max_bounces = match params.roulette {
             Roulette::Off => scene.max_recursion_depth,
             Roulette::Course | Roulette::Unbiased => MAX_RECURSION_DEPTH_LIMIT,
         };
-        self.counts.primary += n as u64;
         // Lights are sampled only with next-event estimation, and so one a vertex and multiple
         // importance sampling only with it.
         let nee = params.next_event;
         let (one_light, mis) = (params.one_light && nee, params.mis && nee);
-        // Radiance so far, by axis then lane, and the rest of the paths' state.
-        let mut l = [[0.0; N]; 3];
-        let mut beta = [[1.0; N]; 3];
-        let mut potential = [[1.0; N]; 3];
-        let (mut o, mut d) = ([[0.0; N]; 3], [[0.0; N]; 3]);
-        let mut from = [[0.0; N]; 3];
-        let mut drawn = [0.0; N];
-        let mut specular = u32::MAX;
-        let mut inside = 0u32;
-        let mut absorb = [DVec3::ZERO; N];
-        let mut counted = [0u32; N];
-        let bg = self.background.to_array();
-        // The lanes' rays (unused lanes repeat the first) and what they found.
-        let mut found =
-            HitLanes { mask: 0, point: o, normal: o, t: [0.0; N], material: [0; N], instance: [0; N] };
-        for k in 0..N {
-            let (r, h) = (&rays[k.min(n - 1)], hits.get(k).copied().flatten());
-            for a in 0..3 {
-                o[a][k] = r.origin[a];
-                d[a][k] = r.dir[a];
-            }
-            if let Some(h) = h {
-                found.mask |= 1 << k;
-                found.material[k] = h.material;
-                found.instance[k] = h.instance;
-                found.t[k] = h.t;
-                for a in 0..3 {
-                    found.point[a][k] = h.point[a];
-                    found.normal[a][k] = h.geo_normal[a];
-                }
-            }
-        }
-        let mut alive = (1u32 << n) - 1;
-        let mut bounce = 0u32;
-        loop {
-            let misses = alive & !found.mask;
-            if misses != 0 {
-                let on = lane_words(misses);
-                for a in 0..3 {
-                    for k in 0..N {
-                        l[a][k] = pick(on[k], l[a][k] + beta[a][k] * bg[a], l[a][k]);
-                    }
-                }
-            }
-            alive &= found.mask;
-            if alive == 0 {
-                break;
-            }
-            if alive & inside != 0 {
-                beta = absorbed(beta, &absorb, &found.t, alive & inside);
+        let (mut l, mut alive) = (g.l, g.alive);
+        let (p, found, samplers) = (&mut g.p, &g.found, &mut g.samplers[..]);
+        'vertex: {
+            if alive & p.inside != 0 {
+                p.beta = absorbed(p.beta, &p.absorb, &found.t, alive & p.inside);
             }
             // Each lane's normal on the side the path arrives from, and where it looks from.
             let (mut ns, mut front) = ([[0.0; N]; 3], [false; N]);
             let mut wo = [DVec3::ZERO; N];
             let g = &found.normal;
             for k in 0..N {
-                let cos = (d[0][k] * g[0][k]) + (d[1][k] * g[1][k]) + (d[2][k] * g[2][k]);
+                let cos = (p.d[0][k] * g[0][k]) + (p.d[1][k] * g[1][k]) + (p.d[2][k] * g[2][k]);
                 front[k] = cos < 0.0;
                 for a in 0..3 {
                     ns[a][k] = if front[k] { g[a][k] } else { -g[a][k] };
                 }
-                wo[k] = -lane(&d, k);
+                wo[k] = -lane(&p.d, k);
             }
             // Each lane's material; what it emits (after the camera or a specular vertex, or
             // without next-event estimation; with multiple importance sampling, weighed
@@ -203,8 +245,8 @@ impl<'a> PathLanes<'a> {
             let mut live = 0u32;
             for k in lanes(alive) {
                 let mat = sh.mats[k];
-                if (!nee || specular & (1 << k) != 0)
-                    && let Some(le) = emitted(scene, &found, &front, k)
+                if (!nee || p.specular & (1 << k) != 0)
+                    && let Some(le) = emitted(scene, found, &front, k)
                 {
                     #[cfg(test)]
                     if bounce > 0 && !nee {
@@ -222,7 +264,7 @@ impl<'a> PathLanes<'a> {
                     }
                 }
                 plain |= u32::from(mat.kind == MaterialKind::Plain) << k;
-                let lit = !(mat.kind == MaterialKind::Dielectric && inside & (1 << k) != 0);
+                let lit = !(mat.kind == MaterialKind::Dielectric && p.inside & (1 << k) != 0);
                 shaded |= u32::from(lit) << k;
                 let reflects = mat.diffuse != DVec3::ZERO || mat.specular != DVec3::ZERO;
                 live |= u32::from(lit && reflects) << k;
@@ -234,7 +276,7 @@ impl<'a> PathLanes<'a> {
             let mut continues = 0u32;
             if bounce < MAX_RECURSION_DEPTH_LIMIT {
                 for k in 0..N {
-                    continues |= u32::from(counted[k] < max_bounces) << k;
+                    continues |= u32::from(p.counted[k] < max_bounces) << k;
                 }
             }
             // With `SampleOneLight`, each lane's light (drawn wherever lights are sampled,
@@ -248,13 +290,22 @@ impl<'a> PathLanes<'a> {
                     chance[k] = 1.0;
                 }
                 if alive & continues & !plain != 0 {
-                    specular_chances(&sh, &d, &ns, alive & continues & !plain, &mut chance);
+                    specular_chances(&sh, &p.d, &ns, alive & continues & !plain, &mut chance);
                 }
                 (params.importance, chance)
             });
             if mis && bounce > 0 {
-                let drawn_by = alive & !specular;
-                weighed_emission(scene, &found, &d, &front, drawn_by, (&from, &drawn), one_light, &mut local);
+                let drawn_by = alive & !p.specular;
+                weighed_emission(
+                    scene,
+                    found,
+                    &p.d,
+                    &front,
+                    drawn_by,
+                    (&p.from, &p.drawn),
+                    one_light,
+                    &mut local,
+                );
             }
             // (Zero where nothing is reflected, added all the same: the same sums as alone.)
             let lit = if nee && live != 0 {
@@ -276,14 +327,14 @@ impl<'a> PathLanes<'a> {
                 // ends keeps this vertex's light at the throughput it arrived with.
                 let u = draw_requests::<N, 1>(samplers, alive);
                 for k in lanes(alive) {
-                    let q = lane(&potential, k).max_element().min(1.0);
+                    let q = lane(&p.potential, k).max_element().min(1.0);
                     if u[k][0].0 >= q {
                         for a in 0..3 {
-                            l[a][k] += beta[a][k] * (local[a][k] + lit[a][k]);
+                            l[a][k] += p.beta[a][k] * (local[a][k] + lit[a][k]);
                         }
                         alive &= !(1 << k);
                     } else {
-                        for b in &mut beta {
+                        for b in &mut p.beta {
                             b[k] /= q;
                         }
                     }
@@ -293,12 +344,12 @@ impl<'a> PathLanes<'a> {
             for a in 0..3 {
                 for k in 0..N {
                     let local_k = local[a][k] + lit[a][k];
-                    l[a][k] = pick(on[k], l[a][k] + beta[a][k] * local_k, l[a][k]);
+                    l[a][k] = pick(on[k], l[a][k] + p.beta[a][k] * local_k, l[a][k]);
                 }
             }
             alive &= continues;
             if alive == 0 {
-                break;
+                break 'vertex;
             }
             // The diffuse and glossy lanes' bounces side by side.
             let bent = alive & plain;
@@ -312,25 +363,32 @@ impl<'a> PathLanes<'a> {
             let on = lane_words(bent);
             for a in 0..3 {
                 for k in 0..N {
-                    beta[a][k] = pick(on[k], beta[a][k] * f[a][k], beta[a][k]);
+                    p.beta[a][k] = pick(on[k], p.beta[a][k] * f[a][k], p.beta[a][k]);
                     let origin = found.point[a][k] + eps * ns[a][k];
-                    o[a][k] = pick(on[k], origin, o[a][k]);
-                    d[a][k] = pick(on[k], wi[a][k], d[a][k]);
+                    p.o[a][k] = pick(on[k], origin, p.o[a][k]);
+                    p.d[a][k] = pick(on[k], wi[a][k], p.d[a][k]);
                 }
             }
-            for (k, c) in counted.iter_mut().enumerate() {
+            for (k, c) in p.counted.iter_mut().enumerate() {
                 *c += (bent >> k) & 1;
             }
-            specular &= !bent;
+            p.specular &= !bent;
             if course {
                 for k in lanes(bent) {
                     for a in 0..3 {
-                        potential[a][k] *= brdf[a][k];
+                        p.potential[a][k] *= brdf[a][k];
                     }
                 }
             }
             if mis {
-                remember_bounces(params.importance, &found.point, &ns, &wi, bent, (&mut from, &mut drawn));
+                remember_bounces(
+                    params.importance,
+                    &found.point,
+                    &ns,
+                    &wi,
+                    bent,
+                    (&mut p.from, &mut p.drawn),
+                );
             }
             // The mirror, conductor and dielectric lanes' bounces, one by one.
             let turned = alive & !plain;
@@ -338,21 +396,18 @@ impl<'a> PathLanes<'a> {
                 alive &= !turned;
                 // (The state goes in and out by value: handing the function a reference to it
                 // made the whole loop 5 % slower.)
-                let mut p = Paths { beta, potential, o, d, from, drawn, specular, inside, absorb, counted };
-                alive |=
-                    specular_bounces(scene, &found, &sh, &ns, (&front, turned), params, &mut p, samplers);
-                Paths { beta, potential, o, d, from, drawn, specular, inside, absorb, counted } = p;
+                alive |= specular_bounces(scene, found, &sh, &ns, (&front, turned), params, p, samplers);
             }
             self.counts.secondary += u64::from(alive.count_ones());
             if params.roulette == Roulette::Unbiased && alive != 0 {
                 // Roulette on the throughput, after the bounce.
                 let u = draw_requests::<N, 1>(samplers, alive);
                 for k in lanes(alive) {
-                    let q = lane(&beta, k).max_element().min(1.0);
+                    let q = lane(&p.beta, k).max_element().min(1.0);
                     if u[k][0].0 >= q {
                         alive &= !(1 << k);
                     } else {
-                        for b in &mut beta {
+                        for b in &mut p.beta {
                             b[k] /= q;
                         }
                     }
@@ -360,19 +415,13 @@ impl<'a> PathLanes<'a> {
             }
             let mut dead = 0u32;
             for k in 0..N {
-                let zero = (beta[0][k] == 0.0) & (beta[1][k] == 0.0) & (beta[2][k] == 0.0);
-                let finite = beta[0][k].is_finite() & beta[1][k].is_finite() & beta[2][k].is_finite();
+                let zero = (p.beta[0][k] == 0.0) & (p.beta[1][k] == 0.0) & (p.beta[2][k] == 0.0);
+                let finite = p.beta[0][k].is_finite() & p.beta[1][k].is_finite() & p.beta[2][k].is_finite();
                 dead |= u32::from(zero | !finite) << k;
             }
             alive &= !dead;
-            bounce += 1;
-            if alive == 0 {
-                break;
-            }
-            fill_unused(&mut o, &mut d, alive);
-            scene.accel.closest_lanes(&o, &d, alive, tmin, &mut found);
         }
-        std::array::from_fn(|k| lane(&l, k))
+        (g.l, g.alive) = (l, alive);
     }
 
     /// What [`super::direct::Lighting::reflected`] gives the points `x[k]` (normals `n[k]`,
@@ -542,31 +591,6 @@ impl<'a> PathLanes<'a> {
         fill_unused(&mut o, dir, mask);
         mask & !self.scene.accel.occluded_lanes(&o, dir, far, mask, tmin)
     }
-}
-
-/// The state of a group's paths besides their radiance, by axis then lane: what a specular
-/// vertex's bounce changes ([`specular_bounces`]).
-struct Paths {
-    /// Throughput.
-    beta: Axes,
-    /// The product of the BRDF values of the path's diffuse and glossy vertices so far: the
-    /// course roulette's potential.
-    potential: Axes,
-    /// The lanes' rays (unused lanes repeat a living one's).
-    o: Axes,
-    d: Axes,
-    /// With multiple importance sampling, where each lane's last BRDF bounce left from and
-    /// the density it was drawn with: what an object light it hits weighs.
-    from: Axes,
-    drawn: [f64; N],
-    /// The lanes whose last vertex was the camera or a specular one: lights they reach count
-    /// in full, not having been sampled there.
-    specular: u32,
-    /// The lanes inside a dielectric, and its absorption coefficient (Beer's law).
-    inside: u32,
-    absorb: [DVec3; N],
-    /// The bounces that count towards the depth limit (`ShadingRules::path_depth`).
-    counted: [u32; N],
 }
 
 /// `beta` after Beer's law over the segments (of lengths `t`) of the lanes of `mask`, which are
@@ -1067,12 +1091,6 @@ impl MatteLanes {
     }
 }
 
-/// Lane `k` of `v` as a vector.
-#[inline(always)]
-fn lane(v: &Axes, k: usize) -> DVec3 {
-    DVec3::new(v[0][k], v[1][k], v[2][k])
-}
-
 /// The lanes outside `mask` (which is not empty) take the first lane of `mask`'s ray, so a
 /// packet holds finite rays only.
 #[inline(always)]
@@ -1213,6 +1231,7 @@ mod tests {
             (false, true, Roulette::Unbiased, false, false),
         ] {
             let params = PathParams { next_event, importance, roulette, one_light, mis };
+            gathered_groups_match_alone(scene, rays, params);
             for group in [GROUP_LANES, 5, 2, 1] {
                 for one_pixel in [true, false] {
                     let samplers: Vec<Sampler> = (0..group as u32)
@@ -1252,6 +1271,59 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Several camera groups traced together ([`super::PathLanes::trace_groups`]), their living
+    /// paths gathered into full groups after every step: each sample still gets the radiance,
+    /// numbers and rays it gets alone, whichever lanes it travels in.
+    fn gathered_groups_match_alone(
+        scene: &crate::scene::Scene,
+        rays: &[Ray; GROUP_LANES],
+        params: PathParams,
+    ) {
+        use crate::integrator::CameraGroup;
+        // Groups of several sizes, of two pixels each (their lanes draw from different pixels
+        // once gathered), each with the rays in another order.
+        let sizes = [8, 5, 8, 1, 8, 3];
+        let mut groups: Vec<CameraGroup> = sizes
+            .iter()
+            .enumerate()
+            .map(|(g, &n)| CameraGroup {
+                rays: std::array::from_fn(|k| rays[(k + g) % GROUP_LANES]),
+                hits: [None; GROUP_LANES],
+                n,
+                samplers: std::array::from_fn(|k| Sampler::new(11, (g % 2) as u32, 5, (g * 8 + k) as u32)),
+            })
+            .collect();
+        let mut together = crate::integrator::Tracer::new(scene);
+        together.renderer = Renderer::Path(params);
+        for g in &mut groups {
+            together.camera_hits(&g.rays[..g.n], &mut g.hits[..g.n]);
+        }
+        let before: Vec<Vec<Sampler>> = groups.iter().map(|g| g.samplers[..g.n].to_vec()).collect();
+        let moved = super::super::pool::tests::MOVED.with(Cell::get);
+        let mut got = vec![[DVec3::ZERO; GROUP_LANES]; groups.len()];
+        together.trace_path_groups(&mut groups, params, &mut got);
+        assert!(
+            super::super::pool::tests::MOVED.with(Cell::get) > moved,
+            "paths moved between groups, {params:?}"
+        );
+        let mut alone = crate::integrator::Tracer::new(scene);
+        alone.renderer = Renderer::Path(params);
+        for (g, group) in groups.iter_mut().enumerate() {
+            for i in 0..group.n {
+                let mut rng = before[g][i].clone();
+                let want = alone.trace_primary(&group.rays[i], group.hits[i], &mut rng);
+                let lane = format!("group {g} lane {i}, {params:?}");
+                assert_eq!(
+                    got[g][i].to_array().map(f64::to_bits),
+                    want.to_array().map(f64::to_bits),
+                    "{lane}"
+                );
+                assert_eq!(group.samplers[i].next_1d(), rng.next_1d(), "{lane}");
+            }
+        }
+        assert_eq!(together.stats, alone.stats, "{params:?}");
     }
 
     /// Mirrors, conductors and glass (with and without roughness and absorption) among the
