@@ -66,6 +66,23 @@ pub(super) fn draw_requests<const N: usize, const M: usize>(
     out
 }
 
+/// [`draw_requests`] by request, coordinate and lane: `out[m][0][k]` and `out[m][1][k]` are
+/// sampler `k`'s `m`-th pair (zero outside `mask`), the layout the path lanes read, so the
+/// numbers need no transposition.
+#[inline(always)]
+pub(super) fn draw_lanes<const M: usize>(rngs: &mut [Sampler], mask: u32) -> [[[f64; GROUP_LANES]; 2]; M] {
+    if mask & mask.wrapping_sub(1) != 0 {
+        return Sampler::next_2d_groups_of::<M>(rngs, mask);
+    }
+    let mut out = [[[0.0; GROUP_LANES]; 2]; M];
+    for k in lanes(mask) {
+        for o in &mut out {
+            (o[0][k], o[1][k]) = rngs[k].next_2d();
+        }
+    }
+    out
+}
+
 /// The next two numbers of each sampler in `mask`: one request of [`draw_requests`].
 #[inline(always)]
 fn draw_2d<const N: usize>(rngs: &mut [Sampler], mask: u32) -> [(f64, f64); N] {

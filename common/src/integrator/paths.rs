@@ -30,7 +30,7 @@ use glam::DVec3;
 
 use super::bounces::{Arrival, brdf_chance, density, scatter};
 use super::direct::{
-    BounceDensity, LightWeights, ONE_LIGHT_REQUESTS, draw_requests, light_pdf, power_heuristic,
+    BounceDensity, LightWeights, ONE_LIGHT_REQUESTS, draw_lanes, light_pdf, power_heuristic,
 };
 use super::pool::{CameraGroup, Lanes, Paths, Pool, gather, lane};
 use crate::geometry::{Axes, HitLanes, SurfaceHit};
@@ -42,6 +42,9 @@ use crate::scene::Scene;
 use crate::scene::records::{MAX_RECURSION_DEPTH_LIMIT, PathParams, Roulette};
 
 const N: usize = GROUP_LANES;
+
+/// `M` requests' numbers of a group's lanes, by request, coordinate and lane ([`draw_lanes`]).
+type Drawn<const M: usize> = [[[f64; N]; 2]; M];
 
 /// Each lane's material and its matte form, if it has one.
 struct Shading<'m> {
@@ -325,10 +328,10 @@ impl<'a> PathLanes<'a> {
             if params.roulette == Roulette::Course {
                 // The course's roulette on the product of the path's BRDF values: a path that
                 // ends keeps this vertex's light at the throughput it arrived with.
-                let u = draw_requests::<N, 1>(samplers, alive);
+                let u = draw_lanes::<1>(samplers, alive);
                 for k in lanes(alive) {
                     let q = lane(&p.potential, k).max_element().min(1.0);
-                    if u[k][0].0 >= q {
+                    if u[0][0][k] >= q {
                         for a in 0..3 {
                             l[a][k] += p.beta[a][k] * (local[a][k] + lit[a][k]);
                         }
@@ -353,7 +356,7 @@ impl<'a> PathLanes<'a> {
             }
             // The diffuse and glossy lanes' bounces side by side.
             let bent = alive & plain;
-            let u = draw_requests::<N, 1>(samplers, bent);
+            let u = draw_lanes::<1>(samplers, bent);
             let course = params.roulette == Roulette::Course;
             let mut brdf = [[0.0; N]; 3];
             let (wi, f, ok) =
@@ -401,10 +404,10 @@ impl<'a> PathLanes<'a> {
             self.counts.secondary += u64::from(alive.count_ones());
             if params.roulette == Roulette::Unbiased && alive != 0 {
                 // Roulette on the throughput, after the bounce.
-                let u = draw_requests::<N, 1>(samplers, alive);
+                let u = draw_lanes::<1>(samplers, alive);
                 for k in lanes(alive) {
                     let q = lane(&p.beta, k).max_element().min(1.0);
-                    if u[k][0].0 >= q {
+                    if u[0][0][k] >= q {
                         alive &= !(1 << k);
                     } else {
                         for b in &mut p.beta {
@@ -485,7 +488,7 @@ impl<'a> PathLanes<'a> {
             // `picks`, drawn with the pick).
             let u = match picks {
                 Some(p) => p.u,
-                None => draw_requests::<N, 2>(samplers, live),
+                None => draw_lanes::<2>(samplers, live),
             };
             let Some(samples) = light_samples(light, xs, &u, live) else {
                 // Another kind of light, one lane at a time.
@@ -535,7 +538,7 @@ impl<'a> PathLanes<'a> {
         &mut self,
         light: &ObjectLight,
         at: &Vertices<'_, '_>,
-        u: &[[(f64, f64); 2]; N],
+        u: &Drawn<2>,
         live: u32,
         l: &mut Axes,
     ) {
@@ -546,7 +549,7 @@ impl<'a> PathLanes<'a> {
         let mut irradiance = [DVec3::ZERO; N];
         let mut mask = 0u32;
         for k in lanes(live) {
-            let [(u0, _), (u1, u2)] = u[k];
+            let (u0, u1, u2) = (u[0][0][k], u[1][0][k], u[1][1][k]);
             let (x, n) = (lane(xs, k), lane(ns, k));
             if let Some(s) = light.sample(x, u0, u1, u2)
                 && n.dot(s.wi) > 0.0
@@ -877,7 +880,7 @@ struct Picks {
     /// The lanes that picked a light (none is picked when no light has any power).
     mask: u32,
     /// Each lane's numbers for its light: the [`ONE_LIGHT_REQUESTS`] requests after the pick.
-    u: [[(f64, f64); 2]; N],
+    u: Drawn<2>,
 }
 
 impl Picks {
@@ -886,11 +889,10 @@ impl Picks {
     /// picks: the lanes' samplers stay at the same dimension.
     fn draw(scene: &Scene, alive: u32, samplers: &mut [Sampler]) -> Picks {
         const { assert!(ONE_LIGHT_REQUESTS == 2, "the light's requests are drawn with the pick's") };
-        let drawn = draw_requests::<N, 3>(samplers, alive);
-        let mut picks =
-            Picks { light: [usize::MAX; N], p: [0.0; N], mask: 0, u: drawn.map(|[_, a, b]| [a, b]) };
+        let drawn = draw_lanes::<3>(samplers, alive);
+        let mut picks = Picks { light: [usize::MAX; N], p: [0.0; N], mask: 0, u: [drawn[1], drawn[2]] };
         for k in lanes(alive) {
-            if let Some((i, p)) = scene.light_choice.pick(drawn[k][0].0) {
+            if let Some((i, p)) = scene.light_choice.pick(drawn[0][0][k]) {
                 picks.light[k] = i;
                 picks.p[k] = p;
                 picks.mask |= 1 << k;
@@ -916,14 +918,14 @@ fn bounce_lanes(
     (sh, matte): (&Shading<'_>, &MatteLanes),
     importance: bool,
     brdf: Option<&mut Axes>,
-    u: &[[(f64, f64); 1]; N],
+    u: &Drawn<1>,
 ) -> (Axes, Axes, u32) {
     let mut wi = [[0.0; N]; 3];
     let mut cos_t = [0.0; N];
     let mut pdf = [0.0; N];
     for k in 0..N {
         let nk = lane(ns, k);
-        let (u1, u2) = u[k][0];
+        let (u1, u2) = (u[0][0][k], u[0][1][k]);
         // `orthonormal_pair`, its choice of component made by selection.
         let a = nk.abs();
         let cx = a.x <= a.y && a.x <= a.z;
@@ -982,16 +984,16 @@ struct LightLanes {
     ok: u32,
 }
 
-/// [`ObjectLight::sample`] from each lane `k` at `x[k]` (by axis), with the numbers `u[k]` (the
+/// [`ObjectLight::sample`] from each lane `k` at `x[k]` (by axis), with lane `k`'s numbers in `u` (the
 /// first of the first request picks a triangle, the second request the point), for a light of
 /// at most 32 triangles, all lanes side by side with `sample`'s operations (its `irradiance` is
 /// the light's radiance times `g`). `None` for other lights.
 #[inline(always)]
-fn light_samples(light: &ObjectLight, x: &Axes, u: &[[(f64, f64); 2]; N], mask: u32) -> Option<LightLanes> {
+fn light_samples(light: &ObjectLight, x: &Axes, u: &Drawn<2>, mask: u32) -> Option<LightLanes> {
     let EmitterShape::Triangles { tris, cdf, normals } = &light.shape else { return None };
     let &total = cdf.last().filter(|_| cdf.len() <= 32)?;
     // The first running area above each lane's target, counted.
-    let target: [f64; N] = std::array::from_fn(|k| u[k][0].0 * total);
+    let target: [f64; N] = std::array::from_fn(|k| u[0][0][k] * total);
     let mut idx = [0usize; N];
     for &c in cdf {
         for k in 0..N {
@@ -1014,7 +1016,7 @@ fn light_samples(light: &ObjectLight, x: &Axes, u: &[[(f64, f64); 2]; N], mask: 
     let mut out = LightLanes { wi: [[0.0; N]; 3], dist: [0.0; N], g: [0.0; N], ok: 0 };
     let mut ok = [false; N];
     for k in 0..N {
-        let (u1, u2) = u[k][1];
+        let (u1, u2) = (u[1][0][k], u[1][1][k]);
         let s = u1.sqrt();
         let (w0, w1, w2) = (1.0 - s, s * (1.0 - u2), s * u2);
         let to: [f64; 3] = std::array::from_fn(|a| w0 * p0[a][k] + w1 * p1[a][k] + w2 * p2[a][k] - x[a][k]);
