@@ -270,7 +270,7 @@ impl<'a> Tracer<'a> {
                 background: self.background,
                 counts: paths::Counts::default(),
             };
-            let l = lanes.trace(rays, hits, params, samplers);
+            let l = lanes.trace(&mut self.path_pool, rays, hits, params, samplers);
             let c = lanes.counts;
             self.stats.add(&RayStats { primary: c.primary, shadow: c.shadow, secondary: c.secondary });
             return l;

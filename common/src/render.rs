@@ -92,7 +92,8 @@ impl Stop<'_> {
 const STOP_CHECK_EVERY: u32 = BLOCK;
 
 /// Camera samples of a pixel traced together (a [`Packet8`](crate::geometry::bvh8::Packet8));
-/// divides [`STOP_CHECK_EVERY`], so the stop checks fall where they did.
+/// divides [`STOP_CHECK_EVERY`]. The stop is looked at between batches of groups: every 16
+/// samples one group at a time, every 256 when [`POOL_GROUPS`] groups' paths go together.
 const GROUP: usize = crate::sampler::GROUP_LANES;
 
 /// Groups of camera samples whose paths are traced together (see

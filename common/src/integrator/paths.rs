@@ -106,6 +106,7 @@ impl<'a> PathLanes<'a> {
     /// [`fits`], the paths side by side: [`Self::trace_groups`] of one group.
     pub fn trace(
         &mut self,
+        pool: &mut Pool,
         rays: &[Ray; N],
         hits: &[Option<SurfaceHit>],
         params: PathParams,
@@ -122,7 +123,7 @@ impl<'a> PathLanes<'a> {
             samplers: std::array::from_fn(|k| samplers[k.min(n - 1)].clone()),
         };
         let mut out = [[DVec3::ZERO; N]];
-        self.trace_groups(&mut Pool::default(), std::slice::from_mut(&mut group), params, &mut out);
+        self.trace_groups(pool, std::slice::from_mut(&mut group), params, &mut out);
         samplers.clone_from_slice(&group.samplers[..n]);
         out[0]
     }
@@ -397,8 +398,6 @@ impl<'a> PathLanes<'a> {
             let turned = alive & !plain;
             if turned != 0 {
                 alive &= !turned;
-                // (The state goes in and out by value: handing the function a reference to it
-                // made the whole loop 5 % slower.)
                 alive |= specular_bounces(scene, found, &sh, &ns, (&front, turned), params, p, samplers);
             }
             self.counts.secondary += u64::from(alive.count_ones());
