@@ -12,7 +12,7 @@ use crate::sampler::{GROUP_LANES, Sampler};
 const N: usize = GROUP_LANES;
 
 /// The state of a group's paths besides their radiance, by axis then lane: what a specular
-/// vertex's bounce changes ([`specular_bounces`]).
+/// vertex's bounce changes (`paths::specular_bounces`).
 #[derive(Clone, Copy)]
 pub(super) struct Paths {
     /// Throughput.
@@ -37,8 +37,9 @@ pub(super) struct Paths {
     pub(super) counted: [u32; N],
 }
 
-/// A group of up to eight camera samples for [`PathLanes::trace_groups`]: their rays, the
-/// surfaces the rays found first (`None` for a miss) and their samplers; lanes `n..` are unused.
+/// A group of up to eight camera samples for [`super::paths::PathLanes::trace_groups`]: their
+/// rays, the surfaces the rays found first (`None` for a miss) and their samplers; lanes `n..`
+/// are unused.
 #[derive(Clone)]
 pub struct CameraGroup {
     pub rays: [Ray; N],
@@ -47,7 +48,8 @@ pub struct CameraGroup {
     pub samplers: [Sampler; N],
 }
 
-/// The groups of paths that [`PathLanes::trace_groups`] works in, kept from call to call.
+/// The groups of paths that [`super::paths::PathLanes::trace_groups`] works in, kept from call
+/// to call.
 #[derive(Default)]
 pub struct Pool(pub(super) Vec<Lanes>);
 
@@ -167,9 +169,10 @@ impl Lanes {
     }
 }
 
-/// After a vertex of the groups `pool`: hands the radiance and samplers of the paths that
-/// ended back to their camera samples (`out`, `cams`), then moves the paths that go on into
-/// the first groups of `pool`, eight a group but the last. Gives how many groups hold them.
+/// After a step of the groups in `pool` (their misses, or a vertex): hands the radiance and
+/// samplers of the paths that ended back to their camera samples (`out`, `cams`), then moves
+/// the paths that go on into the first groups of `pool`, so that `ceil(paths / 8)` groups hold
+/// them, each one path at least. Gives how many groups that is.
 pub(super) fn gather(pool: &mut [Lanes], cams: &mut [CameraGroup], out: &mut [[DVec3; N]]) -> usize {
     let mut total = 0;
     for g in pool.iter_mut() {
