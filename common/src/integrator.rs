@@ -13,7 +13,7 @@ use glam::{DVec2, DVec3};
 
 use crate::geometry::Instance;
 use crate::geometry::{RayLanes, SurfaceHit};
-use crate::material::{Material, MaterialKind, Refraction, fresnel_conductor, refract};
+use crate::material::{Material, MaterialKind, MatteSlot, Refraction, fresnel_conductor, refract};
 use crate::math::{Ray, orthonormal_pair, reflect};
 use crate::sampler::{GROUP_LANES, Sampler};
 use crate::scene::records::{
@@ -259,21 +259,12 @@ impl<'a> Tracer<'a> {
             }
             _ => None,
         };
-        let params = match self.renderer {
-            Renderer::Classic => return self.classic_group(rays, hits, samplers, seen.as_ref()),
-            Renderer::Path(params) => params,
-        };
-        if let Some(mattes) = paths::fits(self.scene) {
-            let mut lanes = paths::PathLanes {
-                scene: self.scene,
-                mattes,
-                background: self.background,
-                counts: paths::Counts::default(),
-            };
-            let l = lanes.trace(&mut self.path_pool, rays, hits, params, samplers);
-            let c = lanes.counts;
-            self.stats.add(&RayStats { primary: c.primary, shadow: c.shadow, secondary: c.secondary });
-            return l;
+        if self.renderer == Renderer::Classic {
+            return self.classic_group(rays, hits, samplers, seen.as_ref());
+        }
+        if let Some((params, mattes)) = self.path_lanes() {
+            return self
+                .with_path_lanes(mattes, |lanes, pool| lanes.trace(pool, rays, hits, params, samplers));
         }
         let mut out = [DVec3::ZERO; GROUP_LANES];
         for (i, (hit, rng)) in hits.iter().zip(samplers).enumerate() {
@@ -288,36 +279,46 @@ impl<'a> Tracer<'a> {
         out
     }
 
-    /// The path tracer's settings when this camera's paths go through
-    /// [`Self::trace_path_groups`] (a path-traced camera of a scene that [`paths::fits`]).
-    pub fn pools_paths(&self) -> Option<PathParams> {
+    /// This camera's path tracer's settings and the scene's matte forms, when its paths go
+    /// side by side (a path-traced camera of a scene that [`paths::fits`]).
+    fn path_lanes(&self) -> Option<(PathParams, &'a [MatteSlot])> {
         match self.renderer {
-            Renderer::Path(params) => paths::fits(self.scene).map(|_| params),
+            Renderer::Path(params) => paths::fits(self.scene).map(|mattes| (params, mattes)),
             Renderer::Classic => None,
         }
     }
 
-    /// [`Self::trace_primary`] of every camera sample of `groups` (see
-    /// [`paths::PathLanes::trace_groups`]) into `out`, one entry a group, when
-    /// [`Self::pools_paths`] gives `params`: the same values as [`Self::trace_primary_group`]
-    /// of each group, with the paths of all the groups gathered into full groups after each
-    /// vertex.
-    pub fn trace_path_groups(
+    /// Whether this camera's samples may go through [`Self::trace_path_groups`].
+    pub fn pools_paths(&self) -> bool {
+        self.path_lanes().is_some()
+    }
+
+    /// `f` with the path lanes of this tracer's scene and the tracer's pool of path groups; the
+    /// rays they trace are added to the tracer's counts.
+    fn with_path_lanes<T>(
         &mut self,
-        groups: &mut [CameraGroup],
-        params: PathParams,
-        out: &mut [[DVec3; GROUP_LANES]],
-    ) {
-        let mattes = paths::fits(self.scene).expect("pools_paths said the paths fit");
+        mattes: &'a [MatteSlot],
+        f: impl FnOnce(&mut paths::PathLanes<'a>, &mut pool::Pool) -> T,
+    ) -> T {
         let mut lanes = paths::PathLanes {
             scene: self.scene,
             mattes,
             background: self.background,
             counts: paths::Counts::default(),
         };
-        lanes.trace_groups(&mut self.path_pool, groups, params, out);
+        let out = f(&mut lanes, &mut self.path_pool);
         let c = lanes.counts;
         self.stats.add(&RayStats { primary: c.primary, shadow: c.shadow, secondary: c.secondary });
+        out
+    }
+
+    /// [`Self::trace_primary`] of every camera sample of `groups` (see
+    /// [`paths::PathLanes::trace_groups`]) into `out`, one entry a group, when
+    /// [`Self::pools_paths`]: the same values as [`Self::trace_primary_group`] of each group,
+    /// with the paths of all the groups gathered into full groups after each vertex.
+    pub fn trace_path_groups(&mut self, groups: &mut [CameraGroup], out: &mut [[DVec3; GROUP_LANES]]) {
+        let (params, mattes) = self.path_lanes().expect("pools_paths said the paths go side by side");
+        self.with_path_lanes(mattes, |lanes, pool| lanes.trace_groups(pool, groups, params, out));
     }
 
     /// [`Self::trace_primary_group`] for the recursive renderer: [`Self::shade`] of every lane

@@ -220,8 +220,8 @@ pub fn render_tile_sums_until(
     // ([`Tracer::trace_path_groups`]). Every path computes what it computes alone, so this
     // changes no bit either. A background image is looked up per group, so its scenes trace
     // one group at a time.
-    let pooled = tracer.pools_paths().filter(|_| scene.background_texture.is_none());
-    let batch = if pooled.is_some() { POOL_GROUPS } else { 1 };
+    let pooled = tracer.pools_paths() && scene.background_texture.is_none();
+    let batch = if pooled { POOL_GROUPS } else { 1 };
     // The groups' rays, camera hits and samplers, each lane's pixel and sample index, and
     // their radiance, made once per tile: every group writes the entries it reads
     // (`camera_hits` writes a hit or `None` to each of its slots), and a group's arrays zeroed
@@ -332,7 +332,7 @@ pub fn render_tile_sums_until(
             } else {
                 tracer.camera_hits(&cg.rays[..group], &mut cg.hits[..group]);
             }
-            if pooled.is_none() {
+            if !pooled {
                 radiance[made] =
                     tracer.trace_primary_group(&cg.rays, &cg.hits[..group], &mut cg.samplers[..group]);
             }
@@ -340,8 +340,8 @@ pub fn render_tile_sums_until(
             next += group as u64;
             made += 1;
         }
-        if let Some(params) = pooled {
-            tracer.trace_path_groups(&mut groups[..made], params, &mut radiance[..made]);
+        if pooled {
+            tracer.trace_path_groups(&mut groups[..made], &mut radiance[..made]);
         }
         for ((cg, lanes), radiance) in groups.iter().zip(&lanes).zip(&radiance).take(made) {
             for i in 0..cg.n {

@@ -40,35 +40,11 @@ pub struct LitPoint<'m> {
 pub(super) const ONE_LIGHT_REQUESTS: u64 = 2;
 
 /// `M` requests of two numbers from each sampler in `mask` (`rngs` holds one sampler per
-/// point): `out[k][m]` is sampler `k`'s `m`-th, zero for the lanes outside `mask`. One
-/// [`Sampler::next_2d_groups_of`] call when the mask holds two or more (it draws them together
-/// when they stand at the same dimension), the lone sampler's own draw otherwise.
-#[inline(always)]
-pub(super) fn draw_requests<const N: usize, const M: usize>(
-    rngs: &mut [Sampler],
-    mask: u32,
-) -> [[(f64, f64); M]; N] {
-    let mut out = [[(0.0, 0.0); M]; N];
-    if mask & mask.wrapping_sub(1) != 0 {
-        let drawn = Sampler::next_2d_groups_of::<M>(rngs, mask);
-        for (k, o) in out.iter_mut().enumerate().take(rngs.len()) {
-            for (m, req) in drawn.iter().enumerate() {
-                o[m] = (req[0][k], req[1][k]);
-            }
-        }
-        return out;
-    }
-    for k in lanes(mask) {
-        for o in &mut out[k] {
-            *o = rngs[k].next_2d();
-        }
-    }
-    out
-}
-
-/// [`draw_requests`] by request, coordinate and lane: `out[m][0][k]` and `out[m][1][k]` are
-/// sampler `k`'s `m`-th pair (zero outside `mask`), the layout the path lanes read, so the
-/// numbers need no transposition.
+/// point, at most [`GROUP_LANES`]), by request, coordinate and lane: `out[m][0][k]` and
+/// `out[m][1][k]` are sampler `k`'s `m`-th pair, zero for the lanes outside `mask`, the layout
+/// the path lanes read. One [`Sampler::next_2d_groups_of`] call when the mask holds two or more
+/// (it draws them together when they stand at the same dimension), the lone sampler's own draw
+/// otherwise.
 #[inline(always)]
 pub(super) fn draw_lanes<const M: usize>(rngs: &mut [Sampler], mask: u32) -> [[[f64; GROUP_LANES]; 2]; M] {
     if mask & mask.wrapping_sub(1) != 0 {
@@ -81,6 +57,15 @@ pub(super) fn draw_lanes<const M: usize>(rngs: &mut [Sampler], mask: u32) -> [[[
         }
     }
     out
+}
+
+/// [`draw_lanes`] as pairs by point (`out[k][m]` is sampler `k`'s `m`-th), for `N` points of
+/// at most [`GROUP_LANES`].
+#[inline(always)]
+fn draw_requests<const N: usize, const M: usize>(rngs: &mut [Sampler], mask: u32) -> [[(f64, f64); M]; N] {
+    const { assert!(N <= GROUP_LANES, "at most a group's lanes") };
+    let drawn = draw_lanes::<M>(rngs, mask);
+    std::array::from_fn(|k| std::array::from_fn(|m| (drawn[m][0][k], drawn[m][1][k])))
 }
 
 /// The next two numbers of each sampler in `mask`: one request of [`draw_requests`].

@@ -1304,7 +1304,7 @@ mod tests {
         let before: Vec<Vec<Sampler>> = groups.iter().map(|g| g.samplers[..g.n].to_vec()).collect();
         let moved = super::super::pool::tests::MOVED.with(Cell::get);
         let mut got = vec![[DVec3::ZERO; GROUP_LANES]; groups.len()];
-        together.trace_path_groups(&mut groups, params, &mut got);
+        together.trace_path_groups(&mut groups, &mut got);
         assert!(
             super::super::pool::tests::MOVED.with(Cell::get) > moved,
             "paths moved between groups, {params:?}"
