@@ -479,8 +479,9 @@ fn median(v: &mut [f64]) -> f64 {
 /// the store's lock: polled, it pushed a worker's lease from 1 ms to 0.4 s. Now it reads a row
 /// of counters. A job of 99,856 tile rows (316 x 316 in 1-pixel tiles, under the default
 /// `--max-job-tiles`); one thread polls `/metrics` without pause while a worker leases tiles
-/// and returns them: its median lease stays under 50 ms, and the metrics count exactly the
-/// results returned and their render seconds.
+/// and returns them: `/metrics` and the lease each take under 5 ms (median; a scan of these
+/// rows alone takes over 10 ms here), and the metrics count exactly the results returned and
+/// their render seconds.
 #[test]
 fn metrics_stay_cheap_beside_a_large_job() {
     let _s = serial();
@@ -556,13 +557,15 @@ fn metrics_stay_cheap_beside_a_large_job() {
         scrape_median * 1e3,
         polled_max * 1e3
     );
+    // A scan of the tile rows (what /metrics did) takes over 10 ms here, and a lease waits for
+    // it; a read of the counters takes well under a millisecond.
     assert!(scrapes.len() >= 20, "/metrics answered only {} times", scrapes.len());
+    assert!(scrape_median < 0.005, "/metrics took {:.1} ms (median)", scrape_median * 1e3);
     assert!(
-        polled_median < 0.050,
+        polled_median < 0.005,
         "a lease took {:.1} ms (median) while /metrics was polled",
         polled_median * 1e3
     );
-    assert!(scrape_median < 0.050, "/metrics took {:.1} ms (median)", scrape_median * 1e3);
 
     // The counters: exactly the results returned, their render seconds, the job running.
     let n = (QUIET + POLLED) as u64;
