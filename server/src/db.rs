@@ -115,6 +115,33 @@ CREATE TABLE IF NOT EXISTS job_events(
 ) WITHOUT ROWID;
 ";
 
+/// The running totals `/metrics` reports, one row kept up in the transactions that change them
+/// (a call reads one row instead of scanning every tile).
+const COUNTERS_SCHEMA: &str = "
+CREATE TABLE IF NOT EXISTS counters(
+    id INTEGER PRIMARY KEY CHECK (id = 1),
+    tiles_done INTEGER NOT NULL,
+    render_seconds_sum REAL NOT NULL,
+    render_seconds_count INTEGER NOT NULL
+);
+";
+
+/// Creates the counters' row; a database from before it gets the totals its tiles hold, counted
+/// once.
+fn seed_counters(conn: &Connection) -> Result<()> {
+    conn.execute_batch(COUNTERS_SCHEMA)?;
+    let seeded: bool = conn.query_row("SELECT EXISTS (SELECT 1 FROM counters)", [], |r| r.get(0))?;
+    if !seeded {
+        conn.execute(
+            "INSERT INTO counters(id, tiles_done, render_seconds_sum, render_seconds_count)
+             SELECT 1, count(CASE WHEN state = 'done' THEN 1 END), coalesce(sum(render_seconds), 0.0), count(render_seconds)
+             FROM tiles",
+            [],
+        )?;
+    }
+    Ok(())
+}
+
 /// Most events a job's log keeps: a job of a million tiles must not write a million rows of
 /// log. The event after the last one kept says the log
 /// is full (`log_truncated`); the job's end (done, failed, cancelled) is still recorded, so a
@@ -621,6 +648,7 @@ impl Store {
         conn.set_prepared_statement_cache_capacity(STATEMENT_CACHE);
         conn.execute_batch(SCHEMA).context("cannot create the job store's tables")?;
         migrate(&conn).context("cannot bring the job store's tables up to date")?;
+        seed_counters(&conn).context("cannot create the job store's counters")?;
         conn.execute(
             "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE state = 'leased'",
             [],
@@ -1299,6 +1327,11 @@ impl Store {
             params![lease as i64, pixels, render_seconds],
         )?;
         tx.execute_cached(
+            "UPDATE counters SET tiles_done = tiles_done + 1, render_seconds_sum = render_seconds_sum + coalesce(?1, 0.0),
+             render_seconds_count = render_seconds_count + (?1 IS NOT NULL) WHERE id = 1",
+            [render_seconds],
+        )?;
+        tx.execute_cached(
             "UPDATE workers SET tiles_done = tiles_done + 1, last_seen = ?2, rendering = NULL WHERE id = ?1",
             params![worker as i64, now()],
         )?;
@@ -1425,23 +1458,22 @@ impl Store {
         Ok(rows)
     }
 
-    /// Counts for /metrics.
+    /// Counts for /metrics: the jobs by state (from the `jobs_by_state` index) and the running
+    /// totals of the counters' row, never a scan of the tiles.
     pub fn metrics(&self) -> Result<StoreMetrics> {
         let conn = self.conn();
         let mut stmt = conn.prepare_cached("SELECT state, count(*) FROM jobs GROUP BY state")?;
         let states =
             stmt.query_map([], |r| Ok((r.get(0)?, r.get(1)?)))?.collect::<rusqlite::Result<Vec<_>>>()?;
-        let done: i64 =
-            conn.query_row_cached("SELECT count(*) FROM tiles WHERE state = 'done'", [], |r| r.get(0))?;
-        let (sum, count): (Option<f64>, i64) = conn.query_row_cached(
-            "SELECT sum(render_seconds), count(render_seconds) FROM tiles WHERE render_seconds IS NOT NULL",
+        let (done, sum, count): (i64, f64, i64) = conn.query_row_cached(
+            "SELECT tiles_done, render_seconds_sum, render_seconds_count FROM counters WHERE id = 1",
             [],
-            |r| Ok((r.get(0)?, r.get(1)?)),
+            |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
         )?;
         Ok(StoreMetrics {
             jobs_by_state: states,
             tiles_done: done,
-            render_seconds_sum: sum.unwrap_or(0.0),
+            render_seconds_sum: sum,
             render_seconds_count: count,
         })
     }
@@ -1610,8 +1642,10 @@ mod tests {
             .unwrap();
         }
         let s = Store::open(&path).unwrap();
-        // The rendered tile is still there; the queued one is leased whole and completes the frame.
+        // The rendered tile is still there (and counted, once, into the metrics' counters); the
+        // queued one is leased whole and completes the frame.
         assert_eq!(s.frame_tiles(1, 0).unwrap().len(), 1);
+        assert_eq!(s.metrics().unwrap().tiles_done, 1);
         let w = worker(&s);
         let l = lease(&s, w);
         assert_eq!((l.job_id, l.tile, l.pass), (1, 1, None));
@@ -1620,7 +1654,7 @@ mod tests {
         assert!(matches!(done, ResultOutcome::Accepted { frame_complete: true, .. }), "{done:?}");
         assert_eq!(s.frames(1).unwrap()[0].passes_total, 1);
         drop(s);
-        Store::open(&path).unwrap();
+        assert_eq!(Store::open(&path).unwrap().metrics().unwrap().tiles_done, 2);
     }
 
     #[test]
@@ -1837,6 +1871,9 @@ mod tests {
         let late = s.lease(w, EXPIRED).unwrap().granted().unwrap();
         assert_eq!(s.submit_result(late.lease_id, w, &PIXEL, None).unwrap(), ResultOutcome::Conflict);
         assert_eq!(s.frames(j).unwrap()[0].tiles_done, 1);
+        // The metrics' counters count the one accepted result, refusals not.
+        let m = s.metrics().unwrap();
+        assert_eq!((m.tiles_done, m.render_seconds_sum, m.render_seconds_count), (1, 0.5, 1));
     }
 
     #[test]

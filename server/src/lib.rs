@@ -84,6 +84,12 @@ pub struct Config {
     /// Seconds a client has to send a request head; a kept-alive connection idle this long is
     /// closed.
     pub header_timeout_seconds: f64,
+    /// Origins besides the farm's own whose pages may send it state-changing requests.
+    pub allowed_origins: Vec<String>,
+    /// Host names answered besides IP literals and `localhost` (`*`: any).
+    pub allowed_hosts: Vec<String>,
+    /// `/metrics` without the API token.
+    pub public_metrics: bool,
 }
 
 /// A random token from the operating system's generator (for local workers when none is set).
@@ -157,7 +163,34 @@ pub fn check_config(config: &Config) -> Result<()> {
     if !(config.header_timeout_seconds >= 0.1 && config.header_timeout_seconds <= 3600.0) {
         bail!("--header-timeout-seconds must be from 0.1 to 3600, found {}", config.header_timeout_seconds);
     }
+    access(config)?;
     Ok(())
+}
+
+/// `--allowed-origin`, `--allowed-host` and `--public-metrics` as the server checks them.
+fn access(config: &Config) -> Result<state::Access> {
+    let mut access = state::Access { public_metrics: config.public_metrics, ..Default::default() };
+    for o in config.allowed_origins.iter().filter(|o| !o.trim().is_empty()) {
+        if o.trim() == "*" || o.trim().eq_ignore_ascii_case("null") {
+            bail!(
+                "--allowed-origin {o}: name each site whose pages may change the farm (e.g. https://ui.example); \
+                 {o} would let any page do so"
+            );
+        }
+        let origin =
+            api::browser::normalize_origin(o).map_err(|e| anyhow::anyhow!("--allowed-origin: {e}"))?;
+        access.allowed_origins.push(origin);
+    }
+    for h in config.allowed_hosts.iter().filter(|h| !h.trim().is_empty()) {
+        let host =
+            api::browser::normalize_allowed_host(h).map_err(|e| anyhow::anyhow!("--allowed-host: {e}"))?;
+        if host == "*" {
+            access.any_host = true;
+        } else {
+            access.allowed_hosts.push(host);
+        }
+    }
+    Ok(access)
 }
 
 /// Runs the server until `shutdown` asks it to stop. `on_listening` gets the bound address (port
@@ -194,6 +227,7 @@ pub async fn serve(
         },
         max_job_samples: config.max_job_samples,
         max_job_tiles: config.max_job_tiles,
+        access: access(&config)?,
     };
     let timing = scheduler::Timing {
         lease_seconds: config.lease_seconds,
@@ -295,6 +329,31 @@ mod tests {
             max_connections: None,
             max_connections_per_ip: 256,
             header_timeout_seconds: 20.0,
+            allowed_origins: Vec::new(),
+            allowed_hosts: Vec::new(),
+            public_metrics: false,
+        }
+    }
+
+    /// Allowed origins and hosts are checked, and a bad one is named with its flag.
+    #[test]
+    fn allowed_origins_and_hosts_are_checked() {
+        let dir = tessera_testkit::TempDir::new("unit-access");
+        let with = |origins: &[&str], hosts: &[&str]| {
+            check_config(&Config {
+                allowed_origins: origins.iter().map(|s| s.to_string()).collect(),
+                allowed_hosts: hosts.iter().map(|s| s.to_string()).collect(),
+                ..config(&dir)
+            })
+        };
+        assert!(with(&["https://ui.example", "http://127.0.0.1:3000"], &["farm.example", "*"]).is_ok());
+        for bad in ["*", "null", "ui.example", "https://ui.example/path"] {
+            let e = with(&[bad], &[]).unwrap_err().to_string();
+            assert!(e.contains("--allowed-origin"), "{bad}: {e}");
+        }
+        for bad in ["farm.example:8080", "https://farm.example", "a b"] {
+            let e = with(&[], &[bad]).unwrap_err().to_string();
+            assert!(e.contains("--allowed-host"), "{bad}: {e}");
         }
     }
 

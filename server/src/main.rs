@@ -90,6 +90,24 @@ struct Cli {
     /// closed too (0.1 to 3600).
     #[arg(long, default_value_t = 20.0, env = "TESSERA_HEADER_TIMEOUT_SECONDS", value_name = "S")]
     header_timeout_seconds: f64,
+    /// An origin (scheme://host[:port]) besides the farm's own whose web pages may submit,
+    /// cancel and otherwise change jobs; repeat it or separate origins with commas. Other
+    /// sites' pages are refused (403).
+    #[arg(
+        long = "allowed-origin",
+        env = "TESSERA_ALLOWED_ORIGINS",
+        value_delimiter = ',',
+        value_name = "ORIGIN"
+    )]
+    allowed_origins: Vec<String>,
+    /// A host name clients reach the server by, besides IP addresses and localhost; repeat it or
+    /// separate names with commas; * answers any. Other names are refused (421: DNS rebinding),
+    /// except for requests that carry the API or worker token.
+    #[arg(long = "allowed-host", env = "TESSERA_ALLOWED_HOSTS", value_delimiter = ',', value_name = "NAME")]
+    allowed_hosts: Vec<String>,
+    /// Answer /metrics without the API token (for a scraper that cannot send one).
+    #[arg(long, env = "TESSERA_PUBLIC_METRICS")]
+    public_metrics: bool,
 }
 
 fn main() -> ExitCode {
@@ -124,6 +142,9 @@ fn main() -> ExitCode {
         max_connections: cli.max_connections,
         max_connections_per_ip: cli.max_connections_per_ip,
         header_timeout_seconds: cli.header_timeout_seconds,
+        allowed_origins: cli.allowed_origins,
+        allowed_hosts: cli.allowed_hosts,
+        public_metrics: cli.public_metrics,
     };
     let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
         Ok(r) => r,

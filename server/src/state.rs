@@ -29,6 +29,24 @@ pub struct Settings {
     pub max_job_tiles: u64,
     /// Most samples (pixels x samples per pixel over all frames) one job may ask for.
     pub max_job_samples: u64,
+    /// Who besides the farm's own pages and addresses may reach it, and whether `/metrics` is
+    /// public.
+    pub access: Access,
+}
+
+/// What browsers and scrapers may reach (`--allowed-origin`, `--allowed-host`,
+/// `--public-metrics`); the checks are in `api::browser`.
+#[derive(Clone, Debug, Default)]
+pub struct Access {
+    /// Origins (`scheme://host[:port]`, as `api::browser::normalize_origin` writes them) besides
+    /// the farm's own whose pages may send it state-changing requests.
+    pub allowed_origins: Vec<String>,
+    /// Host names answered besides IP literals and `localhost` (lowercase, no trailing dot).
+    pub allowed_hosts: Vec<String>,
+    /// `--allowed-host '*'`: every `Host` is answered.
+    pub any_host: bool,
+    /// `/metrics` without the API token.
+    pub public_metrics: bool,
 }
 
 /// Everything a handler or a merge works on; cloning it shares the same store, scheduler,

@@ -9,9 +9,12 @@ use axum::response::{IntoResponse, Response};
 
 use super::{ApiResult, AppState, off_thread};
 use crate::scheduler::WorkerState;
+use tessera::protocol::ApiError;
 
-#[utoipa::path(get, path = "/metrics", tag = "server",
-    responses((status = 200, description = "Prometheus text format: jobs by state, tiles, lease expiries, refused results, workers by state, render seconds", content_type = "text/plain", body = String)))]
+#[utoipa::path(get, path = "/metrics", tag = "server", security((), ("api_token" = [])),
+    responses(
+        (status = 200, description = "Prometheus text format: jobs by state, tiles, lease expiries, refused results, workers by state, render seconds", content_type = "text/plain", body = String),
+        (status = 401, description = "The server has an API token and was started without --public-metrics: send it", body = ApiError)))]
 pub(super) async fn metrics(State(state): State<AppState>) -> ApiResult<Response> {
     let (store_metrics, workers) = {
         let state = state.clone();

@@ -9,6 +9,7 @@
 //! a fitting status; internal details go to the log, not to the client.
 
 mod auth;
+pub mod browser;
 mod jobs;
 mod metrics;
 mod openapi;
@@ -117,11 +118,18 @@ fn routes(state: &AppState) -> OpenApiRouter<AppState> {
         // tile's size): a body past this is refused before it is parsed.
         .route_layer(DefaultBodyLimit::max(MAX_WORKER_JSON_BYTES))
         .route_layer(axum::middleware::from_fn_with_state(state.clone(), auth::require_worker_token));
+    // `/metrics` counts jobs and workers: behind the API token like the job API, unless
+    // `--public-metrics`.
+    let mut metrics = OpenApiRouter::new().routes(routes!(metrics::metrics));
+    if !state.settings.access.public_metrics {
+        metrics =
+            metrics.route_layer(axum::middleware::from_fn_with_state(state.clone(), auth::require_api_token));
+    }
     OpenApiRouter::with_openapi(openapi::ApiDoc::openapi())
         .routes(routes!(healthz))
         .routes(routes!(index))
         .routes(routes!(static_file))
-        .routes(routes!(metrics::metrics))
+        .merge(metrics)
         .routes(routes!(openapi::openapi_json))
         .merge(job_api)
         .merge(worker_api)
@@ -131,12 +139,16 @@ pub fn app(state: AppState) -> Router {
     // `Router::layer` puts a layer inside each route, around its handlers and its 405 answer
     // but under the code that adds the 405's `Allow` header: the layers that must see finished
     // answers wrap the whole router as one service instead.
+    // Outermost: the `Host` and `Origin` checks, before a body is read, and the security
+    // headers on every answer, refusals included.
     let limit = state.settings.max_upload_bytes;
     Router::new()
-        .fallback_service(routed(state))
+        .fallback_service(routed(state.clone()))
         .layer(axum::middleware::from_fn_with_state(limit, oversized_uploads))
         .layer(axum::middleware::from_fn(json_errors))
         .layer(axum::middleware::map_response(no_store))
+        .layer(axum::middleware::from_fn_with_state(state, browser::guard))
+        .layer(axum::middleware::map_response(browser::security_headers))
 }
 
 /// The routes with their state, fallback and per-route layers: what [`app`] wraps.
