@@ -72,7 +72,7 @@ pub(super) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobIn
                 // PNG last).
                 pass_outputs: if f.outputs.is_none()
                     && f.passes_published > 0
-                    && state.frame_dir(id, f.index).join(crate::merge::PASS_FILES[1]).exists()
+                    && state.server_frame_dir(id, f.index).join(crate::merge::PASS_FILES[1]).exists()
                 {
                     crate::merge::PASS_FILES
                         .iter()
@@ -212,7 +212,7 @@ pub(super) async fn frame_file(
     let mut f = look_up().await?;
     let pass_file = crate::merge::PASS_FILES.contains(&name.as_str());
     if pass_file && f.outputs.is_none() {
-        let path = state.frame_dir(id, frame).join(&name);
+        let path = state.server_frame_dir(id, frame).join(&name);
         if let Ok(bytes) = tokio::fs::read(&path).await {
             let mime = if name.ends_with(".png") { "image/png" } else { "application/octet-stream" };
             return Ok(([(header::CONTENT_TYPE, HeaderValue::from_static(mime))], bytes).into_response());
@@ -292,7 +292,7 @@ pub(super) async fn frame_preview(
         if f.outputs.is_some() {
             // A finished frame: the preview its merge wrote, or (frames merged before there
             // was one) made from the stored float frame.
-            let dir = state.frame_dir(id, frame);
+            let dir = state.server_frame_dir(id, frame);
             if let Ok(png) = std::fs::read(dir.join(merge::PREVIEW_FILE)) {
                 return Ok(png);
             }
