@@ -1514,6 +1514,21 @@ mod tests {
         .unwrap()
     }
 
+    /// Job ids stay above the floor the data directory's job folders set, and above every id
+    /// handed out, even once the job holding the largest is gone from the store.
+    #[test]
+    fn new_jobs_take_ids_above_the_job_folders_and_never_one_handed_out() {
+        let dir = tessera_testkit::TempDir::new("unit-job-ids");
+        let s = Store::open(&dir.join("t.db")).unwrap();
+        assert_eq!(job(&s, 0, 1), 1);
+        s.keep_job_ids_above(7);
+        assert_eq!(job(&s, 0, 1), 8);
+        s.conn().execute("DELETE FROM jobs WHERE id = 8", []).unwrap();
+        assert_eq!(job(&s, 0, 1), 9);
+        s.keep_job_ids_above(3);
+        assert_eq!(job(&s, 0, 1), 10);
+    }
+
     /// A job of one 2-pixel tile of 48 samples in passes of 16 (`target`: its noise target).
     fn passes_job(s: &Store, target: Option<f64>) -> u64 {
         s.insert_job(&NewJob {

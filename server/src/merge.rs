@@ -398,22 +398,23 @@ fn waiting_for_space(state: &AppState) -> std::sync::MutexGuard<'_, HashMap<(u64
 async fn wait_for_space(state: &AppState, job_id: u64, frame: u32, e: &anyhow::Error) {
     let told = *waiting_for_space(state).entry((job_id, frame)).or_insert(false);
     if told {
-        tracing::debug!(job = job_id, frame, "the disk is still full: {e:#}");
+        tracing::info!(job = job_id, frame, "the disk is still full; the merge waits: {e:#}");
         return;
     }
     tracing::warn!(job = job_id, frame, "the disk is full; the merge waits for space: {e:#}");
     let message = format!(
-        "frame {frame} is complete, but the server's disk is full: its merge waits (every tile is kept) and is          tried again every few seconds until an operator frees space"
+        "frame {frame} is complete, but the server's disk is full: its merge waits (every tile is kept) and is \
+         tried again every few seconds until an operator frees space"
     );
     let store = state.store.clone();
     let logged = tokio::task::spawn_blocking(move || {
         store.log_frame_event(job_id, frame, "merge_waiting_for_space", &message)
     })
     .await;
-    if matches!(logged, Ok(Ok(()))) {
-        if let Some(told) = waiting_for_space(state).get_mut(&(job_id, frame)) {
-            *told = true;
-        }
+    if matches!(logged, Ok(Ok(())))
+        && let Some(told) = waiting_for_space(state).get_mut(&(job_id, frame))
+    {
+        *told = true;
     }
 }
 

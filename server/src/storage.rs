@@ -234,10 +234,12 @@ pub fn sweep(data_dir: &Path, store: &Store) -> Result<Swept> {
                             tracing::info!("removed {}, left by a write that was cut off", path.display());
                             swept.temporaries += 1;
                         }
-                    } else if legacy(&name) && row.is_some() && outputs.is_none() {
-                        if std::fs::remove_file(&path).is_ok() {
-                            swept.old_pass_files += 1;
-                        }
+                    } else if legacy(&name)
+                        && row.is_some()
+                        && outputs.is_none()
+                        && std::fs::remove_file(&path).is_ok()
+                    {
+                        swept.old_pass_files += 1;
                     }
                 }
             }
@@ -307,6 +309,68 @@ mod tests {
         }
         let name = tessera::atomic_write::unique_temp_name(Path::new("/d/out.exr"));
         assert!(is_temp_name(name.file_name().unwrap().to_str().unwrap()), "{}", name.display());
+    }
+
+    /// The sweep removes writers' temporary files and old pass files among unmerged outputs,
+    /// and nothing a frame records as an output, whatever its name.
+    #[test]
+    fn the_sweep_removes_temporaries_and_never_an_output() {
+        use tessera::protocol::Rect;
+        let dir = tessera_testkit::TempDir::new("unit-storage-sweep");
+        let data = dir.path();
+        let store = Store::open(&data.join(DB_FILE)).unwrap();
+        let frame = |name: &str| crate::db::NewFrame {
+            camera: 0,
+            image_name: name.into(),
+            width: 1,
+            height: 1,
+            tiles: vec![Rect { x0: 0, y0: 0, width: 1, height: 1 }],
+            samples: 1,
+            pass_samples: 16,
+        };
+        let id = store
+            .insert_job(&crate::db::NewJob {
+                name: "j".into(),
+                priority: 0,
+                tile_size: 1,
+                samples: None,
+                bundle: "0".repeat(64),
+                scene_path: "s.xml".into(),
+                frames: vec![frame("pass.png"), frame("x.png")],
+                warnings: Vec::new(),
+                allow_unsupported: false,
+                denoise: false,
+                pass_samples: None,
+                noise_target: None,
+            })
+            .unwrap();
+        let recorded = [".odd.png.1-2-3.tmp".to_string(), "pass.png".to_string()];
+        store.frame_merged(id, 0, &recorded, Default::default()).unwrap();
+        let put = |rel: &str| {
+            let p = data.join(rel);
+            std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+            std::fs::write(&p, b"x").unwrap();
+            p
+        };
+        let kept = [
+            put("outputs/1/0/.odd.png.1-2-3.tmp"),
+            put("outputs/1/0/pass.png"),
+            put("outputs/1/1/x.png"),
+            put("frames/1/1/pass.png"),
+            put("blobs/.a.tar.1-2-3.tmp"),
+        ];
+        let gone = [
+            put("outputs/1/0/.x.exr.4-5-6.tmp"),
+            put("outputs/1/1/.pass.exr.tmp"),
+            put("frames/1/1/.preview.png.7-8-9.tmp"),
+            put("outputs/9/0/.y.png.1-1-1.tmp"),
+        ];
+        let legacy = put("outputs/1/1/pass.exr");
+        let swept = sweep(data, &store).unwrap();
+        assert_eq!(swept, Swept { temporaries: 4, old_pass_files: 1 });
+        assert!(kept.iter().all(|p| p.exists()), "{kept:?}");
+        assert!(!legacy.exists() && gone.iter().all(|p| !p.exists()), "{gone:?}");
+        assert_eq!(highest_job_folder(data), 9);
     }
 
     #[test]
