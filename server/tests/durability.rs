@@ -331,6 +331,44 @@ fn a_merge_that_finds_the_disk_full_waits_for_space_and_loses_nothing() {
     assert!(left.is_empty(), "temporary files left: {left:?}");
 }
 
+/// A merge that fails for another reason than space (here the frame's output folder cannot be
+/// made: a file stands in its place) still fails its job at once, and neither the job's error
+/// nor its log shows a server path: the file names stay, the folders go to the server's log.
+#[test]
+fn a_merge_failing_for_another_reason_fails_its_job_without_showing_a_path() {
+    let _s = serial();
+    let data = TempDir::new("durable-fails");
+    let server = Server::start(&data, &ARGS);
+    let (code, v) = submit_tiny(&server.url, 32, 32, 32);
+    assert_eq!(code, 201, "{v}");
+    let id = v["id"].as_u64().unwrap();
+    std::fs::create_dir_all(data.join(format!("outputs/{id}"))).unwrap();
+    std::fs::write(data.join(format!("outputs/{id}/0")), b"in the way").unwrap();
+    let worker = register(&server.url, 1);
+    assert_eq!(upload(&server.url, worker, &lease(&server.url, worker)).0, 204);
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let failed = loop {
+        let j = job(&server, id);
+        if j["state"] == "failed" {
+            break j;
+        }
+        assert!(Instant::now() < deadline && j["state"] == "running", "{j}\n{}", server.log());
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let error = failed["error"].as_str().unwrap();
+    eprintln!("the job's error: {error}");
+    let data_path = data.path().to_str().unwrap();
+    assert!(error.starts_with("merging frame 0 failed: "), "{error}");
+    assert!(!error.contains(data_path) && !error.contains("/outputs/"), "a path in the job's error: {error}");
+    let log = events(&server, id);
+    assert_eq!(kinds(&log, "merge_waiting_for_space"), 0, "{log:?}");
+    let told: Vec<&str> =
+        log.iter().filter(|e| e["kind"] == "job_failed").filter_map(|e| e["message"].as_str()).collect();
+    assert_eq!(told, [error], "{log:?}");
+    // The server's log has the whole path.
+    assert!(server.log().contains(&format!("{data_path}/outputs/{id}/0")), "{}", server.log());
+}
+
 // ---------------------------------------------------------------------------------------------
 // kill -9 during a merge.
 // ---------------------------------------------------------------------------------------------

@@ -290,11 +290,18 @@ pub(super) async fn frame_preview(
     let png = off_thread(move || {
         let (job, f) = job_and_frame(&state, id, frame)?;
         if f.outputs.is_some() {
-            // A finished frame: the preview its merge wrote, or (frames merged before there
-            // was one) made from the stored float frame.
-            let dir = state.server_frame_dir(id, frame);
-            if let Ok(png) = std::fs::read(dir.join(merge::PREVIEW_FILE)) {
-                return Ok(png);
+            // A finished frame: the preview its merge wrote (older versions kept it beside the
+            // outputs as `.preview.png`, unless an output has that name), or (frames merged
+            // before there was one) made from the stored float frame.
+            const OLD_PREVIEW: &str = ".preview.png";
+            let outputs = f.outputs.as_deref().unwrap_or_default();
+            let old = (!outputs.iter().any(|o| o == OLD_PREVIEW))
+                .then(|| state.frame_dir(id, frame).join(OLD_PREVIEW));
+            let new = state.server_frame_dir(id, frame).join(merge::PREVIEW_FILE);
+            for path in std::iter::once(new).chain(old) {
+                if let Ok(png) = std::fs::read(path) {
+                    return Ok(png);
+                }
             }
             if let Some(path) = stored_exr(&state, &f) {
                 let cam = job_camera(&state, &job, f.camera)?;
