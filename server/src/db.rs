@@ -322,6 +322,9 @@ impl Cached for Connection {
 pub struct Store {
     conn: Mutex<Connection>,
     next_lease: Mutex<u64>,
+    /// The least id the next job may take ([`Store::keep_job_ids_above`]); grows past every id
+    /// handed out, so an id is never taken twice while the server runs.
+    min_job_id: std::sync::atomic::AtomicU64,
 }
 
 /// A new job's rows.
@@ -660,7 +663,17 @@ impl Store {
         // requeued above, so a stale worker could otherwise hold a reused id).
         let clock = (now() * 1000.0) as u64 * 1000;
         let next = (max_lease.unwrap_or(0) as u64 + 1).max(clock);
-        Ok(Store { conn: Mutex::new(conn), next_lease: Mutex::new(next) })
+        Ok(Store {
+            conn: Mutex::new(conn),
+            next_lease: Mutex::new(next),
+            min_job_id: std::sync::atomic::AtomicU64::new(1),
+        })
+    }
+
+    /// New jobs get ids above `id` (the largest job folder in the data directory), whatever
+    /// the store holds: a job never takes the folder of one it does not know.
+    pub fn keep_job_ids_above(&self, id: u64) {
+        self.min_job_id.fetch_max(id.saturating_add(1), std::sync::atomic::Ordering::SeqCst);
     }
 
     fn conn(&self) -> std::sync::MutexGuard<'_, Connection> {
@@ -671,8 +684,12 @@ impl Store {
     pub fn insert_job(&self, job: &NewJob) -> Result<u64> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
+        // Past every id the store holds and every job folder the data directory holds.
+        let next: i64 = tx.query_row_cached("SELECT coalesce(max(id), 0) + 1 FROM jobs", [], |r| r.get(0))?;
+        let floor = self.min_job_id.load(std::sync::atomic::Ordering::SeqCst);
+        let id = next.max(i64::try_from(floor).unwrap_or(i64::MAX));
         tx.execute_cached(
-            "INSERT INTO jobs(name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, allow_unsupported, denoise, pass_samples, noise_target) VALUES (?1, 'queued', ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
+            "INSERT INTO jobs(id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, allow_unsupported, denoise, pass_samples, noise_target) VALUES (?12, ?1, 'queued', ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
             params![
                 job.name,
                 job.priority,
@@ -684,10 +701,10 @@ impl Store {
                 job.allow_unsupported,
                 job.denoise,
                 job.pass_samples,
-                job.noise_target
+                job.noise_target,
+                id
             ],
         )?;
-        let id = tx.last_insert_rowid();
         for (i, f) in job.frames.iter().enumerate() {
             let passes = f.passes();
             tx.execute_cached(
@@ -753,6 +770,7 @@ impl Store {
             log_event(&tx, id, Event::new("warning", w))?;
         }
         tx.commit()?;
+        self.keep_job_ids_above(id as u64);
         Ok(id as u64)
     }
 
@@ -782,8 +800,9 @@ impl Store {
         Ok(rows)
     }
 
-    /// Frames whose every tile has arrived but whose outputs were never written (the server
-    /// stopped in between): merged again at startup.
+    /// Frames of live jobs whose every tile has arrived but whose outputs were never written
+    /// (the server stopped in between, or the disk was full): merged again at startup, and
+    /// while the disk is full, again until it has room.
     pub fn frames_awaiting_merge(&self) -> Result<Vec<FrameRow>> {
         let conn = self.conn();
         let mut stmt = conn.prepare_cached(&format!(
@@ -931,6 +950,15 @@ impl Store {
             ..Event::new("frame_pass", &message)
         };
         log_event(&tx, job as i64, e)?;
+        tx.commit()?;
+        Ok(())
+    }
+
+    /// Logs `message` as an event of `kind` about frame `frame` of `job`.
+    pub fn log_frame_event(&self, job: u64, frame: u32, kind: &'static str, message: &str) -> Result<()> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        log_event(&tx, job as i64, Event { frame: Some(i64::from(frame)), ..Event::new(kind, message) })?;
         tx.commit()?;
         Ok(())
     }
@@ -1516,6 +1544,21 @@ mod tests {
             warnings: Vec::new(),
         })
         .unwrap()
+    }
+
+    /// Job ids stay above the floor the data directory's job folders set, and above every id
+    /// handed out, even once the job holding the largest is gone from the store.
+    #[test]
+    fn new_jobs_take_ids_above_the_job_folders_and_never_one_handed_out() {
+        let dir = tessera_testkit::TempDir::new("unit-job-ids");
+        let s = Store::open(&dir.join("t.db")).unwrap();
+        assert_eq!(job(&s, 0, 1), 1);
+        s.keep_job_ids_above(7);
+        assert_eq!(job(&s, 0, 1), 8);
+        s.conn().execute("DELETE FROM jobs WHERE id = 8", []).unwrap();
+        assert_eq!(job(&s, 0, 1), 9);
+        s.keep_job_ids_above(3);
+        assert_eq!(job(&s, 0, 1), 10);
     }
 
     /// A job of one 2-pixel tile of 48 samples in passes of 16 (`target`: its noise target).

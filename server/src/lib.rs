@@ -25,6 +25,7 @@ mod local_workers;
 pub mod merge;
 pub mod scheduler;
 pub mod state;
+pub mod storage;
 pub mod web;
 
 #[cfg(test)]
@@ -209,10 +210,20 @@ pub async fn serve(
     check_config(&config)?;
     std::fs::create_dir_all(&config.data_dir)
         .with_context(|| format!("cannot create the data directory {}", config.data_dir.display()))?;
-    let store = Arc::new(db::Store::open(&config.data_dir.join("tessera.db"))?);
+    // A lost job store beside earlier jobs' files is a refusal, never an empty farm.
+    let store = Arc::new(storage::open_store(&config.data_dir)?);
     let blobs = bundle::BlobStore::new(&config.data_dir)?;
-    // Uploads spooled by requests that were cut off by a crash.
+    // Uploads spooled by requests that were cut off by a crash, and the temporary files of
+    // merges and passes a kill cut off.
     let _ = std::fs::remove_dir_all(config.data_dir.join("uploads"));
+    let swept = storage::sweep(&config.data_dir, &store)?;
+    if swept != storage::Swept::default() {
+        tracing::info!(
+            "removed {} temporary file(s) of writes cut off by a stop, and {} pass file(s) of older versions",
+            swept.temporaries,
+            swept.old_pass_files
+        );
+    }
     let worker_token = config.worker_token.clone().unwrap_or_else(random_token);
     let settings = state::Settings {
         data_dir: config.data_dir.clone(),
@@ -255,11 +266,13 @@ pub async fn serve(
     );
     on_listening(addr);
 
-    // Frames whose last tile arrived just before a crash.
+    // Frames whose last tile arrived just before a crash, or whose merge found the disk full.
     for f in store.frames_awaiting_merge()? {
         tracing::info!(job = f.job_id, frame = f.index, "merging a frame left from before the restart");
         tokio::spawn(merge::merge_frame(state.clone(), f.job_id, f.index));
     }
+    // Merges that find the disk full wait for space, and are tried again until it returns.
+    merge::retry_when_space_returns(state.clone());
 
     // Lease expiry: tiles of silent workers go back to the queue.
     state.scheduler.spawn_expiry();

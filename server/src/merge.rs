@@ -4,11 +4,12 @@
 //! the whole image (log average, burn-out percentile), so it runs here and nowhere per tile.
 //!
 //! [`merge_frame`] is the farm's entry point, called when a frame's last tile is accepted (and at
-//! startup for frames a crash left unmerged); the rest is CPU and file work that it runs on
-//! `spawn_blocking`.
+//! startup for frames a crash left unmerged, and by [`retry_when_space_returns`] for frames that
+//! found the disk full); the rest is CPU and file work that it runs on `spawn_blocking`.
 
+use std::collections::{HashMap, HashSet};
 use std::path::Path;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use tessera::camera::Camera;
@@ -71,7 +72,7 @@ pub fn write_denoised(
         .denoise(img, Some(aux), tessera_denoise::Quality::High)
         .map_err(|e| anyhow::anyhow!("denoising failed: {e}"))?;
     let files = output::denoised_plan(cam);
-    output::write(dir, &clean, &files).map_err(|e| anyhow::anyhow!("{e}"))?;
+    output::write(dir, &clean, &files).map_err(anyhow::Error::new)?;
     let names: Vec<String> = files.into_iter().map(|f| f.name).collect();
     let what = format!(
         "denoised with Intel Open Image Denoise {} (RT filter, high quality, albedo and normal): {}",
@@ -110,7 +111,7 @@ pub fn write_outputs(dir: &Path, cam: &Camera, img: &Image) -> Result<(Vec<Strin
     let (mut plain, mut tonemapped) = (0.0, None::<f64>);
     for f in &files {
         let started = Instant::now();
-        output::write(dir, img, std::slice::from_ref(f)).map_err(|e| anyhow::anyhow!("{e}"))?;
+        output::write(dir, img, std::slice::from_ref(f)).map_err(anyhow::Error::new)?;
         let took = started.elapsed().as_secs_f64();
         match f.kind {
             OutputKind::Tonemapped(..) => *tonemapped.get_or_insert(0.0) += took,
@@ -218,9 +219,9 @@ impl PreviewCanvas {
     }
 }
 
-/// The name of a merged frame's preview beside its outputs (not one of them: hidden, and not
-/// listed).
-pub const PREVIEW_FILE: &str = ".preview.png";
+/// The name of a merged frame's preview, among the server's own files of the frame
+/// ([`AppState::server_frame_dir`]), never beside its outputs.
+pub use crate::storage::PREVIEW_FILE;
 
 /// A finished frame's preview: the whole image box-filtered to the preview's size
 /// ([`shrink_for_preview`]), then tone mapped as the camera's final picture.
@@ -297,7 +298,9 @@ fn assemble_frame(st: &AppState, job: &JobRow, f: &FrameRow) -> Result<(Image, O
     assemble_with_aux(f.width, f.height, &tiles, job.denoise)
 }
 
-/// Merges a complete frame off the executor; a failure fails the job with the reason.
+/// Merges a complete frame off the executor. A full disk (or quota) leaves the job going and
+/// the frame waiting for space ([`wait_for_space`]); any other failure fails the job with the
+/// reason.
 pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
     // A merge holds its whole frame in memory: one at a time.
     let Ok(_permit) = state.merging.clone().acquire_owned().await else { return };
@@ -327,8 +330,10 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
         };
         // The page's picture of the finished frame, made once here: a preview request then
         // reads a small file instead of the whole float frame.
-        tessera::atomic_write::write_atomic(&dir.join(PREVIEW_FILE), &final_preview_png(&cam, &img)?)
-            .with_context(|| format!("cannot write the preview in {}", dir.display()))?;
+        let own = st.server_frame_dir(job_id, frame);
+        std::fs::create_dir_all(&own).with_context(|| format!("cannot create {}", own.display()))?;
+        tessera::atomic_write::write_atomic(&own.join(PREVIEW_FILE), &final_preview_png(&cam, &img)?)
+            .context("cannot write the frame's preview")?;
         if job.noise_target.is_some() {
             let name = tessera::output::samples_map_name(&cam);
             let tiles: Vec<_> = st
@@ -339,16 +344,17 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
                 .collect();
             let rgb = tessera::output::samples_map(f.width, f.height, &tiles, f.samples);
             tessera::hdr_io::write_png_rgb8(&dir.join(&name), f.width, f.height, &rgb)
-                .map_err(|e| anyhow::anyhow!("{e}"))?;
+                .map_err(anyhow::Error::new)?;
             names.push(name);
         }
         let timing = MergeTiming { merge_seconds: assembled + written, tonemap_seconds, denoise };
         let done = st.store.frame_merged(job_id, frame, &names, timing)?;
         // The last pass's files are superseded by the outputs, which their names now serve
         // (`api::jobs::frame_file`). Removed only once the outputs are recorded, so that a
-        // download of them never finds neither.
+        // download of them never finds neither; from the server's own folder of the frame,
+        // never from the outputs' (where an output may have the same name).
         for name in PASS_FILES {
-            let _ = std::fs::remove_file(dir.join(name));
+            let _ = std::fs::remove_file(own.join(name));
         }
         Ok(done)
     })
@@ -356,14 +362,23 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
     match outcome {
         Ok(Ok(done)) => {
             tracing::info!(job = job_id, frame, done, "frame merged");
+            waiting_for_space(&state).remove(&(job_id, frame));
             state.emit(ServerEvent::Frame { job: job_id, frame });
             if done {
                 state.emit(ServerEvent::Job { job: job_id, state: JobState::Done });
             }
         }
+        Ok(Err(e)) if crate::storage::out_of_space(&e) => wait_for_space(&state, job_id, frame, &e).await,
         Ok(Err(e)) => {
             tracing::error!(job = job_id, frame, "merge failed: {e:#}");
-            let (store, error) = (state.store.clone(), format!("merging frame {frame} failed: {e:#}"));
+            waiting_for_space(&state).remove(&(job_id, frame));
+            // The job's error is shown to its clients: paths into the data directory become
+            // file names (the log above has them whole).
+            let error = crate::storage::without_paths(
+                &format!("merging frame {frame} failed: {e:#}; the server's log has the details"),
+                &state.settings.data_dir,
+            );
+            let store = state.store.clone();
             let _ = tokio::task::spawn_blocking(move || store.fail_job(job_id, &error)).await;
             state.emit(ServerEvent::Job { job: job_id, state: JobState::Failed });
         }
@@ -371,9 +386,79 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
     }
 }
 
+/// The frames waiting for disk space, locked.
+fn waiting_for_space(state: &AppState) -> std::sync::MutexGuard<'_, HashMap<(u64, u32), bool>> {
+    state.waiting_for_space.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// A merge that found the disk full: the job goes on (every tile is kept in the store), the
+/// frame joins those [`retry_when_space_returns`] merges again, and the job's log says why,
+/// once per episode (a `merge_waiting_for_space` event; tried again at the next attempt if the
+/// full disk refused the event itself).
+async fn wait_for_space(state: &AppState, job_id: u64, frame: u32, e: &anyhow::Error) {
+    let told = *waiting_for_space(state).entry((job_id, frame)).or_insert(false);
+    if told {
+        tracing::info!(job = job_id, frame, "the disk is still full; the merge waits: {e:#}");
+        return;
+    }
+    tracing::warn!(job = job_id, frame, "the disk is full; the merge waits for space: {e:#}");
+    let message = format!(
+        "frame {frame} is complete, but the server's disk is full: its merge waits (every tile is kept) and is \
+         tried again every few seconds until an operator frees space"
+    );
+    let store = state.store.clone();
+    let logged = tokio::task::spawn_blocking(move || {
+        store.log_frame_event(job_id, frame, "merge_waiting_for_space", &message)
+    })
+    .await;
+    if matches!(logged, Ok(Ok(())))
+        && let Some(told) = waiting_for_space(state).get_mut(&(job_id, frame))
+    {
+        *told = true;
+    }
+}
+
+/// The first wait before frames that found the disk full are merged again, and the longest:
+/// the wait doubles while the disk stays full, and starts again from the first once they merge.
+pub const SPACE_RETRY_FIRST: Duration = Duration::from_secs(2);
+pub const SPACE_RETRY_MAX: Duration = Duration::from_secs(16);
+
+/// Merges the frames that found the disk full again, on a backoff from [`SPACE_RETRY_FIRST`] to
+/// [`SPACE_RETRY_MAX`], for as long as the server runs: once an operator frees space, the
+/// frames are merged and their jobs finish without anybody resubmitting them. A frame whose job
+/// has ended meanwhile (cancelled) is dropped.
+pub fn retry_when_space_returns(state: AppState) {
+    tokio::spawn(async move {
+        let mut wait = SPACE_RETRY_FIRST;
+        loop {
+            tokio::time::sleep(wait).await;
+            let waiting: Vec<(u64, u32)> = waiting_for_space(&state).keys().copied().collect();
+            if waiting.is_empty() {
+                wait = SPACE_RETRY_FIRST;
+                continue;
+            }
+            let store = state.store.clone();
+            let Ok(Ok(awaiting)) = tokio::task::spawn_blocking(move || store.frames_awaiting_merge()).await
+            else {
+                wait = (wait * 2).min(SPACE_RETRY_MAX);
+                continue;
+            };
+            let live: HashSet<(u64, u32)> = awaiting.iter().map(|f| (f.job_id, f.index)).collect();
+            waiting_for_space(&state).retain(|k, _| live.contains(k));
+            for (job, frame) in waiting.into_iter().filter(|k| live.contains(k)) {
+                merge_frame(state.clone(), job, frame).await;
+            }
+            let still = !waiting_for_space(&state).is_empty();
+            wait = if still { (wait * 2).min(SPACE_RETRY_MAX) } else { SPACE_RETRY_FIRST };
+        }
+    });
+}
+
 /// The frame after its latest pass (`pass.exr`, and `pass.png` tone-mapped on the whole frame
-/// like the final one), in the frame's directory until the frame is merged.
-pub const PASS_FILES: [&str; 2] = ["pass.exr", "pass.png"];
+/// like the final one), among the server's own files of the frame
+/// ([`AppState::server_frame_dir`]) until the frame is merged: never in the outputs' folder,
+/// where a camera's `ImageName` may be `pass.png` too.
+pub use crate::storage::PASS_FILES;
 
 /// Publishes a frame whose every tile has finished another pass: the tiles as they stand merged,
 /// written as [`PASS_FILES`] and logged with the samples reached. Skipped once the frame is
@@ -390,14 +475,13 @@ pub async fn publish_pass(state: AppState, job_id: u64, frame: u32) {
         let cam = frame_camera(&st, &job, f)?;
         let started = Instant::now();
         let (img, _) = assemble_frame(&st, &job, f)?;
-        let dir = st.frame_dir(job_id, frame);
+        // Each written atomically (a temporary file of its own, renamed), the PNG last: the
+        // job lists the pass files once it is there.
+        let dir = st.server_frame_dir(job_id, frame);
         std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-        let exr = dir.join(PASS_FILES[0]);
-        let tmp = dir.join(".pass.exr.tmp");
-        tessera::hdr_io::write_exr(&tmp, &img).map_err(|e| anyhow::anyhow!("{e}"))?;
-        std::fs::rename(&tmp, &exr).with_context(|| format!("cannot write {}", exr.display()))?;
+        tessera::hdr_io::write_exr(&dir.join(PASS_FILES[0]), &img).map_err(anyhow::Error::new)?;
         tessera::atomic_write::write_atomic(&dir.join(PASS_FILES[1]), &final_png(&cam, &img)?)
-            .with_context(|| format!("cannot write the pass preview in {}", dir.display()))?;
+            .context("cannot write the pass's PNG")?;
         st.store.frame_passed(
             job_id,
             frame,

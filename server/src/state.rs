@@ -68,6 +68,9 @@ pub struct AppState {
     pub previews: Arc<tokio::sync::Semaphore>,
     /// Frames merged at once (each holds its whole float frame in memory).
     pub merging: Arc<tokio::sync::Semaphore>,
+    /// Frames whose merge found the disk full, tried again until it has room
+    /// (`merge::retry_when_space_returns`); `true` once the job's log says so.
+    pub waiting_for_space: Arc<std::sync::Mutex<HashMap<(u64, u32), bool>>>,
 }
 
 impl AppState {
@@ -84,6 +87,7 @@ impl AppState {
             unpacking: Arc::new(tokio::sync::Semaphore::new(crate::UNPACKING_AT_ONCE)),
             previews: Arc::new(tokio::sync::Semaphore::new(crate::PREVIEWS_AT_ONCE)),
             merging: Arc::new(tokio::sync::Semaphore::new(crate::MERGES_AT_ONCE)),
+            waiting_for_space: Arc::default(),
         }
     }
 
@@ -91,9 +95,16 @@ impl AppState {
         let _ = self.events.send(e);
     }
 
-    /// Where the output files of a job's frame are written: `outputs/JOB/FRAME/`.
+    /// Where the output files of a job's frame are written: `outputs/JOB/FRAME/`. It holds the
+    /// outputs only (any name can be an output: it comes from the scene's `ImageName`).
     pub fn frame_dir(&self, job: u64, frame: u32) -> PathBuf {
-        self.settings.data_dir.join("outputs").join(job.to_string()).join(frame.to_string())
+        self.settings.data_dir.join(crate::storage::OUTPUTS_DIR).join(job.to_string()).join(frame.to_string())
+    }
+
+    /// Where the server keeps its own files of a job's frame, apart from the outputs so that
+    /// no output name can meet them: `frames/JOB/FRAME/` (the pass files, the preview).
+    pub fn server_frame_dir(&self, job: u64, frame: u32) -> PathBuf {
+        self.settings.data_dir.join(crate::storage::FRAMES_DIR).join(job.to_string()).join(frame.to_string())
     }
 
     /// The cameras of a job, parsed from its bundle once and cached.

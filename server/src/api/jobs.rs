@@ -72,7 +72,7 @@ pub(super) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobIn
                 // PNG last).
                 pass_outputs: if f.outputs.is_none()
                     && f.passes_published > 0
-                    && state.frame_dir(id, f.index).join(crate::merge::PASS_FILES[1]).exists()
+                    && state.server_frame_dir(id, f.index).join(crate::merge::PASS_FILES[1]).exists()
                 {
                     crate::merge::PASS_FILES
                         .iter()
@@ -212,7 +212,7 @@ pub(super) async fn frame_file(
     let mut f = look_up().await?;
     let pass_file = crate::merge::PASS_FILES.contains(&name.as_str());
     if pass_file && f.outputs.is_none() {
-        let path = state.frame_dir(id, frame).join(&name);
+        let path = state.server_frame_dir(id, frame).join(&name);
         if let Ok(bytes) = tokio::fs::read(&path).await {
             let mime = if name.ends_with(".png") { "image/png" } else { "application/octet-stream" };
             return Ok(([(header::CONTENT_TYPE, HeaderValue::from_static(mime))], bytes).into_response());
@@ -290,11 +290,18 @@ pub(super) async fn frame_preview(
     let png = off_thread(move || {
         let (job, f) = job_and_frame(&state, id, frame)?;
         if f.outputs.is_some() {
-            // A finished frame: the preview its merge wrote, or (frames merged before there
-            // was one) made from the stored float frame.
-            let dir = state.frame_dir(id, frame);
-            if let Ok(png) = std::fs::read(dir.join(merge::PREVIEW_FILE)) {
-                return Ok(png);
+            // A finished frame: the preview its merge wrote (older versions kept it beside the
+            // outputs as `.preview.png`, unless an output has that name), or (frames merged
+            // before there was one) made from the stored float frame.
+            const OLD_PREVIEW: &str = ".preview.png";
+            let outputs = f.outputs.as_deref().unwrap_or_default();
+            let old = (!outputs.iter().any(|o| o == OLD_PREVIEW))
+                .then(|| state.frame_dir(id, frame).join(OLD_PREVIEW));
+            let new = state.server_frame_dir(id, frame).join(merge::PREVIEW_FILE);
+            for path in std::iter::once(new).chain(old) {
+                if let Ok(png) = std::fs::read(path) {
+                    return Ok(png);
+                }
             }
             if let Some(path) = stored_exr(&state, &f) {
                 let cam = job_camera(&state, &job, f.camera)?;

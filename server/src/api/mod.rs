@@ -54,6 +54,12 @@ impl AppError {
 
 impl From<anyhow::Error> for AppError {
     fn from(e: anyhow::Error) -> Self {
+        if crate::storage::out_of_space(&e) {
+            // A full disk: the request's transaction rolled back and its files went (written
+            // under temporary names), so nothing of it was stored.
+            tracing::error!("refused a request, the disk is full: {e:#}");
+            return AppError::new(StatusCode::INSUFFICIENT_STORAGE, crate::storage::OUT_OF_SPACE);
+        }
         tracing::error!("internal error: {e:#}");
         AppError::new(StatusCode::INTERNAL_SERVER_ERROR, "internal error; see the server log")
     }

@@ -272,7 +272,8 @@ async fn read_fields(
         (status = 400, description = "Not valid multipart, a bad field, or a scene that does not parse or build (`problems` says where)", body = ApiError),
         (status = 401, description = "The server needs an API token", body = ApiError),
         (status = 413, description = "Over the upload or unpacking limits", body = ApiError),
-        (status = 422, description = "Over the tile or sample limits, or denoise=true on a server without Intel Open Image Denoise", body = ApiError)))]
+        (status = 422, description = "Over the tile or sample limits, or denoise=true on a server without Intel Open Image Denoise", body = ApiError),
+        (status = 507, description = "The server's disk is full: nothing was stored; submit again once space is freed", body = ApiError)))]
 pub(super) async fn submit_job(
     State(state): State<AppState>,
     mut multipart: Multipart,

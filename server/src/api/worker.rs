@@ -192,7 +192,8 @@ pub(super) async fn watch(
         (status = 400, description = "A missing header, a checksum that does not match, the wrong size, or a value that is not a finite number", body = ApiError),
         (status = 401, description = "Missing or wrong worker token or worker secret", body = ApiError),
         (status = 409, description = "The lease is not the worker's any more: drop the tile", body = ApiError),
-        (status = 413, description = "The body goes past the tile's size (width x height x 12 bytes)", body = ApiError)))]
+        (status = 413, description = "The body goes past the tile's size (width x height x 12 bytes)", body = ApiError),
+        (status = 507, description = "The server's disk is full: nothing was stored; send the tile again later", body = ApiError)))]
 pub(super) async fn result(
     State(state): State<AppState>,
     Path(lease): Path<u64>,
