@@ -29,6 +29,12 @@ pub struct Settings {
     pub max_job_tiles: u64,
     /// Most samples (pixels x samples per pixel over all frames) one job may ask for.
     pub max_job_samples: u64,
+    /// Most units of work (tiles x passes over all frames) one job may be.
+    pub max_job_units: u64,
+    /// Most live registered workers (the local workers register past it).
+    pub max_workers: u64,
+    /// The token of the server's own local workers, which the registration limits let through.
+    pub local_worker_token: String,
 }
 
 /// Everything a handler or a merge works on; cloning it shares the same store, scheduler,
@@ -50,6 +56,8 @@ pub struct AppState {
     pub previews: Arc<tokio::sync::Semaphore>,
     /// Frames merged at once (each holds its whole float frame in memory).
     pub merging: Arc<tokio::sync::Semaphore>,
+    /// Registrations with the worker token (a rate; the local workers' are not counted).
+    pub registrations: Arc<crate::registrations::TokenBucket>,
 }
 
 impl AppState {
@@ -66,6 +74,7 @@ impl AppState {
             unpacking: Arc::new(tokio::sync::Semaphore::new(crate::UNPACKING_AT_ONCE)),
             previews: Arc::new(tokio::sync::Semaphore::new(crate::PREVIEWS_AT_ONCE)),
             merging: Arc::new(tokio::sync::Semaphore::new(crate::MERGES_AT_ONCE)),
+            registrations: Arc::new(crate::registrations::TokenBucket::registrations()),
         }
     }
 
