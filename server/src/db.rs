@@ -126,6 +126,14 @@ pub const MAX_JOB_EVENTS: i64 = 10_000;
 /// wait for one step at most (a few milliseconds), never for the whole job.
 pub const ROWS_PER_STEP: usize = 2048;
 
+/// Steps of [`ROWS_PER_STEP`] rows between two checkpoints of a long insertion or purge (a
+/// few MiB of log).
+pub const CHECKPOINT_STEPS: usize = 8;
+
+/// How often the server copies the write-ahead log into the database file
+/// ([`Store::checkpoint`]).
+pub const CHECKPOINT_EVERY: std::time::Duration = std::time::Duration::from_millis(250);
+
 /// Why a job left half stored by a stop of the server failed.
 pub const INTERRUPTED_INSERT: &str =
     "the server stopped while it was storing this job, before the job was queued; submit it again";
@@ -330,6 +338,9 @@ impl Cached for Connection {
 pub struct Store {
     conn: Mutex<Connection>,
     next_lease: Mutex<u64>,
+    /// A second connection that only copies the write-ahead log into the database file
+    /// ([`Store::checkpoint`]), so that no request waits for that behind the store's lock.
+    checkpointer: Mutex<Connection>,
 }
 
 /// A new job's rows.
@@ -711,7 +722,21 @@ impl Store {
         // requeued above, so a stale worker could otherwise hold a reused id).
         let clock = (now() * 1000.0) as u64 * 1000;
         let next = (max_lease.unwrap_or(0) as u64 + 1).max(clock);
-        Ok(Store { conn: Mutex::new(conn), next_lease: Mutex::new(next) })
+        // Checkpoints run on their own connection, outside the store's lock (`checkpoint`),
+        // instead of inside whichever transaction fills the log past 1,000 pages: a job's
+        // insertion used to make a lease that committed then wait for 4 MiB to be copied and
+        // synced.
+        conn.pragma_update(None, "wal_autocheckpoint", 0)?;
+        // A log that grew (during a large insertion) is cut back when it starts over.
+        conn.pragma_update(None, "journal_size_limit", 64i64 << 20)?;
+        let checkpointer = Connection::open(path)
+            .with_context(|| format!("cannot open the job store {}", path.display()))?;
+        checkpointer.busy_timeout(std::time::Duration::from_secs(5))?;
+        Ok(Store {
+            conn: Mutex::new(conn),
+            next_lease: Mutex::new(next),
+            checkpointer: Mutex::new(checkpointer),
+        })
     }
 
     fn conn(&self) -> std::sync::MutexGuard<'_, Connection> {
@@ -797,10 +822,10 @@ impl Store {
                 vec![row; n].join(", ")
             )
         };
-        loop {
+        for steps in 1.. {
             let step: Vec<_> = units.by_ref().take(ROWS_PER_STEP).collect();
             if step.is_empty() {
-                return Ok(());
+                break;
             }
             {
                 let mut conn = self.conn();
@@ -832,9 +857,14 @@ impl Store {
                 tx.commit()?;
             }
             // The lock is free: let whoever waits for it (a lease, a view) take it before the
-            // next step does.
+            // next step does. Every few steps the log is copied into the database file (outside
+            // the lock), so that it starts over instead of growing by the whole job.
+            if steps % CHECKPOINT_STEPS == 0 {
+                self.checkpoint_to_start_over()?;
+            }
             std::thread::sleep(STEP_PAUSE);
         }
+        Ok(())
     }
 
     pub fn job(&self, id: u64) -> Result<Option<JobRow>> {
@@ -1600,10 +1630,25 @@ impl Store {
     }
 
     /// Copies what the write-ahead log holds into the database file (which shrinks then if
-    /// pages were released) while nobody reads.
-    pub fn checkpoint(&self) -> Result<()> {
-        let conn = self.conn();
-        conn.query_row("PRAGMA wal_checkpoint(PASSIVE)", [], |_| Ok(()))?;
+    /// pages were released), on a connection of its own: the store's lock stays free, and
+    /// writers go on meanwhile. Returns the log's frames not copied yet. Run every
+    /// [`CHECKPOINT_EVERY`] by the server (`housekeeping::spawn_checkpoints`).
+    pub fn checkpoint(&self) -> Result<u64> {
+        let conn = self.checkpointer.lock().unwrap_or_else(|e| e.into_inner());
+        let (log, copied): (i64, i64) =
+            conn.query_row("PRAGMA wal_checkpoint(PASSIVE)", [], |r| Ok((r.get(1)?, r.get(2)?)))?;
+        Ok((log - copied).max(0) as u64)
+    }
+
+    /// Copies the whole write-ahead log into the database file so that the next transaction
+    /// starts the log over: most of it outside the store's lock, then, under it, the little
+    /// written meanwhile. A long insertion or purge calls this every [`CHECKPOINT_STEPS`]: a
+    /// log that is never wholly copied (another request always writing after the copy) would
+    /// otherwise grow by the whole job.
+    pub fn checkpoint_to_start_over(&self) -> Result<()> {
+        self.checkpoint()?;
+        let _quiet = self.conn();
+        self.checkpoint()?;
         Ok(())
     }
 

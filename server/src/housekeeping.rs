@@ -12,7 +12,7 @@ use std::time::Duration;
 use tessera::protocol::{JobState, ServerEvent};
 use tokio::sync::broadcast::error::RecvError;
 
-use crate::db::ROWS_PER_STEP;
+use crate::db::{CHECKPOINT_STEPS, ROWS_PER_STEP};
 use crate::state::AppState;
 
 /// How often every ended job is looked at again (a purge cut short by a stop resumes at the
@@ -31,13 +31,32 @@ async fn blocking<T: Send + 'static>(
     tokio::task::spawn_blocking(f).await.map_err(|e| anyhow::anyhow!("a housekeeping task failed: {e}"))?
 }
 
+/// Starts the task that copies the job store's write-ahead log into its file every
+/// [`crate::db::CHECKPOINT_EVERY`], on a connection of its own (the store's requests never wait
+/// for it).
+pub fn spawn_checkpoints(store: std::sync::Arc<crate::db::Store>) -> tokio::task::JoinHandle<()> {
+    tokio::spawn(async move {
+        let mut tick = tokio::time::interval(crate::db::CHECKPOINT_EVERY);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            tick.tick().await;
+            let store = store.clone();
+            if let Err(e) = blocking(move || store.checkpoint()).await {
+                tracing::error!("checkpoint of the job store: {e:#}");
+            }
+        }
+    })
+}
+
 /// Starts the housekeeping task. `forget_after`: seconds of silence after which a worker
 /// without a live lease is forgotten.
 pub fn spawn(state: AppState, forget_after: f64) -> tokio::task::JoinHandle<()> {
     // Subscribed before the task starts, so that no job ending after this returns is missed.
     let mut events = state.events.subscribe();
     tokio::spawn(async move {
-        let mut sweep = tokio::time::interval(SWEEP);
+        // A worker is forgotten at most a quarter of `forget_after` late.
+        let mut sweep =
+            tokio::time::interval(SWEEP.min(Duration::from_secs_f64((forget_after / 4.0).max(1.0))));
         let mut ended: BTreeSet<u64> = BTreeSet::new();
         loop {
             let mut full = false;
@@ -73,13 +92,21 @@ pub fn spawn(state: AppState, forget_after: f64) -> tokio::task::JoinHandle<()> 
             if ended.is_empty() {
                 continue;
             }
-            let mut purged = 0;
+            let (mut purged, mut steps) = (0, 0);
             while let Some(job) = ended.pop_first() {
                 loop {
                     let store = state.store.clone();
                     match blocking(move || store.purge_job_rows(job, ROWS_PER_STEP)).await {
                         Ok(0) => break,
-                        Ok(n) => purged += n,
+                        Ok(n) => {
+                            purged += n;
+                            steps += 1;
+                            if steps % CHECKPOINT_STEPS == 0 {
+                                // The log starts over instead of growing by the whole purge.
+                                let store = state.store.clone();
+                                let _ = blocking(move || store.checkpoint_to_start_over()).await;
+                            }
+                        }
                         Err(e) => {
                             tracing::error!(job, "purging the rows of an ended job: {e:#}");
                             break;

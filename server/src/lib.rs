@@ -260,6 +260,7 @@ pub async fn serve(
     let forget_after =
         (config.forget_workers_after_hours * 3600.0).max(scheduler::lost_after(config.heartbeat_seconds));
     housekeeping::spawn(state.clone(), forget_after);
+    housekeeping::spawn_checkpoints(store.clone());
 
     let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
     let app = api::app(state.clone());
