@@ -728,7 +728,7 @@ impl Store {
         // synced.
         conn.pragma_update(None, "wal_autocheckpoint", 0)?;
         // A log that grew (during a large insertion) is cut back when it starts over.
-        conn.pragma_update(None, "journal_size_limit", 64i64 << 20)?;
+        conn.pragma_update(None, "journal_size_limit", 8i64 << 20)?;
         let checkpointer = Connection::open(path)
             .with_context(|| format!("cannot open the job store {}", path.display()))?;
         checkpointer.busy_timeout(std::time::Duration::from_secs(5))?;
@@ -1625,7 +1625,12 @@ impl Store {
         if mode != 2 {
             return Ok(0);
         }
-        conn.execute_batch(&format!("PRAGMA incremental_vacuum({pages})"))?;
+        // Each step of the statement frees one page.
+        let mut stmt = conn.prepare(&format!("PRAGMA incremental_vacuum({pages})"))?;
+        let mut rows = stmt.query([])?;
+        while rows.next()?.is_some() {}
+        drop(rows);
+        drop(stmt);
         Ok(conn.pragma_query_value(None, "freelist_count", |r| r.get::<_, i64>(0))? as u64)
     }
 
@@ -2380,6 +2385,24 @@ mod tests {
         let frame = &s.frames(cancelled).unwrap()[0];
         assert_eq!((frame.tiles_done, frame.tiles_total), (1, 3), "tiles done per frame still answer");
         assert_eq!(kinds(&s, cancelled, 0), ["accepted", "tile_done", "tile_failed", "job_cancelled"]);
+    }
+
+    #[test]
+    fn the_pages_of_purged_rows_go_back_to_the_file_system() {
+        let (_d, s) = store("vacuum");
+        let j = job(&s, 0, 50_000);
+        let pages = || count(&s, "PRAGMA page_count");
+        let full = pages();
+        assert!(s.cancel_job(j).unwrap());
+        while s.purge_job_rows(j, ROWS_PER_STEP).unwrap() > 0 {}
+        assert!(count(&s, "PRAGMA freelist_count") > full / 2);
+        let mut steps = 0;
+        while s.release_free_pages(512).unwrap() > 0 {
+            steps += 1;
+            assert!(steps < 1000, "free pages are not given back");
+        }
+        s.checkpoint_to_start_over().unwrap();
+        assert!(pages() < full / 10, "{full} pages, {} after the purge", pages());
     }
 
     #[test]

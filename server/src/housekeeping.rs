@@ -20,7 +20,7 @@ use crate::state::AppState;
 pub const SWEEP: Duration = Duration::from_secs(60);
 
 /// Free pages given back to the file system per step (4 KiB each).
-const PAGES_PER_STEP: u32 = 1024;
+const PAGES_PER_STEP: u32 = 512;
 
 /// Pause between two steps, during which the store is free for everyone else.
 const PAUSE: Duration = Duration::from_millis(2);
@@ -123,7 +123,12 @@ pub fn spawn(state: AppState, forget_after: f64) -> tokio::task::JoinHandle<()> 
                 let store = state.store.clone();
                 match blocking(move || store.release_free_pages(PAGES_PER_STEP)).await {
                     Ok(0) => break,
-                    Ok(_) => tokio::time::sleep(PAUSE).await,
+                    Ok(_) => {
+                        // Each step writes its pages to the log: it starts over after each.
+                        let store = state.store.clone();
+                        let _ = blocking(move || store.checkpoint_to_start_over()).await;
+                        tokio::time::sleep(PAUSE).await;
+                    }
                     Err(e) => {
                         tracing::error!("giving free pages back: {e:#}");
                         break;
@@ -131,7 +136,7 @@ pub fn spawn(state: AppState, forget_after: f64) -> tokio::task::JoinHandle<()> 
                 }
             }
             let store = state.store.clone();
-            if let Err(e) = blocking(move || store.checkpoint()).await {
+            if let Err(e) = blocking(move || store.checkpoint_to_start_over()).await {
                 tracing::error!("checkpoint: {e:#}");
             }
         }
