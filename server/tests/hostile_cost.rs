@@ -595,13 +595,12 @@ fn a_local_worker_restarted_during_a_flood_registers_and_renders() {
     let done = wait_done(&server, job, 120);
     stop.store(true, Ordering::Relaxed);
     let (ok, refused, _, _, _) = flood.join().unwrap();
-    let locals =
-        get_json(&format!("{}", server.url), &format!("/api/v1/workers?access_token={API}"))["workers"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .filter(|w| w["name"] == "local-1")
-            .count();
+    let locals = get_json(&server.url, &format!("/api/v1/workers?access_token={API}"))["workers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|w| w["name"] == "local-1")
+        .count();
     eprintln!(
         "flood of {} registrations ({refused} refused); the restarted local worker rendered job {job}",
         ok + refused
