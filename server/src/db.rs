@@ -148,6 +148,23 @@ fn seed_counters(conn: &Connection) -> Result<()> {
 /// log holds at most this many events plus two.
 pub const MAX_JOB_EVENTS: i64 = 10_000;
 
+/// Rows written or deleted per transaction when a job's tiles are stored or purged: the store's
+/// lock is let go between two such steps, so that leases, results and views of other clients
+/// wait for one step at most (a few milliseconds), never for the whole job.
+pub const ROWS_PER_STEP: usize = 2048;
+
+/// Steps of [`ROWS_PER_STEP`] rows between two checkpoints of a long insertion or purge (a
+/// few MiB of log).
+pub const CHECKPOINT_STEPS: usize = 8;
+
+/// How often the server copies the write-ahead log into the database file
+/// ([`Store::checkpoint`]).
+pub const CHECKPOINT_EVERY: std::time::Duration = std::time::Duration::from_millis(250);
+
+/// Why a job left half stored by a stop of the server failed.
+pub const INTERRUPTED_INSERT: &str =
+    "the server stopped while it was storing this job, before the job was queued; submit it again";
+
 /// The kinds that end a job: recorded whatever the length of its log.
 pub const JOB_EVENT_KINDS_FINAL: [&str; 3] = ["job_done", "job_failed", "job_cancelled"];
 
@@ -181,9 +198,11 @@ fn log_event(tx: &Connection, job: i64, e: Event<'_>) -> Result<()> {
     let last: i64 = tx
         .prepare_cached("SELECT coalesce(max(seq), 0) FROM job_events WHERE job_id = ?1")?
         .query_row([job], |r| r.get(0))?;
+    // The worker's name is kept with the event: the log still names a worker after its row is
+    // forgotten (`Store::forget_workers`).
     let mut insert = tx.prepare_cached(
-        "INSERT INTO job_events(job_id, seq, at, kind, frame, tile, worker_id, seconds, message)
-         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+        "INSERT INTO job_events(job_id, seq, at, kind, frame, tile, worker_id, seconds, message, worker)
+         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, (SELECT name FROM workers WHERE id = ?7))",
     )?;
     if last >= MAX_JOB_EVENTS && !JOB_EVENT_KINDS_FINAL.contains(&e.kind) {
         if last == MAX_JOB_EVENTS {
@@ -289,6 +308,30 @@ fn revoke_leases(tx: &rusqlite::Transaction<'_>, job: i64) -> Result<()> {
     Ok(())
 }
 
+/// Deletes up to `limit` rows of workers not seen since `before` and holding no live lease,
+/// oldest first. The worker of the highest id stays: ids are never handed out again (a new row
+/// takes the highest id + 1), so an id in a log or a tile failure always means one worker.
+fn forget(tx: &rusqlite::Transaction<'_>, before: f64, limit: i64) -> Result<usize> {
+    Ok(tx.execute_cached(
+        "DELETE FROM workers WHERE id IN (
+           SELECT w.id FROM workers w
+           WHERE w.last_seen < ?1 AND w.id < (SELECT max(id) FROM workers)
+             AND NOT EXISTS (SELECT 1 FROM tiles t WHERE t.state = 'leased' AND t.worker_id = w.id)
+           ORDER BY w.last_seen LIMIT ?2)",
+        params![before, limit],
+    )?)
+}
+
+/// What [`Store::register_worker_within`] did.
+#[derive(Debug, PartialEq)]
+pub enum Registered {
+    Id(u64),
+    /// As many workers as allowed are live.
+    Full {
+        live: u64,
+    },
+}
+
 /// Prepared statements the connection keeps: more than the store runs after it opens.
 const STATEMENT_CACHE: usize = 96;
 
@@ -325,6 +368,9 @@ pub struct Store {
     /// The least id the next job may take ([`Store::keep_job_ids_above`]); grows past every id
     /// handed out, so an id is never taken twice while the server runs.
     min_job_id: std::sync::atomic::AtomicU64,
+    /// A second connection that only copies the write-ahead log into the database file
+    /// ([`Store::checkpoint`]), so that no request waits for that behind the store's lock.
+    checkpointer: Mutex<Connection>,
 }
 
 /// A new job's rows.
@@ -629,6 +675,15 @@ fn migrate(conn: &Connection) -> Result<()> {
              COMMIT;",
         )?;
     }
+    if conn.pragma_query_value(None, "user_version", |r| r.get::<_, i64>(0))? < 1 {
+        // Events name their worker themselves since workers can be forgotten: older events get
+        // the name of theirs while it is still known.
+        conn.execute_batch(
+            "UPDATE job_events SET worker = (SELECT name FROM workers w WHERE w.id = job_events.worker_id)
+               WHERE worker IS NULL AND worker_id IS NOT NULL;
+             PRAGMA user_version = 1;",
+        )?;
+    }
     conn.execute_batch(
         "CREATE INDEX IF NOT EXISTS tiles_by_state ON tiles(state, job_id);
          CREATE INDEX IF NOT EXISTS tiles_queue_by_pass ON tiles(job_id, state, pass, frame, tile);
@@ -637,12 +692,40 @@ fn migrate(conn: &Connection) -> Result<()> {
     Ok(())
 }
 
+/// The first event of a job's log: what was accepted.
+fn accepted_message(job: &NewJob) -> String {
+    let tiles: usize = job.frames.iter().map(|f| f.tiles.len()).sum();
+    let passes = job.frames.iter().map(NewFrame::passes).max().unwrap_or(1);
+    let in_passes = match (passes, job.frames.first()) {
+        (1, _) | (_, None) => String::new(),
+        (_, Some(f)) => format!(
+            ", {passes} pass(es) of {} samples{}",
+            f.pass_samples,
+            job.noise_target.map(|t| format!(", noise target {t}")).unwrap_or_default()
+        ),
+    };
+    format!(
+        "accepted: {} frame(s), {tiles} tile(s) of {} px{in_passes}, scene {}",
+        job.frames.len(),
+        job.tile_size,
+        job.scene_path
+    )
+}
+
+/// The pause between two steps of writing or purging a job's rows: the lock is free during it,
+/// so that another request waiting for the store gets it first.
+const STEP_PAUSE: std::time::Duration = std::time::Duration::from_millis(1);
+
 impl Store {
     /// Opens (creating if needed) the database at `path`, and returns every tile that was
     /// leased when the server stopped to the queue.
     pub fn open(path: &Path) -> Result<Store> {
         let conn = Connection::open(path)
             .with_context(|| format!("cannot open the job store {}", path.display()))?;
+        // A new database gives the pages of deleted rows back to the file system in steps
+        // ([`Store::release_free_pages`]); an older one reuses them for new rows. (Only an empty
+        // database can change this; on any other it does nothing.)
+        conn.pragma_update(None, "auto_vacuum", "INCREMENTAL")?;
         conn.pragma_update(None, "journal_mode", "WAL")?;
         conn.pragma_update(None, "synchronous", "NORMAL")?;
         conn.busy_timeout(std::time::Duration::from_secs(5))?;
@@ -657,16 +740,34 @@ impl Store {
             [],
         )?;
         conn.execute("UPDATE workers SET rendering = NULL", [])?;
+        // A job whose rows were still being written when the server stopped was never
+        // acknowledged nor leased: it fails, saying so, and its rows are purged like any failed
+        // job's (`Store::purge_job_rows`).
+        conn.execute(
+            "UPDATE jobs SET state = 'failed', finished_at = ?1, error = ?2 WHERE state = 'inserting'",
+            params![now(), INTERRUPTED_INSERT],
+        )?;
         let max_lease: Option<i64> = conn.query_row("SELECT max(lease_id) FROM tiles", [], |r| r.get(0))?;
         // Lease ids never repeat, across restarts too: start past every id still recorded, and
         // past the clock (ids handed out before a crash were never recorded if their tile was
         // requeued above, so a stale worker could otherwise hold a reused id).
         let clock = (now() * 1000.0) as u64 * 1000;
         let next = (max_lease.unwrap_or(0) as u64 + 1).max(clock);
+        // Checkpoints run on their own connection, outside the store's lock (`checkpoint`),
+        // instead of inside whichever transaction fills the log past 1,000 pages: a job's
+        // insertion used to make a lease that committed then wait for 4 MiB to be copied and
+        // synced.
+        conn.pragma_update(None, "wal_autocheckpoint", 0)?;
+        // A log that grew (during a large insertion) is cut back when it starts over.
+        conn.pragma_update(None, "journal_size_limit", 8i64 << 20)?;
+        let checkpointer = Connection::open(path)
+            .with_context(|| format!("cannot open the job store {}", path.display()))?;
+        checkpointer.busy_timeout(std::time::Duration::from_secs(5))?;
         Ok(Store {
             conn: Mutex::new(conn),
             next_lease: Mutex::new(next),
             min_job_id: std::sync::atomic::AtomicU64::new(1),
+            checkpointer: Mutex::new(checkpointer),
         })
     }
 
@@ -681,104 +782,140 @@ impl Store {
         self.conn.lock().unwrap_or_else(|e| e.into_inner())
     }
 
+    /// Stores a new job and queues it; returns its id.
+    ///
+    /// A job may be a million rows (tiles x passes): they are written [`ROWS_PER_STEP`] to a
+    /// transaction, the store's lock let go between two, while the job is `inserting`, a state
+    /// that no lease, listing or view sees. The last step queues it. A job left `inserting` by a
+    /// stop of the server fails when the store opens again ([`INTERRUPTED_INSERT`]); one whose
+    /// rows cannot be written fails at once; either way its rows are purged.
     pub fn insert_job(&self, job: &NewJob) -> Result<u64> {
-        let mut conn = self.conn();
-        let tx = conn.transaction()?;
-        // Past every id the store holds and every job folder the data directory holds.
-        let next: i64 = tx.query_row_cached("SELECT coalesce(max(id), 0) + 1 FROM jobs", [], |r| r.get(0))?;
-        let floor = self.min_job_id.load(std::sync::atomic::Ordering::SeqCst);
-        let id = next.max(i64::try_from(floor).unwrap_or(i64::MAX));
-        tx.execute_cached(
-            "INSERT INTO jobs(id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, allow_unsupported, denoise, pass_samples, noise_target) VALUES (?12, ?1, 'queued', ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
-            params![
-                job.name,
-                job.priority,
-                job.tile_size,
-                job.samples,
-                job.bundle,
-                job.scene_path,
-                now(),
-                job.allow_unsupported,
-                job.denoise,
-                job.pass_samples,
-                job.noise_target,
-                id
-            ],
-        )?;
-        for (i, f) in job.frames.iter().enumerate() {
-            let passes = f.passes();
+        let id = {
+            let mut conn = self.conn();
+            let tx = conn.transaction()?;
+            // Past every id the store holds and every job folder the data directory holds.
+            let next: i64 =
+                tx.query_row_cached("SELECT coalesce(max(id), 0) + 1 FROM jobs", [], |r| r.get(0))?;
+            let floor = self.min_job_id.load(std::sync::atomic::Ordering::SeqCst);
+            let id = next.max(i64::try_from(floor).unwrap_or(i64::MAX));
             tx.execute_cached(
-                "INSERT INTO frames(job_id, idx, camera, image_name, width, height, tiles_total, samples, passes_total) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
-                params![id, i as i64, f.camera, f.image_name, f.width, f.height, f.tiles.len() as i64, f.samples, passes],
+                "INSERT INTO jobs(id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, allow_unsupported, denoise, pass_samples, noise_target) VALUES (?12, ?1, 'inserting', ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
+                params![
+                    job.name,
+                    job.priority,
+                    job.tile_size,
+                    job.samples,
+                    job.bundle,
+                    job.scene_path,
+                    now(),
+                    job.allow_unsupported,
+                    job.denoise,
+                    job.pass_samples,
+                    job.noise_target,
+                    id
+                ],
             )?;
-            // One row per tile and pass. A tile of one pass renders whole (no sample range); a
-            // tile of several renders pass by pass. Under a noise target a tile's pass waits
-            // until the one before it was added up and found too noisy.
-            const ROWS: usize = 128;
-            let insert = |n: usize| {
-                let row = "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)";
-                format!(
-                    "INSERT INTO tiles(job_id, frame, tile, x0, y0, w, h, pass, first_sample, end_sample, state) VALUES {}",
-                    vec![row; n].join(", ")
-                )
-            };
-            let units: Vec<(usize, &Rect, u32)> =
-                (0..passes).flat_map(|k| f.tiles.iter().enumerate().map(move |(t, r)| (t, r, k))).collect();
-            for chunk in units.chunks(ROWS) {
-                let mut stmt = tx.prepare_cached(&insert(chunk.len()))?;
-                let mut values: Vec<rusqlite::types::Value> = Vec::with_capacity(chunk.len() * 11);
-                for &(t, r, k) in chunk {
-                    let range =
-                        (passes > 1).then(|| tessera::passes::pass_range(f.samples, f.pass_samples, k));
-                    let state = if k > 0 && job.noise_target.is_some() { "waiting" } else { "queued" };
-                    use rusqlite::types::Value::{Integer, Null, Text};
-                    values.extend([
-                        Integer(id),
-                        Integer(i as i64),
-                        Integer(t as i64),
-                        Integer(i64::from(r.x0)),
-                        Integer(i64::from(r.y0)),
-                        Integer(i64::from(r.width)),
-                        Integer(i64::from(r.height)),
-                        Integer(i64::from(k)),
-                        range.map_or(Null, |r| Integer(i64::from(r.start))),
-                        range.map_or(Null, |r| Integer(i64::from(r.end))),
-                        Text(state.into()),
-                    ]);
-                }
-                stmt.execute(rusqlite::params_from_iter(values))?;
+            for (i, f) in job.frames.iter().enumerate() {
+                tx.execute_cached(
+                    "INSERT INTO frames(job_id, idx, camera, image_name, width, height, tiles_total, samples, passes_total) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+                    params![id, i as i64, f.camera, f.image_name, f.width, f.height, f.tiles.len() as i64, f.samples, f.passes()],
+                )?;
             }
-        }
-        let tiles: usize = job.frames.iter().map(|f| f.tiles.len()).sum();
-        let passes = job.frames.iter().map(NewFrame::passes).max().unwrap_or(1);
-        let in_passes = match (passes, job.frames.first()) {
-            (1, _) | (_, None) => String::new(),
-            (_, Some(f)) => format!(
-                ", {passes} pass(es) of {} samples{}",
-                f.pass_samples,
-                job.noise_target.map(|t| format!(", noise target {t}")).unwrap_or_default()
-            ),
+            log_event(&tx, id, Event::new("accepted", &accepted_message(job)))?;
+            tx.commit()?;
+            self.keep_job_ids_above(id as u64);
+            id
         };
-        let accepted = format!(
-            "accepted: {} frame(s), {tiles} tile(s) of {} px{in_passes}, scene {}",
-            job.frames.len(),
-            job.tile_size,
-            job.scene_path
-        );
-        log_event(&tx, id, Event::new("accepted", &accepted))?;
-        for w in &job.warnings {
-            log_event(&tx, id, Event::new("warning", w))?;
+        if let Err(e) = self.insert_job_rows(id, job) {
+            let _ = self.conn().execute(
+                "UPDATE jobs SET state = 'failed', finished_at = ?2, error = ?3 WHERE id = ?1 AND state = 'inserting'",
+                params![id, now(), "the server could not store this job's tiles; submit it again"],
+            );
+            return Err(e);
         }
-        tx.commit()?;
-        self.keep_job_ids_above(id as u64);
+        let queued = self
+            .conn()
+            .execute("UPDATE jobs SET state = 'queued' WHERE id = ?1 AND state = 'inserting'", [id])?;
+        anyhow::ensure!(queued == 1, "job {id} left its inserting state while it was being stored");
         Ok(id as u64)
+    }
+
+    /// The warnings and tile rows of job `id` (still `inserting`), a step at a time.
+    fn insert_job_rows(&self, id: i64, job: &NewJob) -> Result<()> {
+        for warnings in job.warnings.chunks(256) {
+            let mut conn = self.conn();
+            let tx = conn.transaction()?;
+            for w in warnings {
+                log_event(&tx, id, Event::new("warning", w))?;
+            }
+            tx.commit()?;
+        }
+        // One row per tile and pass. A tile of one pass renders whole (no sample range); a
+        // tile of several renders pass by pass. Under a noise target a tile's pass waits until
+        // the one before it was added up and found too noisy.
+        let mut units = job.frames.iter().enumerate().flat_map(|(i, f)| {
+            let passes = f.passes();
+            (0..passes)
+                .flat_map(move |k| f.tiles.iter().enumerate().map(move |(t, r)| (i, f, t, r, k, passes)))
+        });
+        const ROWS: usize = 128;
+        let insert = |n: usize| {
+            let row = "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)";
+            format!(
+                "INSERT INTO tiles(job_id, frame, tile, x0, y0, w, h, pass, first_sample, end_sample, state) VALUES {}",
+                vec![row; n].join(", ")
+            )
+        };
+        for steps in 1.. {
+            let step: Vec<_> = units.by_ref().take(ROWS_PER_STEP).collect();
+            if step.is_empty() {
+                break;
+            }
+            {
+                let mut conn = self.conn();
+                let tx = conn.transaction()?;
+                for chunk in step.chunks(ROWS) {
+                    let mut stmt = tx.prepare_cached(&insert(chunk.len()))?;
+                    let mut values: Vec<rusqlite::types::Value> = Vec::with_capacity(chunk.len() * 11);
+                    for &(i, f, t, r, k, passes) in chunk {
+                        let range =
+                            (passes > 1).then(|| tessera::passes::pass_range(f.samples, f.pass_samples, k));
+                        let state = if k > 0 && job.noise_target.is_some() { "waiting" } else { "queued" };
+                        use rusqlite::types::Value::{Integer, Null, Text};
+                        values.extend([
+                            Integer(id),
+                            Integer(i as i64),
+                            Integer(t as i64),
+                            Integer(i64::from(r.x0)),
+                            Integer(i64::from(r.y0)),
+                            Integer(i64::from(r.width)),
+                            Integer(i64::from(r.height)),
+                            Integer(i64::from(k)),
+                            range.map_or(Null, |r| Integer(i64::from(r.start))),
+                            range.map_or(Null, |r| Integer(i64::from(r.end))),
+                            Text(state.into()),
+                        ]);
+                    }
+                    stmt.execute(rusqlite::params_from_iter(values))?;
+                }
+                tx.commit()?;
+            }
+            // The lock is free: let whoever waits for it (a lease, a view) take it before the
+            // next step does. Every few steps the log is copied into the database file (outside
+            // the lock), so that it starts over instead of growing by the whole job.
+            if steps % CHECKPOINT_STEPS == 0 {
+                self.checkpoint_to_start_over()?;
+            }
+            std::thread::sleep(STEP_PAUSE);
+        }
+        Ok(())
     }
 
     pub fn job(&self, id: u64) -> Result<Option<JobRow>> {
         let conn = self.conn();
         Ok(conn
             .query_row_cached(
-                &format!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = ?1"),
+                &format!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = ?1 AND state != 'inserting'"),
                 [id as i64],
                 job_from_row,
             )
@@ -787,7 +924,9 @@ impl Store {
 
     pub fn jobs(&self) -> Result<Vec<JobRow>> {
         let conn = self.conn();
-        let mut stmt = conn.prepare_cached(&format!("SELECT {JOB_COLUMNS} FROM jobs ORDER BY id DESC"))?;
+        let mut stmt = conn.prepare_cached(&format!(
+            "SELECT {JOB_COLUMNS} FROM jobs WHERE state != 'inserting' ORDER BY id DESC"
+        ))?;
         let rows = stmt.query_map([], job_from_row)?.collect::<rusqlite::Result<Vec<_>>>()?;
         Ok(rows)
     }
@@ -866,6 +1005,12 @@ impl Store {
             "UPDATE frames SET outputs = ?3 WHERE job_id = ?1 AND idx = ?2",
             params![job as i64, frame, serde_json::to_string(outputs)?],
         )?;
+        // The frame's pixels live on in its outputs, which previews and re-tone-mapping read
+        // from now on (a merge writes the preview too): keep the database small.
+        tx.execute_cached(
+            "UPDATE tiles SET pixels = NULL, sums = NULL WHERE job_id = ?1 AND frame = ?2 AND (pixels IS NOT NULL OR sums IS NOT NULL)",
+            params![job as i64, frame],
+        )?;
         let merged = format!("frame {frame} merged and written: {}", outputs.join(", "));
         let f = Some(i64::from(frame));
         log_event(
@@ -902,8 +1047,6 @@ impl Store {
             if ended > 0 {
                 log_event(&tx, job as i64, Event::new("job_done", "done: every frame is merged"))?;
             }
-            // The pixels live on in the outputs; keep the database small.
-            tx.execute_cached("UPDATE tiles SET pixels = NULL, sums = NULL WHERE job_id = ?1", [job as i64])?;
         }
         tx.commit()?;
         Ok(done)
@@ -1436,14 +1579,17 @@ impl Store {
     /// there is no such job.
     pub fn job_log(&self, job: u64, after: u64) -> Result<Option<Vec<JobEvent>>> {
         let conn = self.conn();
-        let exists: i64 =
-            conn.query_row_cached("SELECT count(*) FROM jobs WHERE id = ?1", [job as i64], |r| r.get(0))?;
+        let exists: i64 = conn.query_row_cached(
+            "SELECT count(*) FROM jobs WHERE id = ?1 AND state != 'inserting'",
+            [job as i64],
+            |r| r.get(0),
+        )?;
         if exists == 0 {
             return Ok(None);
         }
         let mut stmt = conn.prepare_cached(
             "SELECT e.seq, e.at, e.kind, e.frame, e.tile,
-                    coalesce((SELECT w.name FROM workers w WHERE w.id = e.worker_id), e.worker),
+                    coalesce(e.worker, (SELECT w.name FROM workers w WHERE w.id = e.worker_id)),
                     e.seconds, e.message, e.worker_id
              FROM job_events e WHERE e.job_id = ?1 AND e.seq > ?2 ORDER BY e.seq",
         )?;
@@ -1484,6 +1630,151 @@ impl Store {
             })?
             .collect::<rusqlite::Result<Vec<_>>>()?;
         Ok(rows)
+    }
+
+    /// Cancelled and failed jobs that still have rows to purge ([`Store::purge_job_rows`]).
+    pub fn ended_jobs_with_rows(&self) -> Result<Vec<u64>> {
+        let conn = self.conn();
+        let mut stmt = conn.prepare_cached(
+            "SELECT j.id FROM jobs j WHERE j.state IN ('canceled', 'failed')
+               AND (EXISTS (SELECT 1 FROM tiles t WHERE t.job_id = j.id)
+                    OR EXISTS (SELECT 1 FROM tile_failures x WHERE x.job_id = j.id))
+             ORDER BY j.id",
+        )?;
+        let rows =
+            stmt.query_map([], |r| Ok(r.get::<_, i64>(0)? as u64))?.collect::<rusqlite::Result<_>>()?;
+        Ok(rows)
+    }
+
+    /// Deletes up to `limit` rows that job `job`, cancelled or failed, no longer needs: its tile
+    /// rows (with their pixels and sums) and its tile failures. What the API shows of such a
+    /// job (tiles done per frame, outputs, error, log) is in its frame, job and event rows,
+    /// which stay. A failed job keeps the tiles of a frame that has every tile but was not
+    /// merged: they are its pixels. Returns how many rows went (0: none left).
+    pub fn purge_job_rows(&self, job: u64, limit: usize) -> Result<usize> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        let state: Option<String> = tx
+            .query_row_cached("SELECT state FROM jobs WHERE id = ?1", [job as i64], |r| r.get(0))
+            .optional()?;
+        let Some(state) = state.filter(|s| s == "canceled" || s == "failed") else { return Ok(0) };
+        let limit = limit as i64;
+        let tiles = tx.execute_cached(
+            "DELETE FROM tiles WHERE rowid IN (
+               SELECT rowid FROM tiles WHERE job_id = ?1 AND frame IN (
+                 SELECT idx FROM frames WHERE job_id = ?1
+                   AND (?3 = 'canceled' OR outputs IS NOT NULL OR tiles_done < tiles_total))
+               LIMIT ?2)",
+            params![job as i64, limit, state],
+        )?;
+        let failures = tx.execute_cached(
+            "DELETE FROM tile_failures WHERE rowid IN (SELECT rowid FROM tile_failures WHERE job_id = ?1 LIMIT ?2)",
+            params![job as i64, limit - tiles as i64],
+        )?;
+        tx.commit()?;
+        Ok(tiles + failures)
+    }
+
+    /// Gives up to `pages` free pages (of deleted rows) back to the file system, on a database
+    /// created with incremental auto-vacuum; returns the free pages left (0 on an older
+    /// database, which reuses them for new rows instead).
+    pub fn release_free_pages(&self, pages: u32) -> Result<u64> {
+        let conn = self.conn();
+        let mode: i64 = conn.pragma_query_value(None, "auto_vacuum", |r| r.get(0))?;
+        if mode != 2 {
+            return Ok(0);
+        }
+        // Each step of the statement frees one page.
+        let mut stmt = conn.prepare(&format!("PRAGMA incremental_vacuum({pages})"))?;
+        let mut rows = stmt.query([])?;
+        while rows.next()?.is_some() {}
+        drop(rows);
+        drop(stmt);
+        Ok(conn.pragma_query_value(None, "freelist_count", |r| r.get::<_, i64>(0))? as u64)
+    }
+
+    /// Copies what the write-ahead log holds into the database file (which shrinks then if
+    /// pages were released), on a connection of its own: the store's lock stays free, and
+    /// writers go on meanwhile. Returns the log's frames not copied yet. Run every
+    /// [`CHECKPOINT_EVERY`] by the server (`housekeeping::spawn_checkpoints`).
+    pub fn checkpoint(&self) -> Result<u64> {
+        let conn = self.checkpointer.lock().unwrap_or_else(|e| e.into_inner());
+        let (log, copied): (i64, i64) =
+            conn.query_row("PRAGMA wal_checkpoint(PASSIVE)", [], |r| Ok((r.get(1)?, r.get(2)?)))?;
+        Ok((log - copied).max(0) as u64)
+    }
+
+    /// Copies the whole write-ahead log into the database file so that the next transaction
+    /// starts the log over: most of it outside the store's lock, then, under it, the little
+    /// written meanwhile. A long insertion or purge calls this every [`CHECKPOINT_STEPS`]: a
+    /// log that is never wholly copied (another request always writing after the copy) would
+    /// otherwise grow by the whole job.
+    pub fn checkpoint_to_start_over(&self) -> Result<()> {
+        self.checkpoint()?;
+        let _quiet = self.conn();
+        self.checkpoint()?;
+        Ok(())
+    }
+
+    /// Registers a worker unless `max_live` workers are live already (seen since `live_since`):
+    /// then [`Registered::Full`]. Past `max_live` rows, lost workers (not seen since
+    /// `live_since`) without a live lease are forgotten, oldest first, so that the table holds
+    /// about `max_live` rows whatever registers. `max_live: None` (the server's own local
+    /// workers) registers whatever the count.
+    pub fn register_worker_within(
+        &self,
+        name: &str,
+        threads: u32,
+        secret_hash: &str,
+        max_live: Option<u64>,
+        live_since: f64,
+    ) -> Result<Registered> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        if let Some(max) = max_live {
+            let live: i64 = tx.query_row_cached(
+                "SELECT count(*) FROM workers WHERE last_seen >= ?1",
+                [live_since],
+                |r| r.get(0),
+            )?;
+            if live as u64 >= max {
+                return Ok(Registered::Full { live: live as u64 });
+            }
+        }
+        let t = now();
+        tx.execute_cached(
+            "INSERT INTO workers(name, threads, registered_at, last_seen, secret_hash) VALUES (?1, ?2, ?3, ?3, ?4)",
+            params![name, threads, t, secret_hash],
+        )?;
+        let id = tx.last_insert_rowid() as u64;
+        if let Some(max) = max_live {
+            let rows: i64 = tx.query_row_cached("SELECT count(*) FROM workers", [], |r| r.get(0))?;
+            let over = rows - i64::try_from(max).unwrap_or(i64::MAX);
+            if over > 0 {
+                forget(&tx, live_since, over)?;
+            }
+        }
+        tx.commit()?;
+        Ok(Registered::Id(id))
+    }
+
+    /// Forgets workers not seen since `before` that hold no live lease: their rows go (a worker
+    /// that comes back gets a 404 and registers again); the job logs keep their names. Returns
+    /// how many went.
+    pub fn forget_workers(&self, before: f64) -> Result<usize> {
+        let mut total = 0;
+        loop {
+            let mut conn = self.conn();
+            let tx = conn.transaction()?;
+            let n = forget(&tx, before, ROWS_PER_STEP as i64)?;
+            tx.commit()?;
+            drop(conn);
+            total += n;
+            if n < ROWS_PER_STEP {
+                return Ok(total);
+            }
+            std::thread::sleep(STEP_PAUSE);
+        }
     }
 
     /// Counts for /metrics: the jobs by state (from the `jobs_by_state` index) and the running
@@ -2119,6 +2410,182 @@ mod tests {
         assert_eq!(s.job(j).unwrap().unwrap().state, JobState::Queued, "its job survived");
         assert!(s.cancel_job(j).unwrap());
         assert_eq!(kinds(&s, j, 0), ["job_cancelled"]);
+    }
+
+    fn count(s: &Store, sql: &str) -> i64 {
+        s.conn().query_row(sql, [], |r| r.get(0)).unwrap()
+    }
+
+    #[test]
+    fn a_job_being_stored_is_invisible_and_one_cut_short_fails_and_is_purged() {
+        let (dir, s) = store("inserting");
+        let j = job(&s, 0, (ROWS_PER_STEP * 2 + 5) as u32);
+        assert_eq!(count(&s, "SELECT count(*) FROM tiles"), (ROWS_PER_STEP * 2 + 5) as i64);
+        assert_eq!(state(&s, j), JobState::Queued);
+        // What a stop of the server between two steps leaves: the job not queued yet.
+        s.conn().execute("UPDATE jobs SET state = 'inserting' WHERE id = ?1", [j as i64]).unwrap();
+        assert!(s.job(j).unwrap().is_none() && s.jobs().unwrap().is_empty(), "an inserting job is seen");
+        assert!(s.job_log(j, 0).unwrap().is_none());
+        assert!(!s.cancel_job(j).unwrap());
+        let w = worker(&s);
+        assert!(s.lease(w, LONG).unwrap() == Leased::NoWork, "an inserting job's tile was leased");
+        drop(s);
+        let s = Store::open(&dir.path().join("tessera.db")).unwrap();
+        let failed = s.job(j).unwrap().unwrap();
+        assert_eq!(failed.state, JobState::Failed);
+        assert_eq!(failed.error.as_deref(), Some(INTERRUPTED_INSERT));
+        assert_eq!(s.ended_jobs_with_rows().unwrap(), [j]);
+        while s.purge_job_rows(j, ROWS_PER_STEP).unwrap() > 0 {}
+        assert_eq!(count(&s, "SELECT count(*) FROM tiles"), 0);
+        assert!(s.ended_jobs_with_rows().unwrap().is_empty());
+        assert_eq!(s.frames(j).unwrap()[0].tiles_total, (ROWS_PER_STEP * 2 + 5) as u32, "the frame stays");
+    }
+
+    #[test]
+    fn ended_jobs_lose_their_tile_rows_but_keep_what_the_api_shows() {
+        let (_d, s) = store("purge");
+        let (cancelled, failed, live) = (job(&s, 0, 3), job(&s, 0, 2), job(&s, -1, 2));
+        let w = worker(&s);
+        let l = lease(&s, w);
+        assert_eq!(l.job_id, cancelled);
+        s.submit_result(l.lease_id, w, &PIXEL, None).unwrap();
+        let l = lease(&s, w);
+        s.fail_tile(l.lease_id, w, "boom", false).unwrap();
+        assert!(s.cancel_job(cancelled).unwrap());
+        s.fail_job(failed, "broken").unwrap();
+        assert_eq!(s.ended_jobs_with_rows().unwrap(), [cancelled, failed]);
+        assert_eq!(s.purge_job_rows(live, 100).unwrap(), 0, "a live job keeps its rows");
+        for j in [cancelled, failed] {
+            while s.purge_job_rows(j, 1).unwrap() > 0 {}
+        }
+        assert_eq!(count(&s, "SELECT count(*) FROM tiles"), 2, "only the live job's tiles are left");
+        assert_eq!(count(&s, "SELECT count(*) FROM tile_failures"), 0);
+        let frame = &s.frames(cancelled).unwrap()[0];
+        assert_eq!((frame.tiles_done, frame.tiles_total), (1, 3), "tiles done per frame still answer");
+        assert_eq!(kinds(&s, cancelled, 0), ["accepted", "tile_done", "tile_failed", "job_cancelled"]);
+    }
+
+    #[test]
+    fn the_pages_of_purged_rows_go_back_to_the_file_system() {
+        let (_d, s) = store("vacuum");
+        let j = job(&s, 0, 50_000);
+        let pages = || count(&s, "PRAGMA page_count");
+        let full = pages();
+        assert!(s.cancel_job(j).unwrap());
+        while s.purge_job_rows(j, ROWS_PER_STEP).unwrap() > 0 {}
+        assert!(count(&s, "PRAGMA freelist_count") > full / 2);
+        let mut steps = 0;
+        while s.release_free_pages(512).unwrap() > 0 {
+            steps += 1;
+            assert!(steps < 1000, "free pages are not given back");
+        }
+        s.checkpoint_to_start_over().unwrap();
+        assert!(pages() < full / 10, "{full} pages, {} after the purge", pages());
+    }
+
+    #[test]
+    fn a_failed_job_keeps_the_tiles_of_a_complete_frame_not_merged() {
+        let (_d, s) = store("purge-complete");
+        let j = job(&s, 0, 1);
+        let w = worker(&s);
+        let l = lease(&s, w);
+        assert!(matches!(
+            s.submit_result(l.lease_id, w, &PIXEL, None).unwrap(),
+            ResultOutcome::Accepted { frame_complete: true, .. }
+        ));
+        s.fail_job(j, "merging frame 0 failed").unwrap();
+        assert_eq!(s.purge_job_rows(j, 100).unwrap(), 0);
+        assert_eq!(s.frame_tiles(j, 0).unwrap().len(), 1, "the frame's pixels are kept");
+    }
+
+    #[test]
+    fn a_merged_frame_lets_go_of_its_pixels_before_the_job_is_done() {
+        let (_d, s) = store("merged-pixels");
+        let j = s
+            .insert_job(&NewJob {
+                frames: (0..2)
+                    .map(|_| NewFrame {
+                        camera: 0,
+                        image_name: "m.png".into(),
+                        width: 1,
+                        height: 1,
+                        tiles: vec![Rect { x0: 0, y0: 0, width: 1, height: 1 }],
+                        samples: 1,
+                        pass_samples: 16,
+                    })
+                    .collect(),
+                ..two_frames()
+            })
+            .unwrap();
+        let w = worker(&s);
+        for _ in 0..2 {
+            let l = lease(&s, w);
+            s.submit_result(l.lease_id, w, &PIXEL, None).unwrap();
+        }
+        assert!(!s.frame_merged(j, 0, &["m.png".into()], MergeTiming::default()).unwrap());
+        assert!(s.frame_tiles(j, 0).unwrap().is_empty(), "frame 0 kept its pixels after its merge");
+        assert_eq!(s.frame_tiles(j, 1).unwrap().len(), 1, "frame 1 is not merged yet");
+        assert!(s.frame_merged(j, 1, &["m.png".into()], MergeTiming::default()).unwrap());
+        assert_eq!(count(&s, "SELECT count(*) FROM tiles WHERE pixels IS NOT NULL OR sums IS NOT NULL"), 0);
+    }
+
+    fn two_frames() -> NewJob {
+        NewJob {
+            name: "m".into(),
+            priority: 0,
+            tile_size: 1,
+            samples: None,
+            bundle: "0".repeat(64),
+            scene_path: "scene.xml".into(),
+            frames: Vec::new(),
+            warnings: Vec::new(),
+            allow_unsupported: false,
+            denoise: false,
+            pass_samples: None,
+            noise_target: None,
+        }
+    }
+
+    #[test]
+    fn registrations_stop_at_the_live_cap_and_lost_workers_are_forgotten_past_it() {
+        let (_d, s) = store("workers-cap");
+        let t = now();
+        let register =
+            |name: &str, max: Option<u64>| s.register_worker_within(name, 1, "h", max, t - 10.0).unwrap();
+        for k in 0..3 {
+            assert!(matches!(register(&format!("w{k}"), Some(3)), Registered::Id(_)));
+        }
+        assert_eq!(register("over", Some(3)), Registered::Full { live: 3 });
+        assert!(matches!(register("local", None), Registered::Id(_)), "the local workers are not capped");
+        // Three fall silent; one of them holds a lease (it may still upload).
+        let j = job(&s, 0, 1);
+        let holder = s.workers().unwrap()[0].id;
+        lease(&s, holder);
+        s.conn().execute("UPDATE workers SET last_seen = ?1 WHERE name != 'local'", [t - 100.0]).unwrap();
+        let Registered::Id(new) = register("new", Some(3)) else { panic!("refused with one live worker") };
+        let names: Vec<String> = s.workers().unwrap().into_iter().map(|w| w.name).collect();
+        assert_eq!(names.len(), 3, "{names:?}");
+        assert!(names.contains(&"w0".to_string()), "the lease holder was forgotten: {names:?}");
+        let _ = j;
+        // Forgetting by age keeps the highest id, so that no id is handed out twice.
+        s.conn().execute("UPDATE workers SET last_seen = ?1", [t - 100.0]).unwrap();
+        assert!(s.cancel_job(j).unwrap());
+        assert_eq!(s.forget_workers(t).unwrap(), 2);
+        assert_eq!(s.workers().unwrap().iter().map(|w| w.id).collect::<Vec<_>>(), [new]);
+        let Registered::Id(next) = register("next", Some(3)) else { panic!() };
+        assert!(next > new);
+    }
+
+    #[test]
+    fn a_forgotten_workers_name_stays_in_the_job_log() {
+        let (_d, s) = store("workers-log");
+        let j = job(&s, 0, 2);
+        let (a, _b) = (s.register_worker("alpha", 1, "").unwrap(), s.register_worker("beta", 1, "").unwrap());
+        let l = lease(&s, a);
+        s.fail_tile(l.lease_id, a, "boom", false).unwrap();
+        assert_eq!(s.forget_workers(now() + 1.0).unwrap(), 1, "alpha goes, beta (the highest id) stays");
+        let log = s.job_log(j, 0).unwrap().unwrap();
+        assert_eq!(log[1].worker.as_deref(), Some("alpha"));
     }
 
     #[test]

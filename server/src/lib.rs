@@ -21,8 +21,10 @@ pub mod bundle;
 pub mod connections;
 pub mod db;
 pub mod failures;
+pub mod housekeeping;
 mod local_workers;
 pub mod merge;
+pub mod registrations;
 pub mod scheduler;
 pub mod state;
 pub mod storage;
@@ -78,6 +80,12 @@ pub struct Config {
     pub max_tile_seconds: f64,
     /// Most samples (pixels x samples per pixel, over every frame) one job may ask for.
     pub max_job_samples: u64,
+    /// Most units of work (tiles x passes over every frame: rows of the store) of one job.
+    pub max_job_units: u64,
+    /// Most live (not lost) registered workers.
+    pub max_workers: u64,
+    /// Hours after which a silent worker without a live lease is forgotten.
+    pub forget_workers_after_hours: f64,
     /// Most connections open at once (`None`: the descriptor limit less a reserve).
     pub max_connections: Option<usize>,
     /// Most connections open at once from one client address.
@@ -157,6 +165,16 @@ pub fn check_config(config: &Config) -> Result<()> {
     }
     if config.max_job_samples == 0 {
         bail!("--max-job-samples must be at least 1");
+    }
+    if config.max_job_units == 0 {
+        bail!("--max-job-units must be at least 1");
+    }
+    if config.max_workers == 0 {
+        bail!("--max-workers must be at least 1");
+    }
+    let forget = config.forget_workers_after_hours;
+    if !(forget > 0.0 && forget <= 1e6) {
+        bail!("--forget-workers-after-hours must be a positive number of hours, at most 1e6, found {forget}");
     }
     if config.max_connections == Some(0) || config.max_connections_per_ip == 0 {
         bail!("--max-connections and --max-connections-per-ip must be at least 1");
@@ -239,6 +257,9 @@ pub async fn serve(
         max_job_samples: config.max_job_samples,
         max_job_tiles: config.max_job_tiles,
         access: access(&config)?,
+        max_job_units: config.max_job_units,
+        max_workers: config.max_workers,
+        local_worker_token: random_token(),
     };
     let timing = scheduler::Timing {
         lease_seconds: config.lease_seconds,
@@ -278,7 +299,15 @@ pub async fn serve(
     state.scheduler.spawn_expiry();
 
     // Local workers: real processes over real HTTP, restarted if they die, stopped gracefully.
-    let local = local_workers::LocalWorkers::start(&config, addr, &worker_token)?;
+    // They hold a token of their own, which the registration limits do not count.
+    let local = local_workers::LocalWorkers::start(&config, addr, &state.settings.local_worker_token)?;
+
+    // Rows of ended jobs purged, stale workers forgotten.
+    // Never sooner than a worker counts as lost.
+    let forget_after =
+        (config.forget_workers_after_hours * 3600.0).max(scheduler::lost_after(config.heartbeat_seconds));
+    housekeeping::spawn(state.clone(), forget_after);
+    housekeeping::spawn_checkpoints(store.clone());
 
     let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
     let app = api::app(state.clone());
@@ -339,6 +368,9 @@ mod tests {
             max_job_tiles: 1000,
             max_tile_seconds: 60.0,
             max_job_samples: 1 << 30,
+            max_job_units: 1_000_000,
+            max_workers: 4096,
+            forget_workers_after_hours: 24.0,
             max_connections: None,
             max_connections_per_ip: 256,
             header_timeout_seconds: 20.0,
@@ -417,6 +449,23 @@ mod tests {
                 check_config(&Config { header_timeout_seconds: t, ..config(&dir) }).unwrap_err().to_string();
             assert!(e.contains("--header-timeout-seconds"), "{t}: {e}");
         }
+    }
+
+    /// The store's limits: at least one unit, one worker, and a positive time to forget.
+    #[test]
+    fn store_limits_are_checked() {
+        let dir = tessera_testkit::TempDir::new("unit-store-limits");
+        for (bad, flag) in [
+            (Config { max_job_units: 0, ..config(&dir) }, "--max-job-units"),
+            (Config { max_workers: 0, ..config(&dir) }, "--max-workers"),
+            (Config { forget_workers_after_hours: 0.0, ..config(&dir) }, "--forget-workers-after-hours"),
+            (Config { forget_workers_after_hours: f64::NAN, ..config(&dir) }, "--forget-workers-after-hours"),
+            (Config { forget_workers_after_hours: 1e7, ..config(&dir) }, "--forget-workers-after-hours"),
+        ] {
+            let e = check_config(&bad).unwrap_err().to_string();
+            assert!(e.contains(flag), "{e}");
+        }
+        assert!(check_config(&Config { forget_workers_after_hours: 0.001, ..config(&dir) }).is_ok());
     }
 
     #[tokio::test]

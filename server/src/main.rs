@@ -78,6 +78,20 @@ struct Cli {
     /// (VeachAjar_hw6's 1280x720 at 2500 spp is 2.3e9). Larger jobs are refused with 422.
     #[arg(long, default_value_t = 100_000_000_000, env = "TESSERA_MAX_JOB_SAMPLES", value_name = "N")]
     max_job_samples: u64,
+    /// Most units of work one job may be: tiles x passes, summed over its frames, each a row of
+    /// the job store (a 4K frame in 16-pixel tiles in 16 passes is 518 400). Larger jobs are
+    /// refused with 422, naming the smallest tile_size and pass_samples that fit.
+    #[arg(long, default_value_t = 1_000_000, env = "TESSERA_MAX_JOB_UNITS", value_name = "N")]
+    max_job_units: u64,
+    /// Most live (not lost) registered workers; past it a registration is refused with 503
+    /// (the server's own local workers still register).
+    #[arg(long, default_value_t = 4096, env = "TESSERA_MAX_WORKERS", value_name = "N")]
+    max_workers: u64,
+    /// Hours after which a worker not seen, and holding no lease, is forgotten (its row
+    /// deleted; the job logs keep its name; if it comes back it registers again). Never sooner
+    /// than it counts as lost (three heartbeats and two seconds).
+    #[arg(long, default_value_t = 24.0, env = "TESSERA_FORGET_WORKERS_AFTER_HOURS", value_name = "H")]
+    forget_workers_after_hours: f64,
     /// Most connections open at once; more are closed as they arrive. Default: the process's
     /// open-file limit (raised to its hard limit at start) less 128 kept for the server's files.
     #[arg(long, env = "TESSERA_MAX_CONNECTIONS", value_name = "N")]
@@ -139,6 +153,9 @@ fn main() -> ExitCode {
         max_job_tiles: cli.max_job_tiles,
         max_tile_seconds: cli.max_tile_seconds,
         max_job_samples: cli.max_job_samples,
+        max_job_units: cli.max_job_units,
+        max_workers: cli.max_workers,
+        forget_workers_after_hours: cli.forget_workers_after_hours,
         max_connections: cli.max_connections,
         max_connections_per_ip: cli.max_connections_per_ip,
         header_timeout_seconds: cli.header_timeout_seconds,

@@ -32,6 +32,12 @@ pub struct Settings {
     /// Who besides the farm's own pages and addresses may reach it, and whether `/metrics` is
     /// public.
     pub access: Access,
+    /// Most units of work (tiles x passes over all frames) one job may be.
+    pub max_job_units: u64,
+    /// Most live registered workers (the local workers register past it).
+    pub max_workers: u64,
+    /// The token of the server's own local workers, which the registration limits let through.
+    pub local_worker_token: String,
 }
 
 /// What browsers and scrapers may reach (`--allowed-origin`, `--allowed-host`,
@@ -71,6 +77,8 @@ pub struct AppState {
     /// Frames whose merge found the disk full, tried again until it has room
     /// (`merge::retry_when_space_returns`); `true` once the job's log says so.
     pub waiting_for_space: Arc<std::sync::Mutex<HashMap<(u64, u32), bool>>>,
+    /// Registrations with the worker token (a rate; the local workers' are not counted).
+    pub registrations: Arc<crate::registrations::TokenBucket>,
 }
 
 impl AppState {
@@ -88,6 +96,7 @@ impl AppState {
             previews: Arc::new(tokio::sync::Semaphore::new(crate::PREVIEWS_AT_ONCE)),
             merging: Arc::new(tokio::sync::Semaphore::new(crate::MERGES_AT_ONCE)),
             waiting_for_space: Arc::default(),
+            registrations: Arc::new(crate::registrations::TokenBucket::registrations()),
         }
     }
 

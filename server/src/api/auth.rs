@@ -42,13 +42,24 @@ pub(super) async fn require_api_token(
     next.run(req).await
 }
 
+/// Whether a request comes from one of the server's own local workers (their token).
+pub(super) fn is_local_worker(state: &AppState, headers: &HeaderMap) -> bool {
+    bearer(headers).is_some_and(|t| same_token(t, &state.settings.local_worker_token))
+}
+
+/// The worker token, or the local workers' own.
 pub(super) async fn require_worker_token(
     State(state): State<AppState>,
     req: axum::extract::Request,
     next: axum::middleware::Next,
 ) -> Response {
     match bearer(req.headers()) {
-        Some(t) if same_token(t, &state.settings.worker_token) => next.run(req).await,
+        Some(t)
+            if same_token(t, &state.settings.worker_token)
+                || same_token(t, &state.settings.local_worker_token) =>
+        {
+            next.run(req).await
+        }
         _ => AppError::new(StatusCode::UNAUTHORIZED, "missing or wrong worker token").into_response(),
     }
 }

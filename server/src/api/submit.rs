@@ -39,7 +39,7 @@ pub(super) struct SubmitForm {
     tile_size: Option<u32>,
     /// Samples per pixel instead of each camera's NumSamples.
     samples: Option<u32>,
-    /// Which cameras to render, 1-based, e.g. "1,3" (default: all).
+    /// Which cameras to render, 1-based, e.g. "1,3" (default: all); each once, at most 1,024.
     cameras: Option<String>,
     /// Which file of a bundle is the scene, when it holds several.
     scene_path: Option<String>,
@@ -226,18 +226,7 @@ async fn read_fields(
                         .map_err(|e| AppError::bad_request(format!("noise_target: {e}")))?,
                 );
             }
-            "cameras" => {
-                let mut list = Vec::new();
-                for part in text().split([',', ' ']).filter(|p| !p.is_empty()) {
-                    let k: u32 = part.parse().ok().filter(|k| *k >= 1).ok_or_else(|| {
-                        AppError::bad_request(format!(
-                            "cameras must list camera numbers from 1, e.g. \"1,3\"; found \"{part}\""
-                        ))
-                    })?;
-                    list.push(k);
-                }
-                opts.cameras = Some(list);
-            }
+            "cameras" => opts.cameras = Some(camera_list(&text())?),
             "scene_path" => opts.scene_path = Some(text()),
             field @ ("allow_unsupported" | "denoise") => {
                 let yes = match text().as_str() {
@@ -272,7 +261,7 @@ async fn read_fields(
         (status = 400, description = "Not valid multipart, a bad field, or a scene that does not parse or build (`problems` says where)", body = ApiError),
         (status = 401, description = "The server needs an API token", body = ApiError),
         (status = 413, description = "Over the upload or unpacking limits", body = ApiError),
-        (status = 422, description = "Over the tile or sample limits, or denoise=true on a server without Intel Open Image Denoise", body = ApiError),
+        (status = 422, description = "Over the tile, unit, frame or sample limits, an empty `cameras`, or denoise=true on a server without Intel Open Image Denoise", body = ApiError),
         (status = 507, description = "The server's disk is full: nothing was stored; submit again once space is freed", body = ApiError)))]
 pub(super) async fn submit_job(
     State(state): State<AppState>,
@@ -349,7 +338,7 @@ pub(super) async fn submit_job(
         opts.samples,
         opts.pass_samples,
         opts.noise_target.is_some(),
-        max_tiles,
+        (tile_size, state.settings.max_job_units),
     )?;
     if opts.denoise {
         check_denoise_size(&frames)?;
@@ -434,16 +423,80 @@ fn check_denoise_size(frames: &[crate::db::NewFrame]) -> ApiResult<()> {
 /// Most passes a tile may be cut into.
 const MAX_PASSES: u32 = 256;
 
+/// Most frames (selected cameras) one job may render: each is a row, a line of the job's JSON
+/// and a merge.
+pub const MAX_JOB_FRAMES: usize = 1024;
+
+/// The cameras a submission's `cameras` field names ("1,3", "1 3"), each once, in the order
+/// first named; an empty list is refused (it would make a job of no frames, queued for ever).
+fn camera_list(text: &str) -> ApiResult<Vec<u32>> {
+    let mut list = Vec::new();
+    for part in text.split([',', ' ']).map(str::trim).filter(|p| !p.is_empty()) {
+        let k: u32 = part.parse().ok().filter(|k| *k >= 1).ok_or_else(|| {
+            AppError::bad_request(format!(
+                "cameras must list camera numbers from 1, e.g. \"1,3\"; found \"{part}\""
+            ))
+        })?;
+        if !list.contains(&k) {
+            if list.len() == MAX_JOB_FRAMES {
+                return Err(too_many_frames(MAX_JOB_FRAMES + 1));
+            }
+            list.push(k);
+        }
+    }
+    if list.is_empty() {
+        return Err(AppError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "cameras lists no camera; give ids like 1,3 or omit the field (every camera)",
+        ));
+    }
+    Ok(list)
+}
+
+/// The 422 of a job of more than [`MAX_JOB_FRAMES`] frames (`n`: at least how many).
+fn too_many_frames(n: usize) -> AppError {
+    AppError::new(
+        StatusCode::UNPROCESSABLE_ENTITY,
+        format!(
+            "the job would render {n} or more frames (cameras), more than the {MAX_JOB_FRAMES} one job may; \
+             name at most {MAX_JOB_FRAMES} cameras with cameras=, e.g. cameras=1,2,3, and submit the rest as other jobs"
+        ),
+    )
+}
+
+/// Units of work (rows of the store: tiles x passes, over every frame) of frames of `sizes`
+/// and samples per pixel `samples`, cut at `tile_size` into passes of `pass_samples` (`None`:
+/// each frame's default).
+fn unit_count(
+    frames: &[crate::db::NewFrame],
+    tile_size: u32,
+    pass_samples: Option<u32>,
+    noise_target: bool,
+) -> u64 {
+    frames
+        .iter()
+        .map(|f| {
+            let tiles = u64::from(f.width.div_ceil(tile_size)) * u64::from(f.height.div_ceil(tile_size));
+            let p = match pass_samples {
+                Some(p) => tessera::passes::round_to_blocks(p),
+                None => tessera::passes::default_farm_pass_samples(f.samples, noise_target),
+            };
+            tiles.saturating_mul(u64::from(tessera::passes::pass_count(f.samples, p)))
+        })
+        .fold(0u64, u64::saturating_add)
+}
+
 /// Sets each frame's samples and pass size (the job's `pass_samples` in whole blocks, or the
 /// default), and refuses pass sizes that would cut a tile into more than [`MAX_PASSES`] passes or
-/// the job into more than 16 times the tile limit of units.
+/// the job into more units of work than `--max-job-units` (`limits`: the job's tile size and
+/// that limit), naming the smallest `tile_size` and the smallest `pass_samples` that fit.
 fn plan_passes(
     frames: &mut [crate::db::NewFrame],
     cameras: &[Camera],
     samples: Option<u32>,
     pass_samples: Option<u32>,
     noise_target: bool,
-    max_tiles: u64,
+    (tile_size, max_units): (u32, u64),
 ) -> ApiResult<()> {
     let mut units = 0u64;
     for f in frames.iter_mut() {
@@ -466,19 +519,42 @@ fn plan_passes(
                 ),
             ));
         }
-        units += f.tiles.len() as u64 * u64::from(passes);
+        units = units.saturating_add(f.tiles.len() as u64 * u64::from(passes));
     }
-    let max_units = max_tiles.saturating_mul(16);
-    if units > max_units {
-        return Err(AppError::new(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            format!(
-                "the job would be {units} units of work (tiles x passes), more than this server's limit of \
-                 {max_units} (16 x --max-job-tiles); submit with a larger pass_samples or tile_size"
-            ),
-        ));
+    if units <= max_units {
+        return Ok(());
     }
-    Ok(())
+    // What would fit, changing one option: a larger tile (the same passes), or larger passes
+    // (the same tiles; fewer units the larger they are, down to one pass a tile).
+    let mut advice = Vec::new();
+    if let Some(t) =
+        (tile_size + 1..=4096).find(|&t| unit_count(frames, t, pass_samples, noise_target) <= max_units)
+    {
+        advice.push(format!("tile_size={t} or more"));
+    }
+    let most = frames.iter().map(|f| f.samples).max().unwrap_or(1);
+    let blocks = |p: u32| unit_count(frames, tile_size, Some(p * tessera::passes::BLOCK), noise_target);
+    if blocks(most.div_ceil(tessera::passes::BLOCK)) <= max_units {
+        // The fewest blocks a pass that fits: units only fall as passes grow.
+        let (mut lo, mut hi) = (1u32, most.div_ceil(tessera::passes::BLOCK));
+        while lo < hi {
+            let mid = lo + (hi - lo) / 2;
+            if blocks(mid) <= max_units { hi = mid } else { lo = mid + 1 }
+        }
+        advice.push(format!("pass_samples={} or more", lo * tessera::passes::BLOCK));
+    }
+    let advice = if advice.is_empty() {
+        "render fewer cameras or fewer pixels per job".to_string()
+    } else {
+        format!("submit with {}", advice.join(", or with "))
+    };
+    Err(AppError::new(
+        StatusCode::UNPROCESSABLE_ENTITY,
+        format!(
+            "the job would be {units} units of work (tiles x passes over its frames, one stored row each), more \
+             than this server's limit of {max_units} (--max-job-units, TESSERA_MAX_JOB_UNITS); {advice}"
+        ),
+    ))
 }
 
 /// Tiles of frames of `sizes` cut at `tile_size`.
@@ -586,6 +662,9 @@ fn validate(
             list.into_iter().map(|k| k - 1).collect()
         }
     };
+    if selected.len() > MAX_JOB_FRAMES {
+        return Err(too_many_frames(selected.len()));
+    }
     let sizes: Vec<(u32, u32)> = selected
         .iter()
         .map(|&c| (scene.cameras[c as usize].width, scene.cameras[c as usize].height))

@@ -14,11 +14,14 @@ use crate::merge::merge_frame;
 use crate::scheduler::LeaseWait;
 
 #[utoipa::path(post, path = "/api/v1/worker/register", tag = "worker", security(("worker_token" = [])), request_body = RegisterRequest,
-    responses((status = 200, description = "The worker's id and the farm's clock", body = RegisterResponse), (status = 400, description = "The body is not JSON", body = ApiError), (status = 415, description = "The body is not sent as application/json", body = ApiError), (status = 422, description = "The JSON does not have the request's shape", body = ApiError), (status = 401, description = "Missing or wrong worker token", body = ApiError)))]
+    responses((status = 200, description = "The worker's id and the farm's clock", body = RegisterResponse), (status = 400, description = "The body is not JSON", body = ApiError), (status = 415, description = "The body is not sent as application/json", body = ApiError), (status = 422, description = "The JSON does not have the request's shape", body = ApiError), (status = 401, description = "Missing or wrong worker token", body = ApiError),
+        (status = 429, description = "Too many registrations with the worker token: ask again after `Retry-After` seconds", body = ApiError),
+        (status = 503, description = "As many workers as the server takes (`--max-workers`) are live: ask again after `Retry-After` seconds", body = ApiError)))]
 pub(super) async fn register(
     State(state): State<AppState>,
+    headers: HeaderMap,
     Json(req): Json<RegisterRequest>,
-) -> ApiResult<Json<RegisterResponse>> {
+) -> ApiResult<Response> {
     check_name(&req.name)?;
     if !(1..=MAX_WORKER_THREADS).contains(&req.threads) {
         return Err(AppError::new(
@@ -26,21 +29,69 @@ pub(super) async fn register(
             format!("threads must be from 1 to {MAX_WORKER_THREADS}, found {}", req.threads),
         ));
     }
+    // The server's own local workers are not counted: one restarted always gets back in.
+    let local = super::auth::is_local_worker(&state, &headers);
+    if !local && let Err(wait) = state.registrations.take() {
+        use crate::registrations::{REGISTRATION_BURST, REGISTRATIONS_PER_SECOND};
+        let seconds = wait.as_secs_f64().ceil().max(1.0) as u64;
+        return Ok(with_retry_after(
+            AppError::new(
+                StatusCode::TOO_MANY_REQUESTS,
+                format!(
+                    "too many worker registrations: this server registers at most {REGISTRATIONS_PER_SECOND} workers a \
+                     second ({REGISTRATION_BURST} at once) with the worker token; ask again in {seconds} s (a worker \
+                     registers once, when it starts)"
+                ),
+            ),
+            seconds,
+        ));
+    }
     let secret = crate::random_token();
     let hash = crate::bundle::sha256_hex(secret.as_bytes());
-    let id = {
+    let timing = *state.scheduler.timing();
+    let lost_after = crate::scheduler::lost_after(timing.heartbeat_seconds);
+    let max_live = (!local).then_some(state.settings.max_workers);
+    let registered = {
         let (state, name) = (state.clone(), req.name.clone());
-        off_thread(move || Ok(state.store.register_worker(&name, req.threads, &hash)?)).await?
+        let live_since = crate::db::now() - lost_after;
+        off_thread(move || {
+            Ok(state.store.register_worker_within(&name, req.threads, &hash, max_live, live_since)?)
+        })
+        .await?
+    };
+    let id = match registered {
+        crate::db::Registered::Id(id) => id,
+        crate::db::Registered::Full { live } => {
+            let seconds = lost_after.ceil() as u64;
+            return Ok(with_retry_after(
+                AppError::new(
+                    StatusCode::SERVICE_UNAVAILABLE,
+                    format!(
+                        "this farm has {live} live workers, the most it takes (--max-workers, TESSERA_MAX_WORKERS); \
+                         ask again when one has stopped (a worker silent for {lost_after} s no longer counts), or \
+                         start the server with a larger --max-workers"
+                    ),
+                ),
+                seconds,
+            ));
+        }
     };
     tracing::info!(worker = id, name = %req.name, threads = req.threads, "worker registered");
     state.emit(ServerEvent::Workers);
-    let timing = state.scheduler.timing();
     Ok(Json(RegisterResponse {
         worker_id: id,
         worker_secret: secret,
         heartbeat_seconds: timing.heartbeat_seconds,
         lease_seconds: timing.lease_seconds,
-    }))
+    })
+    .into_response())
+}
+
+/// `e` as an answer that says when to ask again.
+fn with_retry_after(e: AppError, seconds: u64) -> Response {
+    let mut response = e.into_response();
+    response.headers_mut().insert(header::RETRY_AFTER, HeaderValue::from(seconds));
+    response
 }
 
 /// A worker's name as the page and the logs show it: at most [`MAX_WORKER_NAME`] bytes, not
