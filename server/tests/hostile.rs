@@ -196,7 +196,7 @@ fn a_tile_body_longer_than_its_tile_is_cut_off() {
     let mut s = TcpStream::connect(addr(&server.url)).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
     let head = format!(
-        "PUT /api/v1/worker/leases/{lease_id}/result HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {WORKER}\r\n\
+        "PUT /api/v1/worker/leases/{lease_id}/result HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {WORKER}\r\n\
          x-tessera-worker: {w}\r\nx-tessera-worker-secret: {}\r\nx-tessera-checksum: 0000000000000000\r\n\
          Content-Type: application/octet-stream\r\nTransfer-Encoding: chunked\r\n\r\n",
         worker_secret(&server.url, w).unwrap()
@@ -295,7 +295,7 @@ fn idle_connections_cannot_take_every_descriptor() {
     assert!(took < 1.0, "the job list took {took:.2} s behind 1 100 idle connections");
     // A half-sent request head is closed after the header timeout (2 s here).
     let mut half = TcpStream::connect(target).unwrap();
-    half.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n").unwrap();
+    half.write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n").unwrap();
     half.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
     let t = Instant::now();
     let mut buf = [0u8; 512];
@@ -306,7 +306,7 @@ fn idle_connections_cannot_take_every_descriptor() {
     assert!(n == 0 || String::from_utf8_lossy(&buf[..n]).starts_with("HTTP/1.1 408"), "{:?}", &buf[..n]);
     // So is a kept-alive connection that sends nothing after its first request.
     let mut kept = TcpStream::connect(target).unwrap();
-    kept.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n").unwrap();
+    kept.write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").unwrap();
     kept.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
     let n = kept.read(&mut buf).unwrap();
     assert!(String::from_utf8_lossy(&buf[..n]).starts_with("HTTP/1.1 200"));
