@@ -189,7 +189,7 @@ pub(super) async fn watch(
     request_body(content = super::openapi::Binary, content_type = "application/octet-stream", description = "The tile: width x height RGB triples of little-endian f32, row-major; for a lease with `aux` (a denoised job), then the albedo and the normal the same way. For a lease with `pass`: each pixel's block sums instead of the colour (four little-endian i128: R, G, B in units of 2^-40, and the odd blocks' luminance), then the features when `aux` is set"),
     responses(
         (status = 204, description = "Stored (committed before this answer)"),
-        (status = 400, description = "A missing header, a checksum that does not match, the wrong size, or a value that is not a finite number", body = ApiError),
+        (status = 400, description = "A missing header, a checksum that does not match, the wrong size, a value that is not a finite number, or a pass's sum larger than its samples can add up to", body = ApiError),
         (status = 401, description = "Missing or wrong worker token or worker secret", body = ApiError),
         (status = 409, description = "The lease is not the worker's any more: drop the tile", body = ApiError),
         (status = 413, description = "The body goes past the tile's size (width x height x 12 bytes)", body = ApiError)))]
@@ -255,15 +255,14 @@ pub(super) async fn result(
     let floats = match shape.blocks {
         None => &body[..],
         Some(blocks) => {
-            let (sums, features) = body.split_at(shape.pixels * tessera::passes::PIXEL_SUM_BYTES);
-            let sums =
-                tessera::passes::decode_sums(sums).ok_or_else(|| wrong_size(body.len().to_string()))?;
-            if !tessera::passes::sums_in_range(&sums, blocks) {
-                return Err(AppError::bad_request(
-                    "the pass's sums are larger than its samples can add up to; nothing was stored",
-                ));
+            use tessera::passes::{PassResultError, decode_pass_result};
+            match decode_pass_result(&body, shape.pixels, blocks) {
+                Ok((_, features)) => features,
+                Err(PassResultError::WrongSize { .. }) => return Err(wrong_size(body.len().to_string())),
+                Err(e @ PassResultError::OutOfRange { .. }) => {
+                    return Err(AppError::bad_request(format!("{e}; nothing was stored")));
+                }
             }
-            features
         }
     };
     let px = decode_tile(floats, floats.len() / 12).ok_or_else(|| wrong_size(body.len().to_string()))?;
