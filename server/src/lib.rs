@@ -84,6 +84,9 @@ pub struct Config {
     /// Seconds a client has to send a request head; a kept-alive connection idle this long is
     /// closed.
     pub header_timeout_seconds: f64,
+    /// Longest pause, in seconds, in a request body the server is waiting for: past it the
+    /// request is answered 408 and its connection closed.
+    pub body_timeout_seconds: f64,
 }
 
 /// A random token from the operating system's generator (for local workers when none is set).
@@ -157,6 +160,12 @@ pub fn check_config(config: &Config) -> Result<()> {
     if !(config.header_timeout_seconds >= 0.1 && config.header_timeout_seconds <= 3600.0) {
         bail!("--header-timeout-seconds must be from 0.1 to 3600, found {}", config.header_timeout_seconds);
     }
+    if !(config.body_timeout_seconds >= 0.1 && config.body_timeout_seconds <= 3600.0) {
+        bail!(
+            "--body-timeout-seconds must be from 0.1 to 3600 (the longest pause in a request body), found {}",
+            config.body_timeout_seconds
+        );
+    }
     Ok(())
 }
 
@@ -212,6 +221,7 @@ pub async fn serve(
         max_total: connections::max_connections(descriptors, config.max_connections),
         max_per_ip: config.max_connections_per_ip,
         header_timeout: Duration::from_secs_f64(config.header_timeout_seconds),
+        body_timeout: Duration::from_secs_f64(config.body_timeout_seconds),
     };
     tracing::info!(
         "listening on http://{addr}, data in {}; at most {} connections ({} per client address; {descriptors} descriptors)",
@@ -295,6 +305,7 @@ mod tests {
             max_connections: None,
             max_connections_per_ip: 256,
             header_timeout_seconds: 20.0,
+            body_timeout_seconds: 60.0,
         }
     }
 
@@ -344,6 +355,9 @@ mod tests {
             let e =
                 check_config(&Config { header_timeout_seconds: t, ..config(&dir) }).unwrap_err().to_string();
             assert!(e.contains("--header-timeout-seconds"), "{t}: {e}");
+            let e =
+                check_config(&Config { body_timeout_seconds: t, ..config(&dir) }).unwrap_err().to_string();
+            assert!(e.contains("--body-timeout-seconds"), "{t}: {e}");
         }
     }
 

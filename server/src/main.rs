@@ -90,6 +90,11 @@ struct Cli {
     /// closed too (0.1 to 3600).
     #[arg(long, default_value_t = 20.0, env = "TESSERA_HEADER_TIMEOUT_SECONDS", value_name = "S")]
     header_timeout_seconds: f64,
+    /// Longest pause in a request's body, in seconds, while the server waits for it (measured
+    /// between the body's bytes, not over the whole body: a slow upload that keeps sending is
+    /// never cut); past it the request is answered 408 and its connection closed (0.1 to 3600).
+    #[arg(long, default_value_t = 60.0, env = "TESSERA_BODY_TIMEOUT_SECONDS", value_name = "S")]
+    body_timeout_seconds: f64,
 }
 
 fn main() -> ExitCode {
@@ -124,6 +129,7 @@ fn main() -> ExitCode {
         max_connections: cli.max_connections,
         max_connections_per_ip: cli.max_connections_per_ip,
         header_timeout_seconds: cli.header_timeout_seconds,
+        body_timeout_seconds: cli.body_timeout_seconds,
     };
     let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
         Ok(r) => r,
