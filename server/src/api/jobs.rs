@@ -213,9 +213,9 @@ pub(super) async fn frame_file(
     let pass_file = crate::merge::PASS_FILES.contains(&name.as_str());
     if pass_file && f.outputs.is_none() {
         let path = state.frame_dir(id, frame).join(&name);
-        if let Ok(bytes) = tokio::fs::read(&path).await {
+        if let Ok(file) = super::FileBody::open(&path).await {
             let mime = if name.ends_with(".png") { "image/png" } else { "application/octet-stream" };
-            return Ok(([(header::CONTENT_TYPE, HeaderValue::from_static(mime))], bytes).into_response());
+            return Ok(file.into_response_with(&[(header::CONTENT_TYPE, HeaderValue::from_static(mime))]));
         }
         // No pass yet, or the frame finished (and its pass files went) since it was looked up.
         f = look_up().await?;
@@ -256,23 +256,22 @@ pub(super) async fn frame_file(
             outputs.join(", ")
         )));
     }
+    // Streamed from the file as the client reads it: a download holds a chunk of it in memory,
+    // not the whole frame.
     let path = state.frame_dir(id, frame).join(&name);
-    let bytes =
-        tokio::fs::read(&path).await.map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?;
+    let file = super::FileBody::open(&path)
+        .await
+        .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?;
     let mime =
         if name.to_ascii_lowercase().ends_with(".png") { "image/png" } else { "application/octet-stream" };
-    Ok((
-        [
-            (header::CONTENT_TYPE, HeaderValue::from_static(mime)),
-            (
-                header::CONTENT_DISPOSITION,
-                HeaderValue::from_str(&format!("attachment; filename=\"{name}\""))
-                    .unwrap_or(HeaderValue::from_static("attachment")),
-            ),
-        ],
-        bytes,
-    )
-        .into_response())
+    Ok(file.into_response_with(&[
+        (header::CONTENT_TYPE, HeaderValue::from_static(mime)),
+        (
+            header::CONTENT_DISPOSITION,
+            HeaderValue::from_str(&format!("attachment; filename=\"{name}\""))
+                .unwrap_or(HeaderValue::from_static("attachment")),
+        ),
+    ]))
 }
 
 #[utoipa::path(get, path = "/api/v1/jobs/{id}/frames/{frame}/preview.png", tag = "jobs", security((), ("api_token" = [])),

@@ -406,11 +406,12 @@ pub(super) async fn get_bundle(
     State(state): State<AppState>,
     Path(hash): Path<String>,
 ) -> ApiResult<Response> {
-    let blobs = state.blobs.clone();
-    let h = hash.clone();
-    let bytes = tokio::task::spawn_blocking(move || blobs.get(&h))
-        .await
-        .map_err(|e| anyhow::anyhow!("bundle task: {e}"))?
-        .ok_or_else(|| AppError::not_found(format!("no bundle {hash}")))?;
-    Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("application/x-tar"))], bytes).into_response())
+    // Streamed from its file as the worker reads it: a large bundle costs no more memory than
+    // a small one, however many workers fetch it at once.
+    let file = match state.blobs.stored_path(&hash) {
+        Some(path) => super::FileBody::open(&path).await.ok(),
+        None => None,
+    };
+    let file = file.ok_or_else(|| AppError::not_found(format!("no bundle {hash}")))?;
+    Ok(file.into_response_with(&[(header::CONTENT_TYPE, HeaderValue::from_static("application/x-tar"))]))
 }
