@@ -81,9 +81,11 @@ pub fn pass_upload(data: &[u8]) {
             assert!(v.unsigned_abs() * passes <= i128::MAX as u128, "{v} x {passes} passes overflows");
         }
         let _ = s.film(blocks.saturating_mul(tessera::passes::BLOCK));
-        // Two passes of one pixel add up without overflow.
-        let mut twice = *s;
-        twice.add(s);
+        // As many passes like this one as a pixel's blocks hold add up without overflow.
+        if passes >= 2 {
+            let mut twice = *s;
+            twice.add(s);
+        }
     }
     let _ = tessera::passes::tile_error(&sums, 64);
     // The features after the sums, as the server checks them.
