@@ -274,6 +274,7 @@ mod tests {
                 .collect(),
             preview_url: String::new(),
             tonemap: None,
+            tonemap_url: None,
             samples: 1,
             passes_total: 1,
             passes_done: 0,

@@ -280,11 +280,88 @@ pub fn encode_pass_tile(sums: &[PixelSum], aux: Option<Features<'_>>) -> Vec<u8>
     out
 }
 
-/// Whether every value of decoded sums could come from a render (each within what
-/// [`PixelSum::add_block`] can reach for `blocks` blocks): a worker's upload is checked with it.
+/// The largest magnitude one value of a pixel's sums over `blocks` blocks can have: what
+/// [`PixelSum::add_block`] reaches when every block is at its limit (a pixel has at most
+/// [`MAX_PIXEL_BLOCKS`]). At most 2^126, so the sums of a pixel's passes, each within the limit
+/// of its own blocks, add up without overflow.
+pub fn sum_limit(blocks: u32) -> u128 {
+    (BLOCK_LIMIT as u128) * u128::from(blocks.clamp(1, MAX_PIXEL_BLOCKS))
+}
+
+/// The most blocks one pixel has: those of `u32::MAX` samples (2^28).
+pub const MAX_PIXEL_BLOCKS: u32 = u32::MAX.div_ceil(BLOCK);
+
+/// Whether every value of decoded sums could come from a render (each within [`sum_limit`] of
+/// `blocks` blocks): a worker's upload is checked with it. Every `i128` is measured, `i128::MIN`
+/// included (its magnitude does not fit an `i128`).
 pub fn sums_in_range(sums: &[PixelSum], blocks: u32) -> bool {
-    let limit = (1i128 << 98) * i128::from(blocks.max(1));
-    sums.iter().all(|s| s.rgb.iter().chain([&s.odd_luminance]).all(|v| v.abs() <= limit))
+    first_out_of_range(sums, blocks).is_none()
+}
+
+/// The first value of `sums` past [`sum_limit`] of `blocks` blocks: (pixel, channel, value),
+/// the channels being R, G, B and the odd blocks' luminance (3).
+pub fn first_out_of_range(sums: &[PixelSum], blocks: u32) -> Option<(usize, usize, i128)> {
+    let limit = sum_limit(blocks);
+    sums.iter().enumerate().find_map(|(i, s)| {
+        s.rgb
+            .iter()
+            .chain([&s.odd_luminance])
+            .enumerate()
+            .find(|(_, v)| v.unsigned_abs() > limit)
+            .map(|(c, v)| (i, c, *v))
+    })
+}
+
+/// Why a pass's result cannot be stored.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum PassResultError {
+    /// The body is not `pixels` sums followed by whole features (or nothing).
+    WrongSize { got: usize, sums: usize },
+    /// A sum is larger than `blocks` blocks of samples can add up to.
+    OutOfRange { pixel: usize, channel: usize, value: i128, limit: u128 },
+}
+
+impl std::fmt::Display for PassResultError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            PassResultError::WrongSize { got, sums } => write!(
+                f,
+                "a pass's result holds {got} bytes: it must be {sums} bytes of sums (64 a pixel) and then whole features (24 bytes a pixel) or nothing"
+            ),
+            PassResultError::OutOfRange { pixel, channel, value, limit } => {
+                let name = ["R", "G", "B", "odd-block luminance"][(*channel).min(3)];
+                write!(
+                    f,
+                    "the pass's sum of pixel {pixel} (row-major), channel {name}, is {value}: larger in magnitude than its samples can add up to (at most {limit} units of 2^-40)"
+                )
+            }
+        }
+    }
+}
+
+impl std::error::Error for PassResultError {}
+
+/// Decodes a pass's result as a worker uploads it for `pixels` pixels and `blocks` blocks of
+/// samples: the sums ([`encode_sums`]), each checked against [`sum_limit`], and the bytes after
+/// them (the features of a denoised job's first pass, or nothing), returned as they are. Never
+/// panics, whatever the bytes.
+pub fn decode_pass_result(
+    body: &[u8],
+    pixels: usize,
+    blocks: u32,
+) -> Result<(Vec<PixelSum>, &[u8]), PassResultError> {
+    let wrong =
+        || PassResultError::WrongSize { got: body.len(), sums: pixels.saturating_mul(PIXEL_SUM_BYTES) };
+    let split = pixels.checked_mul(PIXEL_SUM_BYTES).filter(|&n| n <= body.len()).ok_or_else(wrong)?;
+    let (sums, rest) = body.split_at(split);
+    if !rest.is_empty() && rest.len() != pixels.saturating_mul(24) {
+        return Err(wrong());
+    }
+    let sums = decode_sums(sums).ok_or_else(wrong)?;
+    if let Some((pixel, channel, value)) = first_out_of_range(&sums, blocks) {
+        return Err(PassResultError::OutOfRange { pixel, channel, value, limit: sum_limit(blocks) });
+    }
+    Ok((sums, rest))
 }
 
 #[cfg(test)]
@@ -397,6 +474,118 @@ mod tests {
         assert!(sums_in_range(&[bad], 1));
         let huge = PixelSum { rgb: [i128::MAX, 0, 0], odd_luminance: 0 };
         assert!(!sums_in_range(&[huge], 4));
+    }
+
+    /// `i128::MIN` has no `i128` magnitude (`abs` overflows: a panic in a debug build, itself
+    /// again in a release build, where it passed the check): it is out of range like every
+    /// value past the limit, in every channel, for every block count.
+    #[test]
+    fn the_most_negative_sums_are_out_of_range() {
+        for blocks in [0, 1, 4, 1 << 28, u32::MAX] {
+            let limit = sum_limit(blocks);
+            for c in 0..4 {
+                let mut s = PixelSum::default();
+                let mut set = |v: i128| {
+                    if c == 3 {
+                        s.odd_luminance = v
+                    } else {
+                        s.rgb[c] = v
+                    }
+                    s
+                };
+                for v in [i128::MIN, i128::MIN + 1, i128::MAX] {
+                    assert_eq!(first_out_of_range(&[set(v)], blocks), Some((0, c, v)), "{blocks} {c} {v}");
+                }
+                if let Ok(edge) = i128::try_from(limit) {
+                    assert!(sums_in_range(&[set(edge)], blocks) && sums_in_range(&[set(-edge)], blocks));
+                    assert!(
+                        !sums_in_range(&[set(edge + 1)], blocks) && !sums_in_range(&[set(-edge - 1)], blocks)
+                    );
+                }
+            }
+        }
+        // The limit over every block a pixel can have still fits an `i128`: passes within
+        // their limits add up without overflow.
+        assert_eq!(sum_limit(u32::MAX), 1 << 126);
+        let mut body = encode_sums(&[PixelSum { rgb: [0, i128::MIN, 0], odd_luminance: 0 }]);
+        let e = decode_pass_result(&body, 1, 1).unwrap_err();
+        assert!(matches!(e, PassResultError::OutOfRange { pixel: 0, channel: 1, .. }), "{e:?}");
+        assert!(e.to_string().contains("channel G"), "{e}");
+        body.extend_from_slice(&[0; 24]);
+        assert!(decode_pass_result(&body, 1, 1).is_err());
+        let fine = encode_sums(&[PixelSum { rgb: [1, -1, 0], odd_luminance: 5 }]);
+        assert_eq!(decode_pass_result(&fine, 1, 1).unwrap().1, &[] as &[u8]);
+        assert!(matches!(decode_pass_result(&fine, 2, 1), Err(PassResultError::WrongSize { .. })));
+        assert!(matches!(decode_pass_result(&fine[..63], 1, 1), Err(PassResultError::WrongSize { .. })));
+        assert!(matches!(decode_pass_result(&fine, usize::MAX, 1), Err(PassResultError::WrongSize { .. })));
+    }
+
+    /// Random pass results (a fixed seed, many shapes and lengths, the values worth trying
+    /// mixed into random bits) never make the decoder panic; what it accepts is whole pixels
+    /// within the limit, re-encodes to the same bytes and adds up, pass after pass over every
+    /// block a pixel can have, without overflow.
+    #[test]
+    fn the_pass_result_decoder_never_panics_on_random_bytes() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let (mut accepted, mut refused) = (0, 0);
+        for round in 0..20_000 {
+            let pixels = (next() % 9) as usize;
+            let blocks = match next() % 4 {
+                0 => 0,
+                1 => 1 + (next() % 8) as u32,
+                2 => u32::MAX,
+                _ => next() as u32,
+            };
+            let limit = sum_limit(blocks);
+            let len = match next() % 4 {
+                0 => pixels * PIXEL_SUM_BYTES,
+                1 => pixels * (PIXEL_SUM_BYTES + 24),
+                _ => (next() % 600) as usize,
+            };
+            let mut body = Vec::with_capacity(len + 16);
+            while body.len() < len {
+                let v: i128 = match next() % 8 {
+                    0 => i128::MIN,
+                    1 => i128::MAX,
+                    2 => i128::try_from(limit).unwrap_or(i128::MAX),
+                    3 => -i128::try_from(limit).unwrap_or(i128::MAX),
+                    4 => i128::try_from(limit).map_or(i128::MIN, |l| -l - 1),
+                    5 => (next() % 1000) as i128 - 500,
+                    _ => (i128::from(next()) << 64) | i128::from(next()),
+                };
+                body.extend_from_slice(&v.to_le_bytes());
+            }
+            body.truncate(len);
+            match std::panic::catch_unwind(|| decode_pass_result(&body, pixels, blocks)) {
+                Err(_) => {
+                    panic!("round {round}: the decoder panicked on {pixels} px, {blocks} blocks, {body:?}")
+                }
+                Ok(Err(_)) => refused += 1,
+                Ok(Ok((sums, rest))) => {
+                    accepted += 1;
+                    assert_eq!(sums.len(), pixels);
+                    assert_eq!([encode_sums(&sums).as_slice(), rest].concat(), body);
+                    assert!(sums_in_range(&sums, blocks));
+                    // Passes of this size over every block of a pixel: no overflow.
+                    let passes = MAX_PIXEL_BLOCKS / blocks.clamp(1, MAX_PIXEL_BLOCKS);
+                    for s in &sums {
+                        for v in s.rgb.iter().chain([&s.odd_luminance]) {
+                            let total = v.unsigned_abs().checked_mul(u128::from(passes));
+                            assert!(total.is_some_and(|t| t <= i128::MAX as u128), "{v} x {passes}");
+                        }
+                        let _ = s.film(1);
+                    }
+                    let _ = tile_error(&sums, 32);
+                }
+            }
+        }
+        assert!(accepted > 1000 && refused > 1000, "{accepted} accepted, {refused} refused");
     }
 
     /// Tile sums of `pixels` pixels whose samples are `value` plus a noise of `noise` (the same

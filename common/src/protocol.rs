@@ -289,6 +289,11 @@ pub struct FrameInfo {
     pub preview_url: String,
     /// The camera's photographic operator for HDR frames (the defaults of a re-tone-map).
     pub tonemap: Option<ToneParams>,
+    /// Where the finished frame is re-tone-mapped (`tonemap.png`, with [`ToneQuery`]'s
+    /// parameters): set once the frame has a float output (`.exr` or `.hdr`) to tone-map, `None`
+    /// while it renders or when it has none.
+    #[serde(default)]
+    pub tonemap_url: Option<String>,
     /// Samples per pixel (the cap, under a noise target).
     #[serde(default)]
     pub samples: u32,

@@ -52,3 +52,45 @@ pub fn tile_upload(data: &[u8]) {
         assert_eq!(tessera::protocol::check_tile_values(&px).is_ok(), all_finite);
     }
 }
+
+/// The decoder of a pass's result uploaded by a worker (block sums, then maybe features): the
+/// first byte is the pixel count the lease expects, the next four (little-endian) the blocks of
+/// samples the pass covers, the rest the body. What it accepts is whole pixels whose sums are
+/// within the pass's limit (`i128::MIN` included in what it must refuse), re-encodes to itself,
+/// and adds up over every block a pixel can have without overflow.
+#[allow(dead_code)]
+pub fn pass_upload(data: &[u8]) {
+    use tessera::passes::{MAX_PIXEL_BLOCKS, PIXEL_SUM_BYTES, decode_pass_result, encode_sums, sum_limit};
+    if data.len() < 5 {
+        return;
+    }
+    let pixels = usize::from(data[0]);
+    let blocks = u32::from_le_bytes([data[1], data[2], data[3], data[4]]);
+    let body = &data[5..];
+    let Ok((sums, rest)) = decode_pass_result(body, pixels, blocks) else { return };
+    assert_eq!(sums.len(), pixels);
+    assert_eq!(body.len(), pixels * PIXEL_SUM_BYTES + rest.len());
+    assert!(rest.is_empty() || rest.len() == pixels * 24);
+    assert_eq!([encode_sums(&sums).as_slice(), rest].concat(), body);
+    let limit = sum_limit(blocks);
+    assert!(limit <= 1 << 126);
+    let passes = u128::from(MAX_PIXEL_BLOCKS / blocks.clamp(1, MAX_PIXEL_BLOCKS));
+    for s in &sums {
+        for v in s.rgb.iter().chain([&s.odd_luminance]) {
+            assert!(v.unsigned_abs() <= limit, "{v} is past {limit}");
+            assert!(v.unsigned_abs() * passes <= i128::MAX as u128, "{v} x {passes} passes overflows");
+        }
+        let _ = s.film(blocks.saturating_mul(tessera::passes::BLOCK));
+        // As many passes like this one as a pixel's blocks hold add up without overflow.
+        if passes >= 2 {
+            let mut twice = *s;
+            twice.add(s);
+        }
+    }
+    let _ = tessera::passes::tile_error(&sums, 64);
+    // The features after the sums, as the server checks them.
+    if let Some(px) = tessera::protocol::decode_tile(rest, rest.len() / 12) {
+        let all_finite = px.iter().flatten().all(|v| v.is_finite());
+        assert_eq!(tessera::protocol::check_tile_values(&px).is_ok(), all_finite);
+    }
+}

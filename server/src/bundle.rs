@@ -320,10 +320,13 @@ impl BlobStore {
     }
 
     pub fn get(&self, hash: &str) -> Option<Vec<u8>> {
-        if hash.len() != 64 || !hash.bytes().all(|b| b.is_ascii_hexdigit()) {
-            return None;
-        }
-        std::fs::read(self.path(hash)).ok()
+        std::fs::read(self.stored_path(hash)?).ok()
+    }
+
+    /// Where blob `hash` is kept, if `hash` is a SHA-256 in hex (nothing else names a file);
+    /// the file may not exist.
+    pub fn stored_path(&self, hash: &str) -> Option<PathBuf> {
+        (hash.len() == 64 && hash.bytes().all(|b| b.is_ascii_hexdigit())).then(|| self.path(hash))
     }
 }
 

@@ -1440,7 +1440,10 @@ impl Store {
                     let index: i64 = r.get(3)?;
                     Ok(ResultShape {
                         pixels: r.get::<_, i64>(0)? as usize,
-                        blocks: pass.map(|(a, b)| (b - a).max(0) as u32 / tessera::passes::BLOCK + 1),
+                        // The blocks of its samples (the last may be short): the passes'
+                        // counts add up to the pixel's, so their sums to at most 2^126.
+                        blocks: pass
+                            .map(|(a, b)| ((b - a).max(0) as u32).div_ceil(tessera::passes::BLOCK).max(1)),
                         aux: r.get::<_, bool>(4)? && index == 0,
                     })
                 },

@@ -99,6 +99,9 @@ pub struct Config {
     pub allowed_hosts: Vec<String>,
     /// `/metrics` without the API token.
     pub public_metrics: bool,
+    /// Longest pause, in seconds, in a request body the server is waiting for: past it the
+    /// request is answered 408 and its connection closed.
+    pub body_timeout_seconds: f64,
 }
 
 /// A random token from the operating system's generator (for local workers when none is set).
@@ -183,6 +186,12 @@ pub fn check_config(config: &Config) -> Result<()> {
         bail!("--header-timeout-seconds must be from 0.1 to 3600, found {}", config.header_timeout_seconds);
     }
     access(config)?;
+    if !(config.body_timeout_seconds >= 0.1 && config.body_timeout_seconds <= 3600.0) {
+        bail!(
+            "--body-timeout-seconds must be from 0.1 to 3600 (the longest pause in a request body), found {}",
+            config.body_timeout_seconds
+        );
+    }
     Ok(())
 }
 
@@ -278,6 +287,7 @@ pub async fn serve(
         max_total: connections::max_connections(descriptors, config.max_connections),
         max_per_ip: config.max_connections_per_ip,
         header_timeout: Duration::from_secs_f64(config.header_timeout_seconds),
+        body_timeout: Duration::from_secs_f64(config.body_timeout_seconds),
     };
     tracing::info!(
         "listening on http://{addr}, data in {}; at most {} connections ({} per client address; {descriptors} descriptors)",
@@ -377,6 +387,7 @@ mod tests {
             allowed_origins: Vec::new(),
             allowed_hosts: Vec::new(),
             public_metrics: false,
+            body_timeout_seconds: 60.0,
         }
     }
 
@@ -448,6 +459,9 @@ mod tests {
             let e =
                 check_config(&Config { header_timeout_seconds: t, ..config(&dir) }).unwrap_err().to_string();
             assert!(e.contains("--header-timeout-seconds"), "{t}: {e}");
+            let e =
+                check_config(&Config { body_timeout_seconds: t, ..config(&dir) }).unwrap_err().to_string();
+            assert!(e.contains("--body-timeout-seconds"), "{t}: {e}");
         }
     }
 

@@ -122,6 +122,11 @@ struct Cli {
     /// Answer /metrics without the API token (for a scraper that cannot send one).
     #[arg(long, env = "TESSERA_PUBLIC_METRICS")]
     public_metrics: bool,
+    /// Longest pause in a request's body, in seconds, while the server waits for it (measured
+    /// between the body's bytes, not over the whole body: a slow upload that keeps sending is
+    /// never cut); past it the request is answered 408 and its connection closed (0.1 to 3600).
+    #[arg(long, default_value_t = 60.0, env = "TESSERA_BODY_TIMEOUT_SECONDS", value_name = "S")]
+    body_timeout_seconds: f64,
 }
 
 fn main() -> ExitCode {
@@ -162,6 +167,7 @@ fn main() -> ExitCode {
         allowed_origins: cli.allowed_origins,
         allowed_hosts: cli.allowed_hosts,
         public_metrics: cli.public_metrics,
+        body_timeout_seconds: cli.body_timeout_seconds,
     };
     let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
         Ok(r) => r,

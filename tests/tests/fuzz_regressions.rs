@@ -82,3 +82,8 @@ fn bundle_inputs() {
 fn tile_upload_inputs() {
     replay("tile_upload", 1, inputs_probe::tile_upload);
 }
+
+#[test]
+fn pass_upload_inputs() {
+    replay("pass_upload", 4, inputs_probe::pass_upload);
+}

@@ -89,6 +89,8 @@ pub(super) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobIn
                     .and_then(|c| c.get(f.camera as usize))
                     .and_then(camera_tonemap)
                     .map(|p| tone_params(&p)),
+                tonemap_url: float_output(f.outputs.as_deref())
+                    .map(|_| format!("{url}/frames/{}/tonemap.png", f.index)),
             })
             .collect(),
         error,
@@ -213,9 +215,9 @@ pub(super) async fn frame_file(
     let pass_file = crate::merge::PASS_FILES.contains(&name.as_str());
     if pass_file && f.outputs.is_none() {
         let path = state.server_frame_dir(id, frame).join(&name);
-        if let Ok(bytes) = tokio::fs::read(&path).await {
+        if let Ok(file) = super::FileBody::open(&path).await {
             let mime = if name.ends_with(".png") { "image/png" } else { "application/octet-stream" };
-            return Ok(([(header::CONTENT_TYPE, HeaderValue::from_static(mime))], bytes).into_response());
+            return Ok(file.into_response_with(&[(header::CONTENT_TYPE, HeaderValue::from_static(mime))]));
         }
         // No pass yet, or the frame finished (and its pass files went) since it was looked up.
         f = look_up().await?;
@@ -256,23 +258,22 @@ pub(super) async fn frame_file(
             outputs.join(", ")
         )));
     }
+    // Streamed from the file as the client reads it: a download holds a chunk of it in memory,
+    // not the whole frame.
     let path = state.frame_dir(id, frame).join(&name);
-    let bytes =
-        tokio::fs::read(&path).await.map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?;
+    let file = super::FileBody::open(&path)
+        .await
+        .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?;
     let mime =
         if name.to_ascii_lowercase().ends_with(".png") { "image/png" } else { "application/octet-stream" };
-    Ok((
-        [
-            (header::CONTENT_TYPE, HeaderValue::from_static(mime)),
-            (
-                header::CONTENT_DISPOSITION,
-                HeaderValue::from_str(&format!("attachment; filename=\"{name}\""))
-                    .unwrap_or(HeaderValue::from_static("attachment")),
-            ),
-        ],
-        bytes,
-    )
-        .into_response())
+    Ok(file.into_response_with(&[
+        (header::CONTENT_TYPE, HeaderValue::from_static(mime)),
+        (
+            header::CONTENT_DISPOSITION,
+            HeaderValue::from_str(&format!("attachment; filename=\"{name}\""))
+                .unwrap_or(HeaderValue::from_static("attachment")),
+        ),
+    ]))
 }
 
 #[utoipa::path(get, path = "/api/v1/jobs/{id}/frames/{frame}/preview.png", tag = "jobs", security((), ("api_token" = [])),
@@ -303,9 +304,9 @@ pub(super) async fn frame_preview(
                     return Ok(png);
                 }
             }
-            if let Some(path) = stored_exr(&state, &f) {
+            if let Some(path) = stored_float(&state, &f) {
                 let cam = job_camera(&state, &job, f.camera)?;
-                let img = tessera::hdr_io::read_exr(&path).map_err(|e| anyhow::anyhow!("{e}"))?;
+                let img = tessera::hdr_io::read_float_image(&path).map_err(|e| anyhow::anyhow!("{e}"))?;
                 return Ok(merge::final_preview_png(&cam, &img)?);
             }
         }
@@ -329,13 +330,22 @@ fn job_camera(state: &AppState, job: &crate::db::JobRow, camera: u32) -> ApiResu
     Ok(cameras.get(camera as usize).cloned().ok_or_else(|| anyhow::anyhow!("camera {camera} missing"))?)
 }
 
-/// Where a merged frame's float image (`.exr` output) is stored, if it has one.
-fn stored_exr(state: &AppState, f: &crate::db::FrameRow) -> Option<std::path::PathBuf> {
-    let name = f.outputs.as_ref()?.iter().find(|n| n.to_ascii_lowercase().ends_with(".exr"))?;
+/// The float image among a merged frame's outputs: its first `.exr`, else its `.hdr` (an HDR
+/// image name writes no `.exr`); what re-tone-mapping reads.
+fn float_output(outputs: Option<&[String]>) -> Option<&String> {
+    let outputs = outputs?;
+    let with = |ext: &str| outputs.iter().find(|n| n.to_ascii_lowercase().ends_with(ext));
+    with(".exr").or_else(|| with(".hdr"))
+}
+
+/// Where a merged frame's float image ([`float_output`]) is stored, if it has one.
+fn stored_float(state: &AppState, f: &crate::db::FrameRow) -> Option<std::path::PathBuf> {
+    let name = float_output(f.outputs.as_deref())?;
     Some(state.frame_dir(f.job_id, f.index).join(name))
 }
 
-/// A finished frame's float image tone-mapped again with other parameters, without rendering:
+/// A finished frame's float image (its `.exr`, else its `.hdr`) tone-mapped again with other
+/// parameters, without rendering:
 /// `GET /api/v1/jobs/ID/frames/F/tonemap.png?key=0.3&burn=2&saturation=1&gamma=2.2`.
 #[utoipa::path(get, path = "/api/v1/jobs/{id}/frames/{frame}/tonemap.png", tag = "jobs", security((), ("api_token" = [])),
     params(("id" = u64, Path, description = "The job's id"), ("frame" = u32, Path, description = "The frame's index in the job (0-based)"), ToneQuery),
@@ -343,7 +353,7 @@ fn stored_exr(state: &AppState, f: &crate::db::FrameRow) -> Option<std::path::Pa
         (status = 200, description = "The stored float frame tone-mapped with these parameters", content_type = "image/png", body = super::openapi::Binary),
         (status = 400, description = "A path parameter or query does not parse, or a parameter is out of range", body = ApiError),
         (status = 401, description = "The server needs an API token", body = ApiError),
-        (status = 404, description = "No such job or frame, or the frame has no .exr", body = ApiError),
+        (status = 404, description = "No such job or frame, or the frame has no float output (.exr or .hdr; the frame's `tonemap_url` is then null)", body = ApiError),
         (status = 409, description = "The frame is not finished", body = ApiError)))]
 pub(super) async fn frame_tonemap(
     State(state): State<AppState>,
@@ -361,8 +371,12 @@ pub(super) async fn frame_tonemap(
             format!("frame {frame} of job {id} is not finished yet"),
         ));
     }
-    let path = stored_exr(&state, &f)
-        .ok_or_else(|| AppError::not_found(format!("frame {frame} of job {id} has no .exr to tone-map")))?;
+    let path = stored_float(&state, &f).ok_or_else(|| {
+        AppError::not_found(format!(
+            "frame {frame} of job {id} has no float image (.exr or .hdr) to tone-map; its outputs are {}",
+            f.outputs.as_deref().unwrap_or_default().join(", ")
+        ))
+    })?;
     let cameras = {
         let state = state.clone();
         off_thread(move || Ok(state.job_cameras(&job)?)).await?
@@ -383,7 +397,7 @@ pub(super) async fn frame_tonemap(
     };
     params.validate().map_err(AppError::bad_request)?;
     let png = tokio::task::spawn_blocking(move || -> anyhow::Result<Vec<u8>> {
-        let img = tessera::hdr_io::read_exr(&path)?;
+        let img = tessera::hdr_io::read_float_image(&path)?;
         let (rgb, _) = tessera::tonemap::tonemap_with(&img, operator, &params);
         merge::encode_png(img.width, img.height, &rgb)
     })

@@ -92,6 +92,54 @@ async fn off_thread<T: Send + 'static>(f: impl FnOnce() -> ApiResult<T> + Send +
         .map_err(|e| anyhow::anyhow!("a handler's blocking task failed: {e}"))?
 }
 
+/// Bytes a streamed file is read in (and about what one download holds in memory, beside the
+/// connection's write buffer).
+const FILE_CHUNK: usize = 64 << 10;
+
+/// A file opened to be answered as it is read: its body is streamed in [`FILE_CHUNK`] pieces
+/// as the client takes them, never held whole in memory, with its length. The open file is
+/// read to its end even if the name is replaced meanwhile (outputs are replaced by renames).
+pub(crate) struct FileBody {
+    file: tokio::fs::File,
+    len: u64,
+}
+
+impl FileBody {
+    pub(crate) async fn open(path: &std::path::Path) -> std::io::Result<FileBody> {
+        let file = tokio::fs::File::open(path).await?;
+        let meta = file.metadata().await?;
+        if !meta.is_file() {
+            return Err(std::io::Error::other("not a file"));
+        }
+        Ok(FileBody { file, len: meta.len() })
+    }
+
+    /// The answer: `headers`, the file's `Content-Length` and its bytes.
+    pub(crate) fn into_response_with(self, headers: &[(header::HeaderName, HeaderValue)]) -> Response {
+        use tokio::io::AsyncReadExt;
+        let stream = futures_util::stream::unfold(Some(self.file), |file| async move {
+            let mut file = file?;
+            let mut buf = vec![0u8; FILE_CHUNK];
+            match file.read(&mut buf).await {
+                Ok(0) => None,
+                Ok(n) => {
+                    buf.truncate(n);
+                    Some((Ok(axum::body::Bytes::from(buf)), Some(file)))
+                }
+                // The answer is cut short (the client sees its length unmet): said once.
+                Err(e) => Some((Err(e), None)),
+            }
+        });
+        let mut resp = axum::body::Body::from_stream(stream).into_response();
+        let h = resp.headers_mut();
+        for (name, value) in headers {
+            h.insert(name.clone(), value.clone());
+        }
+        h.insert(header::CONTENT_LENGTH, HeaderValue::from(self.len));
+        resp
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // Router
 // ---------------------------------------------------------------------------------------------

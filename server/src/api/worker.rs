@@ -240,7 +240,7 @@ pub(super) async fn watch(
     request_body(content = super::openapi::Binary, content_type = "application/octet-stream", description = "The tile: width x height RGB triples of little-endian f32, row-major; for a lease with `aux` (a denoised job), then the albedo and the normal the same way. For a lease with `pass`: each pixel's block sums instead of the colour (four little-endian i128: R, G, B in units of 2^-40, and the odd blocks' luminance), then the features when `aux` is set"),
     responses(
         (status = 204, description = "Stored (committed before this answer)"),
-        (status = 400, description = "A missing header, a checksum that does not match, the wrong size, or a value that is not a finite number", body = ApiError),
+        (status = 400, description = "A missing header, a checksum that does not match, the wrong size, a value that is not a finite number, or a pass's sum larger than its samples can add up to", body = ApiError),
         (status = 401, description = "Missing or wrong worker token or worker secret", body = ApiError),
         (status = 409, description = "The lease is not the worker's any more: drop the tile", body = ApiError),
         (status = 413, description = "The body goes past the tile's size (width x height x 12 bytes)", body = ApiError),
@@ -307,15 +307,14 @@ pub(super) async fn result(
     let floats = match shape.blocks {
         None => &body[..],
         Some(blocks) => {
-            let (sums, features) = body.split_at(shape.pixels * tessera::passes::PIXEL_SUM_BYTES);
-            let sums =
-                tessera::passes::decode_sums(sums).ok_or_else(|| wrong_size(body.len().to_string()))?;
-            if !tessera::passes::sums_in_range(&sums, blocks) {
-                return Err(AppError::bad_request(
-                    "the pass's sums are larger than its samples can add up to; nothing was stored",
-                ));
+            use tessera::passes::{PassResultError, decode_pass_result};
+            match decode_pass_result(&body, shape.pixels, blocks) {
+                Ok((_, features)) => features,
+                Err(PassResultError::WrongSize { .. }) => return Err(wrong_size(body.len().to_string())),
+                Err(e @ PassResultError::OutOfRange { .. }) => {
+                    return Err(AppError::bad_request(format!("{e}; nothing was stored")));
+                }
             }
-            features
         }
     };
     let px = decode_tile(floats, floats.len() / 12).ok_or_else(|| wrong_size(body.len().to_string()))?;
@@ -459,11 +458,12 @@ pub(super) async fn get_bundle(
     State(state): State<AppState>,
     Path(hash): Path<String>,
 ) -> ApiResult<Response> {
-    let blobs = state.blobs.clone();
-    let h = hash.clone();
-    let bytes = tokio::task::spawn_blocking(move || blobs.get(&h))
-        .await
-        .map_err(|e| anyhow::anyhow!("bundle task: {e}"))?
-        .ok_or_else(|| AppError::not_found(format!("no bundle {hash}")))?;
-    Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("application/x-tar"))], bytes).into_response())
+    // Streamed from its file as the worker reads it: a large bundle costs no more memory than
+    // a small one, however many workers fetch it at once.
+    let file = match state.blobs.stored_path(&hash) {
+        Some(path) => super::FileBody::open(&path).await.ok(),
+        None => None,
+    };
+    let file = file.ok_or_else(|| AppError::not_found(format!("no bundle {hash}")))?;
+    Ok(file.into_response_with(&[(header::CONTENT_TYPE, HeaderValue::from_static("application/x-tar"))]))
 }

@@ -184,7 +184,8 @@ function renderFrame(entry, job, f) {
       fr.shown = png.url;
       draw(fr, png.url);
     }
-    if (f.tonemap && f.outputs.some((o) => o.name.toLowerCase().endsWith(".exr")) && !fr.toneBuilt) buildTone(fr, job, f);
+    // Sliders only where the server can re-tone-map: an HDR frame with a float output.
+    if (f.tonemap && f.tonemap_url && !fr.toneBuilt) buildTone(fr, job, f);
   } else if (f.tiles_done > 0 && !fr.shown) {
     refreshPreview(job.id + "/" + f.index, fr, f.preview_url);
   }
@@ -224,7 +225,7 @@ function buildTone(fr, job, f) {
   const update = debounce(() => {
     fr.toneActive = true;
     const q = Object.entries(values).map(([k, v]) => k + "=" + v).join("&");
-    const url = "/api/v1/jobs/" + job.id + "/frames/" + f.index + "/tonemap.png?" + q;
+    const url = f.tonemap_url + "?" + q;
     draw(fr, url);
     const a = $("a.retoned", box);
     a.href = withToken(url);
