@@ -17,16 +17,17 @@ use std::time::Duration;
 use anyhow::{Context, Result, bail, ensure};
 use serde_json::Value;
 
-/// How much more work than its baseline a workload may do before the guard fails (2 %), and how
+/// How much more work than its baseline a workload may do before the guard fails (1 %), and how
 /// much less before it suggests lowering the baseline. It is not there for noise: counts repeat
-/// to within about 0.002 % from run to run (a few thousand instructions in a few hundred million:
-/// the idle render thread's polling). It leaves room for what moves the counts without any
-/// change to the renderer (another compiler release, another glibc or Valgrind, a host CPU
-/// feature [`PINNED_LIBC`] does not pin) and for small deliberate costs, while the regressions it
-/// is for are larger: issue #72's direct-lighting loss was +10 % on `head_env_direct`. Each
-/// commit is compared with the committed baseline, not with its parent, so small losses add up
-/// against it and fail once together they pass 2 %.
-pub const TOLERANCE: f64 = 0.02;
+/// to within 0.02 % from run to run (at most some 40 thousand instructions in 220 million, usually
+/// a few thousand: the idle render thread's polling). It leaves room for what moves counts
+/// without a change to the renderer and that [`PINNED_LIBC`] does not pin (the CPU-dependent
+/// string functions glibc still picks moved `head_env_direct` by 0.24 %), and it still catches
+/// little: three extra vector instructions in the triangle test are +1.3 % on `head_primary`.
+/// Another compiler, glibc or Valgrind moves counts by more: that is a deliberate raise of the
+/// baseline. Each commit is compared with the committed baseline, not with its parent, so small
+/// losses add up against it and fail once together they pass 1 %.
+pub const TOLERANCE: f64 = 0.01;
 
 /// The C library's choices that depend on the host CPU, fixed for the measured process
 /// (`GLIBC_TUNABLES`). With ERMS (or FSRM), glibc copies and clears large buffers with `rep movsb`
