@@ -103,11 +103,19 @@ fn measure(
     Ok(results.into_inner().unwrap())
 }
 
-fn run(o: &Options) -> Result<bool> {
+/// How the guard ended, when it could run at all.
+enum Outcome {
+    Passed,
+    Failed,
+    /// Valgrind or the corpus is missing and not required: the reason is printed.
+    Skipped,
+}
+
+fn run(o: &Options) -> Result<Outcome> {
     let scenes_dir = tessera_tests::shared_scenes();
     for rel in perf_guard::CORPUS_FILES {
         if !tessera_tests::corpus_has(&scenes_dir.join(rel)) {
-            return Ok(true);
+            return Ok(Outcome::Skipped);
         }
     }
     let Some(valgrind) = perf_guard::version_of("valgrind") else {
@@ -117,7 +125,7 @@ fn run(o: &Options) -> Result<bool> {
             bail!("TESSERA_REQUIRE_PERF_GUARD is set but {reason}");
         }
         eprintln!("skipped: {reason}; TESSERA_REQUIRE_PERF_GUARD=1 makes this a failure");
-        return Ok(true);
+        return Ok(Outcome::Skipped);
     };
     let baseline_path = tessera_tests::repo_root().join(perf_guard::BASELINE);
     let baseline = if o.update {
@@ -210,7 +218,7 @@ fn run(o: &Options) -> Result<bool> {
             "perf guard: wrote {}; commit it with a message that says why the work changed",
             perf_guard::BASELINE
         );
-        return Ok(true);
+        return Ok(Outcome::Passed);
     };
 
     let mut ok = true;
@@ -252,7 +260,7 @@ fn run(o: &Options) -> Result<bool> {
             perf_guard::UPDATE_COMMAND
         );
     }
-    Ok(ok)
+    Ok(if ok { Outcome::Passed } else { Outcome::Failed })
 }
 
 fn main() -> ExitCode {
@@ -275,11 +283,15 @@ fn main() -> ExitCode {
     }
     println!("running 1 test: {NAME}");
     match run(&o) {
-        Ok(true) => {
+        Ok(Outcome::Passed) => {
             println!("test {NAME} ... ok");
             ExitCode::SUCCESS
         }
-        Ok(false) => {
+        Ok(Outcome::Skipped) => {
+            println!("test {NAME} ... skipped (the reason is above)");
+            ExitCode::SUCCESS
+        }
+        Ok(Outcome::Failed) => {
             eprintln!("test {NAME} ... FAILED");
             ExitCode::FAILURE
         }
