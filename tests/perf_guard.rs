@@ -24,7 +24,7 @@ use serde_json::Value;
 /// without a change to the renderer and that [`PINNED_LIBC`] does not pin (the CPU-dependent
 /// string functions glibc still picks moved `head_env_direct` by 0.24 %), and it still catches
 /// little: three extra vector instructions in the triangle test are +1.3 % on `head_primary`.
-/// Another compiler, glibc or Valgrind moves counts by more: that is a deliberate raise of the
+/// Another compiler, glibc or Valgrind can move counts by more: that is a deliberate raise of the
 /// baseline. Each commit is compared with the committed baseline, not with its parent, so small
 /// losses add up against it and fail once together they pass 1 %.
 pub const TOLERANCE: f64 = 0.01;
