@@ -6,6 +6,7 @@
 pub mod anchors;
 pub mod conformance;
 pub mod envmaps;
+pub mod perf_guard;
 
 pub use tessera_testkit::{anchor_python, corpus_has, missing, repo_root, shared_bench, shared_scenes};
 
