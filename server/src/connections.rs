@@ -5,12 +5,13 @@
 //! - bound the connections open at once ([`ConnectionLimits::max_total`], below the process's
 //!   descriptor limit, which [`raise_descriptor_limit`] lifts to its hard maximum at start-up)
 //!   and those of one client address ([`ConnectionLimits::max_per_ip`]). A connection over
-//!   either takes the place of the connection idle the longest between two requests (a
-//!   kept-alive connection that finished its request and waits for the next one), of its own
-//!   address or, at the total cap, of any: that one is closed and the newcomer served, so
-//!   kept-alive connections left open cannot lock other clients out. With none idle, the new
-//!   connection is accepted and closed at once, so the listen queue never fills and the
-//!   server never runs out of descriptors for its database and files;
+//!   either takes the place of the connection idle the longest (one with no request in
+//!   progress: a kept-alive connection waiting for its next request, or one that has not sent
+//!   a whole request head since it was accepted), of its own address or, at the total cap, of
+//!   any: that one is closed and the newcomer served, so connections left open, silent or
+//!   kept alive, cannot lock other clients out. With none idle, the new connection is accepted
+//!   and closed at once, so the listen queue never fills and the server never runs out of
+//!   descriptors for its database and files;
 //! - close a connection whose request head does not arrive in
 //!   [`ConnectionLimits::header_timeout`], and a kept-alive connection idle for as long (hyper's
 //!   header-read timer, which runs while a connection waits for its next request);
@@ -103,7 +104,8 @@ struct Conn {
     ip: IpAddr,
     /// Requests being answered: from the head read to the answer's last byte written.
     busy: usize,
-    /// Since when it has waited for its next request (`None`: busy, or no request yet).
+    /// Since when it has had no request in progress: since it was accepted, or since its last
+    /// answer was written (`None`: busy, or asked to close).
     idle_since: Option<Instant>,
     /// Asked to close to make room; it is not chosen again.
     closing: bool,
@@ -131,7 +133,13 @@ impl Open {
         self.total += 1;
         *self.by_ip.entry(ip).or_default() += 1;
         let close = Arc::new(tokio::sync::Notify::new());
-        self.conns.insert(id, Conn { ip, busy: 0, idle_since: None, closing: false, close: close.clone() });
+        // Idle from the start: a connection that sends nothing (or never finishes its head)
+        // may make room for a newcomer like one kept alive after its request.
+        let now = Instant::now();
+        self.conns
+            .insert(id, Conn { ip, busy: 0, idle_since: Some(now), closing: false, close: close.clone() });
+        self.idle.insert((now, id));
+        self.idle_by_ip.entry(ip).or_default().insert((now, id));
         (id, close)
     }
 
@@ -257,10 +265,7 @@ impl Throttled {
     fn made_room(&mut self, why: &str) {
         self.refused += 1;
         if self.last.is_none_or(|t| t.elapsed() > Duration::from_secs(10)) {
-            tracing::info!(
-                "closing idle kept-alive connections to let new ones in: {why} ({} so far)",
-                self.refused
-            );
+            tracing::info!("closing idle connections to let new ones in: {why} ({} so far)", self.refused);
             self.last = Some(Instant::now());
         }
     }
@@ -449,7 +454,9 @@ pub async fn serve(
             };
             if !(over_total || over_ip) {
                 Some(o.add(ip))
-            } else if o.close_oldest_idle(Some(ip)) || (!over_ip && o.close_oldest_idle(None)) {
+            } else if o.close_oldest_idle(over_ip.then_some(ip)) {
+                // Over its address's cap: that address's oldest idle connection goes; over the
+                // total cap only: the oldest idle of any address.
                 room.made_room(&why);
                 Some(o.add(ip))
             } else {

@@ -256,16 +256,21 @@ pub(super) async fn result(
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.parse().ok())
         .ok_or_else(|| AppError::bad_request("missing header x-tessera-worker (the worker id)"))?;
-    authenticated(&state, &headers, worker).await?;
+    let declared = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.trim().parse::<u64>().ok());
+    if let Err(refused) = authenticated(&state, &headers, worker).await {
+        // As for a lease that is gone (below): a worker that writes before it reads gets the
+        // 401 or 404, not a connection reset over its unread body.
+        drain(body, declared.unwrap_or(0).min(MAX_TILE_BYTES), DRAIN_SECONDS).await;
+        return Err(refused);
+    }
     let sum = headers
         .get(CHECKSUM_HEADER)
         .and_then(|v| v.to_str().ok())
         .ok_or_else(|| AppError::bad_request(format!("missing header {CHECKSUM_HEADER}")))?
         .to_string();
-    let declared = headers
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.trim().parse::<u64>().ok());
     // The lease says how many bytes its tile has: the body is read up to that and no further.
     let expected = {
         let state = state.clone();
