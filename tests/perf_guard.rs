@@ -199,19 +199,7 @@ fn cornellbox_area(scenes: &Path) -> Result<String> {
     .with_context(|| format!("editing {rel}"))
 }
 
-/// Clears the variables cargo sets for a test from `cmd`, so that a `cargo build` it runs is
-/// the one a user runs (with them, cargo would see a changed environment and rebuild).
-pub fn without_test_env(cmd: &mut Command) {
-    for (name, _) in std::env::vars_os() {
-        let name = name.to_string_lossy();
-        if name.starts_with("CARGO_MANIFEST_")
-            || name.starts_with("CARGO_PKG_")
-            || ["CARGO_CRATE_NAME", "CARGO_BIN_NAME", "CARGO_PRIMARY_PACKAGE"].contains(&&*name)
-        {
-            cmd.env_remove(&*name);
-        }
-    }
-}
+pub use tessera_testkit::without_test_env;
 
 /// Where `cargo build --release` puts the binaries.
 pub fn release_dir() -> PathBuf {

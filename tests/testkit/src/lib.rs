@@ -288,3 +288,19 @@ pub fn small_path_traced_box(dir: &Path) -> Option<PathBuf> {
     std::fs::write(&path, small).expect("write the small scene");
     Some(path)
 }
+
+/// Removes the variables cargo sets for a test run (`CARGO_MANIFEST_DIR`, `CARGO_PKG_*`, ...)
+/// from a command that runs cargo: build scripts that watch them (ring's watches
+/// CARGO_MANIFEST_DIR) would otherwise rebuild their crates there, and again in the next
+/// `cargo test`.
+pub fn without_test_env(cmd: &mut std::process::Command) {
+    for (name, _) in std::env::vars_os() {
+        let name = name.to_string_lossy();
+        if name.starts_with("CARGO_MANIFEST_")
+            || name.starts_with("CARGO_PKG_")
+            || ["CARGO_CRATE_NAME", "CARGO_BIN_NAME", "CARGO_PRIMARY_PACKAGE"].contains(&&*name)
+        {
+            cmd.env_remove(&*name);
+        }
+    }
+}
