@@ -15,8 +15,11 @@ use support::*;
 const API: &str = "APITOK";
 const WORKER: &str = "WTOK";
 
-/// The most another client may wait for a lease or a job view while an attack runs.
-const OTHERS_WAIT_AT_MOST: f64 = 0.2;
+/// The most another client may wait for a lease or a job view while an attack runs (the
+/// slowest of its requests). The attacks used to hold the store for seconds; with the store
+/// let go between steps the slowest request stays well below this bound, which leaves room for
+/// a loaded 2-core machine without letting such a stall through.
+const OTHERS_WAIT_AT_MOST: f64 = 0.5;
 
 fn args(extra: &[&str]) -> Vec<String> {
     let mut args: Vec<String> =
