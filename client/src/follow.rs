@@ -279,6 +279,7 @@ mod tests {
             passes_total: 1,
             passes_done: 0,
             pass_outputs: Vec::new(),
+            scene: None,
         }
     }
 

@@ -155,6 +155,138 @@ pub struct Lease {
     /// ([`crate::passes::encode_pass_tile`]) instead of finished pixels. Absent: the whole tile.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pass: Option<PassLease>,
+    /// SHA-256 of the job's [`Manifest`] (itself a file of the server's file store). When
+    /// present, `bundle` is empty, `scene_path` is this frame's scene file (a path of the
+    /// manifest), and every file the scene names is the manifest's file of that path, fetched
+    /// by `GET /api/v1/worker/files/{sha256}` once and kept in the worker's file cache. Absent:
+    /// a job stored before sequences, whose files are the tar `bundle`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub manifest: Option<String>,
+}
+
+// ---- Content-addressed files: a job's files are sent and stored once, by SHA-256 ----
+
+/// What names a file in the farm: the SHA-256 of its bytes (64 lowercase hex digits) and its
+/// size in bytes.
+#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct FileDigest {
+    pub sha256: String,
+    pub size: u64,
+}
+
+/// `POST /api/v1/files/missing`: which of these files the server does not have yet.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(deny_unknown_fields)]
+pub struct MissingFilesRequest {
+    pub files: Vec<FileDigest>,
+}
+
+/// The answer to [`MissingFilesRequest`]: the SHA-256s to upload (each once, in the order
+/// asked) with `PUT /api/v1/files/{sha256}`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct MissingFilesResponse {
+    pub missing: Vec<String>,
+}
+
+/// One file of a job: its path relative to the job's top folder (normalised: `/`-separated,
+/// no `.`, `..` or leading `/`) and the file it is.
+#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(deny_unknown_fields)]
+pub struct JobFile {
+    pub path: String,
+    pub sha256: String,
+    pub size: u64,
+}
+
+/// A job's files as the server stores them and workers fetch them: canonical JSON
+/// (`serde_json::to_vec` of this, files sorted by path, each path once), kept in the file store
+/// under its own SHA-256, which [`Lease::manifest`] names.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct Manifest {
+    pub files: Vec<JobFile>,
+}
+
+/// What a job's frames become once they are merged.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(rename_all = "lowercase")]
+pub enum VideoKind {
+    /// H.264 in MP4 (yuv420p, `+faststart`), made by the `ffmpeg` program.
+    Mp4,
+    /// An animated GIF, made by the server itself.
+    Gif,
+    /// No video.
+    None,
+}
+
+impl VideoKind {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            VideoKind::Mp4 => "mp4",
+            VideoKind::Gif => "gif",
+            VideoKind::None => "none",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<VideoKind> {
+        Some(match s {
+            "mp4" => VideoKind::Mp4,
+            "gif" => VideoKind::Gif,
+            "none" => VideoKind::None,
+            _ => return None,
+        })
+    }
+}
+
+/// `POST /api/v1/jobs` with `Content-Type: application/json`: a job (one scene, or a sequence
+/// of scenes, one after another) whose files the server already has (ask with
+/// [`MissingFilesRequest`], upload what it lacks, then submit this). Every option is the
+/// multipart form's field of the same name.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(deny_unknown_fields)]
+pub struct JobRequest {
+    /// The scene files, paths of `files`, in frame order: each scene's cameras (all, or those
+    /// `cameras` names) are frames of the job in this order.
+    pub scenes: Vec<String>,
+    /// Every file the scenes use, the scenes included.
+    pub files: Vec<JobFile>,
+    #[serde(default)]
+    pub name: Option<String>,
+    #[serde(default)]
+    pub priority: Option<i64>,
+    #[serde(default)]
+    pub tile_size: Option<u32>,
+    #[serde(default)]
+    pub samples: Option<u32>,
+    /// Cameras of each scene to render, 1-based (default: all).
+    #[serde(default)]
+    pub cameras: Option<Vec<u32>>,
+    #[serde(default)]
+    pub pass_samples: Option<u32>,
+    #[serde(default)]
+    pub noise_target: Option<f64>,
+    #[serde(default)]
+    pub allow_unsupported: bool,
+    #[serde(default)]
+    pub denoise: bool,
+    /// The video made of the frames once all are merged (default: `mp4` for a sequence of
+    /// more than one scene file, `none` otherwise; a GIF instead when the server has no
+    /// `ffmpeg` and the video was not asked for).
+    #[serde(default)]
+    pub video: Option<VideoKind>,
+    /// Frames a second of the video (default 30).
+    #[serde(default)]
+    pub fps: Option<u32>,
+    /// Keep each frame's float image (`.exr`, losslessly compressed) beside a PNG frame
+    /// (default true); false keeps only the PNG.
+    #[serde(default)]
+    pub keep_float: Option<bool>,
 }
 
 /// One pass of a tile: samples `start..end` of every pixel (whole blocks of
@@ -307,6 +439,40 @@ pub struct FrameInfo {
     /// after `passes_done` counts the pass), until the frame is merged.
     #[serde(default)]
     pub pass_outputs: Vec<OutputInfo>,
+    /// The scene file this frame comes from (a path of the job's files), for a job of several
+    /// scene files (a sequence); `None` for a job of one scene.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scene: Option<String>,
+}
+
+/// How many of a job's frames are in each state.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct FrameCounts {
+    /// Merged: their outputs are written.
+    pub done: u32,
+    /// Some of their work is leased or finished, not all of it merged.
+    pub rendering: u32,
+    /// Nothing of theirs started.
+    pub queued: u32,
+}
+
+/// A job's video (see [`VideoKind`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct VideoInfo {
+    /// What is made: `mp4` or `gif`.
+    pub kind: VideoKind,
+    pub fps: u32,
+    /// `waiting` (for the last frame), `encoding`, `done` or `failed`.
+    pub state: String,
+    /// The video's download URL, once done.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub url: Option<String>,
+    /// Why there is no video, or why it is not the kind asked for (a GIF because the server
+    /// has no ffmpeg, ...).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub message: Option<String>,
 }
 
 /// Photographic operator parameters as the API shows them (`gamma`: a number or "sRGB").
@@ -370,6 +536,15 @@ pub struct JobInfo {
     pub started_at: Option<f64>,
     pub finished_at: Option<f64>,
     pub frames: Vec<FrameInfo>,
+    /// Frames by state (always complete, also when `frames` is left out of a job list).
+    #[serde(default)]
+    pub frame_counts: FrameCounts,
+    /// Scene files the job renders: 1, or the length of a sequence.
+    #[serde(default)]
+    pub scenes: u32,
+    /// The job's video, when it makes one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub video: Option<VideoInfo>,
     pub error: Option<String>,
     /// What the scene's parser and builder warned about (unknown elements, a capped
     /// MaxRecursionDepth, ...): in the answer to a submission only.

@@ -9,7 +9,8 @@
 //!   `scheduler`).
 //! - [`db`]: the SQLite job store, the single source of truth (jobs, frames, tiles with their
 //!   pixels, leases, workers); a restart loses nothing that was acknowledged.
-//! - [`bundle`]: uploads into content-addressed tar bundles.
+//! - [`bundle`]: uploads into content-addressed tar bundles (jobs stored before the file store).
+//! - [`files`]: the file store, every job file once by SHA-256.
 //! - [`merge`]: tiles into frames, frames into `.exr` and tone-mapped `.png` files, once.
 //! - [`web`]: the status page.
 //! - [`serve`]: binds, starts the background tasks (lease expiry, merges left over from a crash)
@@ -21,6 +22,7 @@ pub mod bundle;
 pub mod connections;
 pub mod db;
 pub mod failures;
+pub mod files;
 pub mod housekeeping;
 mod local_workers;
 pub mod merge;

@@ -61,6 +61,8 @@ pub struct Access {
 pub struct AppState {
     pub store: Arc<Store>,
     pub blobs: BlobStore,
+    /// Every job file once, by SHA-256 (`files.rs`).
+    pub files: crate::files::FileStore,
     pub settings: Arc<Settings>,
     /// Leasing, failures, expiry and revocation: the scheduling rules.
     pub scheduler: Scheduler,
@@ -89,6 +91,7 @@ impl AppState {
             scheduler: Scheduler::new(store.clone(), timing, events.clone()),
             store,
             blobs,
+            files: crate::files::FileStore::at(&settings.data_dir),
             settings: Arc::new(settings),
             cameras: Arc::default(),
             events,

@@ -91,8 +91,12 @@ pub(super) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobIn
                     .map(|p| tone_params(&p)),
                 tonemap_url: float_output(f.outputs.as_deref())
                     .map(|_| format!("{url}/frames/{}/tonemap.png", f.index)),
+                scene: None,
             })
             .collect(),
+        frame_counts: FrameCounts::default(),
+        scenes: 1,
+        video: None,
         error,
         warnings: Vec::new(),
         url,

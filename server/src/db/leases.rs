@@ -133,6 +133,7 @@ impl Store {
             // Features come with a tile's first samples.
             aux: aux && pass.is_none_or(|p| p.index == 0),
             pass,
+            manifest: None,
         }))
     }
 

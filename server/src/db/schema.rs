@@ -21,7 +21,8 @@ CREATE TABLE IF NOT EXISTS jobs(
     allow_unsupported INTEGER NOT NULL DEFAULT 0,
     denoise INTEGER NOT NULL DEFAULT 0,
     pass_samples INTEGER,
-    noise_target REAL
+    noise_target REAL,
+    manifest TEXT
 );
 CREATE TABLE IF NOT EXISTS frames(
     job_id INTEGER NOT NULL,
@@ -36,6 +37,7 @@ CREATE TABLE IF NOT EXISTS frames(
     samples INTEGER NOT NULL DEFAULT 1,
     passes_total INTEGER NOT NULL DEFAULT 1,
     passes_published INTEGER NOT NULL DEFAULT 0,
+    scene_path TEXT,
     PRIMARY KEY(job_id, idx)
 );
 CREATE TABLE IF NOT EXISTS tiles(
@@ -83,6 +85,14 @@ CREATE TABLE IF NOT EXISTS workers(
     rendering INTEGER,
     secret_hash TEXT
 );
+CREATE TABLE IF NOT EXISTS job_files(
+    job_id INTEGER NOT NULL,
+    path TEXT NOT NULL,
+    sha256 TEXT NOT NULL,
+    size INTEGER NOT NULL,
+    PRIMARY KEY(job_id, path)
+) WITHOUT ROWID;
+CREATE INDEX IF NOT EXISTS job_files_by_sha ON job_files(sha256);
 CREATE TABLE IF NOT EXISTS job_events(
     job_id INTEGER NOT NULL,
     seq INTEGER NOT NULL,
@@ -154,6 +164,14 @@ pub(super) fn migrate(conn: &Connection) -> Result<()> {
                FROM tiles_before_passes;
              DROP TABLE tiles_before_passes;
              COMMIT;",
+        )?;
+    }
+    if !has_column("jobs", "manifest")? {
+        // Jobs from before the file store keep their tar bundle (`manifest` NULL) and one
+        // scene file for all their frames (`scene_path` NULL: the job's).
+        conn.execute_batch(
+            "ALTER TABLE jobs ADD COLUMN manifest TEXT;
+             ALTER TABLE frames ADD COLUMN scene_path TEXT;",
         )?;
     }
     if conn.pragma_query_value(None, "user_version", |r| r.get::<_, i64>(0))? < 1 {
