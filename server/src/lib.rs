@@ -123,6 +123,74 @@ pub(crate) fn random_token() -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
+/// The file in the data directory that holds the farm's worker token (mode 0600).
+pub fn worker_token_file(data_dir: &std::path::Path) -> PathBuf {
+    data_dir.join("worker-token")
+}
+
+/// The worker token this server uses, kept in [`worker_token_file`] so that it can be shown
+/// again (`tessera-server worker-token`) and survives restarts (a second machine that joined
+/// keeps working): `given` (`--worker-token`) if set, else the file's, else a new random one.
+pub fn keep_worker_token(data_dir: &std::path::Path, given: Option<&str>) -> Result<String> {
+    let file = worker_token_file(data_dir);
+    let kept = std::fs::read_to_string(&file).ok().map(|t| t.trim().to_string()).filter(|t| !t.is_empty());
+    let token = match (given, kept.as_deref()) {
+        (Some(t), _) => t.to_string(),
+        (None, Some(k)) => return Ok(k.to_string()),
+        (None, None) => random_token(),
+    };
+    if kept.as_deref() != Some(token.as_str()) {
+        write_private(&file, format!("{token}\n").as_bytes())
+            .with_context(|| format!("cannot keep the worker token in {}", file.display()))?;
+    }
+    Ok(token)
+}
+
+/// Writes `bytes` to `path` readable by its owner only (0600 from the start: the bytes are
+/// never readable by others, not even for a moment), replacing it atomically.
+fn write_private(path: &std::path::Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write;
+    let temp = tessera::atomic_write::unique_temp_name(path);
+    let mut options = std::fs::OpenOptions::new();
+    options.write(true).create_new(true);
+    #[cfg(unix)]
+    std::os::unix::fs::OpenOptionsExt::mode(&mut options, 0o600);
+    let written = (|| {
+        let mut f = options.open(&temp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&temp, path)
+    })();
+    if written.is_err() {
+        let _ = std::fs::remove_file(&temp);
+    }
+    written
+}
+
+/// The line the server logs once at start: how another machine joins this farm.
+fn join_advice(bind: SocketAddr, addr: SocketAddr, token: &str, data_dir: &std::path::Path) -> String {
+    let file = worker_token_file(data_dir);
+    let kept = format!(
+        "the token is kept in {} (mode 0600); `tessera-server worker-token --data-dir {}` prints it again",
+        file.display(),
+        data_dir.display()
+    );
+    let port = addr.port();
+    if bind.ip().is_loopback() {
+        format!(
+            "this farm listens on loopback only, so only this machine's workers can join; to add another \
+             machine, start the server with --bind 0.0.0.0:{port} and an --api-token, then run there: \
+             tessera-worker work --server http://THIS-MACHINE:{port} --token {token} ({kept})"
+        )
+    } else {
+        let host =
+            if addr.ip().is_unspecified() { "THIS-MACHINE".to_string() } else { addr.ip().to_string() };
+        format!(
+            "to add a machine to this farm, run there: tessera-worker work --server http://{host}:{port} --token {token} ({kept})"
+        )
+    }
+}
+
 /// Checks the configuration before anything starts.
 pub fn check_config(config: &Config) -> Result<()> {
     if !config.bind.ip().is_loopback() && config.api_token.is_none() && !config.insecure {
@@ -253,7 +321,7 @@ pub async fn serve(
             swept.old_pass_files
         );
     }
-    let worker_token = config.worker_token.clone().unwrap_or_else(random_token);
+    let worker_token = keep_worker_token(&config.data_dir, config.worker_token.as_deref())?;
     let settings = state::Settings {
         data_dir: config.data_dir.clone(),
         tile_size: config.tile_size,
@@ -298,6 +366,7 @@ pub async fn serve(
         limits.max_per_ip
     );
     on_listening(addr);
+    tracing::info!("{}", join_advice(config.bind, addr, &worker_token, &config.data_dir));
 
     // Frames whose last tile arrived just before a crash, or whose merge found the disk full.
     for f in store.frames_awaiting_merge()? {

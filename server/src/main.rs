@@ -13,9 +13,11 @@ use tessera_server::{Config, serve};
     name = "tessera-server",
     version,
     about = "Tessera's render farm server: takes CENG795 scenes over HTTP, cuts every frame into tiles, hands them to workers, merges and tone-maps the results",
-    after_help = "With no options it listens on 127.0.0.1:8080, keeps its state in ./tessera-data and starts one local worker that uses every core: a working farm.\n\nExamples:\n  tessera-server\n  curl -F scene=@scene.xml -F asset=@ply/bunny.ply\\;filename=ply/bunny.ply http://127.0.0.1:8080/api/v1/jobs\n  tessera-server --bind 0.0.0.0:8080 --api-token SECRET --worker-token WSECRET --local-workers 0\n  tessera-worker work --server http://farm:8080 --token WSECRET"
+    after_help = "With no options it listens on 127.0.0.1:8080, keeps its state in ./tessera-data and starts one local worker that uses every core: a working farm.\n\nExamples:\n  tessera-server\n  curl -F scene=@scene.xml -F asset=@ply/bunny.ply\\;filename=ply/bunny.ply http://127.0.0.1:8080/api/v1/jobs\n  tessera-server --bind 0.0.0.0:8080 --api-token SECRET --worker-token WSECRET --local-workers 0\n  tessera-worker work --server http://farm:8080 --token WSECRET\n  tessera-server worker-token    (the farm's worker token, to join another machine)"
 )]
 struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
     /// Address and port to listen on. Anything other than loopback needs --api-token (or
     /// --insecure).
     #[arg(long, default_value = "127.0.0.1:8080", env = "TESSERA_BIND", value_name = "ADDR:PORT")]
@@ -129,8 +131,53 @@ struct Cli {
     body_timeout_seconds: f64,
 }
 
+#[derive(clap::Subcommand)]
+enum Command {
+    /// Print this farm's worker token (what `tessera-worker work --token` needs to join), kept
+    /// in the data directory's worker-token file since the server's first start.
+    WorkerToken {
+        /// The server's data directory.
+        #[arg(long, default_value = "tessera-data", env = "TESSERA_DATA_DIR", value_name = "DIR")]
+        data_dir: PathBuf,
+    },
+}
+
+/// `tessera-server worker-token`: the kept token on stdout.
+fn print_worker_token(data_dir: &std::path::Path) -> ExitCode {
+    let file = tessera_server::worker_token_file(data_dir);
+    match std::fs::read_to_string(&file) {
+        Ok(t) if !t.trim().is_empty() => {
+            println!("{}", t.trim());
+            ExitCode::SUCCESS
+        }
+        Ok(_) | Err(_) if !data_dir.join("tessera.db").exists() => {
+            eprintln!(
+                "error: {} holds no farm yet: start tessera-server with --data-dir {} once (it makes the token), \
+                 or give --data-dir the server's data directory",
+                data_dir.display(),
+                data_dir.display()
+            );
+            ExitCode::FAILURE
+        }
+        Ok(_) => {
+            eprintln!("error: {} is empty: start the server once to make a new token", file.display());
+            ExitCode::FAILURE
+        }
+        Err(e) => {
+            eprintln!(
+                "error: cannot read {}: {e}; run this as the user the server runs as, or start the server once to make it",
+                file.display()
+            );
+            ExitCode::FAILURE
+        }
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    if let Some(Command::WorkerToken { data_dir }) = &cli.command {
+        return print_worker_token(data_dir);
+    }
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_env("TESSERA_LOG")
