@@ -26,6 +26,7 @@ pub mod files;
 pub mod housekeeping;
 mod local_workers;
 pub mod merge;
+pub mod notify;
 pub mod registrations;
 pub mod scheduler;
 pub mod state;
@@ -104,6 +105,10 @@ pub struct Config {
     /// Longest pause, in seconds, in a request body the server is waiting for: past it the
     /// request is answered 408 and its connection closed.
     pub body_timeout_seconds: f64,
+    /// Where every job's end is POSTed (`notify.rs`).
+    pub notify_url: Option<String>,
+    /// URL prefixes a job's own `notify_url` must start with (none: jobs may not ask).
+    pub notify_allow: Vec<String>,
 }
 
 /// A random token from the operating system's generator (for local workers when none is set).
@@ -193,6 +198,16 @@ fn join_advice(bind: SocketAddr, addr: SocketAddr, token: &str, data_dir: &std::
 
 /// Checks the configuration before anything starts.
 pub fn check_config(config: &Config) -> Result<()> {
+    if let Some(url) = &config.notify_url {
+        notify::check_url(url).map_err(|e| anyhow::anyhow!("--notify-url {url:?} {e}"))?;
+    }
+    for prefix in &config.notify_allow {
+        notify::check_url(prefix).map_err(|e| {
+            anyhow::anyhow!(
+                "--notify-allow {prefix:?} {e}; give a URL prefix such as https://hooks.example/tessera/"
+            )
+        })?;
+    }
     if !config.bind.ip().is_loopback() && config.api_token.is_none() && !config.insecure {
         bail!(
             "refusing to listen on {} without an API token: anyone who can reach it could run jobs on this machine. \
@@ -389,6 +404,8 @@ pub async fn serve(
         (config.forget_workers_after_hours * 3600.0).max(scheduler::lost_after(config.heartbeat_seconds));
     housekeeping::spawn(state.clone(), forget_after);
     housekeeping::spawn_checkpoints(store.clone());
+    // Job ends announced to the operator's and the jobs' receivers.
+    notify::spawn(state.clone(), config.notify_url.clone());
 
     let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
     let app = api::app(state.clone());
@@ -459,6 +476,8 @@ mod tests {
             allowed_hosts: Vec::new(),
             public_metrics: false,
             body_timeout_seconds: 60.0,
+            notify_url: None,
+            notify_allow: Vec::new(),
         }
     }
 
@@ -542,6 +561,8 @@ mod tests {
         let dir = tessera_testkit::TempDir::new("unit-store-limits");
         for (bad, flag) in [
             (Config { max_job_units: 0, ..config(&dir) }, "--max-job-units"),
+            (Config { notify_url: Some("ftp://x/".into()), ..config(&dir) }, "--notify-url"),
+            (Config { notify_allow: vec!["hooks.example".into()], ..config(&dir) }, "--notify-allow"),
             (Config { max_workers: 0, ..config(&dir) }, "--max-workers"),
             (Config { forget_workers_after_hours: 0.0, ..config(&dir) }, "--forget-workers-after-hours"),
             (Config { forget_workers_after_hours: f64::NAN, ..config(&dir) }, "--forget-workers-after-hours"),

@@ -129,6 +129,15 @@ struct Cli {
     /// never cut); past it the request is answered 408 and its connection closed (0.1 to 3600).
     #[arg(long, default_value_t = 60.0, env = "TESSERA_BODY_TIMEOUT_SECONDS", value_name = "S")]
     body_timeout_seconds: f64,
+    /// POST a JSON document to this URL whenever a job ends (done, failed or cancelled):
+    /// `{"event": "job_done"|"job_failed"|"job_cancelled", "job": <the job's JSON>}`, tried 4
+    /// times with a 10 s timeout, never holding up the server.
+    #[arg(long, env = "TESSERA_NOTIFY_URL", value_name = "URL")]
+    notify_url: Option<String>,
+    /// A URL prefix under which a job's own notify_url may point (repeat it or separate with
+    /// commas); without one, jobs may not ask to be announced anywhere.
+    #[arg(long = "notify-allow", env = "TESSERA_NOTIFY_ALLOW", value_delimiter = ',', value_name = "PREFIX")]
+    notify_allow: Vec<String>,
 }
 
 #[derive(clap::Subcommand)]
@@ -215,6 +224,8 @@ fn main() -> ExitCode {
         allowed_hosts: cli.allowed_hosts,
         public_metrics: cli.public_metrics,
         body_timeout_seconds: cli.body_timeout_seconds,
+        notify_url: cli.notify_url.filter(|u| !u.is_empty()),
+        notify_allow: cli.notify_allow,
     };
     let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
         Ok(r) => r,
