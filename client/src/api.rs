@@ -157,6 +157,20 @@ impl Api {
         self.json(&what, resp)
     }
 
+    pub fn workers(&self) -> Result<tessera::protocol::WorkerList, CallError> {
+        self.get_json("listing the workers", "/api/v1/workers")
+    }
+
+    /// `POST /api/v1/workers/ID/ACTION` (`drain`, `disable` or `enable`).
+    pub fn worker_action(&self, id: u64, action: &str) -> Result<tessera::protocol::WorkerInfo, CallError> {
+        let what = format!("{action} worker {id}");
+        let resp = self
+            .request("POST", &format!("/api/v1/workers/{id}/{action}"))
+            .send_bytes(&[])
+            .map_err(|e| self.explain(&what, e))?;
+        self.json(&what, resp)
+    }
+
     /// The bytes at `url` (a path on the server, as the API gives them).
     pub fn download(&self, what: &str, url: &str) -> Result<Vec<u8>, CallError> {
         let resp = self.request("GET", url).call().map_err(|e| self.explain(what, e))?;

@@ -168,6 +168,22 @@ enum Command {
         #[arg(long, short)]
         quiet: bool,
     },
+    /// List the farm's workers: state (idle, rendering, lost), mode, current tile, tiles done.
+    Workers {
+        /// Print the server's JSON answer instead (for scripts).
+        #[arg(long)]
+        json: bool,
+    },
+    /// Drain, disable or enable a worker (its id as `tessera workers` lists it).
+    ///
+    /// drain: it finishes the tiles it holds and takes no new one; disable: it takes nothing and
+    /// the tiles it holds go back to the queue at once; enable: it takes work again.
+    Worker {
+        #[arg(value_parser = ["drain", "disable", "enable"])]
+        action: String,
+        /// The worker's id.
+        id: u64,
+    },
     /// Print a job's event log: acceptance, warnings, tiles done or failed, merges, the end.
     Logs {
         /// The job.
@@ -280,6 +296,41 @@ fn run(cli: Cli) -> Result<ExitCode> {
                     }
                 }
             }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Workers { json } => {
+            let api = connect()?;
+            let list = api.workers()?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&list)?);
+            } else if list.workers.is_empty() {
+                println!("no workers have registered with {}", api.base);
+            } else {
+                println!(
+                    "{:>4}  {:<24} {:>7}  {:<9} {:<8} {:>10}  current tile",
+                    "id", "name", "threads", "state", "mode", "tiles done"
+                );
+                for w in &list.workers {
+                    let tile = w.current_tile.as_ref().map_or(String::new(), |t| {
+                        format!("job {} frame {} tile {}", t.job, t.frame, t.tile)
+                    });
+                    println!(
+                        "{:>4}  {:<24} {:>7}  {:<9} {:<8} {:>10}  {tile}",
+                        w.id, w.name, w.threads, w.state, w.mode, w.tiles_done
+                    );
+                }
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Worker { action, id } => {
+            let api = connect()?;
+            let w = api.worker_action(id, &action)?;
+            let what = match w.mode.as_str() {
+                "draining" => "finishes the tiles it holds and takes no new one",
+                "disabled" => "takes no work; the tiles it held are queued again",
+                _ => "takes work",
+            };
+            println!("worker {id} ({}) is {}: it {what}", w.name, w.mode);
             Ok(ExitCode::SUCCESS)
         }
         Command::Cancel { id } => {

@@ -649,6 +649,14 @@ pub struct WorkerInfo {
     /// Units rendered: whole tiles, and each pass of a tile rendered in passes.
     pub tiles_done: u64,
     pub failures: u64,
+    /// Whether it takes new work: `active`, `draining` (finishes what it holds, takes nothing
+    /// new) or `disabled` (takes nothing; what it held went back to the queue).
+    #[serde(default = "active_mode")]
+    pub mode: String,
+}
+
+fn active_mode() -> String {
+    "active".into()
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

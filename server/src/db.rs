@@ -337,6 +337,38 @@ pub struct WorkerRow {
     pub rendering: Option<u64>,
     /// The tile of `rendering`: (job, frame, tile).
     pub current_tile: Option<(u64, u32, u32)>,
+    /// Whether it takes new work: `active`, `draining` or `disabled` ([`WorkerMode`]).
+    pub mode: WorkerMode,
+}
+
+/// Whether a worker takes new work.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WorkerMode {
+    /// Takes leases.
+    Active,
+    /// Finishes the leases it holds, takes no new one.
+    Draining,
+    /// Takes no lease; the leases it held were queued again when it was disabled.
+    Disabled,
+}
+
+impl WorkerMode {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            WorkerMode::Active => "active",
+            WorkerMode::Draining => "draining",
+            WorkerMode::Disabled => "disabled",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<WorkerMode> {
+        Some(match s {
+            "active" => WorkerMode::Active,
+            "draining" => WorkerMode::Draining,
+            "disabled" => WorkerMode::Disabled,
+            _ => return None,
+        })
+    }
 }
 
 /// What happened to a submitted result.

@@ -190,7 +190,14 @@ impl Scheduler {
                 return Ok(LeaseWait::ShuttingDown);
             }
             let (store, lease_seconds) = (self.store.clone(), self.timing.lease_seconds);
-            match blocking(move || store.lease(worker, lease_seconds)).await? {
+            let leased = blocking(move || {
+                // A draining or disabled worker takes nothing new; its poll waits like an idle one.
+                if store.worker_mode(worker)? != crate::db::WorkerMode::Active {
+                    return Ok(Leased::NoWork);
+                }
+                store.lease(worker, lease_seconds)
+            });
+            match leased.await? {
                 Leased::Granted(mut lease) => {
                     lease.max_render_seconds = Some(self.timing.max_tile_seconds);
                     self.emit(ServerEvent::Job { job: lease.job_id, state: JobState::Running });
@@ -204,6 +211,19 @@ impl Scheduler {
                 return Ok(LeaseWait::NoWork);
             }
         }
+    }
+
+    /// Sets whether `worker` takes new work; `None` when there is no such worker, else how many
+    /// of its tiles went back to the queue (disabling). Wakes the lease polls: a worker made
+    /// active again gets work at once, and tiles a disabled one held go to others.
+    pub fn set_worker_mode(&self, worker: u64, mode: crate::db::WorkerMode) -> Result<Option<usize>> {
+        let changed = self.store.set_worker_mode(worker, mode)?;
+        if changed.is_some() {
+            tracing::info!(worker, mode = mode.as_str(), "worker mode changed");
+            self.emit(ServerEvent::Workers);
+            self.wake();
+        }
+        Ok(changed)
     }
 
     /// Renews `worker`'s live leases among `leases`; returns those it no longer owns.
@@ -369,6 +389,7 @@ mod tests {
             failures: 0,
             rendering,
             current_tile: None,
+            mode: crate::db::WorkerMode::Active,
         };
         // Heartbeats every 5 s: lost after 17 s of silence, whatever it was doing.
         assert_eq!(lost_after(5.0), 17.0);

@@ -158,6 +158,9 @@ fn routes(state: &AppState) -> OpenApiRouter<AppState> {
         .routes(routes!(jobs::frame_file))
         .routes(routes!(jobs::frame_tonemap))
         .routes(routes!(status::list_workers))
+        .routes(routes!(status::drain_worker))
+        .routes(routes!(status::disable_worker))
+        .routes(routes!(status::enable_worker))
         .routes(routes!(status::events))
         .route_layer(axum::middleware::from_fn_with_state(state.clone(), auth::require_api_token));
     let worker_api = OpenApiRouter::new()

@@ -2,12 +2,28 @@
 //! stream.
 
 use axum::Json;
-use axum::extract::State;
+use axum::extract::{Path, State};
 use axum::response::{IntoResponse, Response};
 
 use tessera::protocol::{ApiError, ServerEvent, WorkerInfo, WorkerList, WorkerTile};
 
-use super::{ApiResult, AppState, off_thread};
+use super::{ApiResult, AppError, AppState, off_thread};
+use crate::db::{WorkerMode, WorkerRow};
+
+/// A worker's row as the API shows it.
+fn worker_info(state: &AppState, w: WorkerRow, t: f64) -> WorkerInfo {
+    WorkerInfo {
+        state: state.scheduler.worker_state(&w, t).as_str().to_string(),
+        id: w.id,
+        name: w.name,
+        threads: w.threads,
+        current_tile: w.current_tile.map(|(job, frame, tile)| WorkerTile { job, frame, tile }),
+        last_heartbeat: w.last_seen,
+        tiles_done: w.tiles_done,
+        failures: w.failures,
+        mode: w.mode.as_str().to_string(),
+    }
+}
 
 #[utoipa::path(get, path = "/api/v1/workers", tag = "status", security((), ("api_token" = [])),
     responses((status = 200, description = "Every registered worker", body = WorkerList), (status = 401, description = "The server needs an API token", body = ApiError)))]
@@ -17,20 +33,56 @@ pub(super) async fn list_workers(State(state): State<AppState>) -> ApiResult<Jso
         off_thread(move || Ok(state.store.workers()?)).await?
     };
     let t = crate::db::now();
-    let workers: Vec<WorkerInfo> = rows
-        .into_iter()
-        .map(|w| WorkerInfo {
-            state: state.scheduler.worker_state(&w, t).as_str().to_string(),
-            id: w.id,
-            name: w.name,
-            threads: w.threads,
-            current_tile: w.current_tile.map(|(job, frame, tile)| WorkerTile { job, frame, tile }),
-            last_heartbeat: w.last_seen,
-            tiles_done: w.tiles_done,
-            failures: w.failures,
-        })
-        .collect();
+    let workers: Vec<WorkerInfo> = rows.into_iter().map(|w| worker_info(&state, w, t)).collect();
     Ok(Json(WorkerList { workers }))
+}
+
+/// Sets a worker's mode and answers with the worker as it is then.
+async fn set_mode(state: AppState, id: u64, mode: WorkerMode) -> ApiResult<Json<WorkerInfo>> {
+    off_thread(move || {
+        if state.scheduler.set_worker_mode(id, mode)?.is_none() {
+            return Err(AppError::not_found(format!(
+                "no worker {id}; GET /api/v1/workers lists them (a worker gone long enough is forgotten)"
+            )));
+        }
+        let row = state.store.workers()?.into_iter().find(|w| w.id == id);
+        let row = row.ok_or_else(|| AppError::not_found(format!("worker {id} was just forgotten")))?;
+        Ok(Json(worker_info(&state, row, crate::db::now())))
+    })
+    .await
+}
+
+#[utoipa::path(post, path = "/api/v1/workers/{id}/drain", tag = "status", security((), ("api_token" = [])),
+    params(("id" = u64, Path, description = "The worker's id")),
+    responses((status = 200, description = "The worker finishes what it holds and takes no new work", body = WorkerInfo),
+        (status = 404, description = "No such worker", body = ApiError), (status = 401, description = "The server needs an API token", body = ApiError)))]
+pub(super) async fn drain_worker(
+    State(state): State<AppState>,
+    Path(id): Path<u64>,
+) -> ApiResult<Json<WorkerInfo>> {
+    set_mode(state, id, WorkerMode::Draining).await
+}
+
+#[utoipa::path(post, path = "/api/v1/workers/{id}/disable", tag = "status", security((), ("api_token" = [])),
+    params(("id" = u64, Path, description = "The worker's id")),
+    responses((status = 200, description = "The worker takes no work; the tiles it held are queued again (it stops rendering them at its next heartbeat)", body = WorkerInfo),
+        (status = 404, description = "No such worker", body = ApiError), (status = 401, description = "The server needs an API token", body = ApiError)))]
+pub(super) async fn disable_worker(
+    State(state): State<AppState>,
+    Path(id): Path<u64>,
+) -> ApiResult<Json<WorkerInfo>> {
+    set_mode(state, id, WorkerMode::Disabled).await
+}
+
+#[utoipa::path(post, path = "/api/v1/workers/{id}/enable", tag = "status", security((), ("api_token" = [])),
+    params(("id" = u64, Path, description = "The worker's id")),
+    responses((status = 200, description = "The worker takes work again", body = WorkerInfo),
+        (status = 404, description = "No such worker", body = ApiError), (status = 401, description = "The server needs an API token", body = ApiError)))]
+pub(super) async fn enable_worker(
+    State(state): State<AppState>,
+    Path(id): Path<u64>,
+) -> ApiResult<Json<WorkerInfo>> {
+    set_mode(state, id, WorkerMode::Active).await
 }
 
 /// Server-sent events for the status page: every [`tessera::protocol::ServerEvent`] as it happens.

@@ -85,7 +85,8 @@ CREATE TABLE IF NOT EXISTS workers(
     tiles_done INTEGER NOT NULL DEFAULT 0,
     failures INTEGER NOT NULL DEFAULT 0,
     rendering INTEGER,
-    secret_hash TEXT
+    secret_hash TEXT,
+    mode TEXT NOT NULL DEFAULT 'active'
 );
 CREATE TABLE IF NOT EXISTS job_files(
     job_id INTEGER NOT NULL,
@@ -175,6 +176,10 @@ pub(super) fn migrate(conn: &Connection) -> Result<()> {
             "ALTER TABLE jobs ADD COLUMN manifest TEXT;
              ALTER TABLE frames ADD COLUMN scene_path TEXT;",
         )?;
+    }
+    if !has_column("workers", "mode")? {
+        // Every worker registered before drain and disable existed takes work.
+        conn.execute("ALTER TABLE workers ADD COLUMN mode TEXT NOT NULL DEFAULT 'active'", [])?;
     }
     if !has_column("jobs", "notified")? {
         // Jobs that ended before notifications existed are not announced now.

@@ -43,7 +43,7 @@ impl Store {
     pub fn workers(&self) -> Result<Vec<WorkerRow>> {
         let conn = self.conn();
         let mut stmt = conn.prepare_cached(
-            "SELECT w.id, w.name, w.threads, w.registered_at, w.last_seen, w.tiles_done, w.failures, w.rendering, t.job_id, t.frame, t.tile
+            "SELECT w.id, w.name, w.threads, w.registered_at, w.last_seen, w.tiles_done, w.failures, w.rendering, t.job_id, t.frame, t.tile, w.mode
              FROM workers w LEFT JOIN tiles t ON t.lease_id = w.rendering ORDER BY w.id",
         )?;
         let rows = stmt
@@ -62,6 +62,7 @@ impl Store {
                         Some(j) => Some((j as u64, r.get::<_, i64>(9)? as u32, r.get::<_, i64>(10)? as u32)),
                         None => None,
                     },
+                    mode: WorkerMode::parse(&r.get::<_, String>(11)?).unwrap_or(WorkerMode::Active),
                 })
             })?
             .collect::<rusqlite::Result<Vec<_>>>()?;
@@ -108,6 +109,79 @@ impl Store {
         }
         tx.commit()?;
         Ok(Registered::Id(id))
+    }
+
+    /// Sets whether worker `id` takes new work; `None` when there is no such worker. Disabling
+    /// also queues again every tile it holds (its next heartbeat learns they are no longer its
+    /// own, and it stops rendering them); draining leaves them to finish.
+    pub fn set_worker_mode(&self, id: u64, mode: WorkerMode) -> Result<Option<usize>> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        let id = i64::try_from(id).unwrap_or(-1);
+        if tx.execute("UPDATE workers SET mode = ?2 WHERE id = ?1", params![id, mode.as_str()])? == 0 {
+            return Ok(None);
+        }
+        let mut requeued = 0;
+        if mode == WorkerMode::Disabled {
+            requeued = tx.execute(
+                "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL
+                 WHERE worker_id = ?1 AND state = 'leased'",
+                [id],
+            )?;
+            tx.execute("UPDATE workers SET rendering = NULL WHERE id = ?1", [id])?;
+        }
+        tx.commit()?;
+        Ok(Some(requeued))
+    }
+
+    /// Whether worker `id` takes new work (an unknown worker: active, as registration decides).
+    pub fn worker_mode(&self, id: u64) -> Result<WorkerMode> {
+        let conn = self.conn();
+        let mode: Option<String> = conn
+            .query_row_cached(
+                "SELECT mode FROM workers WHERE id = ?1",
+                [i64::try_from(id).unwrap_or(-1)],
+                |r| r.get(0),
+            )
+            .optional()?;
+        Ok(mode.and_then(|m| WorkerMode::parse(&m)).unwrap_or(WorkerMode::Active))
+    }
+
+    /// Registers one of the server's own local workers under `name`: the row of an earlier
+    /// worker of that name (an earlier run of this server, or this worker before a restart)
+    /// is taken over, keeping its history and mode, instead of leaving it lost beside a new one.
+    pub fn register_local_worker(&self, name: &str, threads: u32, secret_hash: &str) -> Result<u64> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        let t = now();
+        let earlier: Option<i64> = tx
+            .query_row_cached("SELECT max(id) FROM workers WHERE name = ?1", [name], |r| r.get(0))
+            .optional()?
+            .flatten();
+        let id = match earlier {
+            Some(id) => {
+                // Leases of its earlier life are dead with it: queued again at once.
+                tx.execute(
+                    "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL
+                     WHERE worker_id = ?1 AND state = 'leased'",
+                    [id],
+                )?;
+                tx.execute(
+                    "UPDATE workers SET threads = ?2, last_seen = ?3, secret_hash = ?4, rendering = NULL WHERE id = ?1",
+                    params![id, threads, t, secret_hash],
+                )?;
+                id as u64
+            }
+            None => {
+                tx.execute_cached(
+                    "INSERT INTO workers(name, threads, registered_at, last_seen, secret_hash) VALUES (?1, ?2, ?3, ?3, ?4)",
+                    params![name, threads, t, secret_hash],
+                )?;
+                tx.last_insert_rowid() as u64
+            }
+        };
+        tx.commit()?;
+        Ok(id)
     }
 
     /// Forgets workers not seen since `before` that hold no live lease: their rows go (a worker

@@ -66,6 +66,24 @@ pub fn worker_bin() -> PathBuf {
     bin
 }
 
+/// `tessera` (the client), built next to the server binary like [`worker_bin`].
+pub fn client_bin() -> PathBuf {
+    static BUILT: std::sync::Once = std::sync::Once::new();
+    let bin = server_bin().with_file_name("tessera");
+    BUILT.call_once(|| {
+        let release = server_bin().components().any(|c| c.as_os_str() == "release");
+        let mut cmd = Command::new(env!("CARGO"));
+        cmd.args(["build", "-p", "tessera-client"]);
+        if release {
+            cmd.arg("--release");
+        }
+        without_test_env(&mut cmd);
+        let status = cmd.status().expect("run cargo build -p tessera-client");
+        assert!(status.success(), "cannot build tessera-client");
+    });
+    bin
+}
+
 pub use tessera_testkit::without_test_env;
 
 pub fn repo() -> PathBuf {
