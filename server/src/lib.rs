@@ -253,6 +253,11 @@ pub async fn serve(
             swept.old_pass_files
         );
     }
+    // Uploads to the file store that a stop cut off.
+    let cut = files::FileStore::new(&config.data_dir)?.remove_temporaries();
+    if cut > 0 {
+        tracing::info!("removed {cut} temporary file(s) of uploads to the file store cut off by a stop");
+    }
     let worker_token = config.worker_token.clone().unwrap_or_else(random_token);
     let settings = state::Settings {
         data_dir: config.data_dir.clone(),
