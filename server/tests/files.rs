@@ -407,3 +407,32 @@ fn files_no_job_names_are_collected_after_the_grace() {
     let _ = std::fs::File::open(&young_path).unwrap().read_to_end(&mut buf);
     assert_eq!(buf, young);
 }
+
+/// An upload that finds the disk full is a 507 that says so, names no server path and leaves
+/// nothing (its temporary file goes, so the space is back for the next upload). Needs a small
+/// filesystem (`support::small_fs`: root on Linux); skips where there is none.
+#[test]
+fn an_upload_on_a_full_disk_is_a_507_and_leaves_nothing() {
+    use support::small_fs::*;
+    let _serial = serial();
+    if let Err(why) = small_fs_works() {
+        return skip(&why);
+    }
+    let data = TempDir::new("files-full");
+    let args = ["--api-token", API, "--worker-token", WORKER, "--local-workers", "0"];
+    let server = Server::start_with(&data, &args, |cmd| on_small_fs(cmd, &data, 4));
+    let root = as_server_sees(&server, &data);
+    assert!(free_bytes(&root) < 5 << 20, "the data directory is not on the small filesystem");
+    let big: Vec<u8> = (0..(6u32 << 20)).map(|i| (i % 249) as u8).collect();
+    let (code, v) = put(&server.url, &sha256(&big), &big);
+    assert_eq!(code, 507, "{v}\n{}", server.log());
+    let said = v["error"].as_str().unwrap();
+    let data_path = data.display().to_string();
+    assert!(said.contains("disk is full") && said.contains("nothing was stored"), "{said}");
+    assert!(!said.contains(&data_path) && !said.contains("/files"), "{said}");
+    assert_eq!(files_under(&root.join("files")), Vec::<String>::new());
+    let small = vec![3u8; 1 << 20];
+    let (code, v) = put(&server.url, &sha256(&small), &small);
+    assert_eq!(code, 201, "space is back once the cut upload is gone: {v}");
+    assert_eq!(files_under(&root.join("files")).len(), 1);
+}
