@@ -146,7 +146,8 @@ fn wrong_hash_too_large_or_no_token_stores_nothing() {
     let _serial = serial();
     let dir = TempDir::new("files-refused");
     let data = dir.join("data");
-    let server = start(&data, &["--max-file-mb", "1"]);
+    // The file cap, not the (smaller) cap of a submission's body, bounds an upload to the store.
+    let server = start(&data, &["--max-file-mb", "2", "--max-upload-mb", "1"]);
     let body = b"the real bytes".to_vec();
     let claimed = sha256(b"other bytes");
     let (code, v) = put(&server.url, &claimed, &body);
@@ -154,7 +155,7 @@ fn wrong_hash_too_large_or_no_token_stores_nothing() {
     let e = v["error"].as_str().unwrap();
     assert!(e.contains(&claimed) && e.contains(&sha256(&body)) && e.contains("nothing was stored"), "{e}");
     // Over the cap, declared in Content-Length.
-    let big = vec![1u8; (1 << 20) + 1];
+    let big = vec![1u8; (2 << 20) + 1];
     let (code, v) = put(&server.url, &sha256(&big), &big);
     assert_eq!(code, 413, "{v}");
     assert!(v["error"].as_str().unwrap().contains("--max-file-mb"), "{v}");
@@ -170,8 +171,8 @@ fn wrong_hash_too_large_or_no_token_stores_nothing() {
         }
         other => panic!("a chunked upload over the cap: {other:?}"),
     }
-    // Exactly at the cap is fine.
-    let at_cap = vec![2u8; 1 << 20];
+    // Exactly at the cap is fine, though over --max-upload-mb.
+    let at_cap = vec![2u8; 2 << 20];
     assert_eq!(put(&server.url, &sha256(&at_cap), &at_cap).0, 201);
     // No token, a wrong token: 401, nothing stored.
     for auth in [None, Some("Bearer nope")] {

@@ -62,17 +62,6 @@ impl Store {
         present(&self.conn(), "SELECT DISTINCT bundle FROM jobs WHERE bundle IN ({})", hashes)
     }
 
-    /// The files job `id` names (its `job_files` rows and its manifest), for what it frees.
-    pub fn job_file_shas(&self, id: u64) -> Result<Vec<String>> {
-        let conn = self.conn();
-        let mut stmt = conn.prepare_cached(
-            "SELECT sha256 FROM job_files WHERE job_id = ?1
-             UNION SELECT manifest FROM jobs WHERE id = ?1 AND manifest IS NOT NULL",
-        )?;
-        let rows = stmt.query_map([id as i64], |r| r.get(0))?.collect::<rusqlite::Result<Vec<String>>>()?;
-        Ok(rows)
-    }
-
     /// Deletes job `id` if it is finished (done, failed or cancelled): its rows in `tiles`,
     /// `tile_failures`, `job_events`, `frames`, `job_files` and `jobs`. A job of a million tile
     /// rows is deleted [`ROWS_PER_STEP`] rows to a transaction, the store's lock let go between
@@ -204,9 +193,11 @@ mod tests {
         let named = s.referenced_files(&[&a, &b, &m]).unwrap();
         assert_eq!(named, [a.clone(), m.clone()].into_iter().collect());
         assert_eq!(s.referenced_bundles(&[&t, &b]).unwrap(), [t.clone()].into_iter().collect());
-        let mut shas = s.job_file_shas(id).unwrap();
-        shas.sort();
-        assert_eq!(shas, [a, m]);
+        // Once the job is gone, nothing names them.
+        assert!(s.cancel_job(id).unwrap());
+        assert!(matches!(s.delete_job(id).unwrap(), Deleted::Gone { .. }));
+        assert!(s.referenced_files(&[&a, &m]).unwrap().is_empty());
+        assert!(s.referenced_bundles(&[&t]).unwrap().is_empty());
     }
 
     /// A queued job is refused; a finished one goes with every row of every table, its id
