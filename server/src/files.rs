@@ -134,7 +134,8 @@ impl FileStore {
         let path = self
             .path(sha256)
             .ok_or_else(|| PutError::WrongHash { expected: sha256.to_string(), actual: String::new() })?;
-        let had = path.is_file();
+        // Touched first: a file the store has is then never collected during its upload.
+        let had = path.is_file() && self.touch(sha256);
         let io = |what: &str, p: &Path, e: std::io::Error| {
             PutError::Io(anyhow::Error::new(e).context(format!("{what} {}", p.display())))
         };
@@ -165,10 +166,7 @@ impl FileStore {
         if actual != sha256 {
             return Err(PutError::WrongHash { expected: sha256.to_string(), actual });
         }
-        let (Some(mut out), Some(temp)) = (out, temp) else {
-            self.touch(sha256);
-            return Ok(Stored::Had);
-        };
+        let (Some(mut out), Some(temp)) = (out, temp) else { return Ok(Stored::Had) };
         out.flush().await.map_err(|e| io("cannot write", &temp.0, e))?;
         out.sync_all().await.map_err(|e| io("cannot write", &temp.0, e))?;
         drop(out);

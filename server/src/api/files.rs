@@ -60,7 +60,7 @@ pub(super) async fn missing_files(
         )));
     }
     off_thread(move || {
-        let mut seen = std::collections::HashSet::new();
+        let (mut seen, mut listed) = (std::collections::HashSet::new(), std::collections::HashSet::new());
         let mut missing = Vec::new();
         for f in &req.files {
             if !seen.insert((f.sha256.as_str(), f.size)) {
@@ -68,7 +68,7 @@ pub(super) async fn missing_files(
             }
             if state.files.has(&f.sha256, f.size) {
                 state.files.touch(&f.sha256);
-            } else if !missing.contains(&f.sha256) {
+            } else if listed.insert(f.sha256.as_str()) {
                 missing.push(f.sha256.clone());
             }
         }
