@@ -437,3 +437,30 @@ fn an_upload_on_a_full_disk_is_a_507_and_leaves_nothing() {
     assert_eq!(code, 201, "space is back once the cut upload is gone: {v}");
     assert_eq!(files_under(&root.join("files")).len(), 1);
 }
+
+/// A large upload is streamed to disk, not held in memory: the server's peak memory grows by
+/// far less than the file.
+#[test]
+fn a_large_upload_is_streamed_to_disk() {
+    let _serial = serial();
+    let dir = TempDir::new("files-large");
+    let data = dir.join("data");
+    let server = start(&data, &[]);
+    let big: Vec<u8> = (0..(96u32 << 20)).map(|i| (i.wrapping_mul(2654435761) >> 24) as u8).collect();
+    let sha = sha256(&big);
+    // The server's own start (and a first small request) before the peak is read.
+    assert_eq!(missing(&server.url, &[(&sha, big.len() as u64)]).1["missing"], json!([sha]));
+    let before = server.memory_kib("VmHWM");
+    let t = Instant::now();
+    let (code, v) = put(&server.url, &sha, &big);
+    let seconds = t.elapsed().as_secs_f64();
+    assert_eq!(code, 201, "{v}");
+    let grew = server.memory_kib("VmHWM").saturating_sub(before);
+    eprintln!(
+        "a 96 MiB upload took {seconds:.2} s ({:.0} MiB/s); the server's peak memory grew by {} KiB",
+        96.0 / seconds,
+        grew
+    );
+    assert!(grew < 24 << 10, "the server's peak memory grew by {grew} KiB for a 96 MiB upload");
+    assert_eq!(std::fs::metadata(stored_path(&data, &sha)).unwrap().len(), big.len() as u64);
+}
