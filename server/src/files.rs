@@ -117,11 +117,13 @@ impl FileStore {
     /// and renamed into place. On any error (a wrong hash, too many bytes, a body cut off, a
     /// full disk) the temporary file is removed: nothing of the upload is left. A file the
     /// store has already is hashed and checked the same way but not written again (it is
-    /// touched instead, [`FileStore::touch`]).
+    /// touched instead, [`FileStore::touch`]), unless `declared` (the body's length, when the
+    /// request says it) differs from the stored copy's: that copy is then replaced.
     pub async fn put_stream<S, B, E>(
         &self,
         sha256: &str,
         mut body: S,
+        declared: Option<u64>,
         max_bytes: u64,
     ) -> Result<Stored, PutError>
     where
@@ -135,7 +137,8 @@ impl FileStore {
             .path(sha256)
             .ok_or_else(|| PutError::WrongHash { expected: sha256.to_string(), actual: String::new() })?;
         // Touched first: a file the store has is then never collected during its upload.
-        let had = path.is_file() && self.touch(sha256);
+        let stored_len = std::fs::metadata(&path).ok().filter(|m| m.is_file()).map(|m| m.len());
+        let had = stored_len.is_some_and(|n| declared.is_none_or(|d| d == n)) && self.touch(sha256);
         let io = |what: &str, p: &Path, e: std::io::Error| {
             PutError::Io(anyhow::Error::new(e).context(format!("{what} {}", p.display())))
         };
@@ -362,37 +365,48 @@ mod tests {
         let dir = tessera_testkit::TempDir::new("unit-files-stream");
         let store = FileStore::new(dir.path()).unwrap();
         let sha = sha256_hex(b"hello world");
-        assert_eq!(store.put_stream(&sha, chunks(&[b"hello ", b"world"]), 11).await.unwrap(), Stored::New);
+        assert_eq!(
+            store.put_stream(&sha, chunks(&[b"hello ", b"world"]), None, 11).await.unwrap(),
+            Stored::New
+        );
         assert_eq!(store.read(&sha).unwrap(), b"hello world");
-        assert_eq!(store.put_stream(&sha, chunks(&[b"hello world"]), 100).await.unwrap(), Stored::Had);
+        assert_eq!(store.put_stream(&sha, chunks(&[b"hello world"]), None, 100).await.unwrap(), Stored::Had);
         assert_eq!(names(&store), std::slice::from_ref(&sha));
         // A wrong hash, a body over the cap, a body cut off: nothing stored, nothing left.
         let other = sha256_hex(b"other");
-        match store.put_stream(&other, chunks(&[b"not other"]), 100).await {
+        match store.put_stream(&other, chunks(&[b"not other"]), None, 100).await {
             Err(PutError::WrongHash { expected, actual }) => {
                 assert_eq!((expected, actual), (other.clone(), sha256_hex(b"not other")))
             }
             r => panic!("{r:?}"),
         }
         assert!(matches!(
-            store.put_stream(&other, chunks(&[b"oth", b"er"]), 4).await,
+            store.put_stream(&other, chunks(&[b"oth", b"er"]), None, 4).await,
             Err(PutError::TooLarge { limit: 4 })
         ));
         let cut = futures_util::stream::iter(vec![Ok(b"oth".to_vec()), Err("connection reset".to_string())]);
-        assert!(matches!(store.put_stream(&other, cut, 100).await, Err(PutError::Body(_))));
+        assert!(matches!(store.put_stream(&other, cut, None, 100).await, Err(PutError::Body(_))));
         // An upload whose future is dropped half-way (its client went): its temporary goes too.
         let pending = futures_util::StreamExt::chain(
             futures_util::stream::iter(vec![Ok::<_, String>(b"oth".to_vec())]),
             futures_util::stream::pending(),
         );
-        let put = store.put_stream(&other, Box::pin(pending), 100);
+        let put = store.put_stream(&other, Box::pin(pending), None, 100);
         assert!(tokio::time::timeout(Duration::from_millis(50), put).await.is_err());
         // A wrong hash for a file the store has is refused too, and the file stays.
         assert!(matches!(
-            store.put_stream(&sha, chunks(&[b"hello"]), 100).await,
+            store.put_stream(&sha, chunks(&[b"hello"]), None, 100).await,
             Err(PutError::WrongHash { .. })
         ));
         assert_eq!(names(&store), std::slice::from_ref(&sha));
+        assert_eq!(store.read(&sha).unwrap(), b"hello world");
+        // A stored copy that is not the file (cut by a crash of the machine): replaced when the
+        // upload declares its length.
+        std::fs::write(store.path(&sha).unwrap(), b"hello").unwrap();
+        assert_eq!(
+            store.put_stream(&sha, chunks(&[b"hello world"]), Some(11), 100).await.unwrap(),
+            Stored::New
+        );
         assert_eq!(store.read(&sha).unwrap(), b"hello world");
         // What a killed server left is swept at start.
         std::fs::write(store.dir.join(".x.1-2-3.tmp"), b"half").unwrap();

@@ -112,13 +112,13 @@ pub(super) async fn put_file(
         return Err(file_too_large(limit));
     }
     let stream = body.into_data_stream();
-    match state.files.put_stream(&sha256, stream, limit).await {
+    match state.files.put_stream(&sha256, stream, declared, limit).await {
         Ok(stored) => {
             let size =
                 state.files.path(&sha256).and_then(|p| std::fs::metadata(p).ok()).map_or(0, |m| m.len());
             let status = if stored == Stored::New { StatusCode::CREATED } else { StatusCode::OK };
             if stored == Stored::New {
-                tracing::info!(sha256, size, "stored an uploaded file");
+                tracing::debug!(sha256, size, "stored an uploaded file");
             }
             Ok((status, Json(FileDigest { sha256, size })))
         }
