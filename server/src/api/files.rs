@@ -111,8 +111,14 @@ pub(super) async fn put_file(
     if declared.is_some_and(|n| n > limit) {
         return Err(file_too_large(limit));
     }
-    let stream = body.into_data_stream();
-    match state.files.put_stream(&sha256, stream, declared, limit).await {
+    let mut stream = body.into_data_stream();
+    let stored = state.files.put_stream(&sha256, &mut stream, declared, limit).await;
+    if matches!(stored, Err(PutError::TooLarge { .. } | PutError::Io(_))) {
+        // Refused before the body's end: the rest is read and dropped first, so that a client
+        // that writes its whole body before it reads the answer gets the answer.
+        drain(&mut stream).await;
+    }
+    match stored {
         Ok(stored) => {
             let size =
                 state.files.path(&sha256).and_then(|p| std::fs::metadata(p).ok()).map_or(0, |m| m.len());
@@ -130,5 +136,20 @@ pub(super) async fn put_file(
             "the body could not be read to its end ({e}); nothing was stored; upload the file again"
         ))),
         Err(PutError::Io(e)) => Err(e.into()),
+    }
+}
+
+/// Reads and drops what is left of a body, up to `OVERSIZED_DRAIN_BYTES` and
+/// `OVERSIZED_DRAIN_SECONDS` (as `oversized_uploads` does for a body declared too large).
+async fn drain(body: &mut axum::body::BodyDataStream) {
+    use futures_util::StreamExt;
+    let deadline =
+        tokio::time::Instant::now() + std::time::Duration::from_secs(super::OVERSIZED_DRAIN_SECONDS);
+    let mut read = 0u64;
+    while read < super::OVERSIZED_DRAIN_BYTES {
+        match tokio::time::timeout_at(deadline, body.next()).await {
+            Ok(Some(Ok(chunk))) => read += chunk.len() as u64,
+            _ => break,
+        }
     }
 }
