@@ -315,6 +315,10 @@ impl BlobStore {
         let path = self.path(&hash);
         if !path.exists() {
             write_atomic(&path, bytes)?;
+        } else if let Ok(f) = std::fs::File::open(&path) {
+            // Used again: kept another grace by the collection of bundles no job names
+            // (`files::collect_garbage`) while its job is being stored.
+            let _ = f.set_modified(std::time::SystemTime::now());
         }
         Ok(hash)
     }

@@ -19,6 +19,7 @@ use tessera::protocol::{JobEvent, JobState, Lease, Rect};
 use crate::failures::{self, TileFailures};
 
 mod counters;
+mod files;
 mod leases;
 mod notify;
 mod passes;
@@ -27,6 +28,7 @@ mod upkeep;
 mod workers;
 
 pub use notify::{DueNotification, Notified};
+pub use files::Deleted;
 pub use passes::ResultShape;
 
 /// Most events a job's log keeps: a job of a million tiles must not write a million rows of
@@ -565,6 +567,7 @@ impl Store {
         conn.execute_batch(schema::SCHEMA).context("cannot create the job store's tables")?;
         schema::migrate(&conn).context("cannot bring the job store's tables up to date")?;
         counters::seed_counters(&conn).context("cannot create the job store's counters")?;
+        let highest_deleted = files::create(&conn).context("cannot create the job store's tables")?;
         conn.execute(
             "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE state = 'leased'",
             [],
@@ -596,7 +599,8 @@ impl Store {
         Ok(Store {
             conn: Mutex::new(conn),
             next_lease: Mutex::new(next),
-            min_job_id: std::sync::atomic::AtomicU64::new(1),
+            // A deleted job's id is never handed out again.
+            min_job_id: std::sync::atomic::AtomicU64::new(highest_deleted.saturating_add(1)),
             checkpointer: Mutex::new(checkpointer),
         })
     }

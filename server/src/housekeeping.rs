@@ -1,7 +1,8 @@
 //! The store's housekeeping, in the background and in small steps: the rows of cancelled and
 //! failed jobs purged (at once when a job ends, and in a sweep at start and every
 //! [`SWEEP`]), the free pages they leave given back to the file system, and workers not seen
-//! for `--forget-workers-after-hours` forgotten.
+//! for `--forget-workers-after-hours` forgotten, and (at start and every sweep) the files and
+//! tar bundles no job names removed once an hour old (`files::collect_garbage`).
 //!
 //! Every step is one short transaction ([`crate::db::ROWS_PER_STEP`] rows): other requests wait
 //! for one step at most, never for a whole job of a million rows.
@@ -48,6 +49,25 @@ pub fn spawn_checkpoints(store: std::sync::Arc<crate::db::Store>) -> tokio::task
     })
 }
 
+/// Removes the files of the file store and the tar bundles that no job names any more, once
+/// unused for [`crate::files::GRACE`], with a log line saying what went.
+async fn collect_garbage(state: &AppState) {
+    let (files, blobs, store) = (state.files.clone(), state.blobs.clone(), state.store.clone());
+    let grace = crate::files::GRACE;
+    match blocking(move || crate::files::collect_garbage(&files, &blobs, &store, grace)).await {
+        Ok(c) if c == crate::files::Collected::default() => {}
+        Ok(c) => tracing::info!(
+            "removed {} file(s) ({} bytes) and {} bundle(s) ({} bytes) that no job names, unused for {} s",
+            c.files,
+            c.file_bytes,
+            c.bundles,
+            c.bundle_bytes,
+            grace.as_secs()
+        ),
+        Err(e) => tracing::error!("removing files that no job names: {e:#}"),
+    }
+}
+
 /// Starts the housekeeping task. `forget_after`: seconds of silence after which a worker
 /// without a live lease is forgotten.
 pub fn spawn(state: AppState, forget_after: f64) -> tokio::task::JoinHandle<()> {
@@ -80,6 +100,7 @@ pub fn spawn(state: AppState, forget_after: f64) -> tokio::task::JoinHandle<()> 
                         }
                         Err(e) => tracing::error!("forgetting stale workers: {e:#}"),
                     }
+                    collect_garbage(&state).await;
                 }
             }
             if full {

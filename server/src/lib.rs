@@ -336,6 +336,11 @@ pub async fn serve(
             swept.old_pass_files
         );
     }
+    // Uploads to the file store that a stop cut off.
+    let cut = files::FileStore::new(&config.data_dir)?.remove_temporaries();
+    if cut > 0 {
+        tracing::info!("removed {cut} temporary file(s) of uploads to the file store cut off by a stop");
+    }
     let worker_token = keep_worker_token(&config.data_dir, config.worker_token.as_deref())?;
     let settings = state::Settings {
         data_dir: config.data_dir.clone(),

@@ -61,7 +61,8 @@ struct Cli {
     /// decompress to (a zip bomb stops here, with a 413 that names this flag).
     #[arg(long, default_value_t = 256, env = "TESSERA_MAX_UNPACKED_MB", value_name = "MIB")]
     max_unpacked_mb: u64,
-    /// Largest single file of an upload, unpacked, in MiB.
+    /// Largest single file of an upload, unpacked, in MiB; also the largest upload to the file
+    /// store (PUT /api/v1/files/SHA256), whatever --max-upload-mb.
     #[arg(long, default_value_t = 256, env = "TESSERA_MAX_FILE_MB", value_name = "MIB")]
     max_file_mb: u64,
     /// Most files one upload may hold (loose or inside archives).

@@ -10,6 +10,7 @@
 
 mod auth;
 pub mod browser;
+mod files;
 mod jobs;
 pub(crate) use jobs::job_info;
 mod metrics;
@@ -153,6 +154,7 @@ fn routes(state: &AppState) -> OpenApiRouter<AppState> {
         .routes(routes!(submit::submit_job, jobs::list_jobs))
         .routes(routes!(jobs::show_job))
         .routes(routes!(jobs::cancel_job))
+        .routes(routes!(jobs::delete_job))
         .routes(routes!(jobs::job_log))
         .routes(routes!(jobs::frame_preview))
         .routes(routes!(jobs::frame_file))
@@ -162,6 +164,13 @@ fn routes(state: &AppState) -> OpenApiRouter<AppState> {
         .routes(routes!(status::disable_worker))
         .routes(routes!(status::enable_worker))
         .routes(routes!(status::events))
+        .route_layer(axum::middleware::from_fn_with_state(state.clone(), auth::require_api_token));
+    // The file store: a small JSON question, and uploads streamed to disk under the file cap
+    // (read by the handler itself, so no body limit of the router applies to them).
+    let files_api = OpenApiRouter::new()
+        .routes(routes!(files::missing_files))
+        .route_layer(DefaultBodyLimit::max(files::missing_body_limit(state)))
+        .routes(routes!(files::put_file))
         .route_layer(axum::middleware::from_fn_with_state(state.clone(), auth::require_api_token));
     let worker_api = OpenApiRouter::new()
         .routes(routes!(worker::register))
@@ -190,6 +199,7 @@ fn routes(state: &AppState) -> OpenApiRouter<AppState> {
         .merge(metrics)
         .routes(routes!(openapi::openapi_json))
         .merge(job_api)
+        .merge(files_api)
         .merge(worker_api)
 }
 
@@ -199,10 +209,13 @@ pub fn app(state: AppState) -> Router {
     // answers wrap the whole router as one service instead.
     // Outermost: the `Host` and `Origin` checks, before a body is read, and the security
     // headers on every answer, refusals included.
-    let limit = state.settings.max_upload_bytes;
+    let limits = UploadLimits {
+        upload: state.settings.max_upload_bytes,
+        file: state.settings.bundle_limits.max_file_bytes,
+    };
     Router::new()
         .fallback_service(routed(state.clone()))
-        .layer(axum::middleware::from_fn_with_state(limit, oversized_uploads))
+        .layer(axum::middleware::from_fn_with_state(limits, oversized_uploads))
         .layer(axum::middleware::from_fn(json_errors))
         .layer(axum::middleware::map_response(no_store))
         .layer(axum::middleware::from_fn_with_state(state, browser::guard))
@@ -294,8 +307,17 @@ async fn json_errors(req: axum::extract::Request, next: axum::middleware::Next) 
 const OVERSIZED_DRAIN_BYTES: u64 = 64 << 20;
 const OVERSIZED_DRAIN_SECONDS: u64 = 30;
 
+/// The caps [`oversized_uploads`] checks declared lengths against.
+#[derive(Clone, Copy)]
+struct UploadLimits {
+    /// `--max-upload-mb`, in bytes: any request of the job API.
+    upload: usize,
+    /// `--max-file-mb`, in bytes: an upload to the file store (`PUT /api/v1/files/...`).
+    file: u64,
+}
+
 /// A request whose `Content-Length` is over `--max-upload-mb` (a worker's JSON request: over
-/// [`MAX_WORKER_JSON_BYTES`]) gets its 413 (with the message that names the limit) without
+/// [`MAX_WORKER_JSON_BYTES`]; an upload to the file store: over `--max-file-mb`) gets its 413 (with the message that names the limit) without
 /// reaching a handler. Many clients (ureq, which the `tessera`
 /// client uses, and simple scripts) write the whole body before they read the answer: if the
 /// server answered and closed at once, they would see a broken pipe instead of the message. So
@@ -304,7 +326,7 @@ const OVERSIZED_DRAIN_SECONDS: u64 = 30;
 /// a broken pipe). A client that sent `Expect: 100-continue` (curl, for large bodies) has sent
 /// nothing yet: it is answered at once and sends nothing.
 async fn oversized_uploads(
-    axum::extract::State(limit): axum::extract::State<usize>,
+    axum::extract::State(limits): axum::extract::State<UploadLimits>,
     req: axum::extract::Request,
     next: axum::middleware::Next,
 ) -> Response {
@@ -317,8 +339,15 @@ async fn oversized_uploads(
     // by its handler.
     let path = req.uri().path();
     let worker_json = path.starts_with("/api/v1/worker/") && !path.ends_with("/result");
-    let limit = if worker_json { MAX_WORKER_JSON_BYTES } else { limit };
-    let Some(declared) = declared.filter(|&n| n > limit as u64) else {
+    let file_upload = req.method() == axum::http::Method::PUT && path.starts_with("/api/v1/files/");
+    let limit = if worker_json {
+        MAX_WORKER_JSON_BYTES as u64
+    } else if file_upload {
+        limits.file
+    } else {
+        limits.upload as u64
+    };
+    let Some(declared) = declared.filter(|&n| n > limit) else {
         return next.run(req).await;
     };
     let expects_continue = req
@@ -328,7 +357,7 @@ async fn oversized_uploads(
         .is_some_and(|v| v.eq_ignore_ascii_case("100-continue"));
     if !expects_continue {
         use futures_util::StreamExt;
-        let budget = declared.min(limit as u64 + OVERSIZED_DRAIN_BYTES);
+        let budget = declared.min(limit.saturating_add(OVERSIZED_DRAIN_BYTES));
         let deadline = tokio::time::Instant::now() + std::time::Duration::from_secs(OVERSIZED_DRAIN_SECONDS);
         let mut body = req.into_body().into_data_stream();
         let mut read = 0u64;
@@ -349,7 +378,10 @@ async fn oversized_uploads(
         )
         .into_response();
     }
-    submit::upload_too_large(limit).into_response()
+    if file_upload {
+        return files::file_too_large(limit).into_response();
+    }
+    submit::upload_too_large(limits.upload).into_response()
 }
 
 /// Answers change from one moment to the next: browsers must not reuse them.
