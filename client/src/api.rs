@@ -157,6 +157,13 @@ impl Api {
         self.json(&what, resp)
     }
 
+    /// `DELETE /api/v1/jobs/ID`: a finished job and its files.
+    pub fn delete(&self, id: u64) -> Result<(), CallError> {
+        let what = format!("deleting job {id}");
+        self.request("DELETE", &format!("/api/v1/jobs/{id}")).call().map_err(|e| self.explain(&what, e))?;
+        Ok(())
+    }
+
     pub fn workers(&self) -> Result<tessera::protocol::WorkerList, CallError> {
         self.get_json("listing the workers", "/api/v1/workers")
     }

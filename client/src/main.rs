@@ -168,6 +168,12 @@ enum Command {
         #[arg(long, short)]
         quiet: bool,
     },
+    /// Delete a finished (done, failed or cancelled) job with its outputs; a job still queued
+    /// or running must be cancelled first.
+    Delete {
+        /// The job to delete.
+        id: u64,
+    },
     /// List the farm's workers: state (idle, rendering, lost), mode, current tile, tiles done.
     Workers {
         /// Print the server's JSON answer instead (for scripts).
@@ -296,6 +302,12 @@ fn run(cli: Cli) -> Result<ExitCode> {
                     }
                 }
             }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Delete { id } => {
+            let api = connect()?;
+            api.delete(id)?;
+            println!("job {id} deleted with its files");
             Ok(ExitCode::SUCCESS)
         }
         Command::Workers { json } => {

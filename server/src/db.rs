@@ -27,8 +27,8 @@ mod schema;
 mod upkeep;
 mod workers;
 
-pub use notify::{DueNotification, Notified};
 pub use files::Deleted;
+pub use notify::{DueNotification, Notified};
 pub use passes::ResultShape;
 
 /// Most events a job's log keeps: a job of a million tiles must not write a million rows of

@@ -464,3 +464,29 @@ fn a_large_upload_is_streamed_to_disk() {
     assert!(grew < 24 << 10, "the server's peak memory grew by {grew} KiB for a 96 MiB upload");
     assert_eq!(std::fs::metadata(stored_path(&data, &sha)).unwrap().len(), big.len() as u64);
 }
+
+/// `tessera delete ID` deletes a finished job (and says what a running one needs).
+#[test]
+fn the_client_deletes_a_finished_job() {
+    let _serial = serial();
+    let dir = TempDir::new("files-client-delete");
+    let server = start(&dir.join("data"), &[]);
+    let id = submit_tiny(&server.url, 16);
+    let client = |args: &[&str]| {
+        std::process::Command::new(client_bin())
+            .args(args)
+            .env("TESSERA_SERVER", &server.url)
+            .env("TESSERA_TOKEN", API)
+            .output()
+            .expect("run tessera")
+    };
+    let refused = client(&["delete", &id.to_string()]);
+    assert!(!refused.status.success());
+    let said = String::from_utf8_lossy(&refused.stderr);
+    assert!(said.contains(&format!("tessera cancel {id}")), "{said}");
+    assert!(client(&["cancel", &id.to_string()]).status.success());
+    let deleted = client(&["delete", &id.to_string()]);
+    assert!(deleted.status.success(), "{}", String::from_utf8_lossy(&deleted.stderr));
+    assert!(String::from_utf8_lossy(&deleted.stdout).contains("deleted"));
+    assert_eq!(job(&server.url, id).0, 404);
+}
