@@ -23,8 +23,10 @@ mod leases;
 mod passes;
 mod schema;
 mod upkeep;
+mod video;
 mod workers;
 pub use passes::ResultShape;
+pub use video::VideoRow;
 
 /// Most events a job's log keeps: a job of a million tiles must not write a million rows of
 /// log. The event after the last one kept says the log
@@ -530,6 +532,7 @@ impl Store {
         conn.execute_batch(schema::SCHEMA).context("cannot create the job store's tables")?;
         schema::migrate(&conn).context("cannot bring the job store's tables up to date")?;
         counters::seed_counters(&conn).context("cannot create the job store's counters")?;
+        video::create_videos_table(&conn).context("cannot create the job store's table of videos")?;
         conn.execute(
             "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE state = 'leased'",
             [],

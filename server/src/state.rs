@@ -81,6 +81,8 @@ pub struct AppState {
     pub waiting_for_space: Arc<std::sync::Mutex<HashMap<(u64, u32), bool>>>,
     /// Registrations with the worker token (a rate; the local workers' are not counted).
     pub registrations: Arc<crate::registrations::TokenBucket>,
+    /// Videos being made (one at a time; `video.rs`).
+    pub videos: crate::video::Videos,
 }
 
 impl AppState {
@@ -100,6 +102,7 @@ impl AppState {
             merging: Arc::new(tokio::sync::Semaphore::new(crate::MERGES_AT_ONCE)),
             waiting_for_space: Arc::default(),
             registrations: Arc::new(crate::registrations::TokenBucket::registrations()),
+            videos: crate::video::Videos::default(),
         }
     }
 

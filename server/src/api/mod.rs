@@ -17,6 +17,7 @@ mod status;
 mod submit;
 #[cfg(test)]
 mod tests;
+mod video;
 mod worker;
 
 use axum::extract::{DefaultBodyLimit, Path};
@@ -156,6 +157,8 @@ fn routes(state: &AppState) -> OpenApiRouter<AppState> {
         .routes(routes!(jobs::frame_preview))
         .routes(routes!(jobs::frame_file))
         .routes(routes!(jobs::frame_tonemap))
+        .routes(routes!(video::video_mp4))
+        .routes(routes!(video::video_gif))
         .routes(routes!(status::list_workers))
         .routes(routes!(status::events))
         .route_layer(axum::middleware::from_fn_with_state(state.clone(), auth::require_api_token));

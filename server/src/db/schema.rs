@@ -22,7 +22,10 @@ CREATE TABLE IF NOT EXISTS jobs(
     denoise INTEGER NOT NULL DEFAULT 0,
     pass_samples INTEGER,
     noise_target REAL,
-    manifest TEXT
+    manifest TEXT,
+    video TEXT,
+    fps INTEGER,
+    keep_float INTEGER
 );
 CREATE TABLE IF NOT EXISTS frames(
     job_id INTEGER NOT NULL,
@@ -172,6 +175,14 @@ pub(super) fn migrate(conn: &Connection) -> Result<()> {
         conn.execute_batch(
             "ALTER TABLE jobs ADD COLUMN manifest TEXT;
              ALTER TABLE frames ADD COLUMN scene_path TEXT;",
+        )?;
+    }
+    if !has_column("jobs", "video")? {
+        // Jobs from before videos: the defaults (`video`, `fps` NULL), float frames kept.
+        conn.execute_batch(
+            "ALTER TABLE jobs ADD COLUMN video TEXT;
+             ALTER TABLE jobs ADD COLUMN fps INTEGER;
+             ALTER TABLE jobs ADD COLUMN keep_float INTEGER;",
         )?;
     }
     if conn.pragma_query_value(None, "user_version", |r| r.get::<_, i64>(0))? < 1 {
