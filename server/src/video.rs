@@ -278,8 +278,7 @@ fn encode_mp4(
                 all.drain(..all.len() - STDERR_TAIL);
             }
         }
-        let text = String::from_utf8_lossy(&all[all.len().saturating_sub(STDERR_TAIL)..]).trim().to_string();
-        text
+        String::from_utf8_lossy(&all[all.len().saturating_sub(STDERR_TAIL)..]).trim().to_string()
     });
     let mut stdin = child.stdin.take().expect("piped");
     let frames = pngs.to_vec();
