@@ -17,7 +17,6 @@
 //! or `video_failed` event in the job's log. The frames stay done whatever happens to the video.
 //! A server stopped while a video was due makes it when it starts again ([`resume`]).
 
-use std::collections::HashSet;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -42,20 +41,6 @@ const GIF_SPEED: i32 = 10;
 
 /// Bytes of ffmpeg's stderr kept for a failure's message (its end).
 const STDERR_TAIL: usize = 2048;
-
-/// Videos encoded at the same time, and the jobs whose video is being made (so that a second
-/// trigger of a job's last frame does not encode it twice).
-#[derive(Clone)]
-pub struct Videos {
-    gate: Arc<tokio::sync::Semaphore>,
-    busy: Arc<Mutex<HashSet<u64>>>,
-}
-
-impl Default for Videos {
-    fn default() -> Self {
-        Videos { gate: Arc::new(tokio::sync::Semaphore::new(1)), busy: Arc::default() }
-    }
-}
 
 /// Where job `job`'s video of `kind` is kept: `frames/JOB/video.mp4` (or `.gif`).
 pub fn video_path(data_dir: &Path, job: u64, kind: VideoKind) -> PathBuf {
