@@ -218,6 +218,16 @@ mod tests {
         let kinds: Vec<&str> = log.iter().map(|e| e.kind.as_str()).collect();
         assert!(kinds.ends_with(&["video_done", "video_failed"]), "{kinds:?}");
         assert_eq!(log.iter().find(|e| e.kind == "video_done").unwrap().seconds, Some(1.5));
+        // A full log still records what became of the video.
+        s.conn()
+            .execute(
+                "INSERT INTO job_events(job_id, seq, at, kind, message) VALUES (?1, ?2, 0, 'tile_done', 'x')",
+                params![id as i64, MAX_JOB_EVENTS + 1],
+            )
+            .unwrap();
+        s.video_failed(id, None, "again").unwrap();
+        let last = s.job_log(id, 0).unwrap().unwrap().pop().unwrap();
+        assert_eq!((last.kind.as_str(), last.message.as_str()), ("video_failed", "again"));
         s.set_video_options(id, Some(VideoKind::None), None).unwrap();
         s.conn().execute("DELETE FROM job_videos", []).unwrap();
         assert!(s.videos_due().unwrap().is_empty(), "video=none is never due");
