@@ -301,6 +301,21 @@ fn video_gif_needs_no_ffmpeg_and_video_mp4_without_it_is_refused() {
     assert_eq!(job["video"]["kind"], "gif");
     let (status, ct, body) = get_raw(&format!("{}/api/v1/jobs/{id}/video.gif", server.url));
     assert_eq!((status, ct.as_str()), (200, "image/gif"));
+    // Players seek with byte ranges.
+    let gif_url = format!("{}/api/v1/jobs/{id}/video.gif", server.url);
+    let part = ureq::get(&gif_url).set("Range", "bytes=6-105").call().unwrap();
+    assert_eq!(part.status(), 206);
+    assert_eq!(part.header("Content-Range"), Some(format!("bytes 6-105/{}", body.len()).as_str()));
+    let mut got = Vec::new();
+    std::io::Read::read_to_end(&mut part.into_reader(), &mut got).unwrap();
+    assert_eq!(got, body[6..106]);
+    let tail = ureq::get(&gif_url).set("Range", "bytes=-10").call().unwrap();
+    assert_eq!(
+        tail.header("Content-Range"),
+        Some(format!("bytes {}-{}/{}", body.len() - 10, body.len() - 1, body.len()).as_str())
+    );
+    let past = ureq::get(&gif_url).set("Range", &format!("bytes={}-", body.len())).call();
+    assert!(matches!(past, Err(ureq::Error::Status(416, _))), "{past:?}");
     use image::AnimationDecoder;
     let frames = image::codecs::gif::GifDecoder::new(std::io::Cursor::new(&body))
         .unwrap()
