@@ -415,12 +415,22 @@ fn a_sequence_shows_its_frames_compactly_and_plays_its_video() {
          <Materials><Material id=\"1\"><AmbientReflectance>1 0.5 0.2</AmbientReflectance></Material></Materials>\
          <VertexData>0 0 -5</VertexData><Objects><Sphere id=\"1\"><Material>1</Material><Center>1</Center><Radius>1</Radius></Sphere></Objects></Scene>"
     );
-    let (code, job) = submit(
-        &server.url,
-        None,
-        &[("scene", Some("slide.xml"), scene.as_bytes()), ("video", None, b"gif"), ("fps", None, b"8")],
+    // Submitted from the page's form, with its video options.
+    let dir = TempDir::new("farm-browser-video-scene");
+    let file = dir.canonicalize().unwrap().join("slide.xml");
+    std::fs::write(&file, &scene).unwrap();
+    browser.type_into("#files", &file.display().to_string());
+    browser.type_into("#samples", "1");
+    browser.exec("document.querySelector('#video').value = 'gif'; return 1;");
+    browser.type_into("#fps", "8");
+    browser.click("#submit-button");
+    browser.wait("the job to be accepted", 60, "!document.querySelector('#submit-ok').hidden");
+    let job = get_json(&server.url, "/api/v1/jobs")["jobs"][0].clone();
+    assert_eq!(
+        (job["video"]["kind"].as_str(), job["video"]["fps"].as_u64()),
+        (Some("gif"), Some(8)),
+        "{job}"
     );
-    assert_eq!(code, 201, "{job}");
     let id = job["id"].as_u64().unwrap();
     let node = format!("document.querySelector('.job[data-job-id=\"{id}\"]')");
     // One cell a frame, not one block a frame.

@@ -487,7 +487,7 @@ $("#submit").addEventListener("submit", async (ev) => {
     for (const f of files) if (f !== scene) form.append("asset", f, relPath(f));
   }
   for (const [id, field] of [["priority", "priority"], ["tile-size", "tile_size"], ["samples", "samples"],
-    ["pass-samples", "pass_samples"], ["noise-target", "noise_target"]]) {
+    ["pass-samples", "pass_samples"], ["noise-target", "noise_target"], ["video", "video"], ["fps", "fps"]]) {
     const v = $("#" + id).value.trim();
     if (v !== "" && !(field === "priority" && v === "0")) form.append(field, v);
   }
