@@ -572,7 +572,8 @@ pub struct JobEvent {
     /// Unix seconds.
     pub at: f64,
     /// What happened: `accepted`, `warning`, `tile_done`, `tile_failed`, `tile_retried`,
-    /// `lease_expired`, `frame_merged`, `frame_tonemapped`, `frame_denoised`, `job_done`, `job_failed`,
+    /// `lease_expired`, `frame_merged`, `frame_tonemapped`, `frame_denoised`, `video_done` (the
+    /// encoding's seconds), `video_failed` (why; the frames stay done), `job_done`, `job_failed`,
     /// `job_cancelled`, and `log_truncated`: the log is bounded (the server keeps a fixed number
     /// of events per job), this event says it is full, and only the job's end follows it.
     pub kind: String,

@@ -25,16 +25,18 @@ mod notify;
 mod passes;
 mod schema;
 mod upkeep;
+mod video;
 mod workers;
 
 pub use files::Deleted;
 pub use notify::{DueNotification, Notified};
 pub use passes::ResultShape;
+pub use video::VideoRow;
 
 /// Most events a job's log keeps: a job of a million tiles must not write a million rows of
 /// log. The event after the last one kept says the log
 /// is full (`log_truncated`); the job's end (done, failed, cancelled) is still recorded, so a
-/// log holds at most this many events plus two.
+/// log holds at most this many events plus three (with the job's video, [`JOB_EVENT_KINDS_VIDEO`]).
 pub const MAX_JOB_EVENTS: i64 = 10_000;
 
 /// Rows written or deleted per transaction when a job's tiles are stored or purged: the store's
@@ -56,6 +58,9 @@ pub const INTERRUPTED_INSERT: &str =
 
 /// The kinds that end a job: recorded whatever the length of its log.
 pub const JOB_EVENT_KINDS_FINAL: [&str; 3] = ["job_done", "job_failed", "job_cancelled"];
+
+/// What became of a job's video, after its end: recorded whatever the length of its log too.
+pub const JOB_EVENT_KINDS_VIDEO: [&str; 2] = ["video_done", "video_failed"];
 
 /// One entry of a job's log to record ([`log_event`]).
 struct Event<'a> {
@@ -93,7 +98,8 @@ fn log_event(tx: &Connection, job: i64, e: Event<'_>) -> Result<()> {
         "INSERT INTO job_events(job_id, seq, at, kind, frame, tile, worker_id, seconds, message, worker)
          VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, (SELECT name FROM workers WHERE id = ?7))",
     )?;
-    if last >= MAX_JOB_EVENTS && !JOB_EVENT_KINDS_FINAL.contains(&e.kind) {
+    let kept = JOB_EVENT_KINDS_FINAL.contains(&e.kind) || JOB_EVENT_KINDS_VIDEO.contains(&e.kind);
+    if last >= MAX_JOB_EVENTS && !kept {
         if last == MAX_JOB_EVENTS {
             let message = format!(
                 "the log is full ({MAX_JOB_EVENTS} events): later tile and frame events of this job are not \
@@ -568,6 +574,7 @@ impl Store {
         schema::migrate(&conn).context("cannot bring the job store's tables up to date")?;
         counters::seed_counters(&conn).context("cannot create the job store's counters")?;
         let highest_deleted = files::create(&conn).context("cannot create the job store's tables")?;
+        video::create_videos_table(&conn).context("cannot create the job store's table of videos")?;
         conn.execute(
             "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL WHERE state = 'leased'",
             [],

@@ -12,6 +12,7 @@
 //! - [`bundle`]: uploads into content-addressed tar bundles (jobs stored before the file store).
 //! - [`files`]: the file store, every job file once by SHA-256.
 //! - [`merge`]: tiles into frames, frames into `.exr` and tone-mapped `.png` files, once.
+//! - [`video`]: a job's frames into one MP4 (ffmpeg) or GIF once they are all merged.
 //! - [`web`]: the status page.
 //! - [`serve`]: binds, starts the background tasks (lease expiry, merges left over from a crash)
 //!   and the local worker processes (`local_workers`), and stops when its shutdown stream says
@@ -31,6 +32,7 @@ pub mod registrations;
 pub mod scheduler;
 pub mod state;
 pub mod storage;
+pub mod video;
 pub mod web;
 
 #[cfg(test)]
@@ -393,6 +395,8 @@ pub async fn serve(
         tracing::info!(job = f.job_id, frame = f.index, "merging a frame left from before the restart");
         tokio::spawn(merge::merge_frame(state.clone(), f.job_id, f.index));
     }
+    // Videos due when the server stopped (their frames all merged, the video not made).
+    video::resume(&state)?;
     // Merges that find the disk full wait for space, and are tried again until it returns.
     merge::retry_when_space_returns(state.clone());
 

@@ -366,6 +366,8 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
             state.emit(ServerEvent::Frame { job: job_id, frame });
             if done {
                 state.emit(ServerEvent::Job { job: job_id, state: JobState::Done });
+                // The job's video, if it makes one, from its merged frames.
+                tokio::spawn(crate::video::make_video(state.clone(), job_id));
             }
         }
         Ok(Err(e)) if crate::storage::out_of_space(&e) => wait_for_space(&state, job_id, frame, &e).await,

@@ -55,6 +55,20 @@ pub struct Access {
     pub public_metrics: bool,
 }
 
+/// Videos encoded at the same time (`video::make_video`), and the jobs whose video is being
+/// made, so that a second trigger of a job's last frame does not encode it twice.
+#[derive(Clone)]
+pub struct Videos {
+    pub gate: Arc<tokio::sync::Semaphore>,
+    pub busy: Arc<std::sync::Mutex<std::collections::HashSet<u64>>>,
+}
+
+impl Default for Videos {
+    fn default() -> Self {
+        Videos { gate: Arc::new(tokio::sync::Semaphore::new(1)), busy: Arc::default() }
+    }
+}
+
 /// Everything a handler or a merge works on; cloning it shares the same store, scheduler,
 /// cache and channel.
 #[derive(Clone)]
@@ -81,6 +95,8 @@ pub struct AppState {
     pub waiting_for_space: Arc<std::sync::Mutex<HashMap<(u64, u32), bool>>>,
     /// Registrations with the worker token (a rate; the local workers' are not counted).
     pub registrations: Arc<crate::registrations::TokenBucket>,
+    /// Videos being made (one at a time; `video.rs`).
+    pub videos: Videos,
 }
 
 impl AppState {
@@ -100,6 +116,7 @@ impl AppState {
             merging: Arc::new(tokio::sync::Semaphore::new(crate::MERGES_AT_ONCE)),
             waiting_for_space: Arc::default(),
             registrations: Arc::new(crate::registrations::TokenBucket::registrations()),
+            videos: Videos::default(),
         }
     }
 

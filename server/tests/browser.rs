@@ -383,3 +383,92 @@ fn the_page_shows_a_frame_refining_pass_by_pass() {
     assert_eq!(job["frames"][0]["passes_total"], 10, "{job}");
     cancel(&server, job["id"].as_u64().unwrap());
 }
+
+/// A job of many frames is shown as a sequence (counts, one small cell a frame, the latest frame
+/// large) and, once done, plays its video: here a GIF (`video=gif`, made without ffmpeg) in an
+/// `<img>`, which loads under the page's Content-Security-Policy.
+#[test]
+fn a_sequence_shows_its_frames_compactly_and_plays_its_video() {
+    let _s = serial();
+    let Some(browser) = Browser::start() else { return };
+    let server = Server::start_temp(
+        "farm-browser-video",
+        &["--local-workers", "1", "--local-worker-threads", "1", "--tile-size", "64"],
+    );
+    browser.goto(&server.url);
+    browser.wait("the live connection", 20, "document.querySelector('#live').textContent === 'live'");
+    // Twelve cameras sliding past a sphere under an ambient light.
+    let cams: String = (0..12)
+        .map(|k| {
+            format!(
+                "<Camera id=\"{}\"><Position>{:.2} 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>\
+                 <NearPlane>-1 1 -0.75 0.75</NearPlane><NearDistance>1</NearDistance>\
+                 <ImageResolution>32 24</ImageResolution><ImageName>f{k:02}.png</ImageName></Camera>",
+                k + 1,
+                f64::from(k) * 0.2 - 1.1
+            )
+        })
+        .collect();
+    let scene = format!(
+        "<Scene><BackgroundColor>10 20 60</BackgroundColor><Cameras>{cams}</Cameras>\
+         <Lights><AmbientLight>200 200 200</AmbientLight></Lights>\
+         <Materials><Material id=\"1\"><AmbientReflectance>1 0.5 0.2</AmbientReflectance></Material></Materials>\
+         <VertexData>0 0 -5</VertexData><Objects><Sphere id=\"1\"><Material>1</Material><Center>1</Center><Radius>1</Radius></Sphere></Objects></Scene>"
+    );
+    // Submitted from the page's form, with its video options.
+    let dir = TempDir::new("farm-browser-video-scene");
+    let file = dir.canonicalize().unwrap().join("slide.xml");
+    std::fs::write(&file, &scene).unwrap();
+    browser.type_into("#files", &file.display().to_string());
+    browser.type_into("#samples", "1");
+    browser.exec("document.querySelector('#video').value = 'gif'; return 1;");
+    browser.type_into("#fps", "8");
+    browser.click("#submit-button");
+    browser.wait("the job to be accepted", 60, "!document.querySelector('#submit-ok').hidden");
+    let job = get_json(&server.url, "/api/v1/jobs")["jobs"][0].clone();
+    assert_eq!(
+        (job["video"]["kind"].as_str(), job["video"]["fps"].as_u64()),
+        (Some("gif"), Some(8)),
+        "{job}"
+    );
+    let id = job["id"].as_u64().unwrap();
+    let node = format!("document.querySelector('.job[data-job-id=\"{id}\"]')");
+    // One cell a frame, not one block a frame.
+    browser.wait(
+        "the sequence's cells",
+        60,
+        &format!("{node} && {node}.querySelectorAll('.seq-cell').length === 12"),
+    );
+    assert_eq!(browser.exec(&format!("return {node}.querySelectorAll('.frame').length;")), json!(0));
+    browser.wait(
+        "every frame done",
+        120,
+        &format!("{node}.querySelectorAll('.seq-cell.done').length === 12"),
+    );
+    let counts = browser.wait(
+        "the counts",
+        30,
+        &format!("{node}.querySelector('.seq-counts').textContent.includes('12 done') && {node}.querySelector('.seq-counts').textContent"),
+    );
+    assert!(counts.as_str().unwrap().starts_with("12 frames"), "{counts}");
+    // The latest frame shown large, loaded.
+    browser.wait(
+        "the last frame large",
+        30,
+        &format!("{node}.querySelector('.seq-view').dataset.frame === '11' && {node}.querySelector('.seq-frame').naturalWidth === 32"),
+    );
+    // The video: a GIF in an <img>, loaded (its natural size is the frames').
+    let player = format!("{node}.querySelector('.video img.player')");
+    browser.wait(
+        "the video player",
+        60,
+        &format!("{player} && {player}.complete && {player}.naturalWidth === 32"),
+    );
+    let line = browser.exec(&format!("return {node}.querySelector('.video-state').textContent;"));
+    assert!(line.as_str().unwrap().contains("GIF, 8 fps): done"), "{line}");
+    let href = browser.exec(&format!("return {node}.querySelector('.video-link').getAttribute('href');"));
+    assert_eq!(href, json!(format!("/api/v1/jobs/{id}/video.gif")));
+    // A click on a cell shows that frame.
+    browser.exec(&format!("{node}.querySelectorAll('.seq-cell')[3].click(); return 1;"));
+    browser.wait("frame 3 large", 30, &format!("{node}.querySelector('.seq-view').dataset.frame === '3'"));
+}

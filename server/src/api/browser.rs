@@ -19,10 +19,10 @@ use axum::response::{IntoResponse, Response};
 use super::{AppError, AppState, auth};
 use crate::state::Access;
 
-/// The page's policy: its script, style sheet, pictures and API calls come from the farm
+/// The page's policy: its script, style sheet, pictures, videos and API calls come from the farm
 /// itself, nothing runs inline, and no other site may frame it.
 pub const CONTENT_SECURITY_POLICY: &str = "default-src 'none'; script-src 'self'; style-src 'self'; \
-     img-src 'self'; connect-src 'self'; form-action 'self'; base-uri 'none'; frame-ancestors 'none'";
+     img-src 'self'; media-src 'self'; connect-src 'self'; form-action 'self'; base-uri 'none'; frame-ancestors 'none'";
 
 /// Longest part of a client's `Host` or `Origin` quoted back in a refusal.
 const QUOTED: usize = 200;

@@ -96,7 +96,7 @@ pub(crate) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobIn
             .collect(),
         frame_counts: FrameCounts::default(),
         scenes: 1,
-        video: None,
+        video: crate::video::info(state, &job, &frames)?,
         error,
         warnings: Vec::new(),
         url,

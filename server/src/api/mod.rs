@@ -19,6 +19,7 @@ mod status;
 mod submit;
 #[cfg(test)]
 mod tests;
+mod video;
 mod worker;
 
 use axum::extract::{DefaultBodyLimit, Path};
@@ -116,17 +117,34 @@ impl FileBody {
         Ok(FileBody { file, len: meta.len() })
     }
 
+    /// The file's length in bytes.
+    pub(crate) fn len(&self) -> u64 {
+        self.len
+    }
+
+    /// Only bytes `start..start + len` of the file (a `Range` request's): the answer's body and
+    /// `Content-Length` are those.
+    pub(crate) async fn range(mut self, start: u64, len: u64) -> std::io::Result<FileBody> {
+        use tokio::io::AsyncSeekExt;
+        self.file.seek(std::io::SeekFrom::Start(start)).await?;
+        self.len = len.min(self.len.saturating_sub(start));
+        Ok(self)
+    }
+
     /// The answer: `headers`, the file's `Content-Length` and its bytes.
     pub(crate) fn into_response_with(self, headers: &[(header::HeaderName, HeaderValue)]) -> Response {
         use tokio::io::AsyncReadExt;
-        let stream = futures_util::stream::unfold(Some(self.file), |file| async move {
-            let mut file = file?;
-            let mut buf = vec![0u8; FILE_CHUNK];
+        let stream = futures_util::stream::unfold(Some((self.file, self.len)), |state| async move {
+            let (mut file, left) = state?;
+            if left == 0 {
+                return None;
+            }
+            let mut buf = vec![0u8; FILE_CHUNK.min(usize::try_from(left).unwrap_or(FILE_CHUNK))];
             match file.read(&mut buf).await {
                 Ok(0) => None,
                 Ok(n) => {
                     buf.truncate(n);
-                    Some((Ok(axum::body::Bytes::from(buf)), Some(file)))
+                    Some((Ok(axum::body::Bytes::from(buf)), Some((file, left - n as u64))))
                 }
                 // The answer is cut short (the client sees its length unmet): said once.
                 Err(e) => Some((Err(e), None)),
@@ -159,6 +177,8 @@ fn routes(state: &AppState) -> OpenApiRouter<AppState> {
         .routes(routes!(jobs::frame_preview))
         .routes(routes!(jobs::frame_file))
         .routes(routes!(jobs::frame_tonemap))
+        .routes(routes!(video::video_mp4))
+        .routes(routes!(video::video_gif))
         .routes(routes!(status::list_workers))
         .routes(routes!(status::drain_worker))
         .routes(routes!(status::disable_worker))

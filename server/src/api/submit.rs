@@ -54,6 +54,12 @@ pub(super) struct SubmitForm {
     /// Stop sampling a tile once its estimated relative noise is at most this, in (0, 1]
     /// (e.g. 0.02); the samples become a cap. Default: every tile takes every sample.
     noise_target: Option<f64>,
+    /// The video made of the frames once all are merged: `mp4` (H.264; 422 when the server has
+    /// no ffmpeg), `gif` or `none`. Default: `mp4` for a sequence of scene files (a GIF when the
+    /// server has no ffmpeg), `none` for one scene. 422 when the frames differ in size.
+    video: Option<String>,
+    /// Frames a second of the video, 1 to 120 (default 30).
+    fps: Option<u32>,
 }
 
 /// Options of a submission (multipart text fields).
@@ -71,6 +77,10 @@ struct SubmitOptions {
     denoise: bool,
     pass_samples: Option<u32>,
     noise_target: Option<f64>,
+    /// The video of the frames (`mp4`, `gif`, `none`; default: `video.rs`'s rule).
+    video: Option<VideoKind>,
+    /// Its frames a second.
+    fps: Option<u32>,
 }
 
 fn problem_from(e: &tessera::SceneError) -> Problem {
@@ -227,6 +237,12 @@ async fn read_fields(
                 );
             }
             "cameras" => opts.cameras = Some(camera_list(&text())?),
+            "video" => {
+                opts.video = Some(VideoKind::parse(&text()).ok_or_else(|| {
+                    AppError::bad_request(format!("video must be mp4, gif or none, found \"{}\"", text()))
+                })?)
+            }
+            "fps" => opts.fps = Some(bounded("fps", number("fps")?, 120, "frames a second")?),
             "scene_path" => opts.scene_path = Some(text()),
             field @ ("allow_unsupported" | "denoise") => {
                 let yes = match text().as_str() {
@@ -246,7 +262,7 @@ async fn read_fields(
             }
             other => {
                 return Err(AppError::bad_request(format!(
-                    "unknown field \"{other}\"; send scene, asset (one per file, named by its relative path), bundle, name, priority, tile_size, samples, pass_samples, noise_target, cameras, scene_path, allow_unsupported or denoise"
+                    "unknown field \"{other}\"; send scene, asset (one per file, named by its relative path), bundle, name, priority, tile_size, samples, pass_samples, noise_target, cameras, scene_path, allow_unsupported, denoise, video or fps"
                 )));
             }
         }
@@ -261,7 +277,7 @@ async fn read_fields(
         (status = 400, description = "Not valid multipart, a bad field, or a scene that does not parse or build (`problems` says where)", body = ApiError),
         (status = 401, description = "The server needs an API token", body = ApiError),
         (status = 413, description = "Over the upload or unpacking limits", body = ApiError),
-        (status = 422, description = "Over the tile, unit, frame or sample limits, an empty `cameras`, or denoise=true on a server without Intel Open Image Denoise", body = ApiError),
+        (status = 422, description = "Over the tile, unit, frame or sample limits, an empty `cameras`, denoise=true on a server without Intel Open Image Denoise, video=mp4 on a server without ffmpeg, or a video of frames of different sizes", body = ApiError),
         (status = 507, description = "The server's disk is full: nothing was stored; submit again once space is freed", body = ApiError)))]
 pub(super) async fn submit_job(
     State(state): State<AppState>,
@@ -343,6 +359,13 @@ pub(super) async fn submit_job(
     if opts.denoise {
         check_denoise_size(&frames)?;
     }
+    let sizes: Vec<(u32, u32, u32)> =
+        frames.iter().enumerate().map(|(k, f)| (k as u32, f.width, f.height)).collect();
+    let (video, fps) = (opts.video, opts.fps);
+    tokio::task::spawn_blocking(move || crate::video::check_submission(video, &sizes, &[]))
+        .await
+        .map_err(|e| anyhow::anyhow!("video check task: {e}"))?
+        .map_err(|m| AppError::new(StatusCode::UNPROCESSABLE_ENTITY, m))?;
     let name = opts.name.unwrap_or_else(|| scene_path.rsplit('/').next().unwrap_or(&scene_path).to_string());
     off_thread(move || {
         let hash = state.blobs.put(&tar)?;
@@ -361,6 +384,7 @@ pub(super) async fn submit_job(
             noise_target: opts.noise_target,
         };
         let id = state.store.insert_job(&job)?;
+        state.store.set_video_options(id, video, fps)?;
         state.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(id, Arc::new(cameras));
         state.scheduler.job_submitted(id);
         tracing::info!(job = id, name = %job.name, "job accepted");

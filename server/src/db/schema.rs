@@ -24,7 +24,10 @@ CREATE TABLE IF NOT EXISTS jobs(
     noise_target REAL,
     manifest TEXT,
     notify_url TEXT,
-    notified INTEGER NOT NULL DEFAULT 0
+    notified INTEGER NOT NULL DEFAULT 0,
+    video TEXT,
+    fps INTEGER,
+    keep_float INTEGER
 );
 CREATE TABLE IF NOT EXISTS frames(
     job_id INTEGER NOT NULL,
@@ -187,6 +190,14 @@ pub(super) fn migrate(conn: &Connection) -> Result<()> {
             "ALTER TABLE jobs ADD COLUMN notify_url TEXT;
              ALTER TABLE jobs ADD COLUMN notified INTEGER NOT NULL DEFAULT 0;
              UPDATE jobs SET notified = 1 WHERE state IN ('done', 'failed', 'canceled');",
+        )?;
+    }
+    if !has_column("jobs", "video")? {
+        // Jobs from before videos: the defaults (`video`, `fps` NULL), float frames kept.
+        conn.execute_batch(
+            "ALTER TABLE jobs ADD COLUMN video TEXT;
+             ALTER TABLE jobs ADD COLUMN fps INTEGER;
+             ALTER TABLE jobs ADD COLUMN keep_float INTEGER;",
         )?;
     }
     if conn.pragma_query_value(None, "user_version", |r| r.get::<_, i64>(0))? < 1 {

@@ -88,6 +88,8 @@ function jobNode(id) {
       el("span", { class: "spacer" }),
       el("button", { class: "secondary cancel", text: "Cancel", onclick: () => cancelJob(id) })),
     el("div", { class: "error job-error", hidden: "" }),
+    el("div", { class: "video", hidden: "" }),
+    el("div", { class: "sequence", hidden: "" }),
     el("div", { class: "frames" }),
     el("details", { class: "log", open: "" },
       el("summary", { text: "Log" }),
@@ -139,7 +141,100 @@ function renderJob(job, listed = false) {
   const err = $(".job-error", n);
   err.hidden = !job.error;
   err.textContent = job.error || "";
-  for (const f of job.frames) renderFrame(entry, job, f);
+  renderVideo(entry, job);
+  if (isSequence(job)) renderSequence(entry, job);
+  else for (const f of job.frames) renderFrame(entry, job, f);
+}
+
+// --- Sequences and videos --------------------------------------------------------------------
+
+// A job of several scene files, or of many cameras, is shown as a sequence: its counts, a grid
+// of one small cell per frame (coloured by state; a click shows that frame) and one frame large
+// (the latest merged unless one was chosen), instead of a block per frame.
+const SEQUENCE_MIN_FRAMES = 9;
+function isSequence(job) {
+  return (job.scenes || 1) > 1 || job.frames.length >= SEQUENCE_MIN_FRAMES;
+}
+
+function frameState(f) {
+  if (f.outputs.length) return "done";
+  return f.tiles_done > 0 || (f.passes_done || 0) > 0 ? "rendering" : "queued";
+}
+
+function renderSequence(entry, job) {
+  const box = $(".sequence", entry.node);
+  box.hidden = false;
+  if (!entry.seq) {
+    entry.seq = { cells: [], selected: null, shown: null };
+    box.append(
+      el("div", { class: "seq-counts" }),
+      el("div", { class: "seq-grid" }),
+      el("figure", { class: "seq-view", hidden: "" },
+        el("img", { class: "seq-frame", alt: "" }),
+        el("figcaption", { class: "seq-caption" })));
+  }
+  const seq = entry.seq;
+  const counts = { done: 0, rendering: 0, queued: 0 };
+  const grid = $(".seq-grid", box);
+  job.frames.forEach((f, i) => {
+    const s = frameState(f);
+    counts[s]++;
+    let cell = seq.cells[i];
+    if (!cell) {
+      const index = f.index;
+      cell = el("button", { type: "button", onclick: () => { seq.selected = index; renderSequence(entry, entry.data); } });
+      grid.append(cell);
+      seq.cells[i] = cell;
+    }
+    cell.className = "seq-cell " + s + (seq.selected === f.index ? " selected" : "");
+    cell.dataset.state = s;
+    cell.title = "frame " + f.index + (f.scene ? " · " + f.scene : "") + " · " + f.image_name + " · " + s;
+  });
+  // The server's counts once it gives them; until then, counted here.
+  const fc = job.frame_counts;
+  const c = fc && fc.done + fc.rendering + fc.queued === job.frames.length ? fc : counts;
+  const counted = $(".seq-counts", box);
+  counted.textContent = job.frames.length + " frames · " + c.done + " done · " + c.rendering + " rendering · " + c.queued + " queued";
+  counted.dataset.done = String(c.done);
+  const chosen = job.frames.find((f) => f.index === seq.selected)
+    || [...job.frames].reverse().find((f) => f.outputs.length);
+  const view = $(".seq-view", box);
+  if (!chosen) { view.hidden = true; return; }
+  view.hidden = false;
+  // A merged frame's preview is its final picture (small, made once); a rendering frame's is
+  // made from its tiles on each request.
+  const key = chosen.index + (chosen.outputs.length ? ":done" : ":" + chosen.tiles_done);
+  if (seq.shown !== key) {
+    seq.shown = key;
+    $(".seq-frame", view).src = withToken(chosen.preview_url + "?t=" + Date.now());
+  }
+  const links = chosen.outputs.map((o) => o.name).join(", ");
+  $(".seq-caption", view).textContent = "frame " + chosen.index + (chosen.scene ? " (" + chosen.scene + ")" : "") +
+    " · " + chosen.image_name + " (" + chosen.width + "×" + chosen.height + ")" + (links ? " · " + links : " · " + frameState(chosen));
+  view.dataset.frame = String(chosen.index);
+}
+
+// The job's video: its state, and once made, a player (<video>, or <img> for a GIF) and a link.
+function renderVideo(entry, job) {
+  const box = $(".video", entry.node);
+  const v = job.video;
+  if (!v) { box.hidden = true; return; }
+  box.hidden = false;
+  let line = $(".video-state", box);
+  if (!line) { line = el("div", { class: "video-state" }); box.prepend(line); }
+  line.textContent = "Video (" + v.kind.toUpperCase() + ", " + v.fps + " fps): " + v.state + (v.message ? " · " + v.message : "");
+  box.dataset.state = v.state;
+  if (v.state === "done" && v.url && box.dataset.url !== v.url) {
+    box.dataset.url = v.url;
+    const src = withToken(v.url);
+    const name = v.url.split("/").pop();
+    const player = v.kind === "gif"
+      ? el("img", { class: "player", src, alt: "the job's video" })
+      : el("video", { class: "player", src, controls: "", loop: "", preload: "metadata" });
+    $(".player", box)?.remove();
+    $(".video-link", box)?.remove();
+    box.append(player, el("a", { class: "video-link", href: src, download: "job" + job.id + "-" + name, text: "download " + name }));
+  }
 }
 
 function frameNode(entry, job, f) {
@@ -337,7 +432,9 @@ function connect() {
     const entry = jobs.get(e.job);
     if (!entry || !entry.data) { refreshJob(e.job, e.job); return; }
     const f = entry.data.frames.find((x) => x.index === e.frame);
-    if (f) {
+    if (f && isSequence(entry.data)) {
+      f.tiles_done = Math.max(f.tiles_done, e.tiles_done);
+    } else if (f) {
       f.tiles_done = Math.max(f.tiles_done, e.tiles_done);
       const fr = frameNode(entry, entry.data, f);
       renderFrame(entry, entry.data, f);
@@ -390,7 +487,7 @@ $("#submit").addEventListener("submit", async (ev) => {
     for (const f of files) if (f !== scene) form.append("asset", f, relPath(f));
   }
   for (const [id, field] of [["priority", "priority"], ["tile-size", "tile_size"], ["samples", "samples"],
-    ["pass-samples", "pass_samples"], ["noise-target", "noise_target"]]) {
+    ["pass-samples", "pass_samples"], ["noise-target", "noise_target"], ["video", "video"], ["fps", "fps"]]) {
     const v = $("#" + id).value.trim();
     if (v !== "" && !(field === "priority" && v === "0")) form.append(field, v);
   }
