@@ -23,7 +23,7 @@ fn camera_tonemap(cam: &Camera) -> Option<tessera::tonemap::params::Photographic
 pub(super) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobInfo>> {
     let Some(job) = state.store.job(id)? else { return Ok(None) };
     let frames = state.store.frames(id)?;
-    let cameras = state.job_cameras(&job).ok();
+    let cameras = state.frame_cameras(&job).ok();
     let url = format!("/api/v1/jobs/{id}");
     let mut error = job.error.clone();
     if error.is_none() && !job.state.is_final() {
@@ -86,7 +86,7 @@ pub(super) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobIn
                 },
                 tonemap: cameras
                     .as_ref()
-                    .and_then(|c| c.get(f.camera as usize))
+                    .and_then(|c| c.get(f.index as usize))
                     .and_then(camera_tonemap)
                     .map(|p| tone_params(&p)),
                 tonemap_url: float_output(f.outputs.as_deref())
@@ -309,12 +309,12 @@ pub(super) async fn frame_preview(
                 }
             }
             if let Some(path) = stored_float(&state, &f) {
-                let cam = job_camera(&state, &job, f.camera)?;
+                let cam = job_camera(&state, &job, f.index)?;
                 let img = tessera::hdr_io::read_float_image(&path).map_err(|e| anyhow::anyhow!("{e}"))?;
                 return Ok(merge::final_preview_png(&cam, &img)?);
             }
         }
-        let cam = job_camera(&state, &job, f.camera)?;
+        let cam = job_camera(&state, &job, f.index)?;
         // The arrived tiles one at a time, each shrunk into the preview as it is read.
         let mut canvas = merge::PreviewCanvas::new(f.width, f.height);
         for (tile, rect) in state.store.done_tile_rects(id, frame)? {
@@ -328,10 +328,13 @@ pub(super) async fn frame_preview(
     Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/png"))], png).into_response())
 }
 
-/// The camera of a job's frame.
-fn job_camera(state: &AppState, job: &crate::db::JobRow, camera: u32) -> ApiResult<Camera> {
-    let cameras = state.job_cameras(job)?;
-    Ok(cameras.get(camera as usize).cloned().ok_or_else(|| anyhow::anyhow!("camera {camera} missing"))?)
+/// The camera of a job's frame `frame`.
+fn job_camera(state: &AppState, job: &crate::db::JobRow, frame: u32) -> ApiResult<Camera> {
+    let cameras = state.frame_cameras(job)?;
+    Ok(cameras
+        .get(frame as usize)
+        .cloned()
+        .ok_or_else(|| anyhow::anyhow!("the camera of frame {frame} is missing"))?)
 }
 
 /// The float image among a merged frame's outputs: its first `.exr`, else its `.hdr` (an HDR
@@ -383,10 +386,10 @@ pub(super) async fn frame_tonemap(
     })?;
     let cameras = {
         let state = state.clone();
-        off_thread(move || Ok(state.job_cameras(&job)?)).await?
+        off_thread(move || Ok(state.frame_cameras(&job)?)).await?
     };
     let (operator, base) = cameras
-        .get(f.camera as usize)
+        .get(f.index as usize)
         .and_then(merge::display_tonemap)
         .unwrap_or((tessera::tonemap::params::Operator::Photographic, Default::default()));
     let gamma = match q.gamma.as_deref() {

@@ -45,6 +45,7 @@ impl Farm {
             max_upload_bytes: 16 << 20,
             bundle_limits: Limits::default(),
             max_job_tiles: 100_000,
+            max_job_frames: 4096,
             max_job_samples: 1 << 40,
             access: Default::default(),
             max_job_units: 1_000_000,
