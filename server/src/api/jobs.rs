@@ -20,9 +20,31 @@ fn camera_tonemap(cam: &Camera) -> Option<tessera::tonemap::params::Photographic
     merge::display_tonemap(cam).map(|(_, p)| p)
 }
 
+/// Jobs of more frames than this are listed (`GET /api/v1/jobs`) without their frames: their
+/// `frame_counts` summarise them, and the job's own `GET` lists every one.
+pub const LISTED_FRAMES: usize = 32;
+
 pub(super) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobInfo>> {
+    job_info_with(state, id, usize::MAX)
+}
+
+/// [`job_info`], its `frames` left out when there are more than `max_frames`.
+fn job_info_with(state: &AppState, id: u64, max_frames: usize) -> anyhow::Result<Option<JobInfo>> {
     let Some(job) = state.store.job(id)? else { return Ok(None) };
     let frames = state.store.frames(id)?;
+    let started = if job.state.is_final() { Default::default() } else { state.store.frames_started(id)? };
+    let mut frame_counts = FrameCounts::default();
+    for f in &frames {
+        if f.outputs.is_some() {
+            frame_counts.done += 1;
+        } else if f.tiles_done > 0 || f.passes_published > 0 || started.contains(&f.index) {
+            frame_counts.rendering += 1;
+        } else {
+            frame_counts.queued += 1;
+        }
+    }
+    let listed = if frames.len() > max_frames { &frames[..0] } else { &frames[..] };
+    let sequence = job.scenes > 1;
     let cameras = state.frame_cameras(&job).ok();
     let url = format!("/api/v1/jobs/{id}");
     let mut error = job.error.clone();
@@ -44,7 +66,7 @@ pub(super) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobIn
         submitted_at: job.submitted_at,
         started_at: job.started_at,
         finished_at: job.finished_at,
-        frames: frames
+        frames: listed
             .iter()
             .map(|f| FrameInfo {
                 index: f.index,
@@ -91,11 +113,11 @@ pub(super) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobIn
                     .map(|p| tone_params(&p)),
                 tonemap_url: float_output(f.outputs.as_deref())
                     .map(|_| format!("{url}/frames/{}/tonemap.png", f.index)),
-                scene: None,
+                scene: if sequence { f.scene_path.clone() } else { None },
             })
             .collect(),
-        frame_counts: FrameCounts::default(),
-        scenes: 1,
+        frame_counts,
+        scenes: job.scenes,
         video: None,
         error,
         warnings: Vec::new(),
@@ -104,13 +126,13 @@ pub(super) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobIn
 }
 
 #[utoipa::path(get, path = "/api/v1/jobs", tag = "jobs", security((), ("api_token" = [])),
-    responses((status = 200, description = "Every job, newest first", body = JobList), (status = 401, description = "The server needs an API token", body = ApiError)))]
+    responses((status = 200, description = "Every job, newest first. A job of more than 32 frames (a sequence) is listed with `frames` empty: its `frame_counts` say how many are done, rendering and queued, and `GET /api/v1/jobs/{id}` lists every frame", body = JobList), (status = 401, description = "The server needs an API token", body = ApiError)))]
 pub(super) async fn list_jobs(State(state): State<AppState>) -> ApiResult<Json<JobList>> {
     off_thread(move || {
         let ids: Vec<u64> = state.store.jobs()?.iter().map(|j| j.id).collect();
         let mut jobs = Vec::new();
         for id in ids {
-            jobs.extend(job_info(&state, id)?);
+            jobs.extend(job_info_with(&state, id, LISTED_FRAMES)?);
         }
         Ok(Json(JobList { jobs }))
     })

@@ -199,9 +199,18 @@ pub(super) fn validate_scene(
 /// scenes' warnings.
 pub(super) type Frames = (Vec<Camera>, Vec<crate::db::NewFrame>, Vec<String>);
 
+/// Frames of at most this many samples (pixels x samples per pixel) are one tile each when the
+/// job names no `tile_size`: a small frame costs one lease, one upload and one merge of one
+/// tile, instead of dozens of each (a course frame of 800 x 800 at up to 26 spp).
+pub const WHOLE_FRAME_SAMPLES: u64 = 1 << 24;
+
 /// The caps a job's frames are held to while its scenes are read.
 pub(super) struct FrameLimits {
     pub tile_size: u32,
+    /// The job named its `tile_size` (otherwise small frames are whole: [`WHOLE_FRAME_SAMPLES`]).
+    pub tile_size_given: bool,
+    /// The job's `samples` (instead of each camera's).
+    pub samples: Option<u32>,
     pub max_tiles: u64,
     pub max_frames: usize,
 }
@@ -280,12 +289,16 @@ pub(super) fn validate_frames(
         }
         warnings.extend(scene.warnings.iter().map(|w| at(w.to_string())));
     }
-    let sizes: Vec<(u32, u32)> = frames.iter().map(|f| (f.width, f.height)).collect();
-    submit::check_tile_count(&sizes, limits.tile_size, limits.max_tiles)?;
-    for f in &mut frames {
-        f.tiles =
-            tessera::render::tiles(f.width, f.height, limits.tile_size).into_iter().map(Rect::from).collect();
+    let mut sizes: Vec<(u32, u32, u32)> = Vec::with_capacity(frames.len());
+    for (f, cam) in frames.iter_mut().zip(&cameras) {
+        let spp = limits.samples.unwrap_or(cam.num_samples).max(1);
+        let whole = !limits.tile_size_given
+            && u64::from(f.width) * u64::from(f.height) * u64::from(spp) <= WHOLE_FRAME_SAMPLES;
+        let edge = if whole { f.width.max(f.height).max(1) } else { limits.tile_size };
+        sizes.push((f.width, f.height, edge));
+        f.tiles = tessera::render::tiles(f.width, f.height, edge).into_iter().map(Rect::from).collect();
     }
+    submit::check_tile_count(&sizes, limits.tile_size, limits.max_tiles)?;
     Ok((cameras, frames, warnings))
 }
 
@@ -326,6 +339,8 @@ pub(super) async fn accept(state: AppState, sub: Submission) -> ApiResult<(Statu
     let tile_size = opts.tile_size.unwrap_or(state.settings.tile_size);
     let limits = FrameLimits {
         tile_size,
+        tile_size_given: opts.tile_size.is_some(),
+        samples: opts.samples,
         max_tiles: state.settings.max_job_tiles,
         max_frames: state.settings.max_job_frames,
     };

@@ -318,10 +318,13 @@ pub(super) async fn submit_job(State(state): State<AppState>, request: Request) 
         let Json(req) = match Json::<JobRequest>::from_request(request, &state).await {
             Ok(req) => req,
             Err(rejection) => {
-                return Err(AppError::new(
-                    rejection.status(),
-                    format!("the job request: {}", rejection.body_text()),
-                ));
+                // A body that is not a `JobRequest` (a field missing, unknown or of the wrong
+                // type) is a bad request like a bad multipart field.
+                let status = match rejection.status() {
+                    StatusCode::PAYLOAD_TOO_LARGE => StatusCode::PAYLOAD_TOO_LARGE,
+                    _ => StatusCode::BAD_REQUEST,
+                };
+                return Err(AppError::new(status, format!("the job request: {}", rejection.body_text())));
             }
         };
         let _permit = super::turn(&state.unpacking).await?;
@@ -622,16 +625,23 @@ pub(super) fn plan_passes(
     ))
 }
 
-/// Tiles of frames of `sizes` cut at `tile_size`.
-fn tile_count(sizes: &[(u32, u32)], tile_size: u32) -> u64 {
-    sizes.iter().map(|&(w, h)| u64::from(w.div_ceil(tile_size)) * u64::from(h.div_ceil(tile_size))).sum()
+/// Tiles of frames of `sizes` (width, height, and the tile edge each is cut at: the job's, or
+/// the frame's own when it is whole), cut at `tile_size` where that is larger.
+fn tile_count(sizes: &[(u32, u32, u32)], tile_size: u32) -> u64 {
+    sizes
+        .iter()
+        .map(|&(w, h, edge)| {
+            let t = edge.max(tile_size);
+            u64::from(w.div_ceil(t)) * u64::from(h.div_ceil(t))
+        })
+        .sum()
 }
 
 /// Refuses a job that would be cut into more than `max_tiles` tiles (a queue of hundreds of
 /// thousands of one-pixel tiles costs the farm more in bookkeeping than in rendering), naming
-/// the smallest tile size that fits.
-pub(super) fn check_tile_count(sizes: &[(u32, u32)], tile_size: u32, max_tiles: u64) -> ApiResult<()> {
-    let n = tile_count(sizes, tile_size);
+/// the smallest tile size that fits. `sizes`: each frame's width, height and tile edge.
+pub(super) fn check_tile_count(sizes: &[(u32, u32, u32)], tile_size: u32, max_tiles: u64) -> ApiResult<()> {
+    let n = tile_count(sizes, 0);
     if n <= max_tiles {
         return Ok(());
     }

@@ -228,4 +228,19 @@ impl Store {
         }
         Ok(())
     }
+
+    /// The frames of job `job` some of whose units are leased or done (a frame being rendered,
+    /// until its tile rows go with the job's end). One index range (`tiles_queue_by_frame`).
+    pub fn frames_started(&self, job: u64) -> Result<std::collections::HashSet<u32>> {
+        let conn = self.conn();
+        let mut stmt = conn.prepare_cached(
+            "SELECT DISTINCT frame FROM tiles WHERE job_id = ?1 AND state IN ('leased', 'done')",
+        )?;
+        let rows = stmt.query_map([job as i64], |r| r.get::<_, i64>(0))?;
+        let mut out = std::collections::HashSet::new();
+        for r in rows {
+            out.insert(r? as u32);
+        }
+        Ok(out)
+    }
 }
