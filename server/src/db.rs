@@ -850,6 +850,7 @@ mod tests {
                 tiles: (0..tiles).map(|x| Rect { x0: x, y0: 0, width: 1, height: 1 }).collect(),
                 samples: 1,
                 pass_samples: 16,
+                ..Default::default()
             }],
             warnings: Vec::new(),
             ..Default::default()
@@ -893,6 +894,7 @@ mod tests {
                 tiles: vec![Rect { x0: 0, y0: 0, width: 2, height: 1 }],
                 samples: 48,
                 pass_samples: 16,
+                ..Default::default()
             }],
             warnings: Vec::new(),
             ..Default::default()
@@ -1255,6 +1257,7 @@ mod tests {
                     tiles: vec![Rect { x0: 0, y0: 0, width: 2, height: 1 }],
                     samples: 1,
                     pass_samples: 16,
+                    ..Default::default()
                 }],
                 warnings: Vec::new(),
                 ..Default::default()
@@ -1395,6 +1398,7 @@ mod tests {
                     tiles: vec![Rect { x0: 0, y0: 0, width: 1, height: 1 }],
                     samples: 1,
                     pass_samples: 16,
+                    ..Default::default()
                 }],
                 warnings,
                 allow_unsupported: false,
@@ -1535,6 +1539,7 @@ mod tests {
                         tiles: vec![Rect { x0: 0, y0: 0, width: 1, height: 1 }],
                         samples: 1,
                         pass_samples: 16,
+                        ..Default::default()
                     })
                     .collect(),
                 ..two_frames()
