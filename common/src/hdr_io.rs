@@ -5,8 +5,9 @@
 //! floating-point radiance as rendered — no clamping, no gamma, values on the course's 0–255
 //! scale — and `.hdr` is the accepted alternative container.
 //!
-//! - [`write_exr`] writes 32-bit float `R`, `G`, `B` channels with ZIP compression (lossless):
-//!   [`read_exr`] gives back the same bits (tested, including NaN and ±∞ bit patterns).
+//! - [`write_exr`] writes 32-bit float `R`, `G`, `B` channels with RLE compression (lossless),
+//!   [`write_exr_zip`] with ZIP (smaller, slower): [`read_exr`] gives back the same bits
+//!   (tested, including NaN and ±∞ bit patterns).
 //! - [`write_hdr`] writes Radiance RGBE (8-bit mantissas sharing one exponent: about 1% relative
 //!   precision, no negatives, no NaN or ∞; see [`write_hdr`] for what happens to those).
 //! - [`read_exr`], [`read_hdr`] and [`read_float_image`] decode through
@@ -340,6 +341,13 @@ mod tests {
             assert!(same_bits(&img, &back), "{w}x{h}: EXR round trip changed some value");
             // read_float_image takes the same path for EXR.
             assert!(same_bits(&img, &read_float_image(&path).unwrap()));
+            // ZIP is lossless too.
+            let zipped = dir.join(format!("round{k}.zip.exr"));
+            write_exr_zip(&zipped, &img).unwrap();
+            assert!(
+                same_bits(&img, &read_exr(&zipped).unwrap()),
+                "{w}x{h}: ZIP EXR round trip changed some value"
+            );
         }
     }
 

@@ -97,6 +97,21 @@ fn merged_order(server: &Server, id: u64) -> Vec<u64> {
         .collect()
 }
 
+/// The mean seconds between two frames merged, and the mean of the frames' render seconds as
+/// the worker measured them (`tile_done`).
+fn frame_costs(server: &Server, id: u64) -> (f64, f64) {
+    let log = get_json(&server.url, &format!("/api/v1/jobs/{id}/log"));
+    let events = log["events"].as_array().unwrap();
+    let at = |kind: &str| -> Vec<f64> {
+        events.iter().filter(|e| e["kind"] == kind).map(|e| e["at"].as_f64().unwrap()).collect()
+    };
+    let merged = at("frame_merged");
+    let renders: Vec<f64> =
+        events.iter().filter(|e| e["kind"] == "tile_done").filter_map(|e| e["seconds"].as_f64()).collect();
+    let span = merged.last().unwrap() - merged.first().unwrap();
+    (span / (merged.len() - 1) as f64, renders.iter().sum::<f64>() / renders.len() as f64)
+}
+
 /// Files in the server's file store (`DATA/files/xx/<sha256>`).
 fn stored_files(data: &Path) -> Vec<std::path::PathBuf> {
     let mut out = Vec::new();
@@ -140,6 +155,15 @@ fn a_sequence_submitted_once_is_one_job_rendered_in_order_like_the_cli() {
     }
     // One local worker of one thread: the frames were merged in frame order.
     assert_eq!(merged_order(&server, id), (0..n as u64).collect::<Vec<_>>());
+    // What a frame costs the farm besides its pixels (lease, scene, upload, merge), from the
+    // log: the time from one frame merged to the next, less the next one's render.
+    let (per_frame, render) = frame_costs(&server, id);
+    eprintln!(
+        "{n} frames of 16 x 16 at 4 spp: one every {:.1} ms, of which {:.1} ms rendering (worker's measure)",
+        per_frame * 1e3,
+        render * 1e3
+    );
+    assert!(per_frame < 0.5, "a tiny frame takes the farm {per_frame} s");
     // Every frame is the CLI's, to the byte.
     let cli = cli_render_all(&dir, n);
     assert_job_outputs_equal_cli(&server, &job, &cli);

@@ -32,7 +32,7 @@ pub(super) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobIn
 fn job_info_with(state: &AppState, id: u64, max_frames: usize) -> anyhow::Result<Option<JobInfo>> {
     let Some(job) = state.store.job(id)? else { return Ok(None) };
     let frames = state.store.frames(id)?;
-    let started = if job.state.is_final() { Default::default() } else { state.store.frames_started(id)? };
+    let started = if job.state.is_final() { Default::default() } else { state.store.frames_leased(id)? };
     let mut frame_counts = FrameCounts::default();
     for f in &frames {
         if f.outputs.is_some() {

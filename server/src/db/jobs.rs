@@ -229,13 +229,13 @@ impl Store {
         Ok(())
     }
 
-    /// The frames of job `job` some of whose units are leased or done (a frame being rendered,
-    /// until its tile rows go with the job's end). One index range (`tiles_queue_by_frame`).
-    pub fn frames_started(&self, job: u64) -> Result<std::collections::HashSet<u32>> {
+    /// The frames of job `job` some of whose units are leased now (the rest of a frame's
+    /// progress is on its row: tiles done, passes published). An index seek
+    /// (`tiles_queue_by_frame`) over the few live leases, whatever the job's length.
+    pub fn frames_leased(&self, job: u64) -> Result<std::collections::HashSet<u32>> {
         let conn = self.conn();
-        let mut stmt = conn.prepare_cached(
-            "SELECT DISTINCT frame FROM tiles WHERE job_id = ?1 AND state IN ('leased', 'done')",
-        )?;
+        let mut stmt =
+            conn.prepare_cached("SELECT DISTINCT frame FROM tiles WHERE job_id = ?1 AND state = 'leased'")?;
         let rows = stmt.query_map([job as i64], |r| r.get::<_, i64>(0))?;
         let mut out = std::collections::HashSet::new();
         for r in rows {

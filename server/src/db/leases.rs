@@ -18,6 +18,10 @@ const NEXT_UNIT_BY_FRAME: &str = "SELECT t.frame, t.tile, t.x0, t.y0, t.w, t.h, 
        AND NOT EXISTS (SELECT 1 FROM tile_failures x WHERE x.job_id = t.job_id AND x.frame = t.frame AND x.tile = t.tile AND x.worker_id = ?2 AND x.at > ?3)
      ORDER BY t.frame, t.pass, t.tile LIMIT 1";
 
+/// A job a lease may come from: id, bundle, scene file, samples, allow_unsupported, denoise,
+/// manifest and scene files.
+type LiveJob = (i64, String, String, Option<i64>, bool, bool, Option<String>, i64);
+
 impl Store {
     /// Hands the next tile to `worker`: highest job priority first, then submission order, then
     /// pass, frame and tile order (a sequence's: frame, pass and tile); not a tile of a job the worker has failed
@@ -46,7 +50,7 @@ impl Store {
         // Two indexed steps instead of one join sorted over every queued tile: the live jobs in
         // priority order (a short list), then the first queued tile of each (an index seek on
         // `tiles_queue`), so a lease costs the same behind a million queued tiles as behind ten.
-        let jobs: Vec<(i64, String, String, Option<i64>, bool, bool, Option<String>, i64)> = {
+        let jobs: Vec<LiveJob> = {
             let mut stmt = tx.prepare_cached(
                 "SELECT j.id, j.bundle, j.scene_path, j.samples, j.allow_unsupported, j.denoise, j.manifest, j.scenes FROM jobs j
                  WHERE j.state IN ('queued', 'running')
