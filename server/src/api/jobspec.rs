@@ -195,6 +195,15 @@ pub(super) fn validate_scene(
     load_bundle_scene(files.clone(), scene_path, load)
 }
 
+/// Scenes a submission builds at once, at most (fewer on a machine of fewer cores).
+pub const SCENES_AT_ONCE: usize = 4;
+
+/// What validation keeps of a built scene: its cameras and its warnings.
+struct Loaded {
+    cameras: Vec<Camera>,
+    warnings: Vec<String>,
+}
+
 /// What a valid job's scenes make: each frame's camera (by frame index), the frames and the
 /// scenes' warnings.
 pub(super) type Frames = (Vec<Camera>, Vec<crate::db::NewFrame>, Vec<String>);
@@ -232,12 +241,37 @@ pub(super) fn validate_frames(
     let (mut cameras, mut frames, mut warnings) = (Vec::new(), Vec::new(), Vec::new());
     // Which frame writes each output name first.
     let mut names: HashMap<String, (usize, String)> = HashMap::new();
-    for scene_path in scenes {
+    // A few scenes are built at once (each on a thread of a pool of the submission's own, its
+    // meshes in memory until its cameras and warnings are taken), a batch at a time in frame
+    // order, so that the first refusal is the first frame's and nothing after its batch is
+    // built.
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).clamp(1, SCENES_AT_ONCE);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .thread_name(|k| format!("validate-{k}"))
+        .build()
+        .map_err(|e| anyhow::anyhow!("cannot start the validation threads: {e}"))?;
+    let loaded = scenes.chunks(threads * 2).flat_map(|batch| {
+        let built: Vec<_> = pool.install(|| {
+            use rayon::prelude::*;
+            batch
+                .par_iter()
+                .map(|path| {
+                    validate_scene(files, path, load).map(|scene| Loaded {
+                        warnings: scene.warnings.iter().map(ToString::to_string).collect(),
+                        cameras: scene.cameras,
+                    })
+                })
+                .collect()
+        });
+        batch.iter().zip(built)
+    });
+    for (scene_path, built) in loaded {
         let first = frames.len();
         let at = |message: String| {
             if sequence { format!("frame {first} ({scene_path}): {message}") } else { message }
         };
-        let scene = validate_scene(files, scene_path, load).map_err(|e| scene_refusal(e, scene_path, &at))?;
+        let scene: Loaded = built.map_err(|e| scene_refusal(e, scene_path, &at))?;
         if scene.cameras.is_empty() {
             return Err(AppError::new(
                 StatusCode::UNPROCESSABLE_ENTITY,
@@ -287,7 +321,7 @@ pub(super) fn validate_frames(
             });
             cameras.push(cam.clone());
         }
-        warnings.extend(scene.warnings.iter().map(|w| at(w.to_string())));
+        warnings.extend(scene.warnings.into_iter().map(at));
     }
     let mut sizes: Vec<(u32, u32, u32)> = Vec::with_capacity(frames.len());
     for (f, cam) in frames.iter_mut().zip(&cameras) {
