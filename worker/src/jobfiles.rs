@@ -20,16 +20,27 @@ use tessera::scene::load::LoadOptions;
 
 use crate::farm::{Client, describe};
 
-/// Files fetched so far, by SHA-256: each is downloaded once per worker process.
-fn fetched() -> &'static Mutex<HashMap<String, Arc<Vec<u8>>>> {
-    static FILES: OnceLock<Mutex<HashMap<String, Arc<Vec<u8>>>>> = OnceLock::new();
+/// Bytes of fetched files kept in memory at most: past it the kept files are let go (and
+/// fetched again when a scene needs them).
+const KEPT_BYTES: usize = 1 << 30;
+
+/// Files fetched so far, by SHA-256, and their bytes in all: each is downloaded once per
+/// worker process while it is kept.
+#[derive(Default)]
+struct Fetched {
+    files: HashMap<String, Arc<Vec<u8>>>,
+    bytes: usize,
+}
+
+fn fetched() -> &'static Mutex<Fetched> {
+    static FILES: OnceLock<Mutex<Fetched>> = OnceLock::new();
     FILES.get_or_init(Default::default)
 }
 
 /// The file `sha` (of `size` bytes, when known) from the server, verified against its
 /// SHA-256; fetched once, then answered from memory.
 pub fn fetch_file(client: &Client, sha: &str, size: Option<u64>) -> Result<Arc<Vec<u8>>> {
-    if let Some(bytes) = fetched().lock().unwrap_or_else(|e| e.into_inner()).get(sha) {
+    if let Some(bytes) = fetched().lock().unwrap_or_else(|e| e.into_inner()).files.get(sha) {
         return Ok(bytes.clone());
     }
     let resp = client
@@ -50,7 +61,12 @@ pub fn fetch_file(client: &Client, sha: &str, size: Option<u64>) -> Result<Arc<V
         bail!("file {sha}: the bytes the server sent hash to {actual}; not using them");
     }
     let bytes = Arc::new(bytes);
-    fetched().lock().unwrap_or_else(|e| e.into_inner()).insert(sha.to_string(), bytes.clone());
+    let mut kept = fetched().lock().unwrap_or_else(|e| e.into_inner());
+    if kept.bytes + bytes.len() > KEPT_BYTES {
+        *kept = Fetched::default();
+    }
+    kept.bytes += bytes.len();
+    kept.files.insert(sha.to_string(), bytes.clone());
     Ok(bytes)
 }
 

@@ -244,3 +244,78 @@ impl Store {
         Ok(out)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testutil::store;
+
+    /// A job of two frames of two one-pixel tiles in two passes each, from `scenes` scene files.
+    fn two_by_two(s: &Store, scenes: u32) -> u64 {
+        let frame = |k: u32| NewFrame {
+            camera: 0,
+            image_name: format!("f{k}.png"),
+            width: 2,
+            height: 1,
+            tiles: vec![
+                Rect { x0: 0, y0: 0, width: 1, height: 1 },
+                Rect { x0: 1, y0: 0, width: 1, height: 1 },
+            ],
+            samples: 32,
+            pass_samples: 16,
+            scene_path: Some(format!("s{}.xml", if scenes > 1 { k } else { 0 })),
+        };
+        s.insert_job(&NewJob {
+            name: "j".into(),
+            tile_size: 1,
+            bundle: String::new(),
+            scene_path: "s0.xml".into(),
+            frames: vec![frame(0), frame(1)],
+            manifest: Some("m".repeat(64)),
+            files: vec![tessera::protocol::JobFile {
+                path: "s0.xml".into(),
+                sha256: "a".repeat(64),
+                size: 3,
+            }],
+            scenes,
+            ..Default::default()
+        })
+        .unwrap()
+    }
+
+    /// (pass, tile, scene file) of the units leased one after another.
+    fn lease_order(s: &Store, n: usize) -> Vec<(u32, u32, String)> {
+        let w = s.register_worker("w", 16, "").unwrap();
+        (0..n)
+            .map(|_| {
+                let l = s.lease(w, 60.0).unwrap().granted().expect("a lease");
+                assert_eq!(l.manifest.as_deref(), Some("m".repeat(64).as_str()));
+                assert_eq!(l.bundle, "");
+                (l.pass.map_or(0, |p| p.index), l.tile, l.scene_path)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_sequence_is_leased_frame_by_frame_and_one_scene_pass_by_pass() {
+        let (_dir, s) = store("seq-order");
+        let seq = two_by_two(&s, 2);
+        let frames: Vec<Option<String>> = s.frames(seq).unwrap().into_iter().map(|f| f.scene_path).collect();
+        assert_eq!(frames, [Some("s0.xml".to_string()), Some("s1.xml".to_string())]);
+        let n: i64 = s
+            .conn()
+            .query_row("SELECT count(*) FROM job_files WHERE job_id = ?1", [seq as i64], |r| r.get(0))
+            .unwrap();
+        assert_eq!(n, 1, "the job's files are rows of job_files");
+        let order = lease_order(&s, 8);
+        // Frame 0's passes (each over its tiles) before any of frame 1's, each from its scene.
+        let s0 = |p, t| (p, t, "s0.xml".to_string());
+        let s1 = |p, t| (p, t, "s1.xml".to_string());
+        assert_eq!(order, [s0(0, 0), s0(0, 1), s0(1, 0), s0(1, 1), s1(0, 0), s1(0, 1), s1(1, 0), s1(1, 1)]);
+        // One scene file: every frame's first pass before any second pass.
+        let (_dir, s) = store("seq-order-one");
+        two_by_two(&s, 1);
+        let passes: Vec<u32> = lease_order(&s, 8).into_iter().map(|(p, _, _)| p).collect();
+        assert_eq!(passes, [0, 0, 0, 0, 1, 1, 1, 1]);
+    }
+}
