@@ -380,6 +380,11 @@ async fn submit_multipart(
             "the upload holds no files; send the scene as the \"scene\" field (and its assets as \"asset\" fields) or a \"bundle\" archive",
         ));
     }
+    if opts.scene_path.is_some() && scene_fields.len() > 1 {
+        return Err(AppError::bad_request(
+            "give either scene_path (one scene of a bundle) or several scene fields (a sequence), not both",
+        ));
+    }
     if opts.scenes.is_some() && opts.scene_path.is_some() {
         return Err(AppError::bad_request(
             "give either scene_path (one scene of a bundle) or scenes (a sequence), not both",
