@@ -428,3 +428,30 @@ impl Store {
         Ok(outcome)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The next unit of a job, in either order, is an index seek on the queue's index of that
+    /// order, never a sort of the job's queued units (a 360-frame sequence leases as cheaply as a
+    /// frame).
+    #[test]
+    fn each_lease_order_is_an_index_seek() {
+        let (_dir, s) = crate::testutil::store("lease-plan");
+        let conn = s.conn();
+        for (sql, index) in
+            [(NEXT_UNIT_BY_FRAME, "tiles_queue_by_frame"), (NEXT_UNIT_BY_PASS, "tiles_queue_by_pass")]
+        {
+            let mut stmt = conn.prepare(&format!("EXPLAIN QUERY PLAN {sql}")).unwrap();
+            let plan: Vec<String> = stmt
+                .query_map(params![1, 1, 0.0], |r| r.get::<_, String>(3))
+                .unwrap()
+                .collect::<rusqlite::Result<_>>()
+                .unwrap();
+            let plan = plan.join("\n");
+            assert!(plan.contains(&format!("USING INDEX {index} (job_id=? AND state=?)")), "{plan}");
+            assert!(!plan.contains("TEMP B-TREE"), "the units are sorted: {plan}");
+        }
+    }
+}
