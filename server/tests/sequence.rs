@@ -256,7 +256,8 @@ fn bad_sequences_are_refused_naming_the_frame_and_scene_and_nothing_is_stored() 
     let dir = TempDir::new("seq-bad");
     let mut files = sequence(&dir, 6, 8, 1);
     let data = TempDir::new("seq-bad-data");
-    let server = Server::start(&data, &["--local-workers", "0", "--max-job-frames", "5"]);
+    let server =
+        Server::start(&data, &["--local-workers", "0", "--max-job-frames", "5", "--worker-token", "wtok"]);
     // Six frames on a server of at most five a job.
     let (code, e) = submit_sequence(&server, &files, &[]);
     assert_eq!(code, 422, "{e}");
@@ -300,6 +301,30 @@ fn bad_sequences_are_refused_naming_the_frame_and_scene_and_nothing_is_stored() 
         job["frames"].as_array().unwrap().iter().map(|f| f["scene"].as_str().unwrap()).collect();
     assert_eq!(scenes, ["seq/frame_004.xml", "seq/frame_000.xml", "seq/frame_002.xml"]);
     assert_eq!(job["frame_counts"], json!({"done": 0, "rendering": 0, "queued": 3}));
+    // Workers fetch the job's files by SHA-256 with the worker token, as stored.
+    let fetch = |sha: &str, token: Option<&str>| {
+        let mut req = ureq::get(&format!("{}/api/v1/worker/files/{sha}", server.url));
+        if let Some(t) = token {
+            req = req.set("Authorization", &format!("Bearer {t}"));
+        }
+        match req.call() {
+            Ok(r) => {
+                let mut body = Vec::new();
+                std::io::Read::read_to_end(&mut r.into_reader(), &mut body).unwrap();
+                (200, body)
+            }
+            Err(ureq::Error::Status(code, _)) => (code, Vec::new()),
+            Err(e) => panic!("{e}"),
+        }
+    };
+    let ply = {
+        use sha2::Digest;
+        sha2::Sha256::digest(PLY.as_bytes()).iter().map(|x| format!("{x:02x}")).collect::<String>()
+    };
+    assert_eq!(fetch(&ply, Some("wtok")), (200, PLY.as_bytes().to_vec()));
+    assert_eq!(fetch(&ply, None).0, 401);
+    assert_eq!(fetch(&"0".repeat(64), Some("wtok")).0, 404);
+    assert_eq!(fetch("..%2F..%2Ftessera.db", Some("wtok")).0, 404);
 }
 
 #[test]
