@@ -108,11 +108,7 @@ impl MemResolver {
         files: std::collections::HashMap<String, std::sync::Arc<Vec<u8>>>,
         scene_path: &str,
     ) -> Self {
-        let base = match scene_path.rfind('/') {
-            Some(i) => scene_path[..i].to_string(),
-            None => String::new(),
-        };
-        MemResolver { files, base }
+        MemResolver { files, base: scene_dir(scene_path) }
     }
 
     fn candidates(&self, rel: &str) -> Vec<String> {
@@ -120,9 +116,18 @@ impl MemResolver {
     }
 }
 
+/// The directory of the scene at `scene_path` (a normalised bundle path): "" for the top.
+pub fn scene_dir(scene_path: &str) -> String {
+    match scene_path.rfind('/') {
+        Some(i) => scene_path[..i].to_string(),
+        None => String::new(),
+    }
+}
+
 /// Where a [`MemResolver`] for a scene whose directory in the bundle is `base` looks for `rel`,
-/// in order.
-fn bundle_candidates(base: &str, rel: &str) -> Vec<String> {
+/// in order (normalised bundle paths). Every resolver over a job's files by path (the farm
+/// worker's over a job's manifest too) looks in these places, so all find the same file.
+pub fn bundle_candidates(base: &str, rel: &str) -> Vec<String> {
     let joined = if base.is_empty() { rel.to_string() } else { format!("{base}/{rel}") };
     let mut out: Vec<String> = normalize_bundle_path(&joined).into_iter().collect();
     out.extend(normalize_bundle_path(rel));

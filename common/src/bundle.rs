@@ -15,7 +15,7 @@ use std::io::Read;
 use std::path::Path;
 use std::sync::Arc;
 
-use crate::assets::{MemResolver, normalize_bundle_path};
+use crate::assets::{AssetResolver, MemResolver, normalize_bundle_path};
 use crate::camera::Camera;
 use crate::error::SceneError;
 use crate::scene::Scene;
@@ -110,8 +110,15 @@ impl BundleSceneError {
 
 /// The scene file `scene_path` of `files`, parsed.
 fn parse_bundle_scene(files: &BundleFiles, scene_path: &str) -> Result<SceneRecords, BundleSceneError> {
+    let bytes = files.get(scene_path).ok_or_else(|| {
+        BundleSceneError::Unreadable(SceneError::file(scene_path, "the bundle has no such file".to_string()))
+    })?;
+    parse_scene_bytes(bytes, scene_path)
+}
+
+/// The scene file `scene_path` whose bytes are `bytes`, parsed.
+pub fn parse_scene_bytes(bytes: &[u8], scene_path: &str) -> Result<SceneRecords, BundleSceneError> {
     let unreadable = |message: String| BundleSceneError::Unreadable(SceneError::file(scene_path, message));
-    let bytes = files.get(scene_path).ok_or_else(|| unreadable("the bundle has no such file".into()))?;
     let text = std::str::from_utf8(bytes).map_err(|e| {
         unreadable(format!("the scene file is not UTF-8 text (byte {}); save it as UTF-8", e.valid_up_to()))
     })?;
@@ -128,9 +135,33 @@ pub fn load_bundle_scene(
     options: LoadOptions,
 ) -> Result<Scene, BundleSceneError> {
     let records = parse_bundle_scene(&files, scene_path)?;
-    options.check(&records.warnings).map_err(BundleSceneError::Unsupported)?;
     let resolver = MemResolver::for_scene(files, scene_path);
-    let scene = build_scene(&records, &resolver).map_err(BundleSceneError::Invalid)?;
+    build_checked(&records, &resolver, options)
+}
+
+/// Parses and builds the scene file `scene_path` (a normalised job path) whose bytes are
+/// `bytes`, with its assets from `resolver` (which resolves paths as a [`MemResolver`] for that
+/// scene would): [`load_bundle_scene`] for a job whose files are not one in-memory bundle (a
+/// worker's manifest of files fetched as needed).
+pub fn load_scene_bytes(
+    bytes: &[u8],
+    scene_path: &str,
+    resolver: &dyn AssetResolver,
+    options: LoadOptions,
+) -> Result<Scene, BundleSceneError> {
+    let records = parse_scene_bytes(bytes, scene_path)?;
+    build_checked(&records, resolver, options)
+}
+
+/// Builds parsed `records`, refusing unsupported elements unless `options` allow them (those the
+/// parser found before any asset is read).
+fn build_checked(
+    records: &SceneRecords,
+    resolver: &dyn AssetResolver,
+    options: LoadOptions,
+) -> Result<Scene, BundleSceneError> {
+    options.check(&records.warnings).map_err(BundleSceneError::Unsupported)?;
+    let scene = build_scene(records, resolver).map_err(BundleSceneError::Invalid)?;
     options.check(&scene.warnings).map_err(BundleSceneError::Unsupported)?;
     Ok(scene)
 }

@@ -5,8 +5,9 @@
 //! floating-point radiance as rendered — no clamping, no gamma, values on the course's 0–255
 //! scale — and `.hdr` is the accepted alternative container.
 //!
-//! - [`write_exr`] writes 32-bit float `R`, `G`, `B` channels with ZIP compression (lossless):
-//!   [`read_exr`] gives back the same bits (tested, including NaN and ±∞ bit patterns).
+//! - [`write_exr`] writes 32-bit float `R`, `G`, `B` channels with RLE compression (lossless),
+//!   [`write_exr_zip`] with ZIP (smaller, slower): [`read_exr`] gives back the same bits
+//!   (tested, including NaN and ±∞ bit patterns).
 //! - [`write_hdr`] writes Radiance RGBE (8-bit mantissas sharing one exponent: about 1% relative
 //!   precision, no negatives, no NaN or ∞; see [`write_hdr`] for what happens to those).
 //! - [`read_exr`], [`read_hdr`] and [`read_float_image`] decode through
@@ -86,6 +87,21 @@ fn check_image(path: &Path, img: &Image) -> Result<(), HdrError> {
 /// noisy floats hardly compress) for 123 ms of one thread after the last tile, RLE takes 11 ms
 /// and still shrinks flat areas (black backgrounds, mattes) to almost nothing.
 pub fn write_exr(path: &Path, img: &Image) -> Result<(), HdrError> {
+    write_exr_with(path, img, exr::compression::Compression::RLE)
+}
+
+/// [`write_exr`] with ZIP compression (16 scanlines a block; lossless, the same bits back):
+/// for a float frame that is kept rather than looked at (the farm's `.exr` beside a PNG
+/// frame), smaller at the price of a slower write.
+pub fn write_exr_zip(path: &Path, img: &Image) -> Result<(), HdrError> {
+    write_exr_with(path, img, exr::compression::Compression::ZIP16)
+}
+
+fn write_exr_with(
+    path: &Path,
+    img: &Image,
+    compression: exr::compression::Compression,
+) -> Result<(), HdrError> {
     use exr::prelude::*;
     check_image(path, img)?;
     let width = img.width as usize;
@@ -97,11 +113,7 @@ pub fn write_exr(path: &Path, img: &Image) -> Result<(), HdrError> {
     let layer = Layer::new(
         (width, img.height as usize),
         LayerAttributes::default(),
-        Encoding {
-            compression: Compression::RLE,
-            blocks: Blocks::ScanLines,
-            line_order: LineOrder::Increasing,
-        },
+        Encoding { compression, blocks: Blocks::ScanLines, line_order: LineOrder::Increasing },
         channels,
     );
     let mut out = Cursor::new(Vec::new());
@@ -329,6 +341,13 @@ mod tests {
             assert!(same_bits(&img, &back), "{w}x{h}: EXR round trip changed some value");
             // read_float_image takes the same path for EXR.
             assert!(same_bits(&img, &read_float_image(&path).unwrap()));
+            // ZIP is lossless too.
+            let zipped = dir.join(format!("round{k}.zip.exr"));
+            write_exr_zip(&zipped, &img).unwrap();
+            assert!(
+                same_bits(&img, &read_exr(&zipped).unwrap()),
+                "{w}x{h}: ZIP EXR round trip changed some value"
+            );
         }
     }
 

@@ -538,6 +538,8 @@ pub struct JobInfo {
     pub submitted_at: f64,
     pub started_at: Option<f64>,
     pub finished_at: Option<f64>,
+    /// Every frame, in order; left empty in the job list (`GET /api/v1/jobs`) for a job of more
+    /// than 32 frames (`frame_counts` summarise them there).
     pub frames: Vec<FrameInfo>,
     /// Frames by state (always complete, also when `frames` is left out of a job list).
     #[serde(default)]

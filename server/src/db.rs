@@ -20,6 +20,7 @@ use crate::failures::{self, TileFailures};
 
 mod counters;
 mod files;
+mod jobs;
 mod leases;
 mod notify;
 mod passes;
@@ -29,6 +30,7 @@ mod video;
 mod workers;
 
 pub use files::Deleted;
+pub use jobs::{NewFrame, NewJob};
 pub use notify::{DueNotification, Notified};
 pub use passes::ResultShape;
 pub use video::VideoRow;
@@ -254,47 +256,6 @@ pub struct Store {
     checkpointer: Mutex<Connection>,
 }
 
-/// A new job's rows.
-pub struct NewJob {
-    pub name: String,
-    pub priority: i64,
-    pub tile_size: u32,
-    pub samples: Option<u32>,
-    pub bundle: String,
-    pub scene_path: String,
-    pub frames: Vec<NewFrame>,
-    /// The scene's warnings, one `warning` event each in the job's log.
-    pub warnings: Vec<String>,
-    /// Render the scene without its unsupported elements (`allow_unsupported=true`).
-    pub allow_unsupported: bool,
-    /// Tiles carry the denoiser's features, and each merged frame is also written denoised
-    /// (`denoise=true`).
-    pub denoise: bool,
-    /// Samples per pass as the job asked (`pass_samples`); `None`: the default.
-    pub pass_samples: Option<u32>,
-    /// Stop a tile once its noise is at most this (`noise_target`).
-    pub noise_target: Option<f64>,
-}
-
-pub struct NewFrame {
-    pub camera: u32,
-    pub image_name: String,
-    pub width: u32,
-    pub height: u32,
-    pub tiles: Vec<Rect>,
-    /// Samples per pixel (the job's `samples` or the camera's `NumSamples`).
-    pub samples: u32,
-    /// Samples per pass, whole blocks; at least `samples` renders every tile in one piece.
-    pub pass_samples: u32,
-}
-
-impl NewFrame {
-    /// The passes of each tile.
-    pub fn passes(&self) -> u32 {
-        tessera::passes::pass_count(self.samples, self.pass_samples)
-    }
-}
-
 #[derive(Clone, Debug)]
 pub struct JobRow {
     pub id: u64,
@@ -312,6 +273,14 @@ pub struct JobRow {
     pub denoise: bool,
     pub pass_samples: Option<u32>,
     pub noise_target: Option<f64>,
+    /// SHA-256 of the job's manifest (its files in the file store); `None`: a tar `bundle`.
+    pub manifest: Option<String>,
+    /// Scene files the job renders (more than one: a sequence).
+    pub scenes: u32,
+    /// The options as asked; `None`: the default.
+    pub video: Option<tessera::protocol::VideoKind>,
+    pub fps: Option<u32>,
+    pub keep_float: Option<bool>,
 }
 
 #[derive(Clone, Debug)]
@@ -331,6 +300,8 @@ pub struct FrameRow {
     pub samples: u32,
     pub passes_total: u32,
     pub passes_published: u32,
+    /// The frame's scene file; `None`: the job's `scene_path` (jobs from before sequences).
+    pub scene_path: Option<String>,
 }
 
 #[derive(Clone, Debug)]
@@ -505,10 +476,15 @@ fn job_from_row(r: &rusqlite::Row) -> rusqlite::Result<JobRow> {
         denoise: r.get(12)?,
         pass_samples: r.get::<_, Option<i64>>(13)?.map(|s| s as u32),
         noise_target: r.get(14)?,
+        manifest: r.get(15)?,
+        scenes: r.get::<_, i64>(16)?.clamp(1, i64::from(u32::MAX)) as u32,
+        video: r.get::<_, Option<String>>(17)?.as_deref().and_then(tessera::protocol::VideoKind::parse),
+        fps: r.get::<_, Option<i64>>(18)?.map(|f| f as u32),
+        keep_float: r.get(19)?,
     })
 }
 
-const JOB_COLUMNS: &str = "id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, started_at, finished_at, error, denoise, pass_samples, noise_target";
+const JOB_COLUMNS: &str = "id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, started_at, finished_at, error, denoise, pass_samples, noise_target, manifest, scenes, video, fps, keep_float";
 
 fn frame_from_row(r: &rusqlite::Row) -> rusqlite::Result<FrameRow> {
     let outputs: Option<String> = r.get(8)?;
@@ -525,30 +501,11 @@ fn frame_from_row(r: &rusqlite::Row) -> rusqlite::Result<FrameRow> {
         samples: r.get::<_, i64>(9)? as u32,
         passes_total: r.get::<_, i64>(10)? as u32,
         passes_published: r.get::<_, i64>(11)? as u32,
+        scene_path: r.get(12)?,
     })
 }
 
-const FRAME_COLUMNS: &str = "job_id, idx, camera, image_name, width, height, tiles_total, tiles_done, outputs, samples, passes_total, passes_published";
-
-/// The first event of a job's log: what was accepted.
-fn accepted_message(job: &NewJob) -> String {
-    let tiles: usize = job.frames.iter().map(|f| f.tiles.len()).sum();
-    let passes = job.frames.iter().map(NewFrame::passes).max().unwrap_or(1);
-    let in_passes = match (passes, job.frames.first()) {
-        (1, _) | (_, None) => String::new(),
-        (_, Some(f)) => format!(
-            ", {passes} pass(es) of {} samples{}",
-            f.pass_samples,
-            job.noise_target.map(|t| format!(", noise target {t}")).unwrap_or_default()
-        ),
-    };
-    format!(
-        "accepted: {} frame(s), {tiles} tile(s) of {} px{in_passes}, scene {}",
-        job.frames.len(),
-        job.tile_size,
-        job.scene_path
-    )
-}
+const FRAME_COLUMNS: &str = "job_id, idx, camera, image_name, width, height, tiles_total, tiles_done, outputs, samples, passes_total, passes_published, scene_path";
 
 /// The pause between two steps of writing or purging a job's rows: the lock is free during it,
 /// so that another request waiting for the store gets it first.
@@ -621,135 +578,6 @@ impl Store {
     fn conn(&self) -> std::sync::MutexGuard<'_, Connection> {
         // A panic while holding the lock leaves SQLite consistent (transactions roll back).
         self.conn.lock().unwrap_or_else(|e| e.into_inner())
-    }
-
-    /// Stores a new job and queues it; returns its id.
-    ///
-    /// A job may be a million rows (tiles x passes): they are written [`ROWS_PER_STEP`] to a
-    /// transaction, the store's lock let go between two, while the job is `inserting`, a state
-    /// that no lease, listing or view sees. The last step queues it. A job left `inserting` by a
-    /// stop of the server fails when the store opens again ([`INTERRUPTED_INSERT`]); one whose
-    /// rows cannot be written fails at once; either way its rows are purged.
-    pub fn insert_job(&self, job: &NewJob) -> Result<u64> {
-        let id = {
-            let mut conn = self.conn();
-            let tx = conn.transaction()?;
-            // Past every id the store holds and every job folder the data directory holds.
-            let next: i64 =
-                tx.query_row_cached("SELECT coalesce(max(id), 0) + 1 FROM jobs", [], |r| r.get(0))?;
-            let floor = self.min_job_id.load(std::sync::atomic::Ordering::SeqCst);
-            let id = next.max(i64::try_from(floor).unwrap_or(i64::MAX));
-            tx.execute_cached(
-                "INSERT INTO jobs(id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, allow_unsupported, denoise, pass_samples, noise_target) VALUES (?12, ?1, 'inserting', ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
-                params![
-                    job.name,
-                    job.priority,
-                    job.tile_size,
-                    job.samples,
-                    job.bundle,
-                    job.scene_path,
-                    now(),
-                    job.allow_unsupported,
-                    job.denoise,
-                    job.pass_samples,
-                    job.noise_target,
-                    id
-                ],
-            )?;
-            for (i, f) in job.frames.iter().enumerate() {
-                tx.execute_cached(
-                    "INSERT INTO frames(job_id, idx, camera, image_name, width, height, tiles_total, samples, passes_total) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
-                    params![id, i as i64, f.camera, f.image_name, f.width, f.height, f.tiles.len() as i64, f.samples, f.passes()],
-                )?;
-            }
-            log_event(&tx, id, Event::new("accepted", &accepted_message(job)))?;
-            tx.commit()?;
-            self.keep_job_ids_above(id as u64);
-            id
-        };
-        if let Err(e) = self.insert_job_rows(id, job) {
-            let _ = self.conn().execute(
-                "UPDATE jobs SET state = 'failed', finished_at = ?2, error = ?3 WHERE id = ?1 AND state = 'inserting'",
-                params![id, now(), "the server could not store this job's tiles; submit it again"],
-            );
-            return Err(e);
-        }
-        let queued = self
-            .conn()
-            .execute("UPDATE jobs SET state = 'queued' WHERE id = ?1 AND state = 'inserting'", [id])?;
-        anyhow::ensure!(queued == 1, "job {id} left its inserting state while it was being stored");
-        Ok(id as u64)
-    }
-
-    /// The warnings and tile rows of job `id` (still `inserting`), a step at a time.
-    fn insert_job_rows(&self, id: i64, job: &NewJob) -> Result<()> {
-        for warnings in job.warnings.chunks(256) {
-            let mut conn = self.conn();
-            let tx = conn.transaction()?;
-            for w in warnings {
-                log_event(&tx, id, Event::new("warning", w))?;
-            }
-            tx.commit()?;
-        }
-        // One row per tile and pass. A tile of one pass renders whole (no sample range); a
-        // tile of several renders pass by pass. Under a noise target a tile's pass waits until
-        // the one before it was added up and found too noisy.
-        let mut units = job.frames.iter().enumerate().flat_map(|(i, f)| {
-            let passes = f.passes();
-            (0..passes)
-                .flat_map(move |k| f.tiles.iter().enumerate().map(move |(t, r)| (i, f, t, r, k, passes)))
-        });
-        const ROWS: usize = 128;
-        let insert = |n: usize| {
-            let row = "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)";
-            format!(
-                "INSERT INTO tiles(job_id, frame, tile, x0, y0, w, h, pass, first_sample, end_sample, state) VALUES {}",
-                vec![row; n].join(", ")
-            )
-        };
-        for steps in 1.. {
-            let step: Vec<_> = units.by_ref().take(ROWS_PER_STEP).collect();
-            if step.is_empty() {
-                break;
-            }
-            {
-                let mut conn = self.conn();
-                let tx = conn.transaction()?;
-                for chunk in step.chunks(ROWS) {
-                    let mut stmt = tx.prepare_cached(&insert(chunk.len()))?;
-                    let mut values: Vec<rusqlite::types::Value> = Vec::with_capacity(chunk.len() * 11);
-                    for &(i, f, t, r, k, passes) in chunk {
-                        let range =
-                            (passes > 1).then(|| tessera::passes::pass_range(f.samples, f.pass_samples, k));
-                        let state = if k > 0 && job.noise_target.is_some() { "waiting" } else { "queued" };
-                        use rusqlite::types::Value::{Integer, Null, Text};
-                        values.extend([
-                            Integer(id),
-                            Integer(i as i64),
-                            Integer(t as i64),
-                            Integer(i64::from(r.x0)),
-                            Integer(i64::from(r.y0)),
-                            Integer(i64::from(r.width)),
-                            Integer(i64::from(r.height)),
-                            Integer(i64::from(k)),
-                            range.map_or(Null, |r| Integer(i64::from(r.start))),
-                            range.map_or(Null, |r| Integer(i64::from(r.end))),
-                            Text(state.into()),
-                        ]);
-                    }
-                    stmt.execute(rusqlite::params_from_iter(values))?;
-                }
-                tx.commit()?;
-            }
-            // The lock is free: let whoever waits for it (a lease, a view) take it before the
-            // next step does. Every few steps the log is copied into the database file (outside
-            // the lock), so that it starts over instead of growing by the whole job.
-            if steps % CHECKPOINT_STEPS == 0 {
-                self.checkpoint_to_start_over()?;
-            }
-            std::thread::sleep(STEP_PAUSE);
-        }
-        Ok(())
     }
 
     pub fn job(&self, id: u64) -> Result<Option<JobRow>> {
@@ -1068,8 +896,10 @@ mod tests {
                 tiles: (0..tiles).map(|x| Rect { x0: x, y0: 0, width: 1, height: 1 }).collect(),
                 samples: 1,
                 pass_samples: 16,
+                ..Default::default()
             }],
             warnings: Vec::new(),
+            ..Default::default()
         })
         .unwrap()
     }
@@ -1110,8 +940,10 @@ mod tests {
                 tiles: vec![Rect { x0: 0, y0: 0, width: 2, height: 1 }],
                 samples: 48,
                 pass_samples: 16,
+                ..Default::default()
             }],
             warnings: Vec::new(),
+            ..Default::default()
         })
         .unwrap()
     }
@@ -1471,8 +1303,10 @@ mod tests {
                     tiles: vec![Rect { x0: 0, y0: 0, width: 2, height: 1 }],
                     samples: 1,
                     pass_samples: 16,
+                    ..Default::default()
                 }],
                 warnings: Vec::new(),
+                ..Default::default()
             })
             .unwrap();
         assert!(s.job(denoised).unwrap().unwrap().denoise && !s.job(plain).unwrap().unwrap().denoise);
@@ -1610,12 +1444,14 @@ mod tests {
                     tiles: vec![Rect { x0: 0, y0: 0, width: 1, height: 1 }],
                     samples: 1,
                     pass_samples: 16,
+                    ..Default::default()
                 }],
                 warnings,
                 allow_unsupported: false,
                 denoise: false,
                 pass_samples: None,
                 noise_target: None,
+                ..Default::default()
             })
             .unwrap();
         let w = worker(&s);
@@ -1749,6 +1585,7 @@ mod tests {
                         tiles: vec![Rect { x0: 0, y0: 0, width: 1, height: 1 }],
                         samples: 1,
                         pass_samples: 16,
+                        ..Default::default()
                     })
                     .collect(),
                 ..two_frames()
@@ -1780,6 +1617,7 @@ mod tests {
             denoise: false,
             pass_samples: None,
             noise_target: None,
+            ..Default::default()
         }
     }
 

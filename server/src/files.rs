@@ -450,6 +450,7 @@ mod tests {
             denoise: false,
             pass_samples: None,
             noise_target: None,
+            ..Default::default()
         })
         .unwrap();
         let id = db.jobs().unwrap()[0].id;

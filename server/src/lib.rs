@@ -81,6 +81,8 @@ pub struct Config {
     pub max_bundle_files: usize,
     /// Most tiles one job may be cut into.
     pub max_job_tiles: u64,
+    /// Most frames (cameras of its scene files) one job may render.
+    pub max_job_frames: usize,
     /// Longest one tile may render before its worker gives up and fails it.
     pub max_tile_seconds: f64,
     /// Most samples (pixels x samples per pixel, over every frame) one job may ask for.
@@ -236,6 +238,9 @@ pub fn check_config(config: &Config) -> Result<()> {
     if config.max_job_tiles == 0 {
         bail!("--max-job-tiles must be at least 1");
     }
+    if config.max_job_frames == 0 || config.max_job_frames > 1 << 20 {
+        bail!("--max-job-frames must be from 1 to 1048576 frames a job, found {}", config.max_job_frames);
+    }
     if config.tile_size == 0 || config.tile_size > 4096 {
         bail!("--tile-size must be between 1 and 4096 pixels, found {}", config.tile_size);
     }
@@ -357,6 +362,8 @@ pub async fn serve(
         },
         max_job_samples: config.max_job_samples,
         max_job_tiles: config.max_job_tiles,
+        max_job_frames: config.max_job_frames,
+        notify_allow: config.notify_allow.clone(),
         access: access(&config)?,
         max_job_units: config.max_job_units,
         max_workers: config.max_workers,
@@ -473,6 +480,7 @@ mod tests {
             max_file_mb: 16,
             max_bundle_files: 100,
             max_job_tiles: 1000,
+            max_job_frames: 4096,
             max_tile_seconds: 60.0,
             max_job_samples: 1 << 30,
             max_job_units: 1_000_000,
@@ -572,6 +580,8 @@ mod tests {
             (Config { max_job_units: 0, ..config(&dir) }, "--max-job-units"),
             (Config { notify_url: Some("ftp://x/".into()), ..config(&dir) }, "--notify-url"),
             (Config { notify_allow: vec!["hooks.example".into()], ..config(&dir) }, "--notify-allow"),
+            (Config { max_job_frames: 0, ..config(&dir) }, "--max-job-frames"),
+            (Config { max_job_frames: (1 << 20) + 1, ..config(&dir) }, "--max-job-frames"),
             (Config { max_workers: 0, ..config(&dir) }, "--max-workers"),
             (Config { forget_workers_after_hours: 0.0, ..config(&dir) }, "--forget-workers-after-hours"),
             (Config { forget_workers_after_hours: f64::NAN, ..config(&dir) }, "--forget-workers-after-hours"),

@@ -72,6 +72,10 @@ struct Cli {
     /// it is refused with 422, naming the smallest tile_size that fits.
     #[arg(long, default_value_t = 100_000, env = "TESSERA_MAX_JOB_TILES", value_name = "N")]
     max_job_tiles: u64,
+    /// Most frames one job may render: the cameras of its scene files (a 360-frame sequence is
+    /// 360). Larger jobs are refused with 422; submit them as several jobs.
+    #[arg(long, default_value_t = 4096, env = "TESSERA_MAX_JOB_FRAMES", value_name = "N")]
+    max_job_frames: usize,
     /// Longest one tile may render (on one thread of a worker); past it the worker stops and
     /// the tile fails (a job whose tiles keep failing fails). Raise it, or submit with a larger tile count (smaller
     /// --tile-size) or fewer samples.
@@ -213,6 +217,7 @@ fn main() -> ExitCode {
         max_file_mb: cli.max_file_mb,
         max_bundle_files: cli.max_bundle_files,
         max_job_tiles: cli.max_job_tiles,
+        max_job_frames: cli.max_job_frames,
         max_tile_seconds: cli.max_tile_seconds,
         max_job_samples: cli.max_job_samples,
         max_job_units: cli.max_job_units,

@@ -82,32 +82,38 @@ pub fn write_denoised(
     Ok((names, seconds, what))
 }
 
-/// The files the farm writes for a camera: what `tessera-worker render` writes, plus the float
-/// frame as `<stem>.exr` when the image name is LDR (so it can be re-tone-mapped later).
-pub fn farm_outputs(cam: &Camera) -> Vec<OutputFile> {
-    let (mut files, _) = output::plan(cam);
-    if !files.iter().any(|f| matches!(f.kind, OutputKind::Exr | OutputKind::Hdr)) {
-        let stem = Path::new(&files[0].name)
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let exr = format!("{stem}.exr");
-        if !files.iter().any(|f| f.name == exr) {
-            files.push(OutputFile { name: exr, kind: OutputKind::Exr });
-        }
+/// The float frame the farm keeps beside a camera's LDR image (`<stem>.exr`, so the frame can be
+/// re-tone-mapped later), unless the image name already writes one (`.exr`, `.hdr`) or the
+/// job's `keep_float` is false.
+pub fn kept_float(files: &[OutputFile], keep_float: bool) -> Option<String> {
+    if !keep_float || files.iter().any(|f| matches!(f.kind, OutputKind::Exr | OutputKind::Hdr)) {
+        return None;
     }
-    files
+    let stem = Path::new(&files.first()?.name)
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let exr = format!("{stem}.exr");
+    (!files.iter().any(|f| f.name == exr)).then_some(exr)
 }
 
-/// Writes the frame's outputs into `dir` (created). `output::write` puts each file in place
-/// atomically (a synced temporary file of its own, renamed), so a crash never leaves half a file
-/// under the final name, and two merges of one frame (a restart's recovery and a late trigger)
-/// never write into each other's files. Returns the file names, and the seconds spent on the
-/// tone-mapped PNGs (tone mapping and encoding; `None` when there are none) and on the rest.
-/// The files are written one `output::write` call each, only so that they can be timed apart.
-pub fn write_outputs(dir: &Path, cam: &Camera, img: &Image) -> Result<(Vec<String>, f64, Option<f64>)> {
+/// Writes the frame's outputs into `dir` (created): what `tessera-worker render` writes (the
+/// same bytes), plus the kept float frame ([`kept_float`]), ZIP-compressed (lossless; most
+/// of a course frame's bytes, so it is the smaller kind of file even if slower to write).
+/// `output::write` puts each file in place atomically (a synced temporary file of its own,
+/// renamed), so a crash never leaves half a file under the final name, and two merges of one
+/// frame (a restart's recovery and a late trigger) never write into each other's files.
+/// Returns the file names, and the seconds spent on the tone-mapped PNGs (tone mapping and
+/// encoding; `None` when there are none) and on the rest. The files are written one
+/// `output::write` call each, only so that they can be timed apart.
+pub fn write_outputs(
+    dir: &Path,
+    cam: &Camera,
+    img: &Image,
+    keep_float: bool,
+) -> Result<(Vec<String>, f64, Option<f64>)> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let files = farm_outputs(cam);
+    let (files, _) = output::plan(cam);
     let (mut plain, mut tonemapped) = (0.0, None::<f64>);
     for f in &files {
         let started = Instant::now();
@@ -118,12 +124,20 @@ pub fn write_outputs(dir: &Path, cam: &Camera, img: &Image) -> Result<(Vec<Strin
             _ => plain += took,
         }
     }
-    Ok((files.into_iter().map(|f| f.name).collect(), plain, tonemapped))
+    let extra = kept_float(&files, keep_float);
+    let mut names: Vec<String> = files.into_iter().map(|f| f.name).collect();
+    if let Some(exr) = extra {
+        let started = Instant::now();
+        tessera::hdr_io::write_exr_zip(&dir.join(&exr), img).map_err(anyhow::Error::new)?;
+        plain += started.elapsed().as_secs_f64();
+        names.push(exr);
+    }
+    Ok((names, plain, tonemapped))
 }
 
 /// The operator of a camera's first tone-mapped PNG, if its image name is HDR.
 pub fn display_tonemap(cam: &Camera) -> Option<(Operator, Photographic)> {
-    farm_outputs(cam).iter().find_map(|f| match &f.kind {
+    output::plan(cam).0.iter().find_map(|f| match &f.kind {
         OutputKind::Tonemapped(op, p) => Some((*op, *p)),
         _ => None,
     })
@@ -287,8 +301,8 @@ fn look_up_frame(st: &AppState, job_id: u64, frame: u32) -> Result<(JobRow, Vec<
 
 /// The camera frame `f` renders.
 fn frame_camera(st: &AppState, job: &JobRow, f: &FrameRow) -> Result<Camera> {
-    let cam = st.job_cameras(job)?.get(f.camera as usize).cloned();
-    cam.ok_or_else(|| anyhow::anyhow!("camera {} missing", f.camera))
+    let cam = st.frame_cameras(job)?.get(f.index as usize).cloned();
+    cam.ok_or_else(|| anyhow::anyhow!("the camera of frame {} is missing", f.index))
 }
 
 /// Frame `f`'s stored tiles as one image, with the denoising features when the job asked for
@@ -317,7 +331,8 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
         let (img, aux) = assemble_frame(&st, &job, f)?;
         let assembled = started.elapsed().as_secs_f64();
         let dir = st.frame_dir(job_id, frame);
-        let (mut names, written, tonemap_seconds) = write_outputs(&dir, &cam, &img)?;
+        let (mut names, written, tonemap_seconds) =
+            write_outputs(&dir, &cam, &img, job.keep_float.unwrap_or(true))?;
         // The denoised frame goes beside the course's outputs, from the merged frame (never
         // tile by tile: the filter would leave seams).
         let denoise = match &aux {

@@ -27,6 +27,8 @@ pub struct Settings {
     pub bundle_limits: bundle::Limits,
     /// Most tiles one job may be cut into.
     pub max_job_tiles: u64,
+    /// Most frames one job may render (`--max-job-frames`).
+    pub max_job_frames: usize,
     /// Most samples (pixels x samples per pixel over all frames) one job may ask for.
     pub max_job_samples: u64,
     /// Who besides the farm's own pages and addresses may reach it, and whether `/metrics` is
@@ -38,6 +40,8 @@ pub struct Settings {
     pub max_workers: u64,
     /// The token of the server's own local workers, which the registration limits let through.
     pub local_worker_token: String,
+    /// URL prefixes a job's own `notify_url` must start with (`--notify-allow`).
+    pub notify_allow: Vec<String>,
 }
 
 /// What browsers and scrapers may reach (`--allowed-origin`, `--allowed-host`,
@@ -80,7 +84,7 @@ pub struct AppState {
     pub settings: Arc<Settings>,
     /// Leasing, failures, expiry and revocation: the scheduling rules.
     pub scheduler: Scheduler,
-    /// Built cameras per job (parsed once from the bundle), for merging and previews.
+    /// Each frame's camera per job ([`AppState::frame_cameras`]), for merging and previews.
     pub cameras: Arc<std::sync::Mutex<HashMap<u64, Arc<Vec<Camera>>>>>,
     /// Pushed to the status page (server-sent events); nobody listening is fine.
     pub events: tokio::sync::broadcast::Sender<ServerEvent>,
@@ -136,18 +140,76 @@ impl AppState {
         self.settings.data_dir.join(crate::storage::FRAMES_DIR).join(job.to_string()).join(frame.to_string())
     }
 
-    /// The cameras of a job, parsed from its bundle once and cached.
-    pub fn job_cameras(&self, job: &crate::db::JobRow) -> anyhow::Result<Arc<Vec<Camera>>> {
+    /// The camera of each frame of a job, by frame index: the frame's camera in the frame's
+    /// scene file (a sequence's frames come from several). Parsed from the job's files once
+    /// (no asset is read, no geometry built) and cached.
+    pub fn frame_cameras(&self, job: &crate::db::JobRow) -> anyhow::Result<Arc<Vec<Camera>>> {
         if let Some(c) = self.cameras.lock().unwrap_or_else(|e| e.into_inner()).get(&job.id) {
             return Ok(c.clone());
         }
-        let tar = self
-            .blobs
-            .get(&job.bundle)
-            .ok_or_else(|| anyhow::anyhow!("bundle {} of job {} is missing", job.bundle, job.id))?;
-        let files = tessera::bundle::read_tar(&tar)?;
-        let cameras = Arc::new(tessera::bundle::bundle_cameras(&files, &job.scene_path)?);
+        let frames = self.store.frames(job.id)?;
+        let cameras = Arc::new(self.read_frame_cameras(job, &frames)?);
         self.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(job.id, cameras.clone());
         Ok(cameras)
+    }
+
+    fn read_frame_cameras(
+        &self,
+        job: &crate::db::JobRow,
+        frames: &[crate::db::FrameRow],
+    ) -> anyhow::Result<Vec<Camera>> {
+        use anyhow::Context;
+        // The cameras of each scene file, by path.
+        let mut by_scene: HashMap<String, Vec<Camera>> = HashMap::new();
+        match &job.manifest {
+            None => {
+                let tar = self
+                    .blobs
+                    .get(&job.bundle)
+                    .ok_or_else(|| anyhow::anyhow!("bundle {} of job {} is missing", job.bundle, job.id))?;
+                let files = tessera::bundle::read_tar(&tar)?;
+                by_scene.insert(
+                    job.scene_path.clone(),
+                    tessera::bundle::bundle_cameras(&files, &job.scene_path)?,
+                );
+            }
+            Some(sha) => {
+                let manifest: tessera::protocol::Manifest = serde_json::from_slice(
+                    &self
+                        .files
+                        .read(sha)
+                        .with_context(|| format!("the manifest of job {} is missing", job.id))?,
+                )
+                .with_context(|| format!("the manifest of job {} does not parse", job.id))?;
+                let shas: HashMap<&str, &str> =
+                    manifest.files.iter().map(|f| (f.path.as_str(), f.sha256.as_str())).collect();
+                for f in frames {
+                    let scene = f.scene_path.as_deref().unwrap_or(&job.scene_path);
+                    if by_scene.contains_key(scene) {
+                        continue;
+                    }
+                    let sha = shas
+                        .get(scene)
+                        .ok_or_else(|| anyhow::anyhow!("job {}: {scene} is not in its manifest", job.id))?;
+                    let bytes = self
+                        .files
+                        .read(sha)
+                        .with_context(|| format!("job {}: {scene} is missing", job.id))?;
+                    let files = tessera::bundle::BundleFiles::from([(scene.to_string(), Arc::new(bytes))]);
+                    by_scene.insert(scene.to_string(), tessera::bundle::bundle_cameras(&files, scene)?);
+                }
+            }
+        }
+        frames
+            .iter()
+            .map(|f| {
+                let scene = f.scene_path.as_deref().unwrap_or(&job.scene_path);
+                by_scene
+                    .get(scene)
+                    .and_then(|c| c.get(f.camera as usize))
+                    .cloned()
+                    .ok_or_else(|| anyhow::anyhow!("job {}: {scene} has no camera {}", job.id, f.camera))
+            })
+            .collect()
     }
 }

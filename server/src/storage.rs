@@ -327,6 +327,7 @@ mod tests {
             tiles: vec![Rect { x0: 0, y0: 0, width: 1, height: 1 }],
             samples: 1,
             pass_samples: 16,
+            ..Default::default()
         };
         let id = store
             .insert_job(&crate::db::NewJob {
@@ -342,6 +343,7 @@ mod tests {
                 denoise: false,
                 pass_samples: None,
                 noise_target: None,
+                ..Default::default()
             })
             .unwrap();
         let recorded = [".odd.png.1-2-3.tmp".to_string(), "pass.png".to_string()];

@@ -111,7 +111,9 @@ fn a_jobs_log_follows_a_real_worker_through_the_job() {
         &["--local-workers", "1", "--local-worker-threads", "1", "--tile-size", "8"],
     );
     let scene = tessera_testkit::tiny_scene(16, 8);
-    let (code, job) = submit(&server.url, None, &[("scene", Some("tiny.xml"), &scene)]);
+    // Two tiles of 8 (without a tile_size a frame this small would be one tile).
+    let (code, job) =
+        submit(&server.url, None, &[("scene", Some("tiny.xml"), &scene), ("tile_size", None, b"8")]);
     assert_eq!(code, 201, "{job}");
     let id = job["id"].as_u64().unwrap();
     wait_job(&server, id, 120, |j| j["state"] == "done");

@@ -317,7 +317,8 @@ fn a_jobs_log_shows_its_tiles_as_a_worker_renders_them() {
     browser.wait("the live connection", 20, "document.querySelector('#live').textContent === 'live'");
     // Submitted over the API, not the page: the page learns of it from the event stream.
     let scene = tessera_testkit::tiny_scene(16, 8);
-    let (code, job) = submit(&server.url, None, &[("scene", Some("tiny.xml"), &scene)]);
+    let (code, job) =
+        submit(&server.url, None, &[("scene", Some("tiny.xml"), &scene), ("tile_size", None, b"8")]);
     assert_eq!(code, 201, "{job}");
     let id = job["id"].as_u64().unwrap();
     let lines = format!("document.querySelectorAll('.job[data-job-id=\"{id}\"] .log-lines li')");

@@ -1,8 +1,8 @@
 //! A class submitting just before a deadline (issue #20), with the real binaries: hundreds of
 //! uploads at the same moment, most of them byte-identical (one content address), the rest a
 //! handful of different scenes. Every answer must be a 201 and every job must finish; before the
-//! bundle store wrote each blob through a temporary file of its own, identical uploads raced on
-//! one temporary name and about one in a hundred answered 500.
+//! stores wrote each file through a temporary file of its own, identical uploads raced on one
+//! temporary name and about one in a hundred answered 500.
 
 mod support;
 
@@ -63,13 +63,16 @@ fn hundreds_of_identical_and_different_uploads_at_once_are_all_accepted_and_rend
     );
     assert!(!server.log().contains("internal error"), "{}", server.log());
 
-    // One blob per distinct scene, whatever the number of writers, and no temporary files left.
-    let blobs: Vec<String> = std::fs::read_dir(data.join("blobs"))
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    assert_eq!(blobs.iter().filter(|n| n.ends_with(".tar") && !n.starts_with('.')).count(), 1 + DIFFERENT);
-    assert!(blobs.iter().all(|n| !n.ends_with(".tmp")), "temporary files left behind: {blobs:?}");
+    // One stored file per distinct scene and one manifest per distinct job's files, whatever
+    // the number of writers, and no temporary files left.
+    let mut stored = Vec::new();
+    for folder in std::fs::read_dir(data.join("files")).unwrap() {
+        for f in std::fs::read_dir(folder.unwrap().path()).unwrap() {
+            stored.push(f.unwrap().file_name().to_string_lossy().into_owned());
+        }
+    }
+    assert_eq!(stored.iter().filter(|n| n.len() == 64 && !n.starts_with('.')).count(), 2 * (1 + DIFFERENT));
+    assert!(stored.iter().all(|n| !n.ends_with(".tmp")), "temporary files left behind: {stored:?}");
 
     for (_, job) in &answers {
         let id = job["id"].as_u64().unwrap();

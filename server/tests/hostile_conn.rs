@@ -378,8 +378,8 @@ fn peak_growth_of_eight(server: &Server, path: &str, auth: &str, each: usize) ->
 
 /// Row "downloads": a download used to read the whole file into memory: one 48 MiB EXR was
 /// +48 MiB of server memory, eight at once +384 MiB. Now files (outputs and the workers'
-/// bundles) are streamed: eight slow parallel downloads of a 48 MiB EXR, and of a 24 MiB
-/// bundle, grow the server's memory by a small fraction of one file.
+/// job files) are streamed: eight slow parallel downloads of a 48 MiB EXR, and of a 24 MiB
+/// job file, grow the server's memory by a small fraction of one file.
 #[test]
 fn downloads_are_streamed_from_their_files() {
     let _s = serial();
@@ -435,22 +435,30 @@ fn downloads_are_streamed_from_their_files() {
     );
     assert!(grown < 48 << 10, "eight downloads of a {exr_len}-byte EXR grew the server by {grown} KiB");
 
-    // The workers' bundle download, the same way.
-    let bundle = format!("/api/v1/worker/bundles/{}", l["bundle"].as_str().unwrap());
+    // The workers' download of the job's files (its largest, the ballast), the same way.
     let wauth = format!("Bearer {WORKER}");
-    let bundle_len = {
-        let r = ureq::get(&format!("{}{bundle}", server.url)).set("Authorization", &wauth).call().unwrap();
+    let worker_get = |path: &str| {
+        let r = ureq::get(&format!("{}{path}", server.url)).set("Authorization", &wauth).call().unwrap();
         let mut all = Vec::new();
         r.into_reader().read_to_end(&mut all).unwrap();
-        all.len()
+        all
     };
-    assert!(bundle_len > 24 << 20, "the bundle is {bundle_len} bytes");
-    let grown = peak_growth_of_eight(&server, &bundle, &wauth, bundle_len);
+    let manifest: serde_json::Value = serde_json::from_slice(&worker_get(&format!(
+        "/api/v1/worker/files/{}",
+        l["manifest"].as_str().unwrap()
+    )))
+    .unwrap();
+    let largest =
+        manifest["files"].as_array().unwrap().iter().max_by_key(|f| f["size"].as_u64()).unwrap().clone();
+    let file = format!("/api/v1/worker/files/{}", largest["sha256"].as_str().unwrap());
+    let file_len = worker_get(&file).len();
+    assert!(file_len >= 24 << 20, "the job's largest file is {file_len} bytes");
+    let grown = peak_growth_of_eight(&server, &file, &wauth, file_len);
     eprintln!(
-        "eight slow downloads of a {} MiB bundle at once: server memory +{grown} KiB at the peak",
-        bundle_len >> 20
+        "eight slow downloads of a {} MiB job file at once: server memory +{grown} KiB at the peak",
+        file_len >> 20
     );
-    assert!(grown < 48 << 10, "eight downloads of a {bundle_len}-byte bundle grew the server by {grown} KiB");
+    assert!(grown < 48 << 10, "eight downloads of a {file_len}-byte job file grew the server by {grown} KiB");
 }
 
 /// The length of a download with the API token, read whole.

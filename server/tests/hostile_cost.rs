@@ -614,12 +614,12 @@ fn a_local_worker_restarted_during_a_flood_registers_and_renders() {
 
 /// Row "`cameras=` (empty), `,` and ` , ` make jobs of 0 frames; `cameras=1` 32,000 times makes
 /// 32,000 frames and a 7.6 MiB job JSON": an empty list is a 422 naming the field, a camera
-/// named many times is one frame, and a job has at most 1,024 frames.
+/// named many times is one frame, and a job has at most `--max-job-frames` frames (1,024 here).
 #[test]
 fn camera_lists_are_checked_and_deduplicated() {
     let _s = serial();
     let data = TempDir::new("cost-cameras");
-    let server = start_on(&data, &[]);
+    let server = start_on(&data, &["--max-job-frames", "1024"]);
     let scene = tessera_testkit::tiny_scene(4, 4);
     for empty in ["", ",", " , "] {
         let (code, v) = submit_scene(&server.url, &scene, &[("cameras", empty)]);
@@ -644,7 +644,8 @@ fn camera_lists_are_checked_and_deduplicated() {
     let ids: Vec<String> = (1..=1025).map(|k| k.to_string()).collect();
     let (code, v) = submit_scene(&server.url, &scene, &[("cameras", &ids.join(","))]);
     assert_eq!(code, 422, "{v}");
-    assert!(v["error"].as_str().unwrap().contains("at most 1024 cameras"), "{v}");
+    assert!(v["error"].as_str().unwrap().contains("more than the 1024 one job may"), "{v}");
+    assert!(v["error"].as_str().unwrap().contains("--max-job-frames"), "{v}");
     let text = String::from_utf8(scene.clone()).unwrap();
     let (head, rest) = text.split_once("<Camera id=\"1\">").unwrap();
     let (camera, tail) = rest.split_once("</Camera>").unwrap();

@@ -14,8 +14,9 @@
 //!   the heartbeat, raises that tile's stop flag, and the renderer, which looks at the flag
 //!   every few samples, gives up within a moment instead of finishing a tile nobody wants;
 //! - a **render slot** per thread (`--threads`, default every core) takes a lease, fetches its
-//!   job's bundle once and builds the scene once per bundle (cached by its hash, shared by the
-//!   slots; the build runs on a rayon pool of as many threads), and renders the whole tile on
+//!   job's files once (its bundle, or each file of its manifest: `jobfiles`) and builds the
+//!   scene once per (bundle or manifest, scene file), cached and shared by the slots (the build
+//!   runs on a rayon pool of as many threads), and renders the whole tile on
 //!   its own thread with the same `render_tile_until` as `tessera-worker render`, which also
 //!   gives each thread whole tiles (same bits). A tile that is still rendering after the
 //!   lease's `max_render_seconds` (the server's `--max-tile-seconds`) is stopped and reported
@@ -109,16 +110,16 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-struct Client {
+pub(crate) struct Client {
     base: String,
-    token: String,
+    pub(crate) token: String,
     /// The secret registration answered (empty before registration): sent on every later call.
     secret: String,
-    agent: ureq::Agent,
+    pub(crate) agent: ureq::Agent,
 }
 
 impl Client {
-    fn url(&self, path: &str) -> String {
+    pub(crate) fn url(&self, path: &str) -> String {
         format!("{}{path}", self.base)
     }
 
@@ -177,7 +178,7 @@ fn pause(stop: &AtomicBool, d: Duration) {
 }
 
 /// Why a request failed, for messages: the server's JSON error when there is one.
-fn describe(e: ureq::Error) -> String {
+pub(crate) fn describe(e: ureq::Error) -> String {
     match e {
         ureq::Error::Status(code, resp) => {
             let body = resp.into_string().unwrap_or_default();
@@ -699,7 +700,8 @@ fn lease_scene(
 ) -> Result<Arc<Scene>> {
     // As the server validated the job: unsupported elements only if its submission allowed them.
     let options = LoadOptions { allow_unsupported: lease.allow_unsupported };
-    let key = (lease.bundle.clone(), lease.scene_path.clone());
+    // A job's files are its manifest's (or, stored before sequences, its bundle's).
+    let key = (lease.manifest.clone().unwrap_or_else(|| lease.bundle.clone()), lease.scene_path.clone());
     let mut scenes = lock(scenes);
     Ok(match scenes.get(&key) {
         Some(s) => {
@@ -708,7 +710,12 @@ fn lease_scene(
             s.clone()
         }
         None => {
-            let s = pool.install(|| fetch_bundle_scene(client, &lease.bundle, &lease.scene_path, options))?;
+            let s = pool.install(|| match &lease.manifest {
+                Some(manifest) => {
+                    crate::jobfiles::manifest_scene(client, manifest, &lease.scene_path, options)
+                }
+                None => fetch_bundle_scene(client, &lease.bundle, &lease.scene_path, options),
+            })?;
             let s = Arc::new(s);
             // Keep a few scenes; jobs rarely interleave more.
             if scenes.len() >= 4 {

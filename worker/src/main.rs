@@ -5,6 +5,7 @@
 //! photographic operator; `work` pulls tiles from a `tessera-server` farm (`farm.rs`).
 
 mod farm;
+mod jobfiles;
 mod resolve;
 
 use std::path::{Path, PathBuf};

@@ -20,10 +20,32 @@ fn camera_tonemap(cam: &Camera) -> Option<tessera::tonemap::params::Photographic
     merge::display_tonemap(cam).map(|(_, p)| p)
 }
 
+/// Jobs of more frames than this are listed (`GET /api/v1/jobs`) without their frames: their
+/// `frame_counts` summarise them, and the job's own `GET` lists every one.
+pub const LISTED_FRAMES: usize = 32;
+
 pub(crate) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobInfo>> {
+    job_info_with(state, id, usize::MAX)
+}
+
+/// [`job_info`], its `frames` left out when there are more than `max_frames`.
+fn job_info_with(state: &AppState, id: u64, max_frames: usize) -> anyhow::Result<Option<JobInfo>> {
     let Some(job) = state.store.job(id)? else { return Ok(None) };
     let frames = state.store.frames(id)?;
-    let cameras = state.job_cameras(&job).ok();
+    let started = if job.state.is_final() { Default::default() } else { state.store.frames_leased(id)? };
+    let mut frame_counts = FrameCounts::default();
+    for f in &frames {
+        if f.outputs.is_some() {
+            frame_counts.done += 1;
+        } else if f.tiles_done > 0 || f.passes_published > 0 || started.contains(&f.index) {
+            frame_counts.rendering += 1;
+        } else {
+            frame_counts.queued += 1;
+        }
+    }
+    let listed = if frames.len() > max_frames { &frames[..0] } else { &frames[..] };
+    let sequence = job.scenes > 1;
+    let cameras = state.frame_cameras(&job).ok();
     let url = format!("/api/v1/jobs/{id}");
     let mut error = job.error.clone();
     if error.is_none() && !job.state.is_final() {
@@ -44,7 +66,7 @@ pub(crate) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobIn
         submitted_at: job.submitted_at,
         started_at: job.started_at,
         finished_at: job.finished_at,
-        frames: frames
+        frames: listed
             .iter()
             .map(|f| FrameInfo {
                 index: f.index,
@@ -86,16 +108,16 @@ pub(crate) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobIn
                 },
                 tonemap: cameras
                     .as_ref()
-                    .and_then(|c| c.get(f.camera as usize))
+                    .and_then(|c| c.get(f.index as usize))
                     .and_then(camera_tonemap)
                     .map(|p| tone_params(&p)),
                 tonemap_url: float_output(f.outputs.as_deref())
                     .map(|_| format!("{url}/frames/{}/tonemap.png", f.index)),
-                scene: None,
+                scene: if sequence { f.scene_path.clone() } else { None },
             })
             .collect(),
-        frame_counts: FrameCounts::default(),
-        scenes: 1,
+        frame_counts,
+        scenes: job.scenes,
         video: crate::video::info(state, &job, &frames)?,
         error,
         warnings: Vec::new(),
@@ -104,13 +126,13 @@ pub(crate) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobIn
 }
 
 #[utoipa::path(get, path = "/api/v1/jobs", tag = "jobs", security((), ("api_token" = [])),
-    responses((status = 200, description = "Every job, newest first", body = JobList), (status = 401, description = "The server needs an API token", body = ApiError)))]
+    responses((status = 200, description = "Every job, newest first. A job of more than 32 frames (a sequence) is listed with `frames` empty: its `frame_counts` say how many are done, rendering and queued, and `GET /api/v1/jobs/{id}` lists every frame", body = JobList), (status = 401, description = "The server needs an API token", body = ApiError)))]
 pub(super) async fn list_jobs(State(state): State<AppState>) -> ApiResult<Json<JobList>> {
     off_thread(move || {
         let ids: Vec<u64> = state.store.jobs()?.iter().map(|j| j.id).collect();
         let mut jobs = Vec::new();
         for id in ids {
-            jobs.extend(job_info(&state, id)?);
+            jobs.extend(job_info_with(&state, id, LISTED_FRAMES)?);
         }
         Ok(Json(JobList { jobs }))
     })
@@ -309,12 +331,12 @@ pub(super) async fn frame_preview(
                 }
             }
             if let Some(path) = stored_float(&state, &f) {
-                let cam = job_camera(&state, &job, f.camera)?;
+                let cam = job_camera(&state, &job, f.index)?;
                 let img = tessera::hdr_io::read_float_image(&path).map_err(|e| anyhow::anyhow!("{e}"))?;
                 return Ok(merge::final_preview_png(&cam, &img)?);
             }
         }
-        let cam = job_camera(&state, &job, f.camera)?;
+        let cam = job_camera(&state, &job, f.index)?;
         // The arrived tiles one at a time, each shrunk into the preview as it is read.
         let mut canvas = merge::PreviewCanvas::new(f.width, f.height);
         for (tile, rect) in state.store.done_tile_rects(id, frame)? {
@@ -328,10 +350,13 @@ pub(super) async fn frame_preview(
     Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/png"))], png).into_response())
 }
 
-/// The camera of a job's frame.
-fn job_camera(state: &AppState, job: &crate::db::JobRow, camera: u32) -> ApiResult<Camera> {
-    let cameras = state.job_cameras(job)?;
-    Ok(cameras.get(camera as usize).cloned().ok_or_else(|| anyhow::anyhow!("camera {camera} missing"))?)
+/// The camera of a job's frame `frame`.
+fn job_camera(state: &AppState, job: &crate::db::JobRow, frame: u32) -> ApiResult<Camera> {
+    let cameras = state.frame_cameras(job)?;
+    Ok(cameras
+        .get(frame as usize)
+        .cloned()
+        .ok_or_else(|| anyhow::anyhow!("the camera of frame {frame} is missing"))?)
 }
 
 /// The float image among a merged frame's outputs: its first `.exr`, else its `.hdr` (an HDR
@@ -383,10 +408,10 @@ pub(super) async fn frame_tonemap(
     })?;
     let cameras = {
         let state = state.clone();
-        off_thread(move || Ok(state.job_cameras(&job)?)).await?
+        off_thread(move || Ok(state.frame_cameras(&job)?)).await?
     };
     let (operator, base) = cameras
-        .get(f.camera as usize)
+        .get(f.index as usize)
         .and_then(merge::display_tonemap)
         .unwrap_or((tessera::tonemap::params::Operator::Photographic, Default::default()));
     let gamma = match q.gamma.as_deref() {

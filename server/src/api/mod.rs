@@ -13,6 +13,7 @@ pub mod browser;
 mod files;
 mod jobs;
 pub(crate) use jobs::job_info;
+mod jobspec;
 mod metrics;
 mod openapi;
 mod status;
@@ -201,6 +202,7 @@ fn routes(state: &AppState) -> OpenApiRouter<AppState> {
         .routes(routes!(worker::fail))
         .routes(routes!(worker::release))
         .routes(routes!(worker::get_bundle))
+        .routes(routes!(worker::get_file))
         // Worker requests are small JSON (the tile upload reads its body itself, up to the
         // tile's size): a body past this is refused before it is parsed.
         .route_layer(DefaultBodyLimit::max(MAX_WORKER_JSON_BYTES))

@@ -1,30 +1,35 @@
-//! Job submission: the multipart upload spooled to disk under the caps, unpacked, validated
-//! (parse and build the scene, check the tile and sample limits) and stored as a queued job.
+//! Job submission: `POST /api/v1/jobs` as a multipart upload (spooled to disk under the caps
+//! and unpacked) or as JSON naming files the server has ([`JobRequest`]); either becomes a
+//! [`jobspec::Submission`] that `jobspec` validates (parse and build each scene, check the
+//! tile, frame and sample limits) and stores as a queued job. The limit checks are here.
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
 
 use axum::Json;
-use axum::extract::{Multipart, State};
-use axum::http::StatusCode;
-use tessera::bundle::{BundleFiles, BundleSceneError, load_bundle_scene};
+use axum::extract::{FromRequest, Multipart, Request, State};
+use axum::http::{StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use tessera::bundle::BundleFiles;
 use tessera::camera::Camera;
 use tessera::protocol::*;
-use tessera::scene::load::LoadOptions;
 
-use super::jobs::job_info;
-use super::{ApiResult, AppError, AppState, Settings, off_thread};
-use crate::bundle::{self, BundleError, Files, Unpacker};
+use super::jobspec::{self, Submission};
+use super::{ApiResult, AppError, AppState, Settings};
+use crate::bundle::{self, BundleError, Unpacker};
 
 /// The multipart form of a submission, for the OpenAPI description only (the handler reads the
 /// fields as they stream in, see [`read_fields`]). Files are named by their path relative to the
-/// scene file (the part's file name).
+/// job's top folder (the part's file name). A sequence (one job whose frames are several scene
+/// files' cameras, in order) is several `scene` fields, in frame order, or a `scenes` field.
 #[derive(utoipa::ToSchema)]
 #[allow(dead_code)]
 pub(super) struct SubmitForm {
-    /// The scene file (.xml or .json).
-    #[schema(value_type = Option<String>, format = Binary)]
-    scene: Option<Vec<u8>>,
+    /// The scene file (.xml or .json); several `scene` fields make a sequence, rendered in the
+    /// order of the fields.
+    #[schema(value_type = Option<Vec<String>>)]
+    scene: Option<Vec<Vec<u8>>>,
     /// Its assets (PLY models, textures), one part each; also accepted as `file`, `assets`, `files`.
     #[schema(value_type = Option<Vec<String>>)]
     asset: Option<Vec<Vec<u8>>>,
@@ -43,6 +48,12 @@ pub(super) struct SubmitForm {
     cameras: Option<String>,
     /// Which file of a bundle is the scene, when it holds several.
     scene_path: Option<String>,
+    /// Or the scene files of a sequence among the uploaded files (a bundle's paths), in frame
+    /// order, separated by newlines or commas.
+    scenes: Option<String>,
+    /// "false": keep only the PNG of a PNG-named frame, not its float image (`.exr`, kept
+    /// losslessly compressed by default).
+    keep_float: Option<bool>,
     /// "true": also write each frame denoised (`<stem>_denoised.exr` and its PNG) with Intel
     /// Open Image Denoise on the server; 422 when the server has no OIDN.
     denoise: Option<bool>,
@@ -60,30 +71,36 @@ pub(super) struct SubmitForm {
     video: Option<String>,
     /// Frames a second of the video, 1 to 120 (default 30).
     fps: Option<u32>,
+    /// Where to POST the job's end (`{"event", "job"}`), under a prefix the server allows
+    /// (`--notify-allow`; 422 otherwise).
+    notify_url: Option<String>,
 }
 
-/// Options of a submission (multipart text fields).
+/// Options of a submission (multipart text fields, or a [`JobRequest`]'s).
 #[derive(Default)]
-struct SubmitOptions {
-    name: Option<String>,
-    priority: i64,
-    tile_size: Option<u32>,
-    samples: Option<u32>,
-    cameras: Option<Vec<u32>>,
-    scene_path: Option<String>,
+pub(super) struct SubmitOptions {
+    pub name: Option<String>,
+    pub priority: i64,
+    pub tile_size: Option<u32>,
+    pub samples: Option<u32>,
+    pub cameras: Option<Vec<u32>>,
+    pub scene_path: Option<String>,
     /// Render the scene without the elements Tessera does not implement instead of refusing it.
-    allow_unsupported: bool,
+    pub allow_unsupported: bool,
     /// Also write each frame denoised.
-    denoise: bool,
-    pass_samples: Option<u32>,
-    noise_target: Option<f64>,
-    /// The video of the frames (`mp4`, `gif`, `none`; default: `video.rs`'s rule).
-    video: Option<VideoKind>,
-    /// Its frames a second.
-    fps: Option<u32>,
+    pub denoise: bool,
+    pub pass_samples: Option<u32>,
+    pub noise_target: Option<f64>,
+    pub video: Option<VideoKind>,
+    pub fps: Option<u32>,
+    pub keep_float: Option<bool>,
+    /// The `scenes` field: a sequence's scene files among the uploaded files.
+    pub scenes: Option<Vec<String>>,
+    /// Where to POST the job's end (checked against `--notify-allow`).
+    pub notify_url: Option<String>,
 }
 
-fn problem_from(e: &tessera::SceneError) -> Problem {
+pub(super) fn problem_from(e: &tessera::SceneError) -> Problem {
     Problem {
         file: Some(e.file.display().to_string()),
         line: e.loc.line,
@@ -130,7 +147,7 @@ async fn read_fields(
     multipart: &mut Multipart,
     spool: &mut Spool,
     opts: &mut SubmitOptions,
-    scene_field: &mut Option<String>,
+    scene_fields: &mut Vec<String>,
 ) -> ApiResult<()> {
     use tokio::io::AsyncWriteExt;
     let limits = state.settings.bundle_limits;
@@ -165,7 +182,7 @@ async fn read_fields(
             let path = match (name.as_str(), file_name) {
                 ("scene", f) => {
                     let f = f.unwrap_or_else(|| "scene.xml".into());
-                    *scene_field = tessera::assets::normalize_bundle_path(&f);
+                    scene_fields.extend(tessera::assets::normalize_bundle_path(&f));
                     f
                 }
                 ("bundle", f) => f.unwrap_or_else(|| "bundle".into()),
@@ -236,15 +253,30 @@ async fn read_fields(
                         .map_err(|e| AppError::bad_request(format!("noise_target: {e}")))?,
                 );
             }
-            "cameras" => opts.cameras = Some(camera_list(&text())?),
+            "cameras" => opts.cameras = Some(camera_list(&text(), state.settings.max_job_frames)?),
+            "scene_path" => opts.scene_path = Some(text()),
+            "scenes" => {
+                let list: Vec<String> = text()
+                    .split(['\n', ','])
+                    .map(str::trim)
+                    .filter(|p| !p.is_empty())
+                    .map(str::to_string)
+                    .collect();
+                if list.len() > state.settings.max_job_frames {
+                    return Err(too_many_frames(list.len(), state.settings.max_job_frames));
+                }
+                opts.scenes = Some(list);
+            }
+            "notify_url" => opts.notify_url = Some(text()),
             "video" => {
                 opts.video = Some(VideoKind::parse(&text()).ok_or_else(|| {
                     AppError::bad_request(format!("video must be mp4, gif or none, found \"{}\"", text()))
                 })?)
             }
-            "fps" => opts.fps = Some(bounded("fps", number("fps")?, 120, "frames a second")?),
-            "scene_path" => opts.scene_path = Some(text()),
-            field @ ("allow_unsupported" | "denoise") => {
+            "fps" => {
+                opts.fps = Some(jobspec::check_fps(bounded("fps", number("fps")?, 120, "frames a second")?)?)
+            }
+            field @ ("allow_unsupported" | "denoise" | "keep_float") => {
                 let yes = match text().as_str() {
                     "true" | "1" => true,
                     "false" | "0" => false,
@@ -254,15 +286,15 @@ async fn read_fields(
                         )));
                     }
                 };
-                if field == "denoise" {
-                    opts.denoise = yes;
-                } else {
-                    opts.allow_unsupported = yes;
+                match field {
+                    "denoise" => opts.denoise = yes,
+                    "keep_float" => opts.keep_float = Some(yes),
+                    _ => opts.allow_unsupported = yes,
                 }
             }
             other => {
                 return Err(AppError::bad_request(format!(
-                    "unknown field \"{other}\"; send scene, asset (one per file, named by its relative path), bundle, name, priority, tile_size, samples, pass_samples, noise_target, cameras, scene_path, allow_unsupported, denoise, video or fps"
+                    "unknown field \"{other}\"; send scene, asset (one per file, named by its relative path), bundle, name, priority, tile_size, samples, pass_samples, noise_target, cameras, scene_path, scenes, allow_unsupported, denoise, video, fps, keep_float or notify_url"
                 )));
             }
         }
@@ -271,23 +303,74 @@ async fn read_fields(
 }
 
 #[utoipa::path(post, path = "/api/v1/jobs", tag = "jobs", security((), ("api_token" = [])),
-    request_body(content = SubmitForm, content_type = "multipart/form-data"),
+    request_body(content(
+        (SubmitForm = "multipart/form-data"),
+        (JobRequest = "application/json")),
+        description = "The job: a multipart upload of its files and options, or (`Content-Type: application/json`) a `JobRequest` naming files already uploaded with `PUT /api/v1/files/{sha256}`. Several scene files (several `scene` fields, a `scenes` field, or the request's `scenes`) make one job whose frames are their cameras in that order."),
     responses(
         (status = 201, description = "Accepted and queued (with the scene's warnings)", body = JobInfo),
-        (status = 400, description = "Not valid multipart, a bad field, or a scene that does not parse or build (`problems` says where)", body = ApiError),
+        (status = 400, description = "Not valid multipart or JSON, a bad field or path, a path given twice, or a scene that does not parse or build (`problems` says where)", body = ApiError),
         (status = 401, description = "The server needs an API token", body = ApiError),
-        (status = 413, description = "Over the upload or unpacking limits", body = ApiError),
-        (status = 422, description = "Over the tile, unit, frame or sample limits, an empty `cameras`, denoise=true on a server without Intel Open Image Denoise, video=mp4 on a server without ffmpeg, or a video of frames of different sizes", body = ApiError),
+        (status = 409, description = "JSON: the server lacks some of the files (`problems` lists each path with its SHA-256); upload them first", body = ApiError),
+        (status = 413, description = "Over the upload or unpacking limits (file count, bytes of one file or of all)", body = ApiError),
+        (status = 422, description = "A scene that cannot be rendered (for a sequence the message names the frame and scene file, e.g. a file it names that is not among the job's), two frames writing the same image name, over the tile, unit, frame (--max-job-frames) or sample limits, an empty `cameras`, or denoise=true on a server without Intel Open Image Denoise", body = ApiError),
         (status = 507, description = "The server's disk is full: nothing was stored; submit again once space is freed", body = ApiError)))]
-pub(super) async fn submit_job(
-    State(state): State<AppState>,
+pub(super) async fn submit_job(State(state): State<AppState>, request: Request) -> ApiResult<Response> {
+    let json = request
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.trim_start().to_ascii_lowercase().starts_with("application/json"));
+    if json {
+        let Json(req) = match Json::<JobRequest>::from_request(request, &state).await {
+            Ok(req) => req,
+            Err(rejection) => {
+                // A body that is not a `JobRequest` (a field missing, unknown or of the wrong
+                // type) is a bad request like a bad multipart field.
+                let status = match rejection.status() {
+                    StatusCode::PAYLOAD_TOO_LARGE => StatusCode::PAYLOAD_TOO_LARGE,
+                    _ => StatusCode::BAD_REQUEST,
+                };
+                return Err(AppError::new(status, format!("the job request: {}", rejection.body_text())));
+            }
+        };
+        let _permit = super::turn(&state.unpacking).await?;
+        let st = state.clone();
+        let sub = super::off_thread(move || jobspec::request_submission(&st, req)).await?;
+        return Ok(jobspec::accept(state, sub).await?.into_response());
+    }
+    let multipart = match Multipart::from_request(request, &state).await {
+        Ok(m) => m,
+        Err(rejection) => return Ok(rejection.into_response()),
+    };
+    Ok(submit_multipart(state, multipart).await?.into_response())
+}
+
+/// Refused before anything is unpacked when a job asks for denoising: the server denoises the
+/// merged frames, so it needs the library itself (workers only send features).
+pub(super) async fn check_denoiser() -> ApiResult<()> {
+    let found = tokio::task::spawn_blocking(|| tessera_denoise::oidn().map(|_| ()))
+        .await
+        .map_err(|e| anyhow::anyhow!("denoiser lookup task: {e}"))?;
+    found.map_err(|e| {
+        AppError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!("denoise=true: this server cannot denoise: {e}; or submit without denoise"),
+        )
+    })
+}
+
+/// A multipart submission: its files spooled, unpacked and hashed, its scene files found.
+async fn submit_multipart(
+    state: AppState,
     mut multipart: Multipart,
 ) -> ApiResult<(StatusCode, Json<JobInfo>)> {
     let limits = state.settings.bundle_limits;
     let mut spool = Spool::new(&state.settings.data_dir)?;
     let mut opts = SubmitOptions::default();
-    let mut scene_field: Option<String> = None;
-    if let Err(refusal) = read_fields(&state, &mut multipart, &mut spool, &mut opts, &mut scene_field).await {
+    let mut scene_fields: Vec<String> = Vec::new();
+    if let Err(refusal) = read_fields(&state, &mut multipart, &mut spool, &mut opts, &mut scene_fields).await
+    {
         // Read the rest of the body (bounded by --max-upload-mb, discarded) so that a client
         // still sending gets the answer instead of a broken connection.
         while let Ok(Some(mut field)) = multipart.next_field().await {
@@ -296,17 +379,7 @@ pub(super) async fn submit_job(
         return Err(refusal);
     }
     if opts.denoise {
-        // Refused before anything is unpacked: the server denoises the merged frames, so it needs
-        // the library itself (workers only send features).
-        let found = tokio::task::spawn_blocking(|| tessera_denoise::oidn().map(|_| ()))
-            .await
-            .map_err(|e| anyhow::anyhow!("denoiser lookup task: {e}"))?;
-        if let Err(e) = found {
-            return Err(AppError::new(
-                StatusCode::UNPROCESSABLE_ENTITY,
-                format!("denoise=true: this server cannot denoise: {e}; or submit without denoise"),
-            ));
-        }
+        check_denoiser().await?;
     }
     let too_large = |e: BundleError| AppError::new(StatusCode::PAYLOAD_TOO_LARGE, e.to_string());
     if spool.parts.is_empty() {
@@ -314,16 +387,23 @@ pub(super) async fn submit_job(
             "the upload holds no files; send the scene as the \"scene\" field (and its assets as \"asset\" fields) or a \"bundle\" archive",
         ));
     }
+    if opts.scene_path.is_some() && scene_fields.len() > 1 {
+        return Err(AppError::bad_request(
+            "give either scene_path (one scene of a bundle) or several scene fields (a sequence), not both",
+        ));
+    }
+    if opts.scenes.is_some() && opts.scene_path.is_some() {
+        return Err(AppError::bad_request(
+            "give either scene_path (one scene of a bundle) or scenes (a sequence), not both",
+        ));
+    }
 
     // Unpacking and validation hold the files in memory: a few uploads at a time, so the
     // server's memory stays bounded however many arrive at once.
     let _permit = super::turn(&state.unpacking).await?;
-    let tile_size = opts.tile_size.unwrap_or(state.settings.tile_size);
-    let wanted = opts.scene_path.clone().or(scene_field);
-    let cameras_wanted = opts.cameras.clone();
-    let max_tiles = state.settings.max_job_tiles;
-    let load = LoadOptions { allow_unsupported: opts.allow_unsupported };
-    let (scene_path, tar, cameras, frames, warnings) = tokio::task::spawn_blocking(move || {
+    let listed = opts.scenes.take();
+    let wanted = opts.scene_path.clone().or_else(|| scene_fields.first().cloned());
+    let sub = tokio::task::spawn_blocking(move || {
         let mut unpacker = Unpacker::new(limits);
         for (kind, path, file) in &spool.parts {
             let opened = std::fs::File::open(file)
@@ -339,73 +419,34 @@ pub(super) async fn submit_job(
         }
         drop(spool);
         let files = unpacker.files;
-        let scene_path = bundle::find_scene(&files, wanted.as_deref()).map_err(AppError::bad_request)?;
-        let (tar, cameras, frames, warnings) =
-            validate(files, &scene_path, load, cameras_wanted, tile_size, max_tiles)?;
-        Ok::<_, AppError>((scene_path, tar, cameras, frames, warnings))
-    })
-    .await
-    .map_err(|e| anyhow::anyhow!("validation task: {e}"))??;
-    check_sample_budget(&state.settings, &cameras, &frames, opts.samples)?;
-    let mut frames = frames;
-    plan_passes(
-        &mut frames,
-        &cameras,
-        opts.samples,
-        opts.pass_samples,
-        opts.noise_target.is_some(),
-        (tile_size, state.settings.max_job_units),
-    )?;
-    if opts.denoise {
-        check_denoise_size(&frames)?;
-    }
-    let sizes: Vec<(u32, u32, u32)> =
-        frames.iter().enumerate().map(|(k, f)| (k as u32, f.width, f.height)).collect();
-    let (video, fps) = (opts.video, opts.fps);
-    tokio::task::spawn_blocking(move || crate::video::check_submission(video, &sizes, &[]))
-        .await
-        .map_err(|e| anyhow::anyhow!("video check task: {e}"))?
-        .map_err(|m| AppError::new(StatusCode::UNPROCESSABLE_ENTITY, m))?;
-    let name = opts.name.unwrap_or_else(|| scene_path.rsplit('/').next().unwrap_or(&scene_path).to_string());
-    off_thread(move || {
-        let hash = state.blobs.put(&tar)?;
-        let job = crate::db::NewJob {
-            name,
-            priority: opts.priority,
-            tile_size,
-            samples: opts.samples,
-            bundle: hash,
-            scene_path,
-            frames,
-            warnings: warnings.clone(),
-            allow_unsupported: opts.allow_unsupported,
-            denoise: opts.denoise,
-            pass_samples: opts.pass_samples,
-            noise_target: opts.noise_target,
+        let scenes = match listed {
+            Some(list) => jobspec::scene_list(&list, &files)?,
+            None if scene_fields.len() > 1 => scene_fields,
+            None => vec![bundle::find_scene(&files, wanted.as_deref()).map_err(AppError::bad_request)?],
         };
-        let id = state.store.insert_job(&job)?;
-        state.store.set_video_options(id, video, fps)?;
-        state.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(id, Arc::new(cameras));
-        state.scheduler.job_submitted(id);
-        tracing::info!(job = id, name = %job.name, "job accepted");
-        let mut info = job_info(&state, id)?.ok_or_else(|| anyhow::anyhow!("job {id} vanished"))?;
-        info.warnings = warnings;
-        Ok((StatusCode::CREATED, Json(info)))
+        let digests: BTreeMap<String, (String, u64)> = files
+            .iter()
+            .map(|(path, bytes)| (path.clone(), (bundle::sha256_hex(bytes), bytes.len() as u64)))
+            .collect();
+        let files: BundleFiles = files.into_iter().map(|(k, v)| (k, Arc::new(v))).collect();
+        Ok::<_, AppError>(Submission { scenes, files, digests, stored: false, opts })
     })
     .await
+    .map_err(|e| anyhow::anyhow!("unpacking task: {e}"))??;
+    jobspec::accept(state, sub).await
 }
 
 /// Refuses a job asking for more samples than the server's `--max-job-samples`: one that would
 /// keep the farm busy for days is a 422 that says the limit and how to get under it.
-fn check_sample_budget(
+pub(super) fn check_sample_budget(
     settings: &Settings,
     cameras: &[Camera],
     frames: &[crate::db::NewFrame],
     samples: Option<u32>,
 ) -> ApiResult<()> {
     let mut total: u64 = 0;
-    for f in frames {
-        let spp = samples.unwrap_or(cameras[f.camera as usize].num_samples).max(1);
+    for (f, cam) in frames.iter().zip(cameras) {
+        let spp = samples.unwrap_or(cam.num_samples).max(1);
         let n = u64::from(f.width) * u64::from(f.height) * u64::from(spp);
         total = total.saturating_add(n);
     }
@@ -429,7 +470,7 @@ fn check_sample_budget(
 pub const MAX_DENOISE_PIXELS: u64 = 4096 * 4096;
 
 /// Refuses `denoise=true` for a job with a frame over [`MAX_DENOISE_PIXELS`].
-fn check_denoise_size(frames: &[crate::db::NewFrame]) -> ApiResult<()> {
+pub(super) fn check_denoise_size(frames: &[crate::db::NewFrame]) -> ApiResult<()> {
     match frames.iter().find(|f| u64::from(f.width) * u64::from(f.height) > MAX_DENOISE_PIXELS) {
         None => Ok(()),
         Some(f) => Err(AppError::new(
@@ -447,13 +488,9 @@ fn check_denoise_size(frames: &[crate::db::NewFrame]) -> ApiResult<()> {
 /// Most passes a tile may be cut into.
 const MAX_PASSES: u32 = 256;
 
-/// Most frames (selected cameras) one job may render: each is a row, a line of the job's JSON
-/// and a merge.
-pub const MAX_JOB_FRAMES: usize = 1024;
-
 /// The cameras a submission's `cameras` field names ("1,3", "1 3"), each once, in the order
 /// first named; an empty list is refused (it would make a job of no frames, queued for ever).
-fn camera_list(text: &str) -> ApiResult<Vec<u32>> {
+fn camera_list(text: &str, max_frames: usize) -> ApiResult<Vec<u32>> {
     let mut list = Vec::new();
     for part in text.split([',', ' ']).map(str::trim).filter(|p| !p.is_empty()) {
         let k: u32 = part.parse().ok().filter(|k| *k >= 1).ok_or_else(|| {
@@ -461,9 +498,27 @@ fn camera_list(text: &str) -> ApiResult<Vec<u32>> {
                 "cameras must list camera numbers from 1, e.g. \"1,3\"; found \"{part}\""
             ))
         })?;
+        list.push(k);
+        if list.len() > max_frames {
+            break;
+        }
+    }
+    camera_selection(list, max_frames)
+}
+
+/// A job's `cameras` (1-based), each once in the order first named, at most `max_frames`; an
+/// empty list is refused (it would make a job of no frames, queued for ever).
+pub(super) fn camera_selection(wanted: Vec<u32>, max_frames: usize) -> ApiResult<Vec<u32>> {
+    let mut list: Vec<u32> = Vec::new();
+    for k in wanted {
+        if k == 0 {
+            return Err(AppError::bad_request(
+                "cameras must list camera numbers from 1, e.g. [1, 3]; found 0",
+            ));
+        }
         if !list.contains(&k) {
-            if list.len() == MAX_JOB_FRAMES {
-                return Err(too_many_frames(MAX_JOB_FRAMES + 1));
+            if list.len() == max_frames {
+                return Err(too_many_frames(max_frames + 1, max_frames));
             }
             list.push(k);
         }
@@ -477,13 +532,14 @@ fn camera_list(text: &str) -> ApiResult<Vec<u32>> {
     Ok(list)
 }
 
-/// The 422 of a job of more than [`MAX_JOB_FRAMES`] frames (`n`: at least how many).
-fn too_many_frames(n: usize) -> AppError {
+/// The 422 of a job of more than `max` frames (`n`: at least how many).
+pub(super) fn too_many_frames(n: usize, max: usize) -> AppError {
     AppError::new(
         StatusCode::UNPROCESSABLE_ENTITY,
         format!(
-            "the job would render {n} or more frames (cameras), more than the {MAX_JOB_FRAMES} one job may; \
-             name at most {MAX_JOB_FRAMES} cameras with cameras=, e.g. cameras=1,2,3, and submit the rest as other jobs"
+            "the job would render {n} or more frames (cameras of its scene files), more than the {max} one job may \
+             on this server (--max-job-frames, TESSERA_MAX_JOB_FRAMES); submit at most {max} frames (fewer scene \
+             files, or fewer cameras with cameras=) per job and the rest as other jobs"
         ),
     )
 }
@@ -514,7 +570,7 @@ fn unit_count(
 /// default), and refuses pass sizes that would cut a tile into more than [`MAX_PASSES`] passes or
 /// the job into more units of work than `--max-job-units` (`limits`: the job's tile size and
 /// that limit), naming the smallest `tile_size` and the smallest `pass_samples` that fit.
-fn plan_passes(
+pub(super) fn plan_passes(
     frames: &mut [crate::db::NewFrame],
     cameras: &[Camera],
     samples: Option<u32>,
@@ -523,8 +579,8 @@ fn plan_passes(
     (tile_size, max_units): (u32, u64),
 ) -> ApiResult<()> {
     let mut units = 0u64;
-    for f in frames.iter_mut() {
-        f.samples = samples.unwrap_or(cameras[f.camera as usize].num_samples).max(1);
+    for (f, cam) in frames.iter_mut().zip(cameras) {
+        f.samples = samples.unwrap_or(cam.num_samples).max(1);
         f.pass_samples = match pass_samples {
             Some(p) => tessera::passes::round_to_blocks(p),
             None => tessera::passes::default_farm_pass_samples(f.samples, noise_target),
@@ -581,16 +637,23 @@ fn plan_passes(
     ))
 }
 
-/// Tiles of frames of `sizes` cut at `tile_size`.
-fn tile_count(sizes: &[(u32, u32)], tile_size: u32) -> u64 {
-    sizes.iter().map(|&(w, h)| u64::from(w.div_ceil(tile_size)) * u64::from(h.div_ceil(tile_size))).sum()
+/// Tiles of frames of `sizes` (width, height, and the tile edge each is cut at: the job's, or
+/// the frame's own when it is whole), cut at `tile_size` where that is larger.
+fn tile_count(sizes: &[(u32, u32, u32)], tile_size: u32) -> u64 {
+    sizes
+        .iter()
+        .map(|&(w, h, edge)| {
+            let t = edge.max(tile_size);
+            u64::from(w.div_ceil(t)) * u64::from(h.div_ceil(t))
+        })
+        .sum()
 }
 
 /// Refuses a job that would be cut into more than `max_tiles` tiles (a queue of hundreds of
 /// thousands of one-pixel tiles costs the farm more in bookkeeping than in rendering), naming
-/// the smallest tile size that fits.
-fn check_tile_count(sizes: &[(u32, u32)], tile_size: u32, max_tiles: u64) -> ApiResult<()> {
-    let n = tile_count(sizes, tile_size);
+/// the smallest tile size that fits. `sizes`: each frame's width, height and tile edge.
+pub(super) fn check_tile_count(sizes: &[(u32, u32, u32)], tile_size: u32, max_tiles: u64) -> ApiResult<()> {
+    let n = tile_count(sizes, 0);
     if n <= max_tiles {
         return Ok(());
     }
@@ -609,7 +672,7 @@ fn check_tile_count(sizes: &[(u32, u32)], tile_size: u32, max_tiles: u64) -> Api
 }
 
 /// An upload field that must be an integer between 1 and `max` (`unit` for the message).
-fn bounded(what: &str, value: i64, max: i64, unit: &str) -> ApiResult<u32> {
+pub(super) fn bounded(what: &str, value: i64, max: i64, unit: &str) -> ApiResult<u32> {
     if (1..=max).contains(&value) {
         Ok(value as u32)
     } else {
@@ -628,91 +691,4 @@ pub(super) fn upload_too_large(limit: usize) -> AppError {
             limit >> 20
         ),
     )
-}
-
-/// What a valid upload becomes: the canonical bundle, the scene's cameras, the frames to render
-/// and the scene's warnings.
-type Validated = (Vec<u8>, Vec<Camera>, Vec<crate::db::NewFrame>, Vec<String>);
-
-/// Parses and builds the scene from the uploaded files.
-fn validate(
-    files: Files,
-    scene_path: &str,
-    load: LoadOptions,
-    cameras_wanted: Option<Vec<u32>>,
-    tile_size: u32,
-    max_tiles: u64,
-) -> ApiResult<Validated> {
-    let tar = bundle::canonical_tar(&files).map_err(|e| AppError::bad_request(e.to_string()))?;
-    let shared: BundleFiles = files.into_iter().map(|(k, v)| (k, Arc::new(v))).collect();
-    let scene = load_bundle_scene(shared, scene_path, load).map_err(|e| match e {
-        // The scene file is not text: said as it is ("<file>: the scene file is not UTF-8 text ...").
-        BundleSceneError::Unreadable(e) => AppError::new(StatusCode::UNPROCESSABLE_ENTITY, e.to_string()),
-        BundleSceneError::Invalid(e) => AppError {
-            status: StatusCode::UNPROCESSABLE_ENTITY,
-            body: ApiError {
-                error: format!("the scene cannot be rendered: {e}"),
-                problems: vec![problem_from(&e)],
-            },
-        },
-        // One problem per element.
-        BundleSceneError::Unsupported(errors) => AppError {
-            status: StatusCode::UNPROCESSABLE_ENTITY,
-            body: ApiError {
-                error: format!(
-                    "{scene_path}: the scene uses {} element(s) that change the picture but are not supported; \
-                     remove them, or submit with allow_unsupported=true to render without them",
-                    errors.len()
-                ),
-                problems: errors.iter().map(problem_from).collect(),
-            },
-        },
-    })?;
-    if scene.cameras.is_empty() {
-        return Err(AppError::new(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            format!("{scene_path}: the scene has no camera; add one under <Cameras>"),
-        ));
-    }
-    let selected: Vec<u32> = match cameras_wanted {
-        None => (0..scene.cameras.len() as u32).collect(),
-        Some(list) => {
-            let n = scene.cameras.len() as u32;
-            if let Some(bad) = list.iter().find(|k| **k > n) {
-                return Err(AppError::bad_request(format!(
-                    "camera {bad} does not exist: the scene has {n} camera(s), numbered from 1"
-                )));
-            }
-            list.into_iter().map(|k| k - 1).collect()
-        }
-    };
-    if selected.len() > MAX_JOB_FRAMES {
-        return Err(too_many_frames(selected.len()));
-    }
-    let sizes: Vec<(u32, u32)> = selected
-        .iter()
-        .map(|&c| (scene.cameras[c as usize].width, scene.cameras[c as usize].height))
-        .collect();
-    check_tile_count(&sizes, tile_size, max_tiles)?;
-    let frames = selected
-        .iter()
-        .map(|&c| {
-            let cam = &scene.cameras[c as usize];
-            crate::db::NewFrame {
-                camera: c,
-                image_name: cam.image_name.clone(),
-                width: cam.width,
-                height: cam.height,
-                tiles: tessera::render::tiles(cam.width, cam.height, tile_size)
-                    .into_iter()
-                    .map(Rect::from)
-                    .collect(),
-                // Set by `plan_passes` once the job's options are known.
-                samples: cam.num_samples.max(1),
-                pass_samples: tessera::passes::round_to_blocks(cam.num_samples),
-            }
-        })
-        .collect();
-    let warnings = scene.warnings.iter().map(ToString::to_string).collect();
-    Ok((tar, scene.cameras, frames, warnings))
 }

@@ -45,11 +45,13 @@ impl Farm {
             max_upload_bytes: 16 << 20,
             bundle_limits: Limits::default(),
             max_job_tiles: 100_000,
+            max_job_frames: 4096,
             max_job_samples: 1 << 40,
             access: Default::default(),
             max_job_units: 1_000_000,
             max_workers: 4096,
             local_worker_token: "local".into(),
+            notify_allow: Vec::new(),
         };
         let timing =
             Timing { lease_seconds, heartbeat_seconds: 1.0, max_wait_seconds: 20.0, max_tile_seconds: 60.0 };

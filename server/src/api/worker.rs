@@ -480,3 +480,23 @@ pub(super) async fn get_bundle(
     let file = file.ok_or_else(|| AppError::not_found(format!("no bundle {hash}")))?;
     Ok(file.into_response_with(&[(header::CONTENT_TYPE, HeaderValue::from_static("application/x-tar"))]))
 }
+
+#[utoipa::path(get, path = "/api/v1/worker/files/{sha256}", tag = "worker", security(("worker_token" = [])),
+    params(("sha256" = String, Path, description = "SHA-256 of the file (64 lowercase hex digits): a job's manifest, as the lease names it, or a file the manifest lists")),
+    responses(
+        (status = 200, description = "The file's bytes", content_type = "application/octet-stream", body = super::openapi::Binary),
+        (status = 401, description = "Missing or wrong worker token", body = ApiError),
+        (status = 404, description = "The server has no such file", body = ApiError)))]
+pub(super) async fn get_file(
+    State(state): State<AppState>,
+    Path(sha256): Path<String>,
+) -> ApiResult<Response> {
+    // Streamed from the file store as the worker reads it, like a bundle.
+    let file = match state.files.path(&sha256) {
+        Some(path) => super::FileBody::open(&path).await.ok(),
+        None => None,
+    };
+    let file = file.ok_or_else(|| AppError::not_found(format!("no file {sha256}")))?;
+    Ok(file
+        .into_response_with(&[(header::CONTENT_TYPE, HeaderValue::from_static("application/octet-stream"))]))
+}

@@ -120,6 +120,7 @@ impl Store {
                 std::thread::sleep(STEP_PAUSE);
             }
         }
+        rows += self.conn().execute_cached("DELETE FROM job_videos WHERE job_id = ?1", [key])?;
         rows += self.conn().execute_cached("DELETE FROM jobs WHERE id = ?1", [key])?;
         Ok(Deleted::Gone { rows })
     }
@@ -161,8 +162,10 @@ mod tests {
                 tiles: (0..tiles).map(|x| Rect { x0: x, y0: 0, width: 1, height: 1 }).collect(),
                 samples: 1,
                 pass_samples: 16,
+                ..Default::default()
             }],
             warnings: vec!["w".into()],
+            ..Default::default()
         })
         .unwrap()
     }

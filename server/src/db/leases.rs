@@ -3,9 +3,28 @@
 
 use super::*;
 
+/// The first queued unit of job `?1` not kept from worker `?2` by a failure since `?3`, by
+/// pass, then frame, then tile (one scene's frames; `tiles_queue_by_pass`).
+const NEXT_UNIT_BY_PASS: &str = "SELECT t.frame, t.tile, t.x0, t.y0, t.w, t.h, f.camera, t.pass, t.first_sample, t.end_sample, f.passes_total, f.scene_path
+     FROM tiles t JOIN frames f ON f.job_id = t.job_id AND f.idx = t.frame
+     WHERE t.job_id = ?1 AND t.state = 'queued'
+       AND NOT EXISTS (SELECT 1 FROM tile_failures x WHERE x.job_id = t.job_id AND x.frame = t.frame AND x.tile = t.tile AND x.worker_id = ?2 AND x.at > ?3)
+     ORDER BY t.pass, t.frame, t.tile LIMIT 1";
+
+/// [`NEXT_UNIT_BY_PASS`] by frame, then pass, then tile (a sequence; `tiles_queue_by_frame`).
+const NEXT_UNIT_BY_FRAME: &str = "SELECT t.frame, t.tile, t.x0, t.y0, t.w, t.h, f.camera, t.pass, t.first_sample, t.end_sample, f.passes_total, f.scene_path
+     FROM tiles t JOIN frames f ON f.job_id = t.job_id AND f.idx = t.frame
+     WHERE t.job_id = ?1 AND t.state = 'queued'
+       AND NOT EXISTS (SELECT 1 FROM tile_failures x WHERE x.job_id = t.job_id AND x.frame = t.frame AND x.tile = t.tile AND x.worker_id = ?2 AND x.at > ?3)
+     ORDER BY t.frame, t.pass, t.tile LIMIT 1";
+
+/// A job a lease may come from: id, bundle, scene file, samples, allow_unsupported, denoise,
+/// manifest and scene files.
+type LiveJob = (i64, String, String, Option<i64>, bool, bool, Option<String>, i64);
+
 impl Store {
     /// Hands the next tile to `worker`: highest job priority first, then submission order, then
-    /// frame and tile order; not a tile of a job the worker has failed
+    /// pass, frame and tile order (a sequence's: frame, pass and tile); not a tile of a job the worker has failed
     /// [`failures::WORKER_FAILURES_PER_JOB`] tiles of, nor a tile it failed, until
     /// [`failures::RETRY_FAILED_AFTER`] has passed since its latest failure there.
     ///
@@ -31,29 +50,29 @@ impl Store {
         // Two indexed steps instead of one join sorted over every queued tile: the live jobs in
         // priority order (a short list), then the first queued tile of each (an index seek on
         // `tiles_queue`), so a lease costs the same behind a million queued tiles as behind ten.
-        let jobs: Vec<(i64, String, String, Option<i64>, bool, bool)> = {
+        let jobs: Vec<LiveJob> = {
             let mut stmt = tx.prepare_cached(
-                "SELECT j.id, j.bundle, j.scene_path, j.samples, j.allow_unsupported, j.denoise FROM jobs j
+                "SELECT j.id, j.bundle, j.scene_path, j.samples, j.allow_unsupported, j.denoise, j.manifest, j.scenes FROM jobs j
                  WHERE j.state IN ('queued', 'running')
                    AND NOT (SELECT count(*) >= ?2 AND max(x.at) > ?3
                             FROM tile_failures x WHERE x.job_id = j.id AND x.worker_id = ?1)
                  ORDER BY j.priority DESC, j.id",
             )?;
             stmt.query_map(params![w, failures::WORKER_FAILURES_PER_JOB, recent], |r| {
-                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?, r.get(5)?))
+                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?, r.get(5)?, r.get(6)?, r.get(7)?))
             })?
             .collect::<rusqlite::Result<_>>()?
         };
         let mut candidate = None;
-        for (job, bundle, scene_path, samples, allow_unsupported, aux) in jobs {
+        for (job, bundle, scene_path, samples, allow_unsupported, aux, manifest, scenes) in jobs {
+            // A sequence (frames of several scene files) goes frame by frame, each frame's
+            // passes in order, so that its beginning is watchable first; one scene's frames go
+            // pass by pass over all of them, so that every frame shows a first pass early. Each
+            // order has its index (`tiles_queue_by_frame`, `tiles_queue_by_pass`): the first
+            // queued unit is a seek, whatever the job's length.
+            let sql = if scenes > 1 { NEXT_UNIT_BY_FRAME } else { NEXT_UNIT_BY_PASS };
             let tile = tx
-                .prepare_cached(
-                    "SELECT t.frame, t.tile, t.x0, t.y0, t.w, t.h, f.camera, t.pass, t.first_sample, t.end_sample, f.passes_total
-                     FROM tiles t JOIN frames f ON f.job_id = t.job_id AND f.idx = t.frame
-                     WHERE t.job_id = ?1 AND t.state = 'queued'
-                       AND NOT EXISTS (SELECT 1 FROM tile_failures x WHERE x.job_id = t.job_id AND x.frame = t.frame AND x.tile = t.tile AND x.worker_id = ?2 AND x.at > ?3)
-                     ORDER BY t.pass, t.frame, t.tile LIMIT 1",
-                )?
+                .prepare_cached(sql)?
                 .query_row(params![job, w, recent], |r| {
                     Ok((
                         r.get::<_, i64>(0)?,
@@ -61,17 +80,18 @@ impl Store {
                         rect_at(r, 2)?,
                         r.get::<_, i64>(6)?,
                         unit_pass(r, 7)?,
+                        r.get::<_, Option<String>>(11)?,
                     ))
                 })
                 .optional()?;
-            if let Some((frame, tile, rect, camera, pass)) = tile {
+            if let Some((frame, tile, rect, camera, pass, frame_scene)) = tile {
                 candidate = Some((
                     job,
                     frame,
                     tile,
                     rect,
                     bundle,
-                    scene_path,
+                    (frame_scene.unwrap_or(scene_path), manifest),
                     samples,
                     camera,
                     allow_unsupported,
@@ -81,8 +101,19 @@ impl Store {
                 break;
             }
         }
-        let Some((job, frame, tile, rect, bundle, scene_path, samples, camera, allow_unsupported, aux, pass)) =
-            candidate
+        let Some((
+            job,
+            frame,
+            tile,
+            rect,
+            bundle,
+            (scene_path, manifest),
+            samples,
+            camera,
+            allow_unsupported,
+            aux,
+            pass,
+        )) = candidate
         else {
             tx.execute_cached("UPDATE workers SET last_seen = ?2 WHERE id = ?1", params![w, now()])?;
             tx.commit()?;
@@ -133,7 +164,7 @@ impl Store {
             // Features come with a tile's first samples.
             aux: aux && pass.is_none_or(|p| p.index == 0),
             pass,
-            manifest: None,
+            manifest,
         }))
     }
 
@@ -395,5 +426,32 @@ impl Store {
         )?;
         tx.commit()?;
         Ok(outcome)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The next unit of a job, in either order, is an index seek on the queue's index of that
+    /// order, never a sort of the job's queued units (a 360-frame sequence leases as cheaply as a
+    /// frame).
+    #[test]
+    fn each_lease_order_is_an_index_seek() {
+        let (_dir, s) = crate::testutil::store("lease-plan");
+        let conn = s.conn();
+        for (sql, index) in
+            [(NEXT_UNIT_BY_FRAME, "tiles_queue_by_frame"), (NEXT_UNIT_BY_PASS, "tiles_queue_by_pass")]
+        {
+            let mut stmt = conn.prepare(&format!("EXPLAIN QUERY PLAN {sql}")).unwrap();
+            let plan: Vec<String> = stmt
+                .query_map(params![1, 1, 0.0], |r| r.get::<_, String>(3))
+                .unwrap()
+                .collect::<rusqlite::Result<_>>()
+                .unwrap();
+            let plan = plan.join("\n");
+            assert!(plan.contains(&format!("USING INDEX {index} (job_id=? AND state=?)")), "{plan}");
+            assert!(!plan.contains("TEMP B-TREE"), "the units are sorted: {plan}");
+        }
     }
 }

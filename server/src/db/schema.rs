@@ -25,6 +25,7 @@ CREATE TABLE IF NOT EXISTS jobs(
     manifest TEXT,
     notify_url TEXT,
     notified INTEGER NOT NULL DEFAULT 0,
+    scenes INTEGER NOT NULL DEFAULT 1,
     video TEXT,
     fps INTEGER,
     keep_float INTEGER
@@ -200,6 +201,10 @@ pub(super) fn migrate(conn: &Connection) -> Result<()> {
              ALTER TABLE jobs ADD COLUMN keep_float INTEGER;",
         )?;
     }
+    if !has_column("jobs", "scenes")? {
+        // Jobs from before sequences render one scene file.
+        conn.execute_batch("ALTER TABLE jobs ADD COLUMN scenes INTEGER NOT NULL DEFAULT 1;")?;
+    }
     if conn.pragma_query_value(None, "user_version", |r| r.get::<_, i64>(0))? < 1 {
         // Events name their worker themselves since workers can be forgotten: older events get
         // the name of theirs while it is still known.
@@ -212,6 +217,7 @@ pub(super) fn migrate(conn: &Connection) -> Result<()> {
     conn.execute_batch(
         "CREATE INDEX IF NOT EXISTS tiles_by_state ON tiles(state, job_id);
          CREATE INDEX IF NOT EXISTS tiles_queue_by_pass ON tiles(job_id, state, pass, frame, tile);
+         CREATE INDEX IF NOT EXISTS tiles_queue_by_frame ON tiles(job_id, state, frame, pass, tile);
          CREATE UNIQUE INDEX IF NOT EXISTS tiles_by_lease ON tiles(lease_id) WHERE lease_id IS NOT NULL;",
     )?;
     Ok(())

@@ -172,6 +172,7 @@ mod tests {
             tiles: vec![Rect { x0: 0, y0: 0, width: 2, height: 2 }],
             samples: 1,
             pass_samples: 16,
+            ..Default::default()
         };
         s.insert_job(&NewJob {
             name: "v".into(),
@@ -186,6 +187,7 @@ mod tests {
             denoise: false,
             pass_samples: None,
             noise_target: None,
+            ..Default::default()
         })
         .unwrap()
     }
