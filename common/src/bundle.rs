@@ -19,7 +19,8 @@ use crate::assets::{MemResolver, normalize_bundle_path};
 use crate::camera::Camera;
 use crate::error::SceneError;
 use crate::scene::Scene;
-use crate::scene::build::{build_cameras, build_scene};
+use crate::scene::build::{build_cameras, build_scene, build_scene_cached};
+use crate::scene::cache::MeshCache;
 use crate::scene::load::{LoadOptions, parse_scene};
 use crate::scene::records::SceneRecords;
 
@@ -127,10 +128,25 @@ pub fn load_bundle_scene(
     scene_path: &str,
     options: LoadOptions,
 ) -> Result<Scene, BundleSceneError> {
+    load_bundle_scene_cached(files, scene_path, options, None)
+}
+
+/// [`load_bundle_scene`] with meshes and images kept in `cache` across builds (the same scene,
+/// bit for bit; [`crate::scene::cache`]).
+pub fn load_bundle_scene_cached(
+    files: BundleFiles,
+    scene_path: &str,
+    options: LoadOptions,
+    cache: Option<&MeshCache>,
+) -> Result<Scene, BundleSceneError> {
     let records = parse_bundle_scene(&files, scene_path)?;
     options.check(&records.warnings).map_err(BundleSceneError::Unsupported)?;
     let resolver = MemResolver::for_scene(files, scene_path);
-    let scene = build_scene(&records, &resolver).map_err(BundleSceneError::Invalid)?;
+    let scene = match cache {
+        Some(cache) => build_scene_cached(&records, &resolver, cache),
+        None => build_scene(&records, &resolver),
+    }
+    .map_err(BundleSceneError::Invalid)?;
     options.check(&scene.warnings).map_err(BundleSceneError::Unsupported)?;
     Ok(scene)
 }
