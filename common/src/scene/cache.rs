@@ -221,12 +221,15 @@ impl MeshCache {
     }
 }
 
+/// An asset's bytes and the path they were found at, as [`AssetResolver::read`] returns them.
+pub(crate) type Read = (Vec<u8>, std::path::PathBuf);
+
 /// An asset's content key and, when they had to be read to find it, its bytes and where they
 /// were found: from [`AssetResolver::content_id`] without reading, else by hashing the bytes.
 pub(crate) fn content_key(
     resolver: &dyn AssetResolver,
     rel: &str,
-) -> std::io::Result<([u8; 32], Option<(Vec<u8>, std::path::PathBuf)>)> {
+) -> std::io::Result<([u8; 32], Option<Read>)> {
     if let Some(id) = resolver.content_id(rel) {
         return Ok((id, None));
     }
