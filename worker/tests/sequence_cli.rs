@@ -1,0 +1,123 @@
+//! `tessera-worker render` of several scene files in one process (an animation, a file a
+//! frame): the same bytes as rendering each file alone, and the meshes they share built once.
+
+mod support;
+use support::*;
+
+use std::path::{Path, PathBuf};
+
+use tessera_testkit::{TempDir, shared_scenes};
+
+/// The first `n` frames of the course's orbit around the two statues (one 1.9 MB PLY).
+fn orbit_frames(n: usize) -> Vec<PathBuf> {
+    let dir = shared_scenes().join("sequences/camera_around_david");
+    (0..n).map(|k| dir.join(format!("davids_camera_{k:03}.json"))).collect()
+}
+
+fn render_into(scenes: &[PathBuf], out: &Path, extra: &[&str]) -> Run {
+    let mut args: Vec<std::ffi::OsString> = vec!["render".into()];
+    args.extend(scenes.iter().map(|s| s.clone().into_os_string()));
+    for a in ["--samples", "1", "--quiet", "--out"] {
+        args.push(a.into());
+    }
+    args.push(out.as_os_str().to_owned());
+    args.extend(extra.iter().map(Into::into));
+    run(&args)
+}
+
+/// The `--timings-json` lines of a run, in order.
+fn timings(r: &Run) -> Vec<serde_json::Value> {
+    r.stdout
+        .lines()
+        .filter(|l| l.starts_with('{'))
+        .map(|l| serde_json::from_str(l).expect("a JSON line"))
+        .collect()
+}
+
+#[test]
+fn frames_rendered_together_are_the_bytes_of_each_alone_and_share_their_meshes() {
+    let frames = orbit_frames(3);
+    let tmp = TempDir::new("sequence-cli");
+    let together = tmp.path().join("together");
+    let r = render_into(&frames, &together, &["--timings", "--timings-json"]);
+    assert_eq!(r.code, Some(0), "{}", r.describe());
+    let t = timings(&r);
+    assert_eq!(t.len(), 3, "{}", r.describe());
+    for (k, (line, frame)) in t.iter().zip(&frames).enumerate() {
+        assert_eq!(line["scene"], frame.display().to_string());
+        assert_eq!(line["meshes"], 2, "{line}");
+        // The statue is parsed and its BVH built for the first frame only.
+        assert_eq!(line["meshes_cached"], if k == 0 { 0 } else { 2 }, "{line}");
+        for key in ["parse_seconds", "build_seconds", "mesh_seconds", "top_level_seconds", "render_seconds"] {
+            assert!(line[key].as_f64().is_some_and(|s| s >= 0.0), "{key}: {line}");
+        }
+    }
+    let mesh = |k: usize| t[k]["mesh_seconds"].as_f64().unwrap();
+    assert!(mesh(1) < mesh(0) / 4.0 && mesh(2) < mesh(0) / 4.0, "cached mesh builds cost little: {t:?}");
+    // The human form: one line a frame.
+    let lines: Vec<&str> = r.stdout.lines().filter(|l| l.starts_with("timings: ")).collect();
+    assert_eq!(lines.len(), 3, "{}", r.describe());
+    assert!(lines[1].contains("2 of 2 from the cache"), "{}", lines[1]);
+
+    for (k, frame) in frames.iter().enumerate() {
+        let alone = tmp.path().join(format!("alone{k}"));
+        let r = render_into(std::slice::from_ref(frame), &alone, &[]);
+        assert_eq!(r.code, Some(0), "{}", r.describe());
+        let name = format!("davids_camera_{k:03}.png");
+        let a = std::fs::read(together.join(&name)).expect("rendered together");
+        let b = std::fs::read(alone.join(&name)).expect("rendered alone");
+        assert!(a == b, "{name}: rendered together and alone differ");
+    }
+}
+
+#[test]
+fn a_missing_scene_file_stops_with_its_name_after_the_frames_before_it() {
+    let mut frames = orbit_frames(1);
+    frames.push(shared_scenes().join("sequences/camera_around_david/no_such_frame.json"));
+    let tmp = TempDir::new("sequence-cli-missing");
+    let r = render_into(&frames, tmp.path(), &[]);
+    assert_eq!(r.code, Some(1), "{}", r.describe());
+    assert!(r.stderr.contains("no_such_frame.json: cannot read the scene file"), "{}", r.describe());
+    assert!(tmp.path().join("davids_camera_000.png").is_file(), "the frame before it is written");
+}
+
+#[test]
+fn scenes_that_write_the_same_image_name_are_warned_about() {
+    let tmp = TempDir::new("sequence-cli-same-name");
+    let scene = r#"<Scene><Cameras><Camera id="1"><Position>0 0 5</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+        <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>8 8</ImageResolution>
+        <ImageName>same.png</ImageName></Camera></Cameras>
+        <Lights><AmbientLight>25 25 25</AmbientLight></Lights>
+        <Materials><Material id="1"><AmbientReflectance>1 1 1</AmbientReflectance></Material></Materials>
+        <VertexData>-1 -1 0 1 -1 0 0 1 0</VertexData>
+        <Objects><Mesh id="1"><Material>1</Material><Faces>1 2 3</Faces></Mesh></Objects></Scene>"#;
+    let (a, b) = (tmp.path().join("a.xml"), tmp.path().join("b.xml"));
+    std::fs::write(&a, scene).unwrap();
+    std::fs::write(&b, scene).unwrap();
+    let out = tmp.path().join("out");
+    let r = render_into(&[a.clone(), b.clone()], &out, &[]);
+    assert_eq!(r.code, Some(0), "{}", r.describe());
+    assert!(
+        r.stderr.contains("replaces the one") && r.stderr.contains("a.xml") && r.stderr.contains("b.xml"),
+        "{}",
+        r.describe()
+    );
+    // The same file twice is no conflict.
+    let r = render_into(&[a.clone(), a], &tmp.path().join("again"), &[]);
+    assert_eq!(r.code, Some(0), "{}", r.describe());
+    assert!(!r.stderr.contains("replaces"), "{}", r.describe());
+}
+
+#[test]
+fn a_mesh_cache_bound_of_zero_keeps_nothing_and_a_bad_one_is_refused() {
+    let frames = orbit_frames(2);
+    let tmp = TempDir::new("sequence-cli-no-cache");
+    let r = render_into(&frames, tmp.path(), &["--timings-json", "--mesh-cache-mb", "0"]);
+    assert_eq!(r.code, Some(0), "{}", r.describe());
+    let t = timings(&r);
+    assert_eq!(t.len(), 2, "{}", r.describe());
+    assert!(t.iter().all(|l| l["meshes_cached"] == 0), "{t:?}");
+    let r = render_into(&frames[..1], tmp.path(), &["--mesh-cache-mb", "lots"]);
+    assert_eq!(r.code, Some(2), "{}", r.describe());
+    assert!(r.stderr.contains("--mesh-cache-mb"), "{}", r.describe());
+}
