@@ -57,6 +57,10 @@ pub struct WorkOptions {
     pub threads: Option<usize>,
     /// Stop after this many tiles (tests and benchmarks); `None`: run until killed.
     pub max_tiles: Option<u64>,
+    /// Job files on disk by SHA-256 (`--cache-dir`, `--cache-mb`).
+    pub files: Arc<crate::filecache::FileCache>,
+    /// Meshes and images kept across frames and jobs (`--mesh-cache-mb`).
+    pub meshes: Arc<tessera::scene::cache::MeshCache>,
 }
 
 /// The leases this worker holds and those the server took back.
@@ -305,6 +309,15 @@ pub fn work(opts: WorkOptions) -> Result<()> {
         opts.name,
         pool.current_num_threads(),
         client.base
+    );
+    let kept = opts.files.stats();
+    eprintln!(
+        "file cache {}: {} file(s), {} of {} MiB; mesh cache {} MiB",
+        opts.files.dir().display(),
+        kept.files,
+        kept.bytes >> 20,
+        opts.files.limit_bytes() >> 20,
+        opts.meshes.limit_bytes() >> 20
     );
     // A render slot per thread, each rendering a whole tile, as `tessera-worker render` renders
     // its tiles. Every core on one tile instead (its rows in parallel; one tile, or two at once)

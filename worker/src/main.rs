@@ -5,6 +5,7 @@
 //! photographic operator; `work` pulls tiles from a `tessera-server` farm (`farm.rs`).
 
 mod farm;
+mod filecache;
 mod resolve;
 
 use std::path::{Path, PathBuf};
@@ -88,6 +89,20 @@ enum Command {
         /// Exit when the process that started this one ends (tessera-server's local workers).
         #[arg(long, hide = true)]
         exit_with_parent: bool,
+        /// Where job files (scenes, PLY files, images) are kept between frames, jobs and runs,
+        /// each under its SHA-256, so that a file is downloaded once. Created if missing; may
+        /// be shared by several workers. [default: $XDG_CACHE_HOME/tessera/files, else
+        /// $HOME/.cache/tessera/files]
+        #[arg(long, env = "TESSERA_WORKER_CACHE_DIR", value_name = "DIR")]
+        cache_dir: Option<PathBuf>,
+        /// Disk space for --cache-dir in MiB; past it the least recently used files are
+        /// removed. 0 keeps nothing (every file is downloaded each time it is needed).
+        #[arg(long, env = "TESSERA_WORKER_CACHE_MB", default_value_t = filecache::DEFAULT_CACHE_MB, value_name = "MB")]
+        cache_mb: u64,
+        /// Memory for parsed meshes (with their BVHs) and decoded images kept across frames
+        /// and jobs, in MiB; the least recently used go first. 0 keeps nothing.
+        #[arg(long, env = "TESSERA_MESH_CACHE_MB", default_value_t = DEFAULT_MESH_CACHE_MB, value_name = "MB")]
+        mesh_cache_mb: u64,
     },
     /// Tone-map an HDR image (OpenEXR or Radiance .hdr) to an 8-bit PNG.
     ///
@@ -264,7 +279,17 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Render(args) => render(&args),
-        Command::Work { server, token, name, threads, max_tiles, exit_with_parent } => {
+        Command::Work {
+            server,
+            token,
+            name,
+            threads,
+            max_tiles,
+            exit_with_parent,
+            cache_dir,
+            cache_mb,
+            mesh_cache_mb,
+        } => {
             if exit_with_parent {
                 farm::exit_with_parent();
             }
@@ -273,7 +298,9 @@ fn main() -> ExitCode {
                 return ExitCode::FAILURE;
             }
             let name = name.unwrap_or_else(default_worker_name);
-            farm::work(farm::WorkOptions { server, token, name, threads, max_tiles })
+            work_caches(cache_dir, cache_mb, mesh_cache_mb).and_then(|(files, meshes)| {
+                farm::work(farm::WorkOptions { server, token, name, threads, max_tiles, files, meshes })
+            })
         }
         Command::Tonemap { input, out, scene, camera, key, burn, saturation, gamma, operator } => {
             tonemap_params(scene.as_deref(), camera, operator).and_then(|(scene_operator, base)| {
@@ -294,6 +321,33 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// The caches of `work`: job files on disk (`--cache-dir`, `--cache-mb`) and meshes in memory
+/// (`--mesh-cache-mb`).
+fn work_caches(
+    cache_dir: Option<PathBuf>,
+    cache_mb: u64,
+    mesh_cache_mb: u64,
+) -> Result<(std::sync::Arc<filecache::FileCache>, std::sync::Arc<tessera::scene::cache::MeshCache>)> {
+    let dir = cache_dir.or_else(filecache::default_dir).ok_or_else(|| {
+        anyhow::anyhow!(
+            "--cache-dir: no default (neither XDG_CACHE_HOME nor HOME is set); give --cache-dir DIR or TESSERA_WORKER_CACHE_DIR"
+        )
+    })?;
+    let limit = cache_mb.checked_mul(1 << 20).ok_or_else(|| {
+        anyhow::anyhow!(
+            "--cache-mb {cache_mb} (TESSERA_WORKER_CACHE_MB) is too large; give a number of MiB such as 2048"
+        )
+    })?;
+    let files = filecache::FileCache::open(&dir, limit).map_err(|e| {
+        anyhow::anyhow!(
+            "--cache-dir {} (TESSERA_WORKER_CACHE_DIR): {e:#}; give a directory this user may write",
+            dir.display()
+        )
+    })?;
+    let meshes = tessera::scene::cache::MeshCache::new(mesh_cache_bytes(mesh_cache_mb)?);
+    Ok((std::sync::Arc::new(files), std::sync::Arc::new(meshes)))
 }
 
 /// Prints `warnings` (unsupported elements too when they are allowed), then refuses the scene

@@ -121,3 +121,24 @@ fn a_mesh_cache_bound_of_zero_keeps_nothing_and_a_bad_one_is_refused() {
     assert_eq!(r.code, Some(2), "{}", r.describe());
     assert!(r.stderr.contains("--mesh-cache-mb"), "{}", r.describe());
 }
+
+#[test]
+fn work_refuses_a_file_cache_it_cannot_use_before_contacting_the_server() {
+    let tmp = TempDir::new("sequence-cli-cache-dir");
+    // A file where the cache directory should be.
+    let file = tmp.path().join("not_a_dir");
+    std::fs::write(&file, b"x").unwrap();
+    let server = ["work", "--server", "http://127.0.0.1:9", "--token", "t"];
+    let mut args: Vec<std::ffi::OsString> = server.iter().map(Into::into).collect();
+    args.extend(["--cache-dir".into(), file.into_os_string()]);
+    let r = run(&args);
+    assert_eq!(r.code, Some(1), "{}", r.describe());
+    assert!(r.stderr.contains("--cache-dir") && r.stderr.contains("not_a_dir"), "{}", r.describe());
+    // No default without HOME or XDG_CACHE_HOME.
+    let r = run_with_env(&server, &[("HOME", ""), ("XDG_CACHE_HOME", "")]);
+    assert_eq!(r.code, Some(1), "{}", r.describe());
+    assert!(r.stderr.contains("give --cache-dir DIR or TESSERA_WORKER_CACHE_DIR"), "{}", r.describe());
+    let r = run(&[&server[..], &["--cache-mb", "lots"]].concat());
+    assert_eq!(r.code, Some(2), "{}", r.describe());
+    assert!(r.stderr.contains("--cache-mb"), "{}", r.describe());
+}
