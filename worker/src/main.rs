@@ -330,22 +330,40 @@ fn work_caches(
     cache_mb: u64,
     mesh_cache_mb: u64,
 ) -> Result<(std::sync::Arc<filecache::FileCache>, std::sync::Arc<tessera::scene::cache::MeshCache>)> {
-    let dir = cache_dir.or_else(filecache::default_dir).ok_or_else(|| {
-        anyhow::anyhow!(
-            "--cache-dir: no default (neither XDG_CACHE_HOME nor HOME is set); give --cache-dir DIR or TESSERA_WORKER_CACHE_DIR"
-        )
-    })?;
     let limit = cache_mb.checked_mul(1 << 20).ok_or_else(|| {
         anyhow::anyhow!(
             "--cache-mb {cache_mb} (TESSERA_WORKER_CACHE_MB) is too large; give a number of MiB such as 2048"
         )
     })?;
-    let files = filecache::FileCache::open(&dir, limit).map_err(|e| {
+    let refused = |dir: &Path, e: anyhow::Error| {
         anyhow::anyhow!(
             "--cache-dir {} (TESSERA_WORKER_CACHE_DIR): {e:#}; give a directory this user may write",
             dir.display()
         )
-    })?;
+    };
+    let files = match cache_dir {
+        Some(dir) => filecache::FileCache::open(&dir, limit).map_err(|e| refused(&dir, e))?,
+        // The default place is a convenience: a worker whose home it cannot write (a container
+        // with a read-only home, no HOME at all) keeps its files in the temporary directory.
+        None => {
+            let opened = match filecache::default_dir() {
+                Some(dir) => filecache::FileCache::open(&dir, limit).map_err(|e| refused(&dir, e)),
+                None => Err(anyhow::anyhow!("neither XDG_CACHE_HOME nor HOME is set")),
+            };
+            match opened {
+                Ok(files) => files,
+                Err(e) => {
+                    let fallback =
+                        std::env::temp_dir().join(format!("tessera-worker-files-{}", std::process::id()));
+                    eprintln!(
+                        "warning: no default file cache ({e:#}); using {} for this run (give --cache-dir DIR or TESSERA_WORKER_CACHE_DIR to keep files across runs)",
+                        fallback.display()
+                    );
+                    filecache::FileCache::open(&fallback, limit).map_err(|e| refused(&fallback, e))?
+                }
+            }
+        }
+    };
     let meshes = tessera::scene::cache::MeshCache::new(mesh_cache_bytes(mesh_cache_mb)?);
     Ok((std::sync::Arc::new(files), std::sync::Arc::new(meshes)))
 }
