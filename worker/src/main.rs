@@ -221,11 +221,14 @@ struct RenderArgs {
     pass_samples: Option<u32>,
     /// Print, for each scene file, where its time went on a line of its own on stdout: reading
     /// and parsing the scene file, building it (assets, meshes and their BVHs; how many meshes
-    /// came from the cache), the top-level tree over its instances, rendering and writing.
+    /// came from the cache), the top-level trees over its instances (the world-space tree of
+    /// its static meshes comes from the cache when an earlier file placed the same meshes the
+    /// same way), rendering and writing.
     #[arg(long)]
     timings: bool,
     /// Like --timings, as one JSON object a line (keys: scene, parse_seconds, build_seconds,
-    /// mesh_seconds, meshes, meshes_cached, top_level_seconds, render_seconds, write_seconds).
+    /// mesh_seconds, meshes, meshes_cached, top_level_seconds, top_level_cached,
+    /// render_seconds, write_seconds).
     #[arg(long)]
     timings_json: bool,
     /// Memory for meshes (with their BVHs) and images kept from one scene file for the next,
@@ -353,13 +356,15 @@ fn work_caches(
             match opened {
                 Ok(files) => files,
                 Err(e) => {
-                    let fallback =
-                        std::env::temp_dir().join(format!("tessera-worker-files-{}", std::process::id()));
+                    // One place for every run, within the same bound: files verified on every read.
+                    let fallback = std::env::temp_dir().join("tessera-worker-files");
+                    let files =
+                        filecache::FileCache::open(&fallback, limit).map_err(|e| refused(&fallback, e))?;
                     eprintln!(
-                        "warning: no default file cache ({e:#}); using {} for this run (give --cache-dir DIR or TESSERA_WORKER_CACHE_DIR to keep files across runs)",
+                        "warning: no default file cache ({e:#}); using {} (give --cache-dir DIR or TESSERA_WORKER_CACHE_DIR to keep files across runs)",
                         fallback.display()
                     );
-                    filecache::FileCache::open(&fallback, limit).map_err(|e| refused(&fallback, e))?
+                    files
                 }
             }
         }
@@ -400,6 +405,8 @@ struct FrameTimings {
     meshes_cached: usize,
     /// Of which the top-level tree over the instances.
     top_level: f64,
+    /// Whether its world-space tree of static mesh instances came from the cache.
+    top_level_cached: bool,
     render: f64,
     write: f64,
 }
@@ -407,7 +414,7 @@ struct FrameTimings {
 impl FrameTimings {
     fn line(&self, scene: &Path) -> String {
         format!(
-            "timings: {}: parse {:.3} s, build {:.3} s (meshes {:.3} s, {} of {} from the cache; top level {:.3} s), render {:.3} s, write {:.3} s",
+            "timings: {}: parse {:.3} s, build {:.3} s (meshes {:.3} s, {} of {} from the cache; top level {:.3} s{}), render {:.3} s, write {:.3} s",
             scene.display(),
             self.parse,
             self.build,
@@ -415,6 +422,7 @@ impl FrameTimings {
             self.meshes_cached,
             self.meshes,
             self.top_level,
+            if self.top_level_cached { ", its world tree from the cache" } else { "" },
             self.render,
             self.write
         )
@@ -429,6 +437,7 @@ impl FrameTimings {
             "meshes": self.meshes,
             "meshes_cached": self.meshes_cached,
             "top_level_seconds": self.top_level,
+            "top_level_cached": self.top_level_cached,
             "render_seconds": self.render,
             "write_seconds": self.write,
         })
@@ -523,6 +532,7 @@ fn render_scene(
     timings.meshes = records.meshes.len();
     timings.meshes_cached = scene.stats.meshes_cached;
     timings.top_level = scene.stats.accel_seconds;
+    timings.top_level_cached = scene.stats.world_tree_cached;
     eprintln!(
         "loaded {} in {:.2} s: {} triangles, {} objects, {} camera(s)",
         scene_path.display(),

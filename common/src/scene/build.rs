@@ -25,6 +25,7 @@ use crate::math::{Transform, v3};
 use crate::texture::image::TextureImage;
 use crate::texture::maps::{Source, TextureMap};
 use crate::texture::mip::MipChain;
+use sha2::{Digest, Sha256};
 
 /// Largest image we agree to render (a float frame of this size is 3 GiB).
 const MAX_IMAGE_SIDE: u32 = 65_536;
@@ -733,14 +734,30 @@ fn build_scene_with(
     let lights = placed_lights(&ctx, &transforms)?;
     let textures = build_textures(&ctx, &mut warnings)?;
     let meshes_started = Instant::now();
-    let meshes = build_meshes(&ctx, &transforms, &mat_ids, &mut warnings)?;
+    let mut meshes = build_meshes(&ctx, &transforms, &mat_ids, &mut warnings)?;
     let mesh_seconds = meshes_started.elapsed().as_secs_f64();
     let meshes_cached = meshes.cached;
+    let identity = std::mem::take(&mut meshes.identity);
     let objects = Objects { ctx: &ctx, transforms: &transforms, mat_ids: &mat_ids, textures: &textures };
     let (geoms, instances, emitters) = objects.place(meshes, &mut warnings)?;
 
+    // The top level; with a cache, the world-space tree of the static mesh instances is
+    // shared with an earlier scene that placed the same meshes the same way.
     let accel_started = Instant::now();
-    let accel = Accel::new(geoms, instances);
+    let (accel, world_tree_cached) = match cache {
+        Some(cache) => {
+            let key = world_tree_key(&geoms, &identity, &instances);
+            match cache.world_tree(&key) {
+                Some(tree) => (Accel::with_world_tree(geoms, instances, Some(tree)), true),
+                None => {
+                    let accel = Accel::new(geoms, instances);
+                    cache.put_world_tree(&key, accel.shared_world_tree());
+                    (accel, false)
+                }
+            }
+        }
+        None => (Accel::new(geoms, instances), false),
+    };
     let accel_seconds = accel_started.elapsed().as_secs_f64();
     epsilons(&ctx, accel.extent(), &mut warnings);
     let (object_lights, instance_emission, instance_light) =
@@ -752,6 +769,7 @@ fn build_scene_with(
         mesh_seconds,
         meshes_cached,
         accel_seconds,
+        world_tree_cached,
     };
     if rec.json {
         // The parser's warnings are in JSON words already; this makes the build's match them.
@@ -972,6 +990,10 @@ struct Meshes {
     instances: Vec<ResolvedInstance>,
     /// How many Mesh records the cache served (neither parsed nor built).
     cached: usize,
+    /// Each Mesh record's geometry's identity when the build has one without hashing its
+    /// vertices (a PLY mesh under a cache: its file's SHA-256 and shading), for the world
+    /// tree's key.
+    identity: Vec<Option<[u8; 32]>>,
 }
 
 /// Step 5: the meshes. Mesh instances are resolved through their chains (a MeshInstance may
@@ -1016,7 +1038,9 @@ fn build_meshes(
     let plys: HashMap<&str, Result<PlyLoaded, SceneError>> =
         ply_paths.par_iter().map(|&(p, loc, wanted)| (p, load_ply_cached(ctx, p, loc, wanted))).collect();
 
-    let built: Vec<Result<(CachedMesh, bool), SceneError>> = rec
+    // Each mesh, whether the cache served it, and its identity (see `Meshes::identity`).
+    type Built = (CachedMesh, bool, Option<[u8; 32]>);
+    let built: Vec<Result<Built, SceneError>> = rec
         .meshes
         .par_iter()
         .enumerate()
@@ -1028,8 +1052,9 @@ fn build_meshes(
                         Some(Err(e)) => return Err(e.clone()),
                         None => return Err(ctx.err(&m.faces_loc, "internal: PLY not loaded")),
                     };
+                    let identity = loaded.content.map(|c| mesh_identity(&c, needs_smooth[i]));
                     if let Some(c) = &loaded.cached[usize::from(needs_smooth[i])] {
-                        return Ok((c.clone(), true));
+                        return Ok((c.clone(), true, identity));
                     }
                     let data = loaded.data.clone();
                     (data.ok_or_else(|| ctx.err(&m.faces_loc, "internal: PLY not parsed"))?, loaded.content)
@@ -1050,16 +1075,22 @@ fn build_meshes(
             let geom = MeshGeom::with_uvs(data.positions.clone(), indices, normals, data.uvs.clone());
             let mesh = CachedMesh { geom: Arc::new(geom), dropped };
             Ok(match (ctx.cache, content) {
-                (Some(cache), Some(content)) => (cache.put_mesh(&content, needs_smooth[i], mesh), false),
-                _ => (mesh, false),
+                (Some(cache), Some(content)) => (
+                    cache.put_mesh(&content, needs_smooth[i], mesh),
+                    false,
+                    Some(mesh_identity(&content, needs_smooth[i])),
+                ),
+                _ => (mesh, false, None),
             })
         })
         .collect();
     let mut geoms: Vec<Arc<MeshGeom>> = Vec::with_capacity(built.len());
     let mut cached = 0;
+    let mut identity = Vec::with_capacity(rec.meshes.len());
     for (g, m) in built.into_iter().zip(&rec.meshes) {
-        let (CachedMesh { geom, dropped }, hit) = g?;
+        let (CachedMesh { geom, dropped }, hit, id) = g?;
         cached += usize::from(hit);
+        identity.push(id);
         if dropped > 0 {
             ctx.warn(warnings, &m.faces_loc, format!("skipped {dropped} degenerate triangle(s)"));
         }
@@ -1068,7 +1099,83 @@ fn build_meshes(
         }
         geoms.push(geom);
     }
-    Ok(Meshes { geoms, world, instances, cached })
+    Ok(Meshes { geoms, world, instances, cached, identity })
+}
+
+/// The identity of a PLY mesh built from the file of SHA-256 `content`, smooth or not.
+fn mesh_identity(content: &[u8; 32], smooth: bool) -> [u8; 32] {
+    let mut h = Sha256::new();
+    h.update(b"ply mesh");
+    h.update(content);
+    h.update([u8::from(smooth)]);
+    h.finalize().into()
+}
+
+/// The key of the world-space tree of `instances` over `geoms`: a hash of everything
+/// `geometry::merge_static_meshes` reads (see `Accel::with_world_tree`). A mesh is named by its
+/// `identity` when it has one, else by its positions and triangles, bit for bit.
+fn world_tree_key(
+    geoms: &[Arc<MeshGeom>],
+    identity: &[Option<[u8; 32]>],
+    instances: &[Instance],
+) -> [u8; 32] {
+    let mut h = Sha256::new();
+    h.update(b"tessera world tree 1");
+    h.update((geoms.len() as u64).to_le_bytes());
+    for (i, g) in geoms.iter().enumerate() {
+        match identity.get(i).copied().flatten() {
+            Some(id) => {
+                h.update([1]);
+                h.update(id);
+            }
+            None => {
+                h.update([0]);
+                h.update((g.positions.len() as u64).to_le_bytes());
+                for p in &g.positions {
+                    for c in p.to_array() {
+                        h.update(c.to_bits().to_le_bytes());
+                    }
+                }
+                h.update((g.indices.len() as u64).to_le_bytes());
+                for t in &g.indices {
+                    for k in t {
+                        h.update(k.to_le_bytes());
+                    }
+                }
+            }
+        }
+    }
+    h.update((instances.len() as u64).to_le_bytes());
+    for inst in instances {
+        match inst.shape {
+            Shape::Mesh { mesh, smooth } => {
+                h.update([1, u8::from(smooth)]);
+                h.update(mesh.to_le_bytes());
+            }
+            Shape::Sphere { .. } => h.update([2]),
+            Shape::Plane { .. } => h.update([3]),
+        }
+        match &inst.transform {
+            Some(t) => {
+                h.update([1]);
+                for c in t.to_world.to_cols_array() {
+                    h.update(c.to_bits().to_le_bytes());
+                }
+            }
+            None => h.update([0]),
+        }
+        match inst.motion {
+            Some(m) => {
+                h.update([1]);
+                for c in m.to_array() {
+                    h.update(c.to_bits().to_le_bytes());
+                }
+            }
+            None => h.update([0]),
+        }
+        h.update([u8::from(inst.textures == ObjectTextures::default())]);
+    }
+    h.finalize().into()
 }
 
 /// What step 6 reads: the id tables and the built texture maps.

@@ -12,6 +12,11 @@
 //!   area-weighted ones). Key: (SHA-256, smooth). Its transformations, material, texture maps
 //!   and instances are placed above it and are not part of the key.
 //! - An image (texture or environment map): its decoded texels depend on the bytes alone.
+//! - The world-space tree merged from a scene's static mesh instances (`geometry`'s
+//!   `WorldTree`, rebuilt for every scene otherwise): it depends on the meshes and on how they
+//!   are placed, so its key hashes exactly what it reads (each mesh's identity, each instance's
+//!   mesh, transformation, motion, shading and whether it is textured). Frames of an animation
+//!   whose camera alone moves share it; frames whose objects move build their own.
 //!
 //! The content key comes from [`AssetResolver::content_id`] when the resolver knows it (a
 //! farm worker's files are named by their SHA-256: a hit then reads nothing), else from
@@ -26,6 +31,7 @@ use std::sync::{Arc, Mutex};
 use sha2::{Digest, Sha256};
 
 use crate::assets::AssetResolver;
+use crate::geometry::WorldTree;
 use crate::geometry::mesh::MeshGeom;
 use crate::texture::image::TextureImage;
 
@@ -52,12 +58,15 @@ enum Key {
     Mesh { content: [u8; 32], smooth: bool },
     /// An image file's content.
     Image { content: [u8; 32] },
+    /// The hash of all a scene's world tree reads (`scene::build`'s `world_tree_key`).
+    World { key: [u8; 32] },
 }
 
 #[derive(Clone)]
 enum Value {
     Mesh(CachedMesh),
     Image(Arc<TextureImage>),
+    World(WorldTree),
 }
 
 struct Entry {
@@ -87,6 +96,11 @@ pub struct CacheStats {
     pub image_hits: u64,
     /// Images decoded and offered to the cache.
     pub image_misses: u64,
+    /// World-space trees of static mesh instances reused (the scene's meshes and their
+    /// placement the same as an earlier scene's: a camera moving through a still scene).
+    pub world_hits: u64,
+    /// World-space trees built and offered to the cache.
+    pub world_misses: u64,
     /// Entries removed to stay within the bound.
     pub evictions: u64,
     /// Entries held now, and the estimate of their bytes.
@@ -145,6 +159,7 @@ impl MeshCache {
         match key {
             Key::Mesh { .. } => inner.stats.mesh_hits += 1,
             Key::Image { .. } => inner.stats.image_hits += 1,
+            Key::World { .. } => inner.stats.world_hits += 1,
         }
         Some(value)
     }
@@ -157,6 +172,7 @@ impl MeshCache {
         match key {
             Key::Mesh { .. } => inner.stats.mesh_misses += 1,
             Key::Image { .. } => inner.stats.image_misses += 1,
+            Key::World { .. } => inner.stats.world_misses += 1,
         }
         inner.clock += 1;
         let now = inner.clock;
@@ -184,7 +200,7 @@ impl MeshCache {
     pub fn mesh(&self, content: &[u8; 32], smooth: bool) -> Option<CachedMesh> {
         match self.get(&Key::Mesh { content: *content, smooth })? {
             Value::Mesh(m) => Some(m),
-            Value::Image(_) => None,
+            _ => None,
         }
     }
 
@@ -194,7 +210,7 @@ impl MeshCache {
         let bytes = mesh.geom.heap_bytes() as u64;
         match self.put(Key::Mesh { content: *content, smooth }, Value::Mesh(mesh.clone()), bytes) {
             Value::Mesh(m) => m,
-            Value::Image(_) => mesh,
+            _ => mesh,
         }
     }
 
@@ -202,7 +218,7 @@ impl MeshCache {
     pub fn image(&self, content: &[u8; 32]) -> Option<Arc<TextureImage>> {
         match self.get(&Key::Image { content: *content })? {
             Value::Image(i) => Some(i),
-            Value::Mesh(_) => None,
+            _ => None,
         }
     }
 
@@ -211,8 +227,22 @@ impl MeshCache {
         let bytes = (std::mem::size_of::<TextureImage>() + image.texels.capacity() * 12) as u64;
         match self.put(Key::Image { content: *content }, Value::Image(image.clone()), bytes) {
             Value::Image(i) => i,
-            Value::Mesh(_) => image,
+            _ => image,
         }
+    }
+
+    /// The cached world-space tree of static mesh instances under `key`.
+    pub fn world_tree(&self, key: &[u8; 32]) -> Option<WorldTree> {
+        match self.get(&Key::World { key: *key })? {
+            Value::World(w) => Some(w),
+            _ => None,
+        }
+    }
+
+    /// Keeps a world-space tree just built.
+    pub fn put_world_tree(&self, key: &[u8; 32], tree: WorldTree) {
+        let bytes = tree.heap_bytes() as u64;
+        self.put(Key::World { key: *key }, Value::World(tree), bytes);
     }
 
     /// Counts a PLY file parsed by a build that uses this cache.
@@ -391,7 +421,9 @@ mod tests {
             let s = cache.stats();
             assert_eq!(s.ply_parses, 2, "the second build parses nothing: {s:?}");
             assert_eq!((s.mesh_misses, s.mesh_hits, s.image_hits), (2, 2, 1), "{s:?}");
+            assert_eq!((s.world_misses, s.world_hits), (1, 1), "{s:?}");
             assert_eq!(second.stats.meshes_cached, 2);
+            assert!(!first.stats.world_tree_cached && second.stats.world_tree_cached);
             // Knowing the content ids, a hit reads nothing; else each file is read to hash it.
             let reads = counting.reads.load(std::sync::atomic::Ordering::SeqCst);
             assert_eq!(reads, if ids { 0 } else { 3 }, "ids known: {ids}");
@@ -401,6 +433,23 @@ mod tests {
                 assert_eq!(scene.stats.triangles, plain.stats.triangles);
             }
         }
+
+        // The objects moved (a windmill's blades): the meshes come from the cache, the world
+        // tree is built anew, and the picture is the uncached build's.
+        let cache = MeshCache::default();
+        build_scene_cached(&rec, &fs, &cache).unwrap();
+        let moved_text = SCENE.replace("0.8 0.4 -0.5", "0.6 0.2 -0.4");
+        let moved = crate::scene::xml::parse_xml(&moved_text, &dir.join("s.xml")).unwrap();
+        let cached = build_scene_cached(&moved, &fs, &cache).unwrap();
+        let s = cache.stats();
+        assert_eq!((s.mesh_hits, s.world_hits, s.world_misses), (2, 0, 2), "{s:?}");
+        let plain_moved = render_bits(&build_scene(&moved, &fs).unwrap());
+        assert_ne!(plain_moved, want, "the move shows");
+        assert_eq!(render_bits(&cached), plain_moved);
+        // Back where it was: that tree again.
+        let back = build_scene_cached(&rec, &fs, &cache).unwrap();
+        assert!(back.stats.world_tree_cached);
+        assert_eq!(render_bits(&back), want);
     }
 
     #[test]
@@ -435,7 +484,9 @@ mod tests {
             let e = build(&scene("flat"), &cache).err().expect("a broken PLY").to_string();
             assert!(e.contains("grid.ply"), "{e}");
         }
-        assert_eq!(cache.stats().entries, 3);
+        // Three meshes and the three scenes' world trees; nothing of the failures.
+        let s = cache.stats();
+        assert_eq!((s.entries, s.mesh_misses, s.world_misses), (6, 3, 3), "{s:?}");
     }
 
     #[test]

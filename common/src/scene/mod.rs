@@ -91,6 +91,9 @@ pub struct SceneStats {
     /// Of which the top level over the instances (`Accel::new`: the tree over their bounds
     /// and the world-space tree merged from the static mesh instances).
     pub accel_seconds: f64,
+    /// Whether that world-space tree came from a [`cache::MeshCache`] (an earlier scene placed
+    /// the same meshes the same way).
+    pub world_tree_cached: bool,
 }
 
 /// A render-ready scene. Immutable once built; shared by all render threads.
