@@ -21,7 +21,7 @@ use tessera::output;
 use tessera::render::{
     PassPlan, RenderSettings, render_camera, render_camera_passes, render_camera_with_aux,
 };
-use tessera::scene::build::build_scene_cached;
+use tessera::scene::build::{build_scene, build_scene_cached};
 use tessera::scene::load::{LoadOptions, parse_scene};
 use tessera::scene::records::EnvSampler;
 use tessera::tonemap::params::{Gamma, Operator, Photographic};
@@ -459,7 +459,10 @@ fn render(args: &RenderArgs) -> Result<()> {
     if tile_size == 0 {
         bail!("--tile-size must be at least 1");
     }
-    let cache = tessera::scene::cache::MeshCache::new(mesh_cache_bytes(args.mesh_cache_mb)?);
+    // One scene file has no next one to keep anything for: it is built as before, without
+    // hashing its files.
+    let limit = mesh_cache_bytes(args.mesh_cache_mb)?;
+    let cache = (scenes.len() > 1).then(|| tessera::scene::cache::MeshCache::new(limit));
     // The denoiser is found before anything is read or rendered: a missing library must not
     // cost a render.
     let oidn = if args.denoise {
@@ -480,7 +483,7 @@ fn render(args: &RenderArgs) -> Result<()> {
         // worth a warning (its image replaces the earlier one).
         let mut written_by: std::collections::HashMap<PathBuf, PathBuf> = Default::default();
         for scene_path in scenes {
-            let t = render_scene(args, scene_path, &cache, oidn, &mut written_by)?;
+            let t = render_scene(args, scene_path, cache.as_ref(), oidn, &mut written_by)?;
             if args.timings {
                 println!("{}", t.line(scene_path));
             }
@@ -493,11 +496,11 @@ fn render(args: &RenderArgs) -> Result<()> {
 }
 
 /// Renders the cameras of one scene file (all, or --camera) with the meshes and images of
-/// `cache`, and writes their images.
+/// `cache` (when there are several files), and writes their images.
 fn render_scene(
     args: &RenderArgs,
     scene_path: &Path,
-    cache: &tessera::scene::cache::MeshCache,
+    cache: Option<&tessera::scene::cache::MeshCache>,
     oidn: Option<&'static tessera_denoise::Oidn>,
     written_by: &mut std::collections::HashMap<PathBuf, PathBuf>,
 ) -> Result<FrameTimings> {
@@ -525,7 +528,11 @@ fn render_scene(
     timings.parse = t0.elapsed().as_secs_f64();
     // Unsupported elements the parser finds are refused before any asset is read.
     report_warnings(scene_path, &records.warnings, load)?;
-    let scene = build_scene_cached(&records, &FsResolver::for_scene(scene_path), cache)?;
+    let resolver = FsResolver::for_scene(scene_path);
+    let scene = match cache {
+        Some(cache) => build_scene_cached(&records, &resolver, cache)?,
+        None => build_scene(&records, &resolver)?,
+    };
     report_warnings(scene_path, &scene.warnings[records.warnings.len()..], load)?;
     timings.build = scene.stats.build_seconds;
     timings.mesh = scene.stats.mesh_seconds;
