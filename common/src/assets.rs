@@ -15,6 +15,15 @@ pub trait AssetResolver: Sync {
 
     /// The path to show in messages for an asset that could not be found.
     fn display_path(&self, rel: &str) -> PathBuf;
+
+    /// The SHA-256 of the asset `rel`'s bytes, when the resolver knows it without reading them
+    /// (a farm worker's files are named by it). `None` (the default): unknown, and a build
+    /// with a [`crate::scene::cache::MeshCache`] reads the bytes and hashes them. It must be
+    /// the hash of exactly what [`AssetResolver::read`] would return: the cache serves what it
+    /// built from those bytes without reading them.
+    fn content_id(&self, _rel: &str) -> Option<[u8; 32]> {
+        None
+    }
 }
 
 /// Resolves assets on the file system relative to the scene file's directory.
@@ -160,7 +169,8 @@ pub struct ServedAsset {
 /// Wraps a resolver and records every asset it serves, in the order of the requests: loading a
 /// scene through it lists exactly the files the renderer reads (the client packs those into a
 /// job's bundle, and nothing else). Failed requests are not recorded: they fail the load with
-/// an error that names the file and the element.
+/// an error that names the file and the element. It does not pass on the inner resolver's
+/// [`AssetResolver::content_id`], so that a build with a cache still reads (and lists) every asset.
 #[derive(Debug)]
 pub struct RecordingResolver<R> {
     pub inner: R,

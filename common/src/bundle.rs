@@ -19,7 +19,8 @@ use crate::assets::{AssetResolver, MemResolver, normalize_bundle_path};
 use crate::camera::Camera;
 use crate::error::SceneError;
 use crate::scene::Scene;
-use crate::scene::build::{build_cameras, build_scene};
+use crate::scene::build::{build_cameras, build_scene, build_scene_cached};
+use crate::scene::cache::MeshCache;
 use crate::scene::load::{LoadOptions, parse_scene};
 use crate::scene::records::SceneRecords;
 
@@ -134,34 +135,52 @@ pub fn load_bundle_scene(
     scene_path: &str,
     options: LoadOptions,
 ) -> Result<Scene, BundleSceneError> {
+    load_bundle_scene_cached(files, scene_path, options, None)
+}
+
+/// [`load_bundle_scene`] with meshes and images kept in `cache` across builds (the same scene,
+/// bit for bit; [`crate::scene::cache`]).
+pub fn load_bundle_scene_cached(
+    files: BundleFiles,
+    scene_path: &str,
+    options: LoadOptions,
+    cache: Option<&MeshCache>,
+) -> Result<Scene, BundleSceneError> {
     let records = parse_bundle_scene(&files, scene_path)?;
     let resolver = MemResolver::for_scene(files, scene_path);
-    build_checked(&records, &resolver, options)
+    build_checked(&records, &resolver, options, cache)
 }
 
 /// Parses and builds the scene file `scene_path` (a normalised job path) whose bytes are
 /// `bytes`, with its assets from `resolver` (which resolves paths as a [`MemResolver`] for that
 /// scene would): [`load_bundle_scene`] for a job whose files are not one in-memory bundle (a
-/// worker's manifest of files fetched as needed).
+/// worker's manifest of files fetched as needed), with meshes and images kept in `cache`
+/// across builds when given.
 pub fn load_scene_bytes(
     bytes: &[u8],
     scene_path: &str,
     resolver: &dyn AssetResolver,
     options: LoadOptions,
+    cache: Option<&MeshCache>,
 ) -> Result<Scene, BundleSceneError> {
     let records = parse_scene_bytes(bytes, scene_path)?;
-    build_checked(&records, resolver, options)
+    build_checked(&records, resolver, options, cache)
 }
 
 /// Builds parsed `records`, refusing unsupported elements unless `options` allow them (those the
-/// parser found before any asset is read).
+/// parser found before any asset is read, then those the build found).
 fn build_checked(
     records: &SceneRecords,
     resolver: &dyn AssetResolver,
     options: LoadOptions,
+    cache: Option<&MeshCache>,
 ) -> Result<Scene, BundleSceneError> {
     options.check(&records.warnings).map_err(BundleSceneError::Unsupported)?;
-    let scene = build_scene(records, resolver).map_err(BundleSceneError::Invalid)?;
+    let scene = match cache {
+        Some(cache) => build_scene_cached(records, resolver, cache),
+        None => build_scene(records, resolver),
+    }
+    .map_err(BundleSceneError::Invalid)?;
     options.check(&scene.warnings).map_err(BundleSceneError::Unsupported)?;
     Ok(scene)
 }

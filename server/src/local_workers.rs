@@ -75,6 +75,7 @@ impl LocalWorkers {
                     url: url.clone(),
                     token: token.to_string(),
                     threads: config.local_worker_threads,
+                    cache_dir: config.data_dir.join("worker-cache"),
                 };
                 supervisors.push(tokio::spawn(supervise_worker(local, stopping_rx.clone())));
             }
@@ -116,6 +117,8 @@ fn restart_delay(crashes: u32) -> Duration {
 /// How to start local worker `k`.
 struct LocalWorker {
     k: usize,
+    /// The job files' cache on disk, shared by the local workers (`DATA/worker-cache`).
+    cache_dir: std::path::PathBuf,
     bin: PathBuf,
     url: String,
     token: String,
@@ -137,6 +140,8 @@ async fn supervise_worker(w: LocalWorker, mut stopping: watch::Receiver<Stopping
             .arg(&w.url)
             .arg("--name")
             .arg(format!("local-{k}"))
+            .arg("--cache-dir")
+            .arg(&w.cache_dir)
             .arg("--exit-with-parent");
         if let Some(t) = w.threads {
             cmd.arg("--threads").arg(t.to_string());

@@ -130,7 +130,8 @@ pub fn check_data_dir(data_dir: &Path) -> Result<()> {
     let db = data_dir.join(DB_FILE);
     let holds_files =
         |sub: &str| std::fs::read_dir(data_dir.join(sub)).is_ok_and(|mut entries| entries.next().is_some());
-    let work: Vec<&str> = [OUTPUTS_DIR, FRAMES_DIR, "blobs"].into_iter().filter(|s| holds_files(s)).collect();
+    let work: Vec<&str> =
+        [OUTPUTS_DIR, FRAMES_DIR, "blobs", "files"].into_iter().filter(|s| holds_files(s)).collect();
     if work.is_empty() {
         return Ok(());
     }

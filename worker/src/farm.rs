@@ -39,7 +39,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
-use tessera::bundle::{BundleSceneError, load_bundle_scene, read_tar};
+use tessera::bundle::{BundleSceneError, load_bundle_scene_cached, read_tar};
 use tessera::image::TileRect;
 use tessera::passes::{BLOCK, SampleRange, encode_pass_tile};
 use tessera::protocol::*;
@@ -58,6 +58,10 @@ pub struct WorkOptions {
     pub threads: Option<usize>,
     /// Stop after this many tiles (tests and benchmarks); `None`: run until killed.
     pub max_tiles: Option<u64>,
+    /// Job files on disk by SHA-256 (`--cache-dir`, `--cache-mb`).
+    pub files: Arc<crate::filecache::FileCache>,
+    /// Meshes and images kept across frames and jobs (`--mesh-cache-mb`).
+    pub meshes: Arc<tessera::scene::cache::MeshCache>,
 }
 
 /// The leases this worker holds and those the server took back.
@@ -308,6 +312,15 @@ pub fn work(opts: WorkOptions) -> Result<()> {
         pool.current_num_threads(),
         client.base
     );
+    let kept = opts.files.stats();
+    eprintln!(
+        "file cache {}: {} file(s), {} of {} MiB; mesh cache {} MiB",
+        opts.files.dir().display(),
+        kept.files,
+        kept.bytes >> 20,
+        opts.files.limit_bytes() >> 20,
+        opts.meshes.limit_bytes() >> 20
+    );
     // A render slot per thread, each rendering a whole tile, as `tessera-worker render` renders
     // its tiles. Every core on one tile instead (its rows in parallel; one tile, or two at once)
     // left the farm at 1.09 of the CLI's CPU and 1.13-1.17 of its wall time (farmbench medians
@@ -385,6 +398,7 @@ pub fn work(opts: WorkOptions) -> Result<()> {
         stop: &stop,
         pool: &pool,
         scenes: &scenes,
+        caches: Caches { files: &opts.files, meshes: &opts.meshes },
         taken: &taken,
         max_tiles: opts.max_tiles,
         rx: &rx,
@@ -434,6 +448,14 @@ impl Drop for StopOnDrop<'_> {
     }
 }
 
+/// The worker's caches: job files on disk by SHA-256, and built meshes, images and world trees
+/// in memory by content, shared by every frame and job this worker renders.
+#[derive(Clone, Copy)]
+pub struct Caches<'a> {
+    pub files: &'a crate::filecache::FileCache,
+    pub meshes: &'a tessera::scene::cache::MeshCache,
+}
+
 /// What the render slots share.
 struct Slots<'a> {
     client: &'a Client,
@@ -442,6 +464,7 @@ struct Slots<'a> {
     stop: &'a AtomicBool,
     pool: &'a rayon::ThreadPool,
     scenes: &'a Mutex<HashMap<(String, String), Arc<Scene>>>,
+    caches: Caches<'a>,
     taken: &'a std::sync::atomic::AtomicU64,
     max_tiles: Option<u64>,
     rx: &'a Mutex<Receiver<Lease>>,
@@ -504,7 +527,7 @@ impl Slots<'_> {
             let rendered = if cancel.load(Ordering::SeqCst) {
                 Ok(None)
             } else {
-                lease_scene(client, self.scenes, self.pool, &lease)
+                lease_scene(client, self.scenes, self.caches, self.pool, &lease)
                     .and_then(|scene| render_lease(&scene, &lease, &cancel))
             };
             let seconds = started.elapsed().as_secs_f64();
@@ -695,6 +718,7 @@ fn watch_rendering(client: &Client, worker_id: u64, leases: &Mutex<Leases>, stop
 fn lease_scene(
     client: &Client,
     scenes: &Mutex<HashMap<(String, String), Arc<Scene>>>,
+    caches: Caches<'_>,
     pool: &rayon::ThreadPool,
     lease: &Lease,
 ) -> Result<Arc<Scene>> {
@@ -712,9 +736,9 @@ fn lease_scene(
         None => {
             let s = pool.install(|| match &lease.manifest {
                 Some(manifest) => {
-                    crate::jobfiles::manifest_scene(client, manifest, &lease.scene_path, options)
+                    crate::jobfiles::manifest_scene(client, caches, manifest, &lease.scene_path, options)
                 }
-                None => fetch_bundle_scene(client, &lease.bundle, &lease.scene_path, options),
+                None => fetch_bundle_scene(client, caches.meshes, &lease.bundle, &lease.scene_path, options),
             })?;
             let s = Arc::new(s);
             // Keep a few scenes; jobs rarely interleave more.
@@ -804,6 +828,7 @@ impl std::error::Error for OutOfTime {}
 /// it the same way).
 fn fetch_bundle_scene(
     client: &Client,
+    meshes: &tessera::scene::cache::MeshCache,
     bundle: &str,
     scene_path: &str,
     options: LoadOptions,
@@ -817,7 +842,7 @@ fn fetch_bundle_scene(
     let mut tar = Vec::new();
     resp.into_reader().read_to_end(&mut tar).context("downloading the bundle")?;
     let files = read_tar(&tar).context("reading the bundle")?;
-    Ok(load_bundle_scene(files, scene_path, options)?)
+    Ok(load_bundle_scene_cached(files, scene_path, options, Some(meshes))?)
 }
 
 /// Uploads a tile, retrying transport errors; a 409 means the lease is gone: drop the tile.

@@ -6,7 +6,7 @@
 //! finds paths where the server's validation found them (`tessera::assets::bundle_candidates`).
 
 use std::collections::HashMap;
-use std::io::{self, Read};
+use std::io;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex, OnceLock};
 
@@ -18,55 +18,45 @@ use tessera::protocol::{JobFile, Manifest};
 use tessera::scene::Scene;
 use tessera::scene::load::LoadOptions;
 
-use crate::farm::{Client, describe};
+use crate::farm::{Caches, Client, describe};
+use crate::filecache::FileCache;
 
-/// Bytes of fetched files kept in memory at most: past it the kept files are let go (and
-/// fetched again when a scene needs them).
-const KEPT_BYTES: usize = 1 << 30;
-
-/// Files fetched so far, by SHA-256, and their bytes in all: each is downloaded once per
-/// worker process while it is kept.
-#[derive(Default)]
-struct Fetched {
-    files: HashMap<String, Arc<Vec<u8>>>,
-    bytes: usize,
-}
-
-fn fetched() -> &'static Mutex<Fetched> {
-    static FILES: OnceLock<Mutex<Fetched>> = OnceLock::new();
+/// Manifests fetched so far (small JSON files whose size a lease does not say), by SHA-256.
+fn manifests_fetched() -> &'static Mutex<HashMap<String, Arc<Vec<u8>>>> {
+    static FILES: OnceLock<Mutex<HashMap<String, Arc<Vec<u8>>>>> = OnceLock::new();
     FILES.get_or_init(Default::default)
 }
 
-/// The file `sha` (of `size` bytes, when known) from the server, verified against its
-/// SHA-256; fetched once, then answered from memory.
-pub fn fetch_file(client: &Client, sha: &str, size: Option<u64>) -> Result<Arc<Vec<u8>>> {
-    if let Some(bytes) = fetched().lock().unwrap_or_else(|e| e.into_inner()).files.get(sha) {
-        return Ok(bytes.clone());
-    }
+/// Downloads the file `sha` from the server into `out`.
+fn download(client: &Client, sha: &str, out: &mut dyn std::io::Write) -> Result<()> {
     let resp = client
         .agent
         .get(&client.url(&format!("/api/v1/worker/files/{sha}")))
         .set("Authorization", &format!("Bearer {}", client.token))
         .call()
         .map_err(|e| anyhow!("fetching file {sha}: {}", describe(e)))?;
-    let mut bytes = Vec::with_capacity(size.unwrap_or(0).min(1 << 30) as usize);
-    resp.into_reader().read_to_end(&mut bytes).with_context(|| format!("downloading file {sha}"))?;
-    if let Some(size) = size
-        && bytes.len() as u64 != size
-    {
-        bail!("file {sha}: the server sent {} bytes, the manifest says {size}", bytes.len());
+    std::io::copy(&mut resp.into_reader(), out).with_context(|| format!("downloading file {sha}"))?;
+    Ok(())
+}
+
+/// The file `sha` of `size` bytes, from the worker's file cache on disk or downloaded once
+/// into it (checked against its size and SHA-256 before it is kept), or, when its size is not
+/// known (a manifest), downloaded once per process, checked and kept in memory.
+pub fn fetch_file(client: &Client, cache: &FileCache, sha: &str, size: Option<u64>) -> Result<Arc<Vec<u8>>> {
+    if let Some(size) = size {
+        return cache.get_or_fetch(sha, size, |out| download(client, sha, out));
     }
+    if let Some(bytes) = manifests_fetched().lock().unwrap_or_else(|e| e.into_inner()).get(sha) {
+        return Ok(bytes.clone());
+    }
+    let mut bytes = Vec::new();
+    download(client, sha, &mut bytes)?;
     let actual = Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect::<String>();
     if actual != sha {
         bail!("file {sha}: the bytes the server sent hash to {actual}; not using them");
     }
     let bytes = Arc::new(bytes);
-    let mut kept = fetched().lock().unwrap_or_else(|e| e.into_inner());
-    if kept.bytes + bytes.len() > KEPT_BYTES {
-        *kept = Fetched::default();
-    }
-    kept.bytes += bytes.len();
-    kept.files.insert(sha.to_string(), bytes.clone());
+    manifests_fetched().lock().unwrap_or_else(|e| e.into_inner()).insert(sha.to_string(), bytes.clone());
     Ok(bytes)
 }
 
@@ -74,13 +64,13 @@ pub fn fetch_file(client: &Client, sha: &str, size: Option<u64>) -> Result<Arc<V
 pub type ManifestFiles = HashMap<String, JobFile>;
 
 /// The manifest `sha`'s files, fetched once.
-pub fn manifest(client: &Client, sha: &str) -> Result<Arc<ManifestFiles>> {
+pub fn manifest(client: &Client, cache: &FileCache, sha: &str) -> Result<Arc<ManifestFiles>> {
     static MANIFESTS: OnceLock<Mutex<HashMap<String, Arc<ManifestFiles>>>> = OnceLock::new();
     let manifests = MANIFESTS.get_or_init(Default::default);
     if let Some(m) = manifests.lock().unwrap_or_else(|e| e.into_inner()).get(sha) {
         return Ok(m.clone());
     }
-    let bytes = fetch_file(client, sha, None)?;
+    let bytes = fetch_file(client, cache, sha, None)?;
     let parsed: Manifest =
         serde_json::from_slice(&bytes).with_context(|| format!("the job's manifest {sha} does not parse"))?;
     let files: Arc<ManifestFiles> = Arc::new(parsed.files.into_iter().map(|f| (f.path.clone(), f)).collect());
@@ -92,21 +82,45 @@ pub fn manifest(client: &Client, sha: &str) -> Result<Arc<ManifestFiles>> {
 /// same files would, and fetches them ([`fetch_file`]).
 struct ManifestResolver<'a> {
     client: &'a Client,
+    cache: &'a FileCache,
     files: &'a ManifestFiles,
     /// The scene file's folder (a path of the manifest; "" for the top).
     base: String,
 }
 
+impl ManifestResolver<'_> {
+    /// The manifest's file a scene's path `rel` names, and its path in the manifest.
+    fn find(&self, rel: &str) -> Option<(String, &JobFile)> {
+        bundle_candidates(&self.base, rel).into_iter().find_map(|cand| {
+            let f = self.files.get(&cand)?;
+            Some((cand, f))
+        })
+    }
+}
+
 impl AssetResolver for ManifestResolver<'_> {
     fn read(&self, rel: &str) -> io::Result<(Vec<u8>, PathBuf)> {
-        for cand in bundle_candidates(&self.base, rel) {
-            if let Some(f) = self.files.get(&cand) {
-                let bytes = fetch_file(self.client, &f.sha256, Some(f.size))
-                    .map_err(|e| io::Error::other(format!("{e:#}")))?;
-                return Ok((bytes.as_ref().clone(), PathBuf::from(cand)));
-            }
+        let Some((path, f)) = self.find(rel) else {
+            return Err(io::Error::new(io::ErrorKind::NotFound, "not among the job's files"));
+        };
+        let bytes = fetch_file(self.client, self.cache, &f.sha256, Some(f.size))
+            .map_err(|e| io::Error::other(format!("{e:#}")))?;
+        Ok((bytes.as_ref().clone(), PathBuf::from(path)))
+    }
+
+    /// The manifest names every file by its SHA-256: a mesh the worker built from it before is
+    /// taken from the mesh cache without fetching or reading the file.
+    fn content_id(&self, rel: &str) -> Option<[u8; 32]> {
+        let (_, f) = self.find(rel)?;
+        let hex = f.sha256.as_bytes();
+        if hex.len() != 64 {
+            return None;
         }
-        Err(io::Error::new(io::ErrorKind::NotFound, "not among the job's files"))
+        let mut id = [0u8; 32];
+        for (k, pair) in hex.chunks(2).enumerate() {
+            id[k] = u8::from_str_radix(std::str::from_utf8(pair).ok()?, 16).ok()?;
+        }
+        Some(id)
     }
 
     fn display_path(&self, rel: &str) -> PathBuf {
@@ -118,14 +132,16 @@ impl AssetResolver for ManifestResolver<'_> {
 /// from the manifest (the server validated it the same way).
 pub fn manifest_scene(
     client: &Client,
+    caches: Caches<'_>,
     manifest_sha: &str,
     scene_path: &str,
     options: LoadOptions,
 ) -> Result<Scene> {
-    let files = manifest(client, manifest_sha)?;
+    let files = manifest(client, caches.files, manifest_sha)?;
     let scene =
         files.get(scene_path).ok_or_else(|| anyhow!("the job's manifest has no scene file {scene_path}"))?;
-    let bytes = fetch_file(client, &scene.sha256, Some(scene.size))?;
-    let resolver = ManifestResolver { client, files: &files, base: scene_dir(scene_path) };
-    Ok(load_scene_bytes(&bytes, scene_path, &resolver, options)?)
+    let bytes = fetch_file(client, caches.files, &scene.sha256, Some(scene.size))?;
+    let resolver =
+        ManifestResolver { client, cache: caches.files, files: &files, base: scene_dir(scene_path) };
+    Ok(load_scene_bytes(&bytes, scene_path, &resolver, options, Some(caches.meshes))?)
 }

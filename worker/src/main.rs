@@ -5,6 +5,7 @@
 //! photographic operator; `work` pulls tiles from a `tessera-server` farm (`farm.rs`).
 
 mod farm;
+mod filecache;
 mod jobfiles;
 mod resolve;
 
@@ -21,7 +22,7 @@ use tessera::output;
 use tessera::render::{
     PassPlan, RenderSettings, render_camera, render_camera_passes, render_camera_with_aux,
 };
-use tessera::scene::build::build_scene;
+use tessera::scene::build::{build_scene, build_scene_cached};
 use tessera::scene::load::{LoadOptions, parse_scene};
 use tessera::scene::records::EnvSampler;
 use tessera::tonemap::params::{Gamma, Operator, Photographic};
@@ -41,7 +42,12 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Render every camera of a scene file on this machine.
+    /// Render every camera of one or more scene files on this machine.
+    ///
+    /// Several scene files (an animation, one file a frame) are rendered one after another in
+    /// the order given, in one process: meshes and images they share are parsed and built once
+    /// (kept in memory up to --mesh-cache-mb), and each file's images are the bytes rendering it
+    /// alone writes. --timings shows where each frame's time went.
     ///
     /// Each camera's image is written to DIR under the file name of the camera's <ImageName>:
     /// .png is clamped to [0, 255] and rounded, as the course specifies; .exr writes the linear
@@ -55,6 +61,7 @@ enum Command {
     /// with its line, unless --allow-unsupported.
     ///
     /// Example: tessera-worker render scenes/cornell_box.xml --out out/
+    ///          tessera-worker render orbit/frame_*.json --samples 4 --timings --out frames/
     Render(RenderArgs),
     /// Pull tiles from a tessera-server and render them, until stopped.
     ///
@@ -83,6 +90,20 @@ enum Command {
         /// Exit when the process that started this one ends (tessera-server's local workers).
         #[arg(long, hide = true)]
         exit_with_parent: bool,
+        /// Where job files (scenes, PLY files, images) are kept between frames, jobs and runs,
+        /// each under its SHA-256, so that a file is downloaded once. Created if missing; may
+        /// be shared by several workers. [default: $XDG_CACHE_HOME/tessera/files, else
+        /// $HOME/.cache/tessera/files]
+        #[arg(long, env = "TESSERA_WORKER_CACHE_DIR", value_name = "DIR")]
+        cache_dir: Option<PathBuf>,
+        /// Disk space for --cache-dir in MiB; past it the least recently used files are
+        /// removed. 0 keeps nothing (every file is downloaded each time it is needed).
+        #[arg(long, env = "TESSERA_WORKER_CACHE_MB", default_value_t = filecache::DEFAULT_CACHE_MB, value_name = "MB")]
+        cache_mb: u64,
+        /// Memory for parsed meshes (with their BVHs) and decoded images kept across frames
+        /// and jobs, in MiB; the least recently used go first. 0 keeps nothing.
+        #[arg(long, env = "TESSERA_MESH_CACHE_MB", default_value_t = DEFAULT_MESH_CACHE_MB, value_name = "MB")]
+        mesh_cache_mb: u64,
     },
     /// Tone-map an HDR image (OpenEXR or Radiance .hdr) to an 8-bit PNG.
     ///
@@ -139,11 +160,13 @@ enum Command {
     },
 }
 
-/// `render`'s arguments: the scene, where to write, and how to render it.
+/// `render`'s arguments: the scenes, where to write, and how to render them.
 #[derive(clap::Args)]
 struct RenderArgs {
-    /// The scene file (CENG795 XML or 2025 JSON; told apart by content).
-    scene: PathBuf,
+    /// The scene files (CENG795 XML or 2025 JSON; told apart by content), rendered in this
+    /// order.
+    #[arg(required = true, num_args = 1.., value_name = "SCENE")]
+    scenes: Vec<PathBuf>,
     /// Directory for the output images (created if missing).
     #[arg(long, short, default_value = ".", value_name = "DIR")]
     out: PathBuf,
@@ -197,6 +220,34 @@ struct RenderArgs {
     /// sixteenth of the samples). Without a noise target passes do not change the image.
     #[arg(long, value_name = "N", requires = "noise_target")]
     pass_samples: Option<u32>,
+    /// Print, for each scene file, where its time went on a line of its own on stdout: reading
+    /// and parsing the scene file, building it (assets, meshes and their BVHs; how many meshes
+    /// came from the cache), the top-level trees over its instances (the world-space tree of
+    /// its static meshes comes from the cache when an earlier file placed the same meshes the
+    /// same way), rendering and writing.
+    #[arg(long)]
+    timings: bool,
+    /// Like --timings, as one JSON object a line (keys: scene, parse_seconds, build_seconds,
+    /// mesh_seconds, meshes, meshes_cached, top_level_seconds, top_level_cached,
+    /// render_seconds, write_seconds).
+    #[arg(long)]
+    timings_json: bool,
+    /// Memory for meshes (with their BVHs) and images kept from one scene file for the next,
+    /// in MiB; the least recently used go first. 0 keeps nothing.
+    #[arg(long, env = "TESSERA_MESH_CACHE_MB", default_value_t = DEFAULT_MESH_CACHE_MB, value_name = "MB")]
+    mesh_cache_mb: u64,
+}
+
+/// `--mesh-cache-mb`'s default: 2 GiB.
+const DEFAULT_MESH_CACHE_MB: u64 = tessera::scene::cache::DEFAULT_MESH_CACHE_BYTES >> 20;
+
+/// Bytes of `mb` MiB, refused when it does not fit (clap took it as a number already).
+fn mesh_cache_bytes(mb: u64) -> Result<u64> {
+    mb.checked_mul(1 << 20).ok_or_else(|| {
+        anyhow::anyhow!(
+            "--mesh-cache-mb {mb} (TESSERA_MESH_CACHE_MB) is too large; give a number of MiB such as 2048"
+        )
+    })
 }
 
 /// The host name (from /etc/hostname or $HOSTNAME) and the process id.
@@ -232,7 +283,17 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Render(args) => render(&args),
-        Command::Work { server, token, name, threads, max_tiles, exit_with_parent } => {
+        Command::Work {
+            server,
+            token,
+            name,
+            threads,
+            max_tiles,
+            exit_with_parent,
+            cache_dir,
+            cache_mb,
+            mesh_cache_mb,
+        } => {
             if exit_with_parent {
                 farm::exit_with_parent();
             }
@@ -241,7 +302,9 @@ fn main() -> ExitCode {
                 return ExitCode::FAILURE;
             }
             let name = name.unwrap_or_else(default_worker_name);
-            farm::work(farm::WorkOptions { server, token, name, threads, max_tiles })
+            work_caches(cache_dir, cache_mb, mesh_cache_mb).and_then(|(files, meshes)| {
+                farm::work(farm::WorkOptions { server, token, name, threads, max_tiles, files, meshes })
+            })
         }
         Command::Tonemap { input, out, scene, camera, key, burn, saturation, gamma, operator } => {
             tonemap_params(scene.as_deref(), camera, operator).and_then(|(scene_operator, base)| {
@@ -264,6 +327,53 @@ fn main() -> ExitCode {
     }
 }
 
+/// The caches of `work`: job files on disk (`--cache-dir`, `--cache-mb`) and meshes in memory
+/// (`--mesh-cache-mb`).
+fn work_caches(
+    cache_dir: Option<PathBuf>,
+    cache_mb: u64,
+    mesh_cache_mb: u64,
+) -> Result<(std::sync::Arc<filecache::FileCache>, std::sync::Arc<tessera::scene::cache::MeshCache>)> {
+    let limit = cache_mb.checked_mul(1 << 20).ok_or_else(|| {
+        anyhow::anyhow!(
+            "--cache-mb {cache_mb} (TESSERA_WORKER_CACHE_MB) is too large; give a number of MiB such as 2048"
+        )
+    })?;
+    let refused = |dir: &Path, e: anyhow::Error| {
+        anyhow::anyhow!(
+            "--cache-dir {} (TESSERA_WORKER_CACHE_DIR): {e:#}; give a directory this user may write",
+            dir.display()
+        )
+    };
+    let files = match cache_dir {
+        Some(dir) => filecache::FileCache::open(&dir, limit).map_err(|e| refused(&dir, e))?,
+        // The default place is a convenience: a worker whose home it cannot write (a container
+        // with a read-only home, no HOME at all) keeps its files in the temporary directory.
+        None => {
+            let opened = match filecache::default_dir() {
+                Some(dir) => filecache::FileCache::open(&dir, limit).map_err(|e| refused(&dir, e)),
+                None => Err(anyhow::anyhow!("neither XDG_CACHE_HOME nor HOME is set")),
+            };
+            match opened {
+                Ok(files) => files,
+                Err(e) => {
+                    // One place for every run, within the same bound: files verified on every read.
+                    let fallback = std::env::temp_dir().join("tessera-worker-files");
+                    let files =
+                        filecache::FileCache::open(&fallback, limit).map_err(|e| refused(&fallback, e))?;
+                    eprintln!(
+                        "warning: no default file cache ({e:#}); using {} (give --cache-dir DIR or TESSERA_WORKER_CACHE_DIR to keep files across runs)",
+                        fallback.display()
+                    );
+                    files
+                }
+            }
+        }
+    };
+    let meshes = tessera::scene::cache::MeshCache::new(mesh_cache_bytes(mesh_cache_mb)?);
+    Ok((std::sync::Arc::new(files), std::sync::Arc::new(meshes)))
+}
+
 /// Prints `warnings` (unsupported elements too when they are allowed), then refuses the scene
 /// if it has unsupported elements that are not: each one is printed as an error with its line.
 fn report_warnings(scene_path: &Path, warnings: &[tessera::Warning], load: LoadOptions) -> Result<()> {
@@ -283,24 +393,61 @@ fn report_warnings(scene_path: &Path, warnings: &[tessera::Warning], load: LoadO
     Ok(())
 }
 
+/// Where one scene file's time went (`--timings`).
+#[derive(Default)]
+struct FrameTimings {
+    /// Reading and parsing the scene file.
+    parse: f64,
+    /// Building it (assets, meshes, the top level): `Scene::stats.build_seconds`.
+    build: f64,
+    /// Of which the meshes (PLY files read and parsed, their BVHs built).
+    mesh: f64,
+    meshes: usize,
+    meshes_cached: usize,
+    /// Of which the top-level tree over the instances.
+    top_level: f64,
+    /// Whether its world-space tree of static mesh instances came from the cache.
+    top_level_cached: bool,
+    render: f64,
+    write: f64,
+}
+
+impl FrameTimings {
+    fn line(&self, scene: &Path) -> String {
+        format!(
+            "timings: {}: parse {:.3} s, build {:.3} s (meshes {:.3} s, {} of {} from the cache; top level {:.3} s{}), render {:.3} s, write {:.3} s",
+            scene.display(),
+            self.parse,
+            self.build,
+            self.mesh,
+            self.meshes_cached,
+            self.meshes,
+            self.top_level,
+            if self.top_level_cached { ", its world tree from the cache" } else { "" },
+            self.render,
+            self.write
+        )
+    }
+
+    fn json(&self, scene: &Path) -> String {
+        serde_json::json!({
+            "scene": scene.display().to_string(),
+            "parse_seconds": self.parse,
+            "build_seconds": self.build,
+            "mesh_seconds": self.mesh,
+            "meshes": self.meshes,
+            "meshes_cached": self.meshes_cached,
+            "top_level_seconds": self.top_level,
+            "top_level_cached": self.top_level_cached,
+            "render_seconds": self.render,
+            "write_seconds": self.write,
+        })
+        .to_string()
+    }
+}
+
 fn render(args: &RenderArgs) -> Result<()> {
-    let RenderArgs {
-        ref scene,
-        ref out,
-        threads,
-        camera,
-        tile_size,
-        samples,
-        env_sampling,
-        quiet,
-        allow_unsupported,
-        denoise,
-        noise_target,
-        pass_samples,
-    } = *args;
-    let (scene_path, out) = (scene.as_path(), out.as_path());
-    let env_sampling = env_sampling.map(EnvSampler::from);
-    let load = LoadOptions { allow_unsupported };
+    let RenderArgs { ref scenes, threads, samples, tile_size, noise_target, pass_samples, .. } = *args;
     if samples == Some(0) {
         bail!("--samples must be at least 1");
     }
@@ -313,9 +460,13 @@ fn render(args: &RenderArgs) -> Result<()> {
     if tile_size == 0 {
         bail!("--tile-size must be at least 1");
     }
+    // One scene file has no next one to keep anything for: it is built as before, without
+    // hashing its files.
+    let limit = mesh_cache_bytes(args.mesh_cache_mb)?;
+    let cache = (scenes.len() > 1).then(|| tessera::scene::cache::MeshCache::new(limit));
     // The denoiser is found before anything is read or rendered: a missing library must not
     // cost a render.
-    let oidn = if denoise {
+    let oidn = if args.denoise {
         Some(tessera_denoise::oidn().map_err(|e| anyhow::anyhow!("--denoise: {e}"))?)
     } else {
         None
@@ -329,134 +480,203 @@ fn render(args: &RenderArgs) -> Result<()> {
     }
     let pool = pool.build().context("cannot start the render threads")?;
     pool.install(|| -> Result<()> {
-        let t0 = Instant::now();
-        // Parse first and show the parser's warnings even if building then fails.
-        let text = std::fs::read_to_string(scene_path)
-            .map_err(|e| anyhow::anyhow!("{}: cannot read the scene file: {e}", scene_path.display()))?;
-        let records = parse_scene(&text, scene_path)?;
-        // Unsupported elements the parser finds are refused before any asset is read.
-        report_warnings(scene_path, &records.warnings, load)?;
-        let scene = build_scene(&records, &FsResolver::for_scene(scene_path))?;
-        report_warnings(scene_path, &scene.warnings[records.warnings.len()..], load)?;
-        eprintln!(
-            "loaded {} in {:.2} s: {} triangles, {} objects, {} camera(s)",
-            scene_path.display(),
-            t0.elapsed().as_secs_f64(),
-            scene.stats.triangles,
-            scene.stats.instances,
-            scene.cameras.len()
-        );
-        let selected: Vec<usize> = match camera {
-            Some(k) if k >= 1 && k <= scene.cameras.len() => vec![k - 1],
-            Some(k) => {
-                bail!("--camera {k}: the scene has {} camera(s), numbered from 1", scene.cameras.len())
+        // Which scene wrote each output file so far: a later scene writing the same name is
+        // worth a warning (its image replaces the earlier one).
+        let mut written_by: std::collections::HashMap<PathBuf, PathBuf> = Default::default();
+        for scene_path in scenes {
+            let t = render_scene(args, scene_path, cache.as_ref(), oidn, &mut written_by)?;
+            if args.timings {
+                println!("{}", t.line(scene_path));
             }
-            None => (0..scene.cameras.len()).collect(),
-        };
-        std::fs::create_dir_all(out)
-            .with_context(|| format!("cannot create the output directory {}", out.display()))?;
-        let settings = RenderSettings { samples, env_sampling, ..RenderSettings::default() };
-        for ci in selected {
-            let cam = &scene.cameras[ci];
-            let (files, notes) = output::plan(cam);
-            for n in notes {
-                eprintln!("warning: {n}");
-            }
-            let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(1) };
-            bar.set_style(
-                ProgressStyle::with_template(
-                    "{msg} [{bar:40}] {pos}/{len} tiles, {elapsed} elapsed, ETA {eta}",
-                )
-                .unwrap_or_else(|_| ProgressStyle::default_bar())
-                .progress_chars("=> "),
-            );
-            bar.set_message(cam.image_name.clone());
-            let t = Instant::now();
-            let progress = |done: usize, total: usize| {
-                bar.set_length(total as u64);
-                bar.set_position(done as u64);
-            };
-            let mut outcomes = None;
-            let (img, aux, stats) = if let Some(target) = noise_target {
-                let n = tessera::render::samples_per_pixel(&scene, ci, &settings);
-                let plan = PassPlan {
-                    pass_samples: pass_samples
-                        .map(tessera::passes::round_to_blocks)
-                        .unwrap_or_else(|| tessera::passes::default_pass_samples(n)),
-                    noise_target: Some(target),
-                };
-                let f = render_camera_passes(&scene, ci, tile_size, &settings, plan, oidn.is_some(), &progress);
-                outcomes = Some((n, f.tiles));
-                (f.image, f.aux, f.stats)
-            } else if oidn.is_some() {
-                let (img, aux, stats) = render_camera_with_aux(&scene, ci, tile_size, &settings, &progress);
-                (img, Some(aux), stats)
-            } else {
-                let (img, stats) = render_camera(&scene, ci, tile_size, &settings, &progress);
-                (img, None, stats)
-            };
-            bar.finish_and_clear();
-            let secs = t.elapsed().as_secs_f64();
-            let written = output::write(out, &img, &files)?;
-            let non_finite = img.pixels.iter().filter(|p| p.iter().any(|c| !c.is_finite())).count();
-            if non_finite > 0 {
-                eprintln!(
-                    "warning: {}: {non_finite} pixel(s) came out NaN or infinite; they are kept in HDR files, left out of tone-mapping statistics and written black (NaN) or white (+inf) in PNGs",
-                    cam.image_name
-                );
-            }
-            let names: Vec<String> = written.iter().map(|w| w.path.display().to_string()).collect();
-            println!(
-                "{}: {}x{}, {} spp, {:.3} s, {:.2} Mrays/s ({} primary, {} shadow, {} secondary)",
-                names.join(" + "),
-                cam.width,
-                cam.height,
-                samples.unwrap_or(cam.num_samples),
-                secs,
-                stats.total() as f64 / secs / 1e6,
-                stats.primary,
-                stats.shadow,
-                stats.secondary
-            );
-            if let Some((n, tiles)) = outcomes {
-                let name = output::samples_map_name(cam);
-                let placed: Vec<_> = tiles.iter().map(|t| (t.rect, t.samples)).collect();
-                let rgb = output::samples_map(cam.width, cam.height, &placed, n);
-                tessera::hdr_io::write_png_rgb8(&out.join(&name), cam.width, cam.height, &rgb)
-                    .map_err(|e| anyhow::anyhow!("{e}"))?;
-                let total: u64 = tiles.iter().map(|t| u64::from(t.samples) * u64::from(t.rect.width * t.rect.height)).sum();
-                let pixels = u64::from(cam.width) * u64::from(cam.height);
-                let stopped = tiles.iter().filter(|t| t.samples < n).count();
-                let mut noise: Vec<f64> = tiles.iter().filter_map(|t| t.error).collect();
-                noise.sort_by(f64::total_cmp);
-                let quantile = |q: f64| noise.get(((noise.len() as f64 - 1.0) * q).round() as usize).copied();
-                let spread = match (quantile(0.1), quantile(0.5), quantile(0.9)) {
-                    (Some(a), Some(b), Some(c)) => format!("; tile noise 10/50/90 %: {a:.4} / {b:.4} / {c:.4}"),
-                    _ => String::new(),
-                };
-                println!(
-                    "{}: noise target {}: {:.1} samples per pixel on average of at most {n}; {stopped} of {} tiles stopped early{spread}",
-                    out.join(&name).display(),
-                    noise_target.unwrap_or_default(),
-                    total as f64 / pixels.max(1) as f64,
-                    tiles.len()
-                );
-            }
-            if let Some(oidn) = oidn {
-                let (clean, secs) = oidn
-                    .denoise(&img, aux.as_ref(), tessera_denoise::Quality::High)
-                    .map_err(|e| anyhow::anyhow!("{}: denoising failed: {e}", cam.image_name))?;
-                let written = output::write(out, &clean, &output::denoised_plan(cam))?;
-                let names: Vec<String> = written.iter().map(|w| w.path.display().to_string()).collect();
-                println!(
-                    "{}: denoised in {secs:.3} s (Intel Open Image Denoise {}, RT filter, high quality, albedo and normal)",
-                    names.join(" + "),
-                    oidn.version()
-                );
+            if args.timings_json {
+                println!("{}", t.json(scene_path));
             }
         }
         Ok(())
     })
+}
+
+/// Renders the cameras of one scene file (all, or --camera) with the meshes and images of
+/// `cache` (when there are several files), and writes their images.
+fn render_scene(
+    args: &RenderArgs,
+    scene_path: &Path,
+    cache: Option<&tessera::scene::cache::MeshCache>,
+    oidn: Option<&'static tessera_denoise::Oidn>,
+    written_by: &mut std::collections::HashMap<PathBuf, PathBuf>,
+) -> Result<FrameTimings> {
+    let RenderArgs {
+        ref out,
+        camera,
+        tile_size,
+        samples,
+        env_sampling,
+        quiet,
+        allow_unsupported,
+        noise_target,
+        pass_samples,
+        ..
+    } = *args;
+    let out = out.as_path();
+    let env_sampling = env_sampling.map(EnvSampler::from);
+    let load = LoadOptions { allow_unsupported };
+    let mut timings = FrameTimings::default();
+    let t0 = Instant::now();
+    // Parse first and show the parser's warnings even if building then fails.
+    let text = std::fs::read_to_string(scene_path)
+        .map_err(|e| anyhow::anyhow!("{}: cannot read the scene file: {e}", scene_path.display()))?;
+    let records = parse_scene(&text, scene_path)?;
+    timings.parse = t0.elapsed().as_secs_f64();
+    // Unsupported elements the parser finds are refused before any asset is read.
+    report_warnings(scene_path, &records.warnings, load)?;
+    let resolver = FsResolver::for_scene(scene_path);
+    let scene = match cache {
+        Some(cache) => build_scene_cached(&records, &resolver, cache)?,
+        None => build_scene(&records, &resolver)?,
+    };
+    report_warnings(scene_path, &scene.warnings[records.warnings.len()..], load)?;
+    timings.build = scene.stats.build_seconds;
+    timings.mesh = scene.stats.mesh_seconds;
+    timings.meshes = records.meshes.len();
+    timings.meshes_cached = scene.stats.meshes_cached;
+    timings.top_level = scene.stats.accel_seconds;
+    timings.top_level_cached = scene.stats.world_tree_cached;
+    eprintln!(
+        "loaded {} in {:.2} s: {} triangles, {} objects, {} camera(s)",
+        scene_path.display(),
+        t0.elapsed().as_secs_f64(),
+        scene.stats.triangles,
+        scene.stats.instances,
+        scene.cameras.len()
+    );
+    let selected: Vec<usize> = match camera {
+        Some(k) if k >= 1 && k <= scene.cameras.len() => vec![k - 1],
+        Some(k) => {
+            bail!(
+                "--camera {k}: {} has {} camera(s), numbered from 1",
+                scene_path.display(),
+                scene.cameras.len()
+            )
+        }
+        None => (0..scene.cameras.len()).collect(),
+    };
+    std::fs::create_dir_all(out)
+        .with_context(|| format!("cannot create the output directory {}", out.display()))?;
+    let settings = RenderSettings { samples, env_sampling, ..RenderSettings::default() };
+    for ci in selected {
+        let cam = &scene.cameras[ci];
+        let (files, notes) = output::plan(cam);
+        for n in notes {
+            eprintln!("warning: {n}");
+        }
+        let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(1) };
+        bar.set_style(
+            ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} tiles, {elapsed} elapsed, ETA {eta}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> "),
+        );
+        bar.set_message(cam.image_name.clone());
+        let t = Instant::now();
+        let progress = |done: usize, total: usize| {
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        };
+        let mut outcomes = None;
+        let (img, aux, stats) = if let Some(target) = noise_target {
+            let n = tessera::render::samples_per_pixel(&scene, ci, &settings);
+            let plan = PassPlan {
+                pass_samples: pass_samples
+                    .map(tessera::passes::round_to_blocks)
+                    .unwrap_or_else(|| tessera::passes::default_pass_samples(n)),
+                noise_target: Some(target),
+            };
+            let f = render_camera_passes(&scene, ci, tile_size, &settings, plan, oidn.is_some(), &progress);
+            outcomes = Some((n, f.tiles));
+            (f.image, f.aux, f.stats)
+        } else if oidn.is_some() {
+            let (img, aux, stats) = render_camera_with_aux(&scene, ci, tile_size, &settings, &progress);
+            (img, Some(aux), stats)
+        } else {
+            let (img, stats) = render_camera(&scene, ci, tile_size, &settings, &progress);
+            (img, None, stats)
+        };
+        bar.finish_and_clear();
+        let secs = t.elapsed().as_secs_f64();
+        timings.render += secs;
+        let t_write = Instant::now();
+        let written = output::write(out, &img, &files)?;
+        timings.write += t_write.elapsed().as_secs_f64();
+        for w in &written {
+            if let Some(earlier) = written_by.insert(w.path.clone(), scene_path.to_path_buf())
+                && earlier != scene_path
+            {
+                eprintln!(
+                    "warning: {} from {} replaces the one {} wrote (both name it); give the scenes different ImageNames or render them into different --out folders",
+                    w.path.display(),
+                    scene_path.display(),
+                    earlier.display()
+                );
+            }
+        }
+        let non_finite = img.pixels.iter().filter(|p| p.iter().any(|c| !c.is_finite())).count();
+        if non_finite > 0 {
+            eprintln!(
+                "warning: {}: {non_finite} pixel(s) came out NaN or infinite; they are kept in HDR files, left out of tone-mapping statistics and written black (NaN) or white (+inf) in PNGs",
+                cam.image_name
+            );
+        }
+        let names: Vec<String> = written.iter().map(|w| w.path.display().to_string()).collect();
+        println!(
+            "{}: {}x{}, {} spp, {:.3} s, {:.2} Mrays/s ({} primary, {} shadow, {} secondary)",
+            names.join(" + "),
+            cam.width,
+            cam.height,
+            samples.unwrap_or(cam.num_samples),
+            secs,
+            stats.total() as f64 / secs / 1e6,
+            stats.primary,
+            stats.shadow,
+            stats.secondary
+        );
+        if let Some((n, tiles)) = outcomes {
+            let name = output::samples_map_name(cam);
+            let placed: Vec<_> = tiles.iter().map(|t| (t.rect, t.samples)).collect();
+            let rgb = output::samples_map(cam.width, cam.height, &placed, n);
+            tessera::hdr_io::write_png_rgb8(&out.join(&name), cam.width, cam.height, &rgb)
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+            let total: u64 =
+                tiles.iter().map(|t| u64::from(t.samples) * u64::from(t.rect.width * t.rect.height)).sum();
+            let pixels = u64::from(cam.width) * u64::from(cam.height);
+            let stopped = tiles.iter().filter(|t| t.samples < n).count();
+            let mut noise: Vec<f64> = tiles.iter().filter_map(|t| t.error).collect();
+            noise.sort_by(f64::total_cmp);
+            let quantile = |q: f64| noise.get(((noise.len() as f64 - 1.0) * q).round() as usize).copied();
+            let spread = match (quantile(0.1), quantile(0.5), quantile(0.9)) {
+                (Some(a), Some(b), Some(c)) => format!("; tile noise 10/50/90 %: {a:.4} / {b:.4} / {c:.4}"),
+                _ => String::new(),
+            };
+            println!(
+                "{}: noise target {}: {:.1} samples per pixel on average of at most {n}; {stopped} of {} tiles stopped early{spread}",
+                out.join(&name).display(),
+                noise_target.unwrap_or_default(),
+                total as f64 / pixels.max(1) as f64,
+                tiles.len()
+            );
+        }
+        if let Some(oidn) = oidn {
+            let (clean, secs) = oidn
+                .denoise(&img, aux.as_ref(), tessera_denoise::Quality::High)
+                .map_err(|e| anyhow::anyhow!("{}: denoising failed: {e}", cam.image_name))?;
+            let written = output::write(out, &clean, &output::denoised_plan(cam))?;
+            let names: Vec<String> = written.iter().map(|w| w.path.display().to_string()).collect();
+            println!(
+                "{}: denoised in {secs:.3} s (Intel Open Image Denoise {}, RT filter, high quality, albedo and normal)",
+                names.join(" + "),
+                oidn.version()
+            );
+        }
+    }
+    Ok(timings)
 }
 
 /// The tone-mapping defaults: the course's, or a scene camera's `<Tonemap>`.

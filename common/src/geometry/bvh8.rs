@@ -70,6 +70,12 @@ struct Builder<'a> {
 }
 
 impl Bvh8 {
+    /// The bytes its nodes and triangle packets take on the heap (for memory-bounded caches).
+    pub fn heap_bytes(&self) -> usize {
+        self.nodes.capacity() * std::mem::size_of::<Node>()
+            + self.tris.capacity() * std::mem::size_of::<Tri4>()
+    }
+
     /// Builds over `tris` (vertex 0, edge 1, edge 2) with boxes `aabbs`; `ids[i]` is what a hit
     /// on `tris[i]` reports. `aabbs` must be finite (see `mesh::is_sane`).
     pub fn build(tris: &[Tri], aabbs: &[Aabb], ids: &[u32]) -> Bvh8 {

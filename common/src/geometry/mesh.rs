@@ -133,6 +133,17 @@ impl MeshGeom {
         })
     }
 
+    /// An estimate of the bytes it holds (vertex arrays, triangles, normals, texture
+    /// coordinates and its BVH), for memory-bounded caches.
+    pub fn heap_bytes(&self) -> usize {
+        std::mem::size_of::<Self>()
+            + self.positions.capacity() * std::mem::size_of::<DVec3>()
+            + self.indices.capacity() * std::mem::size_of::<[u32; 3]>()
+            + self.vertex_normals.as_ref().map_or(0, |n| n.capacity() * std::mem::size_of::<DVec3>())
+            + self.uvs.as_ref().map_or(0, |u| u.capacity() * std::mem::size_of::<DVec2>())
+            + self.bvh.heap_bytes()
+    }
+
     /// Whether no triangle is in the BVH (the mesh can never be hit).
     pub fn is_empty(&self) -> bool {
         self.bvh.is_empty()

@@ -159,9 +159,11 @@ pub struct Accel {
     /// Its hits report an index into `merged_prims`. Those instances are in neither `bounded`
     /// nor `unbounded`. Their meshes keep their own trees (other instances may share them), so
     /// the merged triangles are a second copy: at most `MERGED_TRIANGLES_MAX` of them.
-    merged: Bvh8,
+    merged: Arc<Bvh8>,
     /// (instance, triangle of its mesh) of each triangle of `merged`.
-    merged_prims: Vec<(u32, u32)>,
+    merged_prims: Arc<Vec<(u32, u32)>>,
+    /// Which instances `merged` (or `lone`) holds.
+    merged_set: Arc<Vec<bool>>,
     /// The one static untransformed mesh instance, when it is the only static mesh (a single
     /// PLY model, say): its own tree already is in world space, so it takes the merged tree's
     /// place (packets of camera rays walk it together). Such an instance is in neither `bounded`
@@ -172,7 +174,7 @@ pub struct Accel {
     /// flat and untextured and no larger: a hit on a flat, untextured triangle of the world
     /// tree takes its distance, point and normal from it, with no ray transform,
     /// re-intersection or normalisation.
-    planes: Vec<WorldPlane>,
+    planes: Arc<Vec<WorldPlane>>,
 }
 
 /// A triangle's plane in world space, in `f64`: a vertex and the unit geometric normal (what
@@ -392,15 +394,28 @@ fn instance_bounds(inst: &Instance, meshes: &[Arc<MeshGeom>]) -> Option<Aabb> {
 /// many times must not multiply the scene's memory; instances beyond it keep the two levels.
 const MERGED_TRIANGLES_MAX: usize = 1 << 22;
 
-/// The world-space tree of the static mesh instances: see `Accel::merged` and `Accel::lone`.
-#[derive(Default)]
-struct WorldTree {
-    merged: Bvh8,
-    prims: Vec<(u32, u32)>,
+/// The world-space tree of a scene's static mesh instances: see `Accel::merged` and
+/// `Accel::lone`. Cheap to clone (its parts are shared), so that scenes whose static mesh
+/// instances are the same (an animation whose camera moves) can share one
+/// ([`Accel::with_world_tree`]).
+#[derive(Clone, Default)]
+pub struct WorldTree {
+    merged: Arc<Bvh8>,
+    prims: Arc<Vec<(u32, u32)>>,
     /// Which instances it holds (empty: none).
-    members: Vec<bool>,
+    members: Arc<Vec<bool>>,
     lone: Option<LoneMesh>,
-    planes: Vec<WorldPlane>,
+    planes: Arc<Vec<WorldPlane>>,
+}
+
+impl WorldTree {
+    /// An estimate of the bytes it holds, for memory-bounded caches.
+    pub fn heap_bytes(&self) -> usize {
+        self.merged.heap_bytes()
+            + self.prims.capacity() * std::mem::size_of::<(u32, u32)>()
+            + self.members.capacity()
+            + self.planes.capacity() * std::mem::size_of::<WorldPlane>()
+    }
 }
 
 /// The merged BVH of the static mesh instances (see `Accel::merged`): their triangles carried
@@ -451,7 +466,7 @@ fn merge_static_meshes(meshes: &[Arc<MeshGeom>], instances: &[Instance]) -> Worl
             }
             None => Vec::new(),
         };
-        return WorldTree { members: set, lone, planes, ..WorldTree::default() };
+        return WorldTree { members: Arc::new(set), lone, planes: Arc::new(planes), ..WorldTree::default() };
     }
     let (mut tris, mut aabbs, mut prims) =
         (Vec::with_capacity(total), Vec::with_capacity(total), Vec::with_capacity(total));
@@ -479,7 +494,13 @@ fn merge_static_meshes(meshes: &[Arc<MeshGeom>], instances: &[Instance]) -> Worl
         }
     }
     let ids: Vec<u32> = (0..tris.len() as u32).collect();
-    WorldTree { merged: Bvh8::build(&tris, &aabbs, &ids), prims, members: set, lone: None, planes }
+    WorldTree {
+        merged: Arc::new(Bvh8::build(&tris, &aabbs, &ids)),
+        prims: Arc::new(prims),
+        members: Arc::new(set),
+        lone: None,
+        planes: Arc::new(planes),
+    }
 }
 
 /// Whether `fr` enters box `b` before `fr.tmax`. obvhs's `intersect_ray` answers a miss with
@@ -499,9 +520,23 @@ fn pad(b: Aabb) -> Aabb {
 
 impl Accel {
     pub fn new(meshes: Vec<Arc<MeshGeom>>, instances: Vec<Instance>) -> Self {
+        Self::with_world_tree(meshes, instances, None)
+    }
+
+    /// [`Accel::new`] with the world-space tree of its static mesh instances given (`Some`)
+    /// instead of built: the [`Accel::shared_world_tree`] of an earlier `Accel` whose meshes
+    /// and instances were the same in all the tree reads — each mesh instance's mesh index,
+    /// that mesh's positions and triangles, its transform, motion, smooth flag and whether it
+    /// has texture maps, and every instance's position in `instances`. The caller's key must
+    /// guarantee it (`scene::build` hashes exactly those).
+    pub fn with_world_tree(
+        meshes: Vec<Arc<MeshGeom>>,
+        instances: Vec<Instance>,
+        world: Option<WorldTree>,
+    ) -> Self {
         let (mut bounds, mut bounded, mut unbounded) = (Vec::new(), Vec::new(), Vec::new());
         let WorldTree { merged, prims: merged_prims, members: merged_set, lone, planes } =
-            merge_static_meshes(&meshes, &instances);
+            world.unwrap_or_else(|| merge_static_meshes(&meshes, &instances));
         for (i, inst) in instances.iter().enumerate() {
             if merged_set.get(i).copied().unwrap_or(false) {
                 continue;
@@ -535,8 +570,21 @@ impl Accel {
             unbounded,
             merged,
             merged_prims,
+            merged_set,
             lone,
             planes,
+        }
+    }
+
+    /// Its world-space tree of the static mesh instances, to give to
+    /// [`Accel::with_world_tree`] for a scene whose static mesh instances are the same.
+    pub fn shared_world_tree(&self) -> WorldTree {
+        WorldTree {
+            merged: self.merged.clone(),
+            prims: self.merged_prims.clone(),
+            members: self.merged_set.clone(),
+            lone: self.lone,
+            planes: self.planes.clone(),
         }
     }
 
@@ -571,7 +619,7 @@ impl Accel {
     fn world_tree(&self) -> Option<&Bvh8> {
         match self.lone {
             Some(lone) => Some(self.meshes[lone.mesh as usize].tree()),
-            None => (!self.merged.is_empty()).then_some(&self.merged),
+            None => (!self.merged.is_empty()).then_some(&*self.merged),
         }
     }
 
@@ -1704,7 +1752,7 @@ mod tests {
         let fast = Accel::new(meshes.clone(), instances.clone());
         let mut general = Accel::new(meshes, instances);
         assert_eq!(fast.planes.len(), fast.merged_prims.len(), "every merged face has its plane");
-        general.planes.clear();
+        general.planes = Default::default();
         let (mut by_instance, mut rounded_differently) = ([0; 3], 0);
         for _ in 0..3000 {
             let o = DVec3::new(r() * 36.0 - 18.0, r() * 8.0 - 4.0, 12.0);
@@ -1766,7 +1814,7 @@ mod tests {
         let textured = ObjectTextures { colour: [Some(0), None], ..ObjectTextures::default() };
         assert!(lone(false, textured).planes.is_empty(), "textured: no planes");
         let mut general = lone(false, ObjectTextures::default());
-        general.planes.clear();
+        general.planes = Default::default();
         let (mut sheet_hits, mut rounded_differently) = (0, 0);
         for _ in 0..2000 {
             let o = DVec3::new(r() * 20.0 - 10.0, r() * 20.0 - 10.0, 12.0);

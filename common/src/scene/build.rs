@@ -10,6 +10,7 @@ use std::time::Instant;
 use glam::{DAffine3, DMat3, DMat4, DVec2, DVec3};
 use rayon::prelude::*;
 
+use super::cache::{CachedMesh, MeshCache, content_key};
 use super::records::*;
 use super::tree::json_words;
 use super::{Scene, SceneStats};
@@ -24,6 +25,7 @@ use crate::math::{Transform, v3};
 use crate::texture::image::TextureImage;
 use crate::texture::maps::{Source, TextureMap};
 use crate::texture::mip::MipChain;
+use sha2::{Digest, Sha256};
 
 /// Largest image we agree to render (a float frame of this size is 3 GiB).
 const MAX_IMAGE_SIDE: u32 = 65_536;
@@ -46,6 +48,8 @@ fn degamma_exponent(rec: &SceneRecords) -> f64 {
 struct Ctx<'a> {
     rec: &'a SceneRecords,
     resolver: &'a dyn AssetResolver,
+    /// Meshes and images kept across builds ([`build_scene_cached`]).
+    cache: Option<&'a MeshCache>,
 }
 
 impl Ctx<'_> {
@@ -286,16 +290,11 @@ struct MeshData {
     groups: Option<Vec<u32>>,
 }
 
-fn load_mesh_data(
-    ctx: &Ctx,
-    mesh: &MeshRec,
-    ply_cache: &HashMap<String, Result<Arc<MeshData>, SceneError>>,
-) -> Result<Arc<MeshData>, SceneError> {
+/// The triangle data of a Mesh record whose faces are in the scene (a PLY mesh's comes from
+/// [`load_ply_cached`]).
+fn load_mesh_data(ctx: &Ctx, mesh: &MeshRec) -> Result<Arc<MeshData>, SceneError> {
     match &mesh.faces {
-        FacesRec::Ply { path } => ply_cache
-            .get(path)
-            .cloned()
-            .unwrap_or_else(|| Err(ctx.err(&mesh.faces_loc, "internal: PLY not loaded"))),
+        FacesRec::Ply { .. } => Err(ctx.err(&mesh.faces_loc, "internal: PLY not loaded")),
         FacesRec::Binary { .. } => Err(ctx.err(&mesh.faces_loc, "internal: binary faces not read")),
         FacesRec::Inline { indices, vertex_offset, .. } => {
             if indices.len() % 3 != 0 {
@@ -346,17 +345,33 @@ fn load_mesh_data(
     }
 }
 
-fn load_ply(ctx: &Ctx, path: &str, loc: &Loc) -> Result<Arc<MeshData>, SceneError> {
-    let (bytes, found) = ctx.resolver.read(path).map_err(|e| {
-        SceneError::new(
-            &ctx.rec.source,
-            loc.clone(),
-            format!(
-                "cannot read PLY file {}: {e}; check the plyFile path (it is relative to the scene file)",
-                ctx.resolver.display_path(path).display()
-            ),
-        )
-    })?;
+/// Why the PLY file `path` named at `loc` cannot be read.
+fn ply_read_error(ctx: &Ctx, path: &str, loc: &Loc, e: std::io::Error) -> SceneError {
+    SceneError::new(
+        &ctx.rec.source,
+        loc.clone(),
+        format!(
+            "cannot read PLY file {}: {e}; check the plyFile path (it is relative to the scene file)",
+            ctx.resolver.display_path(path).display()
+        ),
+    )
+}
+
+/// Parses the PLY file `path` named at `loc`: the bytes `read` when the caller has them, else
+/// read through the resolver.
+fn load_ply(
+    ctx: &Ctx,
+    path: &str,
+    loc: &Loc,
+    read: Option<(Vec<u8>, std::path::PathBuf)>,
+) -> Result<Arc<MeshData>, SceneError> {
+    let (bytes, found) = match read {
+        Some(r) => r,
+        None => ctx.resolver.read(path).map_err(|e| ply_read_error(ctx, path, loc, e))?,
+    };
+    if let Some(cache) = ctx.cache {
+        cache.count_parse();
+    }
     let ply = crate::ply::parse_ply(&bytes).map_err(|e| {
         let mut err = SceneError::file(&found, format!("{e} (referenced from {}", ctx.rec.source.display()));
         if let Some(l) = loc.line {
@@ -375,6 +390,35 @@ fn load_ply(ctx: &Ctx, path: &str, loc: &Loc) -> Result<Arc<MeshData>, SceneErro
     });
     let uvs = ply.uvs.map(|t| t.iter().map(|uv| DVec2::new(uv[0] as f64, uv[1] as f64)).collect());
     Ok(Arc::new(MeshData { positions, indices: ply.triangles, file_normals, uvs, groups: None }))
+}
+
+/// One PLY file as step 5 has it: its content key (with a cache), the meshes the cache had
+/// for it (by shading: flat, smooth), and its parsed data when some mesh of it is still to be
+/// built.
+struct PlyLoaded {
+    content: Option<[u8; 32]>,
+    cached: [Option<CachedMesh>; 2],
+    data: Option<Arc<MeshData>>,
+}
+
+/// Loads the PLY file `path` named at `loc`, whose meshes are wanted flat (`wanted[0]`) and/or
+/// smooth (`wanted[1]`). With a cache, the file is neither parsed nor (when the resolver knows
+/// its content id) read if every wanted mesh is cached.
+fn load_ply_cached(ctx: &Ctx, path: &str, loc: &Loc, wanted: [bool; 2]) -> Result<PlyLoaded, SceneError> {
+    let Some(cache) = ctx.cache else {
+        let data = load_ply(ctx, path, loc, None)?;
+        return Ok(PlyLoaded { content: None, cached: [None, None], data: Some(data) });
+    };
+    let (content, read) = content_key(ctx.resolver, path).map_err(|e| ply_read_error(ctx, path, loc, e))?;
+    let mut cached = [None, None];
+    for (k, slot) in cached.iter_mut().enumerate() {
+        if wanted[k] {
+            *slot = cache.mesh(&content, k == 1);
+        }
+    }
+    let missing = (0..2).any(|k| wanted[k] && cached[k].is_none());
+    let data = if missing { Some(load_ply(ctx, path, loc, read)?) } else { None };
+    Ok(PlyLoaded { content: Some(content), cached, data })
 }
 
 /// Whether an object's maps include an image (which needs texture coordinates).
@@ -435,7 +479,7 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
     let decoded: Vec<Result<(String, Arc<TextureImage>), SceneError>> = wanted
         .par_iter()
         .map(|(img, user)| {
-            let (bytes, found) = ctx.resolver.read(&img.path).map_err(|e| {
+            let unreadable = |e: std::io::Error| {
                 ctx.err(
                     &img.loc,
                     format!(
@@ -444,14 +488,34 @@ fn build_textures<'a>(ctx: &Ctx<'a>, warnings: &mut Vec<Warning>) -> Result<Buil
                         img.id
                     ),
                 )
-            })?;
+            };
+            // With a cache: the decoded image of the same content, if it has it.
+            let (content, read) = match ctx.cache {
+                Some(cache) => {
+                    let (content, read) = content_key(ctx.resolver, &img.path).map_err(unreadable)?;
+                    if let Some(image) = cache.image(&content) {
+                        return Ok((img.path.clone(), image));
+                    }
+                    (Some(content), read)
+                }
+                None => (None, None),
+            };
+            let (bytes, found) = match read {
+                Some(r) => r,
+                None => ctx.resolver.read(&img.path).map_err(unreadable)?,
+            };
             let decoded = TextureImage::decode(&bytes).map_err(|e| {
                 ctx.err(
                     &img.loc,
                     format!("cannot decode image {} (image id {}, used by {user}): {e}", found.display(), img.id),
                 )
             })?;
-            Ok((img.path.clone(), Arc::new(decoded)))
+            let decoded = Arc::new(decoded);
+            let decoded = match (ctx.cache, content) {
+                (Some(cache), Some(content)) => cache.put_image(&content, decoded),
+                _ => decoded,
+            };
+            Ok((img.path.clone(), decoded))
         })
         .collect();
     let mut by_path: HashMap<String, Arc<TextureImage>> = HashMap::new();
@@ -583,7 +647,7 @@ impl BuiltTextures<'_> {
 /// valid frame), without loading any asset: what the farm server needs to name and size frames.
 pub fn build_cameras(rec: &SceneRecords) -> Result<Vec<Camera>, SceneError> {
     let no_assets = crate::assets::MemResolver { files: HashMap::new(), base: String::new() };
-    let ctx = Ctx { rec, resolver: &no_assets };
+    let ctx = Ctx { rec, resolver: &no_assets, cache: None };
     let transforms = transform_table(rec);
     placed_cameras(&ctx, &transforms)
 }
@@ -636,10 +700,29 @@ fn placed_cameras(
 /// then every object placed as an [`Instance`]. Warnings come out in that order too, after the
 /// parser's.
 pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<Scene, SceneError> {
+    build_scene_with(rec, resolver, None)
+}
+
+/// [`build_scene`] with meshes and images kept in `cache` across builds: a PLY mesh or an image
+/// whose content (and, for a mesh, shading) the cache has is neither parsed nor built again.
+/// The scene is the same, bit for bit, as [`build_scene`]'s.
+pub fn build_scene_cached(
+    rec: &SceneRecords,
+    resolver: &dyn AssetResolver,
+    cache: &MeshCache,
+) -> Result<Scene, SceneError> {
+    build_scene_with(rec, resolver, Some(cache))
+}
+
+fn build_scene_with(
+    rec: &SceneRecords,
+    resolver: &dyn AssetResolver,
+    cache: Option<&MeshCache>,
+) -> Result<Scene, SceneError> {
     let started = Instant::now();
     let legacy = super::legacy_data::legacy_data(rec, resolver)?;
     let rec: &SceneRecords = &legacy;
-    let ctx = Ctx { rec, resolver };
+    let ctx = Ctx { rec, resolver, cache };
     let mut warnings: Vec<Warning> = rec.warnings.clone();
 
     let (materials, mat_ids) = build_materials(&ctx, &mut warnings)?;
@@ -650,11 +733,32 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
     }
     let lights = placed_lights(&ctx, &transforms)?;
     let textures = build_textures(&ctx, &mut warnings)?;
-    let meshes = build_meshes(&ctx, &transforms, &mat_ids, &mut warnings)?;
+    let meshes_started = Instant::now();
+    let mut meshes = build_meshes(&ctx, &transforms, &mat_ids, &mut warnings)?;
+    let mesh_seconds = meshes_started.elapsed().as_secs_f64();
+    let meshes_cached = meshes.cached;
+    let identity = std::mem::take(&mut meshes.identity);
     let objects = Objects { ctx: &ctx, transforms: &transforms, mat_ids: &mat_ids, textures: &textures };
     let (geoms, instances, emitters) = objects.place(meshes, &mut warnings)?;
 
-    let accel = Accel::new(geoms, instances);
+    // The top level; with a cache, the world-space tree of the static mesh instances is
+    // shared with an earlier scene that placed the same meshes the same way.
+    let accel_started = Instant::now();
+    let (accel, world_tree_cached) = match cache {
+        Some(cache) => {
+            let key = world_tree_key(&geoms, &identity, &instances);
+            match cache.world_tree(&key) {
+                Some(tree) => (Accel::with_world_tree(geoms, instances, Some(tree)), true),
+                None => {
+                    let accel = Accel::new(geoms, instances);
+                    cache.put_world_tree(&key, accel.shared_world_tree());
+                    (accel, false)
+                }
+            }
+        }
+        None => (Accel::new(geoms, instances), false),
+    };
+    let accel_seconds = accel_started.elapsed().as_secs_f64();
     epsilons(&ctx, accel.extent(), &mut warnings);
     let (object_lights, instance_emission, instance_light) =
         object_lights(&ctx, &accel, &emitters, &mut warnings);
@@ -662,6 +766,10 @@ pub fn build_scene(rec: &SceneRecords, resolver: &dyn AssetResolver) -> Result<S
         triangles: accel.instanced_triangle_count(),
         instances: accel.instances.len(),
         build_seconds: started.elapsed().as_secs_f64(),
+        mesh_seconds,
+        meshes_cached,
+        accel_seconds,
+        world_tree_cached,
     };
     if rec.json {
         // The parser's warnings are in JSON words already; this makes the build's match them.
@@ -880,14 +988,21 @@ struct Meshes {
     world: Vec<DAffine3>,
     /// Every MeshInstance record, resolved down to its Mesh.
     instances: Vec<ResolvedInstance>,
+    /// How many Mesh records the cache served (neither parsed nor built).
+    cached: usize,
+    /// Each Mesh record's geometry's identity when the build has one without hashing its
+    /// vertices (a PLY mesh under a cache: its file's SHA-256 and shading), for the world
+    /// tree's key.
+    identity: Vec<Option<[u8; 32]>>,
 }
 
-/// Step 5: the meshes. PLY files are read and parsed once each even when several meshes name
-/// them, in parallel; mesh instances are resolved through their chains (a MeshInstance may name
-/// another MeshInstance as its base, as grass_desert and marching_dragons do) before any
+/// Step 5: the meshes. Mesh instances are resolved through their chains (a MeshInstance may
+/// name another MeshInstance as its base, as grass_desert and marching_dragons do) before any
 /// geometry is built, because a flat mesh needs vertex normals when a smooth instance shows it;
-/// then degenerate triangles are dropped, normals computed and BVHs built, in parallel (and
-/// obvhs parallelises each build).
+/// PLY files are then read and parsed once each even when several meshes name them, in
+/// parallel (with a [`MeshCache`], not at all when every mesh of the file is cached); then
+/// degenerate triangles are dropped, normals computed and BVHs built, in parallel (and obvhs
+/// parallelises each build), and offered to the cache.
 fn build_meshes(
     ctx: &Ctx,
     transforms: &HashMap<(char, &str), TransformOp>,
@@ -895,17 +1010,6 @@ fn build_meshes(
     warnings: &mut Vec<Warning>,
 ) -> Result<Meshes, SceneError> {
     let rec = ctx.rec;
-    let mut ply_paths: Vec<(&str, &Loc)> = Vec::new();
-    for m in &rec.meshes {
-        if let FacesRec::Ply { path } = &m.faces
-            && !ply_paths.iter().any(|(p, _)| p == path)
-        {
-            ply_paths.push((path.as_str(), &m.faces_loc));
-        }
-    }
-    let ply_cache: HashMap<String, Result<Arc<MeshData>, SceneError>> =
-        ply_paths.par_iter().map(|(p, loc)| (p.to_string(), load_ply(ctx, p, loc))).collect();
-
     let world: Vec<DAffine3> = rec
         .meshes
         .iter()
@@ -917,13 +1021,46 @@ fn build_meshes(
     for r in &instances {
         needs_smooth[r.mesh] |= r.smooth;
     }
+    // Each PLY file once, with the shadings its meshes want (flat, smooth).
+    let mut ply_paths: Vec<(&str, &Loc, [bool; 2])> = Vec::new();
+    for (m, &smooth) in rec.meshes.iter().zip(&needs_smooth) {
+        if let FacesRec::Ply { path } = &m.faces {
+            match ply_paths.iter_mut().find(|(p, _, _)| p == path) {
+                Some((_, _, wanted)) => wanted[usize::from(smooth)] = true,
+                None => {
+                    let mut wanted = [false; 2];
+                    wanted[usize::from(smooth)] = true;
+                    ply_paths.push((path.as_str(), &m.faces_loc, wanted));
+                }
+            }
+        }
+    }
+    let plys: HashMap<&str, Result<PlyLoaded, SceneError>> =
+        ply_paths.par_iter().map(|&(p, loc, wanted)| (p, load_ply_cached(ctx, p, loc, wanted))).collect();
 
-    let built: Vec<Result<(Arc<MeshGeom>, usize), SceneError>> = rec
+    // Each mesh, whether the cache served it, and its identity (see `Meshes::identity`).
+    type Built = (CachedMesh, bool, Option<[u8; 32]>);
+    let built: Vec<Result<Built, SceneError>> = rec
         .meshes
         .par_iter()
         .enumerate()
         .map(|(i, m)| {
-            let data = load_mesh_data(ctx, m, &ply_cache)?;
+            let (data, content) = match &m.faces {
+                FacesRec::Ply { path } => {
+                    let loaded = match plys.get(path.as_str()) {
+                        Some(Ok(l)) => l,
+                        Some(Err(e)) => return Err(e.clone()),
+                        None => return Err(ctx.err(&m.faces_loc, "internal: PLY not loaded")),
+                    };
+                    let identity = loaded.content.map(|c| mesh_identity(&c, needs_smooth[i]));
+                    if let Some(c) = &loaded.cached[usize::from(needs_smooth[i])] {
+                        return Ok((c.clone(), true, identity));
+                    }
+                    let data = loaded.data.clone();
+                    (data.ok_or_else(|| ctx.err(&m.faces_loc, "internal: PLY not parsed"))?, loaded.content)
+                }
+                _ => (load_mesh_data(ctx, m)?, None),
+            };
             let mut indices = data.indices.clone();
             let dropped = drop_degenerate(&data.positions, &mut indices);
             let normals = if needs_smooth[i] {
@@ -936,12 +1073,24 @@ fn build_meshes(
                 None
             };
             let geom = MeshGeom::with_uvs(data.positions.clone(), indices, normals, data.uvs.clone());
-            Ok((Arc::new(geom), dropped))
+            let mesh = CachedMesh { geom: Arc::new(geom), dropped };
+            Ok(match (ctx.cache, content) {
+                (Some(cache), Some(content)) => (
+                    cache.put_mesh(&content, needs_smooth[i], mesh),
+                    false,
+                    Some(mesh_identity(&content, needs_smooth[i])),
+                ),
+                _ => (mesh, false, None),
+            })
         })
         .collect();
     let mut geoms: Vec<Arc<MeshGeom>> = Vec::with_capacity(built.len());
+    let mut cached = 0;
+    let mut identity = Vec::with_capacity(rec.meshes.len());
     for (g, m) in built.into_iter().zip(&rec.meshes) {
-        let (geom, dropped) = g?;
+        let (CachedMesh { geom, dropped }, hit, id) = g?;
+        cached += usize::from(hit);
+        identity.push(id);
         if dropped > 0 {
             ctx.warn(warnings, &m.faces_loc, format!("skipped {dropped} degenerate triangle(s)"));
         }
@@ -950,7 +1099,83 @@ fn build_meshes(
         }
         geoms.push(geom);
     }
-    Ok(Meshes { geoms, world, instances })
+    Ok(Meshes { geoms, world, instances, cached, identity })
+}
+
+/// The identity of a PLY mesh built from the file of SHA-256 `content`, smooth or not.
+fn mesh_identity(content: &[u8; 32], smooth: bool) -> [u8; 32] {
+    let mut h = Sha256::new();
+    h.update(b"ply mesh");
+    h.update(content);
+    h.update([u8::from(smooth)]);
+    h.finalize().into()
+}
+
+/// The key of the world-space tree of `instances` over `geoms`: a hash of everything
+/// `geometry::merge_static_meshes` reads (see `Accel::with_world_tree`). A mesh is named by its
+/// `identity` when it has one, else by its positions and triangles, bit for bit.
+fn world_tree_key(
+    geoms: &[Arc<MeshGeom>],
+    identity: &[Option<[u8; 32]>],
+    instances: &[Instance],
+) -> [u8; 32] {
+    let mut h = Sha256::new();
+    h.update(b"tessera world tree 1");
+    h.update((geoms.len() as u64).to_le_bytes());
+    for (i, g) in geoms.iter().enumerate() {
+        match identity.get(i).copied().flatten() {
+            Some(id) => {
+                h.update([1]);
+                h.update(id);
+            }
+            None => {
+                h.update([0]);
+                h.update((g.positions.len() as u64).to_le_bytes());
+                for p in &g.positions {
+                    for c in p.to_array() {
+                        h.update(c.to_bits().to_le_bytes());
+                    }
+                }
+                h.update((g.indices.len() as u64).to_le_bytes());
+                for t in &g.indices {
+                    for k in t {
+                        h.update(k.to_le_bytes());
+                    }
+                }
+            }
+        }
+    }
+    h.update((instances.len() as u64).to_le_bytes());
+    for inst in instances {
+        match inst.shape {
+            Shape::Mesh { mesh, smooth } => {
+                h.update([1, u8::from(smooth)]);
+                h.update(mesh.to_le_bytes());
+            }
+            Shape::Sphere { .. } => h.update([2]),
+            Shape::Plane { .. } => h.update([3]),
+        }
+        match &inst.transform {
+            Some(t) => {
+                h.update([1]);
+                for c in t.to_world.to_cols_array() {
+                    h.update(c.to_bits().to_le_bytes());
+                }
+            }
+            None => h.update([0]),
+        }
+        match inst.motion {
+            Some(m) => {
+                h.update([1]);
+                for c in m.to_array() {
+                    h.update(c.to_bits().to_le_bytes());
+                }
+            }
+            None => h.update([0]),
+        }
+        h.update([u8::from(inst.textures == ObjectTextures::default())]);
+    }
+    h.finalize().into()
 }
 
 /// What step 6 reads: the id tables and the built texture maps.
@@ -974,7 +1199,7 @@ impl Objects<'_, '_> {
         warnings: &mut Vec<Warning>,
     ) -> Result<(Vec<Arc<MeshGeom>>, Vec<Instance>, Vec<Emitter>), SceneError> {
         let (ctx, rec) = (self.ctx, self.ctx.rec);
-        let Meshes { mut geoms, world, instances: resolved } = meshes;
+        let Meshes { mut geoms, world, instances: resolved, .. } = meshes;
         let mut instances = Vec::new();
         let mut emitters = Vec::new();
         let mut mesh_textures = Vec::with_capacity(rec.meshes.len());

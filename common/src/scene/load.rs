@@ -8,7 +8,8 @@
 use std::path::Path;
 
 use super::Scene;
-use super::build::build_scene;
+use super::build::{build_scene, build_scene_cached};
+use super::cache::MeshCache;
 use super::records::SceneRecords;
 use super::{json, xml};
 use crate::assets::{AssetResolver, FsResolver};
@@ -96,10 +97,25 @@ pub fn load_scene_str_with(
     resolver: &dyn AssetResolver,
     options: LoadOptions,
 ) -> Result<Scene, SceneError> {
+    load_scene_str_cached(text, source, resolver, options, None)
+}
+
+/// [`load_scene_str_with`] with meshes and images kept in `cache` across builds (the same
+/// scene, bit for bit; [`super::cache`]).
+pub fn load_scene_str_cached(
+    text: &str,
+    source: &Path,
+    resolver: &dyn AssetResolver,
+    options: LoadOptions,
+    cache: Option<&MeshCache>,
+) -> Result<Scene, SceneError> {
     let refuse = |errors: Vec<SceneError>| join_errors(errors).expect("check errs with some");
     let rec = parse_scene(text, source)?;
     options.check(&rec.warnings).map_err(refuse)?;
-    let scene = build_scene(&rec, resolver)?;
+    let scene = match cache {
+        Some(cache) => build_scene_cached(&rec, resolver, cache)?,
+        None => build_scene(&rec, resolver)?,
+    };
     options.check(&scene.warnings).map_err(refuse)?;
     Ok(scene)
 }

@@ -3,11 +3,13 @@
 //! Bottom up (each imports only the ones before it; `docs/ARCHITECTURE.md`, "Layers"):
 //! [`records`] (what a file says), [`tree`] (the element tree and what the element rules read it
 //! with), [`elements`] (the walk into records, one file per family of elements),
-//! [`xml`] and [`json`] (the front ends), this module (the [`Scene`] type), [`build`] (records
-//! to `Scene`) and [`load`] (text or file to `Scene`: [`load::parse_scene`],
-//! [`load::load_scene_file`], [`load::load_scene_str`]).
+//! [`xml`] and [`json`] (the front ends), this module (the [`Scene`] type), [`cache`] (meshes
+//! and images kept from one build for the next), [`build`] (records to `Scene`) and [`load`]
+//! (text or file to `Scene`: [`load::parse_scene`], [`load::load_scene_file`],
+//! [`load::load_scene_str`]).
 
 pub mod build;
+pub mod cache;
 pub mod elements;
 pub mod json;
 pub mod legacy_data;
@@ -82,6 +84,16 @@ pub struct SceneStats {
     pub instances: usize,
     /// Wall time of the build step (PLY loading, normals, BVHs).
     pub build_seconds: f64,
+    /// Of which the meshes: PLY files read and parsed, normals, each mesh's own BVH.
+    pub mesh_seconds: f64,
+    /// Mesh records a [`cache::MeshCache`] served (neither parsed nor built).
+    pub meshes_cached: usize,
+    /// Of which the top level over the instances (`Accel::new`: the tree over their bounds
+    /// and the world-space tree merged from the static mesh instances).
+    pub accel_seconds: f64,
+    /// Whether that world-space tree came from a [`cache::MeshCache`] (an earlier scene placed
+    /// the same meshes the same way).
+    pub world_tree_cached: bool,
 }
 
 /// A render-ready scene. Immutable once built; shared by all render threads.

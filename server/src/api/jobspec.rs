@@ -9,10 +9,11 @@ use std::sync::Arc;
 
 use axum::Json;
 use axum::http::StatusCode;
-use tessera::bundle::{BundleFiles, BundleSceneError, load_bundle_scene};
+use tessera::bundle::{BundleFiles, BundleSceneError, load_bundle_scene_cached};
 use tessera::camera::Camera;
 use tessera::protocol::*;
 use tessera::scene::Scene;
+use tessera::scene::cache::MeshCache;
 use tessera::scene::load::LoadOptions;
 
 use super::jobs::job_info;
@@ -186,15 +187,21 @@ pub(super) fn scene_list<T>(listed: &[String], files: &BTreeMap<String, T>) -> A
 }
 
 /// Parses and builds the scene `scene_path` of `files` as a worker will (the same
-/// [`LoadOptions`]): the one place a submission builds a scene, where a mesh cache shared by a
-/// submission's scenes belongs.
+/// [`LoadOptions`]): the one place a submission builds a scene. `meshes` is the submission's
+/// own cache, shared by its scenes: a sequence's PLY files are parsed and their BVHs built once,
+/// not once a frame.
 pub(super) fn validate_scene(
     files: &BundleFiles,
     scene_path: &str,
     load: LoadOptions,
+    meshes: &MeshCache,
 ) -> Result<Scene, BundleSceneError> {
-    load_bundle_scene(files.clone(), scene_path, load)
+    load_bundle_scene_cached(files.clone(), scene_path, load, Some(meshes))
 }
+
+/// The memory a submission's mesh cache may hold (it lives while the submission is validated;
+/// at most `UNPACKING_AT_ONCE` submissions are).
+pub const VALIDATION_MESH_CACHE_BYTES: u64 = 1 << 30;
 
 /// Scenes a submission builds at once, at most (fewer on a machine of fewer cores).
 pub const SCENES_AT_ONCE: usize = 4;
@@ -252,13 +259,14 @@ pub(super) fn validate_frames(
         .thread_name(|k| format!("validate-{k}"))
         .build()
         .map_err(|e| anyhow::anyhow!("cannot start the validation threads: {e}"))?;
+    let meshes = MeshCache::new(VALIDATION_MESH_CACHE_BYTES);
     let loaded = scenes.chunks(threads * 2).flat_map(|batch| {
         let built: Vec<_> = pool.install(|| {
             use rayon::prelude::*;
             batch
                 .par_iter()
                 .map(|path| {
-                    validate_scene(files, path, load).map(|scene| Loaded {
+                    validate_scene(files, path, load, &meshes).map(|scene| Loaded {
                         warnings: scene.warnings.iter().map(ToString::to_string).collect(),
                         cameras: scene.cameras,
                     })
