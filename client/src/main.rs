@@ -1,11 +1,12 @@
 //! `tessera`: the command-line client of a Tessera render farm.
 //!
-//! `submit` loads a scene as the renderer does (`pack.rs`: the library's parser and builder
-//! through a recording resolver), packs it with exactly the files it read into one bundle,
-//! submits it, and with `--wait` follows the job (`follow.rs`) and downloads its outputs, the
-//! files `tessera-worker render` would write. `status`, `cancel`, `fetch` and `logs` speak the
-//! job API (`api.rs`). The server and token come from flags, the environment or a config file
-//! (`config.rs`).
+//! `submit` takes one scene file or a sequence of them (`pack.rs`: each parsed by the library,
+//! not built, with every file its build would read found on disk), sends the files by content
+//! (`upload.rs`: only those the server lacks, then the job as JSON; a single scene as a bundle to
+//! an older server), and with `--wait` follows the job (`follow.rs`) and downloads its outputs,
+//! the files `tessera-worker render` would write, and its video. `status`, `cancel`, `fetch` and
+//! `logs` speak the job API (`api.rs`). The server and token come from flags, the environment or
+//! a config file (`config.rs`).
 
 mod api;
 mod config;
@@ -38,6 +39,7 @@ and otherwise http://127.0.0.1:8080 without a token (a tessera-server started wi
     after_help = "Examples:\n  \
 tessera submit scenes/tori.xml --wait --out out/       # render on the farm; out/ gets what tessera-worker render writes\n  \
 tessera submit big.xml --priority 5 --samples 4        # a quick preview, ahead of priority-0 jobs\n  \
+tessera submit orbit/frame_*.json --wait --out orbit/  # a sequence as one job, frames and video\n  \
 tessera status                                         # every job\n  \
 tessera status 7                                       # one job, frame by frame\n  \
 tessera logs 7 --follow                                # its events as they happen\n  \
@@ -530,7 +532,7 @@ fn submit(api: &Api, packed: &pack::Packed, opts: &SubmitOptions) -> Result<JobI
             if !opts.quiet {
                 eprintln!("{sent}");
             }
-            job
+            *job
         }
         upload::Submitted::OldServer => submit_bundle(api, packed, opts)?,
     };

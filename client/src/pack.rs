@@ -359,7 +359,6 @@ pub fn pack(scenes: &[PathBuf], opts: PackOptions) -> Result<Packed> {
     for (_, _, found, lexical) in &uses {
         asset_file.push(place(found, lexical, false, &mut entries)?.1);
     }
-    drop(place);
 
     // Where the farm would look for each path a scene names: where it finds another file or
     // none, the file goes (also) where it looks first.

@@ -45,7 +45,7 @@ impl std::fmt::Display for Sent {
 
 /// How the server took the job.
 pub enum Submitted {
-    Job(JobInfo, Sent),
+    Job(Box<JobInfo>, Sent),
     /// The server has no content-addressed files (404/405 on `files/missing`): it is older.
     OldServer,
 }
@@ -138,12 +138,12 @@ pub fn submit(
         return Ok(Submitted::OldServer);
     }
     match api.submit_json(&request) {
-        Ok(job) => Ok(Submitted::Job(job, sent)),
+        Ok(job) => Ok(Submitted::Job(Box::new(job), sent)),
         // A file went from the store between the upload and the submission (an unreferenced
         // upload is removed after a grace period): send what it lacks again, once.
         Err(CallError::Status { code: 409, .. }) => {
             upload_missing(api, packed, bars, text, &mut sent)?;
-            Ok(Submitted::Job(api.submit_json(&request)?, sent))
+            Ok(Submitted::Job(Box::new(api.submit_json(&request)?), sent))
         }
         Err(e) => Err(e.into()),
     }
