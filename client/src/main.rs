@@ -103,8 +103,9 @@ enum Command {
     /// `tessera-worker render SCENE... --out DIR` writes (--float-exr adds the float frame the
     /// farm keeps for .png images), and the video.
     ///
-    /// Examples: tessera submit scenes/tori.xml --wait --out out/
-    ///           tessera submit orbit/davids_camera_*.json --samples 4 --wait --out orbit/
+    /// Example: tessera submit scenes/tori.xml --wait --out out/
+    ///
+    /// Example: tessera submit orbit/davids_camera_*.json --samples 4 --wait --out orbit/
     Submit {
         /// The scene files (CENG795 XML or 2025 JSON, told apart by content), in frame order.
         #[arg(required = true, value_name = "SCENE")]
@@ -159,14 +160,14 @@ enum Command {
         /// The video made of the frames once all are done: mp4 (H.264, made by the server's
         /// ffmpeg), gif, or none [default: mp4 for a sequence of several scene files, none for
         /// one; a GIF when the server has no ffmpeg and --video was not given].
-        #[arg(long, value_enum, value_name = "KIND")]
+        #[arg(long, value_enum, value_name = "KIND", env = "TESSERA_VIDEO")]
         video: Option<VideoArg>,
         /// Frames a second of the video [default: 30, the course's].
-        #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=120))]
+        #[arg(long, value_name = "N", env = "TESSERA_FPS", value_parser = clap::value_parser!(u32).range(1..=120))]
         fps: Option<u32>,
         /// Keep only the PNG of each frame on the server, not the float frame (.exr) it keeps
         /// beside it by default (--float-exr then has nothing to download).
-        #[arg(long)]
+        #[arg(long, env = "TESSERA_NO_KEEP_FLOAT")]
         no_keep_float: bool,
         /// Parse the scenes, find their files and list them (job path, size, role, file on disk),
         /// without hashing or submitting anything.
