@@ -287,6 +287,9 @@ pub struct JobRequest {
     /// (default true); false keeps only the PNG.
     #[serde(default)]
     pub keep_float: Option<bool>,
+    /// Where to POST the job's end (under a prefix the server allows with `--notify-allow`).
+    #[serde(default)]
+    pub notify_url: Option<String>,
 }
 
 /// One pass of a tile: samples `start..end` of every pixel (whole blocks of

@@ -20,10 +20,13 @@ use crate::failures::{self, TileFailures};
 
 mod counters;
 mod leases;
+mod notify;
 mod passes;
 mod schema;
 mod upkeep;
 mod workers;
+
+pub use notify::{DueNotification, Notified};
 pub use passes::ResultShape;
 
 /// Most events a job's log keeps: a job of a million tiles must not write a million rows of

@@ -26,6 +26,7 @@ pub mod files;
 pub mod housekeeping;
 mod local_workers;
 pub mod merge;
+pub mod notify;
 pub mod registrations;
 pub mod scheduler;
 pub mod state;
@@ -104,6 +105,10 @@ pub struct Config {
     /// Longest pause, in seconds, in a request body the server is waiting for: past it the
     /// request is answered 408 and its connection closed.
     pub body_timeout_seconds: f64,
+    /// Where every job's end is POSTed (`notify.rs`).
+    pub notify_url: Option<String>,
+    /// URL prefixes a job's own `notify_url` must start with (none: jobs may not ask).
+    pub notify_allow: Vec<String>,
 }
 
 /// A random token from the operating system's generator (for local workers when none is set).
@@ -123,8 +128,86 @@ pub(crate) fn random_token() -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
+/// The file in the data directory that holds the farm's worker token (mode 0600).
+pub fn worker_token_file(data_dir: &std::path::Path) -> PathBuf {
+    data_dir.join("worker-token")
+}
+
+/// The worker token this server uses, kept in [`worker_token_file`] so that it can be shown
+/// again (`tessera-server worker-token`) and survives restarts (a second machine that joined
+/// keeps working): `given` (`--worker-token`) if set, else the file's, else a new random one.
+pub fn keep_worker_token(data_dir: &std::path::Path, given: Option<&str>) -> Result<String> {
+    let file = worker_token_file(data_dir);
+    let kept = std::fs::read_to_string(&file).ok().map(|t| t.trim().to_string()).filter(|t| !t.is_empty());
+    let token = match (given, kept.as_deref()) {
+        (Some(t), _) => t.to_string(),
+        (None, Some(k)) => return Ok(k.to_string()),
+        (None, None) => random_token(),
+    };
+    if kept.as_deref() != Some(token.as_str()) {
+        write_private(&file, format!("{token}\n").as_bytes())
+            .with_context(|| format!("cannot keep the worker token in {}", file.display()))?;
+    }
+    Ok(token)
+}
+
+/// Writes `bytes` to `path` readable by its owner only (0600 from the start: the bytes are
+/// never readable by others, not even for a moment), replacing it atomically.
+fn write_private(path: &std::path::Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write;
+    let temp = tessera::atomic_write::unique_temp_name(path);
+    let mut options = std::fs::OpenOptions::new();
+    options.write(true).create_new(true);
+    #[cfg(unix)]
+    std::os::unix::fs::OpenOptionsExt::mode(&mut options, 0o600);
+    let written = (|| {
+        let mut f = options.open(&temp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&temp, path)
+    })();
+    if written.is_err() {
+        let _ = std::fs::remove_file(&temp);
+    }
+    written
+}
+
+/// The line the server logs once at start: how another machine joins this farm.
+fn join_advice(bind: SocketAddr, addr: SocketAddr, token: &str, data_dir: &std::path::Path) -> String {
+    let file = worker_token_file(data_dir);
+    let kept = format!(
+        "the token is kept in {} (mode 0600); `tessera-server worker-token --data-dir {}` prints it again",
+        file.display(),
+        data_dir.display()
+    );
+    let port = addr.port();
+    if bind.ip().is_loopback() {
+        format!(
+            "this farm listens on loopback only, so only this machine's workers can join; to add another \
+             machine, start the server with --bind 0.0.0.0:{port} and an --api-token, then run there: \
+             tessera-worker work --server http://THIS-MACHINE:{port} --token {token} ({kept})"
+        )
+    } else {
+        let host =
+            if addr.ip().is_unspecified() { "THIS-MACHINE".to_string() } else { addr.ip().to_string() };
+        format!(
+            "to add a machine to this farm, run there: tessera-worker work --server http://{host}:{port} --token {token} ({kept})"
+        )
+    }
+}
+
 /// Checks the configuration before anything starts.
 pub fn check_config(config: &Config) -> Result<()> {
+    if let Some(url) = &config.notify_url {
+        notify::check_url(url).map_err(|e| anyhow::anyhow!("--notify-url {url:?} {e}"))?;
+    }
+    for prefix in &config.notify_allow {
+        notify::check_url(prefix).map_err(|e| {
+            anyhow::anyhow!(
+                "--notify-allow {prefix:?} {e}; give a URL prefix such as https://hooks.example/tessera/"
+            )
+        })?;
+    }
     if !config.bind.ip().is_loopback() && config.api_token.is_none() && !config.insecure {
         bail!(
             "refusing to listen on {} without an API token: anyone who can reach it could run jobs on this machine. \
@@ -253,7 +336,7 @@ pub async fn serve(
             swept.old_pass_files
         );
     }
-    let worker_token = config.worker_token.clone().unwrap_or_else(random_token);
+    let worker_token = keep_worker_token(&config.data_dir, config.worker_token.as_deref())?;
     let settings = state::Settings {
         data_dir: config.data_dir.clone(),
         tile_size: config.tile_size,
@@ -298,6 +381,7 @@ pub async fn serve(
         limits.max_per_ip
     );
     on_listening(addr);
+    tracing::info!("{}", join_advice(config.bind, addr, &worker_token, &config.data_dir));
 
     // Frames whose last tile arrived just before a crash, or whose merge found the disk full.
     for f in store.frames_awaiting_merge()? {
@@ -320,6 +404,8 @@ pub async fn serve(
         (config.forget_workers_after_hours * 3600.0).max(scheduler::lost_after(config.heartbeat_seconds));
     housekeeping::spawn(state.clone(), forget_after);
     housekeeping::spawn_checkpoints(store.clone());
+    // Job ends announced to the operator's and the jobs' receivers.
+    notify::spawn(state.clone(), config.notify_url.clone());
 
     let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
     let app = api::app(state.clone());
@@ -390,6 +476,8 @@ mod tests {
             allowed_hosts: Vec::new(),
             public_metrics: false,
             body_timeout_seconds: 60.0,
+            notify_url: None,
+            notify_allow: Vec::new(),
         }
     }
 
@@ -473,6 +561,8 @@ mod tests {
         let dir = tessera_testkit::TempDir::new("unit-store-limits");
         for (bad, flag) in [
             (Config { max_job_units: 0, ..config(&dir) }, "--max-job-units"),
+            (Config { notify_url: Some("ftp://x/".into()), ..config(&dir) }, "--notify-url"),
+            (Config { notify_allow: vec!["hooks.example".into()], ..config(&dir) }, "--notify-allow"),
             (Config { max_workers: 0, ..config(&dir) }, "--max-workers"),
             (Config { forget_workers_after_hours: 0.0, ..config(&dir) }, "--forget-workers-after-hours"),
             (Config { forget_workers_after_hours: f64::NAN, ..config(&dir) }, "--forget-workers-after-hours"),

@@ -13,9 +13,11 @@ use tessera_server::{Config, serve};
     name = "tessera-server",
     version,
     about = "Tessera's render farm server: takes CENG795 scenes over HTTP, cuts every frame into tiles, hands them to workers, merges and tone-maps the results",
-    after_help = "With no options it listens on 127.0.0.1:8080, keeps its state in ./tessera-data and starts one local worker that uses every core: a working farm.\n\nExamples:\n  tessera-server\n  curl -F scene=@scene.xml -F asset=@ply/bunny.ply\\;filename=ply/bunny.ply http://127.0.0.1:8080/api/v1/jobs\n  tessera-server --bind 0.0.0.0:8080 --api-token SECRET --worker-token WSECRET --local-workers 0\n  tessera-worker work --server http://farm:8080 --token WSECRET"
+    after_help = "With no options it listens on 127.0.0.1:8080, keeps its state in ./tessera-data and starts one local worker that uses every core: a working farm.\n\nExamples:\n  tessera-server\n  curl -F scene=@scene.xml -F asset=@ply/bunny.ply\\;filename=ply/bunny.ply http://127.0.0.1:8080/api/v1/jobs\n  tessera-server --bind 0.0.0.0:8080 --api-token SECRET --worker-token WSECRET --local-workers 0\n  tessera-worker work --server http://farm:8080 --token WSECRET\n  tessera-server worker-token    (the farm's worker token, to join another machine)"
 )]
 struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
     /// Address and port to listen on. Anything other than loopback needs --api-token (or
     /// --insecure).
     #[arg(long, default_value = "127.0.0.1:8080", env = "TESSERA_BIND", value_name = "ADDR:PORT")]
@@ -127,10 +129,64 @@ struct Cli {
     /// never cut); past it the request is answered 408 and its connection closed (0.1 to 3600).
     #[arg(long, default_value_t = 60.0, env = "TESSERA_BODY_TIMEOUT_SECONDS", value_name = "S")]
     body_timeout_seconds: f64,
+    /// POST a JSON document to this URL whenever a job ends (done, failed or cancelled):
+    /// `{"event": "job_done"|"job_failed"|"job_cancelled", "job": <the job's JSON>}`, tried 4
+    /// times with a 10 s timeout, never holding up the server.
+    #[arg(long, env = "TESSERA_NOTIFY_URL", value_name = "URL")]
+    notify_url: Option<String>,
+    /// A URL prefix under which a job's own notify_url may point (repeat it or separate with
+    /// commas); without one, jobs may not ask to be announced anywhere.
+    #[arg(long = "notify-allow", env = "TESSERA_NOTIFY_ALLOW", value_delimiter = ',', value_name = "PREFIX")]
+    notify_allow: Vec<String>,
+}
+
+#[derive(clap::Subcommand)]
+enum Command {
+    /// Print this farm's worker token (what `tessera-worker work --token` needs to join), kept
+    /// in the data directory's worker-token file since the server's first start.
+    WorkerToken {
+        /// The server's data directory.
+        #[arg(long, default_value = "tessera-data", env = "TESSERA_DATA_DIR", value_name = "DIR")]
+        data_dir: PathBuf,
+    },
+}
+
+/// `tessera-server worker-token`: the kept token on stdout.
+fn print_worker_token(data_dir: &std::path::Path) -> ExitCode {
+    let file = tessera_server::worker_token_file(data_dir);
+    match std::fs::read_to_string(&file) {
+        Ok(t) if !t.trim().is_empty() => {
+            println!("{}", t.trim());
+            ExitCode::SUCCESS
+        }
+        Ok(_) | Err(_) if !data_dir.join("tessera.db").exists() => {
+            eprintln!(
+                "error: {} holds no farm yet: start tessera-server with --data-dir {} once (it makes the token), \
+                 or give --data-dir the server's data directory",
+                data_dir.display(),
+                data_dir.display()
+            );
+            ExitCode::FAILURE
+        }
+        Ok(_) => {
+            eprintln!("error: {} is empty: start the server once to make a new token", file.display());
+            ExitCode::FAILURE
+        }
+        Err(e) => {
+            eprintln!(
+                "error: cannot read {}: {e}; run this as the user the server runs as, or start the server once to make it",
+                file.display()
+            );
+            ExitCode::FAILURE
+        }
+    }
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    if let Some(Command::WorkerToken { data_dir }) = &cli.command {
+        return print_worker_token(data_dir);
+    }
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_env("TESSERA_LOG")
@@ -168,6 +224,8 @@ fn main() -> ExitCode {
         allowed_hosts: cli.allowed_hosts,
         public_metrics: cli.public_metrics,
         body_timeout_seconds: cli.body_timeout_seconds,
+        notify_url: cli.notify_url.filter(|u| !u.is_empty()),
+        notify_allow: cli.notify_allow,
     };
     let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
         Ok(r) => r,

@@ -245,7 +245,8 @@ fn register(
             }
             Err(ureq::Error::Status(401, _)) => {
                 bail!(
-                    "the server refused the worker token; pass the farm's worker token with --token or TESSERA_WORKER_TOKEN"
+                    "the server refused the worker token; pass the farm's worker token with --token or TESSERA_WORKER_TOKEN \
+                     (on the server's machine `tessera-server worker-token` prints it)"
                 )
             }
             Err(ureq::Error::Status(code @ (400 | 413 | 422), r)) => {

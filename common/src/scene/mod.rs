@@ -29,7 +29,7 @@ use crate::material::Material;
 pub use crate::lights::{AreaLight, DirectionalLight, EnvLight, ObjectLight, PointLight, SpotLight};
 
 /// Shading rules no course text settles, each with the choice measured against the official
-/// images as its default (README, "Conformance with the course's reference images", "Measured
+/// images as its default (docs/conformance.md, "Conformance with the course's reference images", "Measured
 /// shading rules").
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ShadingRules {

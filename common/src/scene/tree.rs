@@ -183,6 +183,17 @@ pub(super) struct Schema {
 }
 
 impl Schema {
+    /// Every child name the element knows (read, unsupported or belonging to a sibling
+    /// variant): what a misspelt name is compared with.
+    fn names(&self) -> impl Iterator<Item = &'static str> + '_ {
+        self.single
+            .iter()
+            .chain(self.many)
+            .copied()
+            .chain(self.unsupported.iter().map(|(n, _)| *n))
+            .chain(self.inapplicable.iter().copied())
+    }
+
     pub(super) const EMPTY: Schema = Schema {
         single: &[],
         many: &[],
@@ -192,6 +203,49 @@ impl Schema {
         inapplicable: &[],
         inapplicable_why: "",
     };
+}
+
+/// The name of `known` that `name` most likely misspells: equal but for letter case, or within
+/// an edit distance (insertions, deletions, substitutions and swaps of neighbours) of 1 for
+/// names of up to 4 letters, 2 for longer ones; the nearest wins, the first on a tie.
+pub(super) fn closest_name<'k>(name: &str, known: impl Iterator<Item = &'k str>) -> Option<&'k str> {
+    let lower = name.to_ascii_lowercase();
+    let limit = if name.chars().count() <= 4 { 1 } else { 2 };
+    let mut best: Option<(usize, &str)> = None;
+    for k in known {
+        if k == name {
+            continue;
+        }
+        let d = if k.eq_ignore_ascii_case(name) { 0 } else { edit_distance(&lower, &k.to_ascii_lowercase()) };
+        if d <= limit && best.is_none_or(|(bd, _)| d < bd) {
+            best = Some((d, k));
+        }
+    }
+    best.map(|(_, k)| k)
+}
+
+/// Optimal string alignment distance: Levenshtein's with swaps of two neighbouring letters
+/// counting one edit (`Ligth` is one edit from `Light`).
+fn edit_distance(a: &str, b: &str) -> usize {
+    let a: Vec<char> = a.chars().collect();
+    let b: Vec<char> = b.chars().collect();
+    // Rows i-2, i-1 and i of the table, over b's prefixes.
+    let mut before: Vec<usize> = vec![0; b.len() + 1];
+    let mut prev: Vec<usize> = (0..=b.len()).collect();
+    let mut row = vec![0; b.len() + 1];
+    for i in 1..=a.len() {
+        row[0] = i;
+        for j in 1..=b.len() {
+            let cost = usize::from(a[i - 1] != b[j - 1]);
+            row[j] = (prev[j] + 1).min(row[j - 1] + 1).min(prev[j - 1] + cost);
+            if i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1] {
+                row[j] = row[j].min(before[j - 2] + 1);
+            }
+        }
+        std::mem::swap(&mut before, &mut prev);
+        std::mem::swap(&mut prev, &mut row);
+    }
+    prev[b.len()]
 }
 
 /// "a", "a or b", "a, b or c".
@@ -262,7 +316,11 @@ impl Parser<'_> {
             } else if schema.inapplicable.contains(&name) {
                 self.warn(child, format!("<{name}> {}; it is ignored", schema.inapplicable_why));
             } else if !schema.many.contains(&name) {
-                self.warn(child, format!("unknown element <{name}>; it is ignored"));
+                let hint = match closest_name(name, schema.names()) {
+                    Some(known) => format!(" (did you mean <{known}>?)"),
+                    None => String::new(),
+                };
+                self.warn(child, format!("unknown element <{name}>{hint}; it is ignored"));
             }
         }
     }
@@ -272,7 +330,11 @@ impl Parser<'_> {
             if let Some((_, without)) = unsupported.iter().find(|(k, _)| k == key) {
                 self.unsupported(node, format!("attribute {key} is not supported yet; {without}"));
             } else if !known.contains(&key.as_str()) {
-                self.warn(node, format!("unknown attribute {key}; it is ignored"));
+                let hint = match closest_name(key, known.iter().copied()) {
+                    Some(k) => format!(" (did you mean attribute {k}?)"),
+                    None => String::new(),
+                };
+                self.warn(node, format!("unknown attribute {key}{hint}; it is ignored"));
             }
         }
     }
@@ -280,14 +342,33 @@ impl Parser<'_> {
     // --- values ---
 
     pub(super) fn required<'n>(&self, parent: &'n Node, name: &str) -> Result<&'n Node> {
-        parent.child(name).ok_or_else(|| match self.dialect {
-            Dialect::Xml => self.err(parent, format!("missing <{name}>")),
-            // Name the JSON path of the missing key itself, e.g. `Scene.Objects.Mesh[3].Faces`.
-            Dialect::Json => SceneError::new(
-                self.file,
-                Loc::new(parent.line, format!("{}.{name}", parent.label)),
-                format!("missing \"{name}\"; add the key \"{name}\" to {}", parent.label),
-            ),
+        parent.child(name).ok_or_else(|| {
+            // A child spelled nearly so is most likely the one meant: say so.
+            let misspelt = parent
+                .children
+                .iter()
+                .map(|c| c.name.as_str())
+                .find(|c| closest_name(c, std::iter::once(name)).is_some());
+            match self.dialect {
+                Dialect::Xml => match misspelt {
+                    Some(found) => {
+                        self.err(parent, format!("missing <{name}>; found <{found}>: did you mean <{name}>?"))
+                    }
+                    None => self.err(parent, format!("missing <{name}>")),
+                },
+                // Name the JSON path of the missing key itself, e.g. `Scene.Objects.Mesh[3].Faces`.
+                Dialect::Json => SceneError::new(
+                    self.file,
+                    Loc::new(parent.line, format!("{}.{name}", parent.label)),
+                    match misspelt {
+                        Some(found) => format!(
+                            "missing \"{name}\"; found \"{found}\": did you mean \"{name}\"? Rename the key in {}",
+                            parent.label
+                        ),
+                        None => format!("missing \"{name}\"; add the key \"{name}\" to {}", parent.label),
+                    },
+                ),
+            }
         })
     }
 
@@ -560,6 +641,22 @@ pub(super) fn json_words(message: &str) -> String {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_misspelt_name_finds_the_one_meant() {
+        let lights = ["AmbientLight", "PointLight", "AreaLight", "DirectionalLight", "SpotLight"];
+        assert_eq!(closest_name("PointLigth", lights.iter().copied()), Some("PointLight"));
+        assert_eq!(closest_name("pointlight", lights.iter().copied()), Some("PointLight"));
+        assert_eq!(closest_name("Positon", ["Position", "Intensity"].into_iter()), Some("Position"));
+        assert_eq!(closest_name("Foo", lights.iter().copied()), None);
+        assert_eq!(closest_name("Sphre", ["Sphere", "Mesh"].into_iter()), Some("Sphere"));
+        // Short names allow one edit only: `Id` is not `Ids`'s neighbour by two.
+        assert_eq!(closest_name("Ix", ["Id", "Ids"].into_iter()), Some("Id"));
+        assert_eq!(closest_name("Xyz", ["Id"].into_iter()), None);
+        assert_eq!(edit_distance("ligth", "light"), 1);
+        assert_eq!(edit_distance("", "abc"), 3);
+        assert_eq!(edit_distance("kitten", "sitting"), 3);
+    }
+
     use super::*;
 
     #[test]

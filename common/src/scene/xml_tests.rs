@@ -331,6 +331,12 @@ fn hdr_lighting_errors() {
             r#"scene.xml:3: <DirectionalLight id="4">: missing <Radiance>"#,
         ),
         (
+            &lights(
+                "<DirectionalLight id=\"4\"><Direction>0 -1 0</Direction><Radience>1 1 1</Radience></DirectionalLight>",
+            ),
+            r#"scene.xml:3: <DirectionalLight id="4">: missing <Radiance>; found <Radience>: did you mean <Radiance>?"#,
+        ),
+        (
             &spot("0", "0"),
             r#"scene.xml:3: <SpotLight id="1">: <CoverageAngle> must be between 0 and 360 degrees (the full apex angle of the cone), found 0"#,
         ),
@@ -826,6 +832,27 @@ fn unknown_and_unsupported_elements_are_warnings() {
     let sphere = "<Sphere id=\"1\"><Material>1</Material><Center>1</Center><Radius>1</Radius>";
     let cases: &[(&str, &[&str])] = &[
         (&scene("<Foo>1</Foo>"), &[&w(2, "Foo", "unknown element <Foo>; it is ignored")]),
+        // A misspelt element or attribute is named with the one most likely meant.
+        (
+            &scene(
+                "<Lights>\n<PointLigth id=\"1\"><Position>0 0 0</Position><Intensity>1 1 1</Intensity></PointLigth>\n</Lights>",
+            ),
+            &[&w(
+                3,
+                r#"PointLigth id="1""#,
+                "unknown element <PointLigth> (did you mean <PointLight>?); it is ignored",
+            )],
+        ),
+        (
+            &scene(
+                "<Lights>\n<PointLight id=\"1\" Id=\"2\"><Position>0 0 0</Position><Intensity>1 1 1</Intensity></PointLight>\n</Lights>",
+            ),
+            &[&w(
+                3,
+                r#"PointLight id="1""#,
+                "unknown attribute Id (did you mean attribute id?); it is ignored",
+            )],
+        ),
         (
             &scene(&format!(
                 "<Objects>\n{sphere}\n<Radiuss>2</Radiuss><Textures>1</Textures>\n</Sphere>\n\
@@ -833,7 +860,11 @@ fn unknown_and_unsupported_elements_are_warnings() {
             )),
             &[
                 // An instance's own <Textures> are read (they replace its base's).
-                &w(4, r#"Sphere id="1"> / <Radiuss"#, "unknown element <Radiuss>; it is ignored"),
+                &w(
+                    4,
+                    r#"Sphere id="1"> / <Radiuss"#,
+                    "unknown element <Radiuss> (did you mean <Radius>?); it is ignored",
+                ),
             ],
         ),
         (

@@ -60,6 +60,12 @@ pub(super) async fn require_worker_token(
         {
             next.run(req).await
         }
-        _ => AppError::new(StatusCode::UNAUTHORIZED, "missing or wrong worker token").into_response(),
+        _ => AppError::new(
+            StatusCode::UNAUTHORIZED,
+            "missing or wrong worker token: give the farm's worker token (--token or TESSERA_WORKER_TOKEN); \
+             on the server's machine `tessera-server worker-token` prints it (it is kept in the file \
+             worker-token of the server's data directory)",
+        )
+        .into_response(),
     }
 }

@@ -20,7 +20,7 @@ fn camera_tonemap(cam: &Camera) -> Option<tessera::tonemap::params::Photographic
     merge::display_tonemap(cam).map(|(_, p)| p)
 }
 
-pub(super) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobInfo>> {
+pub(crate) fn job_info(state: &AppState, id: u64) -> anyhow::Result<Option<JobInfo>> {
     let Some(job) = state.store.job(id)? else { return Ok(None) };
     let frames = state.store.frames(id)?;
     let cameras = state.job_cameras(&job).ok();

@@ -11,6 +11,7 @@
 mod auth;
 pub mod browser;
 mod jobs;
+pub(crate) use jobs::job_info;
 mod metrics;
 mod openapi;
 mod status;

@@ -22,7 +22,9 @@ CREATE TABLE IF NOT EXISTS jobs(
     denoise INTEGER NOT NULL DEFAULT 0,
     pass_samples INTEGER,
     noise_target REAL,
-    manifest TEXT
+    manifest TEXT,
+    notify_url TEXT,
+    notified INTEGER NOT NULL DEFAULT 0
 );
 CREATE TABLE IF NOT EXISTS frames(
     job_id INTEGER NOT NULL,
@@ -172,6 +174,14 @@ pub(super) fn migrate(conn: &Connection) -> Result<()> {
         conn.execute_batch(
             "ALTER TABLE jobs ADD COLUMN manifest TEXT;
              ALTER TABLE frames ADD COLUMN scene_path TEXT;",
+        )?;
+    }
+    if !has_column("jobs", "notified")? {
+        // Jobs that ended before notifications existed are not announced now.
+        conn.execute_batch(
+            "ALTER TABLE jobs ADD COLUMN notify_url TEXT;
+             ALTER TABLE jobs ADD COLUMN notified INTEGER NOT NULL DEFAULT 0;
+             UPDATE jobs SET notified = 1 WHERE state IN ('done', 'failed', 'canceled');",
         )?;
     }
     if conn.pragma_query_value(None, "user_version", |r| r.get::<_, i64>(0))? < 1 {
