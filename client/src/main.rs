@@ -533,6 +533,12 @@ fn submit(api: &Api, packed: &pack::Packed, opts: &SubmitOptions) -> Result<JobI
             if !opts.quiet {
                 eprintln!("{sent}");
             }
+            if opts.verbose {
+                eprintln!(
+                    "asked and uploaded in {:.3} s; the server took {:.3} s to check and accept the job",
+                    sent.upload_seconds, sent.submit_seconds
+                );
+            }
             *job
         }
         upload::Submitted::OldServer => submit_bundle(api, packed, opts)?,

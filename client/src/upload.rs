@@ -19,7 +19,7 @@ use crate::pack::Packed;
 const TEXT_PROGRESS_EVERY: Duration = Duration::from_secs(10);
 
 /// What was sent.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Sent {
     /// Distinct files uploaded, and their bytes.
     pub files: usize,
@@ -27,6 +27,9 @@ pub struct Sent {
     /// Distinct files of the job, and their bytes.
     pub total_files: usize,
     pub total_bytes: u64,
+    /// Seconds spent asking and uploading, and waiting for the server to accept the job.
+    pub upload_seconds: f64,
+    pub submit_seconds: f64,
 }
 
 impl std::fmt::Display for Sent {
@@ -134,10 +137,15 @@ pub fn submit(
     request.files = packed.job_files();
     let mut sent =
         Sent { total_files: packed.distinct.len(), total_bytes: packed.total_bytes(), ..Sent::default() };
+    let started = Instant::now();
     if !upload_missing(api, packed, bars, text, &mut sent)? {
         return Ok(Submitted::OldServer);
     }
-    match api.submit_json(&request) {
+    sent.upload_seconds = started.elapsed().as_secs_f64();
+    let started = Instant::now();
+    let answer = api.submit_json(&request);
+    sent.submit_seconds = started.elapsed().as_secs_f64();
+    match answer {
         Ok(job) => Ok(Submitted::Job(Box::new(job), sent)),
         // A file went from the store between the upload and the submission (an unreferenced
         // upload is removed after a grace period): send what it lacks again, once.
