@@ -412,6 +412,35 @@ mod tests {
     }
 
     #[test]
+    fn sequences_and_long_jobs_are_shown_by_their_counts() {
+        let job = |frames: usize, scenes: u32| JobInfo {
+            id: 1,
+            name: "a".into(),
+            state: JobState::Running,
+            priority: 0,
+            tile_size: 64,
+            samples: None,
+            denoise: false,
+            submitted_at: 0.0,
+            started_at: None,
+            finished_at: None,
+            frames: (0..frames).map(|_| frame("a.png", &[])).collect(),
+            frame_counts: tessera::protocol::FrameCounts { done: 5, rendering: 2, queued: 9 },
+            scenes,
+            video: None,
+            error: None,
+            warnings: Vec::new(),
+            url: String::new(),
+        };
+        assert!(!by_counts(&job(3, 1)));
+        assert!(!by_counts(&job(16, 0)), "an older server's job: no scene count");
+        assert!(by_counts(&job(2, 2)));
+        assert!(by_counts(&job(17, 1)));
+        assert!(by_counts(&job(0, 360)), "a long job listed without its frames");
+        assert_eq!(counts_line(&job(0, 16)), "5/16 frames done, 2 rendering, 9 queued");
+    }
+
+    #[test]
     fn file_names_are_one_path_segment() {
         assert_eq!(percent_encode("a b/c%.png"), "a%20b%2Fc%25.png");
         assert_eq!(percent_encode("VeachAjar_1-2~x.exr"), "VeachAjar_1-2~x.exr");

@@ -156,3 +156,17 @@ pub fn submit(
         Err(e) => Err(e.into()),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_summary_says_what_was_sent_and_what_the_server_had() {
+        let sent = Sent { files: 3, bytes: 1200, total_files: 4, total_bytes: 2_000_000, ..Sent::default() };
+        assert_eq!(
+            sent.to_string(),
+            "uploaded 3 of 4 files, 1200 bytes (the server had the other 1 files, 1998800 bytes)"
+        );
+    }
+}
