@@ -5,7 +5,9 @@ use std::io::Read;
 use std::time::Duration;
 
 use serde::de::DeserializeOwned;
-use tessera::protocol::{ApiError, JobInfo, JobList, JobLog, Problem};
+use tessera::protocol::{
+    ApiError, JobInfo, JobList, JobLog, JobRequest, MissingFilesRequest, MissingFilesResponse, Problem,
+};
 
 /// Where the client talks to, and with which token.
 pub struct Api {
@@ -196,6 +198,42 @@ impl Api {
             .set("Content-Type", content_type)
             .set("Content-Length", &length.to_string())
             .send(body)
+            .map_err(|e| self.explain(what, e))?;
+        self.json(what, resp)
+    }
+}
+
+impl Api {
+    /// `POST /api/v1/files/missing`: which of these files the server lacks.
+    pub fn missing_files(&self, req: &MissingFilesRequest) -> Result<MissingFilesResponse, CallError> {
+        let what = "asking the server which files it lacks";
+        let body = serde_json::to_string(req).map_err(|e| CallError::Transport(format!("{what}: {e}")))?;
+        let resp = self
+            .request("POST", "/api/v1/files/missing")
+            .set("Content-Type", "application/json")
+            .send_string(&body)
+            .map_err(|e| self.explain(what, e))?;
+        self.json(what, resp)
+    }
+
+    /// `PUT /api/v1/files/{sha256}` with `size` bytes read from `body`.
+    pub fn put_file(&self, what: &str, sha256: &str, size: u64, body: impl Read) -> Result<(), CallError> {
+        self.request("PUT", &format!("/api/v1/files/{sha256}"))
+            .set("Content-Type", "application/octet-stream")
+            .set("Content-Length", &size.to_string())
+            .send(body)
+            .map_err(|e| self.explain(what, e))?;
+        Ok(())
+    }
+
+    /// `POST /api/v1/jobs` with a JSON [`JobRequest`] (its files already on the server).
+    pub fn submit_json(&self, req: &JobRequest) -> Result<JobInfo, CallError> {
+        let what = "submitting the job";
+        let body = serde_json::to_string(req).map_err(|e| CallError::Transport(format!("{what}: {e}")))?;
+        let resp = self
+            .request("POST", "/api/v1/jobs")
+            .set("Content-Type", "application/json")
+            .send_string(&body)
             .map_err(|e| self.explain(what, e))?;
         self.json(what, resp)
     }

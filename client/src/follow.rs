@@ -43,6 +43,35 @@ pub fn with_retries<T>(quiet: bool, mut f: impl FnMut() -> Result<T, CallError>)
     }
 }
 
+/// Most frames a job may have and still be followed frame by frame (a bar or a line each); a
+/// sequence, or a job with more frames, is followed by its frame counts.
+const FRAMES_SHOWN: usize = 16;
+
+/// Whether `job` is shown by its frame counts rather than frame by frame.
+pub fn by_counts(job: &JobInfo) -> bool {
+    job.scenes > 1 || job.frames.len() > FRAMES_SHOWN
+}
+
+/// "120/360 frames done, 2 rendering, 238 queued".
+pub fn counts_line(job: &JobInfo) -> String {
+    let c = &job.frame_counts;
+    format!(
+        "{}/{} frames done, {} rendering, {} queued",
+        c.done,
+        c.done + c.rendering + c.queued,
+        c.rendering,
+        c.queued
+    )
+}
+
+/// Whether the job's video is still to come (waiting for frames or being encoded).
+pub fn video_pending(job: &JobInfo) -> bool {
+    job.video.as_ref().is_some_and(|v| matches!(v.state.as_str(), "waiting" | "encoding"))
+}
+
+/// Longest a finished job's video is waited for.
+const VIDEO_WAIT: Duration = Duration::from_secs(1800);
+
 fn frame_label(f: &FrameInfo) -> String {
     format!("frame {} {} ({}x{})", f.index, f.image_name, f.width, f.height)
 }
@@ -68,9 +97,28 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
     let mut last_error: Option<String> = None;
     let mut last_text = Instant::now();
     let text = !bars && !quiet;
+    let mut counts_bar: Option<ProgressBar> = None;
+    let mut video_since: Option<Instant> = None;
     loop {
         let job = with_retries(quiet, || api.job(id))?;
-        if frame_bars.is_empty() {
+        if by_counts(&job) {
+            let c = &job.frame_counts;
+            let bar = counts_bar.get_or_insert_with(|| {
+                let bar = multi.add(ProgressBar::new(0));
+                bar.set_style(
+                    ProgressStyle::with_template(
+                        "{prefix} [{bar:30}] {pos}/{len} frames, {elapsed} elapsed, ETA {eta} {msg}",
+                    )
+                    .unwrap_or_else(|_| ProgressStyle::default_bar())
+                    .progress_chars("=> "),
+                );
+                bar.set_prefix(format!("job {id}"));
+                bar
+            });
+            bar.set_length(u64::from(c.done + c.rendering + c.queued));
+            bar.set_position(u64::from(c.done));
+            bar.set_message(format!("{} rendering, {} queued", c.rendering, c.queued));
+        } else if frame_bars.is_empty() {
             for f in &job.frames {
                 let bar = multi.add(ProgressBar::new(u64::from(f.tiles_total)));
                 bar.set_style(style.clone());
@@ -96,7 +144,8 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
             }
             last_error = job.error.clone();
         }
-        for (i, f) in job.frames.iter().enumerate() {
+        let frames: &[FrameInfo] = if counts_bar.is_some() { &[] } else { &job.frames };
+        for (i, f) in frames.iter().enumerate() {
             let Some(bar) = frame_bars.get(i) else { continue };
             bar.set_length(u64::from(f.tiles_total));
             bar.set_position(u64::from(f.tiles_done));
@@ -127,7 +176,30 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
                 }
             }
         }
+        // A done job's video comes a moment after its frames: wait for it (bounded).
+        if job.state == JobState::Done && video_pending(&job) {
+            let since = *video_since.get_or_insert_with(|| {
+                if text {
+                    eprintln!("job {id} ({}): frames done; waiting for the video", job.name);
+                }
+                Instant::now()
+            });
+            if let Some(bar) = &counts_bar {
+                bar.set_message("encoding the video");
+            }
+            if since.elapsed() < VIDEO_WAIT {
+                std::thread::sleep(POLL);
+                continue;
+            }
+        }
         if job.state.is_final() {
+            if let Some(bar) = &counts_bar {
+                if job.state == JobState::Done {
+                    bar.finish_with_message("done");
+                } else {
+                    bar.abandon_with_message(job.state.as_str().to_string());
+                }
+            }
             for bar in &frame_bars {
                 if !bar.is_finished() {
                     bar.abandon_with_message(job.state.as_str().to_string());
@@ -142,7 +214,10 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
             }
             return Ok(job);
         }
-        if text && last_text.elapsed() >= TEXT_PROGRESS_EVERY {
+        if text && last_text.elapsed() >= TEXT_PROGRESS_EVERY && counts_bar.is_some() {
+            last_text = Instant::now();
+            eprintln!("job {id}: {}", counts_line(&job));
+        } else if text && last_text.elapsed() >= TEXT_PROGRESS_EVERY {
             last_text = Instant::now();
             let done: u32 = job.frames.iter().map(|f| f.tiles_done).sum();
             let total: u32 = job.frames.iter().map(|f| f.tiles_total).sum();
@@ -212,7 +287,44 @@ pub fn download(api: &Api, job: &JobInfo, out: &Path, float: bool, quiet: bool) 
             written.push(path);
         }
     }
+    if let Some(v) = &job.video {
+        match (&v.url, v.state.as_str()) {
+            (Some(url), "done") => {
+                let name = url.rsplit('/').next().unwrap_or_default().to_string();
+                if name.is_empty() || Path::new(&name).file_name().is_none_or(|n| n.to_string_lossy() != name)
+                {
+                    bail!(
+                        "job {}: the server lists a video at {url:?}, which has no plain file name",
+                        job.id
+                    );
+                }
+                let what = format!("downloading the video of job {}", job.id);
+                let bytes = with_retries(quiet, || api.download(&what, url))?;
+                let path = out.join(&name);
+                tessera::atomic_write::write_atomic(&path, &bytes)
+                    .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
+                if !quiet {
+                    println!("{}", path.display());
+                }
+                written.push(path);
+            }
+            (_, "failed") => eprintln!(
+                "job {}: no video: {}",
+                job.id,
+                v.message.as_deref().unwrap_or("its encoding failed (see tessera logs)")
+            ),
+            (_, state) if job.state == JobState::Done => {
+                eprintln!("job {}: the video is not ready yet ({state}); fetch it again in a moment", job.id)
+            }
+            _ => {}
+        }
+    }
     if !unfinished.is_empty() {
+        let n = unfinished.len();
+        unfinished.truncate(5);
+        if n > 5 {
+            unfinished.push(format!("and {} more", n - 5));
+        }
         bail!(
             "job {} ({}) has frames without outputs: {}; wait for them with: tessera fetch {} --wait --out {}",
             job.id,
@@ -297,6 +409,35 @@ mod tests {
         assert_eq!(names(&rgbe, false), ["a.HDR", "a.png"]);
         let odd = frame("a.ppm", &["a.png", "a.exr"]);
         assert_eq!(names(&odd, false), ["a.png"]);
+    }
+
+    #[test]
+    fn sequences_and_long_jobs_are_shown_by_their_counts() {
+        let job = |frames: usize, scenes: u32| JobInfo {
+            id: 1,
+            name: "a".into(),
+            state: JobState::Running,
+            priority: 0,
+            tile_size: 64,
+            samples: None,
+            denoise: false,
+            submitted_at: 0.0,
+            started_at: None,
+            finished_at: None,
+            frames: (0..frames).map(|_| frame("a.png", &[])).collect(),
+            frame_counts: tessera::protocol::FrameCounts { done: 5, rendering: 2, queued: 9 },
+            scenes,
+            video: None,
+            error: None,
+            warnings: Vec::new(),
+            url: String::new(),
+        };
+        assert!(!by_counts(&job(3, 1)));
+        assert!(!by_counts(&job(16, 0)), "an older server's job: no scene count");
+        assert!(by_counts(&job(2, 2)));
+        assert!(by_counts(&job(17, 1)));
+        assert!(by_counts(&job(0, 360)), "a long job listed without its frames");
+        assert_eq!(counts_line(&job(0, 16)), "5/16 frames done, 2 rendering, 9 queued");
     }
 
     #[test]

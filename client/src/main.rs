@@ -1,16 +1,18 @@
 //! `tessera`: the command-line client of a Tessera render farm.
 //!
-//! `submit` loads a scene as the renderer does (`pack.rs`: the library's parser and builder
-//! through a recording resolver), packs it with exactly the files it read into one bundle,
-//! submits it, and with `--wait` follows the job (`follow.rs`) and downloads its outputs, the
-//! files `tessera-worker render` would write. `status`, `cancel`, `fetch` and `logs` speak the
-//! job API (`api.rs`). The server and token come from flags, the environment or a config file
-//! (`config.rs`).
+//! `submit` takes one scene file or a sequence of them (`pack.rs`: each parsed by the library,
+//! not built, with every file its build would read found on disk), sends the files by content
+//! (`upload.rs`: only those the server lacks, then the job as JSON; a single scene as a bundle to
+//! an older server), and with `--wait` follows the job (`follow.rs`) and downloads its outputs,
+//! the files `tessera-worker render` would write, and its video. `status`, `cancel`, `fetch` and
+//! `logs` speak the job API (`api.rs`). The server and token come from flags, the environment or
+//! a config file (`config.rs`).
 
 mod api;
 mod config;
 mod follow;
 mod pack;
+mod upload;
 
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -20,7 +22,7 @@ use std::time::Duration;
 use anyhow::{Result, bail};
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
-use tessera::protocol::{JobEvent, JobInfo, JobState};
+use tessera::protocol::{JobEvent, JobInfo, JobRequest, JobState, VideoKind};
 
 use crate::api::{Api, CallError};
 
@@ -37,6 +39,7 @@ and otherwise http://127.0.0.1:8080 without a token (a tessera-server started wi
     after_help = "Examples:\n  \
 tessera submit scenes/tori.xml --wait --out out/       # render on the farm; out/ gets what tessera-worker render writes\n  \
 tessera submit big.xml --priority 5 --samples 4        # a quick preview, ahead of priority-0 jobs\n  \
+tessera submit orbit/frame_*.json --wait --out orbit/  # a sequence as one job, frames and video\n  \
 tessera status                                         # every job\n  \
 tessera status 7                                       # one job, frame by frame\n  \
 tessera logs 7 --follow                                # its events as they happen\n  \
@@ -60,25 +63,53 @@ struct Cli {
     command: Command,
 }
 
+/// `--video`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum VideoArg {
+    Mp4,
+    Gif,
+    None,
+}
+
+impl VideoArg {
+    fn kind(self) -> VideoKind {
+        match self {
+            VideoArg::Mp4 => VideoKind::Mp4,
+            VideoArg::Gif => VideoKind::Gif,
+            VideoArg::None => VideoKind::None,
+        }
+    }
+}
+
 #[derive(Subcommand)]
 enum Command {
-    /// Pack a scene with the files it uses, submit it, and optionally wait for the images.
+    /// Submit one scene, or a sequence of scene files as one job, and optionally wait for the
+    /// images (and the video).
     ///
-    /// The scene is loaded here first, exactly as tessera-worker render loads it: every PLY model,
-    /// texture and environment map it names is read (relative to the scene file, with the
-    /// course's path fallbacks), and exactly those files are packed with the scene into one
-    /// bundle. A scene that cannot be loaded (a missing asset, a broken element) is reported with
-    /// its file, line and element, and nothing is uploaded.
+    /// Each scene file is parsed here (not rendered): every PLY model, binary data file, texture
+    /// and environment map it names is found on disk as tessera-worker render finds it (relative
+    /// to the scene file, with the course's path fallbacks). A scene that cannot be parsed or
+    /// names a file that is not there is reported with its file, line and element (and for a
+    /// sequence its frame), and nothing is uploaded.
     ///
-    /// With --wait the job is followed with a progress bar per frame, and its outputs are
-    /// downloaded into --out: the same files, byte for byte, as
-    /// `tessera-worker render SCENE --out DIR` writes (--float-exr adds the float frame the farm
-    /// keeps for .png images).
+    /// Several scene files make one job whose frames are their cameras in the order given (a
+    /// shell glob of zero-padded names, a_*.json, gives frame order), with a video made of the
+    /// frames by default (--video). Files are sent by content: the server is asked which it lacks
+    /// (by SHA-256) and only those are uploaded, so a PLY every frame shares, or one an earlier
+    /// job sent, is sent once.
+    ///
+    /// With --wait the job is followed (a bar per frame, or one for a sequence's frames), and its
+    /// outputs are downloaded into --out: the same files, byte for byte, as
+    /// `tessera-worker render SCENE... --out DIR` writes (--float-exr adds the float frame the
+    /// farm keeps for .png images), and the video.
     ///
     /// Example: tessera submit scenes/tori.xml --wait --out out/
+    ///
+    /// Example: tessera submit orbit/davids_camera_*.json --samples 4 --wait --out orbit/
     Submit {
-        /// The scene file (CENG795 XML or 2025 JSON; told apart by content).
-        scene: PathBuf,
+        /// The scene files (CENG795 XML or 2025 JSON, told apart by content), in frame order.
+        #[arg(required = true, value_name = "SCENE")]
+        scenes: Vec<PathBuf>,
         /// Priority: jobs with a higher one are rendered first (negative allowed).
         #[arg(long, short, default_value_t = 0, allow_negative_numbers = true, value_name = "N")]
         priority: i64,
@@ -91,10 +122,10 @@ enum Command {
         /// server's].
         #[arg(long, value_name = "PX", value_parser = clap::value_parser!(u32).range(1..=4096))]
         tile_size: Option<u32>,
-        /// Render only these cameras (numbered from 1 in the file), e.g. 1,3.
+        /// Render only these cameras of each scene file (numbered from 1 in the file), e.g. 1,3.
         #[arg(long, value_name = "K,K,...")]
         cameras: Option<String>,
-        /// A name for the job [default: the scene's file name].
+        /// A name for the job [default: the (first) scene's file name].
         #[arg(long, value_name = "NAME")]
         name: Option<String>,
         /// Render even if the scene uses elements Tessera does not implement and whose absence
@@ -126,9 +157,25 @@ enum Command {
         /// With --wait: also download the float frame (.exr) the farm keeps beside each .png image.
         #[arg(long)]
         float_exr: bool,
-        /// Load and pack the scene and list the bundle's files, without submitting anything.
+        /// The video made of the frames once all are done: mp4 (H.264, made by the server's
+        /// ffmpeg), gif, or none [default: mp4 for a sequence of several scene files, none for
+        /// one; a GIF when the server has no ffmpeg and --video was not given].
+        #[arg(long, value_enum, value_name = "KIND", env = "TESSERA_VIDEO")]
+        video: Option<VideoArg>,
+        /// Frames a second of the video [default: 30, the course's].
+        #[arg(long, value_name = "N", env = "TESSERA_FPS", value_parser = clap::value_parser!(u32).range(1..=120))]
+        fps: Option<u32>,
+        /// Keep only the PNG of each frame on the server, not the float frame (.exr) it keeps
+        /// beside it by default (--float-exr then has nothing to download).
+        #[arg(long, env = "TESSERA_NO_KEEP_FLOAT")]
+        no_keep_float: bool,
+        /// Parse the scenes, find their files and list them (job path, size, role, file on disk),
+        /// without hashing or submitting anything.
         #[arg(long)]
         dry_run: bool,
+        /// Say how long finding and hashing the files took, and list the files uploaded.
+        #[arg(long, short)]
+        verbose: bool,
         /// No progress bars or messages: print only the job id (and with --wait the files
         /// written); errors still go to stderr.
         #[arg(long, short)]
@@ -233,7 +280,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
     let connect = || connect(server.as_deref(), token.as_deref(), config.as_deref());
     match command {
         Command::Submit {
-            scene,
+            scenes,
             priority,
             samples,
             tile_size,
@@ -246,36 +293,40 @@ fn run(cli: Cli) -> Result<ExitCode> {
             wait,
             out,
             float_exr,
+            video,
+            fps,
+            no_keep_float,
             dry_run,
+            verbose,
             quiet,
         } => {
+            let cameras = parse_cameras(cameras.as_deref())?;
             let opts = SubmitOptions {
                 priority,
                 samples,
                 tile_size,
-                cameras,
+                cameras: cameras.clone(),
                 name,
                 allow_unsupported,
                 denoise,
                 pass_samples,
                 noise_target,
+                video: video.map(VideoArg::kind),
+                fps,
+                keep_float: no_keep_float.then_some(false),
                 quiet,
+                verbose,
             };
-            // Everything local first: a scene that cannot be packed never reaches the network.
-            let bundle = pack::pack(&scene)?;
-            if bundle.cameras.is_empty() {
-                bail!(
-                    "{}: the scene has no camera, so nothing to render; add one under <Cameras>",
-                    scene.display()
-                );
-            }
-            let cameras = check_cameras(opts.cameras.as_deref(), bundle.cameras.len())?;
+            // Everything local first: scenes that cannot be packed never reach the network.
+            let pack_opts =
+                pack::PackOptions { allow_unsupported, skip_hash: dry_run, cameras: cameras.as_deref() };
+            let packed = pack::pack(&scenes, pack_opts)?;
             if dry_run {
-                print_bundle(&bundle);
+                print_packed(&packed);
                 return Ok(ExitCode::SUCCESS);
             }
             let api = connect()?;
-            let job = submit(&api, &bundle, cameras, &opts)?;
+            let job = submit(&api, &packed, &opts)?;
             if !(wait || out.is_some()) {
                 return Ok(ExitCode::SUCCESS);
             }
@@ -372,35 +423,36 @@ struct SubmitOptions {
     priority: i64,
     samples: Option<u32>,
     tile_size: Option<u32>,
-    cameras: Option<String>,
+    cameras: Option<Vec<u32>>,
     name: Option<String>,
     allow_unsupported: bool,
     denoise: bool,
     pass_samples: Option<u32>,
     noise_target: Option<f64>,
+    video: Option<VideoKind>,
+    fps: Option<u32>,
+    keep_float: Option<bool>,
     quiet: bool,
+    verbose: bool,
 }
 
-/// `--cameras` checked against the scene's cameras (before anything is uploaded), as the
-/// server's field (`1,3`).
-fn check_cameras(list: Option<&str>, count: usize) -> Result<Option<String>> {
+/// `--cameras` as camera numbers (from 1); each scene is checked against them before anything
+/// is uploaded (`pack`).
+fn parse_cameras(list: Option<&str>) -> Result<Option<Vec<u32>>> {
     let Some(list) = list else { return Ok(None) };
     let mut ks = Vec::new();
     for part in list.split([',', ' ']).filter(|p| !p.is_empty()) {
-        let k: usize = part.parse().ok().filter(|k| *k >= 1).ok_or_else(|| {
+        let k: u32 = part.parse().ok().filter(|k| *k >= 1).ok_or_else(|| {
             anyhow::anyhow!(
                 "--cameras: {part:?} is not a camera number (1, 2, ...); write e.g. --cameras 1,3"
             )
         })?;
-        if k > count {
-            bail!("--cameras: camera {k} does not exist; the scene has {count} camera(s), numbered from 1");
-        }
-        ks.push(k.to_string());
+        ks.push(k);
     }
     if ks.is_empty() {
         bail!("--cameras is empty; write e.g. --cameras 1,3, or leave it out to render every camera");
     }
-    Ok(Some(ks.join(",")))
+    Ok(Some(ks))
 }
 
 fn human_bytes(n: u64) -> String {
@@ -413,31 +465,27 @@ fn human_bytes(n: u64) -> String {
     }
 }
 
-/// `--dry-run`: the warnings, then each file of the bundle with its size and source.
-fn print_bundle(bundle: &pack::Bundle) {
-    for w in &bundle.warnings {
+/// `--dry-run`: the warnings, then each path of the job with its size, role and file on disk.
+fn print_packed(packed: &pack::Packed) {
+    for w in &packed.warnings {
         eprintln!("{w}");
     }
-    for (path, f) in &bundle.files {
-        let role = if f.requested.is_none() { "scene" } else { "asset" };
-        println!("{path}\t{}\t{role}\t{}", f.bytes.len(), f.source.display());
+    for (path, e) in &packed.entries {
+        let d = &packed.distinct[e.file];
+        let role = if e.scene { "scene" } else { "asset" };
+        println!("{path}\t{}\t{role}\t{}", d.size, d.source.display());
     }
     eprintln!(
-        "{} file(s), {}; nothing was submitted (--dry-run)",
-        bundle.files.len(),
-        human_bytes(bundle.total_bytes())
+        "{} scene file(s), {} file(s), {}; nothing was submitted (--dry-run)",
+        packed.scenes.len(),
+        packed.distinct.len(),
+        human_bytes(packed.total_bytes())
     );
 }
 
-/// Uploads the bundle and prints what the server accepted.
-fn submit(
-    api: &Api,
-    bundle: &pack::Bundle,
-    cameras: Option<String>,
-    opts: &SubmitOptions,
-) -> Result<JobInfo> {
-    let tar = bundle.tar_gz()?;
-    let mut fields = vec![("scene_path", bundle.scene_path.clone()), ("priority", opts.priority.to_string())];
+/// The job's options as multipart fields (for a server without JSON submissions).
+fn multipart_fields(scene_path: &str, opts: &SubmitOptions) -> Vec<(&'static str, String)> {
+    let mut fields = vec![("scene_path", scene_path.to_string()), ("priority", opts.priority.to_string())];
     if let Some(n) = &opts.name {
         fields.push(("name", n.clone()));
     }
@@ -447,8 +495,8 @@ fn submit(
     if let Some(t) = opts.tile_size {
         fields.push(("tile_size", t.to_string()));
     }
-    if let Some(c) = cameras {
-        fields.push(("cameras", c));
+    if let Some(c) = &opts.cameras {
+        fields.push(("cameras", c.iter().map(u32::to_string).collect::<Vec<_>>().join(",")));
     }
     if opts.allow_unsupported {
         fields.push(("allow_unsupported", "true".to_string()));
@@ -462,19 +510,42 @@ fn submit(
     if let Some(t) = opts.noise_target {
         fields.push(("noise_target", t.to_string()));
     }
+    if let Some(v) = opts.video {
+        fields.push(("video", v.as_str().to_string()));
+    }
+    if let Some(f) = opts.fps {
+        fields.push(("fps", f.to_string()));
+    }
+    if let Some(k) = opts.keep_float {
+        fields.push(("keep_float", k.to_string()));
+    }
+    fields
+}
+
+/// A server older than content-addressed files: one scene goes as a multipart `.tar.gz`
+/// bundle, as it always did.
+fn submit_bundle(api: &Api, packed: &pack::Packed, opts: &SubmitOptions) -> Result<JobInfo> {
+    if packed.scenes.len() > 1 {
+        bail!(
+            "the server at {} does not take sequences (it has no POST /api/v1/files/missing); upgrade it, or submit the {} scene files one at a time",
+            api.base,
+            packed.scenes.len()
+        );
+    }
+    let tar = packed.tar_gz()?;
+    let fields = multipart_fields(&packed.scenes[0].path, opts);
     let (content_type, head, tail) = api::multipart_frame(&fields, "bundle", "bundle.tar.gz");
     let length = (head.len() + tar.len() + tail.len()) as u64;
     if !opts.quiet {
         eprintln!(
-            "packed {} with {} asset(s): {} ({} to upload)",
-            bundle.scene_path,
-            bundle.files.len() - 1,
-            human_bytes(bundle.total_bytes()),
+            "the server takes bundles only (it is older than this client): packed {} with {} asset(s), {} to upload",
+            packed.scenes[0].path,
+            packed.entries.len() - 1,
             human_bytes(length)
         );
     }
     let body = std::io::Cursor::new(head).chain(std::io::Cursor::new(tar)).chain(std::io::Cursor::new(tail));
-    let job = if follow::bars_wanted(opts.quiet) {
+    if follow::bars_wanted(opts.quiet) {
         let bar = ProgressBar::new(length);
         bar.set_style(
             ProgressStyle::with_template("uploading [{bar:30}] {bytes}/{total_bytes}, {bytes_per_sec}")
@@ -483,9 +554,57 @@ fn submit(
         );
         let job = api.submit(&content_type, length, bar.wrap_read(body));
         bar.finish_and_clear();
-        job?
+        Ok(job?)
     } else {
-        api.submit(&content_type, length, body)?
+        Ok(api.submit(&content_type, length, body)?)
+    }
+}
+
+/// Sends the job's files the server lacks, submits it and prints what the server accepted.
+fn submit(api: &Api, packed: &pack::Packed, opts: &SubmitOptions) -> Result<JobInfo> {
+    for w in &packed.warnings {
+        eprintln!("{w}");
+    }
+    if opts.verbose {
+        eprintln!(
+            "found {} file(s) of {} scene file(s) in {:.3} s, hashed {} in {:.3} s",
+            packed.distinct.len(),
+            packed.scenes.len(),
+            packed.list_seconds,
+            human_bytes(packed.total_bytes()),
+            packed.hash_seconds
+        );
+    }
+    let request = JobRequest {
+        name: opts.name.clone(),
+        priority: Some(opts.priority),
+        tile_size: opts.tile_size,
+        samples: opts.samples,
+        cameras: opts.cameras.clone(),
+        pass_samples: opts.pass_samples,
+        noise_target: opts.noise_target,
+        allow_unsupported: opts.allow_unsupported,
+        denoise: opts.denoise,
+        video: opts.video,
+        fps: opts.fps,
+        keep_float: opts.keep_float,
+        ..JobRequest::default()
+    };
+    let bars = follow::bars_wanted(opts.quiet);
+    let job = match upload::submit(api, packed, request, bars, !bars && !opts.quiet)? {
+        upload::Submitted::Job(job, sent) => {
+            if !opts.quiet {
+                eprintln!("{sent}");
+            }
+            if opts.verbose {
+                eprintln!(
+                    "asked and uploaded in {:.3} s; the server took {:.3} s to check and accept the job",
+                    sent.upload_seconds, sent.submit_seconds
+                );
+            }
+            *job
+        }
+        upload::Submitted::OldServer => submit_bundle(api, packed, opts)?,
     };
     for w in &job.warnings {
         eprintln!("{w}");
@@ -494,16 +613,26 @@ fn submit(
         println!("{}", job.id);
     } else {
         let tiles: u32 = job.frames.iter().map(|f| f.tiles_total).sum();
+        let frames = job.frames.len().max(frame_total(&job) as usize);
+        let video = match &job.video {
+            Some(v) => format!(", then a {} video at {} fps", v.kind.as_str(), v.fps),
+            None => String::new(),
+        };
         println!(
-            "submitted job {} ({}): {} frame(s), {tiles} tiles; follow it with `tessera status {}` or at {}/",
-            job.id,
-            job.name,
-            job.frames.len(),
-            job.id,
-            api.base
+            "submitted job {} ({}): {frames} frame(s), {tiles} tiles{video}; follow it with `tessera status {}` or at {}/",
+            job.id, job.name, job.id, api.base
         );
+        if let Some(m) = job.video.as_ref().and_then(|v| v.message.as_ref()) {
+            eprintln!("video: {m}");
+        }
     }
     Ok(job)
+}
+
+/// Frames of a job by its counts (complete also when the server leaves `frames` out).
+fn frame_total(job: &JobInfo) -> u32 {
+    let c = &job.frame_counts;
+    c.done + c.rendering + c.queued
 }
 
 /// Follows a job to its end and downloads its outputs; a job that failed or was cancelled is
@@ -532,16 +661,25 @@ fn print_jobs(jobs: &[JobInfo], base: &str) {
         println!("no jobs on {base}");
         return;
     }
-    println!("{:>5}  {:<8}  {:>4}  {:>15}  {:<19}  NAME", "ID", "STATE", "PRI", "TILES", "SUBMITTED (UTC)");
+    println!(
+        "{:>5}  {:<8}  {:>4}  {:>15}  {:>11}  {:<19}  NAME",
+        "ID", "STATE", "PRI", "TILES", "FRAMES", "SUBMITTED (UTC)"
+    );
     for j in jobs {
         let (done, total) = job_tiles(j);
         let pct = if total > 0 { 100 * u64::from(done) / u64::from(total) } else { 0 };
+        // The counts are complete even when the list leaves the frames out.
+        let frames = match frame_total(j) {
+            0 => format!("{}", j.frames.len()),
+            n => format!("{}/{n}", j.frame_counts.done),
+        };
         println!(
-            "{:>5}  {:<8}  {:>4}  {:>15}  {:<19}  {}",
+            "{:>5}  {:<8}  {:>4}  {:>15}  {:>11}  {:<19}  {}",
             j.id,
             j.state.as_str(),
             j.priority,
             format!("{done}/{total} {pct:>3}%"),
+            frames,
             follow::utc(j.submitted_at),
             j.name
         );
@@ -563,7 +701,36 @@ fn print_job(job: &JobInfo) {
     println!("submitted: {} UTC", follow::utc(job.submitted_at));
     let samples = job.samples.map_or("the scene's".to_string(), |s| s.to_string());
     println!("priority {}, tile size {}, samples per pixel: {samples}", job.priority, job.tile_size);
-    for f in &job.frames {
+    if follow::by_counts(job) {
+        println!("frames: {} (of {} scene file(s))", follow::counts_line(job), job.scenes.max(1));
+        // The frames under way, not hundreds of lines (--json lists every frame).
+        let busy: Vec<_> = job
+            .frames
+            .iter()
+            .filter(|f| f.outputs.is_empty() && (f.tiles_done > 0 || f.passes_done > 0))
+            .collect();
+        for f in busy.iter().take(8) {
+            println!(
+                "frame {}: {} ({}x{}), {}/{} tiles{}",
+                f.index,
+                f.image_name,
+                f.width,
+                f.height,
+                f.tiles_done,
+                f.tiles_total,
+                f.scene.as_ref().map_or(String::new(), |s| format!(", from {s}"))
+            );
+        }
+        if busy.len() > 8 {
+            println!(
+                "... and {} more frames under way (tessera status {} --json lists them all)",
+                busy.len() - 8,
+                job.id
+            );
+        }
+    }
+    let frames: &[tessera::protocol::FrameInfo] = if follow::by_counts(job) { &[] } else { &job.frames };
+    for f in frames {
         println!(
             "frame {}: camera {}, {} ({}x{}), {}/{} tiles",
             f.index,
@@ -578,6 +745,16 @@ fn print_job(job: &JobInfo) {
             let names: Vec<&str> = f.outputs.iter().map(|o| o.name.as_str()).collect();
             println!("  files: {}", names.join(", "));
         }
+    }
+    if let Some(v) = &job.video {
+        let mut line = format!("video: {} at {} fps, {}", v.kind.as_str(), v.fps, v.state);
+        if let Some(u) = &v.url {
+            line.push_str(&format!(", {u}"));
+        }
+        if let Some(m) = &v.message {
+            line.push_str(&format!(" ({m})"));
+        }
+        println!("{line}");
     }
     if let Some(e) = &job.error {
         println!("error: {e}");
@@ -663,14 +840,12 @@ mod tests {
     }
 
     #[test]
-    fn cameras_are_checked_against_the_scene() {
-        assert_eq!(check_cameras(None, 2).unwrap(), None);
-        assert_eq!(check_cameras(Some("2, 1"), 2).unwrap().as_deref(), Some("2,1"));
-        let e = check_cameras(Some("3"), 2).unwrap_err().to_string();
-        assert!(e.contains("camera 3 does not exist; the scene has 2 camera(s)"), "{e}");
-        let e = check_cameras(Some("0"), 2).unwrap_err().to_string();
+    fn cameras_are_camera_numbers() {
+        assert_eq!(parse_cameras(None).unwrap(), None);
+        assert_eq!(parse_cameras(Some("2, 1")).unwrap(), Some(vec![2, 1]));
+        let e = parse_cameras(Some("0")).unwrap_err().to_string();
         assert!(e.contains("\"0\" is not a camera number"), "{e}");
-        assert!(check_cameras(Some(","), 2).is_err());
+        assert!(parse_cameras(Some(",")).is_err());
     }
 
     #[test]

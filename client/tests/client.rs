@@ -103,17 +103,34 @@ fn client_submit_wait_gives_the_clis_files_byte_for_byte() {
         assert_eq!(job["samples"], 1, "{job}");
         assert_eq!(job["tile_size"], 64, "{job}");
 
-        // Exactly the scene and the files it names, at the paths it names them by.
-        let blobs = server.blobs();
-        assert_eq!(blobs.len(), i + 1, "one bundle per job");
-        let stored: Vec<Vec<String>> = blobs.iter().map(|b| bundle_paths(b)).collect();
+        // Exactly the scene and the files it names: in a stored bundle at the paths it names
+        // them by (a server that takes bundles only), or in the server's file store by hash.
         let scene_name = scene.file_name().unwrap().to_string_lossy().into_owned();
         let mut expected = named_files(&std::fs::read_to_string(scene).unwrap());
         assert!(expected.len() >= 2, "{expected:?}");
         expected.push(scene_name);
         expected.sort();
-        assert!(stored.contains(&expected), "stored bundles {stored:?}, expected {expected:?}");
+        let blobs = server.blobs();
+        if blobs.is_empty() {
+            let summary =
+                stderr.lines().find(|l| l.starts_with("uploaded ")).unwrap_or_else(|| panic!("{stderr}"));
+            assert!(summary.contains(&format!(" of {} files,", expected.len())), "{summary}");
+            for p in &expected {
+                let sha = sha256_hex(&scene.parent().unwrap().join(p));
+                let at = server.data.join("files").join(&sha[..2]).join(&sha);
+                assert!(at.is_file(), "{p} is not in the file store");
+            }
+        } else {
+            assert_eq!(blobs.len(), i + 1, "one bundle per job");
+            let stored: Vec<Vec<String>> = blobs.iter().map(|b| bundle_paths(b)).collect();
+            assert!(stored.contains(&expected), "stored bundles {stored:?}, expected {expected:?}");
+        }
     }
+}
+
+fn sha256_hex(path: &Path) -> String {
+    use sha2::Digest;
+    format!("{:x}", sha2::Sha256::digest(std::fs::read(path).unwrap()))
 }
 
 /// `tessera submit --denoise --wait` brings down the denoised files too, the CLI's bytes.
@@ -220,6 +237,8 @@ fn client_refuses_a_scene_with_a_missing_asset_before_uploading() {
     let jobs = server.get_json("/api/v1/jobs", None);
     assert_eq!(jobs["jobs"], Value::Array(vec![]), "the server got no job");
     assert!(server.blobs().is_empty(), "the server stored no bundle");
+    let store = server.data.join("files");
+    assert!(!store.exists() || files_under(&store).is_empty(), "the server stored no file");
 
     // The same scene with the file in place goes through (the test above is about the file).
     let ok = scene_with_assets(&dir, "models/tri.ply");

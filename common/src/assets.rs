@@ -57,6 +57,13 @@ impl FsResolver {
         }
         out
     }
+
+    /// Where [`AssetResolver::read`] would read `rel` from: the first of the same candidates,
+    /// in the same order, that is a file; `None` when none is. Reads nothing (a client lists a
+    /// scene's files this way without loading them).
+    pub fn locate(&self, rel: &str) -> Option<PathBuf> {
+        self.candidates(rel).into_iter().find(|c| std::fs::metadata(c).is_ok_and(|m| m.is_file()))
+    }
 }
 
 impl AssetResolver for FsResolver {
@@ -235,6 +242,13 @@ mod tests {
         assert_eq!(r.read("ply/x.ply").unwrap().0, b"abc");
         assert_eq!(r.read("assets/ply/x.ply").unwrap().0, b"abc");
         assert!(r.read("ply/missing.ply").is_err());
+        // locate finds what read reads, where it reads it, and a folder is no file.
+        for rel in ["ply/x.ply", "assets/ply/x.ply", "./ply/x.ply"] {
+            assert_eq!(r.locate(rel), Some(r.read(rel).unwrap().1), "{rel}");
+        }
+        assert_eq!(r.locate("ply/x.ply"), Some(dir.join("ply/x.ply")));
+        assert_eq!(r.locate("ply/missing.ply"), None);
+        assert_eq!(r.locate("ply"), None);
     }
 
     #[test]

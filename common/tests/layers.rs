@@ -58,6 +58,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "scene::xml",
             "scene::json",
             "scene::legacy_data",
+            "scene::assets_named",
             "camera",
             "material",
             "lights",

@@ -1,13 +1,14 @@
 //! The render-ready [`Scene`]; its submodules make one from a scene file.
 //!
 //! Bottom up (each imports only the ones before it; `docs/ARCHITECTURE.md`, "Layers"):
-//! [`records`] (what a file says), [`tree`] (the element tree and what the element rules read it
+//! [`records`] (what a file says; [`assets_named`] lists the files they name), [`tree`] (the element tree and what the element rules read it
 //! with), [`elements`] (the walk into records, one file per family of elements),
 //! [`xml`] and [`json`] (the front ends), this module (the [`Scene`] type), [`cache`] (meshes
 //! and images kept from one build for the next), [`build`] (records to `Scene`) and [`load`]
 //! (text or file to `Scene`: [`load::parse_scene`], [`load::load_scene_file`],
 //! [`load::load_scene_str`]).
 
+pub mod assets_named;
 pub mod build;
 pub mod cache;
 pub mod elements;
