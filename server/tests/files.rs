@@ -368,13 +368,14 @@ fn files_no_job_names_are_collected_after_the_grace() {
         200
     );
     assert_eq!(delete(&server.url, gone_job).0, 204);
-    let bundles = files_under(&data.join("blobs"));
-    assert_eq!(bundles.len(), 2, "{bundles:?}");
+    // Each job's files (its scene and its manifest) are in the store: the deleted job's scene
+    // and manifest are named by no job now, the kept job's are.
+    let stored_before = files_under(&data.join("files"));
     drop(server);
-    // Everything two hours old: only what no job names goes.
-    age(&stored_path(&data, &sha256(&old)));
-    for b in &bundles {
-        age(&data.join("blobs").join(b));
+    // Everything but the young upload two hours old: only what no job names goes.
+    let young_name = format!("{}/{}", &sha256(&young)[..2], sha256(&young));
+    for f in stored_before.iter().filter(|f| **f != young_name) {
+        age(&data.join("files").join(f));
     }
     let server = start(&data, &[]);
     let deadline = Instant::now() + Duration::from_secs(10);
@@ -384,11 +385,13 @@ fn files_no_job_names_are_collected_after_the_grace() {
     }
     let line = server.log().lines().find(|l| l.contains("that no job names")).unwrap().to_string();
     eprintln!("{line}");
-    assert!(line.contains("removed 1 file(s)") && line.contains("1 bundle(s)"), "{line}");
-    assert_eq!(files_under(&data.join("files")), [format!("{}/{}", &sha256(&young)[..2], sha256(&young))]);
-    let left = files_under(&data.join("blobs"));
-    assert_eq!(left.len(), 1, "{left:?}");
-    // The bundle left is the job's: it still renders from it.
+    // The old upload, the deleted job's scene and its manifest.
+    assert!(line.contains("removed 3 file(s)"), "{line}");
+    let left = files_under(&data.join("files"));
+    assert_eq!(left.len(), stored_before.len() - 3, "{stored_before:?} -> {left:?}");
+    assert!(left.contains(&format!("{}/{}", &sha256(&young)[..2], sha256(&young))), "{left:?}");
+    assert!(!left.contains(&format!("{}/{}", &sha256(&old)[..2], sha256(&old))), "{left:?}");
+    // What is left of the job's own files still renders it.
     let (code, v) = job(&server.url, kept_job);
     assert_eq!((code, v["state"].as_str()), (200, Some("queued")), "{v}");
     let _worker = Worker::start(&server.url, WORKER, "w");
