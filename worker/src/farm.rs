@@ -734,12 +734,25 @@ fn lease_scene(
             s.clone()
         }
         None => {
+            let started = Instant::now();
             let s = pool.install(|| match &lease.manifest {
                 Some(manifest) => {
                     crate::jobfiles::manifest_scene(client, caches, manifest, &lease.scene_path, options)
                 }
                 None => fetch_bundle_scene(client, caches.meshes, &lease.bundle, &lease.scene_path, options),
             })?;
+            // A line a scene built: what the caches saved (a sequence's frames after its first
+            // build their meshes from the cache, or fetch nothing at all).
+            let st = &s.stats;
+            eprintln!(
+                "job {}: {} built in {:.3} s ({} mesh(es) from the cache, {:.3} s building meshes{})",
+                lease.job_id,
+                lease.scene_path,
+                started.elapsed().as_secs_f64(),
+                st.meshes_cached,
+                st.mesh_seconds,
+                if st.world_tree_cached { ", world tree from the cache" } else { "" }
+            );
             let s = Arc::new(s);
             // Keep a few scenes; jobs rarely interleave more.
             if scenes.len() >= 4 {
