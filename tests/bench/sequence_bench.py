@@ -52,6 +52,15 @@ def timed(cmd, **kw):
     return time.monotonic() - start, proc
 
 
+def split(stdout):
+    """Median seconds per frame of each step, from `--timings-json` lines (frames after the first)."""
+    rows = [json.loads(l) for l in stdout.splitlines() if l.startswith("{")]
+    rows = rows[1:] or rows
+    keys = ["parse_seconds", "mesh_seconds", "top_level_seconds", "render_seconds", "write_seconds"]
+    med = lambda xs: sorted(xs)[len(xs) // 2] if xs else float("nan")
+    return "  ".join(f"{k.split('_')[0]} {med([r[k] for r in rows]) * 1000:.1f} ms" for k in keys)
+
+
 def video_psnr(ours, reference):
     """Mean PSNR (dB, RGB) over the frames both videos have, after a 4x4 box."""
     graph = (
@@ -88,24 +97,30 @@ def main():
     n = len(scenes)
     try:
         # 1. One process, every scene file.
-        t_one, proc = timed([worker, "render", *scenes, "--out", os.path.join(work, "cli"), "--quiet"])
+        t_one, proc = timed(
+            [worker, "render", *scenes, "--out", os.path.join(work, "cli"), "--quiet", "--timings-json"]
+        )
         if proc.returncode != 0:
             sys.exit("tessera-worker render failed:\n" + proc.stderr)
         print(f"frames {n}: CLI, one process: {t_one:.2f} s ({t_one / n * 1000:.0f} ms a frame)", flush=True)
+        print(f"  per frame (median of frames 2-{n}): {split(proc.stdout)}")
 
         # 2. One process a scene file.
         if not args.skip_separate:
             start = time.monotonic()
+            lines = []
             for s in scenes:
                 proc = subprocess.run(
-                    [worker, "render", s, "--out", os.path.join(work, "separate"), "--quiet"],
+                    [worker, "render", s, "--out", os.path.join(work, "separate"), "--quiet", "--timings-json"],
                     capture_output=True,
                     text=True,
                 )
                 if proc.returncode != 0:
                     sys.exit(f"tessera-worker render {s} failed:\n" + proc.stderr)
+                lines.append(proc.stdout)
             t_sep = time.monotonic() - start
             print(f"frames {n}: CLI, a process a frame: {t_sep:.2f} s ({t_sep / n * 1000:.0f} ms a frame)", flush=True)
+            print(f"  per frame (median of frames 2-{n}): {split(''.join(lines))}")
 
         # 3. The farm: a fresh server with one local worker, the sequence as one job.
         port = free_port()
@@ -126,10 +141,10 @@ def main():
                     time.sleep(0.1)
             env = dict(os.environ, TESSERA_SERVER=url)
             out = os.path.join(work, "farm")
-            t_farm, proc = timed([client, "submit", *scenes, "--wait", "--out", out], env=env)
+            t_farm, proc = timed([client, "submit", *scenes, "--wait", "--out", out, "--verbose"], env=env)
             if proc.returncode != 0:
                 sys.exit("tessera submit failed:\n" + proc.stdout + proc.stderr)
-            uploaded = re.findall(r"upload[^\n]*", proc.stderr + proc.stdout)
+            uploaded = re.findall(r"uploaded \d+ of \d+ files[^\n]*", proc.stderr + proc.stdout)
             print(f"frames {n}: farm, one job: {t_farm:.2f} s ({t_farm / n * 1000:.0f} ms a frame)", flush=True)
             if not args.skip_separate:
                 print(f"  farm / CLI one process: {t_farm / t_one:.2f}; farm / CLI a process a frame: {t_farm / t_sep:.2f}")
@@ -137,6 +152,9 @@ def main():
                 print(f"  farm / CLI one process: {t_farm / t_one:.2f}")
             for line in uploaded[:3]:
                 print(f"  client: {line.strip()}")
+            built = [l for l in open(os.path.join(work, "server.log")).read().splitlines() if " built in " in l]
+            cached = sum(1 for l in built if "world tree from the cache" in l or " 0 mesh(es) from the cache" not in l)
+            print(f"  farm worker: {len(built)} scene builds, {cached} of them with meshes from its cache")
             files = dir_bytes(os.path.join(data, "files"))
             total = dir_bytes(data)
             print(
