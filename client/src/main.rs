@@ -166,9 +166,14 @@ enum Command {
         #[arg(long, value_name = "N", env = "TESSERA_FPS", value_parser = clap::value_parser!(u32).range(1..=120))]
         fps: Option<u32>,
         /// Keep only the PNG of each frame on the server, not the float frame (.exr) it keeps
-        /// beside it by default (--float-exr then has nothing to download).
-        #[arg(long, env = "TESSERA_NO_KEEP_FLOAT")]
+        /// beside it by default for a job of one scene (--float-exr then has nothing to
+        /// download).
+        #[arg(long, env = "TESSERA_NO_KEEP_FLOAT", conflicts_with = "keep_float")]
         no_keep_float: bool,
+        /// Keep each frame's float frame (.exr, losslessly compressed) beside its PNG on the
+        /// server also for a sequence, which by default keeps only the PNGs.
+        #[arg(long)]
+        keep_float: bool,
         /// Parse the scenes, find their files and list them (job path, size, role, file on disk),
         /// without hashing or submitting anything.
         #[arg(long)]
@@ -296,6 +301,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             video,
             fps,
             no_keep_float,
+            keep_float,
             dry_run,
             verbose,
             quiet,
@@ -313,7 +319,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 noise_target,
                 video: video.map(VideoArg::kind),
                 fps,
-                keep_float: no_keep_float.then_some(false),
+                keep_float: if keep_float { Some(true) } else { no_keep_float.then_some(false) },
                 quiet,
                 verbose,
             };

@@ -196,6 +196,24 @@ fn the_readmes_commands_work_as_written() {
         std::fs::read(cli.join("tori.png")).unwrap(),
         "the client's tori.png differs from the CLI's"
     );
+    // The animation: 24 frames with the CLI's bytes, and their video.
+    let orbit = work.join("orbit");
+    for k in 0..24 {
+        assert!(
+            orbit.join(format!("orbit_{k:02}.png")).is_file(),
+            "the README's animation left no frame {k}"
+        );
+    }
+    let cli = TempDir::new("readme-cli-orbit");
+    cli_render(&repo().join("scenes/orbit/orbit_05.xml"), cli.path(), &[]);
+    assert_eq!(
+        std::fs::read(orbit.join("orbit_05.png")).unwrap(),
+        std::fs::read(cli.join("orbit_05.png")).unwrap()
+    );
+    assert!(
+        orbit.join("video.mp4").is_file() || orbit.join("video.gif").is_file(),
+        "the README's animation left no video"
+    );
     let curl_png: PathBuf = work.join("tori.png");
     assert_eq!(std::fs::read(&curl_png).expect("curl -O wrote tori.png"), png);
 }

@@ -284,7 +284,8 @@ pub struct JobRequest {
     #[serde(default)]
     pub fps: Option<u32>,
     /// Keep each frame's float image (`.exr`, losslessly compressed) beside a PNG frame
-    /// (default true); false keeps only the PNG.
+    /// (default: true for a job of one scene file, false for a sequence); false keeps only the
+    /// PNG.
     #[serde(default)]
     pub keep_float: Option<bool>,
     /// Where to POST the job's end (under a prefix the server allows with `--notify-allow`).

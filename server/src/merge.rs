@@ -85,6 +85,15 @@ pub fn write_denoised(
 /// The float frame the farm keeps beside a camera's LDR image (`<stem>.exr`, so the frame can be
 /// re-tone-mapped later), unless the image name already writes one (`.exr`, `.hdr`) or the
 /// job's `keep_float` is false.
+/// Whether a job keeps each PNG frame's float image beside it: as it asked, else a job of one
+/// scene does (its frames may be re-tone-mapped or fetched with `--float-exr`) and a sequence
+/// does not (its product is the PNGs and the video; an 800x800 float frame is 3.4 MB even
+/// compressed, and compressing it costs the server more CPU than the worker's render of a
+/// course frame).
+pub fn keeps_float(asked: Option<bool>, scenes: u32) -> bool {
+    asked.unwrap_or(scenes <= 1)
+}
+
 pub fn kept_float(files: &[OutputFile], keep_float: bool) -> Option<String> {
     if !keep_float || files.iter().any(|f| matches!(f.kind, OutputKind::Exr | OutputKind::Hdr)) {
         return None;
@@ -332,7 +341,7 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
         let assembled = started.elapsed().as_secs_f64();
         let dir = st.frame_dir(job_id, frame);
         let (mut names, written, tonemap_seconds) =
-            write_outputs(&dir, &cam, &img, job.keep_float.unwrap_or(true))?;
+            write_outputs(&dir, &cam, &img, keeps_float(job.keep_float, job.scenes))?;
         // The denoised frame goes beside the course's outputs, from the merged frame (never
         // tile by tile: the filter would leave seams).
         let denoise = match &aux {

@@ -151,7 +151,8 @@ fn a_sequence_submitted_once_is_one_job_rendered_in_order_like_the_cli() {
         assert_eq!(f["scene"], format!("seq/frame_{k:03}.xml"), "{f}");
         let names: Vec<&str> =
             f["outputs"].as_array().unwrap().iter().map(|o| o["name"].as_str().unwrap()).collect();
-        assert_eq!(names, [format!("frame_{k:03}.png"), format!("frame_{k:03}.exr")], "{f}");
+        // A sequence keeps no float frame beside its PNGs unless asked (keep_float=true).
+        assert_eq!(names, [format!("frame_{k:03}.png")], "{f}");
     }
     // One local worker of one thread: the frames were merged in frame order.
     assert_eq!(merged_order(&server, id), (0..n as u64).collect::<Vec<_>>());
@@ -177,9 +178,6 @@ fn a_sequence_submitted_once_is_one_job_rendered_in_order_like_the_cli() {
     // Every frame is the CLI's, to the byte.
     let cli = cli_render_all(&dir, n);
     assert_job_outputs_equal_cli(&server, &job, &cli);
-    // The kept float frame holds the frame's values (the PNG is the CLI's; the EXR decodes).
-    let exr = get_bytes(&server.url, &format!("/api/v1/jobs/{id}/frames/3/files/frame_003.exr"));
-    assert!(exr.starts_with(&[0x76, 0x2f, 0x31, 0x01]), "not an OpenEXR file");
     // Each distinct file stored once: the 40 scenes, the shared PLY and the manifest.
     assert_eq!(stored_files(&data).len(), n + 2, "{:?}", stored_files(&data));
     // The job list summarises a job of more than 32 frames; its own GET lists them all.
@@ -196,12 +194,15 @@ fn a_json_job_names_stored_files_and_one_the_server_lacks_is_a_409() {
     let files = sequence(&dir, n, 12, 2);
     let data = TempDir::new("seq-json-data");
     let server = Server::start(&data, &["--local-workers", "1", "--local-worker-threads", "1"]);
-    // A first job (multipart) puts the files in the store, without a float frame kept.
-    let (code, first) = submit_sequence(&server, &files, &[("keep_float", "false"), ("video", "none")]);
+    // A first job (multipart) puts the files in the store, asking for the float frames too.
+    let (code, first) = submit_sequence(&server, &files, &[("keep_float", "true"), ("video", "none")]);
     assert_eq!(code, 201, "{first}");
     let first_id = first["id"].as_u64().unwrap();
     let first = wait_job(&server, first_id, 60, |j| j["state"] == "done");
-    assert_eq!(first["frames"][0]["outputs"].as_array().unwrap().len(), 1, "keep_float=false: {first}");
+    assert_eq!(first["frames"][0]["outputs"].as_array().unwrap().len(), 2, "keep_float=true: {first}");
+    // The kept float frame is an OpenEXR file (ZIP-compressed; the PNG is the CLI's).
+    let exr = get_bytes(&server.url, &format!("/api/v1/jobs/{first_id}/frames/1/files/frame_001.exr"));
+    assert!(exr.starts_with(&[0x76, 0x2f, 0x31, 0x01]), "not an OpenEXR file");
     let digest = |b: &[u8]| {
         use sha2::Digest;
         sha2::Sha256::digest(b).iter().map(|x| format!("{x:02x}")).collect::<String>()

@@ -51,8 +51,8 @@ pub(super) struct SubmitForm {
     /// Or the scene files of a sequence among the uploaded files (a bundle's paths), in frame
     /// order, separated by newlines or commas.
     scenes: Option<String>,
-    /// "false": keep only the PNG of a PNG-named frame, not its float image (`.exr`, kept
-    /// losslessly compressed by default).
+    /// Whether to keep a PNG-named frame's float image (`.exr`, losslessly compressed) beside
+    /// it: by default "true" for a job of one scene file, "false" for a sequence.
     keep_float: Option<bool>,
     /// "true": also write each frame denoised (`<stem>_denoised.exr` and its PNG) with Intel
     /// Open Image Denoise on the server; 422 when the server has no OIDN.
