@@ -374,3 +374,38 @@ fn killing_the_server_mid_sequence_loses_no_finished_frame() {
     let cli = cli_render_all(&dir, n);
     assert_job_outputs_equal_cli(&server, &job, &cli);
 }
+
+#[test]
+fn killing_a_worker_mid_sequence_loses_no_finished_frame() {
+    let _s = serial();
+    let dir = TempDir::new("seq-kill-worker");
+    let n = 30;
+    let files = sequence(&dir, n, 40, 16);
+    let server = Server::start_temp(
+        "seq-kill-worker-data",
+        &["--local-workers", "0", "--worker-token", "wtok", "--lease-seconds", "2", "--heartbeat-seconds", "0.5"],
+    );
+    let (code, job) = submit_sequence(&server, &files, &[]);
+    assert_eq!(code, 201, "{job}");
+    let id = job["id"].as_u64().unwrap();
+    let mut first = Worker::start(&server.url, "wtok", "first");
+    let before = wait_job(&server, id, 120, |j| j["frame_counts"]["done"].as_u64().unwrap() >= 3);
+    first.kill9();
+    let done_before: Vec<(usize, Value)> = before["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| !f["outputs"].as_array().unwrap().is_empty())
+        .map(|(k, f)| (k, f["outputs"].clone()))
+        .collect();
+    assert!(done_before.len() < n, "the job ended before the worker was killed; make its frames slower");
+    // Another worker takes over (the killed one's lease expires); the merged frames stay as they were.
+    let _second = Worker::start(&server.url, "wtok", "second");
+    let job = wait_job(&server, id, 180, |j| j["state"] == "done");
+    for (k, outputs) in &done_before {
+        assert_eq!(&job["frames"][*k]["outputs"], outputs, "frame {k} changed after the kill");
+    }
+    let cli = cli_render_all(&dir, n);
+    assert_job_outputs_equal_cli(&server, &job, &cli);
+}

@@ -153,7 +153,7 @@ def main():
             for line in uploaded[:3]:
                 print(f"  client: {line.strip()}")
             built = [l for l in open(os.path.join(work, "server.log")).read().splitlines() if " built in " in l]
-            cached = sum(1 for l in built if "world tree from the cache" in l or " 0 mesh(es) from the cache" not in l)
+            cached = sum(1 for l in built if "world tree from the cache" in l or "(0 mesh(es) from the cache" not in l)
             print(f"  farm worker: {len(built)} scene builds, {cached} of them with meshes from its cache")
             files = dir_bytes(os.path.join(data, "files"))
             total = dir_bytes(data)
