@@ -383,7 +383,16 @@ fn killing_a_worker_mid_sequence_loses_no_finished_frame() {
     let files = sequence(&dir, n, 40, 16);
     let server = Server::start_temp(
         "seq-kill-worker-data",
-        &["--local-workers", "0", "--worker-token", "wtok", "--lease-seconds", "2", "--heartbeat-seconds", "0.5"],
+        &[
+            "--local-workers",
+            "0",
+            "--worker-token",
+            "wtok",
+            "--lease-seconds",
+            "2",
+            "--heartbeat-seconds",
+            "0.5",
+        ],
     );
     let (code, job) = submit_sequence(&server, &files, &[]);
     assert_eq!(code, 201, "{job}");

@@ -164,6 +164,19 @@ fn placed_camera(c: &CameraRec, placement: Option<&Transform>) -> CameraRec {
     placed.position = placed_point(placement, c.position).to_array();
     placed.gaze = placed_vector(placement, c.gaze).to_array();
     placed.up = placed_vector(placement, c.up).to_array();
+    // The course's renderer keeps the transformed gaze's length: a scaling along the view
+    // moves a NearPlane camera's image plane (its extents as given) that many times further,
+    // which zooms. Measured on the sequence camera_zoom_david (a scaling of 1 to 2 along the
+    // gaze about the camera; its reference video zooms in by that factor).
+    if let (Some(_), crate::scene::records::Projection::NearPlane { .. }) = (placement, &c.projection) {
+        let unit = v3(c.gaze);
+        if unit.length_squared() > 0.0 {
+            let stretched = placed_vector(placement, unit.normalize().to_array()).length();
+            if stretched.is_finite() && stretched > 0.0 {
+                placed.near_distance = c.near_distance * stretched;
+            }
+        }
+    }
     placed
 }
 
@@ -1768,6 +1781,27 @@ mod tests {
             "",
         ))
         .unwrap();
+        assert_same_rays(&got.cameras[0], &want.cameras[0]);
+    }
+
+    /// A scaling along the gaze moves a NearPlane camera's image plane by its factor (the
+    /// plane's extents as given): camera_zoom_david's frames zoom so.
+    #[test]
+    fn a_scaling_along_the_gaze_moves_the_image_plane() {
+        let view = "<Position>0 0 0</Position><Gaze>-1 0 0</Gaze><Up>0 1 0</Up>";
+        let got =
+            build(&placed(&camera_xml("", &format!("{view}<Transformations>s1</Transformations>")), ""))
+                .unwrap();
+        let by_hand =
+            camera_xml("", view).replace("<NearDistance>1</NearDistance>", "<NearDistance>2</NearDistance>");
+        let want = build(&placed(&by_hand, "")).unwrap();
+        assert_same_rays(&got.cameras[0], &want.cameras[0]);
+        // Across the gaze it changes nothing (the scaling is along x, the view along z).
+        let across = "<Position>0 0 0</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>";
+        let got =
+            build(&placed(&camera_xml("", &format!("{across}<Transformations>s1</Transformations>")), ""))
+                .unwrap();
+        let want = build(&placed(&camera_xml("", across), "")).unwrap();
         assert_same_rays(&got.cameras[0], &want.cameras[0]);
     }
 
