@@ -151,7 +151,9 @@ fn the_readmes_commands_work_as_written() {
             let line = rewrite(&line);
             if line.ends_with("/tessera-server") {
                 let log = work.join("server.log");
-                let mut cmd = shell(&line);
+                // `exec`: the shell becomes the server, so the signal that stops it below
+                // reaches the server itself (and its local worker with it).
+                let mut cmd = shell(&format!("exec {line}"));
                 cmd.stdout(Stdio::piped()).stderr(std::fs::File::create(&log).unwrap());
                 let mut child = cmd.spawn().expect("start the README's server");
                 let first =
