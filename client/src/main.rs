@@ -256,6 +256,14 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    // Output cut off by its reader (`tessera logs 6 | head -1`) ends the client quietly, as it
+    // ends other Unix tools, instead of a panic in the next print. Its sockets are unaffected:
+    // the standard library writes to them with MSG_NOSIGNAL (Linux) or SO_NOSIGPIPE.
+    #[cfg(unix)]
+    // SAFETY: setting a signal's disposition to the default, before any thread is started.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     match run(cli) {
         Ok(code) => code,

@@ -1,0 +1,41 @@
+//! The client's manners with the real farm: output cut off by its reader ends it quietly.
+
+mod support;
+
+use std::io::{BufRead, BufReader};
+use std::os::unix::process::ExitStatusExt;
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use support::*;
+
+/// `tessera logs ID --follow | head -1`: the client stops when its reader goes, without a
+/// panic (it used to end with "failed printing to stdout: Broken pipe" and status 101).
+#[test]
+fn a_closed_pipe_ends_the_client_quietly() {
+    let _serial = serial();
+    let server = Server::start_temp("client-pipe", &["--local-workers", "1", "--local-worker-threads", "1"]);
+    // Many small tiles: the log keeps growing while the client follows it.
+    let id = submit_environment(&server, "64", "8");
+    let mut child = Command::new(client_bin())
+        .args(["logs", &id.to_string(), "--follow"])
+        .env("TESSERA_SERVER", &server.url)
+        .env_remove("TESSERA_TOKEN")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run tessera logs");
+    let mut out = BufReader::new(child.stdout.take().unwrap());
+    let mut first = String::new();
+    out.read_line(&mut first).unwrap();
+    assert!(first.contains("accepted"), "{first}");
+    drop(out);
+    let status = wait_timeout(&mut child, Duration::from_secs(60)).unwrap_or_else(|| {
+        let _ = child.kill();
+        panic!("the client went on after its reader closed the pipe")
+    });
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+    assert!(!err.contains("panicked") && !err.contains("Broken pipe"), "{err}");
+    assert_eq!(status.signal(), Some(libc::SIGPIPE), "{status:?}: {err}");
+}
