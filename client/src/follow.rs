@@ -325,13 +325,27 @@ pub fn download(api: &Api, job: &JobInfo, out: &Path, float: bool, quiet: bool) 
         if n > 5 {
             unfinished.push(format!("and {} more", n - 5));
         }
+        // Waiting helps only a job that is still rendering: an ended one's missing frames never
+        // come.
+        let advice = match job.state {
+            JobState::Queued | JobState::Running => {
+                format!("wait for them with: tessera fetch {} --wait --out {}", job.id, out.display())
+            }
+            JobState::Canceled => {
+                "the job was cancelled before they were rendered; submit it again to render them".to_string()
+            }
+            JobState::Failed => format!(
+                "the job failed before they were rendered ({}); see tessera logs {}",
+                job.error.as_deref().unwrap_or("no reason given"),
+                job.id
+            ),
+            JobState::Done => "the server lists them as done without outputs; see tessera logs".to_string(),
+        };
         bail!(
-            "job {} ({}) has frames without outputs: {}; wait for them with: tessera fetch {} --wait --out {}",
+            "job {} ({}) has frames without outputs: {}; {advice}",
             job.id,
             job.state.as_str(),
             unfinished.join(", "),
-            job.id,
-            out.display()
         );
     }
     Ok(written)

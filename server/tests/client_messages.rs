@@ -39,3 +39,25 @@ fn a_closed_pipe_ends_the_client_quietly() {
     assert!(!err.contains("panicked") && !err.contains("Broken pipe"), "{err}");
     assert_eq!(status.signal(), Some(libc::SIGPIPE), "{status:?}: {err}");
 }
+
+/// `tessera fetch` of a cancelled job says its frames will not come, instead of advising
+/// `--wait` (which would return at once with the same error).
+#[test]
+fn fetching_a_cancelled_job_says_why_nothing_comes() {
+    let _serial = serial();
+    let server = Server::start_temp("client-fetch-cancelled", &["--local-workers", "0"]);
+    let id = submit_environment(&server, "64", "8");
+    assert_eq!(cancel(&server, id).0, 200);
+    let out = TempDir::new("client-fetch-cancelled-out");
+    let run = Command::new(client_bin())
+        .args(["fetch", &id.to_string(), "--out"])
+        .arg(out.path())
+        .env("TESSERA_SERVER", &server.url)
+        .env_remove("TESSERA_TOKEN")
+        .output()
+        .expect("run tessera fetch");
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("cancelled") && err.contains("submit it again"), "{err}");
+    assert!(!err.contains("--wait"), "{err}");
+}
