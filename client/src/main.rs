@@ -255,6 +255,46 @@ enum Command {
     },
 }
 
+/// Ctrl-C while the client follows a job: a word on what goes on, then the usual exit (130).
+mod interrupt {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    /// The message, written by the signal handler (only `write` and `_exit` there, which are
+    /// safe in a handler): a fixed buffer and its length, set before the handler is installed.
+    static mut MESSAGE: [u8; 512] = [0; 512];
+    static LENGTH: AtomicUsize = AtomicUsize::new(0);
+
+    extern "C" fn on_sigint(_: libc::c_int) {
+        let n = LENGTH.load(Ordering::SeqCst);
+        // SAFETY: MESSAGE is written only before the handler is installed; write and _exit are
+        // async-signal-safe.
+        unsafe {
+            let buffer = &raw const MESSAGE;
+            libc::write(2, buffer.cast(), n);
+            libc::_exit(130);
+        }
+    }
+
+    /// From now on, Ctrl-C prints `message` on stderr and exits with status 130.
+    pub fn say_on_ctrl_c(message: &str) {
+        #[cfg(unix)]
+        {
+            let bytes = message.as_bytes();
+            let n = bytes.len().min(512);
+            // SAFETY: no handler reads MESSAGE yet (it is installed below, once).
+            unsafe {
+                let buffer = &raw mut MESSAGE;
+                std::ptr::copy_nonoverlapping(bytes.as_ptr(), buffer.cast::<u8>(), n);
+            }
+            LENGTH.store(n, Ordering::SeqCst);
+            // SAFETY: installing a handler that only writes and exits.
+            unsafe {
+                libc::signal(libc::SIGINT, on_sigint as *const () as libc::sighandler_t);
+            }
+        }
+    }
+}
+
 fn main() -> ExitCode {
     // Output cut off by its reader (`tessera logs 6 | head -1`) ends the client quietly, as it
     // ends other Unix tools, instead of a panic in the next print. Its sockets are unaffected:
@@ -652,6 +692,10 @@ fn frame_total(job: &JobInfo) -> u32 {
 /// Follows a job to its end and downloads its outputs; a job that failed or was cancelled is
 /// an error (exit status 1).
 fn finish(api: &Api, id: u64, out: &Path, float_exr: bool, quiet: bool) -> Result<ExitCode> {
+    interrupt::say_on_ctrl_c(&format!(
+        "\nstopped following job {id}; it goes on rendering on the farm. Follow it again with: tessera fetch {id} --wait --out {}\n",
+        out.display()
+    ));
     let job = follow::follow(api, id, follow::bars_wanted(quiet), quiet)?;
     match job.state {
         JobState::Done => {

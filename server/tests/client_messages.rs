@@ -61,3 +61,36 @@ fn fetching_a_cancelled_job_says_why_nothing_comes() {
     assert!(err.contains("cancelled") && err.contains("submit it again"), "{err}");
     assert!(!err.contains("--wait"), "{err}");
 }
+
+/// Ctrl-C while `--wait` follows a job stops the client (status 130) and says the job goes on
+/// and how to follow it again.
+#[test]
+fn ctrl_c_while_waiting_says_the_job_goes_on() {
+    let _serial = serial();
+    // No worker: the job stays queued while the client follows it.
+    let server = Server::start_temp("client-ctrl-c", &["--local-workers", "0"]);
+    let id = submit_environment(&server, "1", "64");
+    let out = TempDir::new("client-ctrl-c-out");
+    let mut child = Command::new(client_bin())
+        .args(["fetch", &id.to_string(), "--wait", "--out"])
+        .arg(out.path())
+        .env("TESSERA_SERVER", &server.url)
+        .env_remove("TESSERA_TOKEN")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run tessera fetch --wait");
+    // Let it start following.
+    std::thread::sleep(Duration::from_millis(1500));
+    signal(&child, libc::SIGINT);
+    let status = wait_timeout(&mut child, Duration::from_secs(10)).expect("the client ignored Ctrl-C");
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+    assert_eq!(status.code(), Some(130), "{status:?}: {err}");
+    assert!(
+        err.contains("goes on rendering") && err.contains(&format!("tessera fetch {id} --wait")),
+        "{err}"
+    );
+    // The job did go on: it is still queued, not cancelled.
+    assert_eq!(get_json(&server.url, &format!("/api/v1/jobs/{id}"))["state"], "queued");
+}
