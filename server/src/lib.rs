@@ -421,7 +421,7 @@ pub async fn serve(
     housekeeping::spawn(state.clone(), forget_after);
     housekeeping::spawn_checkpoints(store.clone());
     // Job ends announced to the operator's and the jobs' receivers.
-    notify::spawn(state.clone(), config.notify_url.clone());
+    notify::spawn(state.clone(), config.notify_url.clone(), api::job_info);
 
     let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
     let app = api::app(state.clone());

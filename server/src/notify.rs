@@ -73,9 +73,13 @@ fn event_of(state: JobState) -> &'static str {
     }
 }
 
+/// How the document's `job` is made: the API's view of a job (`api::job_info`, handed in by
+/// `serve`, so that this module does not import the API that imports it).
+pub type JobView = fn(&AppState, u64) -> anyhow::Result<Option<tessera::protocol::JobInfo>>;
+
 /// Starts the thread that finds ended jobs to announce (once a second) and hands each to a
 /// delivery thread of its own.
-pub fn spawn(state: AppState, operator_url: Option<String>) {
+pub fn spawn(state: AppState, operator_url: Option<String>, job_view: JobView) {
     let in_flight: Arc<Mutex<HashSet<u64>>> = Arc::default();
     let spawned = std::thread::Builder::new().name("notify".into()).spawn(move || {
         loop {
@@ -93,6 +97,7 @@ pub fn spawn(state: AppState, operator_url: Option<String>) {
                             std::thread::Builder::new().name("notify-job".into()).spawn(move || {
                                 let outcome = deliver(
                                     &state,
+                                    job_view,
                                     d.job,
                                     d.state,
                                     operator_url.as_deref(),
@@ -122,7 +127,14 @@ pub fn spawn(state: AppState, operator_url: Option<String>) {
 }
 
 /// POSTs the end of `job` to every receiver, each tried up to [`ATTEMPTS`] times.
-fn deliver(state: &AppState, job: u64, end: JobState, operator: Option<&str>, own: Option<&str>) -> Notified {
+fn deliver(
+    state: &AppState,
+    job_view: JobView,
+    job: u64,
+    end: JobState,
+    operator: Option<&str>,
+    own: Option<&str>,
+) -> Notified {
     let mut receivers: Vec<&str> = operator.into_iter().collect();
     if let Some(u) = own.filter(|u| !receivers.contains(u)) {
         receivers.push(u);
@@ -130,7 +142,7 @@ fn deliver(state: &AppState, job: u64, end: JobState, operator: Option<&str>, ow
     if receivers.is_empty() {
         return Notified::NoReceiver;
     }
-    let info = match crate::api::job_info(state, job) {
+    let info = match job_view(state, job) {
         Ok(Some(info)) => info,
         Ok(None) => return Notified::GaveUp("the job is gone".into()),
         Err(e) => return Notified::GaveUp(format!("cannot read the job: {e:#}")),

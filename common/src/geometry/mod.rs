@@ -20,13 +20,14 @@ mod shapes;
 use std::sync::Arc;
 use std::time::Duration;
 
-use glam::{DVec2, DVec3, Vec3A};
+use glam::{DVec2, DVec3};
 use obvhs::{BvhBuildParams, aabb::Aabb, cwbvh::CwBvh, cwbvh::builder::build_cwbvh, ray::RayHit};
 
 use crate::math::{Ray, Transform, pick, word};
 use bvh8::{BoxRays8, Bvh8, Lanes8, Packet8, Ray8};
 pub use mesh::MeshGeom;
 pub use rays::{Axes, HitLanes, RayLanes};
+use rays::{enters, pad, refined_t, side_of, to_f32_ray};
 use shapes::{plane_t, plane_uv_frame, sphere_lanes, sphere_may_block, sphere_t, sphere_uv_frame};
 
 /// What an instance is made of.
@@ -224,11 +225,6 @@ impl Candidate {
     const fn none(t: f64) -> Self {
         Candidate { t, instance: u32::MAX, tri: 0, merged: u32::MAX }
     }
-}
-
-#[inline]
-fn to_f32_ray(r: &Ray, tmin: f64, tmax: f64) -> obvhs::ray::Ray {
-    obvhs::ray::Ray::new(r.origin.as_vec3a(), r.dir.as_vec3a(), tmin as f32, tmax as f32)
 }
 
 /// Queries of eight rays given side by side, answered side by side: what the path tracer's
@@ -501,21 +497,6 @@ fn merge_static_meshes(meshes: &[Arc<MeshGeom>], instances: &[Instance]) -> Worl
         lone: None,
         planes: Arc::new(planes),
     }
-}
-
-/// Whether `fr` enters box `b` before `fr.tmax`. obvhs's `intersect_ray` answers a miss with
-/// +inf, which `<= fr.tmax` alone lets through when the ray is unbounded (every camera ray,
-/// every shadow ray to an infinitely far light): those tested every instance exactly.
-#[inline]
-fn enters(b: &Aabb, fr: &obvhs::ray::Ray) -> bool {
-    let t = b.intersect_ray(fr);
-    t < f32::INFINITY && t <= fr.tmax
-}
-
-/// Grows a box by a relative epsilon so `f32` rounding never culls a surface lying on it.
-fn pad(b: Aabb) -> Aabb {
-    let e = (b.max - b.min).abs().max(b.min.abs()).max(b.max.abs()) * 1e-5 + Vec3A::splat(1e-6);
-    Aabb::new(b.min - e, b.max + e)
 }
 
 impl Accel {
@@ -1204,20 +1185,6 @@ impl Accel {
             bump_axis: if sphere { shading_normal } else { side_of(bump_axis, shading_normal) },
         };
     }
-}
-
-/// The `f64` re-intersection's distance `t64`, or the walk's `f32` one `t32` where the
-/// re-intersection degenerated (a grazing ray: not finite, or not ahead).
-#[inline(always)]
-fn refined_t(t64: f64, t32: f64) -> f64 {
-    if t64.is_finite() && t64 > 0.0 { t64 } else { t32 }
-}
-
-/// `n` turned to the side of `reference` (a smooth normal leaning past its face, a bump axis
-/// opposite the shading normal).
-#[inline(always)]
-fn side_of(n: DVec3, reference: DVec3) -> DVec3 {
-    if n.dot(reference) < 0.0 { -n } else { n }
 }
 
 #[cfg(test)]

@@ -1,7 +1,8 @@
 //! Rays side by side (structure of arrays, eight lanes by axis): how a group's rays are handed
 //! to [`super::Accel`]'s packet queries, and the hits its lane queries give back.
 
-use glam::DVec3;
+use glam::{DVec3, Vec3A};
+use obvhs::aabb::Aabb;
 
 use crate::math::Ray;
 
@@ -87,4 +88,40 @@ pub struct HitLanes {
     pub t: [f64; 8],
     pub material: [u32; 8],
     pub instance: [u32; 8],
+}
+
+// ---- Single rays: the conversions and small rules the queries share ----
+
+#[inline]
+pub(super) fn to_f32_ray(r: &Ray, tmin: f64, tmax: f64) -> obvhs::ray::Ray {
+    obvhs::ray::Ray::new(r.origin.as_vec3a(), r.dir.as_vec3a(), tmin as f32, tmax as f32)
+}
+
+/// Whether `fr` enters box `b` before `fr.tmax`. obvhs's `intersect_ray` answers a miss with
+/// +inf, which `<= fr.tmax` alone lets through when the ray is unbounded (every camera ray,
+/// every shadow ray to an infinitely far light): those tested every instance exactly.
+#[inline]
+pub(super) fn enters(b: &Aabb, fr: &obvhs::ray::Ray) -> bool {
+    let t = b.intersect_ray(fr);
+    t < f32::INFINITY && t <= fr.tmax
+}
+
+/// Grows a box by a relative epsilon so `f32` rounding never culls a surface lying on it.
+pub(super) fn pad(b: Aabb) -> Aabb {
+    let e = (b.max - b.min).abs().max(b.min.abs()).max(b.max.abs()) * 1e-5 + Vec3A::splat(1e-6);
+    Aabb::new(b.min - e, b.max + e)
+}
+
+/// The `f64` re-intersection's distance `t64`, or the walk's `f32` one `t32` where the
+/// re-intersection degenerated (a grazing ray: not finite, or not ahead).
+#[inline(always)]
+pub(super) fn refined_t(t64: f64, t32: f64) -> f64 {
+    if t64.is_finite() && t64 > 0.0 { t64 } else { t32 }
+}
+
+/// `n` turned to the side of `reference` (a smooth normal leaning past its face, a bump axis
+/// opposite the shading normal).
+#[inline(always)]
+pub(super) fn side_of(n: DVec3, reference: DVec3) -> DVec3 {
+    if n.dot(reference) < 0.0 { -n } else { n }
 }
