@@ -1191,6 +1191,7 @@ impl Accel {
 mod tests {
     use super::*;
     use glam::DAffine3;
+    use glam::Vec3A;
 
     thread_local! {
         /// Packets completed by `smooth_mesh_hits` on this thread (the test's threads are its own).
