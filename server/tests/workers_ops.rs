@@ -114,43 +114,6 @@ fn drained_and_disabled_workers_take_no_new_tile() {
 }
 
 #[test]
-fn a_restarted_servers_local_worker_is_the_same_row() {
-    let _serial = serial();
-    let data = TempDir::new("workers-local");
-    let local_rows = |url: &str| -> Vec<Value> {
-        get_json(url, "/api/v1/workers")["workers"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .filter(|w| w["name"] == "local-1")
-            .cloned()
-            .collect()
-    };
-    let wait_registered = |server: &Server| {
-        let deadline = Instant::now() + Duration::from_secs(60);
-        while !local_rows(&server.url).iter().any(|w| w["state"] != "lost") {
-            assert!(Instant::now() < deadline, "local-1 never registered\n{}", server.log());
-            std::thread::sleep(Duration::from_millis(50));
-        }
-    };
-    let first_id = {
-        let server = Server::start(&data, &["--local-workers", "1", "--local-worker-threads", "1"]);
-        wait_registered(&server);
-        let job = submit_environment(&server, "1", "64");
-        wait_job(&server, job, 120, |j| j["state"] == "done");
-        local_rows(&server.url)[0]["id"].as_u64().unwrap()
-    };
-    for _ in 0..2 {
-        let server = Server::start(&data, &["--local-workers", "1", "--local-worker-threads", "1"]);
-        wait_registered(&server);
-        let rows = local_rows(&server.url);
-        assert_eq!(rows.len(), 1, "a ghost local-1 beside the live one: {rows:?}");
-        assert_eq!(rows[0]["id"].as_u64(), Some(first_id), "the same row");
-        assert!(rows[0]["tiles_done"].as_u64().unwrap() >= 1, "its history is kept: {rows:?}");
-    }
-}
-
-#[test]
 fn the_client_lists_drains_and_enables_workers() {
     let _serial = serial();
     let server = Server::start_temp("workers-client", &["--local-workers", "0", "--worker-token", TOKEN]);

@@ -55,14 +55,6 @@ pub(super) async fn register(
         let (state, name) = (state.clone(), req.name.clone());
         let live_since = crate::db::now() - lost_after;
         off_thread(move || {
-            if local {
-                // The same row as this worker's earlier lives (this server's earlier runs).
-                return Ok(crate::db::Registered::Id(state.store.register_local_worker(
-                    &name,
-                    req.threads,
-                    &hash,
-                )?));
-            }
             Ok(state.store.register_worker_within(&name, req.threads, &hash, max_live, live_since)?)
         })
         .await?

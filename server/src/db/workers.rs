@@ -147,43 +147,6 @@ impl Store {
         Ok(mode.and_then(|m| WorkerMode::parse(&m)).unwrap_or(WorkerMode::Active))
     }
 
-    /// Registers one of the server's own local workers under `name`: the row of an earlier
-    /// worker of that name (an earlier run of this server, or this worker before a restart)
-    /// is taken over, keeping its history and mode, instead of leaving it lost beside a new one.
-    pub fn register_local_worker(&self, name: &str, threads: u32, secret_hash: &str) -> Result<u64> {
-        let mut conn = self.conn();
-        let tx = conn.transaction()?;
-        let t = now();
-        let earlier: Option<i64> = tx
-            .query_row_cached("SELECT max(id) FROM workers WHERE name = ?1", [name], |r| r.get(0))
-            .optional()?
-            .flatten();
-        let id = match earlier {
-            Some(id) => {
-                // Leases of its earlier life are dead with it: queued again at once.
-                tx.execute(
-                    "UPDATE tiles SET state = 'queued', lease_id = NULL, worker_id = NULL, deadline = NULL
-                     WHERE worker_id = ?1 AND state = 'leased'",
-                    [id],
-                )?;
-                tx.execute(
-                    "UPDATE workers SET threads = ?2, last_seen = ?3, secret_hash = ?4, rendering = NULL WHERE id = ?1",
-                    params![id, threads, t, secret_hash],
-                )?;
-                id as u64
-            }
-            None => {
-                tx.execute_cached(
-                    "INSERT INTO workers(name, threads, registered_at, last_seen, secret_hash) VALUES (?1, ?2, ?3, ?3, ?4)",
-                    params![name, threads, t, secret_hash],
-                )?;
-                tx.last_insert_rowid() as u64
-            }
-        };
-        tx.commit()?;
-        Ok(id)
-    }
-
     /// Forgets workers not seen since `before` that hold no live lease: their rows go (a worker
     /// that comes back gets a 404 and registers again); the job logs keep their names. Returns
     /// how many went.
