@@ -72,6 +72,9 @@ const LAYERS: &[(&str, &[&str])] = &[
     ),
     ("geometry", &["geometry", "lights::choice"]),
     ("scene", &["scene", "scene::cache"]),
+    ("build context", &["scene::build::context"]),
+    ("build steps", &["scene::build::textures", "scene::build::meshes"]),
+    ("placed objects", &["scene::build::objects"]),
     ("build", &["scene::build"]),
     ("load", &["scene::load"]),
     ("bundle", &["bundle"]),
@@ -90,10 +93,8 @@ const LAYERS: &[(&str, &[&str])] = &[
 const MAX_FILE_LINES: usize = 1200;
 
 /// Files allowed past [`MAX_FILE_LINES`] for now, each with its own ceiling: a debt written down,
-/// not a second limit. `scene/build.rs` grew past it when the mesh cache came in (its cached
-/// mesh loads, the content keys of meshes and world trees); its objects' placement and its
-/// textures are the concerns to split out, with the build's context they read.
-const OVER_THE_LIMIT: &[(&str, usize)] = &[("scene/build.rs", 1440)];
+/// not a second limit. None today.
+const OVER_THE_LIMIT: &[(&str, usize)] = &[];
 
 fn src_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("src")
