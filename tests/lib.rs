@@ -8,23 +8,6 @@ pub mod conformance;
 pub mod envmaps;
 pub mod perf_guard;
 
-pub use tessera_testkit::{anchor_python, corpus_has, missing, repo_root, shared_bench, shared_scenes};
-
-/// The scene files (`.xml`, `.json`) under `dir` and its subfolders, sorted; none when `dir`
-/// cannot be read.
-pub fn scene_files(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
-    let mut out = Vec::new();
-    let mut dirs = vec![dir.to_path_buf()];
-    while let Some(d) = dirs.pop() {
-        let Ok(entries) = std::fs::read_dir(&d) else { continue };
-        for path in entries.flatten().map(|e| e.path()) {
-            if path.is_dir() {
-                dirs.push(path);
-            } else if path.extension().is_some_and(|e| e == "xml" || e == "json") {
-                out.push(path);
-            }
-        }
-    }
-    out.sort();
-    out
-}
+pub use tessera_testkit::{
+    anchor_python, corpus_has, missing, repo_root, scene_files, shared_bench, shared_scenes,
+};

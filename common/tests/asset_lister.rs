@@ -13,24 +13,7 @@ use std::path::{Path, PathBuf};
 use tessera::assets::{FsResolver, RecordingResolver};
 use tessera::scene::build::build_scene;
 use tessera::scene::load::parse_scene;
-
-/// The scene files under `dir` (`.xml`, `.json`), sorted.
-fn scene_files(dir: &Path) -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    let mut dirs = vec![dir.to_path_buf()];
-    while let Some(d) = dirs.pop() {
-        let Ok(entries) = std::fs::read_dir(&d) else { continue };
-        for path in entries.flatten().map(|e| e.path()) {
-            if path.is_dir() {
-                dirs.push(path);
-            } else if path.extension().is_some_and(|e| e == "xml" || e == "json") {
-                out.push(path);
-            }
-        }
-    }
-    out.sort();
-    out
-}
+use tessera_testkit::scene_files;
 
 /// What happened to one scene.
 enum Outcome {

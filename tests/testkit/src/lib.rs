@@ -75,6 +75,25 @@ pub fn scenes_required() -> bool {
     std::env::var_os("TESSERA_REQUIRE_SCENES").is_some_and(|v| !v.is_empty() && v != "0")
 }
 
+/// The scene files (`.xml`, `.json`) under `dir` and its subfolders, sorted; none when `dir`
+/// cannot be read.
+pub fn scene_files(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut dirs = vec![dir.to_path_buf()];
+    while let Some(d) = dirs.pop() {
+        let Ok(entries) = std::fs::read_dir(&d) else { continue };
+        for path in entries.flatten().map(|e| e.path()) {
+            if path.is_dir() {
+                dirs.push(path);
+            } else if path.extension().is_some_and(|e| e == "xml" || e == "json") {
+                out.push(path);
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
 /// Whether the corpus file or folder `path` is there. When it is not, the calling test should
 /// skip: this prints why, or panics when `TESSERA_REQUIRE_SCENES` is set.
 pub fn corpus_has(path: &Path) -> bool {
