@@ -160,15 +160,15 @@ enum Command {
         /// The video made of the frames once all are done: mp4 (H.264, made by the server's
         /// ffmpeg), gif, or none [default: mp4 for a sequence of several scene files, none for
         /// one; a GIF when the server has no ffmpeg and --video was not given].
-        #[arg(long, value_enum, value_name = "KIND", env = "TESSERA_VIDEO")]
+        #[arg(long, value_enum, value_name = "KIND")]
         video: Option<VideoArg>,
         /// Frames a second of the video [default: 30, the course's].
-        #[arg(long, value_name = "N", env = "TESSERA_FPS", value_parser = clap::value_parser!(u32).range(1..=120))]
+        #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=120))]
         fps: Option<u32>,
         /// Keep only the PNG of each frame on the server, not the float frame (.exr) it keeps
         /// beside it by default for a job of one scene (--float-exr then has nothing to
         /// download).
-        #[arg(long, env = "TESSERA_NO_KEEP_FLOAT", conflicts_with = "keep_float")]
+        #[arg(long, conflicts_with = "keep_float")]
         no_keep_float: bool,
         /// Keep each frame's float frame (.exr, losslessly compressed) beside its PNG on the
         /// server also for a sequence, which by default keeps only the PNGs.
