@@ -868,7 +868,7 @@ impl Store {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testutil::store;
+    use crate::testutil::{frame, job_of, store};
 
     /// Long enough for a lease not to expire during a test.
     const LONG: f64 = 60.0;
@@ -877,31 +877,11 @@ mod tests {
 
     /// A job of one frame cut into `tiles` one-pixel tiles.
     fn job(s: &Store, priority: i64, tiles: u32) -> u64 {
-        s.insert_job(&NewJob {
-            name: "j".into(),
-            priority,
-            tile_size: 1,
-            samples: None,
-            bundle: "0".repeat(64),
-            scene_path: "scene.xml".into(),
-            allow_unsupported: false,
-            denoise: false,
-            pass_samples: None,
-            noise_target: None,
-            frames: vec![NewFrame {
-                camera: 0,
-                image_name: "j.png".into(),
-                width: tiles,
-                height: 1,
-                tiles: (0..tiles).map(|x| Rect { x0: x, y0: 0, width: 1, height: 1 }).collect(),
-                samples: 1,
-                pass_samples: 16,
-                ..Default::default()
-            }],
-            warnings: Vec::new(),
-            ..Default::default()
-        })
-        .unwrap()
+        let frame = NewFrame {
+            tiles: (0..tiles).map(|x| Rect { x0: x, y0: 0, width: 1, height: 1 }).collect(),
+            ..frame("j.png", tiles, 1)
+        };
+        s.insert_job(&NewJob { priority, ..job_of(vec![frame]) }).unwrap()
     }
 
     /// Job ids stay above the floor the data directory's job folders set, and above every id
@@ -921,31 +901,16 @@ mod tests {
 
     /// A job of one 2-pixel tile of 48 samples in passes of 16 (`target`: its noise target).
     fn passes_job(s: &Store, target: Option<f64>) -> u64 {
-        s.insert_job(&NewJob {
+        let frame = NewFrame { samples: 48, ..frame("p.exr", 2, 1) };
+        let job = NewJob {
             name: "p".into(),
-            priority: 0,
             tile_size: 2,
             samples: Some(48),
-            bundle: "0".repeat(64),
-            scene_path: "scene.xml".into(),
-            allow_unsupported: false,
-            denoise: false,
             pass_samples: Some(16),
             noise_target: target,
-            frames: vec![NewFrame {
-                camera: 0,
-                image_name: "p.exr".into(),
-                width: 2,
-                height: 1,
-                tiles: vec![Rect { x0: 0, y0: 0, width: 2, height: 1 }],
-                samples: 48,
-                pass_samples: 16,
-                ..Default::default()
-            }],
-            warnings: Vec::new(),
-            ..Default::default()
-        })
-        .unwrap()
+            ..job_of(vec![frame])
+        };
+        s.insert_job(&job).unwrap()
     }
 
     /// A pass's sums for two pixels: every sample of block `b` is `value(b)`.

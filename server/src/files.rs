@@ -437,22 +437,12 @@ mod tests {
         let (bundle_named, bundle_loose) = (blobs.put(b"tar 1").unwrap(), blobs.put(b"tar 2").unwrap());
         age(&blobs.path(&bundle_named));
         age(&blobs.path(&bundle_loose));
-        db.insert_job(&crate::db::NewJob {
-            name: "j".into(),
-            priority: 0,
-            tile_size: 1,
-            samples: None,
+        let job = crate::db::NewJob {
             bundle: bundle_named.clone(),
             scene_path: "s.json".into(),
-            frames: Vec::new(),
-            warnings: Vec::new(),
-            allow_unsupported: false,
-            denoise: false,
-            pass_samples: None,
-            noise_target: None,
-            ..Default::default()
-        })
-        .unwrap();
+            ..crate::testutil::job_of(Vec::new())
+        };
+        db.insert_job(&job).unwrap();
         let id = db.jobs().unwrap()[0].id;
         db.set_job_files_for_test(id, &named);
         let c = collect_garbage(&files, &blobs, &db, GRACE).unwrap();

@@ -316,36 +316,12 @@ mod tests {
     /// and nothing a frame records as an output, whatever its name.
     #[test]
     fn the_sweep_removes_temporaries_and_never_an_output() {
-        use tessera::protocol::Rect;
         let dir = tessera_testkit::TempDir::new("unit-storage-sweep");
         let data = dir.path();
         let store = Store::open(&data.join(DB_FILE)).unwrap();
-        let frame = |name: &str| crate::db::NewFrame {
-            camera: 0,
-            image_name: name.into(),
-            width: 1,
-            height: 1,
-            tiles: vec![Rect { x0: 0, y0: 0, width: 1, height: 1 }],
-            samples: 1,
-            pass_samples: 16,
-            ..Default::default()
-        };
+        let frames = vec![crate::testutil::frame("pass.png", 1, 1), crate::testutil::frame("x.png", 1, 1)];
         let id = store
-            .insert_job(&crate::db::NewJob {
-                name: "j".into(),
-                priority: 0,
-                tile_size: 1,
-                samples: None,
-                bundle: "0".repeat(64),
-                scene_path: "s.xml".into(),
-                frames: vec![frame("pass.png"), frame("x.png")],
-                warnings: Vec::new(),
-                allow_unsupported: false,
-                denoise: false,
-                pass_samples: None,
-                noise_target: None,
-                ..Default::default()
-            })
+            .insert_job(&crate::db::NewJob { scene_path: "s.xml".into(), ..crate::testutil::job_of(frames) })
             .unwrap();
         let recorded = [".odd.png.1-2-3.tmp".to_string(), "pass.png".to_string()];
         store.frame_merged(id, 0, &recorded, Default::default()).unwrap();

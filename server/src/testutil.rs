@@ -10,3 +10,29 @@ pub fn store(tag: &str) -> (TempDir, Store) {
     let store = Store::open(&dir.path().join("tessera.db")).unwrap();
     (dir, store)
 }
+
+/// A job of `frames` named "j", one-pixel tiles, a bundle of zeros and the store's defaults
+/// for every option; tests change what they test with `NewJob { .., ..job_of(frames) }`.
+pub fn job_of(frames: Vec<crate::db::NewFrame>) -> crate::db::NewJob {
+    crate::db::NewJob {
+        name: "j".into(),
+        tile_size: 1,
+        bundle: "0".repeat(64),
+        scene_path: "scene.xml".into(),
+        frames,
+        ..Default::default()
+    }
+}
+
+/// A frame `name` of `width` x `height` pixels as one tile of one sample.
+pub fn frame(name: &str, width: u32, height: u32) -> crate::db::NewFrame {
+    crate::db::NewFrame {
+        image_name: name.into(),
+        width,
+        height,
+        tiles: vec![tessera::protocol::Rect { x0: 0, y0: 0, width, height }],
+        samples: 1,
+        pass_samples: 16,
+        ..Default::default()
+    }
+}

@@ -140,34 +140,21 @@ impl Store {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::testutil::{frame, job_of};
 
     /// A job of one frame of `tiles` one-pixel tiles, naming the bundle `bundle`.
     fn job(s: &Store, tiles: u32, bundle: &str) -> u64 {
-        s.insert_job(&NewJob {
-            name: "j".into(),
-            priority: 0,
-            tile_size: 1,
-            samples: None,
+        let frame = NewFrame {
+            tiles: (0..tiles).map(|x| Rect { x0: x, y0: 0, width: 1, height: 1 }).collect(),
+            ..frame("j.png", tiles, 1)
+        };
+        let job = NewJob {
             bundle: bundle.into(),
             scene_path: "scene.json".into(),
-            allow_unsupported: false,
-            denoise: false,
-            pass_samples: None,
-            noise_target: None,
-            frames: vec![NewFrame {
-                camera: 0,
-                image_name: "j.png".into(),
-                width: tiles,
-                height: 1,
-                tiles: (0..tiles).map(|x| Rect { x0: x, y0: 0, width: 1, height: 1 }).collect(),
-                samples: 1,
-                pass_samples: 16,
-                ..Default::default()
-            }],
             warnings: vec!["w".into()],
-            ..Default::default()
-        })
-        .unwrap()
+            ..job_of(vec![frame])
+        };
+        s.insert_job(&job).unwrap()
     }
 
     fn count(s: &Store, table: &str, id: u64) -> i64 {

@@ -161,33 +161,15 @@ impl Store {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testutil::store;
+    use crate::testutil::{frame, job_of, store};
 
     fn job(s: &Store) -> u64 {
-        let frame = || NewFrame {
-            camera: 0,
-            image_name: "a.png".into(),
-            width: 2,
-            height: 2,
-            tiles: vec![Rect { x0: 0, y0: 0, width: 2, height: 2 }],
-            samples: 1,
-            pass_samples: 16,
-            ..Default::default()
-        };
+        let frames = vec![frame("a.png", 2, 2), frame("a.png", 2, 2)];
         s.insert_job(&NewJob {
             name: "v".into(),
-            priority: 0,
             tile_size: 2,
-            samples: None,
-            bundle: "0".repeat(64),
             scene_path: "a.json".into(),
-            frames: vec![frame(), frame()],
-            warnings: Vec::new(),
-            allow_unsupported: false,
-            denoise: false,
-            pass_samples: None,
-            noise_target: None,
-            ..Default::default()
+            ..job_of(frames)
         })
         .unwrap()
     }
