@@ -302,6 +302,19 @@ pub struct FrameRow {
     pub passes_published: u32,
     /// The frame's scene file; `None`: the job's `scene_path` (jobs from before sequences).
     pub scene_path: Option<String>,
+    /// Pixel-samples in the frame's film (each tile's pixels times the samples added into it),
+    /// and those that tiles stopped by the noise target will never take: counters kept with
+    /// the tiles' results, so that progress costs no scan of the tiles.
+    pub samples_done: u64,
+    pub samples_skipped: u64,
+}
+
+impl FrameRow {
+    /// Pixel-samples the frame takes at most: every pixel at `samples`, less those skipped.
+    pub fn samples_total(&self) -> u64 {
+        let all = u64::from(self.width) * u64::from(self.height) * u64::from(self.samples.max(1));
+        all.saturating_sub(self.samples_skipped).max(self.samples_done)
+    }
 }
 
 #[derive(Clone, Debug)]
@@ -502,10 +515,12 @@ fn frame_from_row(r: &rusqlite::Row) -> rusqlite::Result<FrameRow> {
         passes_total: r.get::<_, i64>(10)? as u32,
         passes_published: r.get::<_, i64>(11)? as u32,
         scene_path: r.get(12)?,
+        samples_done: r.get::<_, i64>(13)?.max(0) as u64,
+        samples_skipped: r.get::<_, i64>(14)?.max(0) as u64,
     })
 }
 
-const FRAME_COLUMNS: &str = "job_id, idx, camera, image_name, width, height, tiles_total, tiles_done, outputs, samples, passes_total, passes_published, scene_path";
+const FRAME_COLUMNS: &str = "job_id, idx, camera, image_name, width, height, tiles_total, tiles_done, outputs, samples, passes_total, passes_published, scene_path, samples_done, samples_skipped";
 
 /// The pause between two steps of writing or purging a job's rows: the lock is free during it,
 /// so that another request waiting for the store gets it first.
@@ -744,6 +759,7 @@ impl Store {
         passes: u32,
         passes_total: u32,
         seconds: f64,
+        denoised: Option<&Result<f64, String>>,
     ) -> Result<()> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
@@ -753,8 +769,13 @@ impl Store {
             |r| Ok((r.get(0)?, r.get::<_, Option<i64>>(1)?.unwrap_or(0), r.get(2)?)),
         )?;
         let message = format!(
-            "frame {frame} after pass {passes} of {passes_total}: at least {} samples per pixel, {finished} of {tiles} tiles finished; pass.exr and pass.png written",
-            least.unwrap_or(0)
+            "frame {frame} after pass {passes} of {passes_total}: at least {} samples per pixel, {finished} of {tiles} tiles finished; pass.exr and pass.png written{}",
+            least.unwrap_or(0),
+            match denoised {
+                None => String::new(),
+                Some(Ok(s)) => format!(", and pass_denoised.png (denoised in {s:.3} s)"),
+                Some(Err(e)) => format!("; not denoised: {e}"),
+            }
         );
         let e = Event {
             frame: Some(i64::from(frame)),
