@@ -172,8 +172,8 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
     // Progress by samples (pixel-samples: large numbers, so a percentage); the pass, the
     // samples per pixel and the ETA are in the message.
     let style = ProgressStyle::with_template("{prefix} [{bar:30}] {percent:>3}%, {elapsed} elapsed, {msg}")
-    .unwrap_or_else(|_| ProgressStyle::default_bar())
-    .progress_chars("=> ");
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> ");
     let mut frame_bars: Vec<ProgressBar> = Vec::new();
     let mut last_state: Option<JobState> = None;
     let mut frames_reported: Vec<bool> = Vec::new();
@@ -192,7 +192,9 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
             let bar = counts_bar.get_or_insert_with(|| {
                 let bar = multi.add(ProgressBar::new(0));
                 bar.set_style(
-                    ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} frames, {elapsed} elapsed, {msg}")
+                    ProgressStyle::with_template(
+                        "{prefix} [{bar:30}] {pos}/{len} frames, {elapsed} elapsed, {msg}",
+                    )
                     .unwrap_or_else(|_| ProgressStyle::default_bar())
                     .progress_chars("=> "),
                 );

@@ -267,8 +267,8 @@ pub(super) async fn frame_file(
         off_thread(move || find_frame(&state, id, frame))
     };
     let mut f = look_up().await?;
-    let pass_file = crate::merge::PASS_FILES.contains(&name.as_str())
-        || name == crate::storage::PASS_DENOISED_FILE;
+    let pass_file =
+        crate::merge::PASS_FILES.contains(&name.as_str()) || name == crate::storage::PASS_DENOISED_FILE;
     if pass_file && f.outputs.is_none() {
         let path = state.server_frame_dir(id, frame).join(&name);
         if let Ok(file) = super::FileBody::open(&path).await {
