@@ -1003,14 +1003,22 @@ mod tests {
             ResultOutcome::Accepted { pass_published: None, frame_complete: false, .. }
         ));
         assert!(s.frame_tiles(id, 0).unwrap().is_empty(), "no film before pass 0");
+        // Progress counts the samples in the film (two pixels): none yet, of 96.
+        let progress = || {
+            let f = &s.frames(id).unwrap()[0];
+            (f.samples_done, f.samples_total())
+        };
+        assert_eq!(progress(), (0, 96));
         // Pass 0: the tile has 16 samples, the frame is published after pass 1.
         assert!(matches!(submit(0), ResultOutcome::Accepted { pass_published: Some(1), .. }));
         let film = tessera::protocol::decode_tile(&s.frame_tiles(id, 0).unwrap()[0].1, 2).unwrap();
         assert_eq!(film, [[1.0; 3]; 2]);
+        assert_eq!(progress(), (32, 96));
         // Pass 1 brings pass 2 in with it: the frame is complete, averaged over 48 samples.
         assert!(matches!(submit(1), ResultOutcome::Accepted { frame_complete: true, .. }));
         let film = tessera::protocol::decode_tile(&s.frame_tiles(id, 0).unwrap()[0].1, 2).unwrap();
         assert_eq!(film, [[2.0; 3]; 2], "(1 + 2 + 3) / 3");
+        assert_eq!(progress(), (96, 96));
     }
 
     #[test]
@@ -1044,6 +1052,7 @@ mod tests {
             // The tables as they were before passes: no pass columns, tiles keyed by tile.
             let mut old = schema::SCHEMA.to_string();
             for gone in [
+                "\n    samples_done INTEGER NOT NULL DEFAULT 0,\n    samples_skipped INTEGER NOT NULL DEFAULT 0,",
                 ",\n    pass_samples INTEGER,\n    noise_target REAL",
                 ",\n    samples INTEGER NOT NULL DEFAULT 1,\n    passes_total INTEGER NOT NULL DEFAULT 1,\n    passes_published INTEGER NOT NULL DEFAULT 0",
                 "\n    pass INTEGER NOT NULL DEFAULT 0,\n    first_sample INTEGER,\n    end_sample INTEGER,\n    sums BLOB,\n    passes_done INTEGER NOT NULL DEFAULT 0,\n    samples_done INTEGER NOT NULL DEFAULT 0,\n    error REAL,\n    finished INTEGER NOT NULL DEFAULT 0,",
@@ -1066,9 +1075,14 @@ mod tests {
             .unwrap();
         }
         let s = Store::open(&path).unwrap();
-        // The rendered tile is still there (and counted, once, into the metrics' counters); the
-        // queued one is leased whole and completes the frame.
+        // The rendered tile is still there (and counted, once, into the metrics' counters, and
+        // into the frame's samples); the queued one is leased whole and completes the frame.
         assert_eq!(s.frame_tiles(1, 0).unwrap().len(), 1);
+        let progress = |s: &Store| {
+            let f = &s.frames(1).unwrap()[0];
+            (f.samples_done, f.samples_total())
+        };
+        assert_eq!(progress(&s), (1, 2));
         assert_eq!(s.metrics().unwrap().tiles_done, 1);
         let w = worker(&s);
         let l = lease(&s, w);
@@ -1077,6 +1091,7 @@ mod tests {
         let done = s.submit_result(l.lease_id, w, &[0; 12], None).unwrap();
         assert!(matches!(done, ResultOutcome::Accepted { frame_complete: true, .. }), "{done:?}");
         assert_eq!(s.frames(1).unwrap()[0].passes_total, 1);
+        assert_eq!(progress(&s), (2, 2));
         drop(s);
         assert_eq!(Store::open(&path).unwrap().metrics().unwrap().tiles_done, 2);
     }

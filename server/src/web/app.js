@@ -228,10 +228,12 @@ function renderSequence(entry, job) {
   view.hidden = false;
   // A merged frame's preview is its final picture (small, made once); a rendering frame's is
   // made from its tiles on each request.
+  // A denoised job's merged frame is shown denoised (its `_denoised.png`).
+  const picture = (job.denoise && denoisedOutput(chosen)) || { url: chosen.preview_url };
   const key = chosen.index + (chosen.outputs.length ? ":done" : ":" + chosen.tiles_done);
   if (seq.shown !== key) {
     seq.shown = key;
-    $(".seq-frame", view).src = withToken(chosen.preview_url + "?t=" + Date.now());
+    $(".seq-frame", view).src = withToken(picture.url + "?t=" + Date.now());
   }
   const links = chosen.outputs.map((o) => o.name).join(", ");
   $(".seq-caption", view).textContent = "frame " + chosen.index + (chosen.scene ? " (" + chosen.scene + ")" : "") +
