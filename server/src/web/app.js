@@ -322,10 +322,7 @@ function renderFrame(entry, job, f) {
     // The live preview of the arrived tiles (also when coming back to it from the denoised pass).
     const back = fr.shown != null;
     fr.shown = null;
-    if (back || (!fr.liveDrawn && (f.tiles_done > 0 || f.passes_done > 0))) {
-      fr.liveDrawn = true;
-      refreshPreview(job.id + "/" + f.index, fr, f.preview_url);
-    }
+    if (back || f.tiles_done > 0 || f.passes_done > 0) refreshPreview(job.id + "/" + f.index, fr, f.preview_url);
   }
 }
 
