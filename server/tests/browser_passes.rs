@@ -191,6 +191,16 @@ fn the_denoised_toggle_switches_a_frame_between_its_denoised_and_raw_pictures() 
         progress.as_str().unwrap().contains(" of 256 · ") && progress.as_str().unwrap().contains(" spp"),
         "{progress}"
     );
+    // The job's line: the rate of samples and the ETA they give.
+    let times = browser.wait(
+        "the rate of samples",
+        30,
+        &format!(
+            "{}.textContent.includes('samples/s') && {0}.textContent",
+            q(&format!(".job[data-job-id=\"{long}\"] .times"))
+        ),
+    );
+    assert!(times.as_str().unwrap().contains(" · ETA "), "{times}");
     let denoised = canvas_roughness(&browser, long);
     browser.click(&format!("{node} .denoise-toggle"));
     browser.wait(
