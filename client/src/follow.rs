@@ -187,6 +187,14 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
     let mut frame_rates: Vec<Rate> = Vec::new();
     loop {
         let job = with_retries(quiet, || api.job(id))?;
+        // The job's progress, and its ETA from the rate of samples since it has been running.
+        let (work_done, work_total) = job_work(&job);
+        let eta = if job.state == JobState::Running {
+            rate.eta(work_done, work_total, job.samples_total_is_bound)
+        } else {
+            rate = Rate::default();
+            "ETA unknown".to_string()
+        };
         if by_counts(&job) {
             let c = &job.frame_counts;
             let bar = counts_bar.get_or_insert_with(|| {
@@ -203,17 +211,11 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
             });
             bar.set_length(u64::from(c.done + c.rendering + c.queued));
             bar.set_position(u64::from(c.done));
-            let (done, total) = job_work(&job);
-            let eta = if job.state == JobState::Running {
-                rate.eta(done, total, job.samples_total_is_bound)
-            } else {
-                String::new()
-            };
             bar.set_message(format!(
                 "{} rendering, {} queued, {}% of samples, {eta}",
                 c.rendering,
                 c.queued,
-                percent(done, total)
+                percent(work_done, work_total)
             ));
         } else if frame_bars.is_empty() {
             for f in &job.frames {
@@ -327,10 +329,9 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
             }
             return Ok(job);
         }
-        if text && last_text.elapsed() >= TEXT_PROGRESS_EVERY && job.state == JobState::Running {
+        if text && last_text.elapsed() >= TEXT_PROGRESS_EVERY {
             last_text = Instant::now();
-            let (done, total) = job_work(&job);
-            let eta = rate.eta(done, total, job.samples_total_is_bound);
+            let (done, total) = (work_done, work_total);
             let what = if job.samples_total > 0 { "samples" } else { "tiles" };
             if counts_bar.is_some() {
                 eprintln!("job {id}: {}; {}% of {what}, {eta}", counts_line(&job), percent(done, total));
@@ -347,9 +348,6 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
                 let notes = if notes.is_empty() { String::new() } else { format!(" ({})", notes.join("; ")) };
                 eprintln!("job {id}: {}% of {what} done, {eta}{notes}", percent(done, total));
             }
-        } else if job.state != JobState::Running {
-            // The ETA counts from the moment the job runs.
-            rate = Rate::default();
         }
         std::thread::sleep(POLL);
     }
