@@ -76,6 +76,90 @@ fn frame_label(f: &FrameInfo) -> String {
     format!("frame {} {} ({}x{})", f.index, f.image_name, f.width, f.height)
 }
 
+/// A frame's progress as (done, to do): pixel-samples, or tiles from a server that does not
+/// count samples.
+pub fn frame_work(f: &FrameInfo) -> (u64, u64) {
+    if f.samples_total > 0 {
+        (f.samples_done, f.samples_total)
+    } else {
+        (u64::from(f.tiles_done), u64::from(f.tiles_total))
+    }
+}
+
+/// A job's progress as (done, to do), like [`frame_work`].
+pub fn job_work(job: &JobInfo) -> (u64, u64) {
+    if job.samples_total > 0 {
+        (job.samples_done, job.samples_total)
+    } else {
+        (
+            job.frames.iter().map(|f| u64::from(f.tiles_done)).sum(),
+            job.frames.iter().map(|f| u64::from(f.tiles_total)).sum(),
+        )
+    }
+}
+
+/// Whole percent of `done` over `total`, rounded down (0 of nothing).
+pub fn percent(done: u64, total: u64) -> u64 {
+    if total == 0 { 0 } else { (u128::from(done.min(total)) * 100 / u128::from(total)) as u64 }
+}
+
+/// "pass 6 of 16, 96 spp" for a frame in passes, "96 spp" otherwise; "" from a server that
+/// does not count samples.
+pub fn pass_note(f: &FrameInfo) -> String {
+    let spp = if f.samples_total > 0 { format!("{} spp", f.spp) } else { String::new() };
+    if f.passes_total > 1 && f.pass > 0 {
+        let pass = format!("pass {} of {}", f.pass, f.passes_total);
+        if spp.is_empty() { pass } else { format!("{pass}, {spp}") }
+    } else {
+        spp
+    }
+}
+
+/// "1 min 34 s", "12 s", "2 h 5 min".
+pub fn duration_text(d: Duration) -> String {
+    let s = d.as_secs();
+    match s {
+        0..60 => format!("{s} s"),
+        60..3600 => format!("{} min {} s", s / 60, s % 60),
+        _ => format!("{} h {} min", s / 3600, s % 3600 / 60),
+    }
+}
+
+/// The time left at the rate of samples since work began: `done` of `total` after `elapsed`.
+/// "ETA 1 min 4 s"; "ETA at most ..." when `total` is an upper bound (a noise target);
+/// "ETA unknown" before anything is done.
+pub fn eta_text(done: u64, total: u64, elapsed: Duration, bound: bool) -> String {
+    if done >= total && total > 0 {
+        return "ETA 0 s".into();
+    }
+    if done == 0 || elapsed.is_zero() {
+        return "ETA unknown".into();
+    }
+    let left = elapsed.as_secs_f64() * (total - done) as f64 / done as f64;
+    let left = Duration::from_secs_f64(left.min(1e9));
+    format!("ETA {}{}", if bound { "at most " } else { "" }, duration_text(left))
+}
+
+/// The rate of a job's work measured while following it: from the first look that saw it
+/// under way, so that the time it queued does not count.
+#[derive(Default)]
+pub struct Rate {
+    first: Option<(Instant, u64)>,
+}
+
+impl Rate {
+    /// [`eta_text`] for `done` of `total` now.
+    pub fn eta(&mut self, done: u64, total: u64, bound: bool) -> String {
+        let (at, from) = *self.first.get_or_insert((Instant::now(), done));
+        if done < from {
+            // Work done again (a requeue): measure from here.
+            self.first = Some((Instant::now(), done));
+            return "ETA unknown".into();
+        }
+        eta_text(done - from, total.saturating_sub(from), at.elapsed(), bound)
+    }
+}
+
 /// Follows job `id` until it ends and returns it as it ended. `bars`: progress bars on stderr;
 /// otherwise (unless `quiet`) a line on stderr per change of state, per finished frame, and on
 /// progress at most every 10 s.
@@ -85,11 +169,11 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
     } else {
         ProgressDrawTarget::hidden()
     });
-    let style = ProgressStyle::with_template(
-        "{prefix} [{bar:30}] {pos}/{len} tiles, {elapsed} elapsed, ETA {eta} {msg}",
-    )
-    .unwrap_or_else(|_| ProgressStyle::default_bar())
-    .progress_chars("=> ");
+    // Progress by samples (pixel-samples: large numbers, so a percentage); the pass, the
+    // samples per pixel and the ETA are in the message.
+    let style = ProgressStyle::with_template("{prefix} [{bar:30}] {percent:>3}%, {elapsed} elapsed, {msg}")
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> ");
     let mut frame_bars: Vec<ProgressBar> = Vec::new();
     let mut last_state: Option<JobState> = None;
     let mut frames_reported: Vec<bool> = Vec::new();
@@ -99,15 +183,25 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
     let text = !bars && !quiet;
     let mut counts_bar: Option<ProgressBar> = None;
     let mut video_since: Option<Instant> = None;
+    let mut rate = Rate::default();
+    let mut frame_rates: Vec<Rate> = Vec::new();
     loop {
         let job = with_retries(quiet, || api.job(id))?;
+        // The job's progress, and its ETA from the rate of samples since it has been running.
+        let (work_done, work_total) = job_work(&job);
+        let eta = if job.state == JobState::Running {
+            rate.eta(work_done, work_total, job.samples_total_is_bound)
+        } else {
+            rate = Rate::default();
+            "ETA unknown".to_string()
+        };
         if by_counts(&job) {
             let c = &job.frame_counts;
             let bar = counts_bar.get_or_insert_with(|| {
                 let bar = multi.add(ProgressBar::new(0));
                 bar.set_style(
                     ProgressStyle::with_template(
-                        "{prefix} [{bar:30}] {pos}/{len} frames, {elapsed} elapsed, ETA {eta} {msg}",
+                        "{prefix} [{bar:30}] {pos}/{len} frames, {elapsed} elapsed, {msg}",
                     )
                     .unwrap_or_else(|_| ProgressStyle::default_bar())
                     .progress_chars("=> "),
@@ -117,16 +211,22 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
             });
             bar.set_length(u64::from(c.done + c.rendering + c.queued));
             bar.set_position(u64::from(c.done));
-            bar.set_message(format!("{} rendering, {} queued", c.rendering, c.queued));
+            bar.set_message(format!(
+                "{} rendering, {} queued, {}% of samples, {eta}",
+                c.rendering,
+                c.queued,
+                percent(work_done, work_total)
+            ));
         } else if frame_bars.is_empty() {
             for f in &job.frames {
-                let bar = multi.add(ProgressBar::new(u64::from(f.tiles_total)));
+                let bar = multi.add(ProgressBar::new(frame_work(f).1));
                 bar.set_style(style.clone());
                 bar.set_prefix(frame_label(f));
                 frame_bars.push(bar);
             }
             frames_reported = vec![false; job.frames.len()];
             passes_reported = vec![0; job.frames.len()];
+            frame_rates = job.frames.iter().map(|_| Rate::default()).collect();
         }
         // The end has a line of its own below.
         if last_state != Some(job.state) && text && !job.state.is_final() {
@@ -147,23 +247,38 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
         let frames: &[FrameInfo] = if counts_bar.is_some() { &[] } else { &job.frames };
         for (i, f) in frames.iter().enumerate() {
             let Some(bar) = frame_bars.get(i) else { continue };
-            bar.set_length(u64::from(f.tiles_total));
-            bar.set_position(u64::from(f.tiles_done));
+            let (done, total) = frame_work(f);
+            bar.set_length(total);
+            bar.set_position(done);
+            if f.outputs.is_empty() {
+                let eta = match frame_rates.get_mut(i) {
+                    Some(r) if job.state == JobState::Running && done > 0 => {
+                        r.eta(done, total, f.samples_total_is_bound)
+                    }
+                    _ => "ETA unknown".to_string(),
+                };
+                let note = pass_note(f);
+                bar.set_message(if note.is_empty() { eta } else { format!("{note}, {eta}") });
+            }
             if let Some(seen) = passes_reported.get_mut(i)
+                && f.passes_total > 1
                 && f.passes_done > *seen
                 && f.outputs.is_empty()
             {
                 *seen = f.passes_done;
-                let line = format!(
-                    "job {id}: {} pass {} of {} published ({})",
-                    frame_label(f),
-                    f.passes_done,
-                    f.passes_total,
-                    f.pass_outputs.iter().map(|o| o.url.as_str()).collect::<Vec<_>>().join(", ")
-                );
-                bar.set_message(format!("pass {}/{}", f.passes_done, f.passes_total));
+                // The pass's files are listed a moment after the pass counts (once written).
+                let files = match f.pass_denoised_url.as_ref().or(f.pass_outputs.last().map(|o| &o.url)) {
+                    Some(url) => format!("; preview {url}"),
+                    None => String::new(),
+                };
+                let spp = if f.samples_total > 0 { format!(", {} spp", f.spp) } else { String::new() };
                 if text {
-                    eprintln!("{line}");
+                    eprintln!(
+                        "job {id}: {} pass {} of {} done{spp}{files}",
+                        frame_label(f),
+                        f.passes_done,
+                        f.passes_total
+                    );
                 }
             }
             let Some(reported) = frames_reported.get_mut(i) else { continue };
@@ -214,22 +329,25 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
             }
             return Ok(job);
         }
-        if text && last_text.elapsed() >= TEXT_PROGRESS_EVERY && counts_bar.is_some() {
+        if text && last_text.elapsed() >= TEXT_PROGRESS_EVERY {
             last_text = Instant::now();
-            eprintln!("job {id}: {}", counts_line(&job));
-        } else if text && last_text.elapsed() >= TEXT_PROGRESS_EVERY {
-            last_text = Instant::now();
-            let done: u32 = job.frames.iter().map(|f| f.tiles_done).sum();
-            let total: u32 = job.frames.iter().map(|f| f.tiles_total).sum();
-            // Frames in passes finish their tiles late: say how far the passes are.
-            let passes: Vec<String> = job
-                .frames
-                .iter()
-                .filter(|f| f.passes_total > 1 && f.outputs.is_empty())
-                .map(|f| format!("{} pass {}/{}", frame_label(f), f.passes_done, f.passes_total))
-                .collect();
-            let passes = if passes.is_empty() { String::new() } else { format!(" ({})", passes.join(", ")) };
-            eprintln!("job {id}: {done}/{total} tiles finished{passes}");
+            let (done, total) = (work_done, work_total);
+            let what = if job.samples_total > 0 { "samples" } else { "tiles" };
+            if counts_bar.is_some() {
+                eprintln!("job {id}: {}; {}% of {what}, {eta}", counts_line(&job), percent(done, total));
+            } else {
+                // Frames in passes finish their tiles late: say how far the passes are.
+                let notes: Vec<String> = job
+                    .frames
+                    .iter()
+                    .filter(|f| f.outputs.is_empty())
+                    .map(|f| (f, pass_note(f)))
+                    .filter(|(_, n)| !n.is_empty())
+                    .map(|(f, n)| format!("{}: {n}", frame_label(f)))
+                    .collect();
+                let notes = if notes.is_empty() { String::new() } else { format!(" ({})", notes.join("; ")) };
+                eprintln!("job {id}: {}% of {what} done, {eta}{notes}", percent(done, total));
+            }
         }
         std::thread::sleep(POLL);
     }
@@ -406,6 +524,12 @@ mod tests {
             passes_done: 0,
             pass_outputs: Vec::new(),
             scene: None,
+            samples_done: 0,
+            samples_total: 0,
+            samples_total_is_bound: false,
+            spp: 0,
+            pass: 0,
+            pass_denoised_url: None,
         }
     }
 
@@ -442,6 +566,9 @@ mod tests {
             frame_counts: tessera::protocol::FrameCounts { done: 5, rendering: 2, queued: 9 },
             scenes,
             video: None,
+            samples_done: 0,
+            samples_total: 0,
+            samples_total_is_bound: false,
             error: None,
             warnings: Vec::new(),
             url: String::new(),
@@ -452,6 +579,26 @@ mod tests {
         assert!(by_counts(&job(17, 1)));
         assert!(by_counts(&job(0, 360)), "a long job listed without its frames");
         assert_eq!(counts_line(&job(0, 16)), "5/16 frames done, 2 rendering, 9 queued");
+    }
+
+    #[test]
+    fn progress_counts_samples_and_says_the_pass_and_the_samples_per_pixel() {
+        let mut f = frame("a.png", &[]);
+        assert_eq!(frame_work(&f), (1, 1), "an older server: tiles");
+        assert_eq!(pass_note(&f), "");
+        (f.samples_done, f.samples_total, f.spp, f.pass, f.passes_total) = (6 * 16, 16 * 16, 96, 7, 16);
+        assert_eq!(frame_work(&f), (96, 256));
+        assert_eq!(percent(96, 256), 37);
+        assert_eq!(percent(5, 0), 0);
+        assert_eq!(pass_note(&f), "pass 7 of 16, 96 spp");
+        f.passes_total = 1;
+        assert_eq!(pass_note(&f), "96 spp");
+        let secs = Duration::from_secs;
+        assert_eq!(eta_text(0, 100, secs(5), false), "ETA unknown");
+        assert_eq!(eta_text(25, 100, secs(10), false), "ETA 30 s");
+        assert_eq!(eta_text(50, 100, secs(94), true), "ETA at most 1 min 34 s");
+        assert_eq!(eta_text(100, 100, secs(94), false), "ETA 0 s");
+        assert_eq!(duration_text(secs(7530)), "2 h 5 min");
     }
 
     #[test]

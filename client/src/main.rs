@@ -714,6 +714,16 @@ fn job_tiles(job: &JobInfo) -> (u32, u32) {
     (job.frames.iter().map(|f| f.tiles_done).sum(), job.frames.iter().map(|f| f.tiles_total).sum())
 }
 
+/// ", pass 6 of 16, 96 spp, 37% of samples" for a frame under way ("" from a server that does
+/// not count samples).
+fn frame_samples(f: &tessera::protocol::FrameInfo) -> String {
+    if f.samples_total == 0 {
+        return String::new();
+    }
+    let (done, total) = follow::frame_work(f);
+    format!(", {}, {}% of samples", follow::pass_note(f), follow::percent(done, total))
+}
+
 fn print_jobs(jobs: &[JobInfo], base: &str) {
     if jobs.is_empty() {
         println!("no jobs on {base}");
@@ -725,7 +735,9 @@ fn print_jobs(jobs: &[JobInfo], base: &str) {
     );
     for j in jobs {
         let (done, total) = job_tiles(j);
-        let pct = if total > 0 { 100 * u64::from(done) / u64::from(total) } else { 0 };
+        // The percentage counts samples (tiles from a server that does not count them).
+        let (work_done, work_total) = follow::job_work(j);
+        let pct = follow::percent(work_done, work_total);
         // The counts are complete even when the list leaves the frames out.
         let frames = match frame_total(j) {
             0 => format!("{}", j.frames.len()),
@@ -755,7 +767,20 @@ fn print_job(job: &JobInfo) {
         (Some(s), None) => format!(", {:.1} s since it started", now() - s),
         (None, _) => String::new(),
     };
-    println!("state: {} ({done}/{total} tiles){took}", job.state.as_str());
+    // Progress by samples, pass by pass: the ETA from the rate of samples since the start.
+    let (work_done, work_total) = follow::job_work(job);
+    let mut progress = String::new();
+    if job.samples_total > 0 && !job.state.is_final() {
+        progress = format!(", {}% of samples", follow::percent(work_done, work_total));
+        if let (JobState::Running, Some(s)) = (job.state, job.started_at) {
+            let elapsed = std::time::Duration::from_secs_f64((now() - s).max(0.0));
+            progress.push_str(&format!(
+                ", {}",
+                follow::eta_text(work_done, work_total, elapsed, job.samples_total_is_bound)
+            ));
+        }
+    }
+    println!("state: {} ({done}/{total} tiles){took}{progress}", job.state.as_str());
     println!("submitted: {} UTC", follow::utc(job.submitted_at));
     let samples = job.samples.map_or("the scene's".to_string(), |s| s.to_string());
     println!("priority {}, tile size {}, samples per pixel: {samples}", job.priority, job.tile_size);
@@ -769,14 +794,15 @@ fn print_job(job: &JobInfo) {
             .collect();
         for f in busy.iter().take(8) {
             println!(
-                "frame {}: {} ({}x{}), {}/{} tiles{}",
+                "frame {}: {} ({}x{}), {}/{} tiles{}{}",
                 f.index,
                 f.image_name,
                 f.width,
                 f.height,
                 f.tiles_done,
                 f.tiles_total,
-                f.scene.as_ref().map_or(String::new(), |s| format!(", from {s}"))
+                f.scene.as_ref().map_or(String::new(), |s| format!(", from {s}")),
+                frame_samples(f)
             );
         }
         if busy.len() > 8 {
@@ -790,14 +816,15 @@ fn print_job(job: &JobInfo) {
     let frames: &[tessera::protocol::FrameInfo] = if follow::by_counts(job) { &[] } else { &job.frames };
     for f in frames {
         println!(
-            "frame {}: camera {}, {} ({}x{}), {}/{} tiles",
+            "frame {}: camera {}, {} ({}x{}), {}/{} tiles{}",
             f.index,
             f.camera + 1,
             f.image_name,
             f.width,
             f.height,
             f.tiles_done,
-            f.tiles_total
+            f.tiles_total,
+            if f.outputs.is_empty() { frame_samples(f) } else { String::new() }
         );
         if !f.outputs.is_empty() {
             let names: Vec<&str> = f.outputs.iter().map(|o| o.name.as_str()).collect();

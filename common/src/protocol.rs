@@ -447,6 +447,30 @@ pub struct FrameInfo {
     /// scene files (a sequence); `None` for a job of one scene.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scene: Option<String>,
+    /// Progress by samples: pixel-samples in the frame's film so far (each pixel's samples,
+    /// summed), counted pass by pass as the server adds them; it never decreases.
+    #[serde(default)]
+    pub samples_done: u64,
+    /// Pixel-samples the frame takes: its pixels times `samples`, less what tiles stopped by
+    /// the noise target leave out; equal to `samples_done` once the frame is finished.
+    #[serde(default)]
+    pub samples_total: u64,
+    /// `samples_total` is an upper bound (a noise target may stop tiles sooner): it can only
+    /// shrink. False once the frame is finished, and without a noise target.
+    #[serde(default)]
+    pub samples_total_is_bound: bool,
+    /// Samples per pixel reached, on average over the frame (`samples_done` / pixels, rounded
+    /// down).
+    #[serde(default)]
+    pub spp: u32,
+    /// The pass under way (from 1): one past `passes_done` while the frame renders,
+    /// `passes_total` once every pass is done.
+    #[serde(default)]
+    pub pass: u32,
+    /// The denoised picture of the frame after its latest pass (`pass_denoised.png`), for a
+    /// job with `denoise`, once written; `None` otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pass_denoised_url: Option<String>,
 }
 
 /// How many of a job's frames are in each state.
@@ -551,6 +575,15 @@ pub struct JobInfo {
     /// The job's video, when it makes one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub video: Option<VideoInfo>,
+    /// Progress by samples over every frame (also when `frames` is left out of a job list):
+    /// the sums of the frames' `samples_done` and `samples_total`; `samples_total_is_bound`
+    /// when a frame's is.
+    #[serde(default)]
+    pub samples_done: u64,
+    #[serde(default)]
+    pub samples_total: u64,
+    #[serde(default)]
+    pub samples_total_is_bound: bool,
     pub error: Option<String>,
     /// What the scene's parser and builder warned about (unknown elements, a capped
     /// MaxRecursionDepth, ...): in the answer to a submission only.

@@ -18,7 +18,7 @@
 use std::ffi::{CStr, CString, c_char, c_void};
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, OnceLock};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use tessera::image::Image;
 use tessera::render::AuxImages;
@@ -103,14 +103,41 @@ pub struct Oidn {
     _lib: libloading::Library,
 }
 
+/// How long a failed lookup of the library stands before the next call looks again: a
+/// library installed while a program runs (`pip install pyoidn` beside a running server) is
+/// found within this time, without a restart, and a program asked many times meanwhile does
+/// not search (and start `python3`) on every call.
+pub const RETRY_LOOKUP_AFTER: Duration = Duration::from_secs(2);
+
 /// The library, loaded on first use (see the module's documentation for where it is looked
-/// for); the error says where it looked and how to install it.
+/// for) and kept once found; the error says where it looked and how to install it. A lookup
+/// that failed is repeated by a call [`RETRY_LOOKUP_AFTER`] or more later.
 pub fn oidn() -> Result<&'static Oidn, String> {
-    static LOADED: OnceLock<Result<Oidn, String>> = OnceLock::new();
-    LOADED
-        .get_or_init(|| Oidn::find(std::env::var_os(LIB_ENV).map(PathBuf::from)))
-        .as_ref()
-        .map_err(Clone::clone)
+    static LOADED: OnceLock<Oidn> = OnceLock::new();
+    static FAILED: Mutex<Option<(Instant, String)>> = Mutex::new(None);
+    if let Some(o) = LOADED.get() {
+        return Ok(o);
+    }
+    // One lookup at a time; the others wait for its outcome.
+    let mut failed = FAILED.lock().unwrap_or_else(|p| p.into_inner());
+    if let Some(o) = LOADED.get() {
+        return Ok(o);
+    }
+    if let Some((at, e)) = failed.as_ref()
+        && at.elapsed() < RETRY_LOOKUP_AFTER
+    {
+        return Err(e.clone());
+    }
+    match Oidn::find(std::env::var_os(LIB_ENV).map(PathBuf::from)) {
+        Ok(o) => {
+            *failed = None;
+            Ok(LOADED.get_or_init(|| o))
+        }
+        Err(e) => {
+            *failed = Some((Instant::now(), e.clone()));
+            Err(e)
+        }
+    }
 }
 
 /// Where the `pyoidn` wheel keeps the library, if `python3` has it; `Err` says why not.

@@ -302,6 +302,19 @@ pub struct FrameRow {
     pub passes_published: u32,
     /// The frame's scene file; `None`: the job's `scene_path` (jobs from before sequences).
     pub scene_path: Option<String>,
+    /// Pixel-samples in the frame's film (each tile's pixels times the samples added into it),
+    /// and those that tiles stopped by the noise target will never take: counters kept with
+    /// the tiles' results, so that progress costs no scan of the tiles.
+    pub samples_done: u64,
+    pub samples_skipped: u64,
+}
+
+impl FrameRow {
+    /// Pixel-samples the frame takes at most: every pixel at `samples`, less those skipped.
+    pub fn samples_total(&self) -> u64 {
+        let all = u64::from(self.width) * u64::from(self.height) * u64::from(self.samples.max(1));
+        all.saturating_sub(self.samples_skipped).max(self.samples_done)
+    }
 }
 
 #[derive(Clone, Debug)]
@@ -502,10 +515,12 @@ fn frame_from_row(r: &rusqlite::Row) -> rusqlite::Result<FrameRow> {
         passes_total: r.get::<_, i64>(10)? as u32,
         passes_published: r.get::<_, i64>(11)? as u32,
         scene_path: r.get(12)?,
+        samples_done: r.get::<_, i64>(13)?.max(0) as u64,
+        samples_skipped: r.get::<_, i64>(14)?.max(0) as u64,
     })
 }
 
-const FRAME_COLUMNS: &str = "job_id, idx, camera, image_name, width, height, tiles_total, tiles_done, outputs, samples, passes_total, passes_published, scene_path";
+const FRAME_COLUMNS: &str = "job_id, idx, camera, image_name, width, height, tiles_total, tiles_done, outputs, samples, passes_total, passes_published, scene_path, samples_done, samples_skipped";
 
 /// The pause between two steps of writing or purging a job's rows: the lock is free during it,
 /// so that another request waiting for the store gets it first.
@@ -744,6 +759,7 @@ impl Store {
         passes: u32,
         passes_total: u32,
         seconds: f64,
+        denoised: Option<&Result<f64, String>>,
     ) -> Result<()> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
@@ -753,8 +769,13 @@ impl Store {
             |r| Ok((r.get(0)?, r.get::<_, Option<i64>>(1)?.unwrap_or(0), r.get(2)?)),
         )?;
         let message = format!(
-            "frame {frame} after pass {passes} of {passes_total}: at least {} samples per pixel, {finished} of {tiles} tiles finished; pass.exr and pass.png written",
-            least.unwrap_or(0)
+            "frame {frame} after pass {passes} of {passes_total}: at least {} samples per pixel, {finished} of {tiles} tiles finished; pass.exr and pass.png written{}",
+            least.unwrap_or(0),
+            match denoised {
+                None => String::new(),
+                Some(Ok(s)) => format!(", and pass_denoised.png (denoised in {s:.3} s)"),
+                Some(Err(e)) => format!("; not denoised: {e}"),
+            }
         );
         let e = Event {
             frame: Some(i64::from(frame)),
@@ -947,14 +968,22 @@ mod tests {
             ResultOutcome::Accepted { pass_published: None, frame_complete: false, .. }
         ));
         assert!(s.frame_tiles(id, 0).unwrap().is_empty(), "no film before pass 0");
+        // Progress counts the samples in the film (two pixels): none yet, of 96.
+        let progress = || {
+            let f = &s.frames(id).unwrap()[0];
+            (f.samples_done, f.samples_total())
+        };
+        assert_eq!(progress(), (0, 96));
         // Pass 0: the tile has 16 samples, the frame is published after pass 1.
         assert!(matches!(submit(0), ResultOutcome::Accepted { pass_published: Some(1), .. }));
         let film = tessera::protocol::decode_tile(&s.frame_tiles(id, 0).unwrap()[0].1, 2).unwrap();
         assert_eq!(film, [[1.0; 3]; 2]);
+        assert_eq!(progress(), (32, 96));
         // Pass 1 brings pass 2 in with it: the frame is complete, averaged over 48 samples.
         assert!(matches!(submit(1), ResultOutcome::Accepted { frame_complete: true, .. }));
         let film = tessera::protocol::decode_tile(&s.frame_tiles(id, 0).unwrap()[0].1, 2).unwrap();
         assert_eq!(film, [[2.0; 3]; 2], "(1 + 2 + 3) / 3");
+        assert_eq!(progress(), (96, 96));
     }
 
     #[test]
@@ -988,6 +1017,7 @@ mod tests {
             // The tables as they were before passes: no pass columns, tiles keyed by tile.
             let mut old = schema::SCHEMA.to_string();
             for gone in [
+                "\n    samples_done INTEGER NOT NULL DEFAULT 0,\n    samples_skipped INTEGER NOT NULL DEFAULT 0,",
                 ",\n    pass_samples INTEGER,\n    noise_target REAL",
                 ",\n    samples INTEGER NOT NULL DEFAULT 1,\n    passes_total INTEGER NOT NULL DEFAULT 1,\n    passes_published INTEGER NOT NULL DEFAULT 0",
                 "\n    pass INTEGER NOT NULL DEFAULT 0,\n    first_sample INTEGER,\n    end_sample INTEGER,\n    sums BLOB,\n    passes_done INTEGER NOT NULL DEFAULT 0,\n    samples_done INTEGER NOT NULL DEFAULT 0,\n    error REAL,\n    finished INTEGER NOT NULL DEFAULT 0,",
@@ -1010,9 +1040,14 @@ mod tests {
             .unwrap();
         }
         let s = Store::open(&path).unwrap();
-        // The rendered tile is still there (and counted, once, into the metrics' counters); the
-        // queued one is leased whole and completes the frame.
+        // The rendered tile is still there (and counted, once, into the metrics' counters, and
+        // into the frame's samples); the queued one is leased whole and completes the frame.
         assert_eq!(s.frame_tiles(1, 0).unwrap().len(), 1);
+        let progress = |s: &Store| {
+            let f = &s.frames(1).unwrap()[0];
+            (f.samples_done, f.samples_total())
+        };
+        assert_eq!(progress(&s), (1, 2));
         assert_eq!(s.metrics().unwrap().tiles_done, 1);
         let w = worker(&s);
         let l = lease(&s, w);
@@ -1021,6 +1056,7 @@ mod tests {
         let done = s.submit_result(l.lease_id, w, &[0; 12], None).unwrap();
         assert!(matches!(done, ResultOutcome::Accepted { frame_complete: true, .. }), "{done:?}");
         assert_eq!(s.frames(1).unwrap()[0].passes_total, 1);
+        assert_eq!(progress(&s), (2, 2));
         drop(s);
         assert_eq!(Store::open(&path).unwrap().metrics().unwrap().tiles_done, 2);
     }

@@ -377,7 +377,7 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
         // (`api::jobs::frame_file`). Removed only once the outputs are recorded, so that a
         // download of them never finds neither; from the server's own folder of the frame,
         // never from the outputs' (where an output may have the same name).
-        for name in PASS_FILES {
+        for name in PASS_FILES.iter().chain([&PASS_DENOISED_FILE]) {
             let _ = std::fs::remove_file(own.join(name));
         }
         Ok(done)
@@ -500,7 +500,7 @@ pub async fn publish_pass(state: AppState, job_id: u64, frame: u32) {
         }
         let cam = frame_camera(&st, &job, f)?;
         let started = Instant::now();
-        let (img, _) = assemble_frame(&st, &job, f)?;
+        let (img, aux) = assemble_frame(&st, &job, f)?;
         // Each written atomically (a temporary file of its own, renamed), the PNG last: the
         // job lists the pass files once it is there.
         let dir = st.server_frame_dir(job_id, frame);
@@ -508,12 +508,16 @@ pub async fn publish_pass(state: AppState, job_id: u64, frame: u32) {
         tessera::hdr_io::write_exr(&dir.join(PASS_FILES[0]), &img).map_err(anyhow::Error::new)?;
         tessera::atomic_write::write_atomic(&dir.join(PASS_FILES[1]), &final_png(&cam, &img)?)
             .context("cannot write the pass's PNG")?;
+        // A denoised job's pass is denoised too (here, off the executor and the lease path,
+        // like the merges): a failure leaves the raw pass, and is logged with it.
+        let denoised = aux.map(|aux| denoise_pass(&dir, &cam, &img, &aux));
         st.store.frame_passed(
             job_id,
             frame,
             f.passes_published,
             f.passes_total,
             started.elapsed().as_secs_f64(),
+            denoised.as_ref(),
         )?;
         Ok(true)
     })
@@ -525,6 +529,33 @@ pub async fn publish_pass(state: AppState, job_id: u64, frame: u32) {
         Err(e) => tracing::error!(job = job_id, frame, "pass task panicked: {e}"),
     }
 }
+
+/// Writes the frame after a pass denoised ([`PASS_DENOISED_FILE`]): OIDN's RT filter at its
+/// fast quality (a preview, replaced by the next pass), with the features of the tiles, tone
+/// mapped like the pass's PNG. Returns the denoiser's seconds, or why there is no denoised
+/// pass (a sentence for the job's log).
+pub fn denoise_pass(dir: &Path, cam: &Camera, img: &Image, aux: &AuxImages) -> Result<f64, String> {
+    let written = (|| {
+        let oidn = tessera_denoise::oidn().map_err(|e| {
+            // Where it was looked for is the server's business: its log has it.
+            tracing::warn!("a pass is not denoised: {e}");
+            "Intel Open Image Denoise is not available (the server's log says why)".to_string()
+        })?;
+        let (clean, seconds) = oidn.denoise(img, Some(aux), tessera_denoise::Quality::Fast)?;
+        let png = final_png(cam, &clean).map_err(|e| format!("{e:#}"))?;
+        tessera::atomic_write::write_atomic(&dir.join(PASS_DENOISED_FILE), &png)
+            .map_err(|e| format!("cannot write {PASS_DENOISED_FILE}: {e}"))?;
+        Ok(seconds)
+    })();
+    if written.is_err() {
+        // An earlier pass's denoised picture must not pass for this one's.
+        let _ = std::fs::remove_file(dir.join(PASS_DENOISED_FILE));
+    }
+    written
+}
+
+/// The denoised picture of the frame after its latest pass, beside [`PASS_FILES`].
+pub use crate::storage::PASS_DENOISED_FILE;
 
 #[cfg(test)]
 mod tests {

@@ -31,6 +31,10 @@ pub const FRAMES_DIR: &str = "frames";
 /// names under which clients download it: `merge::PASS_FILES`).
 pub const PASS_FILES: [&str; 2] = ["pass.exr", "pass.png"];
 
+/// The frame after its latest pass denoised, for a job with `denoise`: beside [`PASS_FILES`],
+/// and like them served by its name until the frame's own denoised PNG replaces it.
+pub const PASS_DENOISED_FILE: &str = "pass_denoised.png";
+
 /// A merged frame's preview, in `frames/JOB/FRAME/`.
 pub const PREVIEW_FILE: &str = "preview.png";
 

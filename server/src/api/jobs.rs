@@ -44,6 +44,14 @@ fn job_info_with(state: &AppState, id: u64, max_frames: usize) -> anyhow::Result
         }
     }
     let listed = if frames.len() > max_frames { &frames[..0] } else { &frames[..] };
+    // Progress by samples, from each frame's counters (no scan of its tiles).
+    let bound = |f: &crate::db::FrameRow| {
+        job.noise_target.is_some() && f.outputs.is_none() && f.samples_done < f.samples_total()
+    };
+    let spp = |f: &crate::db::FrameRow| {
+        let pixels = (u64::from(f.width) * u64::from(f.height)).max(1);
+        u32::try_from(f.samples_done / pixels).unwrap_or(u32::MAX)
+    };
     let sequence = job.scenes > 1;
     let cameras = state.frame_cameras(&job).ok();
     let url = format!("/api/v1/jobs/{id}");
@@ -114,11 +122,28 @@ fn job_info_with(state: &AppState, id: u64, max_frames: usize) -> anyhow::Result
                 tonemap_url: float_output(f.outputs.as_deref())
                     .map(|_| format!("{url}/frames/{}/tonemap.png", f.index)),
                 scene: if sequence { f.scene_path.clone() } else { None },
+                samples_done: f.samples_done,
+                samples_total: f.samples_total(),
+                samples_total_is_bound: bound(f),
+                spp: spp(f),
+                pass: if f.outputs.is_some() {
+                    f.passes_total
+                } else {
+                    (f.passes_published + 1).min(f.passes_total.max(1))
+                },
+                pass_denoised_url: (job.denoise
+                    && f.outputs.is_none()
+                    && f.passes_published > 0
+                    && state.server_frame_dir(id, f.index).join(crate::storage::PASS_DENOISED_FILE).exists())
+                .then(|| format!("{url}/frames/{}/files/{}", f.index, crate::storage::PASS_DENOISED_FILE)),
             })
             .collect(),
         frame_counts,
         scenes: job.scenes,
         video: crate::video::info(state, &job, &frames)?,
+        samples_done: frames.iter().fold(0u64, |a, f| a.saturating_add(f.samples_done)),
+        samples_total: frames.iter().fold(0u64, |a, f| a.saturating_add(f.samples_total())),
+        samples_total_is_bound: frames.iter().any(bound),
         error,
         warnings: Vec::new(),
         url,
@@ -208,7 +233,11 @@ fn find_frame(state: &AppState, id: u64, frame: u32) -> ApiResult<crate::db::Fra
 fn final_of_pass(image_name: &str, pass: &str, outputs: &[String]) -> Option<String> {
     let stem = std::path::Path::new(image_name).file_stem()?.to_str()?;
     let ext = std::path::Path::new(pass).extension()?.to_str()?;
-    let wanted = format!("{stem}.{ext}");
+    let wanted = if pass == crate::storage::PASS_DENOISED_FILE {
+        format!("{stem}_denoised.{ext}")
+    } else {
+        format!("{stem}.{ext}")
+    };
     outputs.iter().find(|o| o.eq_ignore_ascii_case(&wanted)).cloned()
 }
 
@@ -223,7 +252,7 @@ fn job_and_frame(
 }
 
 #[utoipa::path(get, path = "/api/v1/jobs/{id}/frames/{frame}/files/{name}", tag = "jobs", security((), ("api_token" = [])),
-    params(("id" = u64, Path, description = "The job's id"), ("frame" = u32, Path, description = "The frame's index in the job (0-based)"), ("name" = String, Path, description = "An output file's name, as the frame's `outputs` list it, or `pass.exr` / `pass.png`: the frame after its latest pass (once the frame is finished, its own EXR / PNG)")),
+    params(("id" = u64, Path, description = "The job's id"), ("frame" = u32, Path, description = "The frame's index in the job (0-based)"), ("name" = String, Path, description = "An output file's name, as the frame's `outputs` list it, or `pass.exr` / `pass.png`: the frame after its latest pass (once the frame is finished, its own EXR / PNG), or `pass_denoised.png` for a job with denoise: that pass denoised (once finished, the frame's denoised PNG)")),
     responses(
         (status = 200, description = "The file (PNG, OpenEXR or Radiance HDR)", content_type = "application/octet-stream", body = super::openapi::Binary),
         (status = 400, description = "A path parameter or query does not parse", body = ApiError), (status = 401, description = "The server needs an API token", body = ApiError),
@@ -238,7 +267,8 @@ pub(super) async fn frame_file(
         off_thread(move || find_frame(&state, id, frame))
     };
     let mut f = look_up().await?;
-    let pass_file = crate::merge::PASS_FILES.contains(&name.as_str());
+    let pass_file =
+        crate::merge::PASS_FILES.contains(&name.as_str()) || name == crate::storage::PASS_DENOISED_FILE;
     if pass_file && f.outputs.is_none() {
         let path = state.server_frame_dir(id, frame).join(&name);
         if let Ok(file) = super::FileBody::open(&path).await {
@@ -248,7 +278,12 @@ pub(super) async fn frame_file(
         // No pass yet, or the frame finished (and its pass files went) since it was looked up.
         f = look_up().await?;
         if f.outputs.is_none() {
-            let message = if f.passes_published == 0 {
+            let message = if name == crate::storage::PASS_DENOISED_FILE {
+                format!(
+                    "frame {frame} of job {id} has no denoised pass yet (after pass {} of {}): one is written after each pass of a job submitted with denoise=true",
+                    f.passes_published, f.passes_total
+                )
+            } else if f.passes_published == 0 {
                 format!(
                     "frame {frame} of job {id} has finished no pass yet (0 of {} passes); see preview.png meanwhile",
                     f.passes_total

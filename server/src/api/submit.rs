@@ -346,17 +346,25 @@ pub(super) async fn submit_job(State(state): State<AppState>, request: Request) 
     Ok(submit_multipart(state, multipart).await?.into_response())
 }
 
+/// What a client asking for denoising is told when the server has no denoiser: how to install
+/// one, and that it takes effect without a restart (where the server looked, paths of the
+/// server's machine, goes to its log only).
+pub const NO_DENOISER: &str = "denoise=true: this server cannot denoise: Intel Open Image Denoise 2 is \
+     not installed where it looks (its log says where). Install it on the server with `python3 -m pip \
+     install pyoidn` (or point TESSERA_OIDN_LIB at the library): the server looks again at the next \
+     request that needs it, within a few seconds, without a restart. Or submit without denoise";
+
 /// Refused before anything is unpacked when a job asks for denoising: the server denoises the
-/// merged frames, so it needs the library itself (workers only send features).
+/// merged frames and the passes' previews, so it needs the library itself (workers only send
+/// features). The library is looked for again when this is asked a few seconds after a failed
+/// lookup ([`tessera_denoise::RETRY_LOOKUP_AFTER`]).
 pub(super) async fn check_denoiser() -> ApiResult<()> {
     let found = tokio::task::spawn_blocking(|| tessera_denoise::oidn().map(|_| ()))
         .await
         .map_err(|e| anyhow::anyhow!("denoiser lookup task: {e}"))?;
     found.map_err(|e| {
-        AppError::new(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            format!("denoise=true: this server cannot denoise: {e}; or submit without denoise"),
-        )
+        tracing::warn!("a job asks for denoising, and {e}");
+        AppError::new(StatusCode::UNPROCESSABLE_ENTITY, NO_DENOISER.to_string())
     })
 }
 

@@ -379,9 +379,11 @@ impl Store {
         if in_passes {
             published = passes::absorb(&tx, job, frame, tile, rect)?;
         } else {
+            // A tile rendered whole brings all the frame's samples for its pixels.
             tx.execute_cached(
-                "UPDATE frames SET tiles_done = tiles_done + 1 WHERE job_id = ?1 AND idx = ?2",
-                params![job, frame],
+                "UPDATE frames SET tiles_done = tiles_done + 1, samples_done = samples_done + ?3 * max(samples, 1)
+                 WHERE job_id = ?1 AND idx = ?2",
+                params![job, frame, px as i64],
             )?;
         }
         let (done, total): (i64, i64) = tx.query_row_cached(

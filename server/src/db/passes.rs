@@ -74,6 +74,7 @@ pub(super) fn absorb(
         params![job, frame, tile],
         |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?)),
     )?;
+    let samples_before = samples_done;
     let mut acc = match sums {
         Some(b) => decode_sums(&b)
             .filter(|s| s.len() == px)
@@ -128,6 +129,19 @@ pub(super) fn absorb(
         "UPDATE tiles SET pixels = ?4, sums = ?5, passes_done = ?6, samples_done = ?7, error = ?8, finished = ?9
          WHERE job_id = ?1 AND frame = ?2 AND tile = ?3 AND pass = 0",
         params![job, frame, tile, film, encode_sums(&acc), passes_done, samples_done, error, !more],
+    )?;
+    // The frame's progress counters: the samples now in the tile's film, and once the tile
+    // stops short of the frame's samples (the noise target), those it will never take.
+    let skipped = if more { 0 } else { samples.saturating_sub(samples_done) };
+    tx.execute_cached(
+        "UPDATE frames SET samples_done = samples_done + ?3, samples_skipped = samples_skipped + ?4
+         WHERE job_id = ?1 AND idx = ?2",
+        params![
+            job,
+            frame,
+            px as i64 * i64::from(samples_done.saturating_sub(samples_before)),
+            px as i64 * i64::from(skipped)
+        ],
     )?;
     if !more {
         tx.execute_cached(

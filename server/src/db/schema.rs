@@ -44,6 +44,8 @@ CREATE TABLE IF NOT EXISTS frames(
     passes_total INTEGER NOT NULL DEFAULT 1,
     passes_published INTEGER NOT NULL DEFAULT 0,
     scene_path TEXT,
+    samples_done INTEGER NOT NULL DEFAULT 0,
+    samples_skipped INTEGER NOT NULL DEFAULT 0,
     PRIMARY KEY(job_id, idx)
 );
 CREATE TABLE IF NOT EXISTS tiles(
@@ -212,6 +214,24 @@ pub(super) fn migrate(conn: &Connection) -> Result<()> {
             "UPDATE job_events SET worker = (SELECT name FROM workers w WHERE w.id = job_events.worker_id)
                WHERE worker IS NULL AND worker_id IS NOT NULL;
              PRAGMA user_version = 1;",
+        )?;
+    }
+    if !has_column("frames", "samples_done")? {
+        // Progress by samples: the counters of frames from before them, counted once from
+        // their tiles (a tile rendered whole has all its samples once done; a merged frame
+        // whose tiles are purged has all it took).
+        conn.execute_batch(
+            "ALTER TABLE frames ADD COLUMN samples_done INTEGER NOT NULL DEFAULT 0;
+             ALTER TABLE frames ADD COLUMN samples_skipped INTEGER NOT NULL DEFAULT 0;
+             UPDATE frames SET
+               samples_skipped = coalesce((SELECT sum(t.w * t.h * max(frames.samples - t.samples_done, 0)) FROM tiles t
+                 WHERE t.job_id = frames.job_id AND t.frame = frames.idx AND t.pass = 0
+                   AND t.first_sample IS NOT NULL AND t.finished), 0),
+               samples_done = coalesce((SELECT sum(t.w * t.h * CASE WHEN t.first_sample IS NOT NULL THEN t.samples_done
+                                                     WHEN t.state = 'done' THEN frames.samples ELSE 0 END) FROM tiles t
+                 WHERE t.job_id = frames.job_id AND t.frame = frames.idx AND t.pass = 0), 0);
+             UPDATE frames SET samples_done = max(width * height * samples - samples_skipped, 0)
+               WHERE outputs IS NOT NULL;",
         )?;
     }
     conn.execute_batch(

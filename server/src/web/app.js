@@ -118,8 +118,12 @@ function renderJob(job, listed = false) {
   if (entry.data) {
     for (const f of job.frames) {
       const old = entry.data.frames.find((x) => x.index === f.index);
-      if (old) f.tiles_done = Math.max(f.tiles_done, old.tiles_done);
+      if (old) {
+        f.tiles_done = Math.max(f.tiles_done, old.tiles_done);
+        f.samples_done = Math.max(f.samples_done || 0, old.samples_done || 0);
+      }
     }
+    job.samples_done = Math.max(job.samples_done || 0, entry.data.samples_done || 0);
   }
   entry.data = job;
   const n = entry.node;
@@ -127,16 +131,7 @@ function renderJob(job, listed = false) {
   const st = $(".state", n);
   st.textContent = job.state;
   st.className = "state " + job.state;
-  const now = Date.now() / 1000;
-  const done = job.frames.reduce((a, f) => a + f.tiles_done, 0);
-  const total = job.frames.reduce((a, f) => a + f.tiles_total, 0);
-  const end = job.finished_at || now;
-  const elapsed = job.started_at ? end - job.started_at : 0;
-  const rate = elapsed > 0 ? done / elapsed : 0;
-  let times = "submitted " + fmtTime(job.submitted_at) + " · elapsed " + fmtDuration(elapsed);
-  if (job.state === "running" && rate > 0) times += " · ETA " + fmtDuration((total - done) / rate);
-  if (rate > 0) times += " · " + rate.toFixed(1) + " tiles/s";
-  $(".times", n).textContent = times;
+  $(".times", n).textContent = jobTimes(job);
   $(".cancel", n).hidden = !(job.state === "queued" || job.state === "running");
   const err = $(".job-error", n);
   err.hidden = !job.error;
@@ -144,6 +139,36 @@ function renderJob(job, listed = false) {
   renderVideo(entry, job);
   if (isSequence(job)) renderSequence(entry, job);
   else for (const f of job.frames) renderFrame(entry, job, f);
+}
+
+// Progress counts samples (pixel-samples, pass by pass), not tiles: a frame in passes finishes
+// its tiles only with its last pass. An older server's job has no sample counts: tiles then.
+function jobWork(job) {
+  if (job.samples_total > 0) return [job.samples_done, job.samples_total, "samples"];
+  return [job.frames.reduce((a, f) => a + f.tiles_done, 0), job.frames.reduce((a, f) => a + f.tiles_total, 0), "tiles"];
+}
+function frameWork(f) {
+  return f.samples_total > 0 ? [f.samples_done, f.samples_total] : [f.tiles_done, f.tiles_total];
+}
+function fmtCount(n) {
+  if (n >= 1e9) return (n / 1e9).toFixed(1) + " G";
+  if (n >= 1e6) return (n / 1e6).toFixed(1) + " M";
+  if (n >= 1e3) return (n / 1e3).toFixed(1) + " k";
+  return n.toFixed(0) + " ";
+}
+// Elapsed time, the rate of samples since the job started and the ETA it gives ("at most" under
+// a noise target, whose total is an upper bound).
+function jobTimes(job) {
+  const now = Date.now() / 1000;
+  const [done, total, unit] = jobWork(job);
+  const elapsed = job.started_at ? (job.finished_at || now) - job.started_at : 0;
+  const rate = elapsed > 0 ? done / elapsed : 0;
+  let times = "submitted " + fmtTime(job.submitted_at) + " · elapsed " + fmtDuration(elapsed);
+  if (job.state === "running") {
+    times += " · ETA " + (rate > 0 ? (job.samples_total_is_bound ? "at most " : "") + fmtDuration((total - done) / rate) : "unknown");
+  }
+  if (rate > 0) times += " · " + fmtCount(rate) + unit + "/s";
+  return times;
 }
 
 // --- Sequences and videos --------------------------------------------------------------------
@@ -203,10 +228,12 @@ function renderSequence(entry, job) {
   view.hidden = false;
   // A merged frame's preview is its final picture (small, made once); a rendering frame's is
   // made from its tiles on each request.
+  // A denoised job's merged frame is shown denoised (its `_denoised.png`).
+  const picture = (job.denoise && denoisedOutput(chosen)) || { url: chosen.preview_url };
   const key = chosen.index + (chosen.outputs.length ? ":done" : ":" + chosen.tiles_done);
   if (seq.shown !== key) {
     seq.shown = key;
-    $(".seq-frame", view).src = withToken(chosen.preview_url + "?t=" + Date.now());
+    $(".seq-frame", view).src = withToken(picture.url + "?t=" + Date.now());
   }
   const links = chosen.outputs.map((o) => o.name).join(", ");
   $(".seq-caption", view).textContent = "frame " + chosen.index + (chosen.scene ? " (" + chosen.scene + ")" : "") +
@@ -245,6 +272,9 @@ function frameNode(entry, job, f) {
       el("span", { text: f.image_name + " (" + f.width + "×" + f.height + ")" }),
       el("span", { class: "progress-text" })),
     el("div", { class: "bar" }, el("div")),
+    el("div", { class: "denoise-view", hidden: "" },
+      el("span", { class: "denoise-label" }),
+      el("button", { type: "button", class: "secondary denoise-toggle", onclick: () => toggleDenoised(entry, f.index) })),
     el("canvas", { class: "preview", width: String(f.width), height: String(f.height) }),
     el("div", { class: "links" }),
     el("div", { class: "tone", hidden: "" }));
@@ -256,12 +286,12 @@ function frameNode(entry, job, f) {
 
 function renderFrame(entry, job, f) {
   const fr = frameNode(entry, job, f);
-  const pct = f.tiles_total ? Math.floor((100 * f.tiles_done) / f.tiles_total) : 0;
+  const [done, total] = frameWork(f);
+  const pct = total ? Math.floor((100 * Math.min(done, total)) / total) : 0;
   let text = f.tiles_done + "/" + f.tiles_total + " tiles · " + pct + "%";
-  // A frame in passes refines: say how far every tile has got.
-  if (f.passes_total > 1 && !f.outputs.length) {
-    text = "pass " + f.passes_done + "/" + f.passes_total + " · " + text;
-  }
+  // A frame in passes refines: say which pass is under way and the samples per pixel reached.
+  if (!f.outputs.length && f.samples_total > 0) text = f.spp + " spp · " + text;
+  if (f.passes_total > 1 && !f.outputs.length) text = "pass " + (f.pass || f.passes_done) + " of " + f.passes_total + " · " + text;
   $(".progress-text", fr.node).textContent = text;
   fr.node.dataset.passes = String(f.passes_done || 0);
   fr.node.dataset.percent = String(pct);
@@ -272,18 +302,56 @@ function renderFrame(entry, job, f) {
     href: withToken(o.url), download: o.name,
     text: f.outputs.length ? o.name : o.name + " (after pass " + f.passes_done + ")",
   })));
+  renderDenoiseToggle(fr, job, f);
   if (f.outputs.length) {
-    // The finished picture: the first PNG output (tone-mapped for HDR frames).
-    const png = f.outputs.find((o) => o.name.toLowerCase().endsWith(".png"));
+    // The finished picture: the denoised PNG first for a denoised job, else (or when "raw" is
+    // chosen) the first PNG output (tone-mapped for HDR frames).
+    const png = (fr.view !== "raw" && denoisedOutput(f)) ||
+      f.outputs.find((o) => o.name.toLowerCase().endsWith(".png") && !isDenoisedName(o.name));
     if (png && fr.shown !== png.url && !fr.toneActive) {
       fr.shown = png.url;
       draw(fr, png.url);
     }
     // Sliders only where the server can re-tone-map: an HDR frame with a float output.
     if (f.tonemap && f.tonemap_url && !fr.toneBuilt) buildTone(fr, job, f);
-  } else if (f.tiles_done > 0 && !fr.shown) {
-    refreshPreview(job.id + "/" + f.index, fr, f.preview_url);
+  } else if (job.denoise && fr.view !== "raw" && f.pass_denoised_url) {
+    // The latest pass denoised, drawn again after each pass.
+    const key = f.pass_denoised_url + "#" + f.passes_done;
+    if (fr.shown !== key) { fr.shown = key; draw(fr, f.pass_denoised_url); }
+  } else {
+    // The live preview of the arrived tiles (also when coming back to it from the denoised pass).
+    const back = fr.shown != null;
+    fr.shown = null;
+    if (back || f.tiles_done > 0 || f.passes_done > 0) refreshPreview(job.id + "/" + f.index, fr, f.preview_url);
   }
+}
+
+// --- Denoised previews -----------------------------------------------------------------------
+
+// A frame of a job with denoise shows its denoised picture first (after each pass, then the
+// finished frame's `_denoised.png`); a toggle shows the raw one instead, and back.
+function isDenoisedName(name) { return /_denoised\.png$/i.test(name); }
+function denoisedOutput(f) { return f.outputs.find((o) => isDenoisedName(o.name)); }
+
+function renderDenoiseToggle(fr, job, f) {
+  const box = $(".denoise-view", fr.node);
+  if (!job.denoise) { box.hidden = true; return; }
+  box.hidden = false;
+  if (!fr.view) fr.view = "denoised";
+  const has = f.outputs.length ? !!denoisedOutput(f) : !!f.pass_denoised_url;
+  $(".denoise-label", box).textContent = fr.view === "raw" ? "Raw" :
+    has ? "Denoised" : "Denoised (after the first pass; raw until then)";
+  $(".denoise-toggle", box).textContent = fr.view === "raw" ? "Show denoised" : "Show raw";
+  fr.node.dataset.view = fr.view;
+}
+
+function toggleDenoised(entry, index) {
+  const fr = entry.frames.get(index);
+  const f = entry.data && entry.data.frames.find((x) => x.index === index);
+  if (!fr || !f) return;
+  fr.view = fr.view === "raw" ? "denoised" : "raw";
+  fr.toneActive = false;
+  renderFrame(entry, entry.data, f);
 }
 
 // Pictures load asynchronously and can arrive out of order (a slow final PNG after a quick
@@ -297,6 +365,7 @@ function draw(fr, url) {
     if (c.width !== img.naturalWidth) { c.width = img.naturalWidth; c.height = img.naturalHeight; }
     // Previews of large frames are smaller than the frame: drawn stretched to the canvas.
     c.getContext("2d").drawImage(img, 0, 0, c.width, c.height);
+    fr.node.dataset.shown = url;
     fr.node.dataset.drawn = String((Number(fr.node.dataset.drawn) || 0) + 1);
   };
   img.src = withToken(url + (url.includes("?") ? "&" : "?") + "t=" + Date.now());
