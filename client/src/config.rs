@@ -120,7 +120,8 @@ fn parse_string(value: &str) -> Result<String, String> {
 /// `/` and without the API's path (`/api/v1`, with a note on stderr that says so:
 /// [`tessera::protocol::server_base_url`]).
 pub fn normalize_server(url: &str) -> Result<String> {
-    let (base, note) = tessera::protocol::server_base_url(url).map_err(|e| anyhow::anyhow!("--server: {e}"))?;
+    let (base, note) =
+        tessera::protocol::server_base_url(url).map_err(|e| anyhow::anyhow!("--server: {e}"))?;
     if let Some(note) = note {
         eprintln!("{note}");
     }

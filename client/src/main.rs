@@ -501,7 +501,8 @@ struct SubmitOptions {
 
 /// `--scale`: a number in (0, 1].
 fn parse_scale(text: &str) -> Result<f64, String> {
-    let v: f64 = text.trim().parse().map_err(|_| format!("{text:?} is not a number; write e.g. --scale 0.25"))?;
+    let v: f64 =
+        text.trim().parse().map_err(|_| format!("{text:?} is not a number; write e.g. --scale 0.25"))?;
     tessera::camera::check_scale(v)
 }
 

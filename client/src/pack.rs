@@ -429,6 +429,14 @@ fn with_more_frames(warning: String, more: usize) -> String {
 /// sequence's warnings frame by frame.
 pub fn unseen_warnings(shown: &[String], warnings: &[String]) -> Vec<String> {
     let mut out: Vec<(String, usize)> = Vec::new();
+    // What was shown, without its count of frames.
+    let shown: Vec<&str> = shown
+        .iter()
+        .map(|s| match s.rfind(" (and in ") {
+            Some(k) if s.ends_with(" more frames)") || s.ends_with(" more frame)") => &s[..k],
+            _ => s.as_str(),
+        })
+        .collect();
     for w in warnings {
         if shown.iter().any(|s| strip_file(s) == strip_file(w)) {
             continue;

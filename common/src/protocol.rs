@@ -790,7 +790,9 @@ pub fn server_base_url(given: &str) -> Result<(String, Option<String>), String> 
     let rest = rest.split(['#', '?']).next().unwrap_or("");
     let (host, path) = rest.split_once('/').map_or((rest, ""), |(h, p)| (h, p));
     if host.is_empty() {
-        return Err(format!("{trimmed:?} names no host; give the farm's address, e.g. http://farm.example:8080"));
+        return Err(format!(
+            "{trimmed:?} names no host; give the farm's address, e.g. http://farm.example:8080"
+        ));
     }
     let path = path.trim_end_matches('/');
     // `/api/v1...` anywhere in the path: what comes before it is the farm (a proxy may serve it
@@ -801,7 +803,8 @@ pub fn server_base_url(given: &str) -> Result<(String, Option<String>), String> 
         }
         _ => (path, false),
     };
-    let base = if path.is_empty() { format!("{scheme}://{host}") } else { format!("{scheme}://{host}/{path}") };
+    let base =
+        if path.is_empty() { format!("{scheme}://{host}") } else { format!("{scheme}://{host}/{path}") };
     let changed = api || rest.len() != trimmed.split_once("://").map_or(trimmed, |(_, r)| r).len();
     let note = changed.then(|| {
         format!(

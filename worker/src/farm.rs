@@ -263,6 +263,12 @@ fn register(
                     describe(ureq::Error::Status(code, r))
                 )
             }
+            // TLS with a server that does not speak it: waiting does not help.
+            Err(ureq::Error::Transport(t))
+                if client.base.starts_with("https://") && t.to_string().contains("tls") =>
+            {
+                bail!("cannot reach the server at {}: {t}; {}", client.base, tessera::protocol::HTTPS_HINT)
+            }
             Err(e) => {
                 if started.elapsed() > Duration::from_secs(5) {
                     eprintln!("waiting for the server at {}: {}", client.base, describe(e));
@@ -275,7 +281,8 @@ fn register(
 }
 
 pub fn work(opts: WorkOptions) -> Result<()> {
-    let (base, note) = tessera::protocol::server_base_url(&opts.server).map_err(|e| anyhow!("--server: {e}"))?;
+    let (base, note) =
+        tessera::protocol::server_base_url(&opts.server).map_err(|e| anyhow!("--server: {e}"))?;
     if let Some(note) = note {
         eprintln!("{note}");
     }
@@ -769,7 +776,8 @@ fn lease_scene(
             );
             // A job at a `scale` renders its cameras so (the server cut its tiles so).
             if let Some(scale) = lease.scale {
-                let scale = tessera::camera::check_scale(scale).map_err(|e| anyhow!("the lease's scale {e}"))?;
+                let scale =
+                    tessera::camera::check_scale(scale).map_err(|e| anyhow!("the lease's scale {e}"))?;
                 s.cameras = s.cameras.iter().map(|c| c.scaled(scale)).collect();
             }
             let s = Arc::new(s);

@@ -286,7 +286,9 @@ fn scene_node(root: Value, file: &Path) -> Result<Node> {
             return Err(SceneError::new(
                 file,
                 Loc::new(line, key.clone()),
-                format!("unexpected top-level key \"{key}\"{hint}; a JSON scene has exactly one key, \"Scene\""),
+                format!(
+                    "unexpected top-level key \"{key}\"{hint}; a JSON scene has exactly one key, \"Scene\""
+                ),
             ));
         }
         if scene.is_some() {
@@ -582,20 +584,33 @@ mod tests {
     #[test]
     fn misspelt_keys_say_which_key_was_meant() {
         let warnings = |json: &str| -> Vec<String> {
-            parse(json).unwrap_or_else(|e| panic!("{json}: {e}")).warnings.iter().map(|w| w.to_string()).collect()
+            parse(json)
+                .unwrap_or_else(|e| panic!("{json}: {e}"))
+                .warnings
+                .iter()
+                .map(|w| w.to_string())
+                .collect()
         };
         let lights = |body: &str| format!("{{\"Scene\": {{{CAMERA},\n\"Lights\": {{{body}}}}}}}");
         assert_eq!(
             warnings(&lights(r#""PointLigth": {"_id": "1", "Position": "0 0 0", "Intensity": "1 1 1"}"#)),
-            [r#"warning: scene.json:4: <Scene.Lights.PointLigth>: unknown key "PointLigth"; did you mean "PointLight"? It is ignored"#]
+            [
+                r#"warning: scene.json:4: <Scene.Lights.PointLigth>: unknown key "PointLigth"; did you mean "PointLight"? It is ignored"#
+            ]
         );
         assert_eq!(
             warnings(&lights(r#""PointLight": {"_Id": "1", "Position": "0 0 0", "Intensity": "1 1 1"}"#)),
-            [r#"warning: scene.json:4: <Scene.Lights.PointLight>: unknown key "_Id"; did you mean key "_id"? It is ignored"#]
+            [
+                r#"warning: scene.json:4: <Scene.Lights.PointLight>: unknown key "_Id"; did you mean key "_id"? It is ignored"#
+            ]
         );
         assert_eq!(
-            warnings(&lights(r#""PointLight": {"_id": "1", "Position": "0 0 0", "Intensity": "1 1 1", "Texture": "1"}"#)),
-            [r#"warning: scene.json:4: <Scene.Lights.PointLight.Texture>: unknown key "Texture"; it is ignored"#]
+            warnings(&lights(
+                r#""PointLight": {"_id": "1", "Position": "0 0 0", "Intensity": "1 1 1", "Texture": "1"}"#
+            )),
+            [
+                r#"warning: scene.json:4: <Scene.Lights.PointLight.Texture>: unknown key "Texture"; it is ignored"#
+            ]
         );
         // An attribute written without its `_`.
         let mesh = r#"{"Scene": {"Materials": {"Material": {"_id": "1"}},
@@ -603,11 +618,15 @@ mod tests {
     "id": "2"}}}}"#;
         assert_eq!(
             warnings(mesh),
-            [r#"warning: scene.json:3: <Scene.Objects.Sphere.id>: unknown key "id"; did you mean key "_id"? It is ignored"#]
+            [
+                r#"warning: scene.json:3: <Scene.Objects.Sphere.id>: unknown key "id"; did you mean key "_id"? It is ignored"#
+            ]
         );
         // A misspelt required key is an error about that key, not only about the missing one.
         assert_eq!(
-            err(&lights("\"PointLight\": {\"_id\": \"1\",\n\"Positon\": \"0 0 0\", \"Intensity\": \"1 1 1\"}")),
+            err(&lights(
+                "\"PointLight\": {\"_id\": \"1\",\n\"Positon\": \"0 0 0\", \"Intensity\": \"1 1 1\"}"
+            )),
             r#"scene.json:5: <Scene.Lights.PointLight.Positon>: unknown key "Positon"; did you mean "Position"? Rename the key in Scene.Lights.PointLight (it needs "Position")"#
         );
         assert_eq!(

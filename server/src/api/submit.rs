@@ -268,7 +268,9 @@ async fn read_fields(
             "scale" => {
                 let t = text();
                 let v: f64 = t.parse().map_err(|_| {
-                    AppError::bad_request(format!("scale must be a number in (0, 1], e.g. 0.25; found \"{t}\""))
+                    AppError::bad_request(format!(
+                        "scale must be a number in (0, 1], e.g. 0.25; found \"{t}\""
+                    ))
                 })?;
                 opts.scale = Some(check_scale(v)?);
             }

@@ -59,7 +59,16 @@ impl Store {
                  ORDER BY j.priority DESC, j.id",
             )?;
             stmt.query_map(params![w, failures::WORKER_FAILURES_PER_JOB, recent], |r| {
-                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?, r.get(5)?, (r.get(6)?, r.get(8)?), r.get(7)?))
+                Ok((
+                    r.get(0)?,
+                    r.get(1)?,
+                    r.get(2)?,
+                    r.get(3)?,
+                    r.get(4)?,
+                    r.get(5)?,
+                    (r.get(6)?, r.get(8)?),
+                    r.get(7)?,
+                ))
             })?
             .collect::<rusqlite::Result<_>>()?
         };
