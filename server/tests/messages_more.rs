@@ -94,18 +94,23 @@ fn a_misspelt_element_is_warned_about_once_before_upload() {
     assert!(o.status.success() && stderr(&o).contains("did you mean <PointLight>?"), "{}", stderr(&o));
     assert_eq!(jobs(&server), 1);
 
+    // The CLI says it when it meets it, and at the end how many more scene files repeated it.
     let out = TempDir::new("messages-warn-cli");
     let o = run(
-        Command::new(worker_bin()).args(["render", &files[0], "--quiet", "--out"]).arg(out.path()),
+        Command::new(worker_bin()).arg("render").args(&files).args(["--quiet", "--out"]).arg(out.path()),
         Duration::from_secs(120),
     );
-    assert!(o.status.success(), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert!(o.status.success(), "{err}");
+    let said: Vec<&str> = err.lines().filter(|l| l.contains("PointLigth>;")).collect();
+    assert_eq!(said.len(), 2, "{err}");
     assert!(
-        stderr(&o)
-            .contains(":5: <PointLigth id=\"1\">: unknown element <PointLigth>; did you mean <PointLight>?"),
-        "{}",
-        stderr(&o)
+        said[0].contains(
+            "frame_0.xml:5: <PointLigth id=\"1\">: unknown element <PointLigth>; did you mean <PointLight>?"
+        ),
+        "{err}"
     );
+    assert!(said[1].ends_with("(and in 2 more scene files)"), "{err}");
 }
 
 /// `<Positon>` where `<Position>` is required: the error is about `<Positon>`, with the name
