@@ -297,3 +297,39 @@ fn a_scaled_job_renders_the_clis_scaled_bytes() {
     }
     assert!(compared > 0);
 }
+
+/// A scaled job that a restart of the server interrupts before any worker took it renders at
+/// its scale afterwards: the scale is stored with the job, and the merge reads it back.
+#[test]
+fn a_scaled_job_keeps_its_scale_across_a_restart() {
+    let _serial = serial();
+    let data = TempDir::new("messages-scale-restart");
+    let wide = scene("wide.png", "", 800, 450);
+    let id = {
+        let server = Server::start(&data, &["--local-workers", "0"]);
+        let (code, job) = submit(
+            &server.url,
+            None,
+            &[
+                ("scene", Some("wide.xml"), wide.as_bytes()),
+                ("scale", None, b"0.05"),
+                ("samples", None, b"1"),
+            ],
+        );
+        assert_eq!(code, 201, "{job}");
+        job["id"].as_u64().unwrap()
+    };
+    let server = Server::start(&data, &["--local-workers", "1", "--local-worker-threads", "1"]);
+    let job = wait_job(&server, id, 60, |j| j["state"] == "done");
+    let frame = &job["frames"][0];
+    assert_eq!((frame["width"].as_u64(), frame["height"].as_u64()), (Some(40), Some(23)), "{job}");
+    let png = get_bytes(&server.url, &format!("/api/v1/jobs/{id}/frames/0/files/wide.png"));
+    assert_eq!(png_size(&png), (40, 23));
+    let cli_dir = TempDir::new("messages-scale-restart-cli");
+    let scene_file = cli_dir.write("wide.xml", &wide);
+    let cli = cli_render(&scene_file, &["--scale", "0.05", "--samples", "1"]);
+    assert!(
+        png == std::fs::read(cli.join("wide.png")).unwrap(),
+        "the farm's wide.png differs from the CLI's"
+    );
+}
