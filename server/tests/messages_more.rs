@@ -89,10 +89,17 @@ fn a_misspelt_element_is_warned_about_once_before_upload() {
     assert_eq!(err.matches("PointLigth>;").count(), 1, "{err}");
     assert_eq!(jobs(&server), 1);
 
+    // One scene: said once too (the server's copy is not printed again).
+    let o = client(&server.url, &["submit", &files[1]]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(stderr(&o).matches("PointLigth>;").count(), 1, "{}", stderr(&o));
+    assert!(!stderr(&o).contains("more frame"), "{}", stderr(&o));
+    assert_eq!(jobs(&server), 2);
+
     // --dry-run shows it too, before listing the files, and uploads nothing.
     let o = client(&server.url, &["submit", &files[0], "--dry-run"]);
     assert!(o.status.success() && stderr(&o).contains("did you mean <PointLight>?"), "{}", stderr(&o));
-    assert_eq!(jobs(&server), 1);
+    assert_eq!(jobs(&server), 2);
 
     // The CLI says it when it meets it, and at the end how many more scene files repeated it.
     let out = TempDir::new("messages-warn-cli");
