@@ -9,6 +9,8 @@ use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
+use serde_json::{Value, json};
+use sha2::{Digest, Sha256};
 use support::*;
 
 /// A one-sphere scene lit by `lights` (the text inside `<Lights>`), `w` x `h` pixels, writing
@@ -264,6 +266,33 @@ fn a_scaled_job_renders_the_clis_scaled_bytes() {
     assert_eq!(png_size(&png), (200, 113));
     let log = get_json(&server.url, &format!("/api/v1/jobs/{id}/log"));
     assert!(log.to_string().contains("at scale 0.25 (200x113)"), "{log}\n{done}");
+
+    // The JSON submission (what the client sends) takes the same field, checked the same way.
+    let sha: String = Sha256::digest(wide.as_bytes()).iter().map(|b| format!("{b:02x}")).collect();
+    let put = call(
+        ureq::put(&format!("{}/api/v1/files/{sha}", server.url)),
+        Some(("application/octet-stream".into(), wide.clone().into_bytes())),
+    );
+    assert!(put.0 == 200 || put.0 == 201, "{put:?}");
+    let json_submit = |scale: Value| {
+        let body = json!({"scenes": ["wide.xml"], "files": [{"path": "wide.xml", "sha256": sha, "size": wide.len()}],
+            "samples": 1, "scale": scale});
+        call(
+            ureq::post(&format!("{}/api/v1/jobs", server.url)),
+            Some(("application/json".into(), body.to_string().into_bytes())),
+        )
+    };
+    for bad in [json!(0), json!(-1), json!(2), json!(1e308)] {
+        let (code, answer) = json_submit(bad.clone());
+        assert_eq!(code, 400, "scale {bad}: {answer}");
+        assert!(answer["error"].as_str().unwrap_or_default().starts_with("scale "), "scale {bad}: {answer}");
+    }
+    let (code, job) = json_submit(json!(0.25));
+    assert_eq!(code, 201, "{job}");
+    assert_eq!(
+        (job["frames"][0]["width"].as_u64(), job["frames"][0]["height"].as_u64()),
+        (Some(200), Some(113))
+    );
 
     // The client and the CLI flags refuse what the field refuses.
     let o = client(&server.url, &["submit", "x.xml", "--scale", "0"]);
