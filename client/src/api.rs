@@ -114,6 +114,12 @@ impl Api {
                     message: format!("{what}: the server answered {code}: {detail}{hint}"),
                 }
             }
+            ureq::Error::Transport(t) if self.base.starts_with("https://") => CallError::Transport(format!(
+                "{what}: cannot reach the server at {}: {t}; {} (choose the server with --server, TESSERA_SERVER or server = \"...\" in {})",
+                self.base,
+                tessera::protocol::HTTPS_HINT,
+                self.config_hint
+            )),
             ureq::Error::Transport(t) => CallError::Transport(format!(
                 "{what}: cannot reach the server at {}: {t}; is tessera-server running there? (choose the server with --server, TESSERA_SERVER or server = \"...\" in {})",
                 self.base, self.config_hint

@@ -116,11 +116,16 @@ fn parse_string(value: &str) -> Result<String, String> {
     Ok(word.to_string())
 }
 
-/// The server URL as given, with `http://` added when it has no scheme and without a
-/// trailing `/`.
-pub fn normalize_server(url: &str) -> String {
-    let url = url.trim().trim_end_matches('/');
-    if url.contains("://") { url.to_string() } else { format!("http://{url}") }
+/// The server URL as given, with `http://` added when it has no scheme, without a trailing
+/// `/` and without the API's path (`/api/v1`, with a note on stderr that says so:
+/// [`tessera::protocol::server_base_url`]).
+pub fn normalize_server(url: &str) -> Result<String> {
+    let (base, note) =
+        tessera::protocol::server_base_url(url).map_err(|e| anyhow::anyhow!("--server: {e}"))?;
+    if let Some(note) = note {
+        eprintln!("{note}");
+    }
+    Ok(base)
 }
 
 /// Flags (and the environment, which clap folds into them) beat the config file, which beats
@@ -155,7 +160,7 @@ pub fn resolve(
     let server =
         server_flag.map(str::to_string).or(file.server).unwrap_or_else(|| DEFAULT_SERVER.to_string());
     let token = token_flag.map(str::to_string).or(file.token).filter(|t| !t.is_empty());
-    Ok(Resolved { server: normalize_server(&server), token, config_file })
+    Ok(Resolved { server: normalize_server(&server)?, token, config_file })
 }
 
 /// A token in a file others can read is a token others have.

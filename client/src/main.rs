@@ -147,6 +147,12 @@ enum Command {
         /// (e.g. 0.02); the samples become a cap.
         #[arg(long, value_name = "ERROR")]
         noise_target: Option<f64>,
+        /// Render at this scale, in (0, 1], for a quick low-resolution look: each side of the
+        /// image times the scale, rounded to the nearest pixel (halves up), at least 1 (0.25
+        /// renders an 800x450 camera at 200x113); the picture is the same, coarser, and the
+        /// same bits as `tessera-worker render --scale` gives.
+        #[arg(long, env = "TESSERA_SCALE", value_name = "FACTOR", value_parser = parse_scale)]
+        scale: Option<f64>,
         /// Follow the job until it ends and download its outputs into --out.
         #[arg(long, short)]
         wait: bool,
@@ -343,6 +349,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             denoise,
             pass_samples,
             noise_target,
+            scale,
             wait,
             out,
             float_exr,
@@ -368,6 +375,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 video: video.map(VideoArg::kind),
                 fps,
                 keep_float: if keep_float { Some(true) } else { no_keep_float.then_some(false) },
+                scale,
                 quiet,
                 verbose,
             };
@@ -486,8 +494,16 @@ struct SubmitOptions {
     video: Option<VideoKind>,
     fps: Option<u32>,
     keep_float: Option<bool>,
+    scale: Option<f64>,
     quiet: bool,
     verbose: bool,
+}
+
+/// `--scale`: a number in (0, 1].
+fn parse_scale(text: &str) -> Result<f64, String> {
+    let v: f64 =
+        text.trim().parse().map_err(|_| format!("{text:?} is not a number; write e.g. --scale 0.25"))?;
+    tessera::camera::check_scale(v)
 }
 
 /// `--cameras` as camera numbers (from 1); each scene is checked against them before anything
@@ -573,6 +589,9 @@ fn multipart_fields(scene_path: &str, opts: &SubmitOptions) -> Vec<(&'static str
     if let Some(k) = opts.keep_float {
         fields.push(("keep_float", k.to_string()));
     }
+    if let Some(s) = opts.scale {
+        fields.push(("scale", s.to_string()));
+    }
     fields
 }
 
@@ -642,6 +661,7 @@ fn submit(api: &Api, packed: &pack::Packed, opts: &SubmitOptions) -> Result<JobI
         video: opts.video,
         fps: opts.fps,
         keep_float: opts.keep_float,
+        scale: opts.scale,
         ..JobRequest::default()
     };
     let bars = follow::bars_wanted(opts.quiet);
@@ -660,7 +680,8 @@ fn submit(api: &Api, packed: &pack::Packed, opts: &SubmitOptions) -> Result<JobI
         }
         upload::Submitted::OldServer => submit_bundle(api, packed, opts)?,
     };
-    for w in &job.warnings {
+    // The server's own reading of the scenes: only what was not shown before the upload.
+    for w in pack::unseen_warnings(&packed.warnings, &job.warnings) {
         eprintln!("{w}");
     }
     if opts.quiet {

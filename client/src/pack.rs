@@ -262,13 +262,6 @@ pub fn pack(scenes: &[PathBuf], opts: PackOptions) -> Result<Packed> {
                 scene.display()
             );
         }
-        for w in &records.warnings {
-            let w = w.to_string();
-            match warnings.iter_mut().find(|(m, _)| strip_file(m) == strip_file(&w)) {
-                Some((_, n)) if count > 1 => *n += 1,
-                _ => warnings.push((format!("{prefix}{w}"), 0)),
-            }
-        }
         let abs = absolute(scene)?;
         let fs = FsResolver::for_scene(&abs);
         for a in records.asset_paths() {
@@ -308,6 +301,14 @@ pub fn pack(scenes: &[PathBuf], opts: PackOptions) -> Result<Packed> {
                 list.len()
             }
         };
+        // Each warning once, with the frames of the other scene files that repeat it.
+        for w in &records.warnings {
+            let w = w.to_string();
+            match warnings.iter_mut().find(|(m, _)| strip_file(m) == strip_file(&w)) {
+                Some((_, n)) if count > 1 => *n += frames,
+                _ => warnings.push((format!("{prefix}{w}"), 0)),
+            }
+        }
         first_frame += frames;
         scene_abs.push(abs);
     }
@@ -403,10 +404,7 @@ pub fn pack(scenes: &[PathBuf], opts: PackOptions) -> Result<Packed> {
             (d.sha256, d.size) = sha256_file(&d.source)?;
         }
     }
-    let warnings = warnings
-        .into_iter()
-        .map(|(w, more)| if more > 0 { format!("{w} (and in {more} more scene file(s))") } else { w })
-        .collect();
+    let warnings = warnings.into_iter().map(|(w, more)| with_more_frames(w, more)).collect();
     Ok(Packed {
         scenes: scene_files,
         entries,
@@ -415,6 +413,40 @@ pub fn pack(scenes: &[PathBuf], opts: PackOptions) -> Result<Packed> {
         list_seconds,
         hash_seconds: started.elapsed().as_secs_f64(),
     })
+}
+
+/// `warning`, and when `more` other frames repeat it, "(and in N more frames)".
+fn with_more_frames(warning: String, more: usize) -> String {
+    match more {
+        0 => warning,
+        1 => format!("{warning} (and in 1 more frame)"),
+        n => format!("{warning} (and in {n} more frames)"),
+    }
+}
+
+/// The server's `warnings` of a job that the client has not shown yet (`shown`: the pack's
+/// warnings), each once with the count of the other frames that repeat it: the server lists a
+/// sequence's warnings frame by frame.
+pub fn unseen_warnings(shown: &[String], warnings: &[String]) -> Vec<String> {
+    let mut out: Vec<(String, usize)> = Vec::new();
+    // What was shown, without its count of frames.
+    let shown: Vec<&str> = shown
+        .iter()
+        .map(|s| match s.rfind(" (and in ") {
+            Some(k) if s.ends_with(" more frames)") || s.ends_with(" more frame)") => &s[..k],
+            _ => s.as_str(),
+        })
+        .collect();
+    for w in warnings {
+        if shown.iter().any(|s| strip_file(s) == strip_file(w)) {
+            continue;
+        }
+        match out.iter_mut().find(|(m, _)| strip_file(m) == strip_file(w)) {
+            Some((_, n)) => *n += 1,
+            None => out.push((w.clone(), 0)),
+        }
+    }
+    out.into_iter().map(|(w, more)| with_more_frames(w, more)).collect()
 }
 
 /// A warning's text without the scene file's name (the same warning in every frame of a

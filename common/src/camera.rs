@@ -172,8 +172,78 @@ impl Camera {
     }
 }
 
+/// The largest `scale` a render may take: a scale shrinks a frame, never enlarges it.
+pub const MAX_SCALE: f64 = 1.0;
+
+/// A render's `scale` (`--scale`, a job's `scale`) as it may be: a number in (0, 1].
+pub fn check_scale(scale: f64) -> Result<f64, String> {
+    if scale.is_finite() && scale > 0.0 && scale <= MAX_SCALE {
+        Ok(scale)
+    } else {
+        Err(format!(
+            "must be a number in (0, {MAX_SCALE}], the factor each side of the image is multiplied by \
+             (e.g. 0.25 renders an 800x450 camera at 200x113); found {scale}"
+        ))
+    }
+}
+
+/// `width` x `height` multiplied by `scale`: each side rounded to the nearest pixel (halves
+/// up: 450 x 0.25 = 112.5 gives 113), at least 1 pixel.
+pub fn scaled_size(width: u32, height: u32, scale: f64) -> (u32, u32) {
+    let side = |n: u32| ((f64::from(n) * scale).round() as u32).clamp(1, n.max(1));
+    (side(width), side(height))
+}
+
+impl Camera {
+    /// This camera rendering `scale` times as many pixels a side ([`scaled_size`]): the image
+    /// plane stays where it is, so the picture is the same, only coarser. Scale 1 (or a size
+    /// that rounds to the same) is the camera itself, bit for bit.
+    pub fn scaled(&self, scale: f64) -> Camera {
+        let (width, height) = scaled_size(self.width, self.height, scale);
+        if (width, height) == (self.width, self.height) {
+            return self.clone();
+        }
+        let pixel_w = self.pixel_w * f64::from(self.width) / f64::from(width);
+        let pixel_h = self.pixel_h * f64::from(self.height) / f64::from(height);
+        // The spread is the larger pixel side over the near distance: it grows as they do.
+        let old = self.pixel_w.abs().max(self.pixel_h.abs());
+        let spread = if old > 0.0 { self.pixel_spread * pixel_w.abs().max(pixel_h.abs()) / old } else { 0.0 };
+        Camera {
+            pixel_w,
+            pixel_h,
+            pixel_spread: if spread.is_finite() { spread } else { 0.0 },
+            width,
+            height,
+            ..self.clone()
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_scaled_camera_keeps_its_image_plane_with_fewer_pixels() {
+        assert_eq!(super::scaled_size(800, 450, 0.25), (200, 113));
+        assert_eq!(super::scaled_size(800, 450, 1.0), (800, 450));
+        assert_eq!(super::scaled_size(3, 1, 1e-9), (1, 1));
+        for bad in [0.0, -0.5, 1.5, f64::NAN, f64::INFINITY] {
+            assert!(super::check_scale(bad).is_err(), "{bad}");
+        }
+        assert_eq!(super::check_scale(0.25), Ok(0.25));
+        let c = Camera::from_record(&rec(
+            Projection::NearPlane { left: -2.0, right: 2.0, bottom: -1.0, top: 1.0 },
+            Handedness::Right,
+        ))
+        .unwrap();
+        let small = c.scaled(0.25);
+        assert_eq!((small.width, small.height), super::scaled_size(c.width, c.height, 0.25));
+        // The same frame: its corners are the same rays.
+        for (x, y, sx, sy) in [(0, 0, 0, 0), (c.width, c.height, small.width, small.height)] {
+            assert!((c.ray(x, y, 0.0, 0.0).dir - small.ray(sx, sy, 0.0, 0.0).dir).length() < 1e-12);
+        }
+        assert_eq!(c.scaled(1.0), c);
+    }
+
     use super::*;
     use crate::Loc;
 

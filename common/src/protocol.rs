@@ -155,6 +155,10 @@ pub struct Lease {
     /// ([`crate::passes::encode_pass_tile`]) instead of finished pixels. Absent: the whole tile.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pass: Option<PassLease>,
+    /// Render the frame at this scale, in (0, 1] ([`crate::camera::Camera::scaled`]): the
+    /// rect is a tile of the scaled frame. Absent: the camera's own resolution.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scale: Option<f64>,
     /// SHA-256 of the job's [`Manifest`] (itself a file of the server's file store). When
     /// present, `bundle` is empty, `scene_path` is this frame's scene file (a path of the
     /// manifest), and every file the scene names is the manifest's file of that path, fetched
@@ -291,6 +295,11 @@ pub struct JobRequest {
     /// Where to POST the job's end (under a prefix the server allows with `--notify-allow`).
     #[serde(default)]
     pub notify_url: Option<String>,
+    /// Render every frame at this scale, in (0, 1]: each side of the image times `scale`,
+    /// rounded to the nearest pixel (halves up), at least 1; the image plane stays, so the
+    /// picture is the same, coarser (e.g. 0.25: an 800x450 camera renders at 200x113).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scale: Option<f64>,
 }
 
 /// One pass of a tile: samples `start..end` of every pixel (whole blocks of
@@ -787,6 +796,57 @@ pub fn checksum(bytes: &[u8]) -> String {
     format!("{h:016x}")
 }
 
+// ---- The server's address as a user gives it (client and worker `--server`) ----
+
+/// What a client or worker is told about `https://`: a Tessera server speaks plain HTTP.
+pub const HTTPS_HINT: &str = "tessera-server itself serves plain HTTP: give http://HOST:PORT, or use https:// \
+     only for a reverse proxy (nginx, Caddy, ...) that terminates TLS in front of it";
+
+/// The farm's base URL from what a user gave (`--server`): `http://` added when there is no
+/// scheme; a query, a `#` fragment, trailing `/`, and the API's path (`/api/v1` and what follows,
+/// as copied from the OpenAPI description or a request) left out. With the base, a note when
+/// more than a scheme or slashes was changed (to print, so that the user can fix the setting).
+///
+/// # Errors
+///
+/// A scheme other than `http` and `https`, or no host, with what to give instead.
+pub fn server_base_url(given: &str) -> Result<(String, Option<String>), String> {
+    let trimmed = given.trim();
+    let with_scheme = if trimmed.contains("://") { trimmed.to_string() } else { format!("http://{trimmed}") };
+    let (scheme, rest) = with_scheme.split_once("://").unwrap_or(("http", &with_scheme));
+    let scheme = scheme.to_ascii_lowercase();
+    if scheme != "http" && scheme != "https" {
+        return Err(format!(
+            "{trimmed:?} is not an http:// address; give the farm's address, e.g. http://farm.example:8080"
+        ));
+    }
+    let rest = rest.split(['#', '?']).next().unwrap_or("");
+    let (host, path) = rest.split_once('/').map_or((rest, ""), |(h, p)| (h, p));
+    if host.is_empty() {
+        return Err(format!(
+            "{trimmed:?} names no host; give the farm's address, e.g. http://farm.example:8080"
+        ));
+    }
+    let path = path.trim_end_matches('/');
+    // `/api/v1...` anywhere in the path: what comes before it is the farm (a proxy may serve it
+    // under a prefix).
+    let (path, api) = match path.find("api/v1").filter(|&k| k == 0 || path[..k].ends_with('/')) {
+        Some(k) if path[k + 6..].is_empty() || path[k + 6..].starts_with('/') => {
+            (path[..k].trim_end_matches('/'), true)
+        }
+        _ => (path, false),
+    };
+    let base =
+        if path.is_empty() { format!("{scheme}://{host}") } else { format!("{scheme}://{host}/{path}") };
+    let changed = api || rest.len() != trimmed.split_once("://").map_or(trimmed, |(_, r)| r).len();
+    let note = changed.then(|| {
+        format!(
+            "note: using the server {base} (from {trimmed:?}): --server takes the farm's address, the API's path /api/v1 is added by itself"
+        )
+    });
+    Ok((base, note))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -854,5 +914,21 @@ mod tests {
             assert_eq!(JobState::parse(s.as_str()), Some(s));
             assert_eq!(serde_json::to_string(&s).unwrap(), format!("\"{}\"", s.as_str()));
         }
+    }
+
+    #[test]
+    fn a_pasted_api_url_gives_the_farm_address() {
+        let base = |s: &str| server_base_url(s).map(|(b, n)| (b, n.is_some()));
+        assert_eq!(base("farm:8080"), Ok(("http://farm:8080".into(), false)));
+        assert_eq!(base("http://farm:8080/"), Ok(("http://farm:8080".into(), false)));
+        assert_eq!(base("https://farm.example"), Ok(("https://farm.example".into(), false)));
+        assert_eq!(base("http://farm:8080/api/v1"), Ok(("http://farm:8080".into(), true)));
+        assert_eq!(base("http://farm:8080/api/v1/jobs/3"), Ok(("http://farm:8080".into(), true)));
+        assert_eq!(base("http://proxy/tessera/api/v1/"), Ok(("http://proxy/tessera".into(), true)));
+        assert_eq!(base("http://proxy/tessera"), Ok(("http://proxy/tessera".into(), false)));
+        assert_eq!(base("http://farm:8080/#/jobs/3"), Ok(("http://farm:8080".into(), true)));
+        assert_eq!(base("http://farm/myapi/v1"), Ok(("http://farm/myapi/v1".into(), false)));
+        assert!(server_base_url("ftp://farm").unwrap_err().contains("not an http:// address"));
+        assert!(server_base_url("http:///api/v1").unwrap_err().contains("names no host"));
     }
 }

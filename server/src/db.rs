@@ -281,6 +281,8 @@ pub struct JobRow {
     pub video: Option<tessera::protocol::VideoKind>,
     pub fps: Option<u32>,
     pub keep_float: Option<bool>,
+    /// Every frame rendered at this scale (`None`: the cameras' resolution).
+    pub scale: Option<f64>,
 }
 
 #[derive(Clone, Debug)]
@@ -494,10 +496,11 @@ fn job_from_row(r: &rusqlite::Row) -> rusqlite::Result<JobRow> {
         video: r.get::<_, Option<String>>(17)?.as_deref().and_then(tessera::protocol::VideoKind::parse),
         fps: r.get::<_, Option<i64>>(18)?.map(|f| f as u32),
         keep_float: r.get(19)?,
+        scale: r.get(20)?,
     })
 }
 
-const JOB_COLUMNS: &str = "id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, started_at, finished_at, error, denoise, pass_samples, noise_target, manifest, scenes, video, fps, keep_float";
+const JOB_COLUMNS: &str = "id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, started_at, finished_at, error, denoise, pass_samples, noise_target, manifest, scenes, video, fps, keep_float, scale";
 
 fn frame_from_row(r: &rusqlite::Row) -> rusqlite::Result<FrameRow> {
     let outputs: Option<String> = r.get(8)?;

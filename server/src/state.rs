@@ -207,7 +207,7 @@ impl AppState {
                 by_scene
                     .get(scene)
                     .and_then(|c| c.get(f.camera as usize))
-                    .cloned()
+                    .map(|c| job.scale.map_or_else(|| c.clone(), |s| c.scaled(s)))
                     .ok_or_else(|| anyhow::anyhow!("job {}: {scene} has no camera {}", job.id, f.camera))
             })
             .collect()

@@ -191,6 +191,9 @@ pub(crate) fn describe(e: ureq::Error) -> String {
                 Err(_) => format!("HTTP {code}: {}", body.trim()),
             }
         }
+        ureq::Error::Transport(t) if t.url().is_some_and(|u| u.scheme() == "https") => {
+            format!("cannot reach the server: {t}; {}", tessera::protocol::HTTPS_HINT)
+        }
         ureq::Error::Transport(t) => format!("cannot reach the server: {t}"),
     }
 }
@@ -260,6 +263,12 @@ fn register(
                     describe(ureq::Error::Status(code, r))
                 )
             }
+            // TLS with a server that does not speak it: waiting does not help.
+            Err(ureq::Error::Transport(t))
+                if client.base.starts_with("https://") && t.to_string().contains("tls") =>
+            {
+                bail!("cannot reach the server at {}: {t}; {}", client.base, tessera::protocol::HTTPS_HINT)
+            }
             Err(e) => {
                 if started.elapsed() > Duration::from_secs(5) {
                     eprintln!("waiting for the server at {}: {}", client.base, describe(e));
@@ -272,7 +281,11 @@ fn register(
 }
 
 pub fn work(opts: WorkOptions) -> Result<()> {
-    let base = opts.server.trim_end_matches('/').to_string();
+    let (base, note) =
+        tessera::protocol::server_base_url(&opts.server).map_err(|e| anyhow!("--server: {e}"))?;
+    if let Some(note) = note {
+        eprintln!("{note}");
+    }
     // The server's name is looked up on a thread of its own and its last addresses kept
     // (crate::resolve): a name server that stops answering for a while must not stall the
     // heartbeats, as glibc's lookup on the calling thread did (5 s a try, no timeout of ureq's).
@@ -387,7 +400,7 @@ pub fn work(opts: WorkOptions) -> Result<()> {
         })?
     };
 
-    let scenes: Mutex<HashMap<(String, String), Arc<Scene>>> = Mutex::new(HashMap::new());
+    let scenes: Mutex<HashMap<SceneKey, Arc<Scene>>> = Mutex::new(HashMap::new());
     // Tiles taken so far, for `max_tiles`.
     let taken = std::sync::atomic::AtomicU64::new(0);
     let rx = Mutex::new(rx);
@@ -463,7 +476,7 @@ struct Slots<'a> {
     leases: &'a Mutex<Leases>,
     stop: &'a AtomicBool,
     pool: &'a rayon::ThreadPool,
-    scenes: &'a Mutex<HashMap<(String, String), Arc<Scene>>>,
+    scenes: &'a Mutex<HashMap<SceneKey, Arc<Scene>>>,
     caches: Caches<'a>,
     taken: &'a std::sync::atomic::AtomicU64,
     max_tiles: Option<u64>,
@@ -711,13 +724,17 @@ fn watch_rendering(client: &Client, worker_id: u64, leases: &Mutex<Leases>, stop
     }
 }
 
+/// A built scene's key: the job's files (manifest or bundle), the scene file, and the bits of
+/// the job's `scale` (its cameras are scaled; 0: none).
+type SceneKey = (String, String, u64);
+
 /// The scene of `lease`, built (on `pool`) if its bundle is new here. Called on a slot's own
 /// thread, never on the pool: the cache's lock is held while a scene is built, so the other
 /// slot, most likely rendering the same job, waits for it instead of building it again, and a
 /// pool thread that steals work while it waits must never be one that wants the lock.
 fn lease_scene(
     client: &Client,
-    scenes: &Mutex<HashMap<(String, String), Arc<Scene>>>,
+    scenes: &Mutex<HashMap<SceneKey, Arc<Scene>>>,
     caches: Caches<'_>,
     pool: &rayon::ThreadPool,
     lease: &Lease,
@@ -725,7 +742,11 @@ fn lease_scene(
     // As the server validated the job: unsupported elements only if its submission allowed them.
     let options = LoadOptions { allow_unsupported: lease.allow_unsupported };
     // A job's files are its manifest's (or, stored before sequences, its bundle's).
-    let key = (lease.manifest.clone().unwrap_or_else(|| lease.bundle.clone()), lease.scene_path.clone());
+    let key = (
+        lease.manifest.clone().unwrap_or_else(|| lease.bundle.clone()),
+        lease.scene_path.clone(),
+        lease.scale.map_or(0, f64::to_bits),
+    );
     let mut scenes = lock(scenes);
     Ok(match scenes.get(&key) {
         Some(s) => {
@@ -735,7 +756,7 @@ fn lease_scene(
         }
         None => {
             let started = Instant::now();
-            let s = pool.install(|| match &lease.manifest {
+            let mut s = pool.install(|| match &lease.manifest {
                 Some(manifest) => {
                     crate::jobfiles::manifest_scene(client, caches, manifest, &lease.scene_path, options)
                 }
@@ -753,6 +774,12 @@ fn lease_scene(
                 st.mesh_seconds,
                 if st.world_tree_cached { ", world tree from the cache" } else { "" }
             );
+            // A job at a `scale` renders its cameras so (the server cut its tiles so).
+            if let Some(scale) = lease.scale {
+                let scale =
+                    tessera::camera::check_scale(scale).map_err(|e| anyhow!("the lease's scale {e}"))?;
+                s.cameras = s.cameras.iter().map(|c| c.scaled(scale)).collect();
+            }
             let s = Arc::new(s);
             // Keep a few scenes; jobs rarely interleave more.
             if scenes.len() >= 4 {

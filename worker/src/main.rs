@@ -236,6 +236,12 @@ struct RenderArgs {
     /// in MiB; the least recently used go first. 0 keeps nothing.
     #[arg(long, env = "TESSERA_MESH_CACHE_MB", default_value_t = DEFAULT_MESH_CACHE_MB, value_name = "MB")]
     mesh_cache_mb: u64,
+    /// Render at this scale, in (0, 1], for a quick low-resolution look: each side of the image
+    /// times the scale, rounded to the nearest pixel (halves up), at least 1 (0.25 renders an
+    /// 800x450 camera at 200x113). The image plane stays, so the picture is the same, coarser;
+    /// a farm job with the same scale renders the same bits.
+    #[arg(long, env = "TESSERA_SCALE", value_name = "FACTOR")]
+    scale: Option<f64>,
 }
 
 /// `--mesh-cache-mb`'s default: 2 GiB.
@@ -376,9 +382,25 @@ fn work_caches(
 
 /// Prints `warnings` (unsupported elements too when they are allowed), then refuses the scene
 /// if it has unsupported elements that are not: each one is printed as an error with its line.
-fn report_warnings(scene_path: &Path, warnings: &[tessera::Warning], load: LoadOptions) -> Result<()> {
+/// The warnings printed so far, by line, element and message, with how many later scene files
+/// repeated each (a sequence's frames share most of theirs: each is printed once).
+type SeenWarnings = Vec<(String, String, usize)>;
+
+fn report_warnings(
+    scene_path: &Path,
+    warnings: &[tessera::Warning],
+    load: LoadOptions,
+    seen: &mut SeenWarnings,
+) -> Result<()> {
     for w in warnings.iter().filter(|w| load.allow_unsupported || !w.unsupported) {
-        eprintln!("{w}");
+        let key = format!("{:?} {:?} {}", w.loc.line, w.loc.element, w.message);
+        match seen.iter_mut().find(|(k, _, _)| *k == key) {
+            Some((_, _, n)) => *n += 1,
+            None => {
+                eprintln!("{w}");
+                seen.push((key, w.to_string(), 0));
+            }
+        }
     }
     if let Err(errors) = load.check(warnings) {
         for e in &errors {
@@ -460,6 +482,9 @@ fn render(args: &RenderArgs) -> Result<()> {
     if tile_size == 0 {
         bail!("--tile-size must be at least 1");
     }
+    if let Some(s) = args.scale {
+        tessera::camera::check_scale(s).map_err(|e| anyhow::anyhow!("--scale {e}"))?;
+    }
     // One scene file has no next one to keep anything for: it is built as before, without
     // hashing its files.
     let limit = mesh_cache_bytes(args.mesh_cache_mb)?;
@@ -483,14 +508,21 @@ fn render(args: &RenderArgs) -> Result<()> {
         // Which scene wrote each output file so far: a later scene writing the same name is
         // worth a warning (its image replaces the earlier one).
         let mut written_by: std::collections::HashMap<PathBuf, PathBuf> = Default::default();
+        let mut seen = SeenWarnings::new();
         for scene_path in scenes {
-            let t = render_scene(args, scene_path, cache.as_ref(), oidn, &mut written_by)?;
+            let t = render_scene(args, scene_path, cache.as_ref(), oidn, &mut written_by, &mut seen)?;
             if args.timings {
                 println!("{}", t.line(scene_path));
             }
             if args.timings_json {
                 println!("{}", t.json(scene_path));
             }
+        }
+        // What later scene files repeated, once each at the end.
+        for (_, first, n) in seen.iter().filter(|(_, _, n)| *n > 0) {
+            let frames =
+                if *n == 1 { "1 more scene file".to_string() } else { format!("{n} more scene files") };
+            eprintln!("{first} (and in {frames})");
         }
         Ok(())
     })
@@ -504,6 +536,7 @@ fn render_scene(
     cache: Option<&tessera::scene::cache::MeshCache>,
     oidn: Option<&'static tessera_denoise::Oidn>,
     written_by: &mut std::collections::HashMap<PathBuf, PathBuf>,
+    seen: &mut SeenWarnings,
 ) -> Result<FrameTimings> {
     let RenderArgs {
         ref out,
@@ -528,13 +561,16 @@ fn render_scene(
     let records = parse_scene(&text, scene_path)?;
     timings.parse = t0.elapsed().as_secs_f64();
     // Unsupported elements the parser finds are refused before any asset is read.
-    report_warnings(scene_path, &records.warnings, load)?;
+    report_warnings(scene_path, &records.warnings, load, seen)?;
     let resolver = FsResolver::for_scene(scene_path);
-    let scene = match cache {
+    let mut scene = match cache {
         Some(cache) => build_scene_cached(&records, &resolver, cache)?,
         None => build_scene(&records, &resolver)?,
     };
-    report_warnings(scene_path, &scene.warnings[records.warnings.len()..], load)?;
+    if let Some(s) = args.scale {
+        scene.cameras = scene.cameras.iter().map(|c| c.scaled(s)).collect();
+    }
+    report_warnings(scene_path, &scene.warnings[records.warnings.len()..], load, seen)?;
     timings.build = scene.stats.build_seconds;
     timings.mesh = scene.stats.mesh_seconds;
     timings.meshes = records.meshes.len();

@@ -29,7 +29,7 @@ use std::path::Path;
 
 use super::elements::parse_tree;
 use super::records::SceneRecords;
-use super::tree::{Dialect, Node};
+use super::tree::{Dialect, Node, closest_name};
 use crate::error::{Loc, SceneError};
 
 type Result<T> = std::result::Result<T, SceneError>;
@@ -279,10 +279,16 @@ fn scene_node(root: Value, file: &Path) -> Result<Node> {
     let mut scene = None;
     for (key, line, value) in members {
         if key != "Scene" {
+            let hint = match closest_name(&key, std::iter::once("Scene")) {
+                Some(_) => " (did you mean \"Scene\"?)",
+                None => "",
+            };
             return Err(SceneError::new(
                 file,
                 Loc::new(line, key.clone()),
-                format!("unexpected top-level key \"{key}\"; a JSON scene has exactly one key, \"Scene\""),
+                format!(
+                    "unexpected top-level key \"{key}\"{hint}; a JSON scene has exactly one key, \"Scene\""
+                ),
             ));
         }
         if scene.is_some() {
@@ -571,6 +577,62 @@ mod tests {
             let e = err(json);
             assert!(e.contains(want), "{json}\n got: {e}\nwant: {want}");
         }
+    }
+
+    /// A misspelt key is named with the one most likely meant: an element's (`"PointLigth"`,
+    /// `"Positon"`), an attribute's (`"_Id"`, or `"id"` without its `_`) and the root's.
+    #[test]
+    fn misspelt_keys_say_which_key_was_meant() {
+        let warnings = |json: &str| -> Vec<String> {
+            parse(json)
+                .unwrap_or_else(|e| panic!("{json}: {e}"))
+                .warnings
+                .iter()
+                .map(|w| w.to_string())
+                .collect()
+        };
+        let lights = |body: &str| format!("{{\"Scene\": {{{CAMERA},\n\"Lights\": {{{body}}}}}}}");
+        assert_eq!(
+            warnings(&lights(r#""PointLigth": {"_id": "1", "Position": "0 0 0", "Intensity": "1 1 1"}"#)),
+            [
+                r#"warning: scene.json:4: <Scene.Lights.PointLigth>: unknown key "PointLigth"; did you mean "PointLight"? It is ignored"#
+            ]
+        );
+        assert_eq!(
+            warnings(&lights(r#""PointLight": {"_Id": "1", "Position": "0 0 0", "Intensity": "1 1 1"}"#)),
+            [
+                r#"warning: scene.json:4: <Scene.Lights.PointLight>: unknown key "_Id"; did you mean key "_id"? It is ignored"#
+            ]
+        );
+        assert_eq!(
+            warnings(&lights(
+                r#""PointLight": {"_id": "1", "Position": "0 0 0", "Intensity": "1 1 1", "Texture": "1"}"#
+            )),
+            [
+                r#"warning: scene.json:4: <Scene.Lights.PointLight.Texture>: unknown key "Texture"; it is ignored"#
+            ]
+        );
+        // An attribute written without its `_`.
+        let mesh = r#"{"Scene": {"Materials": {"Material": {"_id": "1"}},
+  "Objects": {"Sphere": {"_id": "1", "Material": "1", "Center": "1", "Radius": "1",
+    "id": "2"}}}}"#;
+        assert_eq!(
+            warnings(mesh),
+            [
+                r#"warning: scene.json:3: <Scene.Objects.Sphere.id>: unknown key "id"; did you mean key "_id"? It is ignored"#
+            ]
+        );
+        // A misspelt required key is an error about that key, not only about the missing one.
+        assert_eq!(
+            err(&lights(
+                "\"PointLight\": {\"_id\": \"1\",\n\"Positon\": \"0 0 0\", \"Intensity\": \"1 1 1\"}"
+            )),
+            r#"scene.json:5: <Scene.Lights.PointLight.Positon>: unknown key "Positon"; did you mean "Position"? Rename the key in Scene.Lights.PointLight (it needs "Position")"#
+        );
+        assert_eq!(
+            err(r#"{"Scnee": {}}"#),
+            r#"scene.json:1: <Scnee>: unexpected top-level key "Scnee" (did you mean "Scene"?); a JSON scene has exactly one key, "Scene""#
+        );
     }
 
     /// Truncating a valid scene anywhere, or replacing any string by another JSON type, gives

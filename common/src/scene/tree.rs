@@ -289,6 +289,14 @@ impl Parser<'_> {
         self.out.warnings.push(Warning::unsupported(self.file, node.loc(), message));
     }
 
+    /// What an element is called in the file's dialect: an XML element, a JSON key.
+    fn element_word(&self) -> &'static str {
+        match self.dialect {
+            Dialect::Xml => "element",
+            Dialect::Json => "key",
+        }
+    }
+
     /// A message in the words of the file's dialect (see [`json_words`]).
     pub(super) fn say(&self, message: String) -> String {
         match self.dialect {
@@ -309,7 +317,8 @@ impl Parser<'_> {
                     self.warn(child, format!("<{name}> is given more than once; only the first one is used"));
                 }
                 for grandchild in &child.children {
-                    self.warn(grandchild, format!("unknown element <{}>; it is ignored", grandchild.name));
+                    let word = self.element_word();
+                    self.warn(grandchild, format!("unknown {word} <{}>; it is ignored", grandchild.name));
                 }
             } else if let Some((_, without)) = schema.unsupported.iter().find(|(n, _)| *n == name) {
                 self.unsupported(child, format!("<{name}> is not supported yet; {without}"));
@@ -317,10 +326,19 @@ impl Parser<'_> {
                 self.warn(child, format!("<{name}> {}; it is ignored", schema.inapplicable_why));
             } else if !schema.many.contains(&name) {
                 let hint = match closest_name(name, schema.names()) {
-                    Some(known) => format!(" (did you mean <{known}>?)"),
-                    None => String::new(),
+                    Some(known) => format!("; did you mean <{known}>? It is ignored"),
+                    // In JSON an attribute is a key with a leading `_`: `"id"` for `"_id"`.
+                    None => match self.dialect {
+                        Dialect::Json => match closest_name(name, schema.attrs.iter().copied())
+                            .or_else(|| schema.attrs.iter().copied().find(|a| *a == name))
+                        {
+                            Some(attr) => format!("; did you mean attribute {attr}? It is ignored"),
+                            None => "; it is ignored".to_string(),
+                        },
+                        Dialect::Xml => "; it is ignored".to_string(),
+                    },
                 };
-                self.warn(child, format!("unknown element <{name}>{hint}; it is ignored"));
+                self.warn(child, format!("unknown {} <{name}>{hint}", self.element_word()));
             }
         }
     }
@@ -331,42 +349,45 @@ impl Parser<'_> {
                 self.unsupported(node, format!("attribute {key} is not supported yet; {without}"));
             } else if !known.contains(&key.as_str()) {
                 let hint = match closest_name(key, known.iter().copied()) {
-                    Some(k) => format!(" (did you mean attribute {k}?)"),
-                    None => String::new(),
+                    Some(k) => format!("; did you mean attribute {k}? It is ignored"),
+                    None => "; it is ignored".to_string(),
                 };
-                self.warn(node, format!("unknown attribute {key}{hint}; it is ignored"));
+                self.warn(node, format!("unknown attribute {key}{hint}"));
             }
         }
     }
 
     // --- values ---
 
+    /// The child `name` of `parent`; an error when it is missing. When a child of `parent` is
+    /// spelt nearly so (`<Positon>`), the error is about that child, the one most likely meant:
+    /// "unknown element <Positon>; did you mean <Position>?", on its line.
     pub(super) fn required<'n>(&self, parent: &'n Node, name: &str) -> Result<&'n Node> {
         parent.child(name).ok_or_else(|| {
-            // A child spelled nearly so is most likely the one meant: say so.
-            let misspelt = parent
-                .children
-                .iter()
-                .map(|c| c.name.as_str())
-                .find(|c| closest_name(c, std::iter::once(name)).is_some());
-            match self.dialect {
-                Dialect::Xml => match misspelt {
-                    Some(found) => {
-                        self.err(parent, format!("missing <{name}>; found <{found}>: did you mean <{name}>?"))
-                    }
-                    None => self.err(parent, format!("missing <{name}>")),
-                },
-                // Name the JSON path of the missing key itself, e.g. `Scene.Objects.Mesh[3].Faces`.
-                Dialect::Json => SceneError::new(
+            let misspelt =
+                parent.children.iter().find(|c| closest_name(&c.name, std::iter::once(name)).is_some());
+            match (self.dialect, misspelt) {
+                (Dialect::Xml, Some(found)) => self.err(
+                    found,
+                    format!(
+                        "unknown element <{}>; did you mean <{name}>? <{}> needs <{name}>",
+                        found.name, parent.name
+                    ),
+                ),
+                (Dialect::Xml, None) => self.err(parent, format!("missing <{name}>")),
+                // Name the JSON path of the key: e.g. `Scene.Objects.Mesh[3].Faces`.
+                (Dialect::Json, Some(found)) => SceneError::new(
+                    self.file,
+                    found.loc(),
+                    format!(
+                        "unknown key \"{}\"; did you mean \"{name}\"? Rename the key in {} (it needs \"{name}\")",
+                        found.name, parent.label
+                    ),
+                ),
+                (Dialect::Json, None) => SceneError::new(
                     self.file,
                     Loc::new(parent.line, format!("{}.{name}", parent.label)),
-                    match misspelt {
-                        Some(found) => format!(
-                            "missing \"{name}\"; found \"{found}\": did you mean \"{name}\"? Rename the key in {}",
-                            parent.label
-                        ),
-                        None => format!("missing \"{name}\"; add the key \"{name}\" to {}", parent.label),
-                    },
+                    format!("missing \"{name}\"; add the key \"{name}\" to {}", parent.label),
                 ),
             }
         })

@@ -334,7 +334,7 @@ fn hdr_lighting_errors() {
             &lights(
                 "<DirectionalLight id=\"4\"><Direction>0 -1 0</Direction><Radience>1 1 1</Radience></DirectionalLight>",
             ),
-            r#"scene.xml:3: <DirectionalLight id="4">: missing <Radiance>; found <Radience>: did you mean <Radiance>?"#,
+            r#"scene.xml:3: <DirectionalLight id="4"> / <Radience>: unknown element <Radience>; did you mean <Radiance>? <DirectionalLight> needs <Radiance>"#,
         ),
         (
             &spot("0", "0"),
@@ -840,7 +840,7 @@ fn unknown_and_unsupported_elements_are_warnings() {
             &[&w(
                 3,
                 r#"PointLigth id="1""#,
-                "unknown element <PointLigth> (did you mean <PointLight>?); it is ignored",
+                "unknown element <PointLigth>; did you mean <PointLight>? It is ignored",
             )],
         ),
         (
@@ -850,7 +850,7 @@ fn unknown_and_unsupported_elements_are_warnings() {
             &[&w(
                 3,
                 r#"PointLight id="1""#,
-                "unknown attribute Id (did you mean attribute id?); it is ignored",
+                "unknown attribute Id; did you mean attribute id? It is ignored",
             )],
         ),
         (
@@ -863,7 +863,7 @@ fn unknown_and_unsupported_elements_are_warnings() {
                 &w(
                     4,
                     r#"Sphere id="1"> / <Radiuss"#,
-                    "unknown element <Radiuss> (did you mean <Radius>?); it is ignored",
+                    "unknown element <Radiuss>; did you mean <Radius>? It is ignored",
                 ),
             ],
         ),

@@ -147,6 +147,7 @@ pub(super) fn request_submission(state: &AppState, req: JobRequest) -> ApiResult
         keep_float: req.keep_float,
         scenes: None,
         notify_url: req.notify_url,
+        scale: req.scale.map(submit::check_scale).transpose()?,
     };
     Ok(Submission { scenes, files, digests, stored: true, opts })
 }
@@ -230,6 +231,8 @@ pub(super) struct FrameLimits {
     pub samples: Option<u32>,
     pub max_tiles: u64,
     pub max_frames: usize,
+    /// The job's `scale`: each frame's camera at this scale.
+    pub scale: Option<f64>,
 }
 
 /// Builds every scene of `scenes` (in order) and lists the job's frames: each scene's
@@ -303,7 +306,10 @@ pub(super) fn validate_frames(
             return Err(submit::too_many_frames(frames.len() + selected.len(), limits.max_frames));
         }
         for c in selected {
-            let cam = &scene.cameras[c as usize];
+            let cam = &match limits.scale {
+                Some(s) => scene.cameras[c as usize].scaled(s),
+                None => scene.cameras[c as usize].clone(),
+            };
             let index = frames.len();
             let name = tessera::output::plan(cam).0[0].name.clone();
             if let Some((other, other_scene)) = names.get(&name) {
@@ -405,6 +411,7 @@ pub(super) async fn accept(state: AppState, sub: Submission) -> ApiResult<(Statu
         samples: opts.samples,
         max_tiles: state.settings.max_job_tiles,
         max_frames: state.settings.max_job_frames,
+        scale: opts.scale,
     };
     let load = LoadOptions { allow_unsupported: opts.allow_unsupported };
     let wanted = opts.cameras.clone();
@@ -495,6 +502,7 @@ pub(super) async fn accept(state: AppState, sub: Submission) -> ApiResult<(Statu
             fps: opts.fps,
             keep_float: opts.keep_float,
             notify_url: opts.notify_url,
+            scale: opts.scale,
         };
         let id = state.store.insert_job(&job)?;
         state.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(id, Arc::new(cameras));

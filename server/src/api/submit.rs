@@ -74,6 +74,10 @@ pub(super) struct SubmitForm {
     /// Where to POST the job's end (`{"event", "job"}`), under a prefix the server allows
     /// (`--notify-allow`; 422 otherwise).
     notify_url: Option<String>,
+    /// Render every frame at this scale, a number in (0, 1]: each side of the image times
+    /// `scale`, rounded to the nearest pixel (halves up), at least 1 (e.g. 0.25: an 800x450
+    /// camera renders at 200x113). The image plane stays: the same picture, coarser.
+    scale: Option<f64>,
 }
 
 /// Options of a submission (multipart text fields, or a [`JobRequest`]'s).
@@ -98,6 +102,13 @@ pub(super) struct SubmitOptions {
     pub scenes: Option<Vec<String>>,
     /// Where to POST the job's end (checked against `--notify-allow`).
     pub notify_url: Option<String>,
+    /// Render every frame at this scale, in (0, 1].
+    pub scale: Option<f64>,
+}
+
+/// A job's `scale` as it may be ([`tessera::camera::check_scale`]), or a 400 naming the field.
+pub(super) fn check_scale(scale: f64) -> ApiResult<f64> {
+    tessera::camera::check_scale(scale).map_err(|e| AppError::bad_request(format!("scale {e}")))
 }
 
 pub(super) fn problem_from(e: &tessera::SceneError) -> Problem {
@@ -254,6 +265,15 @@ async fn read_fields(
                 );
             }
             "cameras" => opts.cameras = Some(camera_list(&text(), state.settings.max_job_frames)?),
+            "scale" => {
+                let t = text();
+                let v: f64 = t.parse().map_err(|_| {
+                    AppError::bad_request(format!(
+                        "scale must be a number in (0, 1], e.g. 0.25; found \"{t}\""
+                    ))
+                })?;
+                opts.scale = Some(check_scale(v)?);
+            }
             "scene_path" => opts.scene_path = Some(text()),
             "scenes" => {
                 let list: Vec<String> = text()
@@ -294,7 +314,7 @@ async fn read_fields(
             }
             other => {
                 return Err(AppError::bad_request(format!(
-                    "unknown field \"{other}\"; send scene, asset (one per file, named by its relative path), bundle, name, priority, tile_size, samples, pass_samples, noise_target, cameras, scene_path, scenes, allow_unsupported, denoise, video, fps, keep_float or notify_url"
+                    "unknown field \"{other}\"; send scene, asset (one per file, named by its relative path), bundle, name, priority, tile_size, samples, pass_samples, noise_target, cameras, scene_path, scenes, allow_unsupported, denoise, video, fps, keep_float, notify_url or scale"
                 )));
             }
         }

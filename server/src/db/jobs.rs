@@ -37,6 +37,8 @@ pub struct NewJob {
     pub keep_float: Option<bool>,
     /// Where to POST the job's end (checked by the submission).
     pub notify_url: Option<String>,
+    /// Every frame rendered at this scale (`scale`; the frames' sizes are already scaled).
+    pub scale: Option<f64>,
 }
 
 #[derive(Default)]
@@ -81,8 +83,12 @@ fn accepted_message(job: &NewJob) -> String {
             job.frames.last().and_then(|f| f.scene_path.as_deref()).unwrap_or(&job.scene_path)
         ),
     };
+    let scale = match (job.scale, job.frames.first()) {
+        (Some(s), Some(f)) => format!(", at scale {s} ({}x{})", f.width, f.height),
+        _ => String::new(),
+    };
     format!(
-        "accepted: {} frame(s), {tiles} tile(s) of {} px{in_passes}, {scene}",
+        "accepted: {} frame(s), {tiles} tile(s) of {} px{in_passes}{scale}, {scene}",
         job.frames.len(),
         job.tile_size,
     )
@@ -128,6 +134,9 @@ impl Store {
                     job.notify_url,
                 ],
             )?;
+            if job.scale.is_some() {
+                tx.execute_cached("UPDATE jobs SET scale = ?2 WHERE id = ?1", params![id, job.scale])?;
+            }
             for (i, f) in job.frames.iter().enumerate() {
                 tx.execute_cached(
                     "INSERT INTO frames(job_id, idx, camera, image_name, width, height, tiles_total, samples, passes_total, scene_path) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",

@@ -20,7 +20,7 @@ const NEXT_UNIT_BY_FRAME: &str = "SELECT t.frame, t.tile, t.x0, t.y0, t.w, t.h, 
 
 /// A job a lease may come from: id, bundle, scene file, samples, allow_unsupported, denoise,
 /// manifest and scene files.
-type LiveJob = (i64, String, String, Option<i64>, bool, bool, Option<String>, i64);
+type LiveJob = (i64, String, String, Option<i64>, bool, bool, (Option<String>, Option<f64>), i64);
 
 impl Store {
     /// Hands the next tile to `worker`: highest job priority first, then submission order, then
@@ -52,19 +52,28 @@ impl Store {
         // `tiles_queue`), so a lease costs the same behind a million queued tiles as behind ten.
         let jobs: Vec<LiveJob> = {
             let mut stmt = tx.prepare_cached(
-                "SELECT j.id, j.bundle, j.scene_path, j.samples, j.allow_unsupported, j.denoise, j.manifest, j.scenes FROM jobs j
+                "SELECT j.id, j.bundle, j.scene_path, j.samples, j.allow_unsupported, j.denoise, j.manifest, j.scenes, j.scale FROM jobs j
                  WHERE j.state IN ('queued', 'running')
                    AND NOT (SELECT count(*) >= ?2 AND max(x.at) > ?3
                             FROM tile_failures x WHERE x.job_id = j.id AND x.worker_id = ?1)
                  ORDER BY j.priority DESC, j.id",
             )?;
             stmt.query_map(params![w, failures::WORKER_FAILURES_PER_JOB, recent], |r| {
-                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?, r.get(5)?, r.get(6)?, r.get(7)?))
+                Ok((
+                    r.get(0)?,
+                    r.get(1)?,
+                    r.get(2)?,
+                    r.get(3)?,
+                    r.get(4)?,
+                    r.get(5)?,
+                    (r.get(6)?, r.get(8)?),
+                    r.get(7)?,
+                ))
             })?
             .collect::<rusqlite::Result<_>>()?
         };
         let mut candidate = None;
-        for (job, bundle, scene_path, samples, allow_unsupported, aux, manifest, scenes) in jobs {
+        for (job, bundle, scene_path, samples, allow_unsupported, aux, (manifest, scale), scenes) in jobs {
             // A sequence (frames of several scene files) goes frame by frame, each frame's
             // passes in order, so that its beginning is watchable first; one scene's frames go
             // pass by pass over all of them, so that every frame shows a first pass early. Each
@@ -91,7 +100,7 @@ impl Store {
                     tile,
                     rect,
                     bundle,
-                    (frame_scene.unwrap_or(scene_path), manifest),
+                    (frame_scene.unwrap_or(scene_path), manifest, scale),
                     samples,
                     camera,
                     allow_unsupported,
@@ -107,7 +116,7 @@ impl Store {
             tile,
             rect,
             bundle,
-            (scene_path, manifest),
+            (scene_path, manifest, scale),
             samples,
             camera,
             allow_unsupported,
@@ -164,6 +173,7 @@ impl Store {
             // Features come with a tile's first samples.
             aux: aux && pass.is_none_or(|p| p.index == 0),
             pass,
+            scale,
             manifest,
         }))
     }

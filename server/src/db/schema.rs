@@ -28,7 +28,8 @@ CREATE TABLE IF NOT EXISTS jobs(
     scenes INTEGER NOT NULL DEFAULT 1,
     video TEXT,
     fps INTEGER,
-    keep_float INTEGER
+    keep_float INTEGER,
+    scale REAL
 );
 CREATE TABLE IF NOT EXISTS frames(
     job_id INTEGER NOT NULL,
@@ -240,5 +241,9 @@ pub(super) fn migrate(conn: &Connection) -> Result<()> {
          CREATE INDEX IF NOT EXISTS tiles_queue_by_frame ON tiles(job_id, state, frame, pass, tile);
          CREATE UNIQUE INDEX IF NOT EXISTS tiles_by_lease ON tiles(lease_id) WHERE lease_id IS NOT NULL;",
     )?;
+    if !has_column("jobs", "scale")? {
+        // Jobs from before `scale` render at their cameras' resolution (NULL).
+        conn.execute("ALTER TABLE jobs ADD COLUMN scale REAL", [])?;
+    }
     Ok(())
 }

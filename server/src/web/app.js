@@ -520,10 +520,35 @@ function connect() {
 
 async function loadAll() {
   try {
-    const list = await apiJson("/api/v1/jobs");
+    const resp = await api("/api/v1/jobs");
+    if (resp.status === 401) { showTokenNeeded(); return; }
+    if (!resp.ok) throw new Error("/api/v1/jobs: HTTP " + resp.status);
+    const list = await resp.json();
+    showJobsEmpty();
     for (const job of list.jobs.slice().reverse()) renderJob(job, true);
   } catch (e) { console.warn(e); }
   loadWorkers();
+}
+
+// A farm with an API token answers 401 until the page has it: the jobs list says so (and where
+// to enter it) instead of "No jobs yet.".
+function showTokenNeeded() {
+  const list = $("#jobs");
+  if (jobs.size) return;
+  const text = token
+    ? "The API token entered was refused, so no job can be shown: enter the farm's API token " +
+      "(the one tessera-server was started with, --api-token or TESSERA_API_TOKEN) in the API token box at the top right."
+    : "This farm needs its API token to show its jobs: enter it in the API token box at the top right " +
+      "(the one tessera-server was started with, --api-token or TESSERA_API_TOKEN).";
+  list.replaceChildren(el("p", { class: "empty token-needed", text }));
+  $("#token-box").hidden = false;
+  $("#token").focus();
+}
+
+// The jobs list once the server answered: "No jobs yet." while it has none.
+function showJobsEmpty() {
+  const list = $("#jobs");
+  if (!jobs.size) list.replaceChildren(el("p", { class: "empty", text: "No jobs yet." }));
 }
 
 // --- Submitting ------------------------------------------------------------------------------
