@@ -174,6 +174,11 @@ enum Command {
         /// server also for a sequence, which by default keeps only the PNGs.
         #[arg(long)]
         keep_float: bool,
+        /// Render only on workers that have this tag (tessera-worker work --tags); repeat it, or
+        /// separate tags with commas, for workers that have them all. Letters, digits, '-', '_'
+        /// and '.', at most 32 each.
+        #[arg(long = "worker-tag", env = "TESSERA_WORKER_TAG", value_name = "TAG", value_delimiter = ',')]
+        worker_tags: Vec<String>,
         /// Parse the scenes, find their files and list them (job path, size, role, file on disk),
         /// without hashing or submitting anything.
         #[arg(long)]
@@ -350,6 +355,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             fps,
             no_keep_float,
             keep_float,
+            worker_tags,
             dry_run,
             verbose,
             quiet,
@@ -368,6 +374,8 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 video: video.map(VideoArg::kind),
                 fps,
                 keep_float: if keep_float { Some(true) } else { no_keep_float.then_some(false) },
+                worker_tags: tessera::protocol::check_tags(&worker_tags)
+                    .map_err(|e| anyhow::anyhow!("--worker-tag: {e}"))?,
                 quiet,
                 verbose,
             };
@@ -486,6 +494,8 @@ struct SubmitOptions {
     video: Option<VideoKind>,
     fps: Option<u32>,
     keep_float: Option<bool>,
+    /// Tags a worker must all have (`--worker-tag`, checked).
+    worker_tags: Vec<String>,
     quiet: bool,
     verbose: bool,
 }
@@ -573,6 +583,9 @@ fn multipart_fields(scene_path: &str, opts: &SubmitOptions) -> Vec<(&'static str
     if let Some(k) = opts.keep_float {
         fields.push(("keep_float", k.to_string()));
     }
+    if !opts.worker_tags.is_empty() {
+        fields.push(("worker_tags", opts.worker_tags.join(",")));
+    }
     fields
 }
 
@@ -642,6 +655,7 @@ fn submit(api: &Api, packed: &pack::Packed, opts: &SubmitOptions) -> Result<JobI
         video: opts.video,
         fps: opts.fps,
         keep_float: opts.keep_float,
+        worker_tags: opts.worker_tags.clone(),
         ..JobRequest::default()
     };
     let bars = follow::bars_wanted(opts.quiet);
@@ -678,6 +692,9 @@ fn submit(api: &Api, packed: &pack::Packed, opts: &SubmitOptions) -> Result<JobI
         );
         if let Some(m) = job.video.as_ref().and_then(|v| v.message.as_ref()) {
             eprintln!("video: {m}");
+        }
+        if let Some(w) = &job.waiting_for {
+            eprintln!("job {} waits: {w}", job.id);
         }
     }
     Ok(job)
@@ -741,6 +758,24 @@ fn print_jobs(jobs: &[JobInfo], base: &str) {
             follow::utc(j.submitted_at),
             j.name
         );
+    }
+    print_waiting(jobs);
+}
+
+/// The jobs that wait for a worker, each reason once: "jobs 3, 4: no worker is connected ...".
+fn print_waiting(jobs: &[JobInfo]) {
+    let mut reasons: Vec<(&str, Vec<u64>)> = Vec::new();
+    for j in jobs {
+        let Some(w) = j.waiting_for.as_deref() else { continue };
+        match reasons.iter_mut().find(|(r, _)| *r == w) {
+            Some((_, ids)) => ids.push(j.id),
+            None => reasons.push((w, vec![j.id])),
+        }
+    }
+    for (reason, ids) in reasons {
+        let ids: Vec<String> = ids.iter().rev().map(u64::to_string).collect();
+        let which = if ids.len() == 1 { "job" } else { "jobs" };
+        println!("{which} {} wait: {reason}", ids.join(", "));
     }
 }
 
@@ -813,6 +848,12 @@ fn print_job(job: &JobInfo) {
             line.push_str(&format!(" ({m})"));
         }
         println!("{line}");
+    }
+    if !job.worker_tags.is_empty() {
+        println!("worker tags: {} (only workers with them all render it)", job.worker_tags.join(", "));
+    }
+    if let Some(w) = &job.waiting_for {
+        println!("waiting: {w}");
     }
     if let Some(e) = &job.error {
         println!("error: {e}");

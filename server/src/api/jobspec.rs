@@ -147,6 +147,7 @@ pub(super) fn request_submission(state: &AppState, req: JobRequest) -> ApiResult
         keep_float: req.keep_float,
         scenes: None,
         notify_url: req.notify_url,
+        worker_tags: req.worker_tags,
     };
     Ok(Submission { scenes, files, digests, stored: true, opts })
 }
@@ -395,6 +396,12 @@ pub(super) async fn accept(state: AppState, sub: Submission) -> ApiResult<(Statu
             },
         ));
     }
+    let worker_tags = check_tags(&opts.worker_tags).map_err(|e| {
+        AppError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!("worker_tags: {e}; name the tags a worker must have, e.g. worker_tags=gpu,big"),
+        )
+    })?;
     if opts.denoise {
         submit::check_denoiser().await?;
     }
@@ -495,6 +502,7 @@ pub(super) async fn accept(state: AppState, sub: Submission) -> ApiResult<(Statu
             fps: opts.fps,
             keep_float: opts.keep_float,
             notify_url: opts.notify_url,
+            worker_tags,
         };
         let id = state.store.insert_job(&job)?;
         state.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(id, Arc::new(cameras));

@@ -74,6 +74,10 @@ pub(super) struct SubmitForm {
     /// Where to POST the job's end (`{"event", "job"}`), under a prefix the server allows
     /// (`--notify-allow`; 422 otherwise).
     notify_url: Option<String>,
+    /// Tags a worker must all have to render the job, separated by commas (or several fields),
+    /// e.g. "gpu,big"; each 1 to 32 letters, digits, '-', '_' or '.', at most 16 (422 otherwise).
+    /// Default: any worker.
+    worker_tags: Option<String>,
 }
 
 /// Options of a submission (multipart text fields, or a [`JobRequest`]'s).
@@ -98,6 +102,8 @@ pub(super) struct SubmitOptions {
     pub scenes: Option<Vec<String>>,
     /// Where to POST the job's end (checked against `--notify-allow`).
     pub notify_url: Option<String>,
+    /// Tags a worker must all have (as given; checked with the rest of the job).
+    pub worker_tags: Vec<String>,
 }
 
 pub(super) fn problem_from(e: &tessera::SceneError) -> Problem {
@@ -268,6 +274,15 @@ async fn read_fields(
                 opts.scenes = Some(list);
             }
             "notify_url" => opts.notify_url = Some(text()),
+            "worker_tags" => {
+                if opts.worker_tags.len() >= MAX_TAGS {
+                    return Err(AppError::new(
+                        StatusCode::UNPROCESSABLE_ENTITY,
+                        format!("worker_tags: more than {MAX_TAGS} tags; give at most {MAX_TAGS}"),
+                    ));
+                }
+                opts.worker_tags.push(text())
+            }
             "video" => {
                 opts.video = Some(VideoKind::parse(&text()).ok_or_else(|| {
                     AppError::bad_request(format!("video must be mp4, gif or none, found \"{}\"", text()))
@@ -294,7 +309,7 @@ async fn read_fields(
             }
             other => {
                 return Err(AppError::bad_request(format!(
-                    "unknown field \"{other}\"; send scene, asset (one per file, named by its relative path), bundle, name, priority, tile_size, samples, pass_samples, noise_target, cameras, scene_path, scenes, allow_unsupported, denoise, video, fps, keep_float or notify_url"
+                    "unknown field \"{other}\"; send scene, asset (one per file, named by its relative path), bundle, name, priority, tile_size, samples, pass_samples, noise_target, cameras, scene_path, scenes, allow_unsupported, denoise, video, fps, keep_float, notify_url or worker_tags"
                 )));
             }
         }

@@ -37,6 +37,8 @@ pub struct NewJob {
     pub keep_float: Option<bool>,
     /// Where to POST the job's end (checked by the submission).
     pub notify_url: Option<String>,
+    /// Tags a worker must all have to lease its tiles (checked by the submission).
+    pub worker_tags: Vec<String>,
 }
 
 #[derive(Default)]
@@ -106,7 +108,7 @@ impl Store {
             let floor = self.min_job_id.load(std::sync::atomic::Ordering::SeqCst);
             let id = next.max(i64::try_from(floor).unwrap_or(i64::MAX));
             tx.execute_cached(
-                "INSERT INTO jobs(id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, allow_unsupported, denoise, pass_samples, noise_target, manifest, scenes, video, fps, keep_float, notify_url) VALUES (?12, ?1, 'inserting', ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?13, ?14, ?15, ?16, ?17, ?18)",
+                "INSERT INTO jobs(id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, allow_unsupported, denoise, pass_samples, noise_target, manifest, scenes, video, fps, keep_float, notify_url, worker_tags) VALUES (?12, ?1, 'inserting', ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?13, ?14, ?15, ?16, ?17, ?18, ?19)",
                 params![
                     job.name,
                     job.priority,
@@ -126,6 +128,7 @@ impl Store {
                     job.fps,
                     job.keep_float,
                     job.notify_url,
+                    super::workers::tags_to_text(&job.worker_tags),
                 ],
             )?;
             for (i, f) in job.frames.iter().enumerate() {

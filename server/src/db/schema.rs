@@ -28,7 +28,8 @@ CREATE TABLE IF NOT EXISTS jobs(
     scenes INTEGER NOT NULL DEFAULT 1,
     video TEXT,
     fps INTEGER,
-    keep_float INTEGER
+    keep_float INTEGER,
+    worker_tags TEXT
 );
 CREATE TABLE IF NOT EXISTS frames(
     job_id INTEGER NOT NULL,
@@ -90,7 +91,9 @@ CREATE TABLE IF NOT EXISTS workers(
     failures INTEGER NOT NULL DEFAULT 0,
     rendering INTEGER,
     secret_hash TEXT,
-    mode TEXT NOT NULL DEFAULT 'active'
+    mode TEXT NOT NULL DEFAULT 'active',
+    tags TEXT,
+    local INTEGER NOT NULL DEFAULT 0
 );
 CREATE TABLE IF NOT EXISTS job_files(
     job_id INTEGER NOT NULL,
@@ -220,5 +223,18 @@ pub(super) fn migrate(conn: &Connection) -> Result<()> {
          CREATE INDEX IF NOT EXISTS tiles_queue_by_frame ON tiles(job_id, state, frame, pass, tile);
          CREATE UNIQUE INDEX IF NOT EXISTS tiles_by_lease ON tiles(lease_id) WHERE lease_id IS NOT NULL;",
     )?;
+    if !has_column("workers", "tags")? {
+        // Workers from before tags declared none, and none of them was known as one of the
+        // server's own local workers (a local worker's first start after this gets a row it
+        // keeps from then on).
+        conn.execute_batch(
+            "ALTER TABLE workers ADD COLUMN tags TEXT;
+             ALTER TABLE workers ADD COLUMN local INTEGER NOT NULL DEFAULT 0;",
+        )?;
+    }
+    if !has_column("jobs", "worker_tags")? {
+        // Jobs from before tags ask for none: any worker renders them.
+        conn.execute("ALTER TABLE jobs ADD COLUMN worker_tags TEXT", [])?;
+    }
     Ok(())
 }
