@@ -390,6 +390,10 @@ fn run(cli: Cli) -> Result<ExitCode> {
             let api = connect()?;
             let job = submit(&api, &packed, &opts)?;
             if !(wait || out.is_some()) {
+                // (--wait says it while it follows the job.)
+                if let (Some(w), false) = (&job.waiting_for, quiet) {
+                    eprintln!("job {} waits: {w}", job.id);
+                }
                 return Ok(ExitCode::SUCCESS);
             }
             let out = out.unwrap_or_else(|| PathBuf::from("."));
@@ -692,9 +696,6 @@ fn submit(api: &Api, packed: &pack::Packed, opts: &SubmitOptions) -> Result<JobI
         );
         if let Some(m) = job.video.as_ref().and_then(|v| v.message.as_ref()) {
             eprintln!("video: {m}");
-        }
-        if let Some(w) = &job.waiting_for {
-            eprintln!("job {} waits: {w}", job.id);
         }
     }
     Ok(job)
