@@ -352,7 +352,7 @@ mod tests {
         let j = job(&s, 1, &[]);
         for k in 1..=5 {
             let (id, _) = s.register_local_worker(&new_worker("local-1", &[])).unwrap();
-            assert_eq!(s.job(j).unwrap().unwrap().state.is_final(), false, "ended after {k} deaths");
+            assert!(!s.job(j).unwrap().unwrap().state.is_final(), "ended after {k} deaths");
             // Past the 30 s a failed worker is kept off the tile.
             s.conn().execute("UPDATE tile_failures SET at = at - 60", []).unwrap();
             s.lease(id, 60.0).unwrap().granted().expect("the tile again");
