@@ -436,16 +436,17 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 println!("no workers have registered with {}", api.base);
             } else {
                 println!(
-                    "{:>4}  {:<24} {:>7}  {:<9} {:<8} {:>10}  current tile",
-                    "id", "name", "threads", "state", "mode", "tiles done"
+                    "{:>4}  {:<24} {:>7}  {:<9} {:<8} {:<12} {:>10}  current tile",
+                    "id", "name", "threads", "state", "mode", "tags", "tiles done"
                 );
                 for w in &list.workers {
                     let tile = w.current_tile.as_ref().map_or(String::new(), |t| {
                         format!("job {} frame {} tile {}", t.job, t.frame, t.tile)
                     });
+                    let tags = if w.tags.is_empty() { "-".to_string() } else { w.tags.join(",") };
                     println!(
-                        "{:>4}  {:<24} {:>7}  {:<9} {:<8} {:>10}  {tile}",
-                        w.id, w.name, w.threads, w.state, w.mode, w.tiles_done
+                        "{:>4}  {:<24} {:>7}  {:<9} {:<8} {:<12} {:>10}  {tile}",
+                        w.id, w.name, w.threads, w.state, w.mode, tags, w.tiles_done
                     );
                 }
             }

@@ -167,6 +167,9 @@ fn jobs_with_worker_tags_go_only_to_workers_with_those_tags() {
     within(30, "gpu-box registered", &server, || {
         workers(url).iter().find(|w| w["name"] == "gpu-box").map(|w| assert_eq!(w["tags"], json!(["gpu"])))
     });
+    let listed = Command::new(client_bin()).args(["--server", url, "workers"]).output().unwrap();
+    let listed = String::from_utf8_lossy(&listed.stdout);
+    assert!(listed.lines().any(|l| l.contains("gpu-box") && l.contains(" gpu ")), "{listed}");
     let big = submit_environment_with(&server, "1", "64", &[("worker_tags", "gpu"), ("worker_tags", "big")]);
     let gpu = submit_environment_with(&server, "1", "64", &[("worker_tags", "gpu")]);
     let any = submit_environment_with(&server, "1", "64", &[]);
