@@ -232,6 +232,18 @@ fn jobs_with_worker_tags_go_only_to_workers_with_those_tags() {
     let err = String::from_utf8_lossy(&run.stderr);
     assert!(err.contains("--worker-tag: the tag \"not ok\" holds ' '"), "{err}");
     assert_eq!(get_json(url, "/api/v1/jobs")["jobs"].as_array().unwrap().len(), 3, "nothing more was stored");
+    // The client's tags go in its JSON submission, lowercased; it says why the job waits.
+    let run = Command::new(client_bin())
+        .args(["--server", url, "submit"])
+        .arg(repo().join("scenes/environment.xml"))
+        .args(["--samples", "1", "--worker-tag", "CUDA"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{err}");
+    assert!(err.contains("waits: no active worker has the tag(s) cuda"), "{err}");
+    let jobs = get_json(url, "/api/v1/jobs");
+    assert_eq!(jobs["jobs"][0]["worker_tags"], json!(["cuda"]), "{jobs}");
 }
 
 /// A worker silent for longer than `--forget-workers-after` leaves the list (its name stays in
