@@ -267,6 +267,16 @@ fn silent_workers_leave_the_list_after_forget_workers_after() {
     let url = &server.url;
     let (code, v) = register(url, "short-lived", &[]);
     assert_eq!(code, 200, "{v}");
+    let short = v["worker_id"].as_u64().unwrap();
+    // It fails a tile of a job before it falls silent: the job's log names it.
+    let job = submit_environment(&server, "1", "64");
+    let (code, lease) =
+        worker_post(url, TOKEN, "/api/v1/worker/lease", json!({"worker_id": short, "wait_seconds": 5.0}));
+    assert_eq!(code, 200, "{lease}");
+    let fail = format!("/api/v1/worker/leases/{}/fail", lease["lease_id"]);
+    let (code, v) =
+        worker_post(url, TOKEN, &fail, json!({"worker_id": short, "error": "out of luck", "fatal": false}));
+    assert_eq!(code, 204, "{v}");
     let (code, v) = register(url, "keeps-going", &[]);
     assert_eq!(code, 200, "{v}");
     let alive = v["worker_id"].as_u64().unwrap();
@@ -282,6 +292,9 @@ fn silent_workers_leave_the_list_after_forget_workers_after() {
         (names == ["keeps-going"]).then_some(started.elapsed())
     });
     assert!(gone >= Duration::from_secs(3), "forgotten after {gone:?}, before 4 s of silence");
+    let log = get_json(url, &format!("/api/v1/jobs/{job}/log"));
+    let failed = log["events"].as_array().unwrap().iter().find(|e| e["kind"] == "tile_failed").cloned();
+    assert_eq!(failed.map(|e| e["worker"].clone()), Some(json!("short-lived")), "{log}");
     eprintln!("a worker silent for 4 s left the list after {:.1} s", gone.as_secs_f64());
 
     for (bad, says) in [
