@@ -414,7 +414,7 @@ function renderWorkers() {
     el("td", { class: "state-" + w.state, text: w.state }),
     el("td", { class: "mode mode-" + (w.mode || "active"), text: w.mode || "active" }),
     el("td", { text: w.current_tile ? "job " + w.current_tile.job + " · frame " + w.current_tile.frame + " · tile " + w.current_tile.tile : "-" }),
-    el("td", { text: fmtDuration(now - w.last_heartbeat) + " ago" }),
+    el("td", { class: "heartbeat-age", "data-at": String(w.last_heartbeat), text: fmtDuration(now - w.last_heartbeat) + " ago" }),
     el("td", { text: String(w.tiles_done) }),
     el("td", { text: String(w.failures) }),
     el("td", { class: "worker-actions" }, ...workerButtons(w)))));
@@ -448,15 +448,24 @@ function renderWaiting(node, job) {
   box.textContent = job.waiting_for ? "Waiting: " + job.waiting_for : "";
 }
 
-// Jobs that have not ended (the newest 20) are looked at again every few seconds: whether a
-// worker can take them changes without an event (a worker falls silent).
+// The workers, and the jobs that have not ended (the newest 20), are looked at again every few
+// seconds: a worker falling silent (lost, then forgotten) sends no event, and whether a worker
+// can take a job changes with it.
 setInterval(() => {
+  refreshWorkers("w");
   const unended = [...jobs.entries()].filter(([, e]) => e.data && (e.data.state === "queued" || e.data.state === "running"));
   for (const [id] of unended.sort((a, b) => b[0] - a[0]).slice(0, 20)) refreshJob(id, id);
 }, 3000);
 
-// Heartbeat ages tick on the page; the data itself comes with events.
-setInterval(renderWorkers, 1000);
+// Heartbeat ages tick on the page (only their cells, so that a button being clicked stays);
+// the data itself comes with events.
+function tickWorkerAges() {
+  const now = Date.now() / 1000;
+  for (const td of document.querySelectorAll("#workers td.heartbeat-age")) {
+    td.textContent = fmtDuration(now - Number(td.dataset.at)) + " ago";
+  }
+}
+setInterval(tickWorkerAges, 1000);
 
 // --- Live updates ----------------------------------------------------------------------------
 
