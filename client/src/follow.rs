@@ -179,6 +179,7 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
     let mut frames_reported: Vec<bool> = Vec::new();
     let mut passes_reported: Vec<u32> = Vec::new();
     let mut last_error: Option<String> = None;
+    let mut last_waiting: Option<String> = None;
     let mut last_text = Instant::now();
     let text = !bars && !quiet;
     let mut counts_bar: Option<ProgressBar> = None;
@@ -243,6 +244,18 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
                 }
             }
             last_error = job.error.clone();
+        }
+        // Why nothing moves (no worker able to take the job), once each time it changes.
+        if job.waiting_for != last_waiting {
+            if let Some(w) = &job.waiting_for
+                && !quiet
+            {
+                let _ = multi.println(format!("job {id} waits: {w}"));
+                if text {
+                    eprintln!("job {id} waits: {w}");
+                }
+            }
+            last_waiting = job.waiting_for.clone();
         }
         let frames: &[FrameInfo] = if counts_bar.is_some() { &[] } else { &job.frames };
         for (i, f) in frames.iter().enumerate() {
@@ -572,6 +585,8 @@ mod tests {
             error: None,
             warnings: Vec::new(),
             url: String::new(),
+            worker_tags: Vec::new(),
+            waiting_for: None,
         };
         assert!(!by_counts(&job(3, 1)));
         assert!(!by_counts(&job(16, 0)), "an older server's job: no scene count");

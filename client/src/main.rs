@@ -151,7 +151,7 @@ enum Command {
         /// image times the scale, rounded to the nearest pixel (halves up), at least 1 (0.25
         /// renders an 800x450 camera at 200x113); the picture is the same, coarser, and the
         /// same bits as `tessera-worker render --scale` gives.
-        #[arg(long, env = "TESSERA_SCALE", value_name = "FACTOR", value_parser = parse_scale)]
+        #[arg(long, value_name = "FACTOR", value_parser = parse_scale)]
         scale: Option<f64>,
         /// Follow the job until it ends and download its outputs into --out.
         #[arg(long, short)]
@@ -180,6 +180,11 @@ enum Command {
         /// server also for a sequence, which by default keeps only the PNGs.
         #[arg(long)]
         keep_float: bool,
+        /// Render only on workers that have this tag (tessera-worker work --tags); repeat it, or
+        /// separate tags with commas, for workers that have them all. Letters, digits, '-', '_'
+        /// and '.', at most 32 each.
+        #[arg(long = "worker-tag", value_name = "TAG", value_delimiter = ',')]
+        worker_tags: Vec<String>,
         /// Parse the scenes, find their files and list them (job path, size, role, file on disk),
         /// without hashing or submitting anything.
         #[arg(long)]
@@ -357,6 +362,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             fps,
             no_keep_float,
             keep_float,
+            worker_tags,
             dry_run,
             verbose,
             quiet,
@@ -376,6 +382,8 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 fps,
                 keep_float: if keep_float { Some(true) } else { no_keep_float.then_some(false) },
                 scale,
+                worker_tags: tessera::protocol::check_tags(&worker_tags)
+                    .map_err(|e| anyhow::anyhow!("--worker-tag: {e}"))?,
                 quiet,
                 verbose,
             };
@@ -390,6 +398,10 @@ fn run(cli: Cli) -> Result<ExitCode> {
             let api = connect()?;
             let job = submit(&api, &packed, &opts)?;
             if !(wait || out.is_some()) {
+                // (--wait says it while it follows the job.)
+                if let (Some(w), false) = (&job.waiting_for, quiet) {
+                    eprintln!("job {} waits: {w}", job.id);
+                }
                 return Ok(ExitCode::SUCCESS);
             }
             let out = out.unwrap_or_else(|| PathBuf::from("."));
@@ -432,16 +444,17 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 println!("no workers have registered with {}", api.base);
             } else {
                 println!(
-                    "{:>4}  {:<24} {:>7}  {:<9} {:<8} {:>10}  current tile",
-                    "id", "name", "threads", "state", "mode", "tiles done"
+                    "{:>4}  {:<24} {:>7}  {:<9} {:<8} {:<12} {:>10}  current tile",
+                    "id", "name", "threads", "state", "mode", "tags", "tiles done"
                 );
                 for w in &list.workers {
                     let tile = w.current_tile.as_ref().map_or(String::new(), |t| {
                         format!("job {} frame {} tile {}", t.job, t.frame, t.tile)
                     });
+                    let tags = if w.tags.is_empty() { "-".to_string() } else { w.tags.join(",") };
                     println!(
-                        "{:>4}  {:<24} {:>7}  {:<9} {:<8} {:>10}  {tile}",
-                        w.id, w.name, w.threads, w.state, w.mode, w.tiles_done
+                        "{:>4}  {:<24} {:>7}  {:<9} {:<8} {:<12} {:>10}  {tile}",
+                        w.id, w.name, w.threads, w.state, w.mode, tags, w.tiles_done
                     );
                 }
             }
@@ -495,6 +508,8 @@ struct SubmitOptions {
     fps: Option<u32>,
     keep_float: Option<bool>,
     scale: Option<f64>,
+    /// Tags a worker must all have (`--worker-tag`, checked).
+    worker_tags: Vec<String>,
     quiet: bool,
     verbose: bool,
 }
@@ -592,6 +607,9 @@ fn multipart_fields(scene_path: &str, opts: &SubmitOptions) -> Vec<(&'static str
     if let Some(s) = opts.scale {
         fields.push(("scale", s.to_string()));
     }
+    if !opts.worker_tags.is_empty() {
+        fields.push(("worker_tags", opts.worker_tags.join(",")));
+    }
     fields
 }
 
@@ -662,6 +680,7 @@ fn submit(api: &Api, packed: &pack::Packed, opts: &SubmitOptions) -> Result<JobI
         fps: opts.fps,
         keep_float: opts.keep_float,
         scale: opts.scale,
+        worker_tags: opts.worker_tags.clone(),
         ..JobRequest::default()
     };
     let bars = follow::bars_wanted(opts.quiet);
@@ -775,6 +794,24 @@ fn print_jobs(jobs: &[JobInfo], base: &str) {
             j.name
         );
     }
+    print_waiting(jobs);
+}
+
+/// The jobs that wait for a worker, each reason once: "jobs 3, 4: no worker is connected ...".
+fn print_waiting(jobs: &[JobInfo]) {
+    let mut reasons: Vec<(&str, Vec<u64>)> = Vec::new();
+    for j in jobs {
+        let Some(w) = j.waiting_for.as_deref() else { continue };
+        match reasons.iter_mut().find(|(r, _)| *r == w) {
+            Some((_, ids)) => ids.push(j.id),
+            None => reasons.push((w, vec![j.id])),
+        }
+    }
+    for (reason, ids) in reasons {
+        let ids: Vec<String> = ids.iter().rev().map(u64::to_string).collect();
+        let which = if ids.len() == 1 { "job" } else { "jobs" };
+        println!("{which} {} wait: {reason}", ids.join(", "));
+    }
 }
 
 fn print_job(job: &JobInfo) {
@@ -861,6 +898,12 @@ fn print_job(job: &JobInfo) {
             line.push_str(&format!(" ({m})"));
         }
         println!("{line}");
+    }
+    if !job.worker_tags.is_empty() {
+        println!("worker tags: {} (only workers with them all render it)", job.worker_tags.join(", "));
+    }
+    if let Some(w) = &job.waiting_for {
+        println!("waiting: {w}");
     }
     if let Some(e) = &job.error {
         println!("error: {e}");

@@ -84,6 +84,10 @@ pub struct RegisterRequest {
     pub name: String,
     /// Render threads the worker uses.
     pub threads: u32,
+    /// What the worker offers (`tessera-worker work --tags gpu,big`): it leases only tiles of
+    /// jobs whose `worker_tags` it all has ([`check_tags`]: at most [`MAX_TAGS`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub tags: Vec<String>,
 }
 
 /// The heartbeat periods, in seconds, a server may ask for and a worker keeps: a shorter one
@@ -300,6 +304,10 @@ pub struct JobRequest {
     /// picture is the same, coarser (e.g. 0.25: an 800x450 camera renders at 200x113).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scale: Option<f64>,
+    /// Tags a worker must all have to render this job ([`check_tags`]; default none: any
+    /// worker).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub worker_tags: Vec<String>,
 }
 
 /// One pass of a tile: samples `start..end` of every pixel (whole blocks of
@@ -599,6 +607,14 @@ pub struct JobInfo {
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub warnings: Vec<String>,
     pub url: String,
+    /// Tags a worker must all have to render this job (none: any worker).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub worker_tags: Vec<String>,
+    /// Why a job that has not ended makes no progress, as a sentence with what to do: no worker
+    /// is connected, every one is draining or disabled, or none has the job's tags. Absent
+    /// while a worker can take its tiles.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub waiting_for: Option<String>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -699,6 +715,9 @@ pub struct WorkerInfo {
     /// new) or `disabled` (takes nothing; what it held went back to the queue).
     #[serde(default = "active_mode")]
     pub mode: String,
+    /// The tags it declared (`tessera-worker work --tags`).
+    #[serde(default)]
+    pub tags: Vec<String>,
 }
 
 fn active_mode() -> String {
@@ -709,6 +728,48 @@ fn active_mode() -> String {
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct WorkerList {
     pub workers: Vec<WorkerInfo>,
+}
+
+// ---------------------------------------------------------------------------------------------
+// Worker tags: what a worker offers (`--tags gpu,big`) and what a job asks for (`worker_tags`)
+// ---------------------------------------------------------------------------------------------
+
+/// Most tags a worker may declare, or a job ask for.
+pub const MAX_TAGS: usize = 16;
+/// Longest tag, in bytes.
+pub const MAX_TAG_BYTES: usize = 32;
+
+/// Tags as the farm keeps them: each split further at commas, trimmed, lowercased, empty ones
+/// dropped, duplicates once, sorted. A tag is 1 to [`MAX_TAG_BYTES`] ASCII letters, digits,
+/// `-`, `_` or `.`; at most [`MAX_TAGS`] of them. The error says which tag is wrong and why
+/// (the caller names the field or flag).
+pub fn check_tags<S: AsRef<str>>(tags: &[S]) -> Result<Vec<String>, String> {
+    let mut out: Vec<String> = Vec::new();
+    for tag in tags.iter().flat_map(|t| t.as_ref().split(',')) {
+        let tag = tag.trim();
+        if tag.is_empty() {
+            continue;
+        }
+        if tag.len() > MAX_TAG_BYTES {
+            let shown: String = tag.chars().take(40).collect();
+            return Err(format!("the tag \"{shown}\" is longer than {MAX_TAG_BYTES} bytes"));
+        }
+        if let Some(c) = tag.chars().find(|c| !(c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))) {
+            return Err(format!(
+                "the tag \"{}\" holds {c:?}: a tag is made of letters, digits, '-', '_' and '.' (separate tags with commas)",
+                tag.escape_debug()
+            ));
+        }
+        let tag = tag.to_ascii_lowercase();
+        if !out.contains(&tag) {
+            out.push(tag);
+        }
+        if out.len() > MAX_TAGS {
+            return Err(format!("more than {MAX_TAGS} tags; give at most {MAX_TAGS}"));
+        }
+    }
+    out.sort();
+    Ok(out)
 }
 
 /// A tile's pixels on the wire: width·height RGB triples of little-endian `f32`, row-major.
@@ -898,6 +959,20 @@ mod tests {
             let got = check_tile_values(&[[0.0; 3], [0.0, 0.0, bad]]).unwrap_err();
             assert_eq!((got.0, got.1), (1, 2));
         }
+    }
+
+    #[test]
+    fn tags_are_checked_lowercased_sorted_and_once() {
+        assert_eq!(check_tags(&["GPU, big", "gpu", ""]).unwrap(), ["big", "gpu"]);
+        assert_eq!(check_tags::<&str>(&[]).unwrap(), Vec::<String>::new());
+        assert_eq!(check_tags(&["cuda-12.1_x"]).unwrap(), ["cuda-12.1_x"]);
+        let e = check_tags(&["gp u"]).unwrap_err();
+        assert!(e.contains("\"gp u\" holds ' '"), "{e}");
+        let e = check_tags(&["a".repeat(33)]).unwrap_err();
+        assert!(e.contains("longer than 32 bytes"), "{e}");
+        let many: Vec<String> = (0..17).map(|k| format!("t{k}")).collect();
+        assert!(check_tags(&many).unwrap_err().contains("more than 16 tags"));
+        assert!(check_tags(&["t\u{7}"]).unwrap_err().contains("holds '\\u{7}'"));
     }
 
     #[test]

@@ -34,6 +34,7 @@ pub use jobs::{NewFrame, NewJob};
 pub use notify::{DueNotification, Notified};
 pub use passes::ResultShape;
 pub use video::VideoRow;
+pub use workers::{NewWorker, ServingWorker};
 
 /// Most events a job's log keeps: a job of a million tiles must not write a million rows of
 /// log. The event after the last one kept says the log
@@ -283,6 +284,8 @@ pub struct JobRow {
     pub keep_float: Option<bool>,
     /// Every frame rendered at this scale (`None`: the cameras' resolution).
     pub scale: Option<f64>,
+    /// Tags a worker must all have to lease the job's tiles (none: any worker).
+    pub worker_tags: Vec<String>,
 }
 
 #[derive(Clone, Debug)]
@@ -333,6 +336,8 @@ pub struct WorkerRow {
     pub current_tile: Option<(u64, u32, u32)>,
     /// Whether it takes new work: `active`, `draining` or `disabled` ([`WorkerMode`]).
     pub mode: WorkerMode,
+    /// The tags it declared at its registration.
+    pub tags: Vec<String>,
 }
 
 /// Whether a worker takes new work.
@@ -497,10 +502,11 @@ fn job_from_row(r: &rusqlite::Row) -> rusqlite::Result<JobRow> {
         fps: r.get::<_, Option<i64>>(18)?.map(|f| f as u32),
         keep_float: r.get(19)?,
         scale: r.get(20)?,
+        worker_tags: workers::tags_from_text(r.get(21)?),
     })
 }
 
-const JOB_COLUMNS: &str = "id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, started_at, finished_at, error, denoise, pass_samples, noise_target, manifest, scenes, video, fps, keep_float, scale";
+const JOB_COLUMNS: &str = "id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, started_at, finished_at, error, denoise, pass_samples, noise_target, manifest, scenes, video, fps, keep_float, scale, worker_tags";
 
 fn frame_from_row(r: &rusqlite::Row) -> rusqlite::Result<FrameRow> {
     let outputs: Option<String> = r.get(8)?;

@@ -1,7 +1,7 @@
 //! The store's housekeeping, in the background and in small steps: the rows of cancelled and
 //! failed jobs purged (at once when a job ends, and in a sweep at start and every
 //! [`SWEEP`]), the free pages they leave given back to the file system, and workers not seen
-//! for `--forget-workers-after-hours` forgotten, and (at start and every sweep) the files and
+//! for `--forget-workers-after` forgotten, and (at start and every sweep) the files and
 //! tar bundles no job names removed once an hour old (`files::collect_garbage`).
 //!
 //! Every step is one short transaction ([`crate::db::ROWS_PER_STEP`] rows): other requests wait

@@ -59,6 +59,35 @@ pub const PREVIEWS_AT_ONCE: usize = 2;
 /// Frames merged at the same time: a merge holds its whole float frame.
 pub const MERGES_AT_ONCE: usize = 1;
 
+/// The longest `--forget-workers-after`: 100 years, in seconds.
+pub const MAX_FORGET_WORKERS_AFTER: f64 = 100.0 * 365.0 * 86_400.0;
+
+/// A duration as `--forget-workers-after` takes it: a number of seconds, or a number with a unit
+/// `s`, `m`, `h` or `d` (`90`, `90s`, `30m`, `1.5h`, `2d`). The error says what is accepted.
+pub fn parse_duration(text: &str) -> std::result::Result<f64, String> {
+    let t = text.trim();
+    let number = t.trim_end_matches(|c: char| c.is_ascii_alphabetic());
+    let unit = match &t[number.len()..] {
+        "" => "s",
+        unit => unit,
+    };
+    let scale = match unit.to_ascii_lowercase().as_str() {
+        "s" | "sec" | "secs" | "second" | "seconds" => 1.0,
+        "m" | "min" | "mins" | "minute" | "minutes" => 60.0,
+        "h" | "hour" | "hours" => 3600.0,
+        "d" | "day" | "days" => 86_400.0,
+        _ => return Err(format!("\"{text}\": the unit must be s, m, h or d (e.g. 90s, 30m, 1h, 2d)")),
+    };
+    let n: f64 = number.trim().parse().map_err(|_| {
+        format!("\"{text}\" is not a duration: write a number of seconds or one with a unit (e.g. 90s, 30m, 1h, 2d)")
+    })?;
+    let seconds = n * scale;
+    if !(seconds.is_finite() && seconds > 0.0 && seconds <= MAX_FORGET_WORKERS_AFTER) {
+        return Err(format!("\"{text}\" must be more than 0 and at most 100 years (e.g. 90s, 30m, 1h, 2d)"));
+    }
+    Ok(seconds)
+}
+
 /// Everything `tessera-server` can be told (flags and environment).
 #[derive(Clone, Debug)]
 pub struct Config {
@@ -91,8 +120,9 @@ pub struct Config {
     pub max_job_units: u64,
     /// Most live (not lost) registered workers.
     pub max_workers: u64,
-    /// Hours after which a silent worker without a live lease is forgotten.
-    pub forget_workers_after_hours: f64,
+    /// Seconds after which a silent worker is forgotten: it leaves the workers list, and its
+    /// row goes once it holds no live lease (`--forget-workers-after`).
+    pub forget_workers_after: f64,
     /// Most connections open at once (`None`: the descriptor limit less a reserve).
     pub max_connections: Option<usize>,
     /// Most connections open at once from one client address.
@@ -267,9 +297,11 @@ pub fn check_config(config: &Config) -> Result<()> {
     if config.max_workers == 0 {
         bail!("--max-workers must be at least 1");
     }
-    let forget = config.forget_workers_after_hours;
-    if !(forget > 0.0 && forget <= 1e6) {
-        bail!("--forget-workers-after-hours must be a positive number of hours, at most 1e6, found {forget}");
+    let forget = config.forget_workers_after;
+    if !(forget > 0.0 && forget <= MAX_FORGET_WORKERS_AFTER) {
+        bail!(
+            "--forget-workers-after must be a positive duration of at most 100 years (e.g. 90s, 30m, 1h, 2d), found {forget} s"
+        );
     }
     if config.max_connections == Some(0) || config.max_connections_per_ip == 0 {
         bail!("--max-connections and --max-connections-per-ip must be at least 1");
@@ -368,6 +400,9 @@ pub async fn serve(
         max_job_units: config.max_job_units,
         max_workers: config.max_workers,
         local_worker_token: random_token(),
+        forget_workers_after: config
+            .forget_workers_after
+            .max(scheduler::lost_after(config.heartbeat_seconds)),
     };
     let timing = scheduler::Timing {
         lease_seconds: config.lease_seconds,
@@ -416,9 +451,7 @@ pub async fn serve(
 
     // Rows of ended jobs purged, stale workers forgotten.
     // Never sooner than a worker counts as lost.
-    let forget_after =
-        (config.forget_workers_after_hours * 3600.0).max(scheduler::lost_after(config.heartbeat_seconds));
-    housekeeping::spawn(state.clone(), forget_after);
+    housekeeping::spawn(state.clone(), state.settings.forget_workers_after);
     housekeeping::spawn_checkpoints(store.clone());
     // Job ends announced to the operator's and the jobs' receivers.
     notify::spawn(state.clone(), config.notify_url.clone(), api::job_info);
@@ -485,7 +518,7 @@ mod tests {
             max_job_samples: 1 << 30,
             max_job_units: 1_000_000,
             max_workers: 4096,
-            forget_workers_after_hours: 24.0,
+            forget_workers_after: 86_400.0,
             max_connections: None,
             max_connections_per_ip: 256,
             header_timeout_seconds: 20.0,
@@ -583,14 +616,40 @@ mod tests {
             (Config { max_job_frames: 0, ..config(&dir) }, "--max-job-frames"),
             (Config { max_job_frames: (1 << 20) + 1, ..config(&dir) }, "--max-job-frames"),
             (Config { max_workers: 0, ..config(&dir) }, "--max-workers"),
-            (Config { forget_workers_after_hours: 0.0, ..config(&dir) }, "--forget-workers-after-hours"),
-            (Config { forget_workers_after_hours: f64::NAN, ..config(&dir) }, "--forget-workers-after-hours"),
-            (Config { forget_workers_after_hours: 1e7, ..config(&dir) }, "--forget-workers-after-hours"),
+            (Config { forget_workers_after: 0.0, ..config(&dir) }, "--forget-workers-after"),
+            (Config { forget_workers_after: f64::NAN, ..config(&dir) }, "--forget-workers-after"),
+            (Config { forget_workers_after: 1e10, ..config(&dir) }, "--forget-workers-after"),
         ] {
             let e = check_config(&bad).unwrap_err().to_string();
             assert!(e.contains(flag), "{e}");
         }
-        assert!(check_config(&Config { forget_workers_after_hours: 0.001, ..config(&dir) }).is_ok());
+        assert!(check_config(&Config { forget_workers_after: 3.6, ..config(&dir) }).is_ok());
+    }
+
+    #[test]
+    fn durations_are_seconds_or_a_number_with_a_unit() {
+        for (text, seconds) in [
+            ("90", 90.0),
+            ("90s", 90.0),
+            ("30m", 1800.0),
+            ("1.5h", 5400.0),
+            (" 2d ", 172_800.0),
+            ("2 days", 172_800.0),
+        ] {
+            assert_eq!(parse_duration(text), Ok(seconds), "{text}");
+        }
+        for (bad, says) in [
+            ("", "is not a duration"),
+            ("h", "is not a duration"),
+            ("1w", "the unit must be s, m, h or d"),
+            ("0", "more than 0"),
+            ("-5m", "more than 0"),
+            ("1e300d", "at most 100 years"),
+            ("NaN", "the unit must be"),
+        ] {
+            let e = parse_duration(bad).unwrap_err();
+            assert!(e.contains(says), "{bad}: {e}");
+        }
     }
 
     #[tokio::test]

@@ -94,11 +94,27 @@ struct Cli {
     /// (the server's own local workers still register).
     #[arg(long, default_value_t = 4096, env = "TESSERA_MAX_WORKERS", value_name = "N")]
     max_workers: u64,
-    /// Hours after which a worker not seen, and holding no lease, is forgotten (its row
-    /// deleted; the job logs keep its name; if it comes back it registers again). Never sooner
-    /// than it counts as lost (three heartbeats and two seconds).
-    #[arg(long, default_value_t = 24.0, env = "TESSERA_FORGET_WORKERS_AFTER_HOURS", value_name = "H")]
-    forget_workers_after_hours: f64,
+    /// How long a worker may be silent before it is forgotten: it leaves the workers list and
+    /// the page at once, and its row goes once it holds no lease (the job logs keep its name;
+    /// if it comes back it registers again). Seconds, or a number with s, m, h or d (90s, 30m,
+    /// 12h, 2d); never sooner than it counts as lost (three heartbeats and two seconds).
+    #[arg(
+        long,
+        default_value = "1d",
+        env = "TESSERA_FORGET_WORKERS_AFTER",
+        value_name = "DURATION",
+        value_parser = tessera_server::parse_duration
+    )]
+    forget_workers_after: f64,
+    /// --forget-workers-after in hours (its older form).
+    #[arg(
+        long,
+        hide = true,
+        env = "TESSERA_FORGET_WORKERS_AFTER_HOURS",
+        value_name = "H",
+        conflicts_with = "forget_workers_after"
+    )]
+    forget_workers_after_hours: Option<f64>,
     /// Most connections open at once; more are closed as they arrive. Default: the process's
     /// open-file limit (raised to its hard limit at start) less 128 kept for the server's files.
     #[arg(long, env = "TESSERA_MAX_CONNECTIONS", value_name = "N")]
@@ -222,7 +238,7 @@ fn main() -> ExitCode {
         max_job_samples: cli.max_job_samples,
         max_job_units: cli.max_job_units,
         max_workers: cli.max_workers,
-        forget_workers_after_hours: cli.forget_workers_after_hours,
+        forget_workers_after: cli.forget_workers_after_hours.map_or(cli.forget_workers_after, |h| h * 3600.0),
         max_connections: cli.max_connections,
         max_connections_per_ip: cli.max_connections_per_ip,
         header_timeout_seconds: cli.header_timeout_seconds,

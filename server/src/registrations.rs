@@ -6,7 +6,7 @@
 //!   past it);
 //! - a cap on live workers (`--max-workers`; a 503 past it), past which lost workers' rows are
 //!   forgotten too ([`crate::db::Store::register_worker_within`]);
-//! - stale workers forgotten (`--forget-workers-after-hours`, by the housekeeping task).
+//! - stale workers forgotten (`--forget-workers-after`, by the housekeeping task).
 //!
 //! The server's own local workers register with a token of their own, which none of these
 //! refuse: a local worker restarted by the server always gets back in.

@@ -75,6 +75,34 @@ pub fn worker_state(w: &WorkerRow, now: f64, heartbeat_seconds: f64) -> WorkerSt
     }
 }
 
+/// Why a job that asks for `job_tags` cannot get a tile now, given the `live` workers (seen
+/// within the lost limit) and the tags of those of them that take new work (`serving`: active,
+/// neither draining nor disabled); `None` when one of them can take it. A sentence that says
+/// what to do.
+pub fn waiting_for(job_tags: &[String], live: usize, serving: &[crate::db::ServingWorker]) -> Option<String> {
+    let start = "tessera-worker work --server URL --token TOKEN";
+    let token = "(on the server's machine `tessera-server worker-token` prints the token)";
+    if live == 0 {
+        let with =
+            if job_tags.is_empty() { String::new() } else { format!(" --tags {}", job_tags.join(",")) };
+        return Some(format!("no worker is connected to this farm; start one with: {start}{with} {token}"));
+    }
+    if serving.is_empty() {
+        return Some(format!(
+            "every connected worker ({live}) is draining or disabled; enable one with `tessera worker enable ID` \
+             (`tessera workers` lists them), or start another with: {start}"
+        ));
+    }
+    if serving.iter().any(|w| job_tags.iter().all(|t| w.tags.contains(t))) {
+        return None;
+    }
+    Some(format!(
+        "no active worker has the tag(s) {} this job asks for (worker_tags); start one with: {start} --tags {} {token}",
+        job_tags.join(", "),
+        job_tags.join(",")
+    ))
+}
+
 // ---------------------------------------------------------------------------------------------
 // The scheduler
 // ---------------------------------------------------------------------------------------------
@@ -326,8 +354,14 @@ impl Scheduler {
     /// Returns how many leases expired.
     pub fn expire_leases(&self) -> Result<usize> {
         let e = self.store.expire_leases()?;
+        Ok(self.expired(e))
+    }
+
+    /// What follows leases expired (by the sweep, or by a local worker registering again): the
+    /// counter, a failed job's event, and the lease polls woken for the tiles queued again.
+    fn expired(&self, e: crate::db::Expired) -> usize {
         if e.leases == 0 {
-            return Ok(0);
+            return 0;
         }
         tracing::warn!(
             "{} lease(s) expired (their workers stopped answering); the tiles count a failure each and are queued again",
@@ -339,7 +373,19 @@ impl Scheduler {
             self.emit(ServerEvent::Job { job, state: JobState::Failed });
         }
         self.wake();
-        Ok(e.leases)
+        e.leases
+    }
+
+    /// Registers one of the server's own local workers on the row of its earlier lives
+    /// ([`Store::register_local_worker`]): the leases its dead process held expire first, with
+    /// the sweep's accounting.
+    pub fn register_local_worker(&self, w: &crate::db::NewWorker<'_>) -> Result<u64> {
+        let (id, expired) = self.store.register_local_worker(w)?;
+        if expired.leases > 0 {
+            tracing::info!(worker = id, name = w.name, "the local worker's earlier process held leases");
+        }
+        self.expired(expired);
+        Ok(id)
     }
 
     /// Starts the lease-expiry task: [`Scheduler::expire_leases`] every [`EXPIRY_SWEEP`].
@@ -367,6 +413,14 @@ impl Scheduler {
         self.shutting_down.load(Ordering::SeqCst)
     }
 
+    /// [`waiting_for`] for a job asking for `job_tags`, with the workers as the store has them
+    /// now.
+    pub fn waiting_for(&self, job_tags: &[String]) -> Result<Option<String>> {
+        let since = crate::db::now() - lost_after(self.timing.heartbeat_seconds);
+        let (live, serving) = self.store.serving_workers(since)?;
+        Ok(waiting_for(job_tags, live, &serving))
+    }
+
     /// [`worker_state`] with this farm's heartbeat interval.
     pub fn worker_state(&self, w: &WorkerRow, now: f64) -> WorkerState {
         worker_state(w, now, self.timing.heartbeat_seconds)
@@ -390,6 +444,7 @@ mod tests {
             rendering,
             current_tile: None,
             mode: crate::db::WorkerMode::Active,
+            tags: Vec::new(),
         };
         // Heartbeats every 5 s: lost after 17 s of silence, whatever it was doing.
         assert_eq!(lost_after(5.0), 17.0);
@@ -397,5 +452,29 @@ mod tests {
         assert_eq!(worker_state(&w(100.0, Some(4)), 116.9, 5.0), WorkerState::Rendering);
         assert_eq!(worker_state(&w(100.0, Some(4)), 117.1, 5.0), WorkerState::Lost);
         assert_eq!(worker_state(&w(100.0, None), 117.1, 5.0), WorkerState::Lost);
+    }
+
+    #[test]
+    fn a_job_nobody_can_serve_says_why_and_what_to_do() {
+        let w =
+            |tags: &[&str]| crate::db::ServingWorker { tags: tags.iter().map(|t| t.to_string()).collect() };
+        let gpu = vec!["gpu".to_string()];
+        let none = waiting_for(&[], 0, &[]).unwrap();
+        assert!(
+            none.starts_with("no worker is connected") && none.contains("tessera-worker work --server URL"),
+            "{none}"
+        );
+        assert!(waiting_for(&gpu, 0, &[]).unwrap().contains("--tags gpu"));
+        let idle = waiting_for(&[], 2, &[]).unwrap();
+        assert!(idle.contains("every connected worker (2) is draining or disabled"), "{idle}");
+        assert_eq!(waiting_for(&[], 1, &[w(&[])]), None);
+        assert_eq!(waiting_for(&gpu, 2, &[w(&[]), w(&["big", "gpu"])]), None);
+        let tags = vec!["big".to_string(), "gpu".to_string()];
+        let lacking = waiting_for(&tags, 2, &[w(&["gpu"]), w(&["big"])]).unwrap();
+        assert!(
+            lacking.contains("no active worker has the tag(s) big, gpu")
+                && lacking.contains("--tags big,gpu"),
+            "{lacking}"
+        );
     }
 }

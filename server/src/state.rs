@@ -42,6 +42,10 @@ pub struct Settings {
     pub local_worker_token: String,
     /// URL prefixes a job's own `notify_url` must start with (`--notify-allow`).
     pub notify_allow: Vec<String>,
+    /// Seconds of silence after which a worker is forgotten (`--forget-workers-after`, never
+    /// less than it takes to count as lost): it leaves the workers list at once, its row when
+    /// housekeeping next runs.
+    pub forget_workers_after: f64,
 }
 
 /// What browsers and scrapers may reach (`--allowed-origin`, `--allowed-host`,

@@ -143,7 +143,9 @@ fn children_of(pid: u32) -> Vec<u32> {
 /// would end it) leaves a lease that expires; each expiry counts against the tile like a reported
 /// failure, so after the failure limit the job fails with an error saying the tile crashed its
 /// workers, instead of being queued again for ever. The server restarts its local worker each
-/// time, backing off (1, 2, 4, 8 s), and the farm then renders the next job.
+/// time, backing off (1, 2, 4, 8 s); the restarted worker registers on its own row, the leases
+/// of its dead process expired first with the same accounting; the farm then renders the next
+/// job.
 #[test]
 fn a_tile_that_keeps_crashing_its_workers_fails_its_job_and_restarts_back_off() {
     let _s = serial();
@@ -161,10 +163,13 @@ fn a_tile_that_keeps_crashing_its_workers_fails_its_job_and_restarts_back_off() 
             "0.5",
         ],
     );
-    // One pass a tile: a tile too heavy to finish, not 16 passes that each finish in a moment.
-    let doomed = submit_environment_with(&server, "100000", "16", &[("pass_samples", "100000")]);
-    let deadline = Instant::now() + Duration::from_secs(180);
-    let mut killed: Vec<u64> = Vec::new();
+    // One pass a tile: a tile too heavy to finish, not 16 passes that each finish in a moment;
+    // one tile (the whole frame), so that each death is one lease of that tile.
+    let doomed = submit_environment_with(&server, "100000", "512", &[("pass_samples", "100000")]);
+    // One worker: after each death the tile waits out the 30 s a worker is kept off a tile it
+    // failed (failures::RETRY_FAILED_AFTER), four times.
+    let deadline = Instant::now() + Duration::from_secs(300);
+    let mut killed: Vec<u32> = Vec::new();
     let job = loop {
         let job = get_json(&server.url, &format!("/api/v1/jobs/{doomed}"));
         if job["state"] == "failed" {
@@ -179,22 +184,25 @@ fn a_tile_that_keeps_crashing_its_workers_fails_its_job_and_restarts_back_off() 
             server.log(),
             get_json(&server.url, &format!("/api/v1/jobs/{doomed}/log"))
         );
-        // Kill the worker process as soon as a worker we have not killed yet is rendering.
-        let list = get_json(&server.url, "/api/v1/workers");
-        let rendering: Vec<u64> = list["workers"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .filter(|w| w["state"] == "rendering")
-            .filter_map(|w| w["id"].as_u64())
-            .filter(|id| !killed.contains(id))
-            .collect();
-        let processes = children_of(server.child.id());
-        if let ([id], [pid]) = (rendering.as_slice(), processes.as_slice()) {
-            std::thread::sleep(Duration::from_millis(500));
+        // Kill the worker process as soon as one we have not killed yet is rendering (the
+        // restarted process registers on the same worker row: processes are told apart by pid).
+        let rendering = || -> usize {
+            let list = get_json(&server.url, "/api/v1/workers");
+            list["workers"].as_array().unwrap().iter().filter(|w| w["state"] == "rendering").count()
+        };
+        let processes: Vec<u32> =
+            children_of(server.child.id()).into_iter().filter(|pid| !killed.contains(pid)).collect();
+        // Asked again after the pause: a process just started may not have registered yet
+        // (which clears the row's tile of its dead predecessor).
+        if let (1, [pid]) = (rendering(), processes.as_slice())
+            && {
+                std::thread::sleep(Duration::from_millis(500));
+                rendering() == 1
+            }
+        {
             // SAFETY: kill(2) has no memory effects; the pid is the server's worker child.
             unsafe { libc::kill(*pid as libc::pid_t, libc::SIGKILL) };
-            killed.push(*id);
+            killed.push(*pid);
         }
         std::thread::sleep(Duration::from_millis(100));
     };
@@ -202,10 +210,13 @@ fn a_tile_that_keeps_crashing_its_workers_fails_its_job_and_restarts_back_off() 
     let kills = killed.len();
     eprintln!("after {kills} kills: {error}");
     assert!(error.contains("crashed its workers") && error.contains("tessera-worker render"), "{job}");
-    // Each restarted worker registers anew, so three deaths on the tile are three workers, the
-    // limit; a restarted worker may first take another tile while the dead one's leases have
-    // not expired yet, so allow a death or two more.
-    assert!((3..=5).contains(&kills), "the job failed after {kills} worker deaths: {job}");
+    // Each restarted worker is the same worker (its row), so the tile fails its job at the
+    // limit of failures in all: five deaths, each counted once (the lease of a dead process
+    // expires either when its successor registers or at its deadline, not both).
+    assert_eq!(kills, 5, "the job failed after {kills} worker deaths: {job}");
+    assert!(error.contains("5 time(s), on 1 worker(s)"), "{job}");
+    let workers = get_json(&server.url, "/api/v1/workers");
+    assert_eq!(workers["workers"].as_array().unwrap().len(), 1, "one local worker row: {workers}");
     let log = server.log();
     for delay in ["restarting it in 1 s", "restarting it in 2 s", "restarting it in 4 s"] {
         assert!(log.contains(delay), "no \"{delay}\" in the log:\n{log}");

@@ -56,6 +56,8 @@ pub struct WorkOptions {
     pub token: String,
     pub name: String,
     pub threads: Option<usize>,
+    /// What the worker offers (`--tags`, checked): it is given only jobs asking for these.
+    pub tags: Vec<String>,
     /// Stop after this many tiles (tests and benchmarks); `None`: run until killed.
     pub max_tiles: Option<u64>,
     /// Job files on disk by SHA-256 (`--cache-dir`, `--cache-mb`).
@@ -239,6 +241,7 @@ fn register(
     client: &Client,
     name: &str,
     threads: u32,
+    tags: &[String],
     stop: &AtomicBool,
 ) -> Result<Option<RegisterResponse>> {
     let mut delay = Duration::from_millis(200);
@@ -247,7 +250,10 @@ fn register(
         if stop.load(Ordering::SeqCst) {
             return Ok(None);
         }
-        match client.post_json("/api/v1/worker/register", &RegisterRequest { name: name.into(), threads }) {
+        match client.post_json(
+            "/api/v1/worker/register",
+            &RegisterRequest { name: name.into(), threads, tags: tags.to_vec() },
+        ) {
             Ok(resp) => {
                 return resp.into_json().map(Some).context("the server's register answer is not valid JSON");
             }
@@ -310,7 +316,8 @@ pub fn work(opts: WorkOptions) -> Result<()> {
     }
     let pool = pool.build().context("cannot start the render threads")?;
     let stop = stop_flag()?;
-    let Some(reg) = register(&client, &opts.name, pool.current_num_threads() as u32, &stop)? else {
+    let Some(reg) = register(&client, &opts.name, pool.current_num_threads() as u32, &opts.tags, &stop)?
+    else {
         eprintln!("stopped before the server answered");
         return Ok(());
     };
@@ -319,10 +326,11 @@ pub fn work(opts: WorkOptions) -> Result<()> {
     let heartbeat_every = heartbeat_interval(reg.heartbeat_seconds)?;
     let heartbeat_limit = heartbeat_timeout(reg.lease_seconds);
     eprintln!(
-        "worker {} ({}, {} threads) registered with {}",
+        "worker {} ({}, {} threads{}) registered with {}",
         worker_id,
         opts.name,
         pool.current_num_threads(),
+        if opts.tags.is_empty() { String::new() } else { format!(", tags {}", opts.tags.join(",")) },
         client.base
     );
     let kept = opts.files.stats();

@@ -84,6 +84,11 @@ enum Command {
         /// Render threads; default: every core.
         #[arg(long, short = 'j', value_name = "N")]
         threads: Option<usize>,
+        /// What this worker offers, e.g. gpu,big (comma-separated or repeated): it renders only
+        /// jobs whose worker tags (tessera submit --worker-tag) it all has, and jobs that ask for
+        /// none. Each tag 1 to 32 letters, digits, '-', '_' or '.'; at most 16.
+        #[arg(long, env = "TESSERA_WORKER_TAGS", value_name = "TAG,...", value_delimiter = ',')]
+        tags: Vec<String>,
         /// Exit after rendering this many tiles (for tests and benchmarks).
         #[arg(long, value_name = "N", hide = true)]
         max_tiles: Option<u64>,
@@ -240,7 +245,7 @@ struct RenderArgs {
     /// times the scale, rounded to the nearest pixel (halves up), at least 1 (0.25 renders an
     /// 800x450 camera at 200x113). The image plane stays, so the picture is the same, coarser;
     /// a farm job with the same scale renders the same bits.
-    #[arg(long, env = "TESSERA_SCALE", value_name = "FACTOR")]
+    #[arg(long, value_name = "FACTOR")]
     scale: Option<f64>,
 }
 
@@ -294,6 +299,7 @@ fn main() -> ExitCode {
             token,
             name,
             threads,
+            tags,
             max_tiles,
             exit_with_parent,
             cache_dir,
@@ -308,8 +314,15 @@ fn main() -> ExitCode {
                 return ExitCode::FAILURE;
             }
             let name = name.unwrap_or_else(default_worker_name);
+            let tags = match tessera::protocol::check_tags(&tags) {
+                Ok(tags) => tags,
+                Err(e) => {
+                    eprintln!("error: --tags: {e}");
+                    return ExitCode::FAILURE;
+                }
+            };
             work_caches(cache_dir, cache_mb, mesh_cache_mb).and_then(|(files, meshes)| {
-                farm::work(farm::WorkOptions { server, token, name, threads, max_tiles, files, meshes })
+                farm::work(farm::WorkOptions { server, token, name, threads, tags, max_tiles, files, meshes })
             })
         }
         Command::Tonemap { input, out, scene, camera, key, burn, saturation, gamma, operator } => {

@@ -147,6 +147,13 @@ fn job_info_with(state: &AppState, id: u64, max_frames: usize) -> anyhow::Result
         error,
         warnings: Vec::new(),
         url,
+        // Said only while nothing moves: a job with a tile on a worker is being served.
+        waiting_for: if matches!(job.state, JobState::Queued | JobState::Running) && started.is_empty() {
+            state.scheduler.waiting_for(&job.worker_tags)?
+        } else {
+            None
+        },
+        worker_tags: job.worker_tags,
     }))
 }
 

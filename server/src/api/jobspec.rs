@@ -148,6 +148,7 @@ pub(super) fn request_submission(state: &AppState, req: JobRequest) -> ApiResult
         scenes: None,
         notify_url: req.notify_url,
         scale: req.scale.map(submit::check_scale).transpose()?,
+        worker_tags: req.worker_tags,
     };
     Ok(Submission { scenes, files, digests, stored: true, opts })
 }
@@ -401,6 +402,12 @@ pub(super) async fn accept(state: AppState, sub: Submission) -> ApiResult<(Statu
             },
         ));
     }
+    let worker_tags = check_tags(&opts.worker_tags).map_err(|e| {
+        AppError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!("worker_tags: {e}; name the tags a worker must have, e.g. worker_tags=gpu,big"),
+        )
+    })?;
     if opts.denoise {
         submit::check_denoiser().await?;
     }
@@ -503,6 +510,7 @@ pub(super) async fn accept(state: AppState, sub: Submission) -> ApiResult<(Statu
             keep_float: opts.keep_float,
             notify_url: opts.notify_url,
             scale: opts.scale,
+            worker_tags,
         };
         let id = state.store.insert_job(&job)?;
         state.cameras.lock().unwrap_or_else(|e| e.into_inner()).insert(id, Arc::new(cameras));

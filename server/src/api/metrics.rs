@@ -18,7 +18,9 @@ use tessera::protocol::ApiError;
 pub(super) async fn metrics(State(state): State<AppState>) -> ApiResult<Response> {
     let (store_metrics, workers) = {
         let state = state.clone();
-        off_thread(move || Ok((state.store.metrics()?, state.store.workers()?))).await?
+        // The workers the list shows: forgotten ones are not counted as lost for ever.
+        let since = crate::db::now() - state.settings.forget_workers_after;
+        off_thread(move || Ok((state.store.metrics()?, state.store.workers_seen_since(since)?))).await?
     };
     let crate::db::StoreMetrics {
         jobs_by_state: states,

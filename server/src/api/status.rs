@@ -22,15 +22,17 @@ fn worker_info(state: &AppState, w: WorkerRow, t: f64) -> WorkerInfo {
         tiles_done: w.tiles_done,
         failures: w.failures,
         mode: w.mode.as_str().to_string(),
+        tags: w.tags,
     }
 }
 
 #[utoipa::path(get, path = "/api/v1/workers", tag = "status", security((), ("api_token" = [])),
-    responses((status = 200, description = "Every registered worker", body = WorkerList), (status = 401, description = "The server needs an API token", body = ApiError)))]
+    responses((status = 200, description = "Every registered worker, but those silent for longer than `--forget-workers-after` (forgotten: the job logs keep their names)", body = WorkerList), (status = 401, description = "The server needs an API token", body = ApiError)))]
 pub(super) async fn list_workers(State(state): State<AppState>) -> ApiResult<Json<WorkerList>> {
     let rows = {
         let state = state.clone();
-        off_thread(move || Ok(state.store.workers()?)).await?
+        let since = crate::db::now() - state.settings.forget_workers_after;
+        off_thread(move || Ok(state.store.workers_seen_since(since)?)).await?
     };
     let t = crate::db::now();
     let workers: Vec<WorkerInfo> = rows.into_iter().map(|w| worker_info(&state, w, t)).collect();

@@ -78,6 +78,10 @@ pub(super) struct SubmitForm {
     /// `scale`, rounded to the nearest pixel (halves up), at least 1 (e.g. 0.25: an 800x450
     /// camera renders at 200x113). The image plane stays: the same picture, coarser.
     scale: Option<f64>,
+    /// Tags a worker must all have to render the job, separated by commas (or several fields),
+    /// e.g. "gpu,big"; each 1 to 32 letters, digits, '-', '_' or '.', at most 16 (422 otherwise).
+    /// Default: any worker.
+    worker_tags: Option<String>,
 }
 
 /// Options of a submission (multipart text fields, or a [`JobRequest`]'s).
@@ -102,6 +106,8 @@ pub(super) struct SubmitOptions {
     pub scenes: Option<Vec<String>>,
     /// Where to POST the job's end (checked against `--notify-allow`).
     pub notify_url: Option<String>,
+    /// Tags a worker must all have (as given; checked with the rest of the job).
+    pub worker_tags: Vec<String>,
     /// Render every frame at this scale, in (0, 1].
     pub scale: Option<f64>,
 }
@@ -288,6 +294,15 @@ async fn read_fields(
                 opts.scenes = Some(list);
             }
             "notify_url" => opts.notify_url = Some(text()),
+            "worker_tags" => {
+                if opts.worker_tags.len() >= MAX_TAGS {
+                    return Err(AppError::new(
+                        StatusCode::UNPROCESSABLE_ENTITY,
+                        format!("worker_tags: more than {MAX_TAGS} tags; give at most {MAX_TAGS}"),
+                    ));
+                }
+                opts.worker_tags.push(text())
+            }
             "video" => {
                 opts.video = Some(VideoKind::parse(&text()).ok_or_else(|| {
                     AppError::bad_request(format!("video must be mp4, gif or none, found \"{}\"", text()))
@@ -314,7 +329,7 @@ async fn read_fields(
             }
             other => {
                 return Err(AppError::bad_request(format!(
-                    "unknown field \"{other}\"; send scene, asset (one per file, named by its relative path), bundle, name, priority, tile_size, samples, pass_samples, noise_target, cameras, scene_path, scenes, allow_unsupported, denoise, video, fps, keep_float, notify_url or scale"
+                    "unknown field \"{other}\"; send scene, asset (one per file, named by its relative path), bundle, name, priority, tile_size, samples, pass_samples, noise_target, cameras, scene_path, scenes, allow_unsupported, denoise, video, fps, keep_float, notify_url, scale or worker_tags"
                 )));
             }
         }

@@ -29,6 +29,9 @@ pub(super) async fn register(
             format!("threads must be from 1 to {MAX_WORKER_THREADS}, found {}", req.threads),
         ));
     }
+    let tags = check_tags(&req.tags).map_err(|e| {
+        AppError::new(StatusCode::UNPROCESSABLE_ENTITY, format!("tags: {e} (tessera-worker work --tags)"))
+    })?;
     // The server's own local workers are not counted: one restarted always gets back in.
     let local = super::auth::is_local_worker(&state, &headers);
     if !local && let Err(wait) = state.registrations.take() {
@@ -55,7 +58,14 @@ pub(super) async fn register(
         let (state, name) = (state.clone(), req.name.clone());
         let live_since = crate::db::now() - lost_after;
         off_thread(move || {
-            Ok(state.store.register_worker_within(&name, req.threads, &hash, max_live, live_since)?)
+            let w =
+                crate::db::NewWorker { name: &name, threads: req.threads, secret_hash: &hash, tags: &tags };
+            if local {
+                // The same row as this worker's earlier lives (this server's earlier runs, or
+                // before the server restarted it), its dead process's leases expired first.
+                return Ok(crate::db::Registered::Id(state.scheduler.register_local_worker(&w)?));
+            }
+            Ok(state.store.register_new_worker(&w, max_live, live_since)?)
         })
         .await?
     };

@@ -39,6 +39,8 @@ pub struct NewJob {
     pub notify_url: Option<String>,
     /// Every frame rendered at this scale (`scale`; the frames' sizes are already scaled).
     pub scale: Option<f64>,
+    /// Tags a worker must all have to lease its tiles (checked by the submission).
+    pub worker_tags: Vec<String>,
 }
 
 #[derive(Default)]
@@ -112,7 +114,7 @@ impl Store {
             let floor = self.min_job_id.load(std::sync::atomic::Ordering::SeqCst);
             let id = next.max(i64::try_from(floor).unwrap_or(i64::MAX));
             tx.execute_cached(
-                "INSERT INTO jobs(id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, allow_unsupported, denoise, pass_samples, noise_target, manifest, scenes, video, fps, keep_float, notify_url) VALUES (?12, ?1, 'inserting', ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?13, ?14, ?15, ?16, ?17, ?18)",
+                "INSERT INTO jobs(id, name, state, priority, tile_size, samples, bundle, scene_path, submitted_at, allow_unsupported, denoise, pass_samples, noise_target, manifest, scenes, video, fps, keep_float, notify_url, worker_tags) VALUES (?12, ?1, 'inserting', ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?13, ?14, ?15, ?16, ?17, ?18, ?19)",
                 params![
                     job.name,
                     job.priority,
@@ -132,6 +134,7 @@ impl Store {
                     job.fps,
                     job.keep_float,
                     job.notify_url,
+                    super::workers::tags_to_text(&job.worker_tags),
                 ],
             )?;
             if job.scale.is_some() {

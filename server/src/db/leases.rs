@@ -19,8 +19,38 @@ const NEXT_UNIT_BY_FRAME: &str = "SELECT t.frame, t.tile, t.x0, t.y0, t.w, t.h, 
      ORDER BY t.frame, t.pass, t.tile LIMIT 1";
 
 /// A job a lease may come from: id, bundle, scene file, samples, allow_unsupported, denoise,
-/// manifest and scene files.
-type LiveJob = (i64, String, String, Option<i64>, bool, bool, (Option<String>, Option<f64>), i64);
+/// manifest and scale, scene files and the tags it asks of its workers.
+type LiveJob =
+    (i64, String, String, Option<i64>, bool, bool, (Option<String>, Option<f64>), i64, Option<String>);
+
+/// Expires the leases `held` ((job, frame, tile, worker, pass) of live leases) inside `tx`:
+/// the worker stopped answering while it held each tile, which counts against the tile like a
+/// reported failure ([`record_failure`]): the tile goes back to the queue, or fails its job.
+/// The expiry sweep and a local worker registering again (its earlier process is dead) both
+/// come here, so that either way the same failures, events and verdicts are recorded.
+pub(super) fn expire_held(
+    tx: &rusqlite::Transaction<'_>,
+    held: Vec<(i64, i64, i64, i64, i64)>,
+    t: f64,
+) -> Result<Expired> {
+    let mut out = Expired { leases: held.len(), failed_jobs: Vec::new() };
+    for (job, frame, tile, worker, pass) in held {
+        let error = format!(
+            "worker {worker} stopped answering while rendering this tile (it crashed, was killed or lost \
+             its connection) and its lease expired"
+        );
+        tx.execute_cached(
+            "UPDATE workers SET rendering = NULL WHERE id = ?1 AND rendering IS NOT NULL",
+            [worker],
+        )?;
+        if let FailOutcome::JobFailed { job, message } =
+            record_failure(tx, (job, frame, tile, pass), worker, Failure::LeaseExpired { error: &error }, t)?
+        {
+            out.failed_jobs.push((job, message));
+        }
+    }
+    Ok(out)
+}
 
 impl Store {
     /// Hands the next tile to `worker`: highest job priority first, then submission order, then
@@ -34,8 +64,11 @@ impl Store {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         let w = worker as i64;
-        let threads: i64 =
-            tx.query_row_cached("SELECT threads FROM workers WHERE id = ?1", [w], |r| r.get(0))?;
+        let (threads, worker_tags): (i64, Option<String>) =
+            tx.query_row_cached("SELECT threads, tags FROM workers WHERE id = ?1", [w], |r| {
+                Ok((r.get(0)?, r.get(1)?))
+            })?;
+        let worker_tags = workers::tags_from_text(worker_tags);
         let held: i64 = tx.query_row_cached(
             "SELECT count(*) FROM tiles WHERE state = 'leased' AND worker_id = ?1",
             [w],
@@ -52,7 +85,7 @@ impl Store {
         // `tiles_queue`), so a lease costs the same behind a million queued tiles as behind ten.
         let jobs: Vec<LiveJob> = {
             let mut stmt = tx.prepare_cached(
-                "SELECT j.id, j.bundle, j.scene_path, j.samples, j.allow_unsupported, j.denoise, j.manifest, j.scenes, j.scale FROM jobs j
+                "SELECT j.id, j.bundle, j.scene_path, j.samples, j.allow_unsupported, j.denoise, j.manifest, j.scenes, j.scale, j.worker_tags FROM jobs j
                  WHERE j.state IN ('queued', 'running')
                    AND NOT (SELECT count(*) >= ?2 AND max(x.at) > ?3
                             FROM tile_failures x WHERE x.job_id = j.id AND x.worker_id = ?1)
@@ -68,12 +101,20 @@ impl Store {
                     r.get(5)?,
                     (r.get(6)?, r.get(8)?),
                     r.get(7)?,
+                    r.get(9)?,
                 ))
             })?
             .collect::<rusqlite::Result<_>>()?
         };
         let mut candidate = None;
-        for (job, bundle, scene_path, samples, allow_unsupported, aux, (manifest, scale), scenes) in jobs {
+        for (job, bundle, scene_path, samples, allow_unsupported, aux, (manifest, scale), scenes, tags) in
+            jobs
+        {
+            // A job that asks for tags goes only to a worker that has them all (few jobs ask:
+            // the live jobs are a short list, filtered here rather than in the query).
+            if !workers::tags_from_text(tags).iter().all(|t| worker_tags.contains(t)) {
+                continue;
+            }
             // A sequence (frames of several scene files) goes frame by frame, each frame's
             // passes in order, so that its beginning is watchable first; one scene's frames go
             // pass by pass over all of them, so that every frame shows a first pass early. Each
@@ -239,26 +280,7 @@ impl Store {
             stmt.query_map([t], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?)))?
                 .collect::<rusqlite::Result<_>>()?
         };
-        let mut out = Expired { leases: expired.len(), failed_jobs: Vec::new() };
-        for (job, frame, tile, worker, pass) in expired {
-            let error = format!(
-                "worker {worker} stopped answering while rendering this tile (it crashed, was killed or lost \
-                 its connection) and its lease expired"
-            );
-            tx.execute_cached(
-                "UPDATE workers SET rendering = NULL WHERE id = ?1 AND rendering IS NOT NULL",
-                [worker],
-            )?;
-            if let FailOutcome::JobFailed { job, message } = record_failure(
-                &tx,
-                (job, frame, tile, pass),
-                worker,
-                Failure::LeaseExpired { error: &error },
-                t,
-            )? {
-                out.failed_jobs.push((job, message));
-            }
-        }
+        let out = expire_held(&tx, expired, t)?;
         tx.commit()?;
         Ok(out)
     }

@@ -29,7 +29,8 @@ CREATE TABLE IF NOT EXISTS jobs(
     video TEXT,
     fps INTEGER,
     keep_float INTEGER,
-    scale REAL
+    scale REAL,
+    worker_tags TEXT
 );
 CREATE TABLE IF NOT EXISTS frames(
     job_id INTEGER NOT NULL,
@@ -93,7 +94,9 @@ CREATE TABLE IF NOT EXISTS workers(
     failures INTEGER NOT NULL DEFAULT 0,
     rendering INTEGER,
     secret_hash TEXT,
-    mode TEXT NOT NULL DEFAULT 'active'
+    mode TEXT NOT NULL DEFAULT 'active',
+    tags TEXT,
+    local INTEGER NOT NULL DEFAULT 0
 );
 CREATE TABLE IF NOT EXISTS job_files(
     job_id INTEGER NOT NULL,
@@ -244,6 +247,19 @@ pub(super) fn migrate(conn: &Connection) -> Result<()> {
     if !has_column("jobs", "scale")? {
         // Jobs from before `scale` render at their cameras' resolution (NULL).
         conn.execute("ALTER TABLE jobs ADD COLUMN scale REAL", [])?;
+    }
+    if !has_column("workers", "tags")? {
+        // Workers from before tags declared none, and none of them was known as one of the
+        // server's own local workers (a local worker's first start after this gets a row it
+        // keeps from then on).
+        conn.execute_batch(
+            "ALTER TABLE workers ADD COLUMN tags TEXT;
+             ALTER TABLE workers ADD COLUMN local INTEGER NOT NULL DEFAULT 0;",
+        )?;
+    }
+    if !has_column("jobs", "worker_tags")? {
+        // Jobs from before tags ask for none: any worker renders them.
+        conn.execute("ALTER TABLE jobs ADD COLUMN worker_tags TEXT", [])?;
     }
     Ok(())
 }

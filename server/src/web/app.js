@@ -88,6 +88,7 @@ function jobNode(id) {
       el("span", { class: "spacer" }),
       el("button", { class: "secondary cancel", text: "Cancel", onclick: () => cancelJob(id) })),
     el("div", { class: "error job-error", hidden: "" }),
+    el("div", { class: "notice waiting-for", hidden: "" }),
     el("div", { class: "video", hidden: "" }),
     el("div", { class: "sequence", hidden: "" }),
     el("div", { class: "frames" }),
@@ -136,6 +137,7 @@ function renderJob(job, listed = false) {
   const err = $(".job-error", n);
   err.hidden = !job.error;
   err.textContent = job.error || "";
+  renderWaiting(n, job);
   renderVideo(entry, job);
   if (isSequence(job)) renderSequence(entry, job);
   else for (const f of job.frames) renderFrame(entry, job, f);
@@ -472,20 +474,67 @@ const refreshWorkers = throttle(() => loadWorkers(), 1000);
 function renderWorkers() {
   const body = $("#workers tbody");
   if (!workers.length) {
-    body.replaceChildren(el("tr", {}, el("td", { colspan: "6", class: "empty", text: "No workers registered." })));
+    body.replaceChildren(el("tr", {}, el("td", { colspan: "8", class: "empty", text: "No workers registered." })));
     return;
   }
   const now = Date.now() / 1000;
-  body.replaceChildren(...workers.map((w) => el("tr", {},
-    el("td", { text: w.name + " (" + w.threads + " threads)" }),
+  body.replaceChildren(...workers.map((w) => el("tr", { "data-worker-id": String(w.id), "data-mode": w.mode || "active" },
+    el("td", { text: w.name + " (" + w.threads + " threads)" + ((w.tags || []).length ? " · " + w.tags.join(", ") : "") }),
     el("td", { class: "state-" + w.state, text: w.state }),
+    el("td", { class: "mode mode-" + (w.mode || "active"), text: w.mode || "active" }),
     el("td", { text: w.current_tile ? "job " + w.current_tile.job + " · frame " + w.current_tile.frame + " · tile " + w.current_tile.tile : "-" }),
-    el("td", { text: fmtDuration(now - w.last_heartbeat) + " ago" }),
+    el("td", { class: "heartbeat-age", "data-at": String(w.last_heartbeat), text: fmtDuration(now - w.last_heartbeat) + " ago" }),
     el("td", { text: String(w.tiles_done) }),
-    el("td", { text: String(w.failures) }))));
+    el("td", { text: String(w.failures) }),
+    el("td", { class: "worker-actions" }, ...workerButtons(w)))));
 }
-// Heartbeat ages tick on the page; the data itself comes with events.
-setInterval(renderWorkers, 1000);
+
+// Drain (finish what it holds, take nothing new), disable (take nothing; its tiles go back to
+// the queue) or enable a worker: the buttons its mode allows.
+function workerButtons(w) {
+  const mode = w.mode || "active";
+  const button = (action, label, title) => el("button", {
+    class: "secondary worker-" + action, type: "button", text: label, title,
+    onclick: () => workerAction(w.id, action),
+  });
+  const out = [];
+  if (mode === "active") out.push(button("drain", "Drain", "finish the tiles it holds, take no new one"));
+  if (mode !== "disabled") out.push(button("disable", "Disable", "take nothing; the tiles it holds go back to the queue"));
+  if (mode !== "active") out.push(button("enable", "Enable", "take work again"));
+  return out;
+}
+
+async function workerAction(id, action) {
+  const resp = await api("/api/v1/workers/" + id + "/" + action, { method: "POST" });
+  if (!resp.ok) alert((await resp.json().catch(() => ({ error: "HTTP " + resp.status }))).error);
+  loadWorkers();
+}
+
+// Why a job that has not ended makes no progress (no worker able to take it), from the server.
+function renderWaiting(node, job) {
+  const box = $(".waiting-for", node);
+  box.hidden = !job.waiting_for;
+  box.textContent = job.waiting_for ? "Waiting: " + job.waiting_for : "";
+}
+
+// The workers, and the jobs that have not ended (the newest 20), are looked at again every few
+// seconds: a worker falling silent (lost, then forgotten) sends no event, and whether a worker
+// can take a job changes with it.
+setInterval(() => {
+  refreshWorkers("w");
+  const unended = [...jobs.entries()].filter(([, e]) => e.data && (e.data.state === "queued" || e.data.state === "running"));
+  for (const [id] of unended.sort((a, b) => b[0] - a[0]).slice(0, 20)) refreshJob(id, id);
+}, 3000);
+
+// Heartbeat ages tick on the page (only their cells, so that a button being clicked stays);
+// the data itself comes with events.
+function tickWorkerAges() {
+  const now = Date.now() / 1000;
+  for (const td of document.querySelectorAll("#workers td.heartbeat-age")) {
+    td.textContent = fmtDuration(now - Number(td.dataset.at)) + " ago";
+  }
+}
+setInterval(tickWorkerAges, 1000);
 
 // --- Live updates ----------------------------------------------------------------------------
 
@@ -514,7 +563,11 @@ function connect() {
   for (const name of ["job", "frame"]) {
     source.addEventListener(name, (ev) => { const e = JSON.parse(ev.data); refreshJob(e.job, e.job); });
   }
-  source.addEventListener("workers", () => refreshWorkers("w"));
+  source.addEventListener("workers", () => {
+    refreshWorkers("w");
+    // A worker came, went or changed mode: whether the waiting jobs can be served changed.
+    for (const [id, entry] of jobs) if (entry.data && entry.data.waiting_for) refreshJob(id, id);
+  });
   source.addEventListener("resync", () => loadAll());
 }
 
