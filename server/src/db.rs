@@ -18,6 +18,7 @@ use tessera::protocol::{JobEvent, JobState, Lease, Rect};
 
 use crate::failures::{self, TileFailures};
 
+mod control;
 mod counters;
 mod files;
 mod jobs;
@@ -29,6 +30,7 @@ mod upkeep;
 mod video;
 mod workers;
 
+pub use control::{Control, Requeued, frame_ranges};
 pub use files::Deleted;
 pub use jobs::{NewFrame, NewJob};
 pub use notify::{DueNotification, Notified};
@@ -177,7 +179,7 @@ fn record_failure(
         return Ok(FailOutcome::Requeued);
     };
     let ended = tx.execute_cached(
-        "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3 WHERE id = ?1 AND state IN ('queued', 'running')",
+        "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3 WHERE id = ?1 AND state IN ('queued', 'running', 'paused')",
         params![job, message, t],
     )?;
     if ended > 0 {
@@ -614,7 +616,7 @@ impl Store {
     pub fn frames_awaiting_merge(&self) -> Result<Vec<FrameRow>> {
         let conn = self.conn();
         let mut stmt = conn.prepare_cached(&format!(
-            "SELECT {FRAME_COLUMNS} FROM frames f WHERE tiles_done = tiles_total AND outputs IS NULL AND (SELECT state FROM jobs WHERE id = f.job_id) IN ('queued', 'running')"
+            "SELECT {FRAME_COLUMNS} FROM frames f WHERE tiles_done = tiles_total AND outputs IS NULL AND (SELECT state FROM jobs WHERE id = f.job_id) IN ('queued', 'running', 'paused')"
         ))?;
         let rows = stmt.query_map([], frame_from_row)?.collect::<rusqlite::Result<Vec<_>>>()?;
         Ok(rows)
@@ -710,7 +712,7 @@ impl Store {
         let done = left == 0;
         if done {
             let ended = tx.execute_cached(
-                "UPDATE jobs SET state = 'done', finished_at = ?2 WHERE id = ?1 AND state IN ('queued', 'running')",
+                "UPDATE jobs SET state = 'done', finished_at = ?2 WHERE id = ?1 AND state IN ('queued', 'running', 'paused')",
                 params![job as i64, now()],
             )?;
             if ended > 0 {
@@ -779,7 +781,7 @@ impl Store {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         let ended = tx.execute_cached(
-            "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3 WHERE id = ?1 AND state IN ('queued', 'running')",
+            "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3 WHERE id = ?1 AND state IN ('queued', 'running', 'paused')",
             params![job as i64, error, now()],
         )?;
         if ended > 0 {
@@ -794,7 +796,7 @@ impl Store {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         let n = tx.execute_cached(
-            "UPDATE jobs SET state = 'canceled', finished_at = ?2 WHERE id = ?1 AND state IN ('queued', 'running')",
+            "UPDATE jobs SET state = 'canceled', finished_at = ?2 WHERE id = ?1 AND state IN ('queued', 'running', 'paused')",
             params![job as i64, now()],
         )?;
         if n > 0 {

@@ -42,6 +42,8 @@ pub struct Settings {
     pub local_worker_token: String,
     /// URL prefixes a job's own `notify_url` must start with (`--notify-allow`).
     pub notify_allow: Vec<String>,
+    /// Which finished jobs the housekeeping removes (`--keep-finished-days`, `--disk-budget-mb`).
+    pub retention: crate::retention::Retention,
 }
 
 /// What browsers and scrapers may reach (`--allowed-origin`, `--allowed-host`,

@@ -52,6 +52,7 @@ impl Farm {
             max_workers: 4096,
             local_worker_token: "local".into(),
             notify_allow: Vec::new(),
+            retention: Default::default(),
         };
         let timing =
             Timing { lease_seconds, heartbeat_seconds: 1.0, max_wait_seconds: 20.0, max_tile_seconds: 60.0 };
