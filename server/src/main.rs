@@ -145,7 +145,7 @@ struct Cli {
     notify_allow: Vec<String>,
     /// Remove finished jobs (done, failed, cancelled) with their outputs this many days after
     /// they ended (fractions allowed, e.g. 0.5). Default: finished jobs are kept for ever.
-    #[arg(long, env = "TESSERA_KEEP_FINISHED_DAYS", value_name = "D")]
+    #[arg(long, env = "TESSERA_KEEP_FINISHED_DAYS", value_name = "D", allow_negative_numbers = true)]
     keep_finished_days: Option<f64>,
     /// Remove the oldest finished jobs with their outputs while the jobs' outputs (the data
     /// directory's outputs/ and frames/) take more than this many MiB; the job that finished
