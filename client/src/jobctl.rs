@@ -24,7 +24,8 @@ fn ranges(frames: &[u32]) -> String {
 }
 
 pub fn pause(api: &Api, id: u64) -> Result<()> {
-    let job = api.change_job(&format!("pausing job {id}"), "POST", &format!("/api/v1/jobs/{id}/pause"), None)?;
+    let job =
+        api.change_job(&format!("pausing job {id}"), "POST", &format!("/api/v1/jobs/{id}/pause"), None)?;
     println!(
         "job {id} ({}) paused: no more of its tiles are handed out; tiles being rendered finish and are kept. \
          Resume it with: tessera resume {id}",
@@ -34,7 +35,8 @@ pub fn pause(api: &Api, id: u64) -> Result<()> {
 }
 
 pub fn resume(api: &Api, id: u64) -> Result<()> {
-    let job = api.change_job(&format!("resuming job {id}"), "POST", &format!("/api/v1/jobs/{id}/resume"), None)?;
+    let job =
+        api.change_job(&format!("resuming job {id}"), "POST", &format!("/api/v1/jobs/{id}/resume"), None)?;
     println!("job {id} ({}) resumed: {}", job.name, job.state.as_str());
     Ok(())
 }

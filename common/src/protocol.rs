@@ -647,7 +647,9 @@ pub const MAX_FRAME_LIST_BYTES: usize = 4096;
 pub fn parse_frame_list(text: &str) -> Result<Vec<std::ops::RangeInclusive<u32>>, String> {
     const SYNTAX: &str = "frame indexes (0-based) and ranges separated by commas, e.g. 0-9,12";
     if text.len() > MAX_FRAME_LIST_BYTES {
-        return Err(format!("the frame list is longer than {MAX_FRAME_LIST_BYTES} bytes; write ranges instead: {SYNTAX}"));
+        return Err(format!(
+            "the frame list is longer than {MAX_FRAME_LIST_BYTES} bytes; write ranges instead: {SYNTAX}"
+        ));
     }
     let number = |s: &str| -> Result<u32, String> {
         let s = s.trim();

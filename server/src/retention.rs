@@ -9,21 +9,7 @@
 use tessera::protocol::JobState;
 
 use crate::state::AppState;
-
-/// The retention policy (`None`: that rule is off).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Retention {
-    /// Finished jobs that ended longer ago than this, in seconds, are removed.
-    pub keep_finished_seconds: Option<f64>,
-    /// The oldest finished jobs are removed while the jobs' outputs take more bytes than this.
-    pub disk_budget_bytes: Option<u64>,
-}
-
-impl Retention {
-    pub fn is_off(&self) -> bool {
-        self.keep_finished_seconds.is_none() && self.disk_budget_bytes.is_none()
-    }
-}
+pub use crate::state::Retention;
 
 /// Most days `--keep-finished-days` takes (a hundred years).
 pub const MAX_KEEP_DAYS: f64 = 36_500.0;
@@ -59,7 +45,10 @@ pub enum Removed {
     /// The job is queued, running or paused: it must be cancelled first.
     NotFinal(JobState),
     /// The job went: this many rows of the store, this many bytes of its folders.
-    Gone { rows: usize, bytes: u64 },
+    Gone {
+        rows: usize,
+        bytes: u64,
+    },
 }
 
 /// Deletes a finished job (done, failed or cancelled): its rows, its frames' outputs and the
@@ -107,7 +96,10 @@ pub fn folder_bytes(dir: &std::path::Path) -> u64 {
 
 /// Bytes the jobs' outputs take: `outputs/` and `frames/` of the data directory.
 pub fn outputs_bytes(data_dir: &std::path::Path) -> u64 {
-    [crate::storage::OUTPUTS_DIR, crate::storage::FRAMES_DIR].iter().map(|s| folder_bytes(&data_dir.join(s))).sum()
+    [crate::storage::OUTPUTS_DIR, crate::storage::FRAMES_DIR]
+        .iter()
+        .map(|s| folder_bytes(&data_dir.join(s)))
+        .sum()
 }
 
 /// Applies the retention policy once: removes the finished jobs it says to, oldest first, each

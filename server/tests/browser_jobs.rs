@@ -39,7 +39,10 @@ impl Browser {
             find_program(&["chromedriver"]),
             find_program(&["chromium", "chromium-browser", "google-chrome"]),
         ) else {
-            assert!(!required, "TESSERA_REQUIRE_BROWSER is set but chromium or chromedriver is not installed");
+            assert!(
+                !required,
+                "TESSERA_REQUIRE_BROWSER is set but chromium or chromedriver is not installed"
+            );
             eprintln!("skipping the browser test: chromium and chromedriver are not installed");
             return None;
         };
@@ -58,11 +61,12 @@ impl Browser {
         }
         // Prompts (the delete's confirm) stay open until the test answers them.
         let caps = json!({"capabilities": {"alwaysMatch": {"browserName": "chrome", "unhandledPromptBehavior": "ignore",
-            "goog:chromeOptions": {
-                "binary": chrome.to_string_lossy(),
-                "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1280,1000"]
-            }}}});
-        let v: Value = ureq::post(&format!("{base}/session")).send_json(caps).expect("new session").into_json().unwrap();
+        "goog:chromeOptions": {
+            "binary": chrome.to_string_lossy(),
+            "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1280,1000"]
+        }}}});
+        let v: Value =
+            ureq::post(&format!("{base}/session")).send_json(caps).expect("new session").into_json().unwrap();
         let session = v["value"]["sessionId"].as_str().expect("session id").to_string();
         Some(Browser { driver: child, base, session })
     }
@@ -150,10 +154,24 @@ fn the_page_pauses_reprioritises_resumes_requeues_and_deletes_a_job() {
     browser.exec(&format!("localStorage.setItem('tessera-token', '{API}');"));
     browser.goto(url);
     let node = format!(".job[data-job-id=\"{id}\"]");
-    let shown = |css: &str| format!("document.querySelector('{node} {css}') && !document.querySelector('{node} {css}').hidden");
-    let state_is = |s: &str| format!("document.querySelector('{node} .state') && document.querySelector('{node} .state').textContent === '{s}'");
-    browser.wait("the queued job with its Pause button", 30, &format!("{} && {}", state_is("queued"), shown(".pause")));
-    assert_eq!(browser.exec(&format!("return {};", shown(".delete"))), json!(false), "delete shows for a queued job");
+    let shown = |css: &str| {
+        format!("document.querySelector('{node} {css}') && !document.querySelector('{node} {css}').hidden")
+    };
+    let state_is = |s: &str| {
+        format!(
+            "document.querySelector('{node} .state') && document.querySelector('{node} .state').textContent === '{s}'"
+        )
+    };
+    browser.wait(
+        "the queued job with its Pause button",
+        30,
+        &format!("{} && {}", state_is("queued"), shown(".pause")),
+    );
+    assert_eq!(
+        browser.exec(&format!("return {};", shown(".delete"))),
+        json!(false),
+        "delete shows for a queued job"
+    );
 
     // Pause: the page shows the state change, and the server has it.
     browser.click(&format!("{node} .pause"));
@@ -167,7 +185,11 @@ fn the_page_pauses_reprioritises_resumes_requeues_and_deletes_a_job() {
     browser.cmd("POST", &format!("/element/{field}/value"), Some(json!({"text": "7\u{E007}"})));
     let deadline = Instant::now() + Duration::from_secs(20);
     while job(url, id).1["priority"] != 7 {
-        assert!(Instant::now() < deadline, "the page's priority never reached the server: {}", job(url, id).1);
+        assert!(
+            Instant::now() < deadline,
+            "the page's priority never reached the server: {}",
+            job(url, id).1
+        );
         std::thread::sleep(Duration::from_millis(100));
     }
 
@@ -178,7 +200,11 @@ fn the_page_pauses_reprioritises_resumes_requeues_and_deletes_a_job() {
     browser.click(&format!("{node} .requeue"));
     browser.wait("the requeued job", 20, &state_is("queued"));
     browser.click(&format!("{node} .cancel"));
-    browser.wait("the cancelled job's Delete button", 20, &format!("{} && {}", state_is("canceled"), shown(".delete")));
+    browser.wait(
+        "the cancelled job's Delete button",
+        20,
+        &format!("{} && {}", state_is("canceled"), shown(".delete")),
+    );
 
     // Delete asks first; dismissed, nothing happens; accepted, the job is gone.
     browser.click(&format!("{node} .delete"));

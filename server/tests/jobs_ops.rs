@@ -16,7 +16,8 @@ const TOKEN: &str = "wtok";
 const ARGS: [&str; 4] = ["--local-workers", "0", "--worker-token", TOKEN];
 
 fn register(url: &str) -> u64 {
-    let (code, v) = worker_post(url, TOKEN, "/api/v1/worker/register", json!({"name": "scripted", "threads": 16}));
+    let (code, v) =
+        worker_post(url, TOKEN, "/api/v1/worker/register", json!({"name": "scripted", "threads": 16}));
     assert_eq!(code, 200, "{v}");
     v["worker_id"].as_u64().unwrap()
 }
@@ -251,12 +252,17 @@ fn a_new_priority_orders_the_next_lease_and_bad_ones_are_refused() {
     let w = register(url);
     assert_eq!(lease(url, w, 0.0).unwrap()["job_id"], b);
     assert_eq!(lease(url, w, 0.0).unwrap()["job_id"], a);
-    let (code, v) = send(url, "PATCH", &format!("/api/v1/jobs/{a}"), &format!(r#"{{"priority": {}}}"#, i64::MIN));
+    let (code, v) =
+        send(url, "PATCH", &format!("/api/v1/jobs/{a}"), &format!(r#"{{"priority": {}}}"#, i64::MIN));
     assert_eq!((code, v["priority"].as_i64()), (200, Some(i64::MIN)), "{v}");
     let log = get_json(url, &format!("/api/v1/jobs/{b}/log"));
     assert!(
-        log["events"].as_array().unwrap().iter().any(|e| e["kind"] == "priority_changed"
-            && e["message"].as_str().unwrap().contains("from 0 to 10")),
+        log["events"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|e| e["kind"] == "priority_changed"
+                && e["message"].as_str().unwrap().contains("from 0 to 10")),
         "{log}"
     );
     assert_eq!(cancel(&server, a).0, 200);
@@ -269,7 +275,9 @@ fn job_bytes(data: &std::path::Path, id: u64) -> u64 {
     fn walk(p: &std::path::Path) -> u64 {
         std::fs::read_dir(p).map_or(0, |d| {
             d.flatten()
-                .map(|e| if e.path().is_dir() { walk(&e.path()) } else { e.metadata().map_or(0, |m| m.len()) })
+                .map(
+                    |e| if e.path().is_dir() { walk(&e.path()) } else { e.metadata().map_or(0, |m| m.len()) },
+                )
                 .sum()
         })
     }
@@ -282,7 +290,9 @@ fn retention_removes_the_oldest_finished_jobs_files_and_never_a_paused_job() {
     let data = tessera_testkit::TempDir::new("jobs-retention");
     let dir = data.join("data");
     // A wrong flag is refused at start, naming it.
-    for (flag, value) in [("--keep-finished-days", "-1"), ("--keep-finished-days", "nan"), ("--disk-budget-mb", "0")] {
+    for (flag, value) in
+        [("--keep-finished-days", "-1"), ("--keep-finished-days", "nan"), ("--disk-budget-mb", "0")]
+    {
         let out = Command::new(server_bin())
             .args(["--data-dir"])
             .arg(&dir)
@@ -351,10 +361,9 @@ fn retention_removes_the_oldest_finished_jobs_files_and_never_a_paused_job() {
     let server = Server::start(&dir, &args);
     let url = &server.url;
     let deadline = Instant::now() + Duration::from_secs(30);
-    while ids[1..3]
-        .iter()
-        .any(|&id| call(ureq::get(&format!("{url}/api/v1/jobs/{id}")), None).0 != 404 || job_bytes(&dir, id) > 0)
-    {
+    while ids[1..3].iter().any(|&id| {
+        call(ureq::get(&format!("{url}/api/v1/jobs/{id}")), None).0 != 404 || job_bytes(&dir, id) > 0
+    }) {
         assert!(Instant::now() < deadline, "finished jobs past their days stayed\n{}", server.log());
         std::thread::sleep(Duration::from_millis(50));
     }
@@ -371,7 +380,11 @@ fn tessera(server: &Server, args: &[&str]) -> (bool, String, String) {
         .env_remove("TESSERA_TOKEN")
         .output()
         .expect("run tessera");
-    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into(),
+        String::from_utf8_lossy(&out.stderr).into(),
+    )
 }
 
 #[test]
@@ -381,7 +394,10 @@ fn the_client_pauses_resumes_requeues_and_reprioritises_saying_what_it_did() {
     let id = submit_tiny(&server.url, 32, 32, 16, &[]);
     let s = id.to_string();
     let (ok, out, err) = tessera(&server, &["pause", &s]);
-    assert!(ok && out.contains(&format!("job {id} (tiny.xml) paused")) && out.contains("tessera resume"), "{out}{err}");
+    assert!(
+        ok && out.contains(&format!("job {id} (tiny.xml) paused")) && out.contains("tessera resume"),
+        "{out}{err}"
+    );
     let (ok, out, err) = tessera(&server, &["priority", &s, "-3"]);
     assert!(ok && out.contains("priority -3") && out.contains("once resumed"), "{out}{err}");
     let (ok, out, err) = tessera(&server, &["resume", &s]);

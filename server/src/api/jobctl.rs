@@ -38,10 +38,14 @@ fn object(body: &[u8], allowed: &[&str], route: &str, example: &str) -> ApiResul
         return Ok(Map::new());
     }
     let value: Value = serde_json::from_slice(body).map_err(|e| {
-        AppError::bad_request(format!("{route} takes a JSON object such as {example}; the body is not JSON: {e}"))
+        AppError::bad_request(format!(
+            "{route} takes a JSON object such as {example}; the body is not JSON: {e}"
+        ))
     })?;
     let Value::Object(map) = value else {
-        return Err(AppError::bad_request(format!("{route} takes a JSON object such as {example}, found {value}")));
+        return Err(AppError::bad_request(format!(
+            "{route} takes a JSON object such as {example}, found {value}"
+        )));
     };
     let unknown: Vec<String> =
         map.keys().filter(|k| !allowed.contains(&k.as_str())).map(|k| format!("\"{k}\"")).collect();
@@ -60,7 +64,10 @@ fn object(body: &[u8], allowed: &[&str], route: &str, example: &str) -> ApiResul
         (status = 200, description = "Paused: no more of its tiles are leased; the leases already out finish and their results are kept. `resume` goes on", body = JobInfo),
         (status = 400, description = "A path parameter does not parse", body = ApiError), (status = 401, description = "The server needs an API token", body = ApiError), (status = 404, description = "No such job", body = ApiError),
         (status = 409, description = "The job is paused already, or has ended (the message names its state)", body = ApiError)))]
-pub(super) async fn pause_job(State(state): State<AppState>, Path(id): Path<u64>) -> ApiResult<Json<JobInfo>> {
+pub(super) async fn pause_job(
+    State(state): State<AppState>,
+    Path(id): Path<u64>,
+) -> ApiResult<Json<JobInfo>> {
     off_thread(move || match state.store.pause_job(id)? {
         Control::NoSuchJob => Err(no_such_job(id)),
         Control::Refused(JobState::Paused) => Err(AppError::new(
@@ -69,7 +76,10 @@ pub(super) async fn pause_job(State(state): State<AppState>, Path(id): Path<u64>
         )),
         Control::Refused(s) => Err(AppError::new(
             StatusCode::CONFLICT,
-            format!("job {id} has already ended ({}); only a queued or running job can be paused", s.as_str()),
+            format!(
+                "job {id} has already ended ({}); only a queued or running job can be paused",
+                s.as_str()
+            ),
         )),
         Control::Changed(out) => {
             tracing::info!(job = id, leases_out = out, "job paused");
@@ -85,7 +95,10 @@ pub(super) async fn pause_job(State(state): State<AppState>, Path(id): Path<u64>
         (status = 200, description = "Resumed: queued again, or running when some of its work is done", body = JobInfo),
         (status = 400, description = "A path parameter does not parse", body = ApiError), (status = 401, description = "The server needs an API token", body = ApiError), (status = 404, description = "No such job", body = ApiError),
         (status = 409, description = "The job is not paused (the message names its state)", body = ApiError)))]
-pub(super) async fn resume_job(State(state): State<AppState>, Path(id): Path<u64>) -> ApiResult<Json<JobInfo>> {
+pub(super) async fn resume_job(
+    State(state): State<AppState>,
+    Path(id): Path<u64>,
+) -> ApiResult<Json<JobInfo>> {
     off_thread(move || match state.store.resume_job(id)? {
         Control::NoSuchJob => Err(no_such_job(id)),
         Control::Refused(s) => Err(AppError::new(
@@ -177,7 +190,11 @@ pub(super) async fn patch_job(
     const ROUTE: &str = "PATCH /api/v1/jobs/{id}";
     let map = object(&body, &["priority"], ROUTE, r#"{"priority": 10}"#)?;
     let priority = match map.get("priority") {
-        None => return Err(AppError::bad_request(format!(r#"{ROUTE} needs the field to change, e.g. {{"priority": 10}}"#))),
+        None => {
+            return Err(AppError::bad_request(format!(
+                r#"{ROUTE} needs the field to change, e.g. {{"priority": 10}}"#
+            )));
+        }
         Some(Value::Number(n)) if n.is_i64() => n.as_i64().unwrap_or_default(),
         Some(other) => {
             return Err(AppError::bad_request(format!(

@@ -49,9 +49,7 @@ fn job_state(tx: &Connection, id: i64) -> Result<Option<JobState>> {
     let state: Option<String> = tx
         .query_row_cached("SELECT state FROM jobs WHERE id = ?1 AND state != 'inserting'", [id], |r| r.get(0))
         .optional()?;
-    state
-        .map(|s| JobState::parse(&s).ok_or_else(|| anyhow::anyhow!("job {id} has state {s}")))
-        .transpose()
+    state.map(|s| JobState::parse(&s).ok_or_else(|| anyhow::anyhow!("job {id} has state {s}"))).transpose()
 }
 
 impl Store {
@@ -115,7 +113,11 @@ impl Store {
         }
         let old: i64 = tx.query_row_cached("SELECT priority FROM jobs WHERE id = ?1", [id], |r| r.get(0))?;
         tx.execute_cached("UPDATE jobs SET priority = ?2 WHERE id = ?1", params![id, priority])?;
-        log_event(&tx, id, Event::new("priority_changed", &format!("priority changed from {old} to {priority}")))?;
+        log_event(
+            &tx,
+            id,
+            Event::new("priority_changed", &format!("priority changed from {old} to {priority}")),
+        )?;
         tx.commit()?;
         Ok(Control::Changed(old))
     }
@@ -140,7 +142,8 @@ impl Store {
             [id],
             |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
         )?;
-        let count: i64 = tx.query_row_cached("SELECT count(*) FROM frames WHERE job_id = ?1", [id], |r| r.get(0))?;
+        let count: i64 =
+            tx.query_row_cached("SELECT count(*) FROM frames WHERE job_id = ?1", [id], |r| r.get(0))?;
         let count = u32::try_from(count).unwrap_or(u32::MAX);
         let chosen: Vec<u32> = match frames {
             Some(ranges) => {
@@ -151,8 +154,9 @@ impl Store {
                 set.into_iter().collect()
             }
             None => {
-                let mut stmt =
-                    tx.prepare_cached("SELECT idx FROM frames WHERE job_id = ?1 AND outputs IS NULL ORDER BY idx")?;
+                let mut stmt = tx.prepare_cached(
+                    "SELECT idx FROM frames WHERE job_id = ?1 AND outputs IS NULL ORDER BY idx",
+                )?;
                 let rows = stmt.query_map([id], |r| r.get::<_, i64>(0))?;
                 rows.map(|r| r.map(|i| i as u32)).collect::<rusqlite::Result<_>>()?
             }
@@ -251,7 +255,10 @@ mod tests {
             image_name: format!("f{k}.png"),
             width: 2,
             height: 1,
-            tiles: vec![Rect { x0: 0, y0: 0, width: 1, height: 1 }, Rect { x0: 1, y0: 0, width: 1, height: 1 }],
+            tiles: vec![
+                Rect { x0: 0, y0: 0, width: 1, height: 1 },
+                Rect { x0: 1, y0: 0, width: 1, height: 1 },
+            ],
             samples: 16 * passes,
             pass_samples: 16,
             scene_path: None,
@@ -331,7 +338,10 @@ mod tests {
             s.requeue_job(j, Some(&far)).unwrap(),
             Control::Changed(Requeued::NoSuchFrame { asked: u32::MAX, frames: 2 })
         );
-        assert_eq!(s.requeue_job(j, None).unwrap(), Control::Changed(Requeued::Queued { frames: vec![0, 1], units: 8 }));
+        assert_eq!(
+            s.requeue_job(j, None).unwrap(),
+            Control::Changed(Requeued::Queued { frames: vec![0, 1], units: 8 })
+        );
         assert_eq!(units(&s, j), before);
         let row = s.job(j).unwrap().unwrap();
         assert_eq!((row.state, row.finished_at), (JobState::Queued, None));
@@ -341,7 +351,10 @@ mod tests {
         s.conn().execute("UPDATE frames SET outputs = '[]' WHERE job_id = ?1", [j as i64]).unwrap();
         assert_eq!(s.requeue_job(j, None).unwrap(), Control::Changed(Requeued::NothingUnfinished));
         let one = [1..=1];
-        assert_eq!(s.requeue_job(j, Some(&one)).unwrap(), Control::Changed(Requeued::Queued { frames: vec![1], units: 4 }));
+        assert_eq!(
+            s.requeue_job(j, Some(&one)).unwrap(),
+            Control::Changed(Requeued::Queued { frames: vec![1], units: 4 })
+        );
         assert_eq!(s.frames(j).unwrap()[0].outputs, Some(vec![]), "frame 0 keeps its outputs");
         assert_eq!(s.frames(j).unwrap()[1].outputs, None);
     }
