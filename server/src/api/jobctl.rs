@@ -167,6 +167,12 @@ pub(super) async fn requeue_job(
         ))),
         Control::Changed(Requeued::Queued { frames, units }) => {
             tracing::info!(job = id, frames = %crate::db::frame_ranges(&frames), units, "job requeued");
+            // A frame's pass files from before are not this render's.
+            for &f in &frames {
+                for name in crate::merge::PASS_FILES {
+                    let _ = std::fs::remove_file(state.server_frame_dir(id, f).join(name));
+                }
+            }
             state.scheduler.job_changed(id, JobState::Queued);
             answer(&state, id)
         }
