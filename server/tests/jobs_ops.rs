@@ -226,6 +226,42 @@ fn a_cancelled_job_requeued_finishes_and_a_frame_rendered_again_has_the_same_byt
 }
 
 #[test]
+fn a_sequences_frame_rendered_again_makes_its_video_again() {
+    let _serial = serial();
+    let server = Server::start_temp("jobs-requeue-video", &ARGS);
+    let url = &server.url;
+    let scene = |k: u32| {
+        String::from_utf8(tessera_testkit::tiny_scene(16, 8))
+            .unwrap()
+            .replace("tiny.png", &format!("f{k}.png"))
+    };
+    let (a, b) = (scene(0), scene(1));
+    let (code, v) = submit(
+        url,
+        None,
+        &[
+            ("scene", Some("f0.xml"), a.as_bytes()),
+            ("scene", Some("f1.xml"), b.as_bytes()),
+            ("video", None, b"gif"),
+        ],
+    );
+    assert_eq!(code, 201, "{v}");
+    let id = v["id"].as_u64().unwrap();
+    let _worker = Worker::start(url, TOKEN, "w1");
+    let video_done = |j: &Value| j["state"] == "done" && j["video"]["state"] == "done";
+    let first = wait_job(&server, id, 120, video_done);
+    let gif = get_bytes(url, first["video"]["url"].as_str().unwrap());
+    let (code, v) = send(url, "POST", &format!("/api/v1/jobs/{id}/requeue"), r#"{"frames": "1-1"}"#);
+    assert_eq!(code, 200, "{v}");
+    assert_ne!(v["video"]["state"], "done", "the video is made again: {v}");
+    assert!(v["frames"][0]["outputs"].as_array().unwrap().len() > 0, "frame 0 keeps its files: {v}");
+    let again = wait_job(&server, id, 120, video_done);
+    assert!(get_bytes(url, again["video"]["url"].as_str().unwrap()) == gif, "the remade video differs");
+    let k = kinds(url, id);
+    assert_eq!(k.iter().filter(|x| *x == "video_done").count(), 2, "{k:?}");
+}
+
+#[test]
 fn a_new_priority_orders_the_next_lease_and_bad_ones_are_refused() {
     let _serial = serial();
     let server = Server::start_temp("jobs-priority", &ARGS);

@@ -360,6 +360,22 @@ mod tests {
     }
 
     #[test]
+    fn a_paused_job_can_be_cancelled_and_fails_like_any_other() {
+        let (_dir, s) = store("ctl-pause-end");
+        let j = job(&s, 1);
+        assert_eq!(s.pause_job(j).unwrap(), Control::Changed(0));
+        assert!(s.cancel_job(j).unwrap(), "a paused job is cancelled");
+        let k = job(&s, 1);
+        assert_eq!(s.pause_job(k).unwrap(), Control::Changed(0));
+        s.fail_job(k, "broken").unwrap();
+        assert_eq!(s.job(k).unwrap().unwrap().state, JobState::Failed);
+        assert_eq!(
+            s.finished_jobs_oldest_first().unwrap().iter().map(|(id, _)| *id).collect::<Vec<_>>(),
+            [j, k]
+        );
+    }
+
+    #[test]
     fn frame_lists_print_as_ranges() {
         assert_eq!(frame_ranges(&[0, 1, 2, 5, 7, 8]), "0-2, 5, 7-8");
         assert_eq!(frame_ranges(&[3]), "3");
