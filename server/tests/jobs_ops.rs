@@ -254,7 +254,7 @@ fn a_sequences_frame_rendered_again_makes_its_video_again() {
     let (code, v) = send(url, "POST", &format!("/api/v1/jobs/{id}/requeue"), r#"{"frames": "1-1"}"#);
     assert_eq!(code, 200, "{v}");
     assert_ne!(v["video"]["state"], "done", "the video is made again: {v}");
-    assert!(v["frames"][0]["outputs"].as_array().unwrap().len() > 0, "frame 0 keeps its files: {v}");
+    assert!(!v["frames"][0]["outputs"].as_array().unwrap().is_empty(), "frame 0 keeps its files: {v}");
     let again = wait_job(&server, id, 120, video_done);
     assert!(get_bytes(url, again["video"]["url"].as_str().unwrap()) == gif, "the remade video differs");
     let k = kinds(url, id);
