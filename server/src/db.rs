@@ -256,6 +256,9 @@ pub struct Store {
     /// A second connection that only copies the write-ahead log into the database file
     /// ([`Store::checkpoint`]), so that no request waits for that behind the store's lock.
     checkpointer: Mutex<Connection>,
+    /// Jobs whose frames are being queued again in steps (`control.rs`): not purged nor deleted
+    /// meanwhile.
+    requeueing: Mutex<std::collections::HashSet<u64>>,
 }
 
 #[derive(Clone, Debug)]
@@ -568,6 +571,7 @@ impl Store {
             // A deleted job's id is never handed out again.
             min_job_id: std::sync::atomic::AtomicU64::new(highest_deleted.saturating_add(1)),
             checkpointer: Mutex::new(checkpointer),
+            requeueing: Mutex::default(),
         })
     }
 

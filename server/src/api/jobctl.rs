@@ -161,6 +161,10 @@ pub(super) async fn requeue_job(
                  (tessera requeue {id} --frames 0-2)"
             ),
         )),
+        Control::Changed(Requeued::Busy) => Err(AppError::new(
+            StatusCode::CONFLICT,
+            format!("job {id} is being requeued already; see its state in a moment (tessera status {id})"),
+        )),
         Control::Changed(Requeued::NoSuchFrame { asked, frames }) => Err(AppError::bad_request(format!(
             "frames: job {id} has {frames} frame(s), numbered 0 to {} (0-based, as frames[].index); there is no frame {asked}",
             frames.saturating_sub(1)

@@ -27,6 +27,23 @@ pub enum Requeued {
     NoSuchFrame { asked: u32, frames: u32 },
     /// These frames render again (their units of work, tiles x passes, queued afresh).
     Queued { frames: Vec<u32>, units: u64 },
+    /// Another requeue of the job is under way.
+    Busy,
+}
+
+/// A frame a requeue renders again, cut as at its submission.
+struct FramePlan {
+    frame: u32,
+    width: u32,
+    height: u32,
+    /// The tiles' edge.
+    edge: u32,
+    samples: u32,
+    /// Samples per pass (whole blocks), and the passes.
+    pass: u32,
+    passes: u32,
+    /// Under a noise target a tile's later passes wait for the verdict on the one before.
+    waiting: bool,
 }
 
 /// `frames` (0-based, sorted) as short ranges: `0-9, 12`.
@@ -128,33 +145,64 @@ impl Store {
     /// submission), its progress and outputs cleared (the files stay until the new ones replace
     /// them), and the job's tile failures forgotten (fresh retry counts); the job is queued,
     /// its end announced again and its video (a sequence's) made again once it is done.
+    ///
+    /// The frames' tile rows are deleted and written again [`ROWS_PER_STEP`] to a transaction,
+    /// the store's lock let go between two, while the job stays as it was (a finished job leases
+    /// nothing; the housekeeping does not purge it nor a `DELETE` delete it meanwhile); the last
+    /// step clears the frames and queues the job. A stop half-way leaves the finished job as it
+    /// was, with rows the housekeeping purges or a requeue writes again.
     pub fn requeue_job(&self, job: u64, frames: Option<&[RangeInclusive<u32>]>) -> Result<Control<Requeued>> {
         let Ok(id) = i64::try_from(job) else { return Ok(Control::NoSuchJob) };
-        let mut conn = self.conn();
-        let tx = conn.transaction()?;
-        match job_state(&tx, id)? {
-            None => return Ok(Control::NoSuchJob),
-            Some(s) if !s.is_final() => return Ok(Control::Refused(s)),
-            Some(_) => {}
+        let (state, plan) = match self.requeue_plan(id, frames)? {
+            Ok(p) => p,
+            Err(refusal) => return Ok(refusal),
+        };
+        if !self.requeueing.lock().unwrap_or_else(|e| e.into_inner()).insert(job) {
+            return Ok(Control::Changed(Requeued::Busy));
         }
-        let (tile_size, pass_samples, noise_target): (i64, Option<i64>, Option<f64>) = tx.query_row_cached(
-            "SELECT tile_size, pass_samples, noise_target FROM jobs WHERE id = ?1",
-            [id],
-            |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
-        )?;
+        let result = self.requeue_in_steps(id, state, &plan);
+        self.requeueing.lock().unwrap_or_else(|e| e.into_inner()).remove(&job);
+        result
+    }
+
+    pub(super) fn is_requeueing(&self, job: u64) -> bool {
+        self.requeueing.lock().unwrap_or_else(|e| e.into_inner()).contains(&job)
+    }
+
+    /// The frames a requeue renders again, each as cut at submission; or why there is none.
+    fn requeue_plan(
+        &self,
+        id: i64,
+        frames: Option<&[RangeInclusive<u32>]>,
+    ) -> Result<Result<(JobState, Vec<FramePlan>), Control<Requeued>>> {
+        let conn = self.conn();
+        let state = match job_state(&conn, id)? {
+            None => return Ok(Err(Control::NoSuchJob)),
+            Some(s) if !s.is_final() => return Ok(Err(Control::Refused(s))),
+            Some(s) => s,
+        };
+        let (tile_size, pass_samples, noise_target): (i64, Option<i64>, Option<f64>) = conn
+            .query_row_cached(
+                "SELECT tile_size, pass_samples, noise_target FROM jobs WHERE id = ?1",
+                [id],
+                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
+            )?;
         let count: i64 =
-            tx.query_row_cached("SELECT count(*) FROM frames WHERE job_id = ?1", [id], |r| r.get(0))?;
+            conn.query_row_cached("SELECT count(*) FROM frames WHERE job_id = ?1", [id], |r| r.get(0))?;
         let count = u32::try_from(count).unwrap_or(u32::MAX);
         let chosen: Vec<u32> = match frames {
             Some(ranges) => {
                 if let Some(r) = ranges.iter().find(|r| *r.end() >= count) {
-                    return Ok(Control::Changed(Requeued::NoSuchFrame { asked: *r.end(), frames: count }));
+                    return Ok(Err(Control::Changed(Requeued::NoSuchFrame {
+                        asked: *r.end(),
+                        frames: count,
+                    })));
                 }
                 let set: BTreeSet<u32> = ranges.iter().flat_map(|r| r.clone()).collect();
                 set.into_iter().collect()
             }
             None => {
-                let mut stmt = tx.prepare_cached(
+                let mut stmt = conn.prepare_cached(
                     "SELECT idx FROM frames WHERE job_id = ?1 AND outputs IS NULL ORDER BY idx",
                 )?;
                 let rows = stmt.query_map([id], |r| r.get::<_, i64>(0))?;
@@ -162,56 +210,105 @@ impl Store {
             }
         };
         if chosen.is_empty() {
-            return Ok(Control::Changed(Requeued::NothingUnfinished));
+            return Ok(Err(Control::Changed(Requeued::NothingUnfinished)));
         }
-        let mut units = 0u64;
-        for &frame in &chosen {
-            let (width, height, tiles_total, samples, passes_total): (u32, u32, i64, u32, u32) = tx.query_row_cached(
+        let mut plan = Vec::with_capacity(chosen.len());
+        for frame in chosen {
+            let (width, height, tiles_total, samples, passes_total): (u32, u32, i64, u32, u32) = conn.query_row_cached(
                 "SELECT width, height, tiles_total, samples, passes_total FROM frames WHERE job_id = ?1 AND idx = ?2",
                 params![id, frame],
                 |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?)),
             )?;
             // The tiles as the submission cut them: a frame of one tile was rendered whole.
             let edge = if tiles_total == 1 { width.max(height) } else { tile_size.clamp(1, 4096) as u32 };
-            let rects = tessera::render::tiles(width, height, edge);
             let pass = match pass_samples {
                 Some(p) => tessera::passes::round_to_blocks(p.clamp(1, i64::from(u32::MAX)) as u32),
                 None => tessera::passes::default_farm_pass_samples(samples, noise_target.is_some()),
             };
             let passes = tessera::passes::pass_count(samples, pass);
+            let tiles = tessera::render::tiles(width, height, edge).len() as i64;
             anyhow::ensure!(
-                rects.len() as i64 == tiles_total && passes == passes_total,
-                "frame {frame} of job {job} cannot be cut again as it was ({tiles_total} tiles of {passes_total} passes)"
+                tiles == tiles_total && passes == passes_total,
+                "frame {frame} of job {id} cannot be cut again as it was ({tiles_total} tiles of {passes_total} passes)"
             );
-            tx.execute_cached("DELETE FROM tiles WHERE job_id = ?1 AND frame = ?2", params![id, frame])?;
+            plan.push(FramePlan {
+                frame,
+                width,
+                height,
+                edge,
+                samples,
+                pass,
+                passes,
+                waiting: noise_target.is_some(),
+            });
+        }
+        Ok(Ok((state, plan)))
+    }
+
+    fn requeue_in_steps(&self, id: i64, state: JobState, plan: &[FramePlan]) -> Result<Control<Requeued>> {
+        let mut units = 0u64;
+        for f in plan {
+            loop {
+                let gone = self.conn().execute_cached(
+                    "DELETE FROM tiles WHERE rowid IN (SELECT rowid FROM tiles WHERE job_id = ?1 AND frame = ?2 LIMIT ?3)",
+                    params![id, f.frame, ROWS_PER_STEP as i64],
+                )?;
+                if gone < ROWS_PER_STEP {
+                    break;
+                }
+                std::thread::sleep(STEP_PAUSE);
+            }
+            let rects = tessera::render::tiles(f.width, f.height, f.edge);
+            let mut rows = (0..f.passes).flat_map(|k| rects.iter().enumerate().map(move |(t, r)| (k, t, r)));
+            loop {
+                let step: Vec<_> = rows.by_ref().take(ROWS_PER_STEP).collect();
+                if step.is_empty() {
+                    break;
+                }
+                let mut conn = self.conn();
+                let tx = conn.transaction()?;
+                {
+                    let mut insert = tx.prepare_cached(
+                        "INSERT INTO tiles(job_id, frame, tile, x0, y0, w, h, pass, first_sample, end_sample, state)
+                         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
+                    )?;
+                    for (k, t, r) in &step {
+                        let range =
+                            (f.passes > 1).then(|| tessera::passes::pass_range(f.samples, f.pass, *k));
+                        let unit_state = if *k > 0 && f.waiting { "waiting" } else { "queued" };
+                        insert.execute(params![
+                            id,
+                            f.frame,
+                            *t as i64,
+                            r.x0,
+                            r.y0,
+                            r.width,
+                            r.height,
+                            k,
+                            range.map(|r| r.start),
+                            range.map(|r| r.end),
+                            unit_state
+                        ])?;
+                    }
+                }
+                tx.commit()?;
+                drop(conn);
+                units += step.len() as u64;
+                std::thread::sleep(STEP_PAUSE);
+            }
+        }
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        // Nothing changes a finished job's state but a requeue, which waits for this one.
+        anyhow::ensure!(
+            job_state(&tx, id)? == Some(state),
+            "job {id} changed while its frames were being queued again"
+        );
+        for f in plan {
             tx.execute_cached(
                 "UPDATE frames SET tiles_done = 0, passes_published = 0, outputs = NULL WHERE job_id = ?1 AND idx = ?2",
-                params![id, frame],
+                params![id, f.frame],
             )?;
-            let mut insert = tx.prepare_cached(
-                "INSERT INTO tiles(job_id, frame, tile, x0, y0, w, h, pass, first_sample, end_sample, state)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
-            )?;
-            for k in 0..passes {
-                let range = (passes > 1).then(|| tessera::passes::pass_range(samples, pass, k));
-                let state = if k > 0 && noise_target.is_some() { "waiting" } else { "queued" };
-                for (t, r) in rects.iter().enumerate() {
-                    insert.execute(params![
-                        id,
-                        frame,
-                        t as i64,
-                        r.x0,
-                        r.y0,
-                        r.width,
-                        r.height,
-                        k,
-                        range.map(|r| r.start),
-                        range.map(|r| r.end),
-                        state
-                    ])?;
-                    units += 1;
-                }
-            }
         }
         tx.execute_cached("DELETE FROM tile_failures WHERE job_id = ?1", [id])?;
         tx.execute_cached("DELETE FROM job_videos WHERE job_id = ?1", [id])?;
@@ -219,13 +316,14 @@ impl Store {
             "UPDATE jobs SET state = 'queued', started_at = NULL, finished_at = NULL, error = NULL, notified = 0 WHERE id = ?1",
             [id],
         )?;
+        let frames: Vec<u32> = plan.iter().map(|f| f.frame).collect();
         let message = format!(
             "requeued: frame(s) {} render again ({units} unit(s) of work); their outputs are replaced when done",
-            frame_ranges(&chosen)
+            frame_ranges(&frames)
         );
         log_event(&tx, id, Event::new("job_requeued", &message))?;
         tx.commit()?;
-        Ok(Control::Changed(Requeued::Queued { frames: chosen, units }))
+        Ok(Control::Changed(Requeued::Queued { frames, units }))
     }
 
     /// Finished jobs (done, failed, cancelled), the one that finished first first: what the
