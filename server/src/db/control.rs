@@ -31,6 +31,9 @@ pub enum Requeued {
     Busy,
 }
 
+/// Why a requeue does nothing (what [`Store::requeue_job`] answers).
+type Refusal = Control<Requeued>;
+
 /// A frame a requeue renders again, cut as at its submission.
 struct FramePlan {
     frame: u32,
@@ -174,7 +177,7 @@ impl Store {
         &self,
         id: i64,
         frames: Option<&[RangeInclusive<u32>]>,
-    ) -> Result<Result<(JobState, Vec<FramePlan>), Control<Requeued>>> {
+    ) -> Result<Result<(JobState, Vec<FramePlan>), Refusal>> {
         let conn = self.conn();
         let state = match job_state(&conn, id)? {
             None => return Ok(Err(Control::NoSuchJob)),
