@@ -172,6 +172,24 @@ impl Api {
         Ok(())
     }
 
+    /// A change of job `id` (`POST .../pause`, `PATCH` with a body, ...): `method` on
+    /// `/api/v1/jobs/{id}{tail}` with `body` as JSON (`None`: an empty body); the job as it is now.
+    pub fn change_job(
+        &self,
+        what: &str,
+        method: &str,
+        path: &str,
+        body: Option<&serde_json::Value>,
+    ) -> Result<JobInfo, CallError> {
+        let req = self.request(method, path);
+        let sent = match body {
+            Some(b) => req.set("Content-Type", "application/json").send_string(&b.to_string()),
+            None => req.send_bytes(&[]),
+        };
+        let resp = sent.map_err(|e| self.explain(what, e))?;
+        self.json(what, resp)
+    }
+
     pub fn workers(&self) -> Result<tessera::protocol::WorkerList, CallError> {
         self.get_json("listing the workers", "/api/v1/workers")
     }

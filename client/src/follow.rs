@@ -231,7 +231,11 @@ pub fn follow(api: &Api, id: u64, bars: bool, quiet: bool) -> Result<JobInfo> {
         }
         // The end has a line of its own below.
         if last_state != Some(job.state) && text && !job.state.is_final() {
-            eprintln!("job {id} ({}): {}", job.name, job.state.as_str());
+            if job.state == JobState::Paused {
+                eprintln!("job {id} ({}): paused; it renders again after: tessera resume {id}", job.name);
+            } else {
+                eprintln!("job {id} ({}): {}", job.name, job.state.as_str());
+            }
         }
         last_state = Some(job.state);
         if job.error != last_error {
@@ -462,6 +466,12 @@ pub fn download(api: &Api, job: &JobInfo, out: &Path, float: bool, quiet: bool) 
             JobState::Queued | JobState::Running => {
                 format!("wait for them with: tessera fetch {} --wait --out {}", job.id, out.display())
             }
+            JobState::Paused => format!(
+                "the job is paused; resume it (tessera resume {}) and wait for them with: tessera fetch {} --wait --out {}",
+                job.id,
+                job.id,
+                out.display()
+            ),
             JobState::Canceled => {
                 "the job was cancelled before they were rendered; submit it again to render them".to_string()
             }

@@ -11,6 +11,7 @@
 mod api;
 mod config;
 mod follow;
+mod jobctl;
 mod pack;
 mod upload;
 
@@ -231,11 +232,42 @@ enum Command {
         #[arg(long, short)]
         quiet: bool,
     },
-    /// Delete a finished (done, failed or cancelled) job with its outputs; a job still queued
-    /// or running must be cancelled first.
+    /// Delete a finished (done, failed or cancelled) job with its outputs; a job still queued,
+    /// running or paused must be cancelled first.
     Delete {
         /// The job to delete.
         id: u64,
+    },
+    /// Pause a queued or running job: no more of its tiles are handed out; tiles being
+    /// rendered finish and are kept. `tessera resume` goes on.
+    Pause {
+        /// The job to pause.
+        id: u64,
+    },
+    /// Resume a paused job.
+    Resume {
+        /// The job to resume.
+        id: u64,
+    },
+    /// Render a finished job again without submitting it again: a failed or cancelled job's
+    /// unfinished frames (with fresh retry counts), or with --frames, those frames of any
+    /// finished job (their outputs replaced when done; a sequence's video made again).
+    Requeue {
+        /// The job to requeue.
+        id: u64,
+        /// Frames to render again, numbered from 0 as `tessera status ID` lists them: indexes
+        /// and ranges separated by commas, e.g. 0-9,12.
+        #[arg(long, value_name = "LIST", value_parser = jobctl::check_frames)]
+        frames: Option<String>,
+    },
+    /// Change the priority of a job that has not ended (higher first); its next tiles are handed
+    /// out by it.
+    Priority {
+        /// The job.
+        id: u64,
+        /// The new priority (any integer; submissions default to 0).
+        #[arg(allow_negative_numbers = true)]
+        priority: i64,
     },
     /// List the farm's workers: state (idle, rendering, lost), mode, current tile, tiles done.
     Workers {
@@ -433,6 +465,22 @@ fn run(cli: Cli) -> Result<ExitCode> {
             let api = connect()?;
             api.delete(id)?;
             println!("job {id} deleted with its files");
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Pause { id } => {
+            jobctl::pause(&connect()?, id)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Resume { id } => {
+            jobctl::resume(&connect()?, id)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Requeue { id, frames } => {
+            jobctl::requeue(&connect()?, id, frames.as_deref())?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Priority { id, priority } => {
+            jobctl::priority(&connect()?, id, priority)?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Workers { json } => {
@@ -746,7 +794,9 @@ fn finish(api: &Api, id: u64, out: &Path, float_exr: bool, quiet: bool) -> Resul
             bail!("job {id} ({}) failed: {}", job.name, job.error.as_deref().unwrap_or("no reason given"))
         }
         JobState::Canceled => bail!("job {id} ({}) was cancelled; nothing to download", job.name),
-        JobState::Queued | JobState::Running => bail!("job {id} has not ended ({})", job.state.as_str()),
+        JobState::Queued | JobState::Running | JobState::Paused => {
+            bail!("job {id} has not ended ({})", job.state.as_str())
+        }
     }
 }
 

@@ -392,6 +392,9 @@ pub struct ApiError {
 pub enum JobState {
     Queued,
     Running,
+    /// Paused (`POST /api/v1/jobs/{id}/pause`): leases nothing; the leases already out finish
+    /// and their results are kept. `resume` makes it queued or running again.
+    Paused,
     Done,
     Failed,
     Canceled,
@@ -402,6 +405,7 @@ impl JobState {
         match self {
             JobState::Queued => "queued",
             JobState::Running => "running",
+            JobState::Paused => "paused",
             JobState::Done => "done",
             JobState::Failed => "failed",
             JobState::Canceled => "canceled",
@@ -412,6 +416,7 @@ impl JobState {
         Some(match s {
             "queued" => JobState::Queued,
             "running" => JobState::Running,
+            "paused" => JobState::Paused,
             "done" => JobState::Done,
             "failed" => JobState::Failed,
             "canceled" => JobState::Canceled,
@@ -664,6 +669,74 @@ pub struct JobEvent {
 pub struct JobLog {
     pub job: u64,
     pub events: Vec<JobEvent>,
+}
+
+// ---- Job controls after submission: requeue, priority (pause and resume take no body) ----
+
+/// Body of `POST /api/v1/jobs/{id}/requeue` (optional; no body or `{}`: every unfinished frame
+/// of a failed or cancelled job).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(deny_unknown_fields)]
+pub struct RequeueRequest {
+    /// Frames to render again, by their 0-based index (`frames[].index` of the job's JSON, as in
+    /// its URLs): numbers and inclusive ranges separated by commas, e.g. `"0-9,12"`
+    /// ([`parse_frame_list`]). Their outputs are replaced when they are done again.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frames: Option<String>,
+}
+
+/// Body of `PATCH /api/v1/jobs/{id}`: the fields to change (only `priority` for now).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(deny_unknown_fields)]
+pub struct JobPatch {
+    /// The job's new priority (any 64-bit integer, as at submission; higher leases first).
+    pub priority: i64,
+}
+
+/// Longest frame list [`parse_frame_list`] reads, in bytes.
+pub const MAX_FRAME_LIST_BYTES: usize = 4096;
+
+/// Reads a frame list: 0-based frame indexes and inclusive ranges separated by commas
+/// (`"0-9,12"`; spaces around the parts are allowed). Returns the ranges as written, not
+/// expanded (a range of a billion frames costs nothing here: the server checks each against the
+/// job's frames). The error says what is wrong and the syntax.
+pub fn parse_frame_list(text: &str) -> Result<Vec<std::ops::RangeInclusive<u32>>, String> {
+    const SYNTAX: &str = "frame indexes (0-based) and ranges separated by commas, e.g. 0-9,12";
+    if text.len() > MAX_FRAME_LIST_BYTES {
+        return Err(format!(
+            "the frame list is longer than {MAX_FRAME_LIST_BYTES} bytes; write ranges instead: {SYNTAX}"
+        ));
+    }
+    let number = |s: &str| -> Result<u32, String> {
+        let s = s.trim();
+        if s.is_empty() || !s.bytes().all(|b| b.is_ascii_digit()) {
+            return Err(format!("\"{s}\" is not a frame index; write {SYNTAX}"));
+        }
+        s.parse::<u32>().map_err(|_| format!("frame {s} is too large; write {SYNTAX}"))
+    };
+    if text.trim().is_empty() {
+        return Err(format!("the frame list is empty; write {SYNTAX}"));
+    }
+    let mut out = Vec::new();
+    for part in text.split(',') {
+        let range = match part.split_once('-') {
+            Some((a, b)) => {
+                let (a, b) = (number(a)?, number(b)?);
+                if a > b {
+                    return Err(format!("the range {a}-{b} runs backwards; write {b}-{a}"));
+                }
+                a..=b
+            }
+            None => {
+                let n = number(part)?;
+                n..=n
+            }
+        };
+        out.push(range);
+    }
+    Ok(out)
 }
 
 /// Query of `GET /api/v1/jobs/ID/log`: only the events after `after` (a `seq`; default 0, the
@@ -984,8 +1057,27 @@ mod tests {
     }
 
     #[test]
+    fn frame_lists_read_numbers_and_ranges_and_refuse_the_rest() {
+        assert_eq!(parse_frame_list("0-9,12").unwrap(), vec![0..=9, 12..=12]);
+        assert_eq!(parse_frame_list(" 3 , 5 - 6").unwrap(), vec![3..=3, 5..=6]);
+        assert_eq!(parse_frame_list("0-4294967295").unwrap(), vec![0..=u32::MAX]);
+        for bad in ["", "a", "1,,2", "-1", "1-", "9-2", "1.5", "99999999999", "1-2-3"] {
+            let e = parse_frame_list(bad).unwrap_err();
+            assert!(e.contains("0-9,12") || e.contains("9-2") || e.contains("2-9"), "{bad}: {e}");
+        }
+        assert!(parse_frame_list(&"1,".repeat(3000)).unwrap_err().contains("longer than"));
+    }
+
+    #[test]
     fn job_states_round_trip() {
-        for s in [JobState::Queued, JobState::Running, JobState::Done, JobState::Failed, JobState::Canceled] {
+        for s in [
+            JobState::Queued,
+            JobState::Running,
+            JobState::Paused,
+            JobState::Done,
+            JobState::Failed,
+            JobState::Canceled,
+        ] {
             assert_eq!(JobState::parse(s.as_str()), Some(s));
             assert_eq!(serde_json::to_string(&s).unwrap(), format!("\"{}\"", s.as_str()));
         }

@@ -18,6 +18,7 @@ use tessera::protocol::{JobEvent, JobState, Lease, Rect};
 
 use crate::failures::{self, TileFailures};
 
+mod control;
 mod counters;
 mod files;
 mod jobs;
@@ -29,6 +30,7 @@ mod upkeep;
 mod video;
 mod workers;
 
+pub use control::{Control, Requeued, frame_ranges};
 pub use files::Deleted;
 pub use jobs::{NewFrame, NewJob};
 pub use notify::{DueNotification, Notified};
@@ -178,7 +180,7 @@ fn record_failure(
         return Ok(FailOutcome::Requeued);
     };
     let ended = tx.execute_cached(
-        "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3 WHERE id = ?1 AND state IN ('queued', 'running')",
+        "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3 WHERE id = ?1 AND state IN ('queued', 'running', 'paused')",
         params![job, message, t],
     )?;
     if ended > 0 {
@@ -255,6 +257,9 @@ pub struct Store {
     /// A second connection that only copies the write-ahead log into the database file
     /// ([`Store::checkpoint`]), so that no request waits for that behind the store's lock.
     checkpointer: Mutex<Connection>,
+    /// Jobs whose frames are being queued again in steps (`control.rs`): not purged nor deleted
+    /// meanwhile.
+    requeueing: Mutex<std::collections::HashSet<u64>>,
 }
 
 #[derive(Clone, Debug)]
@@ -590,6 +595,7 @@ impl Store {
             // A deleted job's id is never handed out again.
             min_job_id: std::sync::atomic::AtomicU64::new(highest_deleted.saturating_add(1)),
             checkpointer: Mutex::new(checkpointer),
+            requeueing: Mutex::default(),
         })
     }
 
@@ -638,7 +644,7 @@ impl Store {
     pub fn frames_awaiting_merge(&self) -> Result<Vec<FrameRow>> {
         let conn = self.conn();
         let mut stmt = conn.prepare_cached(&format!(
-            "SELECT {FRAME_COLUMNS} FROM frames f WHERE tiles_done = tiles_total AND outputs IS NULL AND (SELECT state FROM jobs WHERE id = f.job_id) IN ('queued', 'running')"
+            "SELECT {FRAME_COLUMNS} FROM frames f WHERE tiles_done = tiles_total AND outputs IS NULL AND (SELECT state FROM jobs WHERE id = f.job_id) IN ('queued', 'running', 'paused')"
         ))?;
         let rows = stmt.query_map([], frame_from_row)?.collect::<rusqlite::Result<Vec<_>>>()?;
         Ok(rows)
@@ -734,7 +740,7 @@ impl Store {
         let done = left == 0;
         if done {
             let ended = tx.execute_cached(
-                "UPDATE jobs SET state = 'done', finished_at = ?2 WHERE id = ?1 AND state IN ('queued', 'running')",
+                "UPDATE jobs SET state = 'done', finished_at = ?2 WHERE id = ?1 AND state IN ('queued', 'running', 'paused')",
                 params![job as i64, now()],
             )?;
             if ended > 0 {
@@ -809,7 +815,7 @@ impl Store {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         let ended = tx.execute_cached(
-            "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3 WHERE id = ?1 AND state IN ('queued', 'running')",
+            "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3 WHERE id = ?1 AND state IN ('queued', 'running', 'paused')",
             params![job as i64, error, now()],
         )?;
         if ended > 0 {
@@ -824,7 +830,7 @@ impl Store {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         let n = tx.execute_cached(
-            "UPDATE jobs SET state = 'canceled', finished_at = ?2 WHERE id = ?1 AND state IN ('queued', 'running')",
+            "UPDATE jobs SET state = 'canceled', finished_at = ?2 WHERE id = ?1 AND state IN ('queued', 'running', 'paused')",
             params![job as i64, now()],
         )?;
         if n > 0 {

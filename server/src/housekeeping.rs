@@ -2,7 +2,9 @@
 //! failed jobs purged (at once when a job ends, and in a sweep at start and every
 //! [`SWEEP`]), the free pages they leave given back to the file system, and workers not seen
 //! for `--forget-workers-after` forgotten, and (at start and every sweep) the files and
-//! tar bundles no job names removed once an hour old (`files::collect_garbage`).
+//! tar bundles no job names removed once an hour old (`files::collect_garbage`), and finished
+//! jobs removed as the retention policy says (`retention::apply`: at start, every sweep and
+//! whenever a job ends).
 //!
 //! Every step is one short transaction ([`crate::db::ROWS_PER_STEP`] rows): other requests wait
 //! for one step at most, never for a whole job of a million rows.
@@ -68,6 +70,18 @@ async fn collect_garbage(state: &AppState) {
     }
 }
 
+/// Applies the retention policy (`--keep-finished-days`, `--disk-budget-mb`;
+/// [`crate::retention::apply`], which logs each removal).
+async fn retain(state: &AppState) {
+    if state.settings.retention.is_off() {
+        return;
+    }
+    let st = state.clone();
+    if let Err(e) = blocking(move || crate::retention::apply(&st, crate::db::now())).await {
+        tracing::error!("removing finished jobs past the retention policy: {e:#}");
+    }
+}
+
 /// Starts the housekeeping task. `forget_after`: seconds of silence after which a worker
 /// without a live lease is forgotten.
 pub fn spawn(state: AppState, forget_after: f64) -> tokio::task::JoinHandle<()> {
@@ -84,6 +98,12 @@ pub fn spawn(state: AppState, forget_after: f64) -> tokio::task::JoinHandle<()> 
                 e = events.recv() => match e {
                     Ok(ServerEvent::Job { job, state: JobState::Canceled | JobState::Failed }) => {
                         ended.insert(job);
+                        retain(&state).await;
+                    }
+                    // A job ended: the retention policy looks again.
+                    Ok(ServerEvent::Job { state: JobState::Done, .. }) => {
+                        retain(&state).await;
+                        continue;
                     }
                     Ok(_) => continue,
                     Err(RecvError::Lagged(_)) => full = true,
@@ -101,6 +121,7 @@ pub fn spawn(state: AppState, forget_after: f64) -> tokio::task::JoinHandle<()> 
                         Err(e) => tracing::error!("forgetting stale workers: {e:#}"),
                     }
                     collect_garbage(&state).await;
+                    retain(&state).await;
                 }
             }
             if full {

@@ -29,6 +29,7 @@ mod local_workers;
 pub mod merge;
 pub mod notify;
 pub mod registrations;
+pub mod retention;
 pub mod scheduler;
 pub mod state;
 pub mod storage;
@@ -143,6 +144,10 @@ pub struct Config {
     pub notify_url: Option<String>,
     /// URL prefixes a job's own `notify_url` must start with (none: jobs may not ask).
     pub notify_allow: Vec<String>,
+    /// Finished jobs are removed this many days after they ended (`None`: kept for ever).
+    pub keep_finished_days: Option<f64>,
+    /// The oldest finished jobs are removed while the jobs' outputs take more MiB than this.
+    pub disk_budget_mb: Option<u64>,
 }
 
 /// A random token from the operating system's generator (for local workers when none is set).
@@ -310,6 +315,7 @@ pub fn check_config(config: &Config) -> Result<()> {
         bail!("--header-timeout-seconds must be from 0.1 to 3600, found {}", config.header_timeout_seconds);
     }
     access(config)?;
+    retention::policy(config.keep_finished_days, config.disk_budget_mb).map_err(anyhow::Error::msg)?;
     if !(config.body_timeout_seconds >= 0.1 && config.body_timeout_seconds <= 3600.0) {
         bail!(
             "--body-timeout-seconds must be from 0.1 to 3600 (the longest pause in a request body), found {}",
@@ -403,6 +409,8 @@ pub async fn serve(
         forget_workers_after: config
             .forget_workers_after
             .max(scheduler::lost_after(config.heartbeat_seconds)),
+        retention: retention::policy(config.keep_finished_days, config.disk_budget_mb)
+            .map_err(anyhow::Error::msg)?,
     };
     let timing = scheduler::Timing {
         lease_seconds: config.lease_seconds,
@@ -528,6 +536,8 @@ mod tests {
             body_timeout_seconds: 60.0,
             notify_url: None,
             notify_allow: Vec::new(),
+            keep_finished_days: None,
+            disk_budget_mb: None,
         }
     }
 

@@ -159,6 +159,15 @@ struct Cli {
     /// commas); without one, jobs may not ask to be announced anywhere.
     #[arg(long = "notify-allow", env = "TESSERA_NOTIFY_ALLOW", value_delimiter = ',', value_name = "PREFIX")]
     notify_allow: Vec<String>,
+    /// Remove finished jobs (done, failed, cancelled) with their outputs this many days after
+    /// they ended (fractions allowed, e.g. 0.5). Default: finished jobs are kept for ever.
+    #[arg(long, env = "TESSERA_KEEP_FINISHED_DAYS", value_name = "D", allow_negative_numbers = true)]
+    keep_finished_days: Option<f64>,
+    /// Remove the oldest finished jobs with their outputs while the jobs' outputs (the data
+    /// directory's outputs/ and frames/) take more than this many MiB; the job that finished
+    /// last always stays. Default: no budget.
+    #[arg(long, env = "TESSERA_DISK_BUDGET_MB", value_name = "M")]
+    disk_budget_mb: Option<u64>,
 }
 
 #[derive(clap::Subcommand)]
@@ -248,6 +257,8 @@ fn main() -> ExitCode {
         body_timeout_seconds: cli.body_timeout_seconds,
         notify_url: cli.notify_url.filter(|u| !u.is_empty()),
         notify_allow: cli.notify_allow,
+        keep_finished_days: cli.keep_finished_days,
+        disk_budget_mb: cli.disk_budget_mb,
     };
     let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
         Ok(r) => r,

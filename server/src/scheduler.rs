@@ -205,6 +205,14 @@ impl Scheduler {
         Ok(true)
     }
 
+    /// A job's state or priority changed (paused, resumed, requeued, its priority set): the page
+    /// hears of it, and the lease polls look again (a resumed or requeued job's tiles are free,
+    /// a new priority orders the next lease).
+    pub fn job_changed(&self, job: u64, state: JobState) {
+        self.wake();
+        self.emit(ServerEvent::Job { job, state });
+    }
+
     /// The long poll for a lease: the next tile by priority as soon as one is free for
     /// `worker`, waiting at most `wait_seconds` (capped by [`Timing::max_wait_seconds`]).
     pub async fn lease(&self, worker: u64, wait_seconds: f64) -> Result<LeaseWait> {

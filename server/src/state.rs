@@ -46,6 +46,24 @@ pub struct Settings {
     /// less than it takes to count as lost): it leaves the workers list at once, its row when
     /// housekeeping next runs.
     pub forget_workers_after: f64,
+    /// Which finished jobs the housekeeping removes (`--keep-finished-days`, `--disk-budget-mb`).
+    pub retention: Retention,
+}
+
+/// Which finished jobs the housekeeping removes (`None`: that rule is off); made by
+/// `retention::policy`, applied by `retention::apply`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Retention {
+    /// Finished jobs that ended longer ago than this, in seconds, are removed.
+    pub keep_finished_seconds: Option<f64>,
+    /// The oldest finished jobs are removed while the jobs' outputs take more bytes than this.
+    pub disk_budget_bytes: Option<u64>,
+}
+
+impl Retention {
+    pub fn is_off(&self) -> bool {
+        self.keep_finished_seconds.is_none() && self.disk_budget_bytes.is_none()
+    }
 }
 
 /// What browsers and scrapers may reach (`--allowed-origin`, `--allowed-host`,

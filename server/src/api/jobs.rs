@@ -485,53 +485,18 @@ pub(super) async fn frame_tonemap(
     responses(
         (status = 204, description = "Deleted, with its outputs"),
         (status = 400, description = "A path parameter or query does not parse", body = ApiError), (status = 401, description = "The server needs an API token", body = ApiError), (status = 404, description = "No such job", body = ApiError),
-        (status = 409, description = "The job is queued or running: cancel it first", body = ApiError)))]
+        (status = 409, description = "The job is queued, running or paused: cancel it first", body = ApiError)))]
 pub(super) async fn delete_job(State(state): State<AppState>, Path(id): Path<u64>) -> ApiResult<StatusCode> {
-    off_thread(move || {
-        let rows = match state.store.delete_job(id)? {
-            crate::db::Deleted::NoSuchJob => {
-                return Err(AppError::not_found(format!("there is no job {id}")));
-            }
-            crate::db::Deleted::NotFinal(s) => {
-                return Err(AppError::new(
-                    StatusCode::CONFLICT,
-                    format!("job {id} is {}; cancel it first: tessera cancel {id}", s.as_str()),
-                ));
-            }
-            crate::db::Deleted::Gone { rows } => rows,
-        };
-        state.cameras.lock().unwrap_or_else(|e| e.into_inner()).remove(&id);
-        state.waiting_for_space.lock().unwrap_or_else(|e| e.into_inner()).retain(|(job, _), _| *job != id);
-        let mut bytes = 0u64;
-        for sub in [crate::storage::OUTPUTS_DIR, crate::storage::FRAMES_DIR] {
-            let dir = state.settings.data_dir.join(sub).join(id.to_string());
-            bytes += folder_bytes(&dir);
-            match std::fs::remove_dir_all(&dir) {
-                Ok(()) => {}
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-                // The rows are gone already: the folder is only logged (the id is never reused).
-                Err(e) => tracing::error!(job = id, "cannot remove {}: {e}", dir.display()),
-            }
+    off_thread(move || match crate::retention::remove_job(&state, id)? {
+        crate::retention::Removed::NoSuchJob => Err(AppError::not_found(format!("there is no job {id}"))),
+        crate::retention::Removed::NotFinal(s) => Err(AppError::new(
+            StatusCode::CONFLICT,
+            format!("job {id} is {}; cancel it first: tessera cancel {id}", s.as_str()),
+        )),
+        crate::retention::Removed::Gone { rows, bytes } => {
+            tracing::info!(job = id, rows, bytes, "deleted a finished job with its outputs");
+            Ok(StatusCode::NO_CONTENT)
         }
-        // The pages of the deleted rows go back to the file system.
-        while state.store.release_free_pages(512)? > 0 {
-            state.store.checkpoint_to_start_over()?;
-        }
-        tracing::info!(job = id, rows, bytes, "deleted a finished job with its outputs");
-        Ok(StatusCode::NO_CONTENT)
     })
     .await
-}
-
-/// Bytes of the files under `dir` (0 if it is missing).
-fn folder_bytes(dir: &std::path::Path) -> u64 {
-    let Ok(entries) = std::fs::read_dir(dir) else { return 0 };
-    entries
-        .flatten()
-        .map(|e| match e.file_type() {
-            Ok(t) if t.is_dir() => folder_bytes(&e.path()),
-            Ok(t) if t.is_file() => e.metadata().map_or(0, |m| m.len()),
-            _ => 0,
-        })
-        .sum()
 }

@@ -35,7 +35,7 @@ pub(super) async fn metrics(State(state): State<AppState>) -> ApiResult<Response
     }
     let mut out = String::new();
     out += "# HELP tessera_jobs Jobs by state.\n# TYPE tessera_jobs gauge\n";
-    for s in ["queued", "running", "done", "failed", "canceled"] {
+    for s in ["queued", "running", "paused", "done", "failed", "canceled"] {
         let n = states.iter().find(|(k, _)| k == s).map_or(0, |(_, n)| *n);
         out += &format!("tessera_jobs{{state=\"{s}\"}} {n}\n");
     }

@@ -11,6 +11,7 @@
 mod auth;
 pub mod browser;
 mod files;
+mod jobctl;
 mod jobs;
 pub(crate) use jobs::job_info;
 mod jobspec;
@@ -174,6 +175,11 @@ fn routes(state: &AppState) -> OpenApiRouter<AppState> {
         .routes(routes!(jobs::show_job))
         .routes(routes!(jobs::cancel_job))
         .routes(routes!(jobs::delete_job))
+        // Jobs changed after submission (`jobctl.rs`).
+        .routes(routes!(jobctl::patch_job))
+        .routes(routes!(jobctl::pause_job))
+        .routes(routes!(jobctl::resume_job))
+        .routes(routes!(jobctl::requeue_job))
         .routes(routes!(jobs::job_log))
         .routes(routes!(jobs::frame_preview))
         .routes(routes!(jobs::frame_file))

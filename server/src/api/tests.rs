@@ -53,6 +53,7 @@ impl Farm {
             local_worker_token: "local".into(),
             notify_allow: Vec::new(),
             forget_workers_after: 86_400.0,
+            retention: Default::default(),
         };
         let timing =
             Timing { lease_seconds, heartbeat_seconds: 1.0, max_wait_seconds: 20.0, max_tile_seconds: 60.0 };

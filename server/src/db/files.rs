@@ -86,6 +86,10 @@ impl Store {
             if !state.is_final() {
                 return Ok(Deleted::NotFinal(state));
             }
+            if self.is_requeueing(id) {
+                // Its frames are being queued again: it is about to be.
+                return Ok(Deleted::NotFinal(JobState::Queued));
+            }
             tx.execute_cached(
                 "INSERT INTO deleted_jobs(id, highest) VALUES (1, ?1)
                  ON CONFLICT(id) DO UPDATE SET highest = max(highest, excluded.highest)",

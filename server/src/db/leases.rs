@@ -349,7 +349,7 @@ impl Store {
             .query_row_cached(
                 "SELECT t.job_id, t.frame, t.tile, t.pass, t.deadline, j.denoise, t.x0, t.y0, t.w, t.h, t.first_sample IS NOT NULL
                  FROM tiles t JOIN jobs j ON j.id = t.job_id
-                 WHERE t.lease_id = ?1 AND t.worker_id = ?2 AND t.state = 'leased' AND j.state IN ('queued', 'running')",
+                 WHERE t.lease_id = ?1 AND t.worker_id = ?2 AND t.state = 'leased' AND j.state IN ('queued', 'running', 'paused')",
                 params![lease as i64, worker as i64],
                 |r| {
                     Ok((

@@ -24,6 +24,9 @@ impl Store {
     /// which stay. A failed job keeps the tiles of a frame that has every tile but was not
     /// merged: they are its pixels. Returns how many rows went (0: none left).
     pub fn purge_job_rows(&self, job: u64, limit: usize) -> Result<usize> {
+        if self.is_requeueing(job) {
+            return Ok(0);
+        }
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         let state: Option<String> = tx

@@ -86,6 +86,7 @@ function jobNode(id) {
       el("span", { class: "state" }),
       el("span", { class: "meta times" }),
       el("span", { class: "spacer" }),
+      jobControlsNode(id),
       el("button", { class: "secondary cancel", text: "Cancel", onclick: () => cancelJob(id) })),
     el("div", { class: "error job-error", hidden: "" }),
     el("div", { class: "notice waiting-for", hidden: "" }),
@@ -133,7 +134,8 @@ function renderJob(job, listed = false) {
   st.textContent = job.state;
   st.className = "state " + job.state;
   $(".times", n).textContent = jobTimes(job);
-  $(".cancel", n).hidden = !(job.state === "queued" || job.state === "running");
+  $(".cancel", n).hidden = !(job.state === "queued" || job.state === "running" || job.state === "paused");
+  renderJobControls(n, job);
   const err = $(".job-error", n);
   err.hidden = !job.error;
   err.textContent = job.error || "";
@@ -461,6 +463,60 @@ async function cancelJob(id) {
   const resp = await api("/api/v1/jobs/" + id + "/cancel", { method: "POST" });
   if (!resp.ok) alert((await resp.json()).error);
   loadJob(id);
+}
+
+// --- Job controls: pause, resume, requeue, delete, priority ----------------------------------
+
+// The buttons and the priority field of a job's head; `renderJobControls` shows those that
+// apply to its state.
+function jobControlsNode(id) {
+  const priority = el("input", { class: "priority", type: "number", step: "1", title: "Priority (higher first)" });
+  priority.addEventListener("change", () => setPriority(id, priority));
+  return el("span", { class: "job-controls" },
+    el("label", { class: "meta priority-box", text: "priority " }, priority),
+    el("button", { class: "secondary pause", text: "Pause", onclick: () => jobAction(id, "pause") }),
+    el("button", { class: "secondary resume", text: "Resume", onclick: () => jobAction(id, "resume") }),
+    el("button", { class: "secondary requeue", text: "Requeue", onclick: () => jobAction(id, "requeue") }),
+    el("button", { class: "secondary delete", text: "Delete", onclick: () => deleteJob(id) }));
+}
+
+function renderJobControls(n, job) {
+  const s = job.state;
+  const ended = s === "done" || s === "failed" || s === "canceled";
+  $(".pause", n).hidden = !(s === "queued" || s === "running");
+  $(".resume", n).hidden = s !== "paused";
+  $(".requeue", n).hidden = !(s === "failed" || s === "canceled");
+  $(".delete", n).hidden = !ended;
+  $(".priority-box", n).hidden = ended;
+  const field = $(".priority", n);
+  if (document.activeElement !== field) field.value = String(job.priority);
+}
+
+// POST /api/v1/jobs/ID/{pause,resume,requeue}: the answer is the job as it is now.
+async function jobAction(id, action) {
+  const resp = await api("/api/v1/jobs/" + id + "/" + action, { method: "POST" });
+  if (!resp.ok) alert((await resp.json()).error);
+  else renderJob(await resp.json());
+  refreshLog(id, id);
+}
+
+async function setPriority(id, field) {
+  const resp = await api("/api/v1/jobs/" + id, {
+    method: "PATCH",
+    headers: { "Content-Type": "application/json" },
+    body: JSON.stringify({ priority: Number(field.value) }),
+  });
+  field.blur();
+  if (!resp.ok) alert((await resp.json()).error);
+  loadJob(id);
+}
+
+async function deleteJob(id) {
+  if (!confirm("Delete job #" + id + " with its outputs? This cannot be undone.")) return;
+  const resp = await api("/api/v1/jobs/" + id, { method: "DELETE" });
+  if (!resp.ok) { alert((await resp.json()).error); return; }
+  jobs.get(id)?.node.remove();
+  jobs.delete(id);
 }
 
 // --- Workers ---------------------------------------------------------------------------------
