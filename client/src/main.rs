@@ -761,7 +761,7 @@ fn submit(api: &Api, packed: &pack::Packed, opts: &SubmitOptions) -> Result<JobI
             None => String::new(),
         };
         println!(
-            "submitted job {} ({}): {frames} frame(s), {tiles} tiles{video}; follow it with `tessera status {}` or at {}/",
+            "submitted job {} ({}): {frames} frame(s), {tiles} tile(s){video}; follow it with `tessera status {}` or at {}/",
             job.id, job.name, job.id, api.base
         );
         if let Some(m) = job.video.as_ref().and_then(|v| v.message.as_ref()) {
@@ -859,8 +859,8 @@ fn print_waiting(jobs: &[JobInfo]) {
     }
     for (reason, ids) in reasons {
         let ids: Vec<String> = ids.iter().rev().map(u64::to_string).collect();
-        let which = if ids.len() == 1 { "job" } else { "jobs" };
-        println!("{which} {} wait: {reason}", ids.join(", "));
+        let (which, verb) = if ids.len() == 1 { ("job", "waits") } else { ("jobs", "wait") };
+        println!("{which} {} {verb}: {reason}", ids.join(", "));
     }
 }
 

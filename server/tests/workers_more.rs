@@ -131,7 +131,7 @@ fn a_job_nobody_can_serve_says_so_until_a_worker_comes() {
     assert!(status.contains("waiting: no worker is connected"), "{status}");
     let list = Command::new(client_bin()).args(["--server", &server.url, "status"]).output().unwrap();
     let list = String::from_utf8_lossy(&list.stdout);
-    assert!(list.contains(&format!("job {id} wait: no worker is connected")), "{list}");
+    assert!(list.contains(&format!("job {id} waits: no worker is connected")), "{list}");
     // A few more polls of the client, then a worker comes.
     std::thread::sleep(Duration::from_secs(2));
     let _worker = Worker::start(&server.url, TOKEN, "late");
