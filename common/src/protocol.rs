@@ -88,6 +88,36 @@ pub struct RegisterRequest {
     /// jobs whose `worker_tags` it all has ([`check_tags`]: at most [`MAX_TAGS`]).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub tags: Vec<String>,
+    /// The worker protocol the worker speaks ([`WORKER_PROTOCOL`]); 0 (absent): a worker from
+    /// before versions were sent, or a hand-written client, which the server takes.
+    #[serde(default)]
+    pub protocol: u32,
+}
+
+/// The version of the worker protocol (leases, results, passes, manifests, the scale of a
+/// frame): raised whenever a lease or a result gains something that a worker or server of the
+/// version before would ignore or misread, so that the two refuse each other rather than render
+/// a wrong image. A worker sends it when it registers, and the server answers with its own.
+pub const WORKER_PROTOCOL: u32 = 1;
+
+/// Why a worker speaking `worker` and a server speaking `server` cannot work together (`None`:
+/// they can). 0 is a side from before versions were exchanged.
+pub fn protocol_mismatch(worker: u32, server: u32) -> Option<String> {
+    (worker != server).then(|| {
+        let name = |v: u32| {
+            if v == 0 {
+                "an older one, from before versions were exchanged".to_string()
+            } else {
+                v.to_string()
+            }
+        };
+        format!(
+            "the worker speaks worker protocol {} and the server {}: run the same Tessera version on both \
+             (tessera-worker --version, tessera-server --version)",
+            name(worker),
+            name(server)
+        )
+    })
 }
 
 /// The heartbeat periods, in seconds, a server may ask for and a worker keeps: a shorter one
@@ -106,6 +136,10 @@ pub struct RegisterResponse {
     pub heartbeat_seconds: f64,
     /// How long a lease lives without a heartbeat.
     pub lease_seconds: f64,
+    /// The worker protocol the server speaks ([`WORKER_PROTOCOL`]; 0: a server from before
+    /// versions were sent). A worker of another version stops ([`protocol_mismatch`]).
+    #[serde(default)]
+    pub protocol: u32,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -983,6 +1017,17 @@ pub fn server_base_url(given: &str) -> Result<(String, Option<String>), String> 
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn workers_and_servers_of_other_protocols_refuse_each_other() {
+        assert_eq!(protocol_mismatch(WORKER_PROTOCOL, WORKER_PROTOCOL), None);
+        let older_server = protocol_mismatch(WORKER_PROTOCOL, 0).unwrap();
+        assert!(
+            older_server.contains("the server an older one") && older_server.contains("same Tessera version")
+        );
+        assert!(protocol_mismatch(WORKER_PROTOCOL + 1, WORKER_PROTOCOL).is_some());
+    }
+
     use super::*;
 
     #[test]

@@ -206,6 +206,14 @@ fn unknown_workers_and_bad_bodies_are_refused() {
     assert!(v["error"].as_str().unwrap().contains("register"), "{v}");
     let (code, _) = post(url, "/api/v1/worker/register", json!({"nom": "x"}));
     assert!((400..500).contains(&code));
+    // A worker of another protocol version is told why, before it can misread a lease; the
+    // server's own version is in every register answer, for the worker to check.
+    let (code, v) = post(url, "/api/v1/worker/register", json!({"name": "w", "threads": 1, "protocol": 999}));
+    assert_eq!(code, 422, "{v}");
+    let e = v["error"].as_str().unwrap();
+    assert!(e.contains("protocol 999") && e.contains("same Tessera version"), "{v}");
+    let (code, v) = post(url, "/api/v1/worker/register", json!({"name": "w", "threads": 1}));
+    assert_eq!((code, &v["protocol"]), (200, &json!(tessera::protocol::WORKER_PROTOCOL)), "{v}");
     let (code, v) = call(ureq::get(&format!("{url}/api/v1/nothing")), None);
     assert_eq!(code, 404, "{v}");
     let (code, _) = call(

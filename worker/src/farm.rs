@@ -252,10 +252,23 @@ fn register(
         }
         match client.post_json(
             "/api/v1/worker/register",
-            &RegisterRequest { name: name.into(), threads, tags: tags.to_vec() },
+            &RegisterRequest {
+                name: name.into(),
+                threads,
+                tags: tags.to_vec(),
+                protocol: tessera::protocol::WORKER_PROTOCOL,
+            },
         ) {
             Ok(resp) => {
-                return resp.into_json().map(Some).context("the server's register answer is not valid JSON");
+                let reg: RegisterResponse =
+                    resp.into_json().context("the server's register answer is not valid JSON")?;
+                // A server of another version would send leases this worker misreads.
+                if let Some(why) =
+                    tessera::protocol::protocol_mismatch(tessera::protocol::WORKER_PROTOCOL, reg.protocol)
+                {
+                    bail!("cannot work for the server at {}: {why}", client.base);
+                }
+                return Ok(Some(reg));
             }
             Err(ureq::Error::Status(401, _)) => {
                 bail!(

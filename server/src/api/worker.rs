@@ -32,6 +32,14 @@ pub(super) async fn register(
     let tags = check_tags(&req.tags).map_err(|e| {
         AppError::new(StatusCode::UNPROCESSABLE_ENTITY, format!("tags: {e} (tessera-worker work --tags)"))
     })?;
+    // A worker of another protocol would misread leases (or write results this server
+    // misreads): refused, saying so. One that sends none (older, or hand-written) is taken.
+    if req.protocol != 0
+        && let Some(why) =
+            tessera::protocol::protocol_mismatch(req.protocol, tessera::protocol::WORKER_PROTOCOL)
+    {
+        return Err(AppError::new(StatusCode::UNPROCESSABLE_ENTITY, format!("protocol: {why}")));
+    }
     // The server's own local workers are not counted: one restarted always gets back in.
     let local = super::auth::is_local_worker(&state, &headers);
     if !local && let Err(wait) = state.registrations.take() {
@@ -93,6 +101,7 @@ pub(super) async fn register(
         worker_secret: secret,
         heartbeat_seconds: timing.heartbeat_seconds,
         lease_seconds: timing.lease_seconds,
+        protocol: tessera::protocol::WORKER_PROTOCOL,
     })
     .into_response())
 }
