@@ -183,9 +183,11 @@ pub fn job_path(top: &Path, file: &Path) -> Result<String> {
     Ok(joined)
 }
 
-/// "frame 200 of 360 (input/w_199.json): " for a sequence, nothing for a single scene.
+/// "frame 199 (input/w_199.json): " for a sequence, nothing for a single scene. Frames are
+/// numbered from 0, as the job's JSON, `tessera status` and `tessera requeue --frames` number
+/// them.
 fn frame_prefix(count: usize, first_frame: usize, scene: &Path) -> String {
-    if count > 1 { format!("frame {} ({}): ", first_frame + 1, scene.display()) } else { String::new() }
+    if count > 1 { format!("frame {first_frame} ({}): ", scene.display()) } else { String::new() }
 }
 
 /// SHA-256 (hex) of the file at `path`, streamed.
@@ -608,10 +610,10 @@ element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 -2\n1 0 
         let reversed: Vec<PathBuf> = scenes.iter().rev().cloned().collect();
         let packed = pack(&reversed, PackOptions::default()).unwrap();
         assert_eq!(packed.scenes[0].path, "input/f_004.xml");
-        // Frame 4's PLY is missing: refused, naming the scene, its frame and the path.
+        // Frame 3's PLY (frames count from 0) is missing: refused, naming the scene, its frame and the path.
         std::fs::write(&scenes[3], scene_xml("f_003.png", &body.replace("m.ply", "gone.ply"))).unwrap();
         let e = pack(&scenes, PackOptions::default()).unwrap_err().to_string();
-        assert!(e.starts_with(&format!("frame 4 ({}): ", scenes[3].display())), "{e}");
+        assert!(e.starts_with(&format!("frame 3 ({}): ", scenes[3].display())), "{e}");
         assert!(e.contains("f_003.xml:5: <Mesh id=\"1\"> / <Faces>: cannot find the PLY file"), "{e}");
         assert!(e.contains("ply/gone.ply") && e.ends_with("nothing was uploaded"), "{e}");
     }

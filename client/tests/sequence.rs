@@ -240,7 +240,7 @@ fn a_missing_ply_in_one_frame_is_refused_before_any_upload() {
     let out = run(client(&home).env("TESSERA_SERVER", &server.url).arg("submit").args(&scenes), MINUTE);
     let stderr = text(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
-    assert!(stderr.starts_with(&format!("error: frame 8 ({}): ", scenes[7].display())), "{stderr}");
+    assert!(stderr.starts_with(&format!("error: frame 7 ({}): ", scenes[7].display())), "{stderr}");
     assert!(stderr.contains("f_007.xml:7: <Mesh id=\"1\"> / <Faces>: cannot find the PLY file"), "{stderr}");
     assert!(stderr.contains("ply/absent.ply") && stderr.contains("nothing was uploaded"), "{stderr}");
     assert!(out.stdout.is_empty());
