@@ -285,6 +285,16 @@ fn a_new_priority_orders_the_next_lease_and_bad_ones_are_refused() {
         assert!(v["error"].as_str().unwrap().contains(says), "{body}: {v}");
     }
     assert_eq!(send(url, "PATCH", "/api/v1/jobs/999", r#"{"priority": 1}"#).0, 404);
+    // A body far past the change's 16 KiB (under the upload cap) is refused without being held:
+    // the server's peak memory grows by a small part of it, and the client, which writes the
+    // whole body first, reads the message.
+    let before = server.memory_kib("VmHWM");
+    let huge = format!(r#"{{"priority": 1, "pad": "{}"}}"#, "x".repeat(48 << 20));
+    let (code, v) = send(url, "PATCH", &format!("/api/v1/jobs/{b}"), &huge);
+    drop(huge);
+    assert!(code == 400 && v["error"].as_str().unwrap().contains("at most 16 KiB"), "{code} {v}");
+    let grown = server.memory_kib("VmHWM").saturating_sub(before);
+    assert!(grown < 16 << 10, "a 48 MiB PATCH grew the server's peak memory by {grown} KiB");
     // By submission order a's tile goes first; b's new priority puts it ahead.
     let (code, v) = send(url, "PATCH", &format!("/api/v1/jobs/{b}"), r#"{"priority": 10}"#);
     assert_eq!((code, v["priority"].as_i64()), (200, Some(10)), "{v}");

@@ -3,7 +3,6 @@
 //! change is an event in the job's log and a `job` event of the status stream.
 
 use axum::Json;
-use axum::body::Bytes;
 use axum::extract::{Path, State};
 use axum::http::StatusCode;
 use serde_json::{Map, Value};
@@ -26,14 +25,44 @@ fn no_such_job(id: u64) -> AppError {
 }
 
 /// The body as a JSON object of only the fields `allowed` (an empty body: no fields), or a 400
-/// naming what is wrong and what `route` takes (`example`).
-fn object(body: &[u8], allowed: &[&str], route: &str, example: &str) -> ApiResult<Map<String, Value>> {
-    if body.len() > MAX_BODY {
-        return Err(AppError::bad_request(format!(
+/// naming what is wrong and what `route` takes (`example`). The body is read only up to
+/// [`MAX_BODY`]: a larger one is refused without being held in memory.
+async fn object(
+    body: axum::body::Body,
+    allowed: &[&str],
+    route: &str,
+    example: &str,
+) -> ApiResult<Map<String, Value>> {
+    use futures_util::StreamExt;
+    let too_large = || {
+        AppError::bad_request(format!(
             "{route} takes a JSON object of at most {} KiB such as {example}",
             MAX_BODY >> 10
-        )));
+        ))
+    };
+    let mut kept = Vec::new();
+    let mut stream = body.into_data_stream();
+    while let Some(chunk) = stream.next().await {
+        let chunk =
+            chunk.map_err(|e| AppError::bad_request(format!("{route}: the body was cut off: {e}")))?;
+        if kept.len() + chunk.len() > MAX_BODY {
+            // Read on and drop, within the bounds oversized uploads get, so that a client that
+            // writes its whole body before reading the answer sees the message, not a broken
+            // pipe; past them the connection closes.
+            let deadline =
+                tokio::time::Instant::now() + std::time::Duration::from_secs(super::OVERSIZED_DRAIN_SECONDS);
+            let mut read = (kept.len() + chunk.len()) as u64;
+            while read < super::OVERSIZED_DRAIN_BYTES {
+                match tokio::time::timeout_at(deadline, stream.next()).await {
+                    Ok(Some(Ok(c))) => read += c.len() as u64,
+                    _ => break,
+                }
+            }
+            return Err(too_large());
+        }
+        kept.extend_from_slice(&chunk);
     }
+    let body: &[u8] = &kept;
     if body.iter().all(u8::is_ascii_whitespace) {
         return Ok(Map::new());
     }
@@ -125,10 +154,10 @@ pub(super) async fn resume_job(
 pub(super) async fn requeue_job(
     State(state): State<AppState>,
     Path(id): Path<u64>,
-    body: Bytes,
+    body: axum::body::Body,
 ) -> ApiResult<Json<JobInfo>> {
     const ROUTE: &str = "POST /api/v1/jobs/{id}/requeue";
-    let map = object(&body, &["frames"], ROUTE, r#"{"frames": "0-9,12"}"#)?;
+    let map = object(body, &["frames"], ROUTE, r#"{"frames": "0-9,12"}"#).await?;
     let frames = match map.get("frames") {
         None | Some(Value::Null) => None,
         Some(Value::String(s)) => Some(s.clone()),
@@ -195,10 +224,10 @@ pub(super) async fn requeue_job(
 pub(super) async fn patch_job(
     State(state): State<AppState>,
     Path(id): Path<u64>,
-    body: Bytes,
+    body: axum::body::Body,
 ) -> ApiResult<Json<JobInfo>> {
     const ROUTE: &str = "PATCH /api/v1/jobs/{id}";
-    let map = object(&body, &["priority"], ROUTE, r#"{"priority": 10}"#)?;
+    let map = object(body, &["priority"], ROUTE, r#"{"priority": 10}"#).await?;
     let priority = match map.get("priority") {
         None => {
             return Err(AppError::bad_request(format!(

@@ -332,8 +332,8 @@ async fn json_errors(req: axum::extract::Request, next: axum::middleware::Next) 
 
 /// Most bytes of an upload declared too large that [`oversized_uploads`] reads past the limit
 /// before answering, and how long it reads.
-const OVERSIZED_DRAIN_BYTES: u64 = 64 << 20;
-const OVERSIZED_DRAIN_SECONDS: u64 = 30;
+pub(super) const OVERSIZED_DRAIN_BYTES: u64 = 64 << 20;
+pub(super) const OVERSIZED_DRAIN_SECONDS: u64 = 30;
 
 /// The caps [`oversized_uploads`] checks declared lengths against.
 #[derive(Clone, Copy)]
