@@ -954,14 +954,11 @@ pub fn check_tile_values(px: &[[f32; 3]]) -> Result<(), (usize, usize, f32)> {
     Ok(())
 }
 
-/// FNV-1a (64-bit) of `bytes` as 16 hex digits: detects a tile damaged on the way.
+/// CRC-32 (IEEE 802.3, as zlib and PNG compute it) of `bytes` as 8 hex digits: detects a tile
+/// damaged on the way. The table-free SIMD code of `crc32fast` runs at memory speed, which
+/// matters for a whole 800x800 frame (7.7 MB) a second on both ends of the upload.
 pub fn checksum(bytes: &[u8]) -> String {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for b in bytes {
-        h ^= u64::from(*b);
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    format!("{h:016x}")
+    format!("{:08x}", crc32fast::hash(bytes))
 }
 
 // ---- The server's address as a user gives it (client and worker `--server`) ----
@@ -1094,10 +1091,11 @@ mod tests {
     }
 
     #[test]
-    fn checksum_is_fnv1a() {
-        // Published FNV-1a 64 test vectors.
-        assert_eq!(checksum(b""), "cbf29ce484222325");
-        assert_eq!(checksum(b"a"), "af63dc4c8601ec8c");
+    fn checksum_is_crc32() {
+        // The CRC-32 check value, and zlib's answers.
+        assert_eq!(checksum(b"123456789"), "cbf43926");
+        assert_eq!(checksum(b""), "00000000");
+        assert_eq!(checksum(b"a"), "e8b7be43");
         assert_ne!(checksum(b"ab"), checksum(b"ba"));
     }
 

@@ -254,7 +254,7 @@ pub(super) async fn watch(
     params(
         ("lease" = u64, Path, description = "The lease's id"),
         ("x-tessera-worker" = u64, Header, description = "The worker's id"),
-        ("x-tessera-checksum" = String, Header, description = "FNV-1a 64 of the body, 16 hex digits"),
+        ("x-tessera-checksum" = String, Header, description = "CRC-32 (IEEE, as zlib computes it) of the body, 8 hex digits"),
         ("x-tessera-render-seconds" = Option<f64>, Header, description = "Seconds the worker spent rendering the tile (shown in the job's log)")),
     request_body(content = super::openapi::Binary, content_type = "application/octet-stream", description = "The tile: width x height RGB triples of little-endian f32, row-major; for a lease with `aux` (a denoised job), then the albedo and the normal the same way. For a lease with `pass`: each pixel's block sums instead of the colour (four little-endian i128: R, G, B in units of 2^-40, and the odd blocks' luminance), then the features when `aux` is set"),
     responses(
@@ -324,7 +324,9 @@ pub(super) async fn result(
         return Err(wrong_size(body.len().to_string()));
     }
     if sum != checksum(&body) {
-        return Err(AppError::bad_request("the tile's checksum does not match its bytes; send it again"));
+        return Err(AppError::bad_request(
+            "the tile's checksum (CRC-32 of the body, 8 hex digits) does not match its bytes; send it again (a worker of another Tessera version computes another: run the same version as the server)",
+        ));
     }
     // Finished pixels (and features) must be finite numbers; a pass's sums must be within what
     // its blocks of samples can reach.
