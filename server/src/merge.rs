@@ -144,6 +144,17 @@ pub fn write_outputs(
     Ok((names, plain, tonemapped))
 }
 
+/// The output PNG the page shows for a camera's finished frame: its first tone-mapped PNG, else
+/// its plain PNG (what [`final_png`] makes, byte for byte).
+pub fn display_png(cam: &Camera) -> Option<String> {
+    let (files, _) = output::plan(cam);
+    files
+        .iter()
+        .find(|f| matches!(f.kind, OutputKind::Tonemapped(..)))
+        .or_else(|| files.iter().find(|f| matches!(f.kind, OutputKind::LdrPng)))
+        .map(|f| f.name.clone())
+}
+
 /// The operator of a camera's first tone-mapped PNG, if its image name is HDR.
 pub fn display_tonemap(cam: &Camera) -> Option<(Operator, Photographic)> {
     output::plan(cam).0.iter().find_map(|f| match &f.kind {
@@ -356,7 +367,14 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
         // reads a small file instead of the whole float frame.
         let own = st.server_frame_dir(job_id, frame);
         std::fs::create_dir_all(&own).with_context(|| format!("cannot create {}", own.display()))?;
-        tessera::atomic_write::write_atomic(&own.join(PREVIEW_FILE), &final_preview_png(&cam, &img)?)
+        // A frame small enough to be previewed whole has that picture among its outputs
+        // already: copied, not tone-mapped and encoded a second time.
+        let preview = match display_png(&cam) {
+            Some(name) if preview_size(img.width, img.height).0 == 1 => std::fs::read(dir.join(&name))
+                .with_context(|| format!("cannot read the frame's {name} for its preview"))?,
+            _ => final_preview_png(&cam, &img)?,
+        };
+        tessera::atomic_write::write_atomic(&own.join(PREVIEW_FILE), &preview)
             .context("cannot write the frame's preview")?;
         if job.noise_target.is_some() {
             let name = tessera::output::samples_map_name(&cam);
@@ -579,6 +597,29 @@ mod tests {
         assert_eq!(small.pixels[0], [1.0, 1.0, 1.0]);
         // The last row holds frame row 9 alone (the edge cuts its box).
         assert_eq!(small.pixels[3 * 1000 + 999], [2997.0 + 1.0, 9.0, 1.0]);
+    }
+
+    /// The merge copies the displayed output PNG as the preview of a frame small enough: that
+    /// file must be what `final_png` makes, for a plain PNG and for a tone-mapped one.
+    #[test]
+    fn the_displayed_output_png_is_the_final_preview() {
+        let dir = tessera_testkit::TempDir::new("unit-display-png");
+        let mut img = Image::new(7, 5);
+        for (i, p) in img.pixels.iter_mut().enumerate() {
+            *p = [i as f32 * 0.05, 0.3, 4.0 - i as f32 * 0.1];
+        }
+        for (name, shown) in [("a.png", "a.png"), ("b.exr", "b.png")] {
+            let xml = String::from_utf8(tessera_testkit::tiny_scene(7, 5)).unwrap().replace("tiny.png", name);
+            let rec = tessera::scene::xml::parse_xml(&xml, std::path::Path::new("t.xml")).unwrap();
+            let cam = tessera::scene::build::build_cameras(&rec).unwrap().remove(0);
+            assert_eq!(display_png(&cam).as_deref(), Some(shown));
+            write_outputs(dir.path(), &cam, &img, false).unwrap();
+            let written = std::fs::read(dir.join(shown)).unwrap();
+            assert!(
+                written == final_preview_png(&cam, &img).unwrap(),
+                "{name}: the preview differs from {shown}"
+            );
+        }
     }
 
     #[test]
