@@ -9,126 +9,13 @@
 
 mod support;
 
-use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use serde_json::{Value, json};
+use support::browser::*;
 use support::*;
 
-const ELEMENT: &str = "element-6066-11e4-a52e-4f735466cecf";
 const API: &str = "page-secret";
-
-fn find_program(names: &[&str]) -> Option<PathBuf> {
-    let path = std::env::var_os("PATH")?;
-    std::env::split_paths(&path).flat_map(|dir| names.iter().map(move |n| dir.join(n))).find(|p| p.is_file())
-}
-
-/// A WebDriver session of headless Chromium (the harness of `browser.rs`, cut to what this
-/// test uses).
-struct Browser {
-    driver: Child,
-    base: String,
-    session: String,
-}
-
-impl Browser {
-    fn start() -> Option<Browser> {
-        let required = std::env::var_os("TESSERA_REQUIRE_BROWSER").is_some();
-        let (Some(driver), Some(chrome)) = (
-            find_program(&["chromedriver"]),
-            find_program(&["chromium", "chromium-browser", "google-chrome"]),
-        ) else {
-            assert!(
-                !required,
-                "TESSERA_REQUIRE_BROWSER is set but chromium or chromedriver is not installed"
-            );
-            eprintln!("skipping the browser test: chromium and chromedriver are not installed");
-            return None;
-        };
-        let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
-        let child = Command::new(driver)
-            .arg(format!("--port={port}"))
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("start chromedriver");
-        let base = format!("http://127.0.0.1:{port}");
-        let deadline = Instant::now() + Duration::from_secs(20);
-        while ureq::get(&format!("{base}/status")).call().is_err() {
-            assert!(Instant::now() < deadline, "chromedriver did not start");
-            std::thread::sleep(Duration::from_millis(100));
-        }
-        // Prompts (the delete's confirm) stay open until the test answers them.
-        let caps = json!({"capabilities": {"alwaysMatch": {"browserName": "chrome", "unhandledPromptBehavior": "ignore",
-        "goog:chromeOptions": {
-            "binary": chrome.to_string_lossy(),
-            "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1280,1000"]
-        }}}});
-        let v: Value =
-            ureq::post(&format!("{base}/session")).send_json(caps).expect("new session").into_json().unwrap();
-        let session = v["value"]["sessionId"].as_str().expect("session id").to_string();
-        Some(Browser { driver: child, base, session })
-    }
-
-    fn cmd(&self, method: &str, path: &str, body: Option<Value>) -> Value {
-        let url = format!("{}/session/{}{path}", self.base, self.session);
-        let req = ureq::request(method, &url);
-        let res = match body {
-            Some(b) => req.send_json(b),
-            None => req.call(),
-        };
-        match res {
-            Ok(r) => r.into_json::<Value>().unwrap()["value"].clone(),
-            Err(ureq::Error::Status(code, r)) => {
-                panic!("WebDriver {method} {path}: {code} {}", r.into_string().unwrap_or_default())
-            }
-            Err(e) => panic!("WebDriver {method} {path}: {e}"),
-        }
-    }
-
-    fn goto(&self, url: &str) {
-        self.cmd("POST", "/url", Some(json!({"url": url})));
-    }
-
-    fn find(&self, css: &str) -> String {
-        let v = self.cmd("POST", "/element", Some(json!({"using": "css selector", "value": css})));
-        v[ELEMENT].as_str().unwrap().to_string()
-    }
-
-    fn click(&self, css: &str) {
-        let e = self.find(css);
-        self.cmd("POST", &format!("/element/{e}/click"), Some(json!({})));
-    }
-
-    fn exec(&self, script: &str) -> Value {
-        self.cmd("POST", "/execute/sync", Some(json!({"script": script, "args": []})))
-    }
-
-    /// Waits until `script` (a JS expression) is truthy.
-    fn wait(&self, what: &str, secs: u64, script: &str) -> Value {
-        let deadline = Instant::now() + Duration::from_secs(secs);
-        loop {
-            let v = self.exec(&format!("return ({script});"));
-            if !(v.is_null() || v == json!(false) || v == json!(0) || v == json!("")) {
-                return v;
-            }
-            if Instant::now() > deadline {
-                let page = self.exec("return document.body.innerText;");
-                panic!("timed out waiting for {what}; the page says:\n{}", page.as_str().unwrap_or(""));
-            }
-            std::thread::sleep(Duration::from_millis(100));
-        }
-    }
-}
-
-impl Drop for Browser {
-    fn drop(&mut self) {
-        let _ = ureq::delete(&format!("{}/session/{}", self.base, self.session)).call();
-        let _ = self.driver.kill();
-        let _ = self.driver.wait();
-    }
-}
 
 /// The job's JSON over the API (with the token), and its status.
 fn job(url: &str, id: u64) -> (u16, Value) {
@@ -138,7 +25,7 @@ fn job(url: &str, id: u64) -> (u16, Value) {
 #[test]
 fn the_page_pauses_reprioritises_resumes_requeues_and_deletes_a_job() {
     let _s = serial();
-    let Some(browser) = Browser::start() else { return };
+    let Some(browser) = Browser::start_keeping_prompts() else { return };
     let server = Server::start_temp(
         "browser-jobs",
         &["--local-workers", "0", "--worker-token", "wtok", "--api-token", API],
