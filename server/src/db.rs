@@ -904,7 +904,7 @@ impl Store {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testutil::{frame, job_of, store};
+    use crate::testutil::{frame, job_of, row_of_pixels, store};
 
     /// Long enough for a lease not to expire during a test.
     const LONG: f64 = 60.0;
@@ -913,11 +913,7 @@ mod tests {
 
     /// A job of one frame cut into `tiles` one-pixel tiles.
     fn job(s: &Store, priority: i64, tiles: u32) -> u64 {
-        let frame = NewFrame {
-            tiles: (0..tiles).map(|x| Rect { x0: x, y0: 0, width: 1, height: 1 }).collect(),
-            ..frame("j.png", tiles, 1)
-        };
-        s.insert_job(&NewJob { priority, ..job_of(vec![frame]) }).unwrap()
+        s.insert_job(&NewJob { priority, ..job_of(vec![row_of_pixels("j.png", tiles, 1)]) }).unwrap()
     }
 
     /// Job ids stay above the floor the data directory's job folders set, and above every id

@@ -36,3 +36,13 @@ pub fn frame(name: &str, width: u32, height: u32) -> crate::db::NewFrame {
         ..Default::default()
     }
 }
+
+/// A frame `name` of `width` x 1 pixels, a one-pixel tile each, of `samples` samples (in passes
+/// of 16).
+pub fn row_of_pixels(name: &str, width: u32, samples: u32) -> crate::db::NewFrame {
+    crate::db::NewFrame {
+        tiles: (0..width).map(|x| tessera::protocol::Rect { x0: x, y0: 0, width: 1, height: 1 }).collect(),
+        samples,
+        ..frame(name, width, 1)
+    }
+}

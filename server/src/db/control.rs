@@ -347,23 +347,11 @@ impl Store {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testutil::store;
+    use crate::testutil::{row_of_pixels, store};
 
     /// A job of two frames of two one-pixel tiles, in `passes` passes of 16 samples.
     fn job(s: &Store, passes: u32) -> u64 {
-        let frame = |k: u32| NewFrame {
-            camera: 0,
-            image_name: format!("f{k}.png"),
-            width: 2,
-            height: 1,
-            tiles: vec![
-                Rect { x0: 0, y0: 0, width: 1, height: 1 },
-                Rect { x0: 1, y0: 0, width: 1, height: 1 },
-            ],
-            samples: 16 * passes,
-            pass_samples: 16,
-            scene_path: None,
-        };
+        let frame = |k: u32| row_of_pixels(&format!("f{k}.png"), 2, 16 * passes);
         s.insert_job(&NewJob {
             name: "j".into(),
             tile_size: 1,

@@ -144,14 +144,11 @@ impl Store {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testutil::{frame, job_of};
+    use crate::testutil::{job_of, row_of_pixels};
 
     /// A job of one frame of `tiles` one-pixel tiles, naming the bundle `bundle`.
     fn job(s: &Store, tiles: u32, bundle: &str) -> u64 {
-        let frame = NewFrame {
-            tiles: (0..tiles).map(|x| Rect { x0: x, y0: 0, width: 1, height: 1 }).collect(),
-            ..frame("j.png", tiles, 1)
-        };
+        let frame = row_of_pixels("j.png", tiles, 1);
         let job = NewJob {
             bundle: bundle.into(),
             scene_path: "scene.json".into(),

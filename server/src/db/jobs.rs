@@ -263,22 +263,13 @@ impl Store {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testutil::store;
+    use crate::testutil::{row_of_pixels, store};
 
     /// A job of two frames of two one-pixel tiles in two passes each, from `scenes` scene files.
     fn two_by_two(s: &Store, scenes: u32) -> u64 {
         let frame = |k: u32| NewFrame {
-            camera: 0,
-            image_name: format!("f{k}.png"),
-            width: 2,
-            height: 1,
-            tiles: vec![
-                Rect { x0: 0, y0: 0, width: 1, height: 1 },
-                Rect { x0: 1, y0: 0, width: 1, height: 1 },
-            ],
-            samples: 32,
-            pass_samples: 16,
             scene_path: Some(format!("s{}.xml", if scenes > 1 { k } else { 0 })),
+            ..row_of_pixels(&format!("f{k}.png"), 2, 32)
         };
         s.insert_job(&NewJob {
             name: "j".into(),
