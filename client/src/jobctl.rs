@@ -8,21 +8,6 @@ use tessera::protocol::{JobInfo, JobState};
 
 use crate::api::Api;
 
-/// `frames` (sorted 0-based indexes) as short ranges: `0-9, 12`.
-fn ranges(frames: &[u32]) -> String {
-    let mut out: Vec<String> = Vec::new();
-    let mut i = 0;
-    while i < frames.len() {
-        let mut j = i;
-        while j + 1 < frames.len() && frames[j + 1] == frames[j] + 1 {
-            j += 1;
-        }
-        out.push(if i == j { frames[i].to_string() } else { format!("{}-{}", frames[i], frames[j]) });
-        i = j + 1;
-    }
-    out.join(", ")
-}
-
 pub fn pause(api: &Api, id: u64) -> Result<()> {
     let job =
         api.change_job(&format!("pausing job {id}"), "POST", &format!("/api/v1/jobs/{id}/pause"), None)?;
@@ -67,7 +52,10 @@ fn what_renders(job: &JobInfo) -> String {
     }
     let again: Vec<u32> = job.frames.iter().filter(|f| f.outputs.is_empty()).map(|f| f.index).collect();
     let kept = job.frames.len() - again.len();
-    format!("frame(s) {} render again (numbered from 0), {kept} kept", ranges(&again))
+    format!(
+        "frame(s) {} render again (numbered from 0), {kept} kept",
+        tessera::protocol::frame_ranges(&again)
+    )
 }
 
 pub fn priority(api: &Api, id: u64, priority: i64) -> Result<()> {
@@ -83,13 +71,4 @@ pub fn priority(api: &Api, id: u64, priority: i64) -> Result<()> {
     let when = if job.state == JobState::Paused { " once resumed" } else { "" };
     println!("job {id} ({}): priority {priority}; its next tiles are handed out by it{when}", job.name);
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn frames_print_as_ranges() {
-        assert_eq!(super::ranges(&[0, 1, 2, 5, 7, 8]), "0-2, 5, 7-8");
-        assert_eq!(super::ranges(&[]), "");
-    }
 }

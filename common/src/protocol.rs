@@ -732,6 +732,22 @@ pub struct JobPatch {
 /// Longest frame list [`parse_frame_list`] reads, in bytes.
 pub const MAX_FRAME_LIST_BYTES: usize = 4096;
 
+/// `frames` (0-based, sorted) as short ranges, the way a frame list is written back to the
+/// user: `0-9, 12` (what [`parse_frame_list`] reads, with spaces).
+pub fn frame_ranges(frames: &[u32]) -> String {
+    let mut out: Vec<String> = Vec::new();
+    let mut i = 0;
+    while i < frames.len() {
+        let mut j = i;
+        while j + 1 < frames.len() && frames[j + 1] == frames[j] + 1 {
+            j += 1;
+        }
+        out.push(if i == j { frames[i].to_string() } else { format!("{}-{}", frames[i], frames[j]) });
+        i = j + 1;
+    }
+    out.join(", ")
+}
+
 /// Reads a frame list: 0-based frame indexes and inclusive ranges separated by commas
 /// (`"0-9,12"`; spaces around the parts are allowed). Returns the ranges as written, not
 /// expanded (a range of a billion frames costs nothing here: the server checks each against the
@@ -1097,6 +1113,13 @@ mod tests {
         assert_eq!(checksum(b""), "00000000");
         assert_eq!(checksum(b"a"), "e8b7be43");
         assert_ne!(checksum(b"ab"), checksum(b"ba"));
+    }
+
+    #[test]
+    fn frame_lists_print_as_ranges() {
+        assert_eq!(frame_ranges(&[0, 1, 2, 5, 7, 8]), "0-2, 5, 7-8");
+        assert_eq!(frame_ranges(&[3]), "3");
+        assert_eq!(frame_ranges(&[]), "");
     }
 
     #[test]

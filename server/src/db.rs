@@ -30,7 +30,7 @@ mod upkeep;
 mod video;
 mod workers;
 
-pub use control::{Control, Requeued, frame_ranges};
+pub use control::{Control, Requeued};
 pub use files::Deleted;
 pub use jobs::{NewFrame, NewJob};
 pub use notify::{DueNotification, Notified};

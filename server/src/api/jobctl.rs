@@ -199,7 +199,7 @@ pub(super) async fn requeue_job(
             frames.saturating_sub(1)
         ))),
         Control::Changed(Requeued::Queued { frames, units }) => {
-            tracing::info!(job = id, frames = %crate::db::frame_ranges(&frames), units, "job requeued");
+            tracing::info!(job = id, frames = %tessera::protocol::frame_ranges(&frames), units, "job requeued");
             // A frame's pass files from before are not this render's.
             for &f in &frames {
                 for name in crate::merge::PASS_FILES {

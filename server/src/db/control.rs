@@ -49,21 +49,6 @@ struct FramePlan {
     waiting: bool,
 }
 
-/// `frames` (0-based, sorted) as short ranges: `0-9, 12`.
-pub fn frame_ranges(frames: &[u32]) -> String {
-    let mut out: Vec<String> = Vec::new();
-    let mut i = 0;
-    while i < frames.len() {
-        let mut j = i;
-        while j + 1 < frames.len() && frames[j + 1] == frames[j] + 1 {
-            j += 1;
-        }
-        out.push(if i == j { frames[i].to_string() } else { format!("{}-{}", frames[i], frames[j]) });
-        i = j + 1;
-    }
-    out.join(", ")
-}
-
 /// A job's state in `tx`, `None` when there is no such job (or it is still being stored).
 fn job_state(tx: &Connection, id: i64) -> Result<Option<JobState>> {
     let state: Option<String> = tx
@@ -322,7 +307,7 @@ impl Store {
         let frames: Vec<u32> = plan.iter().map(|f| f.frame).collect();
         let message = format!(
             "requeued: frame(s) {} render again ({units} unit(s) of work); their outputs are replaced when done",
-            frame_ranges(&frames)
+            tessera::protocol::frame_ranges(&frames)
         );
         log_event(&tx, id, Event::new("job_requeued", &message))?;
         tx.commit()?;
@@ -462,11 +447,5 @@ mod tests {
             s.finished_jobs_oldest_first().unwrap().iter().map(|(id, _)| *id).collect::<Vec<_>>(),
             [j, k]
         );
-    }
-
-    #[test]
-    fn frame_lists_print_as_ranges() {
-        assert_eq!(frame_ranges(&[0, 1, 2, 5, 7, 8]), "0-2, 5, 7-8");
-        assert_eq!(frame_ranges(&[3]), "3");
     }
 }
