@@ -31,21 +31,11 @@ fn canvas_roughness(browser: &Browser, job: u64) -> f64 {
     browser.exec(&script).as_f64().unwrap()
 }
 
-fn submit_box(server: &Server, text: &[u8], samples: &str) -> u64 {
-    let (code, job) = submit(
-        &server.url,
-        None,
-        &[
-            ("scene", Some("box.xml"), text),
-            ("cameras", None, b"3"),
-            ("samples", None, samples.as_bytes()),
-            ("pass_samples", None, b"16"),
-            ("tile_size", None, b"48"),
-            ("denoise", None, b"true"),
-        ],
-    );
-    assert_eq!(code, 201, "{job}");
-    job["id"].as_u64().unwrap()
+/// The box's camera 3, denoised, in passes of 16 samples.
+fn box_in_passes(server: &Server, scene: &std::path::Path, samples: &[u8]) -> u64 {
+    let options: [(&str, &[u8]); 4] =
+        [("samples", samples), ("pass_samples", b"16"), ("tile_size", b"48"), ("denoise", b"true")];
+    submit_box(server, scene, &options)["id"].as_u64().unwrap()
 }
 
 #[test]
@@ -59,12 +49,11 @@ fn the_denoised_toggle_switches_a_frame_between_its_denoised_and_raw_pictures() 
     let Some(browser) = Browser::start() else { return };
     let server =
         Server::start_temp("browser-passes-data", &["--local-workers", "1", "--local-worker-threads", "1"]);
-    let text = std::fs::read(&scene).unwrap();
     browser.cmd("POST", "/url", Some(json!({"url": server.url})));
     browser.wait("the live connection", 20, "document.querySelector('#live').textContent === 'live'");
 
     // While it renders (many passes of 16 samples): the denoised pass first.
-    let long = submit_box(&server, &text, "4096");
+    let long = box_in_passes(&server, &scene, b"4096");
     let node = frame(long);
     let q = |css: &str| format!("document.querySelector('{}')", css.replace('\'', "\\'"));
     browser.wait(
@@ -126,7 +115,7 @@ fn the_denoised_toggle_switches_a_frame_between_its_denoised_and_raw_pictures() 
     assert_eq!(cancel(&server, long).0, 200);
 
     // Finished: the denoised PNG first, the raw one a click away.
-    let short = submit_box(&server, &text, "64");
+    let short = box_in_passes(&server, &scene, b"64");
     wait_job(&server, short, 120, |j| j["state"] == "done");
     let node = frame(short);
     browser.wait(

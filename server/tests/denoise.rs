@@ -31,20 +31,11 @@ fn a_denoised_job_writes_the_clis_denoised_files_to_the_bit() {
         error.contains("tiny.png is 4097x4096 pixels") && error.contains("at most 16777216 pixels"),
         "{error}"
     );
-    let text = std::fs::read(&scene).unwrap();
-    let (code, job) = submit(
-        &server.url,
-        None,
-        &[
-            ("scene", Some("box.xml"), &text),
-            ("cameras", None, b"3"),
-            ("samples", None, b"40"),
-            ("pass_samples", None, b"16"),
-            ("tile_size", None, b"32"),
-            ("denoise", None, b"true"),
-        ],
+    let job = submit_box(
+        &server,
+        &scene,
+        &[("samples", b"40"), ("pass_samples", b"16"), ("tile_size", b"32"), ("denoise", b"true")],
     );
-    assert_eq!(code, 201, "{job}\n{}", server.log());
     assert_eq!(job["denoise"], true, "{job}");
     let id = job["id"].as_u64().unwrap();
     let job = wait_job(&server, id, 300, |j| j["state"] == "done");

@@ -40,21 +40,12 @@ fn a_pass_preview_is_denoised_and_the_finished_frame_serves_its_denoised_png_und
     let Some(scene) = small_path_traced_box(dir.path()) else { return };
     let server =
         Server::start_temp("denoise-passes-data", &["--local-workers", "1", "--local-worker-threads", "1"]);
-    let text = std::fs::read(&scene).unwrap();
     // 96 x 96 in four tiles, passes of 16 samples: the early passes are very noisy.
-    let (code, job) = submit(
-        &server.url,
-        None,
-        &[
-            ("scene", Some("box.xml"), &text),
-            ("cameras", None, b"3"),
-            ("samples", None, b"96"),
-            ("pass_samples", None, b"16"),
-            ("tile_size", None, b"48"),
-            ("denoise", None, b"true"),
-        ],
+    let job = submit_box(
+        &server,
+        &scene,
+        &[("samples", b"96"), ("pass_samples", b"16"), ("tile_size", b"48"), ("denoise", b"true")],
     );
-    assert_eq!(code, 201, "{job}");
     let id = job["id"].as_u64().unwrap();
     // A pass's raw and denoised pictures, of the same pass (a later pass may land between two
     // downloads: then again).

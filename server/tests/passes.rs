@@ -14,16 +14,6 @@ use tessera_testkit::small_path_traced_box;
 const SHORT_LEASES: [&str; 8] =
     ["--local-workers", "0", "--worker-token", "wtok", "--lease-seconds", "2", "--heartbeat-seconds", "0.5"];
 
-fn submit_box(server: &Server, scene: &std::path::Path, extra: &[(&str, &[u8])]) -> u64 {
-    let text = std::fs::read(scene).unwrap();
-    let mut parts: Vec<(&str, Option<&str>, &[u8])> =
-        vec![("scene", Some("box.xml"), &text), ("cameras", None, b"3"), ("tile_size", None, b"32")];
-    parts.extend(extra.iter().map(|(k, v)| (*k, None, *v)));
-    let (code, job) = submit(&server.url, None, &parts);
-    assert_eq!(code, 201, "{job}\n{}", server.log());
-    job["id"].as_u64().unwrap()
-}
-
 fn events(server: &Server, id: u64, kind: &str) -> Vec<serde_json::Value> {
     let log = get_json(&server.url, &format!("/api/v1/jobs/{id}/log"));
     log["events"].as_array().unwrap().iter().filter(|e| e["kind"] == kind).cloned().collect()
@@ -39,7 +29,13 @@ fn a_frame_in_passes_with_a_worker_killed_mid_pass_is_the_clis_bytes_and_is_publ
     let mut a = Worker::start(&server.url, "wtok", "a");
     let _b = Worker::start(&server.url, "wtok", "b");
     // 9 tiles of 32 px, 64 samples in passes of 16: 36 units of work for the two workers.
-    let id = submit_box(&server, &scene, &[("samples", b"64"), ("pass_samples", b"16")]);
+    let id = submit_box(
+        &server,
+        &scene,
+        &[("tile_size", b"32"), ("samples", b"64"), ("pass_samples", b"16")],
+    )["id"]
+        .as_u64()
+        .unwrap();
     let job = get_json(&server.url, &format!("/api/v1/jobs/{id}"));
     assert_eq!(
         (job["frames"][0]["passes_total"].as_u64(), job["frames"][0]["samples"].as_u64()),
@@ -126,7 +122,9 @@ fn a_noise_target_stops_easy_tiles_and_samples_hard_ones_exactly_like_the_cli() 
     let Some(scene) = small_path_traced_box(dir.path()) else { return };
     let server =
         Server::start_temp("passes-target-data", &["--local-workers", "2", "--local-worker-threads", "1"]);
-    let id = submit_box(&server, &scene, &[("noise_target", b"0.1"), ("tile_size", b"16")]);
+    let id = submit_box(&server, &scene, &[("noise_target", b"0.1"), ("tile_size", b"16")])["id"]
+        .as_u64()
+        .unwrap();
     let job = wait_job(&server, id, 300, |j| j["state"] == "done");
     let names: Vec<&str> =
         job["frames"][0]["outputs"].as_array().unwrap().iter().map(|o| o["name"].as_str().unwrap()).collect();
@@ -160,7 +158,11 @@ fn cancelling_a_job_in_passes_frees_every_worker_within_a_second() {
         &["--local-workers", "2", "--local-worker-threads", "1", "--heartbeat-seconds", "0.2"],
     );
     // Thousands of samples in passes of 16: far more work than the test waits for.
-    let id = submit_box(&server, &scene, &[("samples", b"4000"), ("pass_samples", b"256")]);
+    let id =
+        submit_box(&server, &scene, &[("tile_size", b"32"), ("samples", b"4000"), ("pass_samples", b"256")])
+            ["id"]
+            .as_u64()
+            .unwrap();
     let busy = |server: &Server| {
         get_json(&server.url, "/api/v1/workers")["workers"]
             .as_array()
@@ -185,9 +187,16 @@ fn cancelling_a_job_in_passes_frees_every_worker_within_a_second() {
         std::thread::sleep(Duration::from_millis(10));
     }
     // A higher-priority job's first pass goes before a running job's later passes.
-    let low = submit_box(&server, &scene, &[("samples", b"4000"), ("pass_samples", b"256")]);
+    let low =
+        submit_box(&server, &scene, &[("tile_size", b"32"), ("samples", b"4000"), ("pass_samples", b"256")])
+            ["id"]
+            .as_u64()
+            .unwrap();
     wait_job(&server, low, 60, |j| j["state"] == "running");
-    let high = submit_box(&server, &scene, &[("samples", b"16"), ("priority", b"5")]);
+    let high =
+        submit_box(&server, &scene, &[("tile_size", b"32"), ("samples", b"16"), ("priority", b"5")])["id"]
+            .as_u64()
+            .unwrap();
     let job = wait_job(&server, high, 120, |j| j["state"] == "done");
     assert_eq!(job["state"], "done");
     let low_job = get_json(&server.url, &format!("/api/v1/jobs/{low}"));
@@ -204,7 +213,13 @@ fn finished_passes_survive_a_server_killed_mid_frame() {
     let mut server = Server::start(&data, &SHORT_LEASES);
     let port = server.url.rsplit(':').next().unwrap().to_string();
     let _w = Worker::start(&server.url, "wtok", "w");
-    let id = submit_box(&server, &scene, &[("samples", b"96"), ("pass_samples", b"16")]);
+    let id = submit_box(
+        &server,
+        &scene,
+        &[("tile_size", b"32"), ("samples", b"96"), ("pass_samples", b"16")],
+    )["id"]
+        .as_u64()
+        .unwrap();
     let before = wait_job(&server, id, 120, |j| j["frames"][0]["passes_done"].as_u64() >= Some(1));
     let added_before = before["frames"][0]["passes_done"].as_u64();
     server.kill9();

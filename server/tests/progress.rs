@@ -164,18 +164,7 @@ fn under_a_noise_target_the_total_is_a_bound_that_only_shrinks_to_what_was_done(
     let Some(scene) = small_path_traced_box(dir.path()) else { return };
     let server =
         Server::start_temp("progress-target-data", &["--local-workers", "1", "--local-worker-threads", "1"]);
-    let text = std::fs::read(&scene).unwrap();
-    let (code, job) = submit(
-        &server.url,
-        None,
-        &[
-            ("scene", Some("box.xml"), &text),
-            ("cameras", None, b"3"),
-            ("tile_size", None, b"16"),
-            ("noise_target", None, b"0.1"),
-        ],
-    );
-    assert_eq!(code, 201, "{job}");
+    let job = submit_box(&server, &scene, &[("tile_size", b"16"), ("noise_target", b"0.1")]);
     let id = job["id"].as_u64().unwrap();
     let first = look(&job);
     let cap = job["frames"][0]["samples"].as_u64().unwrap();

@@ -403,3 +403,16 @@ pub fn wait_until_rendering(server: &Server, name: &str) {
         std::thread::sleep(Duration::from_millis(5));
     }
 }
+
+/// Submits camera 3 (a path-traced view) of the scene file `scene` that
+/// `tessera_testkit::small_path_traced_box` wrote, with the options `extra`; the accepted job's
+/// JSON.
+pub fn submit_box(server: &Server, scene: &std::path::Path, extra: &[(&str, &[u8])]) -> Value {
+    let text = std::fs::read(scene).unwrap();
+    let mut parts: Vec<(&str, Option<&str>, &[u8])> =
+        vec![("scene", Some("box.xml"), &text), ("cameras", None, b"3")];
+    parts.extend(extra.iter().map(|(k, v)| (*k, None, *v)));
+    let (code, job) = submit(&server.url, None, &parts);
+    assert_eq!(code, 201, "{job}\n{}", server.log());
+    job
+}
