@@ -163,7 +163,7 @@ pub fn exit_with_parent() {
             loop {
                 std::thread::sleep(Duration::from_millis(500));
                 if std::os::unix::process::parent_id() != parent {
-                    eprintln!("the server that started this worker is gone; exiting");
+                    say!("the server that started this worker is gone; exiting");
                     std::process::exit(0);
                 }
             }
@@ -290,7 +290,7 @@ fn register(
             }
             Err(e) => {
                 if started.elapsed() > Duration::from_secs(5) {
-                    eprintln!("waiting for the server at {}: {}", client.base, describe(e));
+                    say!("waiting for the server at {}: {}", client.base, describe(e));
                 }
                 pause(stop, delay);
                 delay = (delay * 2).min(Duration::from_secs(5));
@@ -303,7 +303,7 @@ pub fn work(opts: WorkOptions) -> Result<()> {
     let (base, note) =
         tessera::protocol::server_base_url(&opts.server).map_err(|e| anyhow!("--server: {e}"))?;
     if let Some(note) = note {
-        eprintln!("{note}");
+        say!("{note}");
     }
     // The server's name is looked up on a thread of its own and its last addresses kept
     // (crate::resolve): a name server that stops answering for a while must not stall the
@@ -331,14 +331,14 @@ pub fn work(opts: WorkOptions) -> Result<()> {
     let stop = stop_flag()?;
     let Some(reg) = register(&client, &opts.name, pool.current_num_threads() as u32, &opts.tags, &stop)?
     else {
-        eprintln!("stopped before the server answered");
+        say!("stopped before the server answered");
         return Ok(());
     };
     let worker_id = reg.worker_id;
     let client = Arc::new(Client { secret: reg.worker_secret.clone(), ..client });
     let heartbeat_every = heartbeat_interval(reg.heartbeat_seconds)?;
     let heartbeat_limit = heartbeat_timeout(reg.lease_seconds);
-    eprintln!(
+    say!(
         "worker {} ({}, {} threads{}) registered with {}",
         worker_id,
         opts.name,
@@ -347,7 +347,7 @@ pub fn work(opts: WorkOptions) -> Result<()> {
         client.base
     );
     let kept = opts.files.stats();
-    eprintln!(
+    say!(
         "file cache {}: {} file(s), {} of {} MiB; mesh cache {} MiB",
         opts.files.dir().display(),
         kept.files,
@@ -385,7 +385,7 @@ pub fn work(opts: WorkOptions) -> Result<()> {
                             }
                         }
                     }
-                    Err(e) => eprintln!("heartbeat: {}", describe(e)),
+                    Err(e) => say!("heartbeat: {}", describe(e)),
                 }
             }
         })?;
@@ -510,7 +510,7 @@ impl Slots<'_> {
     /// Says once, from the first slot that sees the flag, that the worker is stopping.
     fn stopping(&self) {
         if !self.announced.swap(true, Ordering::SeqCst) {
-            eprintln!("stopping: no new tiles");
+            say!("stopping: no new tiles");
         }
     }
 
@@ -571,7 +571,7 @@ impl Slots<'_> {
                 l.revoked.remove(&id)
             };
             if revoked {
-                eprintln!("lease {id} was revoked while rendering; dropping the tile");
+                say!("lease {id} was revoked while rendering; dropping the tile");
                 lock(leases).held.remove(&id);
                 continue;
             }
@@ -586,11 +586,11 @@ impl Slots<'_> {
                     }
                 }
                 Err(e) => {
-                    eprintln!("tile {} of job {} failed: {e:#}", lease.tile, lease.job_id);
+                    say!("tile {} of job {} failed: {e:#}", lease.tile, lease.job_id);
                     let fatal = e.downcast_ref::<OutOfTime>().is_some();
                     let req = FailRequest { worker_id, error: format!("{e:#}"), fatal };
                     if let Err(e) = client.post_json(&format!("/api/v1/worker/leases/{id}/fail"), &req) {
-                        eprintln!("reporting the failure: {}", describe(e));
+                        say!("reporting the failure: {}", describe(e));
                     }
                     lock(leases).held.remove(&id);
                 }
@@ -626,8 +626,8 @@ fn give_back(client: &Client, worker_id: u64, leases: &Mutex<Leases>, rx: &Recei
 fn release(client: &Client, worker_id: u64, leases: &Mutex<Leases>, lease: u64) {
     lock(leases).held.remove(&lease);
     match client.post_json(&format!("/api/v1/worker/leases/{lease}/release"), &ReleaseRequest { worker_id }) {
-        Ok(_) => eprintln!("gave back lease {lease}"),
-        Err(e) => eprintln!("giving back lease {lease}: {}", describe(e)),
+        Ok(_) => say!("gave back lease {lease}"),
+        Err(e) => say!("giving back lease {lease}: {}", describe(e)),
     }
 }
 
@@ -666,20 +666,20 @@ fn fetch_leases(
                             return;
                         }
                     }
-                    Err(e) => eprintln!("lease: the answer is not valid JSON: {e}"),
+                    Err(e) => say!("lease: the answer is not valid JSON: {e}"),
                 }
             }
             Ok(_) => {} // 204: no work yet; ask again.
             Err(ureq::Error::Status(404, _)) => {
                 // The server forgot this worker (a new data directory): nothing sensible to do
                 // but stop; a supervisor restarts and registers again.
-                eprintln!("the server does not know worker {worker_id} any more; exiting");
+                say!("the server does not know worker {worker_id} any more; exiting");
                 std::process::exit(3);
             }
             Err(ureq::Error::Status(401, r)) => {
                 // The token changed, or the server no longer takes this worker's secret (it
                 // registered with an older server): a restart registers again.
-                eprintln!(
+                say!(
                     "the server refuses worker {worker_id}: {}; exiting",
                     describe(ureq::Error::Status(401, r))
                 );
@@ -687,7 +687,7 @@ fn fetch_leases(
             }
             Err(_) if stop.load(Ordering::SeqCst) => return,
             Err(e) => {
-                eprintln!("lease: {}", describe(e));
+                say!("lease: {}", describe(e));
                 pause(stop, delay);
                 delay = (delay * 2).min(Duration::from_secs(5));
             }
@@ -737,7 +737,7 @@ fn watch_rendering(client: &Client, worker_id: u64, leases: &Mutex<Leases>, stop
                 if stop.load(Ordering::SeqCst) {
                     return;
                 }
-                eprintln!("watching leases {watched:?}: {}", describe(e));
+                say!("watching leases {watched:?}: {}", describe(e));
                 std::thread::sleep(delay);
                 delay = (delay * 2).min(Duration::from_secs(30));
             }
@@ -786,7 +786,7 @@ fn lease_scene(
             // A line a scene built: what the caches saved (a sequence's frames after its first
             // build their meshes from the cache, or fetch nothing at all).
             let st = &s.stats;
-            eprintln!(
+            say!(
                 "job {}: {} built in {:.3} s ({} mesh(es) from the cache, {:.3} s building meshes{})",
                 lease.job_id,
                 lease.scene_path,
@@ -924,18 +924,18 @@ fn upload(client: &Client, worker_id: u64, lease: u64, body: &[u8], seconds: f64
         match res {
             Ok(_) => return,
             Err(ureq::Error::Status(409, _)) => {
-                eprintln!("lease {lease} expired or was revoked before the upload; the tile is dropped");
+                say!("lease {lease} expired or was revoked before the upload; the tile is dropped");
                 return;
             }
             Err(ureq::Error::Status(code, r)) if code < 500 => {
-                eprintln!(
+                say!(
                     "the server refused tile of lease {lease}: {}",
                     describe(ureq::Error::Status(code, r))
                 );
                 return;
             }
             Err(e) => {
-                eprintln!("uploading lease {lease}: {}; retrying", describe(e));
+                say!("uploading lease {lease}: {}; retrying", describe(e));
                 std::thread::sleep(delay);
                 delay = (delay * 2).min(Duration::from_secs(5));
             }

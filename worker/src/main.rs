@@ -4,6 +4,18 @@
 //! `tonemap` turns an HDR image (OpenEXR or Radiance HDR) into a PNG with the course's
 //! photographic operator; `work` pulls tiles from a `tessera-server` farm (`farm.rs`).
 
+/// `eprintln!` in one write: a farm's local workers share the server's standard error, and
+/// `eprintln!` writes a formatted line in pieces, between which another process's line can land.
+/// A line of up to 4 KiB written at once to a pipe is never torn (POSIX `PIPE_BUF`).
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let mut line = format!($($arg)*);
+        line.push('\n');
+        let _ = std::io::stderr().lock().write_all(line.as_bytes());
+    }};
+}
+
 mod farm;
 mod filecache;
 mod jobfiles;
@@ -310,14 +322,14 @@ fn main() -> ExitCode {
                 farm::exit_with_parent();
             }
             if threads == Some(0) {
-                eprintln!("error: --threads must be at least 1");
+                say!("error: --threads must be at least 1");
                 return ExitCode::FAILURE;
             }
             let name = name.unwrap_or_else(default_worker_name);
             let tags = match tessera::protocol::check_tags(&tags) {
                 Ok(tags) => tags,
                 Err(e) => {
-                    eprintln!("error: --tags: {e}");
+                    say!("error: --tags: {e}");
                     return ExitCode::FAILURE;
                 }
             };
@@ -340,7 +352,7 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            say!("error: {e:#}");
             ExitCode::FAILURE
         }
     }
@@ -380,7 +392,7 @@ fn work_caches(
                     let fallback = std::env::temp_dir().join("tessera-worker-files");
                     let files =
                         filecache::FileCache::open(&fallback, limit).map_err(|e| refused(&fallback, e))?;
-                    eprintln!(
+                    say!(
                         "warning: no default file cache ({e:#}); using {} (give --cache-dir DIR or TESSERA_WORKER_CACHE_DIR to keep files across runs)",
                         fallback.display()
                     );
@@ -410,14 +422,14 @@ fn report_warnings(
         match seen.iter_mut().find(|(k, _, _)| *k == key) {
             Some((_, _, n)) => *n += 1,
             None => {
-                eprintln!("{w}");
+                say!("{w}");
                 seen.push((key, w.to_string(), 0));
             }
         }
     }
     if let Err(errors) = load.check(warnings) {
         for e in &errors {
-            eprintln!("error: {e}");
+            say!("error: {e}");
         }
         bail!(
             "{}: {} element(s) that change the picture are not supported (listed above); nothing was rendered",
@@ -535,7 +547,7 @@ fn render(args: &RenderArgs) -> Result<()> {
         for (_, first, n) in seen.iter().filter(|(_, _, n)| *n > 0) {
             let frames =
                 if *n == 1 { "1 more scene file".to_string() } else { format!("{n} more scene files") };
-            eprintln!("{first} (and in {frames})");
+            say!("{first} (and in {frames})");
         }
         Ok(())
     })
@@ -590,7 +602,7 @@ fn render_scene(
     timings.meshes_cached = scene.stats.meshes_cached;
     timings.top_level = scene.stats.accel_seconds;
     timings.top_level_cached = scene.stats.world_tree_cached;
-    eprintln!(
+    say!(
         "loaded {} in {:.2} s: {} triangles, {} objects, {} camera(s)",
         scene_path.display(),
         t0.elapsed().as_secs_f64(),
@@ -616,7 +628,7 @@ fn render_scene(
         let cam = &scene.cameras[ci];
         let (files, notes) = output::plan(cam);
         for n in notes {
-            eprintln!("warning: {n}");
+            say!("warning: {n}");
         }
         let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(1) };
         bar.set_style(
@@ -659,7 +671,7 @@ fn render_scene(
             if let Some(earlier) = written_by.insert(w.path.clone(), scene_path.to_path_buf())
                 && earlier != scene_path
             {
-                eprintln!(
+                say!(
                     "warning: {} from {} replaces the one {} wrote (both name it); give the scenes different ImageNames or render them into different --out folders",
                     w.path.display(),
                     scene_path.display(),
@@ -669,7 +681,7 @@ fn render_scene(
         }
         let non_finite = img.pixels.iter().filter(|p| p.iter().any(|c| !c.is_finite())).count();
         if non_finite > 0 {
-            eprintln!(
+            say!(
                 "warning: {}: {non_finite} pixel(s) came out NaN or infinite; they are kept in HDR files, left out of tone-mapping statistics and written black (NaN) or white (+inf) in PNGs",
                 cam.image_name
             );
@@ -748,7 +760,7 @@ fn tonemap_params(
         None => match cams.iter().find(|c| !c.tonemaps.is_empty()) {
             Some(c) => c,
             None => {
-                eprintln!("warning: {} has no <Tonemap>; using the course defaults", path.display());
+                say!("warning: {} has no <Tonemap>; using the course defaults", path.display());
                 return Ok(defaults);
             }
         },
@@ -760,7 +772,7 @@ fn tonemap_params(
     match chosen {
         Some(t) => Ok((t.operator, t.params)),
         None => {
-            eprintln!(
+            say!(
                 "warning: camera {} of {} has no <Tonemap>; using the course defaults",
                 cam.id,
                 path.display()
@@ -796,7 +808,7 @@ fn tonemap_file(input: &Path, out: &Path, operator: Operator, params: &Photograp
         t.elapsed().as_secs_f64()
     );
     if stats.non_finite > 0 {
-        eprintln!(
+        say!(
             "warning: {}: {} pixel(s) hold NaN or infinite values; they are left out of the statistics (NaN written black, +inf white)",
             input.display(),
             stats.non_finite
