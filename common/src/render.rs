@@ -201,10 +201,13 @@ pub fn render_tile_sums_until(
         tracer.spread = cam.pixel_spread;
     }
     let pixel_uv = glam::DVec2::new(1.0 / cam.width as f64, 1.0 / cam.height as f64);
-    let mut out = Vec::with_capacity((rect.width * rect.height) as usize);
+    let pixels = (rect.width * rect.height) as usize;
+    // Every pixel's entry is written once, at its place in the tile (row by row), in the order
+    // the pixels are rendered (see `order` below).
+    let mut out = vec![PixelSum::default(); pixels];
     if let Some(a) = aux.as_deref_mut() {
-        a.albedo = Vec::with_capacity(out.capacity());
-        a.normal = Vec::with_capacity(out.capacity());
+        a.albedo = vec![[0.0; 3]; pixels];
+        a.normal = vec![[0.0; 3]; pixels];
     }
     // A pixel's samples go in groups of up to eight: their camera rays are traced together
     // (nearly parallel, they share their nodes), then each sample is shaded. When a pixel
@@ -242,10 +245,16 @@ pub fn render_tile_sums_until(
     let mut pixel = PixelSum::default();
     let mut sum = glam::DVec3::ZERO;
     let (mut albedo, mut normal) = (glam::DVec3::ZERO, glam::DVec3::ZERO);
-    // The (pixel, sample) pairs of the tile in order: row by row, a pixel's samples in turn.
+    // The order the pixels are rendered in (their indices in the tile, row by row), when a
+    // group takes several pixels: blocks of 4x2 pixels, so that a group of eight one-sample
+    // pixels is a compact bundle of rays (which share more of their nodes than a row of eight)
+    // rather than a row. Every pixel's value is its own, so the order changes no bit.
+    let order = across_pixels.then(|| block_order(rect.width, rect.height));
+    // The (pixel, sample) pairs of the tile in order: pixel by pixel, a pixel's samples in turn.
     let total = u64::from(rect.width) * u64::from(rect.height) * u64::from(per_pixel);
     let at = |i: u64| {
-        let p = (i / u64::from(per_pixel)) as u32;
+        let k = (i / u64::from(per_pixel)) as usize;
+        let p = order.as_ref().map_or(k as u32, |o| o[k]);
         let s = range.start + (i % u64::from(per_pixel)) as u32;
         (rect.x0 + p % rect.width, rect.y0 + p / rect.width, s)
     };
@@ -345,7 +354,7 @@ pub fn render_tile_sums_until(
         }
         for ((cg, lanes), radiance) in groups.iter().zip(&lanes).zip(&radiance).take(made) {
             for i in 0..cg.n {
-                let (_, _, ls) = lanes[i];
+                let (lx, ly, ls) = lanes[i];
                 if aux.is_some() && ls < aux_samples {
                     let a = tracer.aux(&cg.rays[i], cg.hits[i]);
                     albedo += a.albedo;
@@ -362,11 +371,12 @@ pub fn render_tile_sums_until(
                     sum = glam::DVec3::ZERO;
                 }
                 if done == range.end {
-                    out.push(pixel);
+                    let p = ((ly - rect.y0) * rect.width + (lx - rect.x0)) as usize;
+                    out[p] = pixel;
                     pixel = PixelSum::default();
                     if let Some(a) = aux.as_deref_mut() {
-                        a.albedo.push(film_value(albedo / f64::from(aux_samples)));
-                        a.normal.push(film_value(normal / f64::from(aux_samples)));
+                        a.albedo[p] = film_value(albedo / f64::from(aux_samples));
+                        a.normal[p] = film_value(normal / f64::from(aux_samples));
                     }
                     (albedo, normal) = (glam::DVec3::ZERO, glam::DVec3::ZERO);
                 }
@@ -374,6 +384,22 @@ pub fn render_tile_sums_until(
         }
     }
     Ok((out, tracer.stats))
+}
+
+/// The pixels of a `width` x `height` tile (indices row by row) in blocks of 4x2: the blocks
+/// row by row, each block's pixels row by row (blocks at the right and bottom edges are cut).
+fn block_order(width: u32, height: u32) -> Vec<u32> {
+    let mut order = Vec::with_capacity((width * height) as usize);
+    for by in (0..height).step_by(2) {
+        for bx in (0..width).step_by(4) {
+            for y in by..(by + 2).min(height) {
+                for x in bx..(bx + 4).min(width) {
+                    order.push(y * width + x);
+                }
+            }
+        }
+    }
+    order
 }
 
 /// Renders a whole camera with rayon over tiles. `progress(done, total)` is called after every
@@ -445,7 +471,8 @@ pub fn render_tile_passes(
     mut aux: Option<&mut AuxTile>,
 ) -> (Vec<[f32; 3]>, TileOutcome, RayStats) {
     let n = samples_per_pixel(scene, camera, settings);
-    let mut sums = vec![PixelSum::default(); (rect.width * rect.height) as usize];
+    // The first pass's sums (there is always one), plus the later passes'.
+    let mut sums = Vec::new();
     let mut stats = RayStats::default();
     let (mut done, mut error) = (0, None);
     for k in 0..crate::passes::pass_count(n, plan.pass_samples) {
@@ -456,8 +483,12 @@ pub fn render_tile_passes(
                 Ok(r) => r,
                 Err(_) => unreachable!("Stop::NEVER never stops"),
             };
-        for (acc, p) in sums.iter_mut().zip(&pass) {
-            acc.add(p);
+        if k == 0 {
+            sums = pass;
+        } else {
+            for (acc, p) in sums.iter_mut().zip(&pass) {
+                acc.add(p);
+            }
         }
         stats.add(&st);
         done = range.end;
@@ -749,6 +780,18 @@ mod tests {
         }
         let (tile, _) = render_tile(&scene, 0, rect, &settings);
         assert_eq!(sums.iter().map(|s| s.film(100)).collect::<Vec<_>>(), tile);
+    }
+
+    #[test]
+    fn the_block_order_takes_every_pixel_of_a_tile_once() {
+        for (w, h) in [(32, 32), (17, 5), (1, 1), (3, 7), (8, 2)] {
+            let order = block_order(w, h);
+            let mut seen = order.clone();
+            seen.sort_unstable();
+            assert_eq!(seen, (0..w * h).collect::<Vec<_>>(), "{w}x{h}");
+        }
+        // Full blocks: eight pixels in two rows of four.
+        assert_eq!(block_order(8, 2)[..8], [0, 1, 2, 3, 8, 9, 10, 11]);
     }
 
     #[test]
