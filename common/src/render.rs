@@ -131,6 +131,9 @@ pub fn render_tile_until(
     stop: Stop<'_>,
 ) -> Result<(Vec<[f32; 3]>, RayStats), Stopped> {
     let n = samples_per_pixel(scene, camera, settings);
+    if n == 1 {
+        return render_one_sample_tile_until(scene, camera, rect, settings, stop, None);
+    }
     let (sums, stats) =
         render_tile_sums_until(scene, camera, rect, settings, SampleRange::all(n), stop, None)?;
     Ok((sums.iter().map(|s| s.film(n)).collect(), stats))
@@ -156,6 +159,11 @@ pub fn render_tile_with_aux_until(
 ) -> Result<(Vec<[f32; 3]>, AuxTile, RayStats), Stopped> {
     let mut aux = AuxTile::default();
     let n = samples_per_pixel(scene, camera, settings);
+    if n == 1 {
+        let (film, stats) =
+            render_one_sample_tile_until(scene, camera, rect, settings, stop, Some(&mut aux))?;
+        return Ok((film, aux, stats));
+    }
     let (sums, stats) =
         render_tile_sums_until(scene, camera, rect, settings, SampleRange::all(n), stop, Some(&mut aux))?;
     Ok((sums.iter().map(|s| s.film(n)).collect(), aux, stats))
@@ -174,8 +182,54 @@ pub fn render_tile_sums_until(
     settings: &RenderSettings,
     range: SampleRange,
     stop: Stop<'_>,
-    mut aux: Option<&mut AuxTile>,
+    aux: Option<&mut AuxTile>,
 ) -> Result<(Vec<PixelSum>, RayStats), Stopped> {
+    let mut out = TileOut::Sums(vec![PixelSum::default(); (rect.width * rect.height) as usize]);
+    let stats = render_tile_into(scene, camera, rect, settings, range, stop, aux, &mut out)?;
+    match out {
+        TileOut::Sums(sums) => Ok((sums, stats)),
+        TileOut::Film(_) => unreachable!("asked for sums"),
+    }
+}
+
+/// The film of a tile of a camera that renders one sample a pixel (the sums' film, bit for bit:
+/// [`PixelSum::film_of_one`]), with its features when `aux` is given.
+fn render_one_sample_tile_until(
+    scene: &Scene,
+    camera: usize,
+    rect: TileRect,
+    settings: &RenderSettings,
+    stop: Stop<'_>,
+    aux: Option<&mut AuxTile>,
+) -> Result<(Vec<[f32; 3]>, RayStats), Stopped> {
+    let mut out = TileOut::Film(vec![[0.0; 3]; (rect.width * rect.height) as usize]);
+    let stats = render_tile_into(scene, camera, rect, settings, SampleRange::all(1), stop, aux, &mut out)?;
+    match out {
+        TileOut::Film(film) => Ok((film, stats)),
+        TileOut::Sums(_) => unreachable!("asked for the film"),
+    }
+}
+
+/// Where a tile's pixels go, each at its place in the tile (row by row): their sums, or, when
+/// the camera renders one sample a pixel, straight their film values (no fixed-point sums to
+/// make and read back: a sixth of a one-sample frame's work).
+enum TileOut {
+    Sums(Vec<PixelSum>),
+    Film(Vec<[f32; 3]>),
+}
+
+/// [`render_tile_sums_until`] into `out`, which holds an entry for every pixel of the tile.
+#[allow(clippy::too_many_arguments)]
+fn render_tile_into(
+    scene: &Scene,
+    camera: usize,
+    rect: TileRect,
+    settings: &RenderSettings,
+    range: SampleRange,
+    stop: Stop<'_>,
+    mut aux: Option<&mut AuxTile>,
+    out: &mut TileOut,
+) -> Result<RayStats, Stopped> {
     let cam = &scene.cameras[camera];
     assert!(
         rect.x0 + rect.width <= cam.width && rect.y0 + rect.height <= cam.height,
@@ -188,6 +242,10 @@ pub fn render_tile_sums_until(
         "bad sample range"
     );
     assert!(aux.is_none() || range.start == 0, "features come from the first block");
+    assert!(
+        matches!(out, TileOut::Sums(_)) || (n == 1 && range == SampleRange::all(1)),
+        "film values straight from the samples of one-sample pixels only"
+    );
     let aux_samples = n.min(BLOCK);
     let moving = scene.accel.instances.iter().any(|i| i.motion.is_some());
     let mut tracer = Tracer::new(scene);
@@ -204,7 +262,14 @@ pub fn render_tile_sums_until(
     let pixels = (rect.width * rect.height) as usize;
     // Every pixel's entry is written once, at its place in the tile (row by row), in the order
     // the pixels are rendered (see `order` below).
-    let mut out = vec![PixelSum::default(); pixels];
+    assert_eq!(
+        match out {
+            TileOut::Sums(v) => v.len(),
+            TileOut::Film(v) => v.len(),
+        },
+        pixels,
+        "an entry a pixel"
+    );
     if let Some(a) = aux.as_deref_mut() {
         a.albedo = vec![[0.0; 3]; pixels];
         a.normal = vec![[0.0; 3]; pixels];
@@ -366,13 +431,22 @@ pub fn render_tile_sums_until(
                     Some(c) => radiance[i].min(glam::DVec3::splat(c)),
                 };
                 let done = ls + 1;
+                // The sum of the block this sample ends, if it ends one.
+                let mut block_sum = glam::DVec3::ZERO;
                 if done.is_multiple_of(BLOCK) || done == range.end {
-                    pixel.add_block(ls / BLOCK, sum);
+                    if let TileOut::Sums(_) = out {
+                        pixel.add_block(ls / BLOCK, sum);
+                    }
+                    block_sum = sum;
                     sum = glam::DVec3::ZERO;
                 }
                 if done == range.end {
                     let p = ((ly - rect.y0) * rect.width + (lx - rect.x0)) as usize;
-                    out[p] = pixel;
+                    match out {
+                        TileOut::Sums(v) => v[p] = pixel,
+                        // One sample a pixel: its only block.
+                        TileOut::Film(v) => v[p] = PixelSum::film_of_one(block_sum),
+                    }
                     pixel = PixelSum::default();
                     if let Some(a) = aux.as_deref_mut() {
                         a.albedo[p] = film_value(albedo / f64::from(aux_samples));
@@ -383,7 +457,7 @@ pub fn render_tile_sums_until(
             }
         }
     }
-    Ok((out, tracer.stats))
+    Ok(tracer.stats)
 }
 
 /// The pixels of a `width` x `height` tile (indices row by row) in blocks of 4x2: the blocks
@@ -471,6 +545,15 @@ pub fn render_tile_passes(
     mut aux: Option<&mut AuxTile>,
 ) -> (Vec<[f32; 3]>, TileOutcome, RayStats) {
     let n = samples_per_pixel(scene, camera, settings);
+    if n == 1 {
+        // One pass of one sample, too few for a noise estimate (`tile_error` of one sample).
+        let (film, stats) =
+            match render_one_sample_tile_until(scene, camera, rect, settings, Stop::NEVER, aux) {
+                Ok(r) => r,
+                Err(_) => unreachable!("Stop::NEVER never stops"),
+            };
+        return (film, TileOutcome { rect, samples: 1, error: None }, stats);
+    }
     // The first pass's sums (there is always one), plus the later passes'.
     let mut sums = Vec::new();
     let mut stats = RayStats::default();
@@ -780,6 +863,27 @@ mod tests {
         }
         let (tile, _) = render_tile(&scene, 0, rect, &settings);
         assert_eq!(sums.iter().map(|s| s.film(100)).collect::<Vec<_>>(), tile);
+    }
+
+    /// A one-sample tile's film comes straight from its samples: the same bits as its sums'.
+    #[test]
+    fn one_sample_film_values_are_the_sums_film() {
+        let scene = features_scene("0.2 0.2 0.2");
+        let settings = RenderSettings { samples: Some(1), ..RenderSettings::default() };
+        let rect = TileRect { x0: 0, y0: 0, width: 2, height: 1 };
+        let (sums, _) =
+            render_tile_sums_until(&scene, 0, rect, &settings, SampleRange::all(1), Stop::NEVER, None)
+                .unwrap();
+        let film: Vec<[f32; 3]> = sums.iter().map(|s| s.film(1)).collect();
+        assert!(film.iter().all(|p| p[0] > 0.0 || p[1] > 0.0), "both pixels see something: {film:?}");
+        assert_eq!(render_tile(&scene, 0, rect, &settings).0, film);
+        let (px, aux, _) = render_tile_with_aux_until(&scene, 0, rect, &settings, Stop::NEVER).unwrap();
+        assert_eq!(px, film);
+        let mut passed = AuxTile::default();
+        let plan = PassPlan { pass_samples: 16, noise_target: Some(0.1) };
+        let (px, outcome, _) = render_tile_passes(&scene, 0, rect, &settings, plan, Some(&mut passed));
+        assert_eq!((px, passed), (film, aux));
+        assert_eq!(outcome, TileOutcome { rect, samples: 1, error: None });
     }
 
     #[test]
