@@ -57,6 +57,23 @@ fn fixed(v: f64) -> i128 {
     x.clamp(-BLOCK_LIMIT, BLOCK_LIMIT) as i128
 }
 
+/// `float(fixed(v))` without the integer: `v * SCALE` truncated towards zero, what both
+/// conversions make of it. Below 2^63 in magnitude the truncated value is an `f64` (below 2^53
+/// it is exact, above the value has no fraction), with `+ 0.0` turning the truncation's -0 into
+/// the integer's 0; beyond, the clamp the `i128` takes (whose bounds and the values past 2^63
+/// are integers the float holds exactly); NaN is 0.
+#[inline]
+fn fixed_float(v: f64) -> f64 {
+    let x = v * SCALE;
+    if x.abs() < I64_LIMIT {
+        x.trunc() + 0.0
+    } else if x.is_nan() {
+        0.0
+    } else {
+        x.clamp(-BLOCK_LIMIT, BLOCK_LIMIT)
+    }
+}
+
 /// 2^63: below it in magnitude an `f64` converts to `i64` exactly as to `i128`.
 const I64_LIMIT: f64 = 9_223_372_036_854_775_808.0;
 
@@ -103,6 +120,15 @@ impl PixelSum {
         let n = f64::from(samples.max(1));
         let c = DVec3::new(float(self.rgb[0]), float(self.rgb[1]), float(self.rgb[2])) / SCALE / n;
         film_value(c)
+    }
+
+    /// The film value of a pixel of one sample of radiance `sum`: [`Self::film`]`(1)` of the
+    /// `PixelSum` that [`Self::add_block`]`(0, sum)` makes, bit for bit, without the integers
+    /// (a one-sample frame's pixels never meet another block). Each component is the fixed-point
+    /// value's float, [`fixed_float`].
+    #[inline]
+    pub fn film_of_one(sum: DVec3) -> [f32; 3] {
+        film_value(DVec3::new(fixed_float(sum.x), fixed_float(sum.y), fixed_float(sum.z)) / SCALE)
     }
 
     /// The average over all `samples`, and over the odd blocks' `odd` samples, in luminance.
@@ -406,6 +432,57 @@ mod tests {
             -(1 << 90) - 7,
         ] {
             assert_eq!(float(i).to_bits(), (i as f64).to_bits(), "{i}");
+        }
+    }
+
+    #[test]
+    fn a_one_sample_film_value_is_the_fixed_point_films() {
+        let edge = I64_LIMIT / SCALE;
+        let mut values = vec![
+            0.0,
+            -0.0,
+            1e-13,
+            -1e-13,
+            -1e-300,
+            0.3,
+            -0.7,
+            1.0 / 3.0,
+            255.0,
+            12345.678,
+            -9e7,
+            8192.0 + 1e-9,
+            edge,
+            -edge,
+            edge * (1.0 - 1e-16),
+            -edge * (1.0 - 1e-16),
+            edge * 1.5,
+            1e30,
+            -1e30,
+            1e300,
+            f64::MAX,
+            f64::MIN_POSITIVE,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+        ];
+        // Values of every magnitude, from a fixed xorshift.
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        for _ in 0..2000 {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            let v = f64::from_bits(state);
+            if v.is_finite() {
+                values.push(v);
+                values.push(v * 1e-290);
+            }
+        }
+        for w in values.windows(3) {
+            let sum = DVec3::new(w[0], w[1], w[2]);
+            let mut p = PixelSum::default();
+            p.add_block(0, sum);
+            let (a, b) = (PixelSum::film_of_one(sum), p.film(1));
+            assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits), "{sum:?}");
         }
     }
 

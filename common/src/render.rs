@@ -131,6 +131,9 @@ pub fn render_tile_until(
     stop: Stop<'_>,
 ) -> Result<(Vec<[f32; 3]>, RayStats), Stopped> {
     let n = samples_per_pixel(scene, camera, settings);
+    if n == 1 {
+        return render_one_sample_tile_until(scene, camera, rect, settings, stop, None);
+    }
     let (sums, stats) =
         render_tile_sums_until(scene, camera, rect, settings, SampleRange::all(n), stop, None)?;
     Ok((sums.iter().map(|s| s.film(n)).collect(), stats))
@@ -156,6 +159,11 @@ pub fn render_tile_with_aux_until(
 ) -> Result<(Vec<[f32; 3]>, AuxTile, RayStats), Stopped> {
     let mut aux = AuxTile::default();
     let n = samples_per_pixel(scene, camera, settings);
+    if n == 1 {
+        let (film, stats) =
+            render_one_sample_tile_until(scene, camera, rect, settings, stop, Some(&mut aux))?;
+        return Ok((film, aux, stats));
+    }
     let (sums, stats) =
         render_tile_sums_until(scene, camera, rect, settings, SampleRange::all(n), stop, Some(&mut aux))?;
     Ok((sums.iter().map(|s| s.film(n)).collect(), aux, stats))
@@ -174,8 +182,54 @@ pub fn render_tile_sums_until(
     settings: &RenderSettings,
     range: SampleRange,
     stop: Stop<'_>,
-    mut aux: Option<&mut AuxTile>,
+    aux: Option<&mut AuxTile>,
 ) -> Result<(Vec<PixelSum>, RayStats), Stopped> {
+    let mut out = TileOut::Sums(vec![PixelSum::default(); (rect.width * rect.height) as usize]);
+    let stats = render_tile_into(scene, camera, rect, settings, range, stop, aux, &mut out)?;
+    match out {
+        TileOut::Sums(sums) => Ok((sums, stats)),
+        TileOut::Film(_) => unreachable!("asked for sums"),
+    }
+}
+
+/// The film of a tile of a camera that renders one sample a pixel (the sums' film, bit for bit:
+/// [`PixelSum::film_of_one`]), with its features when `aux` is given.
+fn render_one_sample_tile_until(
+    scene: &Scene,
+    camera: usize,
+    rect: TileRect,
+    settings: &RenderSettings,
+    stop: Stop<'_>,
+    aux: Option<&mut AuxTile>,
+) -> Result<(Vec<[f32; 3]>, RayStats), Stopped> {
+    let mut out = TileOut::Film(vec![[0.0; 3]; (rect.width * rect.height) as usize]);
+    let stats = render_tile_into(scene, camera, rect, settings, SampleRange::all(1), stop, aux, &mut out)?;
+    match out {
+        TileOut::Film(film) => Ok((film, stats)),
+        TileOut::Sums(_) => unreachable!("asked for the film"),
+    }
+}
+
+/// Where a tile's pixels go, each at its place in the tile (row by row): their sums, or, when
+/// the camera renders one sample a pixel, straight their film values (no fixed-point sums to
+/// make and read back: a sixth of a one-sample frame's work).
+enum TileOut {
+    Sums(Vec<PixelSum>),
+    Film(Vec<[f32; 3]>),
+}
+
+/// [`render_tile_sums_until`] into `out`, which holds an entry for every pixel of the tile.
+#[allow(clippy::too_many_arguments)]
+fn render_tile_into(
+    scene: &Scene,
+    camera: usize,
+    rect: TileRect,
+    settings: &RenderSettings,
+    range: SampleRange,
+    stop: Stop<'_>,
+    mut aux: Option<&mut AuxTile>,
+    out: &mut TileOut,
+) -> Result<RayStats, Stopped> {
     let cam = &scene.cameras[camera];
     assert!(
         rect.x0 + rect.width <= cam.width && rect.y0 + rect.height <= cam.height,
@@ -188,6 +242,10 @@ pub fn render_tile_sums_until(
         "bad sample range"
     );
     assert!(aux.is_none() || range.start == 0, "features come from the first block");
+    assert!(
+        matches!(out, TileOut::Sums(_)) || (n == 1 && range == SampleRange::all(1)),
+        "film values straight from the samples of one-sample pixels only"
+    );
     let aux_samples = n.min(BLOCK);
     let moving = scene.accel.instances.iter().any(|i| i.motion.is_some());
     let mut tracer = Tracer::new(scene);
@@ -201,10 +259,20 @@ pub fn render_tile_sums_until(
         tracer.spread = cam.pixel_spread;
     }
     let pixel_uv = glam::DVec2::new(1.0 / cam.width as f64, 1.0 / cam.height as f64);
-    let mut out = Vec::with_capacity((rect.width * rect.height) as usize);
+    let pixels = (rect.width * rect.height) as usize;
+    // Every pixel's entry is written once, at its place in the tile (row by row), in the order
+    // the pixels are rendered (see `order` below).
+    assert_eq!(
+        match out {
+            TileOut::Sums(v) => v.len(),
+            TileOut::Film(v) => v.len(),
+        },
+        pixels,
+        "an entry a pixel"
+    );
     if let Some(a) = aux.as_deref_mut() {
-        a.albedo = Vec::with_capacity(out.capacity());
-        a.normal = Vec::with_capacity(out.capacity());
+        a.albedo = vec![[0.0; 3]; pixels];
+        a.normal = vec![[0.0; 3]; pixels];
     }
     // A pixel's samples go in groups of up to eight: their camera rays are traced together
     // (nearly parallel, they share their nodes), then each sample is shaded. When a pixel
@@ -242,10 +310,16 @@ pub fn render_tile_sums_until(
     let mut pixel = PixelSum::default();
     let mut sum = glam::DVec3::ZERO;
     let (mut albedo, mut normal) = (glam::DVec3::ZERO, glam::DVec3::ZERO);
-    // The (pixel, sample) pairs of the tile in order: row by row, a pixel's samples in turn.
+    // The order the pixels are rendered in (their indices in the tile, row by row), when a
+    // group takes several pixels: blocks of 4x2 pixels, so that a group of eight one-sample
+    // pixels is a compact bundle of rays (which share more of their nodes than a row of eight)
+    // rather than a row. Every pixel's value is its own, so the order changes no bit.
+    let order = across_pixels.then(|| block_order(rect.width, rect.height));
+    // The (pixel, sample) pairs of the tile in order: pixel by pixel, a pixel's samples in turn.
     let total = u64::from(rect.width) * u64::from(rect.height) * u64::from(per_pixel);
     let at = |i: u64| {
-        let p = (i / u64::from(per_pixel)) as u32;
+        let k = (i / u64::from(per_pixel)) as usize;
+        let p = order.as_ref().map_or(k as u32, |o| o[k]);
         let s = range.start + (i % u64::from(per_pixel)) as u32;
         (rect.x0 + p % rect.width, rect.y0 + p / rect.width, s)
     };
@@ -345,7 +419,7 @@ pub fn render_tile_sums_until(
         }
         for ((cg, lanes), radiance) in groups.iter().zip(&lanes).zip(&radiance).take(made) {
             for i in 0..cg.n {
-                let (_, _, ls) = lanes[i];
+                let (lx, ly, ls) = lanes[i];
                 if aux.is_some() && ls < aux_samples {
                     let a = tracer.aux(&cg.rays[i], cg.hits[i]);
                     albedo += a.albedo;
@@ -357,23 +431,49 @@ pub fn render_tile_sums_until(
                     Some(c) => radiance[i].min(glam::DVec3::splat(c)),
                 };
                 let done = ls + 1;
+                // The sum of the block this sample ends, if it ends one.
+                let mut block_sum = glam::DVec3::ZERO;
                 if done.is_multiple_of(BLOCK) || done == range.end {
-                    pixel.add_block(ls / BLOCK, sum);
+                    if let TileOut::Sums(_) = out {
+                        pixel.add_block(ls / BLOCK, sum);
+                    }
+                    block_sum = sum;
                     sum = glam::DVec3::ZERO;
                 }
                 if done == range.end {
-                    out.push(pixel);
+                    let p = ((ly - rect.y0) * rect.width + (lx - rect.x0)) as usize;
+                    match out {
+                        TileOut::Sums(v) => v[p] = pixel,
+                        // One sample a pixel: its only block.
+                        TileOut::Film(v) => v[p] = PixelSum::film_of_one(block_sum),
+                    }
                     pixel = PixelSum::default();
                     if let Some(a) = aux.as_deref_mut() {
-                        a.albedo.push(film_value(albedo / f64::from(aux_samples)));
-                        a.normal.push(film_value(normal / f64::from(aux_samples)));
+                        a.albedo[p] = film_value(albedo / f64::from(aux_samples));
+                        a.normal[p] = film_value(normal / f64::from(aux_samples));
                     }
                     (albedo, normal) = (glam::DVec3::ZERO, glam::DVec3::ZERO);
                 }
             }
         }
     }
-    Ok((out, tracer.stats))
+    Ok(tracer.stats)
+}
+
+/// The pixels of a `width` x `height` tile (indices row by row) in blocks of 4x2: the blocks
+/// row by row, each block's pixels row by row (blocks at the right and bottom edges are cut).
+fn block_order(width: u32, height: u32) -> Vec<u32> {
+    let mut order = Vec::with_capacity((width * height) as usize);
+    for by in (0..height).step_by(2) {
+        for bx in (0..width).step_by(4) {
+            for y in by..(by + 2).min(height) {
+                for x in bx..(bx + 4).min(width) {
+                    order.push(y * width + x);
+                }
+            }
+        }
+    }
+    order
 }
 
 /// Renders a whole camera with rayon over tiles. `progress(done, total)` is called after every
@@ -445,7 +545,17 @@ pub fn render_tile_passes(
     mut aux: Option<&mut AuxTile>,
 ) -> (Vec<[f32; 3]>, TileOutcome, RayStats) {
     let n = samples_per_pixel(scene, camera, settings);
-    let mut sums = vec![PixelSum::default(); (rect.width * rect.height) as usize];
+    if n == 1 {
+        // One pass of one sample, too few for a noise estimate (`tile_error` of one sample).
+        let (film, stats) =
+            match render_one_sample_tile_until(scene, camera, rect, settings, Stop::NEVER, aux) {
+                Ok(r) => r,
+                Err(_) => unreachable!("Stop::NEVER never stops"),
+            };
+        return (film, TileOutcome { rect, samples: 1, error: None }, stats);
+    }
+    // The first pass's sums (there is always one), plus the later passes'.
+    let mut sums = Vec::new();
     let mut stats = RayStats::default();
     let (mut done, mut error) = (0, None);
     for k in 0..crate::passes::pass_count(n, plan.pass_samples) {
@@ -456,8 +566,12 @@ pub fn render_tile_passes(
                 Ok(r) => r,
                 Err(_) => unreachable!("Stop::NEVER never stops"),
             };
-        for (acc, p) in sums.iter_mut().zip(&pass) {
-            acc.add(p);
+        if k == 0 {
+            sums = pass;
+        } else {
+            for (acc, p) in sums.iter_mut().zip(&pass) {
+                acc.add(p);
+            }
         }
         stats.add(&st);
         done = range.end;
@@ -749,6 +863,39 @@ mod tests {
         }
         let (tile, _) = render_tile(&scene, 0, rect, &settings);
         assert_eq!(sums.iter().map(|s| s.film(100)).collect::<Vec<_>>(), tile);
+    }
+
+    /// A one-sample tile's film comes straight from its samples: the same bits as its sums'.
+    #[test]
+    fn one_sample_film_values_are_the_sums_film() {
+        let scene = features_scene("0.2 0.2 0.2");
+        let settings = RenderSettings { samples: Some(1), ..RenderSettings::default() };
+        let rect = TileRect { x0: 0, y0: 0, width: 2, height: 1 };
+        let (sums, _) =
+            render_tile_sums_until(&scene, 0, rect, &settings, SampleRange::all(1), Stop::NEVER, None)
+                .unwrap();
+        let film: Vec<[f32; 3]> = sums.iter().map(|s| s.film(1)).collect();
+        assert!(film.iter().all(|p| p[0] > 0.0 || p[1] > 0.0), "both pixels see something: {film:?}");
+        assert_eq!(render_tile(&scene, 0, rect, &settings).0, film);
+        let (px, aux, _) = render_tile_with_aux_until(&scene, 0, rect, &settings, Stop::NEVER).unwrap();
+        assert_eq!(px, film);
+        let mut passed = AuxTile::default();
+        let plan = PassPlan { pass_samples: 16, noise_target: Some(0.1) };
+        let (px, outcome, _) = render_tile_passes(&scene, 0, rect, &settings, plan, Some(&mut passed));
+        assert_eq!((px, passed), (film, aux));
+        assert_eq!(outcome, TileOutcome { rect, samples: 1, error: None });
+    }
+
+    #[test]
+    fn the_block_order_takes_every_pixel_of_a_tile_once() {
+        for (w, h) in [(32, 32), (17, 5), (1, 1), (3, 7), (8, 2)] {
+            let order = block_order(w, h);
+            let mut seen = order.clone();
+            seen.sort_unstable();
+            assert_eq!(seen, (0..w * h).collect::<Vec<_>>(), "{w}x{h}");
+        }
+        // Full blocks: eight pixels in two rows of four.
+        assert_eq!(block_order(8, 2)[..8], [0, 1, 2, 3, 8, 9, 10, 11]);
     }
 
     #[test]
