@@ -314,7 +314,10 @@ fn render_tile_into(
     // group takes several pixels: blocks of 4x2 pixels, so that a group of eight one-sample
     // pixels is a compact bundle of rays (which share more of their nodes than a row of eight)
     // rather than a row. Every pixel's value is its own, so the order changes no bit.
-    let order = across_pixels.then(|| block_order(rect.width, rect.height));
+    // Only at one sample a pixel: with two or four, a group's pixels are two or four neighbours
+    // of a row either way, and the table and scattered writes cost without making the bundle
+    // more compact.
+    let order = (across_pixels && per_pixel == 1).then(|| block_order(rect.width, rect.height));
     // The (pixel, sample) pairs of the tile in order: pixel by pixel, a pixel's samples in turn.
     let total = u64::from(rect.width) * u64::from(rect.height) * u64::from(per_pixel);
     let at = |i: u64| {
