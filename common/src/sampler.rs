@@ -582,6 +582,51 @@ mod tests {
     }
 
     #[test]
+    fn sampler_lanes_draw_what_each_sampler_draws() {
+        let pixel = Sampler::new(0x5eed, 12, 34, 0);
+        // Samples of one pixel, of three pixels, and of one pixel with one lane a request
+        // ahead (each lane then draws alone), under several masks.
+        for (case, mask) in
+            [(0, 0xffu32), (0, 0b0110_1001), (1, 0xff), (1, 0b1000_0010), (2, 0xff), (2, 0b0000_0100), (0, 0)]
+        {
+            let mut each: [Sampler; GROUP_LANES] = std::array::from_fn(|k| match case {
+                1 => Sampler::new(0x5eed, 12 + k as u32 % 3, 34, 40 + k as u32),
+                _ => pixel.with_sample(40 + k as u32),
+            });
+            each.iter_mut().for_each(|s| _ = s.next_2d());
+            if case == 2 {
+                each[2].next_1d();
+            }
+            let mut lanes = SamplerLanes::new(&each);
+            let got = lanes.next_2d::<3>(mask);
+            for (l, s) in each.iter_mut().enumerate() {
+                for (m, req) in got.iter().enumerate() {
+                    let want = if mask & 1 << l != 0 { s.next_2d() } else { (0.0, 0.0) };
+                    assert_eq!(
+                        (req[0][l], req[1][l]),
+                        want,
+                        "case {case}, mask {mask:#b}, lane {l}, request {m}"
+                    );
+                }
+                let mut moved = lanes.get(l);
+                assert_eq!(moved.drawn(), s.drawn(), "case {case}, mask {mask:#b}, lane {l}");
+                assert_eq!(moved.next_1d(), s.next_1d(), "case {case}, mask {mask:#b}, lane {l} continues");
+            }
+        }
+    }
+
+    #[test]
+    fn the_exact_conversion_is_the_plain_one() {
+        for v in [0u32, 1, 2, 0x7fff_ffff, 0x8000_0000, 0xdead_beef, u32::MAX] {
+            assert_eq!(unit_exact(v).to_bits(), unit(v).to_bits(), "{v:#x}");
+        }
+        for k in 0..1u64 << 16 {
+            let v = fmix64(k) as u32;
+            assert_eq!(unit_exact(v).to_bits(), unit(v).to_bits(), "{v:#x}");
+        }
+    }
+
+    #[test]
     fn every_request_is_stratified_over_a_pixels_samples() {
         // 64 samples: in every request, each of the 8x8, 64x1 and 1x64 elementary intervals
         // holds exactly one point (a (0, 6, 2)-net), on several pixels and dimensions.
