@@ -348,8 +348,8 @@ impl SamplerLanes {
             }
         }
         let next = dim + M as u64;
-        for l in 0..GROUP_LANES {
-            self.dim[l] = (next & on[l]) | (self.dim[l] & !on[l]);
+        for (d, w) in self.dim.iter_mut().zip(on) {
+            *d = (next & w) | (*d & !w);
         }
         for m in 0..M {
             for l in 0..GROUP_LANES {
