@@ -76,6 +76,15 @@ fn unit(v: u32) -> f64 {
     f64::from(v) * (1.0 / 4_294_967_296.0)
 }
 
+/// [`unit`] by way of the exponent bits of 2^52 (`2^52 + v` exactly, minus 2^52), which eight
+/// lanes compute as vectors where the processor has no unsigned conversion: the same value
+/// (both are exact).
+#[inline(always)]
+fn unit_exact(v: u32) -> f64 {
+    const TWO_52: f64 = 4_503_599_627_370_496.0;
+    (f64::from_bits(TWO_52.to_bits() | u64::from(v)) - TWO_52) * (1.0 / 4_294_967_296.0)
+}
+
 /// The sample values of one camera sample of one pixel, drawn dimension by dimension.
 #[derive(Clone, Debug)]
 pub struct Sampler {
@@ -238,6 +247,119 @@ impl Sampler {
 
 /// How many samplers [`Sampler::next_2d_group`] serves at once.
 pub const GROUP_LANES: usize = 8;
+
+/// The samplers of a group of paths (one a lane, [`GROUP_LANES`] lanes), by field then lane,
+/// so that a group's draw compares, hashes and scrambles its lanes as vectors. Each lane draws
+/// what its [`Sampler`] draws alone: [`Self::get`] and [`Self::set`] move a lane's sampler in
+/// and out unchanged.
+#[derive(Clone, Debug)]
+pub struct SamplerLanes {
+    key: [u64; GROUP_LANES],
+    dim: [u64; GROUP_LANES],
+    index: [u32; GROUP_LANES],
+}
+
+impl SamplerLanes {
+    /// The lanes holding `samplers`, in order.
+    pub fn new(samplers: &[Sampler; GROUP_LANES]) -> Self {
+        SamplerLanes {
+            key: std::array::from_fn(|l| samplers[l].key),
+            dim: std::array::from_fn(|l| samplers[l].dim),
+            index: std::array::from_fn(|l| samplers[l].index),
+        }
+    }
+
+    /// Lane `l`'s sampler.
+    #[inline]
+    pub fn get(&self, l: usize) -> Sampler {
+        Sampler { key: self.key[l], index: self.index[l], dim: self.dim[l] }
+    }
+
+    /// Puts `s` into lane `l`.
+    #[inline]
+    pub fn set(&mut self, l: usize, s: &Sampler) {
+        (self.key[l], self.index[l], self.dim[l]) = (s.key, s.index, s.dim);
+    }
+
+    /// Moves lane `k` of `from` into lane `l`.
+    #[inline]
+    pub fn take(&mut self, l: usize, from: &SamplerLanes, k: usize) {
+        (self.key[l], self.index[l], self.dim[l]) = (from.key[k], from.index[k], from.dim[k]);
+    }
+
+    /// [`Sampler::next_2d_groups_of`] of the lanes' samplers: `M` requests of the lanes whose
+    /// bit is set in `mask`, by request, coordinate and lane, zero for the other lanes (which
+    /// do not move on). When the drawing lanes stand at one dimension, every lane's scramble
+    /// runs as one eight-lane computation (the dimension's seeds hashed once when they are
+    /// samples of one pixel, else each lane's side by side); else each draws alone.
+    #[inline(never)]
+    pub fn next_2d<const M: usize>(&mut self, mask: u32) -> [[[f64; GROUP_LANES]; 2]; M] {
+        let mut out = [[[0.0; GROUP_LANES]; 2]; M];
+        let mask = mask & ((1 << GROUP_LANES) - 1);
+        if mask & mask.wrapping_sub(1) == 0 {
+            // One lane or none: its own draws.
+            if mask != 0 {
+                let l = mask.trailing_zeros() as usize;
+                let mut s = self.get(l);
+                for o in &mut out {
+                    (o[0][l], o[1][l]) = s.next_2d();
+                }
+                self.dim[l] = s.dim;
+            }
+            return out;
+        }
+        let first = mask.trailing_zeros() as usize;
+        let (key, dim) = (self.key[first], self.dim[first]);
+        // Each lane's word of all ones when it draws (selections by bits, not branches).
+        let on: [u64; GROUP_LANES] = std::array::from_fn(|l| 0u64.wrapping_sub(u64::from((mask >> l) & 1)));
+        let (mut off_dim, mut off_key) = (0u32, 0u32);
+        for l in 0..GROUP_LANES {
+            off_dim |= u32::from(self.dim[l] != dim) << l;
+            off_key |= u32::from(self.key[l] != key) << l;
+        }
+        if off_dim & mask != 0 {
+            // Each lane's requests in its own order.
+            let mut rest = mask;
+            while rest != 0 {
+                let l = rest.trailing_zeros() as usize;
+                rest &= rest - 1;
+                let mut s = self.get(l);
+                for o in &mut out {
+                    (o[0][l], o[1][l]) = s.next_2d();
+                }
+                self.dim[l] = s.dim;
+            }
+            return out;
+        }
+        let mut a = [[0u32; GROUP_LANES]; M];
+        let mut b = [[0u32; GROUP_LANES]; M];
+        if off_key & mask == 0 {
+            let seeds: [DimSeeds; M] = std::array::from_fn(|m| DimSeeds::of(key, dim + 1 + m as u64));
+            for m in 0..M {
+                for l in 0..GROUP_LANES {
+                    (a[m][l], b[m][l]) = point(self.index[l], seeds[m]);
+                }
+            }
+        } else {
+            for m in 0..M {
+                for l in 0..GROUP_LANES {
+                    (a[m][l], b[m][l]) = point(self.index[l], DimSeeds::of(self.key[l], dim + 1 + m as u64));
+                }
+            }
+        }
+        let next = dim + M as u64;
+        for (d, w) in self.dim.iter_mut().zip(on) {
+            *d = (next & w) | (*d & !w);
+        }
+        for m in 0..M {
+            for l in 0..GROUP_LANES {
+                out[m][0][l] = f64::from_bits(unit_exact(a[m][l]).to_bits() & on[l]);
+                out[m][1][l] = f64::from_bits(unit_exact(b[m][l]).to_bits() & on[l]);
+            }
+        }
+        out
+    }
+}
 
 /// The scrambling seeds of one dimension of one pixel (the same for all its samples).
 #[derive(Clone, Copy)]
@@ -457,6 +579,51 @@ mod tests {
         assert_eq!((got[0][0][1], got[0][1][1]), each[1].next_2d());
         assert_eq!((got[0][0][2], got[0][1][2]), each[2].next_2d());
         assert_eq!(three[0].drawn(), 0);
+    }
+
+    #[test]
+    fn sampler_lanes_draw_what_each_sampler_draws() {
+        let pixel = Sampler::new(0x5eed, 12, 34, 0);
+        // Samples of one pixel, of three pixels, and of one pixel with one lane a request
+        // ahead (each lane then draws alone), under several masks.
+        for (case, mask) in
+            [(0, 0xffu32), (0, 0b0110_1001), (1, 0xff), (1, 0b1000_0010), (2, 0xff), (2, 0b0000_0100), (0, 0)]
+        {
+            let mut each: [Sampler; GROUP_LANES] = std::array::from_fn(|k| match case {
+                1 => Sampler::new(0x5eed, 12 + k as u32 % 3, 34, 40 + k as u32),
+                _ => pixel.with_sample(40 + k as u32),
+            });
+            each.iter_mut().for_each(|s| _ = s.next_2d());
+            if case == 2 {
+                each[2].next_1d();
+            }
+            let mut lanes = SamplerLanes::new(&each);
+            let got = lanes.next_2d::<3>(mask);
+            for (l, s) in each.iter_mut().enumerate() {
+                for (m, req) in got.iter().enumerate() {
+                    let want = if mask & 1 << l != 0 { s.next_2d() } else { (0.0, 0.0) };
+                    assert_eq!(
+                        (req[0][l], req[1][l]),
+                        want,
+                        "case {case}, mask {mask:#b}, lane {l}, request {m}"
+                    );
+                }
+                let mut moved = lanes.get(l);
+                assert_eq!(moved.drawn(), s.drawn(), "case {case}, mask {mask:#b}, lane {l}");
+                assert_eq!(moved.next_1d(), s.next_1d(), "case {case}, mask {mask:#b}, lane {l} continues");
+            }
+        }
+    }
+
+    #[test]
+    fn the_exact_conversion_is_the_plain_one() {
+        for v in [0u32, 1, 2, 0x7fff_ffff, 0x8000_0000, 0xdead_beef, u32::MAX] {
+            assert_eq!(unit_exact(v).to_bits(), unit(v).to_bits(), "{v:#x}");
+        }
+        for k in 0..1u64 << 16 {
+            let v = fmix64(k) as u32;
+            assert_eq!(unit_exact(v).to_bits(), unit(v).to_bits(), "{v:#x}");
+        }
     }
 
     #[test]

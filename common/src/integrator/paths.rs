@@ -29,21 +29,20 @@
 use glam::DVec3;
 
 use super::bounces::{Arrival, brdf_chance, density, scatter};
-use super::direct::{
-    BounceDensity, LightWeights, ONE_LIGHT_REQUESTS, draw_lanes, light_pdf, power_heuristic,
-};
+use super::direct::{BounceDensity, LightWeights, ONE_LIGHT_REQUESTS, light_pdf, power_heuristic};
 use super::pool::{CameraGroup, Lanes, Paths, Pool, gather, lane};
 use crate::geometry::{Axes, HitLanes, SurfaceHit};
 use crate::lights::{EmitterShape, ObjectLight};
 use crate::material::{Material, MaterialKind, MatteForm, MatteSlot};
 use crate::math::{Ray, lane_words, lanes, pick, sincos_turns, word};
-use crate::sampler::{GROUP_LANES, Sampler};
+use crate::sampler::{GROUP_LANES, Sampler, SamplerLanes};
 use crate::scene::Scene;
 use crate::scene::records::{MAX_RECURSION_DEPTH_LIMIT, PathParams, Roulette};
 
 const N: usize = GROUP_LANES;
 
-/// `M` requests' numbers of a group's lanes, by request, coordinate and lane ([`draw_lanes`]).
+/// `M` requests' numbers of a group's lanes, by request, coordinate and lane
+/// ([`SamplerLanes::next_2d`]).
 type Drawn<const M: usize> = [[[f64; N]; 2]; M];
 
 /// Each lane's material and its matte form, if it has one.
@@ -203,6 +202,7 @@ impl<'a> PathLanes<'a> {
     /// One vertex of the living paths of `g` (at `bounce` vertices from the camera): what they
     /// find there and what its lights bring, then the bounces of those that go on (the others
     /// leave `g.alive`).
+    #[inline(never)]
     fn vertex(&mut self, g: &mut Lanes, bounce: u32, params: PathParams) {
         let scene = self.scene;
         let eps = scene.shadow_ray_epsilon;
@@ -215,7 +215,7 @@ impl<'a> PathLanes<'a> {
         let nee = params.next_event;
         let (one_light, mis) = (params.one_light && nee, params.mis && nee);
         let (mut l, mut alive) = (g.l, g.alive);
-        let (p, found, samplers) = (&mut g.p, &g.found, &mut g.samplers[..]);
+        let (p, found, samplers) = (&mut g.p, &g.found, &mut g.samplers);
         'vertex: {
             if alive & p.inside != 0 {
                 p.beta = absorbed(p.beta, &p.absorb, &found.t, alive & p.inside);
@@ -329,7 +329,7 @@ impl<'a> PathLanes<'a> {
             if params.roulette == Roulette::Course {
                 // The course's roulette on the product of the path's BRDF values: a path that
                 // ends keeps this vertex's light at the throughput it arrived with.
-                let u = draw_lanes::<1>(samplers, alive);
+                let u = samplers.next_2d::<1>(alive);
                 for k in lanes(alive) {
                     let q = lane(&p.potential, k).max_element().min(1.0);
                     if u[0][0][k] >= q {
@@ -357,7 +357,7 @@ impl<'a> PathLanes<'a> {
             }
             // The diffuse and glossy lanes' bounces side by side.
             let bent = alive & plain;
-            let u = draw_lanes::<1>(samplers, bent);
+            let u = samplers.next_2d::<1>(bent);
             let course = params.roulette == Roulette::Course;
             let mut brdf = [[0.0; N]; 3];
             let (wi, f, ok) =
@@ -403,7 +403,7 @@ impl<'a> PathLanes<'a> {
             self.counts.secondary += u64::from(alive.count_ones());
             if params.roulette == Roulette::Unbiased && alive != 0 {
                 // Roulette on the throughput, after the bounce.
-                let u = draw_lanes::<1>(samplers, alive);
+                let u = samplers.next_2d::<1>(alive);
                 for k in lanes(alive) {
                     let q = lane(&p.beta, k).max_element().min(1.0);
                     if u[0][0][k] >= q {
@@ -446,7 +446,7 @@ impl<'a> PathLanes<'a> {
         live: u32,
         picks: Option<&Picks>,
         weigh: Option<(bool, [f64; N])>,
-        samplers: &mut [Sampler],
+        samplers: &mut SamplerLanes,
     ) -> Axes {
         let scene = self.scene;
         let eps = scene.shadow_ray_epsilon;
@@ -487,7 +487,7 @@ impl<'a> PathLanes<'a> {
             // `picks`, drawn with the pick).
             let u = match picks {
                 Some(p) => p.u,
-                None => draw_lanes::<2>(samplers, live),
+                None => samplers.next_2d::<2>(live),
             };
             let Some(samples) = light_samples(light, xs, &u, live) else {
                 // Another kind of light, one lane at a time.
@@ -635,7 +635,7 @@ fn specular_bounces(
     (front, turned): (&[bool; N], u32),
     params: PathParams,
     p: &mut Paths,
-    samplers: &mut [Sampler],
+    samplers: &mut SamplerLanes,
 ) -> u32 {
     let (eps, sides) = (scene.shadow_ray_epsilon, scene.rules.dielectric_sides);
     let mis = params.mis && params.next_event;
@@ -650,9 +650,10 @@ fn specular_bounces(
             front: front[k],
             inside: p.inside & bit != 0,
         };
-        let Some(next) = scatter(sh.mats[k], &at, sides, params.importance, eps, &mut samplers[k]) else {
-            continue;
-        };
+        let mut sampler = samplers.get(k);
+        let next = scatter(sh.mats[k], &at, sides, params.importance, eps, &mut sampler);
+        samplers.set(k, &sampler);
+        let Some(next) = next else { continue };
         if let Some(w) = next.weight {
             for a in 0..3 {
                 p.beta[a][k] *= w[a];
@@ -886,9 +887,9 @@ impl Picks {
     /// One number drawn for each lane of `alive`, the light it picks and the requests reserved
     /// for that light (the tracer's `one_light`), every lane's together whichever light it
     /// picks: the lanes' samplers stay at the same dimension.
-    fn draw(scene: &Scene, alive: u32, samplers: &mut [Sampler]) -> Picks {
+    fn draw(scene: &Scene, alive: u32, samplers: &mut SamplerLanes) -> Picks {
         const { assert!(ONE_LIGHT_REQUESTS == 2, "the light's requests are drawn with the pick's") };
-        let drawn = draw_lanes::<3>(samplers, alive);
+        let drawn = samplers.next_2d::<3>(alive);
         let mut picks = Picks { light: [usize::MAX; N], p: [0.0; N], mask: 0, u: [drawn[1], drawn[2]] };
         for k in lanes(alive) {
             if let Some((i, p)) = scene.light_choice.pick(drawn[0][0][k]) {

@@ -7,7 +7,7 @@ use glam::DVec3;
 
 use crate::geometry::{Axes, HitLanes, SurfaceHit};
 use crate::math::{Ray, lanes};
-use crate::sampler::{GROUP_LANES, Sampler};
+use crate::sampler::{GROUP_LANES, Sampler, SamplerLanes};
 
 const N: usize = GROUP_LANES;
 
@@ -67,7 +67,7 @@ pub(super) struct Lanes {
     pub(super) held: u32,
     /// Each lane's camera sample: group times eight plus lane, in the caller's groups.
     pub(super) slot: [u32; N],
-    pub(super) samplers: [Sampler; N],
+    pub(super) samplers: SamplerLanes,
 }
 
 impl Lanes {
@@ -99,7 +99,7 @@ impl Lanes {
             alive: 0,
             held: 0,
             slot: [0; N],
-            samplers: std::array::from_fn(|_| Sampler::new(0, 0, 0, 0)),
+            samplers: SamplerLanes::new(&std::array::from_fn(|_| Sampler::new(0, 0, 0, 0))),
         }
     }
 
@@ -113,7 +113,7 @@ impl Lanes {
         (p.specular, p.inside, p.counted) = (u32::MAX, 0, [0; N]);
         (self.alive, self.held) = ((1u32 << n) - 1, (1u32 << n) - 1);
         self.slot = std::array::from_fn(|k| (i * N + k) as u32);
-        self.samplers.clone_from(&g.samplers);
+        self.samplers = SamplerLanes::new(&g.samplers);
         // Unused lanes repeat the last ray.
         let f = &mut self.found;
         f.mask = 0;
@@ -156,7 +156,7 @@ impl Lanes {
         p.absorb[j] = q.absorb[k];
         p.counted[j] = q.counted[k];
         self.slot[j] = from.slot[k];
-        self.samplers[j] = from.samplers[k].clone();
+        self.samplers.take(j, &from.samplers, k);
         let (f, h) = (&mut self.found, &from.found);
         for a in 0..3 {
             f.point[a][j] = h.point[a][k];
@@ -179,7 +179,7 @@ pub(super) fn gather(pool: &mut [Lanes], cams: &mut [CameraGroup], out: &mut [[D
         for k in lanes(g.held & !g.alive) {
             let (i, j) = (g.slot[k] as usize / N, g.slot[k] as usize % N);
             out[i][j] = lane(&g.l, k);
-            cams[i].samplers[j] = g.samplers[k].clone();
+            cams[i].samplers[j] = g.samplers.get(k);
         }
         g.held = g.alive;
         total += g.alive.count_ones() as usize;
