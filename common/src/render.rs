@@ -174,6 +174,25 @@ pub fn render_tile_sums_until(
     settings: &RenderSettings,
     range: SampleRange,
     stop: Stop<'_>,
+    aux: Option<&mut AuxTile>,
+) -> Result<(Vec<PixelSum>, RayStats), Stopped> {
+    render_tile_sums_masked(scene, camera, rect, settings, range, None, stop, aux)
+}
+
+/// [`render_tile_sums_until`] for the pixels of `mask` only (row-major over the tile; `None`:
+/// every pixel): the others' sums are zero. A pixel's samples are those it has rendered whole,
+/// so its sums are the same bits with or without the others.
+///
+/// Panics only if `camera`, `rect`, `range` or the mask's length is out of range (a caller bug).
+#[allow(clippy::too_many_arguments)]
+pub fn render_tile_sums_masked(
+    scene: &Scene,
+    camera: usize,
+    rect: TileRect,
+    settings: &RenderSettings,
+    range: SampleRange,
+    mask: Option<&[bool]>,
+    stop: Stop<'_>,
     mut aux: Option<&mut AuxTile>,
 ) -> Result<(Vec<PixelSum>, RayStats), Stopped> {
     let cam = &scene.cameras[camera];
@@ -181,6 +200,14 @@ pub fn render_tile_sums_until(
         rect.x0 + rect.width <= cam.width && rect.y0 + rect.height <= cam.height,
         "tile outside the frame"
     );
+    let pixels = (rect.width * rect.height) as usize;
+    assert!(mask.is_none_or(|m| m.len() == pixels), "a mask of the tile's pixels");
+    assert!(aux.is_none() || mask.is_none(), "features come from every pixel");
+    // The tile's pixels to render, row by row.
+    let active: Vec<u32> = match mask {
+        Some(m) => (0..pixels as u32).filter(|&i| m[i as usize]).collect(),
+        None => (0..pixels as u32).collect(),
+    };
     let seed = frame_seed(settings.seed, camera);
     let n = samples_per_pixel(scene, camera, settings);
     assert!(
@@ -201,10 +228,11 @@ pub fn render_tile_sums_until(
         tracer.spread = cam.pixel_spread;
     }
     let pixel_uv = glam::DVec2::new(1.0 / cam.width as f64, 1.0 / cam.height as f64);
-    let mut out = Vec::with_capacity((rect.width * rect.height) as usize);
+    let mut out = vec![PixelSum::default(); pixels];
+    let mut placed = 0usize;
     if let Some(a) = aux.as_deref_mut() {
-        a.albedo = Vec::with_capacity(out.capacity());
-        a.normal = Vec::with_capacity(out.capacity());
+        a.albedo = Vec::with_capacity(pixels);
+        a.normal = Vec::with_capacity(pixels);
     }
     // A pixel's samples go in groups of up to eight: their camera rays are traced together
     // (nearly parallel, they share their nodes), then each sample is shaded. When a pixel
@@ -243,9 +271,9 @@ pub fn render_tile_sums_until(
     let mut sum = glam::DVec3::ZERO;
     let (mut albedo, mut normal) = (glam::DVec3::ZERO, glam::DVec3::ZERO);
     // The (pixel, sample) pairs of the tile in order: row by row, a pixel's samples in turn.
-    let total = u64::from(rect.width) * u64::from(rect.height) * u64::from(per_pixel);
+    let total = active.len() as u64 * u64::from(per_pixel);
     let at = |i: u64| {
-        let p = (i / u64::from(per_pixel)) as u32;
+        let p = active[(i / u64::from(per_pixel)) as usize];
         let s = range.start + (i % u64::from(per_pixel)) as u32;
         (rect.x0 + p % rect.width, rect.y0 + p / rect.width, s)
     };
@@ -362,7 +390,8 @@ pub fn render_tile_sums_until(
                     sum = glam::DVec3::ZERO;
                 }
                 if done == range.end {
-                    out.push(pixel);
+                    out[active[placed] as usize] = pixel;
+                    placed += 1;
                     pixel = PixelSum::default();
                     if let Some(a) = aux.as_deref_mut() {
                         a.albedo.push(film_value(albedo / f64::from(aux_samples)));
@@ -409,19 +438,29 @@ pub fn render_camera_with_aux(
 }
 
 /// How a frame's tiles are rendered pass by pass: passes of `pass_samples` samples (whole
-/// blocks), and optionally a noise target that stops a tile early ([`crate::passes::needs_more`]).
+/// blocks), and optionally a noise target that stops pixels early
+/// ([`crate::passes::active_pixels`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PassPlan {
     pub pass_samples: u32,
     pub noise_target: Option<f64>,
 }
 
-/// What one tile of a pass-by-pass render got: its samples per pixel and its last noise estimate.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// What one tile of a pass-by-pass render got: the most samples any of its pixels has, each
+/// pixel's samples (row by row), and its last noise estimate ([`crate::passes::tile_error_of`]).
+#[derive(Clone, Debug, PartialEq)]
 pub struct TileOutcome {
     pub rect: TileRect,
     pub samples: u32,
+    pub pixel_samples: Vec<u32>,
     pub error: Option<f64>,
+}
+
+impl TileOutcome {
+    /// The samples of all its pixels together.
+    pub fn total_samples(&self) -> u64 {
+        self.pixel_samples.iter().map(|&n| u64::from(n)).sum()
+    }
 }
 
 /// A frame rendered pass by pass: the image, its features when asked for, and each tile's
@@ -434,8 +473,9 @@ pub struct PassedFrame {
     pub stats: RayStats,
 }
 
-/// Renders one tile pass after pass as the farm does, stopping when [`crate::passes::needs_more`]
-/// says so; the tile's film, its features (from the first pass), samples and noise.
+/// Renders one tile pass after pass as the farm does, each pass for the pixels
+/// [`crate::passes::active_pixels`] keeps going, until none is; the tile's film (each pixel the
+/// average of its own samples), its features (from the first pass), samples and noise.
 pub fn render_tile_passes(
     scene: &Scene,
     camera: usize,
@@ -445,29 +485,48 @@ pub fn render_tile_passes(
     mut aux: Option<&mut AuxTile>,
 ) -> (Vec<[f32; 3]>, TileOutcome, RayStats) {
     let n = samples_per_pixel(scene, camera, settings);
-    let mut sums = vec![PixelSum::default(); (rect.width * rect.height) as usize];
+    let pixels = (rect.width * rect.height) as usize;
+    let mut sums = vec![PixelSum::default(); pixels];
+    let mut counts = vec![0u32; pixels];
+    let mut mask: Option<Vec<bool>> = None;
     let mut stats = RayStats::default();
-    let (mut done, mut error) = (0, None);
     for k in 0..crate::passes::pass_count(n, plan.pass_samples) {
         let range = crate::passes::pass_range(n, plan.pass_samples, k);
         let first = if k == 0 { aux.as_deref_mut() } else { None };
-        let (pass, st) =
-            match render_tile_sums_until(scene, camera, rect, settings, range, Stop::NEVER, first) {
-                Ok(r) => r,
-                Err(_) => unreachable!("Stop::NEVER never stops"),
-            };
-        for (acc, p) in sums.iter_mut().zip(&pass) {
-            acc.add(p);
+        let (pass, st) = match render_tile_sums_masked(
+            scene,
+            camera,
+            rect,
+            settings,
+            range,
+            mask.as_deref(),
+            Stop::NEVER,
+            first,
+        ) {
+            Ok(r) => r,
+            Err(_) => unreachable!("Stop::NEVER never stops"),
+        };
+        for (i, (acc, p)) in sums.iter_mut().zip(&pass).enumerate() {
+            if mask.as_ref().is_none_or(|m| m[i]) {
+                acc.add(p);
+                counts[i] = range.end;
+            }
         }
         stats.add(&st);
-        done = range.end;
-        error = crate::passes::tile_error(&sums, done);
-        if !crate::passes::needs_more(n, plan.pass_samples, done, error, plan.noise_target) {
+        let next =
+            crate::passes::active_pixels(&sums, &counts, rect.width, n, plan.pass_samples, plan.noise_target);
+        if !next.contains(&false) {
+            mask = None;
+        } else if next.contains(&true) {
+            mask = Some(next);
+        } else {
             break;
         }
     }
-    let film = sums.iter().map(|s| s.film(done)).collect();
-    (film, TileOutcome { rect, samples: done, error }, stats)
+    let film = sums.iter().zip(&counts).map(|(s, &c)| s.film(c)).collect();
+    let error = crate::passes::tile_error_of(&sums, &counts);
+    let samples = counts.iter().copied().max().unwrap_or(0);
+    (film, TileOutcome { rect, samples, pixel_samples: counts, error }, stats)
 }
 
 /// Renders a whole camera pass by pass ([`render_tile_passes`] on every tile, rayon over tiles):
@@ -526,7 +585,7 @@ fn render_camera_inner(
             a.normal.put_tile(outcome.rect, &t.normal);
         }
         stats.add(st);
-        outcomes.push(*outcome);
+        outcomes.push(outcome.clone());
     }
     PassedFrame { image, aux, tiles: outcomes, stats }
 }
