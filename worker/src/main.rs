@@ -194,7 +194,7 @@ struct RenderArgs {
     #[arg(long, value_name = "K")]
     camera: Option<usize>,
     /// Tile edge in pixels (the unit of parallel work; does not change the image, except under
-    /// --noise-target, which decides tile by tile).
+    /// --noise-target, whose pixels are judged within their tile).
     #[arg(long, default_value_t = 32, value_name = "PX")]
     tile_size: u32,
     /// Samples per pixel for every camera instead of its <NumSamples> (e.g. 4 for a quick,
@@ -230,11 +230,11 @@ struct RenderArgs {
     /// without it nothing is rendered.
     #[arg(long)]
     denoise: bool,
-    /// Stop sampling a tile once its estimated relative noise is at most this, in (0, 1]
-    /// (e.g. 0.02 for about 2 %); <NumSamples> (or --samples) becomes the cap. Tiles are then
-    /// rendered pass by pass (--pass-samples), each pass judged on the luminance of its
-    /// pixels' odd sample blocks against all of them, and <stem>_samples.png shows where
-    /// samples went. A farm job with the same noise_target, pass_samples and tile_size
+    /// Stop sampling a pixel once its estimated relative noise (pooled over its neighbours)
+    /// is at most this, in (0, 1] (e.g. 0.02 for about 2 %); <NumSamples> (or --samples)
+    /// becomes the cap. Tiles are then rendered pass by pass (--pass-samples), after each pass
+    /// every pixel judged on the luminance of its odd sample blocks against all of them, and
+    /// <stem>_samples.png shows where samples went. A farm job with the same noise_target, pass_samples and tile_size
     /// renders the same bits.
     #[arg(long, value_name = "ERROR")]
     noise_target: Option<f64>,
