@@ -22,8 +22,8 @@
 use anyhow::{Context, Result, anyhow};
 use rusqlite::{OptionalExtension, Transaction, params};
 use tessera::passes::{
-    PIXEL_SUM_BYTES, PixelSum, active_pixels, decode_counts, decode_mask, decode_sums, encode_counts, encode_mask,
-    encode_sums, tile_error_of,
+    PIXEL_SUM_BYTES, PixelSum, active_pixels, decode_counts, decode_mask, decode_sums, encode_counts,
+    encode_mask, encode_sums, tile_error_of,
 };
 use tessera::protocol::{Rect, encode_tile};
 
@@ -71,14 +71,17 @@ pub(super) fn absorb(
             Ok((r.get(0)?, r.get(1)?))
         })?;
     type TileState = (u32, u32, Option<Vec<u8>>, Option<Vec<u8>>, u32, Option<Vec<u8>>);
-    let (mut passes_done, mut samples_done, sums, film, pass_samples, counts): TileState = tx.query_row_cached(
-        "SELECT passes_done, samples_done, sums, pixels, end_sample, pixel_samples FROM tiles
+    let (mut passes_done, mut samples_done, sums, film, pass_samples, counts): TileState = tx
+        .query_row_cached(
+            "SELECT passes_done, samples_done, sums, pixels, end_sample, pixel_samples FROM tiles
              WHERE job_id = ?1 AND frame = ?2 AND tile = ?3 AND pass = 0",
-        params![job, frame, tile],
-        |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?, r.get(5)?)),
-    )?;
+            params![job, frame, tile],
+            |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?, r.get(5)?)),
+        )?;
     let mut counts = match counts {
-        Some(b) => decode_counts(&b, px).ok_or_else(|| anyhow!("tile {tile}'s stored sample counts are damaged"))?,
+        Some(b) => {
+            decode_counts(&b, px).ok_or_else(|| anyhow!("tile {tile}'s stored sample counts are damaged"))?
+        }
         None => vec![samples_done; px],
     };
     let counts_before: u64 = counts.iter().map(|&c| u64::from(c)).sum();
@@ -109,7 +112,8 @@ pub(super) fn absorb(
         }
         let mask = match mask {
             Some(m) => Some(
-                decode_mask(&m, px).ok_or_else(|| anyhow!("pass {passes_done} of tile {tile} has a damaged mask"))?,
+                decode_mask(&m, px)
+                    .ok_or_else(|| anyhow!("pass {passes_done} of tile {tile} has a damaged mask"))?,
             ),
             None => None,
         };
