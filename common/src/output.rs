@@ -132,19 +132,22 @@ pub fn samples_map_name(cam: &Camera) -> String {
     format!("{stem}_samples.png")
 }
 
-/// The samples map of a `width` x `height` frame as 8-bit grey RGB: each tile's samples per
-/// pixel over the cap `samples`, white where a tile took every sample.
+/// The samples map of a `width` x `height` frame as 8-bit grey RGB: each pixel's samples over
+/// the cap `samples`, white where a pixel took every sample. A tile's counts are its pixels'
+/// row by row; a tile with a single count has it for every pixel.
 pub fn samples_map(
     width: u32,
     height: u32,
-    tiles: &[(crate::image::TileRect, u32)],
+    tiles: &[(crate::image::TileRect, &[u32])],
     samples: u32,
 ) -> Vec<u8> {
     let mut rgb = vec![0u8; width as usize * height as usize * 3];
-    for (r, n) in tiles {
-        let v = (f64::from(*n) / f64::from(samples.max(1)) * 255.0).round().clamp(0.0, 255.0) as u8;
+    for (r, counts) in tiles {
         for y in r.y0..(r.y0 + r.height).min(height) {
             for x in r.x0..(r.x0 + r.width).min(width) {
+                let k = ((y - r.y0) * r.width + (x - r.x0)) as usize;
+                let n = counts.get(k).or(counts.first()).copied().unwrap_or(0);
+                let v = (f64::from(n) / f64::from(samples.max(1)) * 255.0).round().clamp(0.0, 255.0) as u8;
                 let i = (y as usize * width as usize + x as usize) * 3;
                 rgb[i..i + 3].fill(v);
             }

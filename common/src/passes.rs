@@ -208,40 +208,148 @@ pub fn pass_range(samples: u32, pass_samples: u32, k: u32) -> SampleRange {
 /// of the tile's mean are measured against that twentieth (dark corners do not keep a bright
 /// tile sampling). `None` until both halves have samples.
 pub fn tile_error(sums: &[PixelSum], samples: u32) -> Option<f64> {
-    let odd = odd_samples(samples);
-    if sums.is_empty() || odd == 0 || odd == samples {
+    tile_error_of(sums, &vec![samples; sums.len()])
+}
+
+/// [`tile_error`] of a tile whose pixel `i` has its first `counts[i]` samples.
+pub fn tile_error_of(sums: &[PixelSum], counts: &[u32]) -> Option<f64> {
+    let errors = pixel_errors(sums, counts)?;
+    Some(errors.iter().sum::<f64>() / errors.len() as f64)
+}
+
+/// Each pixel's term of [`tile_error_of`]: the relative distance between its whole estimate and
+/// its odd blocks' estimate, at most 1, measured against at least a twentieth of the tile's mean.
+/// `None` when a pixel has no samples in one of the halves.
+pub fn pixel_errors(sums: &[PixelSum], counts: &[u32]) -> Option<Vec<f64>> {
+    if sums.is_empty() || sums.len() != counts.len() {
         return None;
     }
-    let est: Vec<(f64, f64)> = sums.iter().map(|s| s.estimates(samples, odd)).collect();
+    let mut est = Vec::with_capacity(sums.len());
+    for (s, &n) in sums.iter().zip(counts) {
+        let odd = odd_samples(n);
+        if odd == 0 || odd == n {
+            return None;
+        }
+        est.push(s.estimates(n, odd));
+    }
     let mean = est.iter().map(|(all, _)| all.max(0.0)).sum::<f64>() / est.len() as f64;
     let floor = (0.05 * mean).max(1e-12);
-    let total: f64 = est.iter().map(|(all, odd)| ((odd - all).abs() / all.max(floor)).min(1.0)).sum();
-    Some(total / est.len() as f64)
+    Some(est.iter().map(|(all, odd)| ((odd - all).abs() / all.max(floor)).min(1.0)).collect())
+}
+
+/// The pixels of a `width`-wide tile that render the next pass, when pixel `i` has its first
+/// `counts[i]` samples of `samples`, in passes of `pass_samples`: a pure function of the tile's
+/// exact sums, so the CLI and the farm's server take the same decisions.
+///
+/// A pixel renders the next pass when it rendered the last one (`counts[i]` is the most any
+/// pixel has: a pixel that stopped stays stopped, so every pixel's samples are its first ones),
+/// the cap is not reached, and without a `target` always; with one, while it has fewer than
+/// [`min_adaptive_samples`] or its pooled noise is above the target. A pixel's own noise
+/// ([`pixel_errors`]) is one draw of a noisy estimate, so it is pooled: the mean over the 3x3
+/// pixels around it (those inside the tile), and a pixel goes on while any pooled value of its
+/// 3x3 neighbourhood is above the target (edges of noisy regions are not cut short).
+pub fn active_pixels(
+    sums: &[PixelSum],
+    counts: &[u32],
+    width: u32,
+    samples: u32,
+    pass_samples: u32,
+    target: Option<f64>,
+) -> Vec<bool> {
+    let done = counts.iter().copied().max().unwrap_or(0);
+    let live: Vec<bool> = counts.iter().map(|&c| c == done && c < samples.max(1)).collect();
+    let Some(t) = target else { return live };
+    if done < min_adaptive_samples(samples, pass_samples) {
+        return live;
+    }
+    let Some(errors) = pixel_errors(sums, counts) else { return live };
+    let w = width.max(1) as usize;
+    let h = errors.len() / w;
+    if w * h != errors.len() {
+        return live;
+    }
+    // The mean, then the max, over each pixel's 3x3 neighbourhood inside the tile.
+    let window = |values: &[f64], x: usize, y: usize, f: &mut dyn FnMut(f64)| {
+        for yy in y.saturating_sub(1)..(y + 2).min(h) {
+            for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                f(values[yy * w + xx]);
+            }
+        }
+    };
+    let mut pooled = vec![0.0; errors.len()];
+    for y in 0..h {
+        for x in 0..w {
+            let (mut sum, mut n) = (0.0, 0.0);
+            window(&errors, x, y, &mut |e| {
+                sum += e;
+                n += 1.0;
+            });
+            pooled[y * w + x] = sum / n;
+        }
+    }
+    let mut out = live;
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            if out[i] {
+                let mut worst = 0.0f64;
+                window(&pooled, x, y, &mut |e| worst = worst.max(e));
+                out[i] = worst > t;
+            }
+        }
+    }
+    out
+}
+
+/// A mask of a tile's pixels as bytes: bit `i % 8` of byte `i / 8` is pixel `i` (row-major).
+pub fn encode_mask(mask: &[bool]) -> Vec<u8> {
+    let mut out = vec![0u8; mask.len().div_ceil(8)];
+    for (i, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
+        out[i / 8] |= 1 << (i % 8);
+    }
+    out
+}
+
+/// The mask of `pixels` pixels from [`encode_mask`]'s bytes; `None` when the length is wrong or
+/// a bit past the last pixel is set.
+pub fn decode_mask(bytes: &[u8], pixels: usize) -> Option<Vec<bool>> {
+    if bytes.len() != pixels.div_ceil(8) {
+        return None;
+    }
+    let mask: Vec<bool> = (0..pixels).map(|i| bytes[i / 8] & (1 << (i % 8)) != 0).collect();
+    (encode_mask(&mask) == bytes).then_some(mask)
+}
+
+/// A mask's bytes ([`encode_mask`]) as lowercase hex, as a lease carries them.
+pub fn mask_to_hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// The mask of `pixels` pixels from [`mask_to_hex`]'s text; `None` unless it is exactly that.
+pub fn mask_from_hex(text: &str, pixels: usize) -> Option<Vec<bool>> {
+    if !text.len().is_multiple_of(2) || !text.bytes().all(|c| matches!(c, b'0'..=b'9' | b'a'..=b'f')) {
+        return None;
+    }
+    let bytes: Option<Vec<u8>> =
+        (0..text.len()).step_by(2).map(|i| u8::from_str_radix(&text[i..i + 2], 16).ok()).collect();
+    decode_mask(&bytes?, pixels)
+}
+
+/// A pixel count per pixel as bytes (little-endian `u32`s), as the server keeps a tile's.
+pub fn encode_counts(counts: &[u32]) -> Vec<u8> {
+    counts.iter().flat_map(|c| c.to_le_bytes()).collect()
+}
+
+/// The counts of [`encode_counts`] for `pixels` pixels; `None` when the length is wrong.
+pub fn decode_counts(bytes: &[u8], pixels: usize) -> Option<Vec<u32>> {
+    (bytes.len() == pixels.checked_mul(4)?)
+        .then(|| bytes.chunks_exact(4).map(|c| u32::from_le_bytes(c.try_into().expect("4 bytes"))).collect())
 }
 
 /// The samples a tile takes at least before a noise target may stop it: two passes and four
 /// blocks (an estimate from fewer misses rare bright paths), or all of them.
 pub fn min_adaptive_samples(samples: u32, pass_samples: u32) -> u32 {
     (2 * round_to_blocks(pass_samples)).max(4 * BLOCK).min(samples.max(1))
-}
-
-/// Whether a tile that has its first `done` samples (whole passes) of `samples` renders another
-/// pass: always until all are done without a `target`; with one, until its [`tile_error`] is at
-/// most the target, once it has [`min_adaptive_samples`].
-pub fn needs_more(
-    samples: u32,
-    pass_samples: u32,
-    done: u32,
-    error: Option<f64>,
-    target: Option<f64>,
-) -> bool {
-    if done >= samples.max(1) {
-        return false;
-    }
-    match target {
-        None => true,
-        Some(t) => done < min_adaptive_samples(samples, pass_samples) || error.is_none_or(|e| e > t),
-    }
 }
 
 /// Checks a noise target given by a user: a relative error in (0, 1].
@@ -695,16 +803,80 @@ mod tests {
         assert!(tile_error(&t, 64).unwrap() <= 0.25 + 1e-12);
     }
 
+    /// A tile of `w` x `h` pixels whose pixel `i` has `blocks` blocks of samples around 1, with
+    /// the noise `noise(i)`.
+    fn noisy(w: usize, h: usize, blocks: u32, noise: impl Fn(usize) -> f64) -> Vec<PixelSum> {
+        (0..w * h).map(|i| tile(1, blocks, 1.0, noise(i))[0]).collect()
+    }
+
     #[test]
-    fn a_target_stops_a_tile_only_past_the_minimum_and_below_the_target() {
-        // 100 samples in passes of 16: at least 64 before a target may stop it.
-        assert!(needs_more(100, 16, 32, Some(0.0), None));
-        assert!(!needs_more(100, 16, 100, Some(1.0), None));
-        assert!(needs_more(100, 16, 48, Some(0.001), Some(0.01)), "below the minimum");
-        assert!(!needs_more(100, 16, 64, Some(0.001), Some(0.01)));
-        assert!(needs_more(100, 16, 64, Some(0.05), Some(0.01)));
-        assert!(needs_more(100, 16, 64, None, Some(0.01)));
-        assert!(!needs_more(100, 16, 100, Some(0.05), Some(0.01)), "the cap");
+    fn a_target_stops_pixels_only_past_the_minimum_and_below_the_target() {
+        // 100 samples in passes of 16: at least 64 before a target may stop a pixel.
+        let quiet = noisy(4, 4, 4, |_| 0.001);
+        let count = |c: u32| vec![c; 16];
+        assert!(active_pixels(&quiet, &count(32), 4, 100, 16, None).iter().all(|&a| a));
+        assert!(active_pixels(&quiet, &count(100), 4, 100, 16, None).iter().all(|&a| !a), "the cap");
+        assert!(active_pixels(&quiet, &count(48), 4, 100, 16, Some(0.01)).iter().all(|&a| a), "the minimum");
+        assert!(active_pixels(&quiet, &count(64), 4, 100, 16, Some(0.01)).iter().all(|&a| !a));
+        let loud = noisy(4, 4, 4, |_| 0.05);
+        assert!(active_pixels(&loud, &count(64), 4, 100, 16, Some(0.01)).iter().all(|&a| a));
+        assert!(active_pixels(&loud, &count(100), 4, 100, 16, Some(0.01)).iter().all(|&a| !a), "the cap");
+        // One block only: no estimate, every pixel goes on.
+        assert!(active_pixels(&noisy(2, 2, 1, |_| 0.5), &[16; 4], 2, 100, 16, Some(0.9)).iter().all(|&a| a));
+    }
+
+    #[test]
+    fn a_noisy_pixel_keeps_its_neighbourhood_sampling_and_stopped_pixels_stay_stopped() {
+        // 8 x 6 pixels, quiet (0.001) except a noisy one at (5, 2) (0.5): its pooled noise is
+        // 0.5 / 9 plus the quiet ones; everything within two pixels of it goes on (the mean's
+        // 3x3, then the max's), nothing else.
+        let (w, h) = (8usize, 6usize);
+        let sums = noisy(w, h, 4, |i| if i == 2 * w + 5 { 0.5 } else { 0.001 });
+        let counts = vec![64; w * h];
+        let mask = active_pixels(&sums, &counts, w as u32, 256, 16, Some(0.02));
+        for y in 0..h {
+            for x in 0..w {
+                let near = x.abs_diff(5) <= 2 && y.abs_diff(2) <= 2;
+                assert_eq!(mask[y * w + x], near, "({x}, {y})");
+            }
+        }
+        // A pixel that has fewer samples than the others stopped earlier: it stays stopped,
+        // however noisy it or its neighbours are.
+        let mut counts = counts;
+        counts[0] = 48;
+        let loud = noisy(w, h, 4, |_| 0.5);
+        let mask = active_pixels(&loud, &counts, w as u32, 256, 16, Some(0.02));
+        assert!(!mask[0] && mask[1..].iter().all(|&a| a));
+        // The same sums, the same decision (a pure function), whatever the rows' order of
+        // evaluation: computed twice.
+        assert_eq!(mask, active_pixels(&loud, &counts, w as u32, 256, 16, Some(0.02)));
+        // The tile's noise with each pixel's own samples.
+        assert!(tile_error_of(&loud, &counts).unwrap() > 0.4);
+    }
+
+    #[test]
+    fn masks_and_counts_survive_the_wire() {
+        for pixels in [0usize, 1, 7, 8, 9, 1024, 1023] {
+            let mask: Vec<bool> = (0..pixels).map(|i| i % 3 == 0 || i % 7 == 1).collect();
+            let bytes = encode_mask(&mask);
+            assert_eq!(bytes.len(), pixels.div_ceil(8));
+            assert_eq!(decode_mask(&bytes, pixels), Some(mask.clone()));
+            assert_eq!(decode_mask(&bytes, pixels + 8), None);
+            assert_eq!(mask_from_hex(&mask_to_hex(&bytes), pixels), Some(mask.clone()));
+            let counts: Vec<u32> = (0..pixels as u32).map(|i| i * 16).collect();
+            assert_eq!(decode_counts(&encode_counts(&counts), pixels), Some(counts));
+        }
+        // A bit past the last pixel.
+        assert_eq!(decode_mask(&[0b1000_0000], 7), None);
+        assert_eq!(decode_counts(&[0; 5], 1), None);
+        assert_eq!(mask_from_hex("0g", 8), None);
+        assert_eq!(mask_from_hex("0F", 8), None, "lowercase only");
+        assert_eq!(mask_from_hex("0", 4), None);
+        assert_eq!(mask_from_hex("05", 8), Some(vec![true, false, true, false, false, false, false, false]));
+    }
+
+    #[test]
+    fn noise_targets_are_relative_errors() {
         assert!(check_noise_target(0.0).is_err() && check_noise_target(f64::NAN).is_err());
         assert_eq!(check_noise_target(0.02), Ok(0.02));
     }

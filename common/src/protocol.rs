@@ -193,6 +193,12 @@ pub struct Lease {
     /// ([`crate::passes::encode_pass_tile`]) instead of finished pixels. Absent: the whole tile.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pass: Option<PassLease>,
+    /// Under a noise target, the pixels of the tile this pass renders: bit `i % 8` of byte
+    /// `i / 8` is pixel `i`, row by row ([`crate::passes::encode_mask`]), as lowercase hex; the
+    /// others' sums are sent as zero. Absent: every pixel. (A worker that ignores it renders
+    /// every pixel, and the server adds only the masked ones: the same image.)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pass_mask: Option<String>,
     /// Render the frame at this scale, in (0, 1] ([`crate::camera::Camera::scaled`]): the
     /// rect is a tile of the scaled frame. Absent: the camera's own resolution.
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -184,8 +184,27 @@ pub fn render_tile_sums_until(
     stop: Stop<'_>,
     aux: Option<&mut AuxTile>,
 ) -> Result<(Vec<PixelSum>, RayStats), Stopped> {
+    render_tile_sums_masked(scene, camera, rect, settings, range, None, stop, aux)
+}
+
+/// [`render_tile_sums_until`] for the pixels of `mask` only (row-major over the tile; `None`:
+/// every pixel): the others' sums are zero. A pixel's samples are those it has rendered whole,
+/// so its sums are the same bits with or without the others.
+///
+/// Panics only if `camera`, `rect`, `range` or the mask's length is out of range (a caller bug).
+#[allow(clippy::too_many_arguments)]
+pub fn render_tile_sums_masked(
+    scene: &Scene,
+    camera: usize,
+    rect: TileRect,
+    settings: &RenderSettings,
+    range: SampleRange,
+    mask: Option<&[bool]>,
+    stop: Stop<'_>,
+    aux: Option<&mut AuxTile>,
+) -> Result<(Vec<PixelSum>, RayStats), Stopped> {
     let mut out = TileOut::Sums(vec![PixelSum::default(); (rect.width * rect.height) as usize]);
-    let stats = render_tile_into(scene, camera, rect, settings, range, stop, aux, &mut out)?;
+    let stats = render_tile_into(scene, camera, rect, settings, range, mask, stop, aux, &mut out)?;
     match out {
         TileOut::Sums(sums) => Ok((sums, stats)),
         TileOut::Film(_) => unreachable!("asked for sums"),
@@ -203,7 +222,8 @@ fn render_one_sample_tile_until(
     aux: Option<&mut AuxTile>,
 ) -> Result<(Vec<[f32; 3]>, RayStats), Stopped> {
     let mut out = TileOut::Film(vec![[0.0; 3]; (rect.width * rect.height) as usize]);
-    let stats = render_tile_into(scene, camera, rect, settings, SampleRange::all(1), stop, aux, &mut out)?;
+    let stats =
+        render_tile_into(scene, camera, rect, settings, SampleRange::all(1), None, stop, aux, &mut out)?;
     match out {
         TileOut::Film(film) => Ok((film, stats)),
         TileOut::Sums(_) => unreachable!("asked for the film"),
@@ -226,6 +246,7 @@ fn render_tile_into(
     rect: TileRect,
     settings: &RenderSettings,
     range: SampleRange,
+    mask: Option<&[bool]>,
     stop: Stop<'_>,
     mut aux: Option<&mut AuxTile>,
     out: &mut TileOut,
@@ -235,6 +256,9 @@ fn render_tile_into(
         rect.x0 + rect.width <= cam.width && rect.y0 + rect.height <= cam.height,
         "tile outside the frame"
     );
+    let pixels = (rect.width * rect.height) as usize;
+    assert!(mask.is_none_or(|m| m.len() == pixels), "a mask of the tile's pixels");
+    assert!(aux.is_none() || mask.is_none(), "features come from every pixel");
     let seed = frame_seed(settings.seed, camera);
     let n = samples_per_pixel(scene, camera, settings);
     assert!(
@@ -259,7 +283,6 @@ fn render_tile_into(
         tracer.spread = cam.pixel_spread;
     }
     let pixel_uv = glam::DVec2::new(1.0 / cam.width as f64, 1.0 / cam.height as f64);
-    let pixels = (rect.width * rect.height) as usize;
     // Every pixel's entry is written once, at its place in the tile (row by row), in the order
     // the pixels are rendered (see `order` below).
     assert_eq!(
@@ -310,19 +333,20 @@ fn render_tile_into(
     let mut pixel = PixelSum::default();
     let mut sum = glam::DVec3::ZERO;
     let (mut albedo, mut normal) = (glam::DVec3::ZERO, glam::DVec3::ZERO);
-    // The order the pixels are rendered in (their indices in the tile, row by row), when a
-    // group takes several pixels: blocks of 4x2 pixels, so that a group of eight one-sample
-    // pixels is a compact bundle of rays (which share more of their nodes than a row of eight)
-    // rather than a row. Every pixel's value is its own, so the order changes no bit.
-    // Only at one sample a pixel: with two or four, a group's pixels are two or four neighbours
-    // of a row either way, and the table and scattered writes cost without making the bundle
-    // more compact.
-    let order = (across_pixels && per_pixel == 1).then(|| block_order(rect.width, rect.height));
+    // The order the tile's pixels are rendered in (their indices, row by row): only those of
+    // the mask when there is one; at one sample a pixel, when a group takes eight pixels,
+    // blocks of 4x2 pixels, so that the group is a compact bundle of rays (which share more of
+    // their nodes than a row of eight). With two or four samples a group's pixels are row
+    // neighbours either way. Every pixel's value is its own, so the order changes no bit.
+    let order: Vec<u32> = match mask {
+        Some(m) => (0..pixels as u32).filter(|&i| m[i as usize]).collect(),
+        None if across_pixels && per_pixel == 1 => block_order(rect.width, rect.height),
+        None => (0..pixels as u32).collect(),
+    };
     // The (pixel, sample) pairs of the tile in order: pixel by pixel, a pixel's samples in turn.
-    let total = u64::from(rect.width) * u64::from(rect.height) * u64::from(per_pixel);
+    let total = order.len() as u64 * u64::from(per_pixel);
     let at = |i: u64| {
-        let k = (i / u64::from(per_pixel)) as usize;
-        let p = order.as_ref().map_or(k as u32, |o| o[k]);
+        let p = order[(i / u64::from(per_pixel)) as usize];
         let s = range.start + (i % u64::from(per_pixel)) as u32;
         (rect.x0 + p % rect.width, rect.y0 + p / rect.width, s)
     };
@@ -512,19 +536,29 @@ pub fn render_camera_with_aux(
 }
 
 /// How a frame's tiles are rendered pass by pass: passes of `pass_samples` samples (whole
-/// blocks), and optionally a noise target that stops a tile early ([`crate::passes::needs_more`]).
+/// blocks), and optionally a noise target that stops pixels early
+/// ([`crate::passes::active_pixels`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PassPlan {
     pub pass_samples: u32,
     pub noise_target: Option<f64>,
 }
 
-/// What one tile of a pass-by-pass render got: its samples per pixel and its last noise estimate.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// What one tile of a pass-by-pass render got: the most samples any of its pixels has, each
+/// pixel's samples (row by row), and its last noise estimate ([`crate::passes::tile_error_of`]).
+#[derive(Clone, Debug, PartialEq)]
 pub struct TileOutcome {
     pub rect: TileRect,
     pub samples: u32,
+    pub pixel_samples: Vec<u32>,
     pub error: Option<f64>,
+}
+
+impl TileOutcome {
+    /// The samples of all its pixels together.
+    pub fn total_samples(&self) -> u64 {
+        self.pixel_samples.iter().map(|&n| u64::from(n)).sum()
+    }
 }
 
 /// A frame rendered pass by pass: the image, its features when asked for, and each tile's
@@ -537,8 +571,9 @@ pub struct PassedFrame {
     pub stats: RayStats,
 }
 
-/// Renders one tile pass after pass as the farm does, stopping when [`crate::passes::needs_more`]
-/// says so; the tile's film, its features (from the first pass), samples and noise.
+/// Renders one tile pass after pass as the farm does, each pass for the pixels
+/// [`crate::passes::active_pixels`] keeps going, until none is; the tile's film (each pixel the
+/// average of its own samples), its features (from the first pass), samples and noise.
 pub fn render_tile_passes(
     scene: &Scene,
     camera: usize,
@@ -548,6 +583,7 @@ pub fn render_tile_passes(
     mut aux: Option<&mut AuxTile>,
 ) -> (Vec<[f32; 3]>, TileOutcome, RayStats) {
     let n = samples_per_pixel(scene, camera, settings);
+    let pixels = (rect.width * rect.height) as usize;
     if n == 1 {
         // One pass of one sample, too few for a noise estimate (`tile_error` of one sample).
         let (film, stats) =
@@ -555,36 +591,55 @@ pub fn render_tile_passes(
                 Ok(r) => r,
                 Err(_) => unreachable!("Stop::NEVER never stops"),
             };
-        return (film, TileOutcome { rect, samples: 1, error: None }, stats);
+        return (film, TileOutcome { rect, samples: 1, pixel_samples: vec![1; pixels], error: None }, stats);
     }
-    // The first pass's sums (there is always one), plus the later passes'.
     let mut sums = Vec::new();
+    let mut counts = vec![0u32; pixels];
+    let mut mask: Option<Vec<bool>> = None;
     let mut stats = RayStats::default();
-    let (mut done, mut error) = (0, None);
     for k in 0..crate::passes::pass_count(n, plan.pass_samples) {
         let range = crate::passes::pass_range(n, plan.pass_samples, k);
         let first = if k == 0 { aux.as_deref_mut() } else { None };
-        let (pass, st) =
-            match render_tile_sums_until(scene, camera, rect, settings, range, Stop::NEVER, first) {
-                Ok(r) => r,
-                Err(_) => unreachable!("Stop::NEVER never stops"),
-            };
+        let (pass, st) = match render_tile_sums_masked(
+            scene,
+            camera,
+            rect,
+            settings,
+            range,
+            mask.as_deref(),
+            Stop::NEVER,
+            first,
+        ) {
+            Ok(r) => r,
+            Err(_) => unreachable!("Stop::NEVER never stops"),
+        };
         if k == 0 {
+            // The first pass renders every pixel: its sums are the tile's so far.
             sums = pass;
+            counts.fill(range.end);
         } else {
-            for (acc, p) in sums.iter_mut().zip(&pass) {
-                acc.add(p);
+            for (i, (acc, p)) in sums.iter_mut().zip(&pass).enumerate() {
+                if mask.as_ref().is_none_or(|m| m[i]) {
+                    acc.add(p);
+                    counts[i] = range.end;
+                }
             }
         }
         stats.add(&st);
-        done = range.end;
-        error = crate::passes::tile_error(&sums, done);
-        if !crate::passes::needs_more(n, plan.pass_samples, done, error, plan.noise_target) {
+        let next =
+            crate::passes::active_pixels(&sums, &counts, rect.width, n, plan.pass_samples, plan.noise_target);
+        if !next.contains(&false) {
+            mask = None;
+        } else if next.contains(&true) {
+            mask = Some(next);
+        } else {
             break;
         }
     }
-    let film = sums.iter().map(|s| s.film(done)).collect();
-    (film, TileOutcome { rect, samples: done, error }, stats)
+    let film = sums.iter().zip(&counts).map(|(s, &c)| s.film(c)).collect();
+    let error = crate::passes::tile_error_of(&sums, &counts);
+    let samples = counts.iter().copied().max().unwrap_or(0);
+    (film, TileOutcome { rect, samples, pixel_samples: counts, error }, stats)
 }
 
 /// Renders a whole camera pass by pass ([`render_tile_passes`] on every tile, rayon over tiles):
@@ -643,7 +698,7 @@ fn render_camera_inner(
             a.normal.put_tile(outcome.rect, &t.normal);
         }
         stats.add(st);
-        outcomes.push(*outcome);
+        outcomes.push(outcome.clone());
     }
     PassedFrame { image, aux, tiles: outcomes, stats }
 }
@@ -886,7 +941,7 @@ mod tests {
         let plan = PassPlan { pass_samples: 16, noise_target: Some(0.1) };
         let (px, outcome, _) = render_tile_passes(&scene, 0, rect, &settings, plan, Some(&mut passed));
         assert_eq!((px, passed), (film, aux));
-        assert_eq!(outcome, TileOutcome { rect, samples: 1, error: None });
+        assert_eq!(outcome, TileOutcome { rect, samples: 1, pixel_samples: vec![1, 1], error: None });
     }
 
     #[test]

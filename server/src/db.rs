@@ -752,15 +752,25 @@ impl Store {
     }
 
     /// Each tile's rectangle and samples per pixel (a tile rendered whole has them all).
-    pub fn tile_samples(&self, job: u64, frame: u32) -> Result<Vec<(Rect, u32)>> {
+    pub fn tile_samples(&self, job: u64, frame: u32) -> Result<Vec<(Rect, Vec<u32>)>> {
         let conn = self.conn();
         let mut stmt = conn.prepare_cached(
-            "SELECT t.x0, t.y0, t.w, t.h, CASE WHEN t.first_sample IS NULL THEN f.samples ELSE t.samples_done END
+            "SELECT t.x0, t.y0, t.w, t.h, CASE WHEN t.first_sample IS NULL THEN f.samples ELSE t.samples_done END,
+                    t.pixel_samples
              FROM tiles t JOIN frames f ON f.job_id = t.job_id AND f.idx = t.frame
              WHERE t.job_id = ?1 AND t.frame = ?2 AND t.pass = 0 ORDER BY t.tile",
         )?;
         let rows = stmt
-            .query_map(params![job as i64, frame], |r| Ok((rect_at(r, 0)?, r.get::<_, i64>(4)? as u32)))?
+            .query_map(params![job as i64, frame], |r| {
+                let rect = rect_at(r, 0)?;
+                let pixels = (rect.width * rect.height) as usize;
+                // Each pixel's samples when they differ, else the tile's.
+                let counts = r
+                    .get::<_, Option<Vec<u8>>>(5)?
+                    .and_then(|b| tessera::passes::decode_counts(&b, pixels))
+                    .unwrap_or_else(|| vec![r.get::<_, i64>(4).map_or(0, |n| n as u32)]);
+                Ok((rect, counts))
+            })?
             .collect::<rusqlite::Result<Vec<_>>>()?;
         Ok(rows)
     }
@@ -1017,7 +1027,7 @@ mod tests {
         let p = third.pass.unwrap();
         let done = s.submit_result(third.lease_id, w, &pass_sums(p.start..p.end, |_| 1.0), None).unwrap();
         assert!(matches!(done, ResultOutcome::Accepted { frame_complete: true, .. }), "{done:?}");
-        assert_eq!(s.tile_samples(id, 0).unwrap(), [(Rect { x0: 0, y0: 0, width: 2, height: 1 }, 48)]);
+        assert_eq!(s.tile_samples(id, 0).unwrap(), [(Rect { x0: 0, y0: 0, width: 2, height: 1 }, vec![48])]);
     }
 
     #[test]

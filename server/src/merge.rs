@@ -378,12 +378,9 @@ pub async fn merge_frame(state: AppState, job_id: u64, frame: u32) {
             .context("cannot write the frame's preview")?;
         if job.noise_target.is_some() {
             let name = tessera::output::samples_map_name(&cam);
-            let tiles: Vec<_> = st
-                .store
-                .tile_samples(job_id, frame)?
-                .into_iter()
-                .map(|(r, n)| (tessera::image::TileRect::from(r), n))
-                .collect();
+            let counts = st.store.tile_samples(job_id, frame)?;
+            let tiles: Vec<_> =
+                counts.iter().map(|(r, n)| (tessera::image::TileRect::from(*r), n.as_slice())).collect();
             let rgb = tessera::output::samples_map(f.width, f.height, &tiles, f.samples);
             tessera::hdr_io::write_png_rgb8(&dir.join(&name), f.width, f.height, &rgb)
                 .map_err(anyhow::Error::new)?;

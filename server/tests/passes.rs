@@ -132,19 +132,36 @@ fn a_noise_target_stops_easy_tiles_and_samples_hard_ones_exactly_like_the_cli() 
     let cli = cli_render(&scene, &["--camera", "3", "--tile-size", "16", "--noise-target", "0.1"]);
     assert!(cli.path().join("glass_next_importance_samples.png").exists());
     assert_job_outputs_equal_cli(&server, &job, cli.path());
-    // The log has each tile's samples and noise: some stopped at 64 of the 100 samples (an easy
-    // region), others took all 100 (a hard one), every one of them decided on its noise.
+    // The log has each tile's samples and noise. Pixels stop on their own (pooled over their
+    // neighbours): in some tiles every pixel stopped at 64 of the 100 samples (an easy region),
+    // others have pixels that stopped early beside pixels that took all 100 (a hard one, or
+    // the edge of one), every one of them decided on its noise.
     let done = events(&server, id, "tile_done");
     assert_eq!(done.len(), 36, "{done:?}");
-    let samples = |e: &serde_json::Value| {
-        let m = e["message"].as_str().unwrap();
-        let (_, rest) = m.split_once(": ").unwrap();
-        rest.split_whitespace().next().unwrap().parse::<u32>().unwrap()
+    let px = |e: &serde_json::Value| {
+        let r = &e["message"].as_str().unwrap();
+        let (_, rest) = r.split_once(": ").unwrap();
+        let mean = rest.split_whitespace().next().unwrap().parse::<f64>().unwrap();
+        // Uneven tiles say the samples of all their pixels; even ones, every pixel's.
+        let total = rest
+            .split_once("; ")
+            .map(|(_, t)| t.split_whitespace().next().unwrap().parse::<u64>().unwrap())
+            .unwrap_or((mean * 256.0) as u64);
+        (mean, total)
     };
-    let early = done.iter().filter(|e| samples(e) < 100).count();
-    let full = done.iter().filter(|e| samples(e) == 100).count();
-    assert!(early >= 4 && full >= 4, "{early} tiles stopped early, {full} took every sample: {done:?}");
+    let early = done.iter().filter(|e| px(e).0 < 100.0).count();
+    let uneven = done.iter().filter(|e| e["message"].as_str().unwrap().contains("on average")).count();
+    let full = done.iter().filter(|e| px(e).0 == 100.0).count();
+    assert!(early >= 4 && uneven >= 4, "{early} tiles stopped early, {uneven} unevenly: {done:?}");
+    assert!(full + uneven >= 4, "{full} tiles took every sample, {uneven} in part: {done:?}");
     assert!(done.iter().all(|e| e["message"].as_str().unwrap().contains(", noise 0.")), "{done:?}");
+    // Progress counts the samples rendered, pixel by pixel: the frame's total is what its
+    // pixels took, which is what the tiles say they took, and less than every sample.
+    let f = &job["frames"][0];
+    let taken: u64 = done.iter().map(|e| px(e).1).sum();
+    assert_eq!(f["samples_done"].as_u64(), Some(taken), "{job}");
+    assert_eq!(f["samples_total"].as_u64(), Some(taken), "{job}");
+    assert!(taken < 96 * 96 * 100, "{job}");
 }
 
 #[test]

@@ -41,10 +41,10 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, anyhow, bail};
 use tessera::bundle::{BundleSceneError, load_bundle_scene_cached, read_tar};
 use tessera::image::TileRect;
-use tessera::passes::{BLOCK, SampleRange, encode_pass_tile};
+use tessera::passes::{BLOCK, SampleRange, encode_pass_tile, mask_from_hex};
 use tessera::protocol::*;
 use tessera::render::{
-    AuxTile, RenderSettings, Stop, Stopped, render_tile_sums_until, render_tile_until,
+    AuxTile, RenderSettings, Stop, Stopped, render_tile_sums_masked, render_tile_until,
     render_tile_with_aux_until, samples_per_pixel,
 };
 use tessera::scene::Scene;
@@ -838,12 +838,23 @@ fn render_lease(scene: &Scene, lease: &Lease, cancel: &AtomicBool) -> Result<Opt
     {
         bail!("pass {p:?} is not a range of whole blocks of this frame's {n} samples");
     }
+    let pixels = (r.width * r.height) as usize;
+    let mask = match &lease.pass_mask {
+        Some(text) => Some(mask_from_hex(text, pixels).ok_or_else(|| {
+            anyhow!("the lease's pass mask is not a mask of the tile's {pixels} pixels in hex")
+        })?),
+        None => None,
+    };
+    if mask.is_some() && (lease.pass.is_none() || lease.aux) {
+        bail!("a pass mask comes only with a pass that sends no features");
+    }
     let rendered = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         let rect = TileRect::from(r);
         if let Some(p) = lease.pass {
             let range = SampleRange { start: p.start, end: p.end };
             let mut aux = lease.aux.then(AuxTile::default);
-            render_tile_sums_until(scene, camera, rect, &settings, range, stop, aux.as_mut()).map(
+            let mask = mask.as_deref();
+            render_tile_sums_masked(scene, camera, rect, &settings, range, mask, stop, aux.as_mut()).map(
                 |(sums, _)| {
                     encode_pass_tile(&sums, aux.as_ref().map(|a| (a.albedo.as_slice(), a.normal.as_slice())))
                 },

@@ -194,7 +194,7 @@ struct RenderArgs {
     #[arg(long, value_name = "K")]
     camera: Option<usize>,
     /// Tile edge in pixels (the unit of parallel work; does not change the image, except under
-    /// --noise-target, which decides tile by tile).
+    /// --noise-target, whose pixels are judged within their tile).
     #[arg(long, default_value_t = 32, value_name = "PX")]
     tile_size: u32,
     /// Samples per pixel for every camera instead of its <NumSamples> (e.g. 4 for a quick,
@@ -208,6 +208,11 @@ struct RenderArgs {
     /// image.
     #[arg(long, value_enum, value_name = "MODE")]
     env_sampling: Option<EnvSampling>,
+    /// The sampler's base seed instead of Tessera's own (which the farm always uses): a
+    /// different seed renders another, independent image of the same scene, such as a
+    /// reference to measure a render's noise against.
+    #[arg(long, value_name = "N")]
+    seed: Option<u64>,
     /// Do not draw a progress bar.
     #[arg(long, short)]
     quiet: bool,
@@ -225,11 +230,11 @@ struct RenderArgs {
     /// without it nothing is rendered.
     #[arg(long)]
     denoise: bool,
-    /// Stop sampling a tile once its estimated relative noise is at most this, in (0, 1]
-    /// (e.g. 0.02 for about 2 %); <NumSamples> (or --samples) becomes the cap. Tiles are then
-    /// rendered pass by pass (--pass-samples), each pass judged on the luminance of its
-    /// pixels' odd sample blocks against all of them, and <stem>_samples.png shows where
-    /// samples went. A farm job with the same noise_target, pass_samples and tile_size
+    /// Stop sampling a pixel once its estimated relative noise (pooled over its neighbours)
+    /// is at most this, in (0, 1] (e.g. 0.02 for about 2 %); <NumSamples> (or --samples)
+    /// becomes the cap. Tiles are then rendered pass by pass (--pass-samples), after each pass
+    /// every pixel judged on the luminance of its odd sample blocks against all of them, and
+    /// <stem>_samples.png shows where samples went. A farm job with the same noise_target, pass_samples and tile_size
     /// renders the same bits.
     #[arg(long, value_name = "ERROR")]
     noise_target: Option<f64>,
@@ -623,7 +628,10 @@ fn render_scene(
     };
     std::fs::create_dir_all(out)
         .with_context(|| format!("cannot create the output directory {}", out.display()))?;
-    let settings = RenderSettings { samples, env_sampling, ..RenderSettings::default() };
+    let mut settings = RenderSettings { samples, env_sampling, ..RenderSettings::default() };
+    if let Some(seed) = args.seed {
+        settings.seed = seed;
+    }
     for ci in selected {
         let cam = &scene.cameras[ci];
         let (files, notes) = output::plan(cam);
@@ -701,14 +709,15 @@ fn render_scene(
         );
         if let Some((n, tiles)) = outcomes {
             let name = output::samples_map_name(cam);
-            let placed: Vec<_> = tiles.iter().map(|t| (t.rect, t.samples)).collect();
+            let placed: Vec<_> = tiles.iter().map(|t| (t.rect, t.pixel_samples.as_slice())).collect();
             let rgb = output::samples_map(cam.width, cam.height, &placed, n);
             tessera::hdr_io::write_png_rgb8(&out.join(&name), cam.width, cam.height, &rgb)
                 .map_err(|e| anyhow::anyhow!("{e}"))?;
-            let total: u64 =
-                tiles.iter().map(|t| u64::from(t.samples) * u64::from(t.rect.width * t.rect.height)).sum();
+            let total: u64 = tiles.iter().map(|t| t.total_samples()).sum();
             let pixels = u64::from(cam.width) * u64::from(cam.height);
             let stopped = tiles.iter().filter(|t| t.samples < n).count();
+            let stopped_pixels: usize =
+                tiles.iter().map(|t| t.pixel_samples.iter().filter(|&&c| c < n).count()).sum();
             let mut noise: Vec<f64> = tiles.iter().filter_map(|t| t.error).collect();
             noise.sort_by(f64::total_cmp);
             let quantile = |q: f64| noise.get(((noise.len() as f64 - 1.0) * q).round() as usize).copied();
@@ -717,7 +726,7 @@ fn render_scene(
                 _ => String::new(),
             };
             println!(
-                "{}: noise target {}: {:.1} samples per pixel on average of at most {n}; {stopped} of {} tiles stopped early{spread}",
+                "{}: noise target {}: {:.2} samples per pixel on average of at most {n}; {stopped_pixels} of {pixels} pixels and {stopped} of {} tiles stopped early{spread}",
                 out.join(&name).display(),
                 noise_target.unwrap_or_default(),
                 total as f64 / pixels.max(1) as f64,

@@ -5,14 +5,14 @@ use super::*;
 
 /// The first queued unit of job `?1` not kept from worker `?2` by a failure since `?3`, by
 /// pass, then frame, then tile (one scene's frames; `tiles_queue_by_pass`).
-const NEXT_UNIT_BY_PASS: &str = "SELECT t.frame, t.tile, t.x0, t.y0, t.w, t.h, f.camera, t.pass, t.first_sample, t.end_sample, f.passes_total, f.scene_path
+const NEXT_UNIT_BY_PASS: &str = "SELECT t.frame, t.tile, t.x0, t.y0, t.w, t.h, f.camera, t.pass, t.first_sample, t.end_sample, f.passes_total, f.scene_path, t.mask
      FROM tiles t JOIN frames f ON f.job_id = t.job_id AND f.idx = t.frame
      WHERE t.job_id = ?1 AND t.state = 'queued'
        AND NOT EXISTS (SELECT 1 FROM tile_failures x WHERE x.job_id = t.job_id AND x.frame = t.frame AND x.tile = t.tile AND x.worker_id = ?2 AND x.at > ?3)
      ORDER BY t.pass, t.frame, t.tile LIMIT 1";
 
 /// [`NEXT_UNIT_BY_PASS`] by frame, then pass, then tile (a sequence; `tiles_queue_by_frame`).
-const NEXT_UNIT_BY_FRAME: &str = "SELECT t.frame, t.tile, t.x0, t.y0, t.w, t.h, f.camera, t.pass, t.first_sample, t.end_sample, f.passes_total, f.scene_path
+const NEXT_UNIT_BY_FRAME: &str = "SELECT t.frame, t.tile, t.x0, t.y0, t.w, t.h, f.camera, t.pass, t.first_sample, t.end_sample, f.passes_total, f.scene_path, t.mask
      FROM tiles t JOIN frames f ON f.job_id = t.job_id AND f.idx = t.frame
      WHERE t.job_id = ?1 AND t.state = 'queued'
        AND NOT EXISTS (SELECT 1 FROM tile_failures x WHERE x.job_id = t.job_id AND x.frame = t.frame AND x.tile = t.tile AND x.worker_id = ?2 AND x.at > ?3)
@@ -131,10 +131,11 @@ impl Store {
                         r.get::<_, i64>(6)?,
                         unit_pass(r, 7)?,
                         r.get::<_, Option<String>>(11)?,
+                        r.get::<_, Option<Vec<u8>>>(12)?,
                     ))
                 })
                 .optional()?;
-            if let Some((frame, tile, rect, camera, pass, frame_scene)) = tile {
+            if let Some((frame, tile, rect, camera, pass, frame_scene, mask)) = tile {
                 candidate = Some((
                     job,
                     frame,
@@ -146,7 +147,7 @@ impl Store {
                     camera,
                     allow_unsupported,
                     aux,
-                    pass,
+                    (pass, mask),
                 ));
                 break;
             }
@@ -162,7 +163,7 @@ impl Store {
             camera,
             allow_unsupported,
             aux,
-            pass,
+            (pass, mask),
         )) = candidate
         else {
             tx.execute_cached("UPDATE workers SET last_seen = ?2 WHERE id = ?1", params![w, now()])?;
@@ -214,6 +215,7 @@ impl Store {
             // Features come with a tile's first samples.
             aux: aux && pass.is_none_or(|p| p.index == 0),
             pass,
+            pass_mask: mask.map(|m| tessera::passes::mask_to_hex(&m)),
             scale,
             manifest,
         }))

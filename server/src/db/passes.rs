@@ -10,13 +10,21 @@
 //!   with the features of pass 0 after it for a denoised job), which previews and merges read;
 //! - `error`: the tile's noise estimate; `finished`: no more passes will be added.
 //!
-//! Under a noise target a tile's next pass is `waiting` until the one before it is added and
-//! found too noisy ([`tessera::passes::needs_more`]): the decisions depend on the passes' sums
-//! only, so the CLI, rendering tile by tile pass after pass, takes the same ones.
+//! - `pixel_samples`: each pixel's samples so far (NULL: `samples_done` for every pixel).
+//!
+//! Under a noise target a tile's next pass is `waiting` until the one before it is added; then
+//! [`tessera::passes::active_pixels`] decides which pixels still need samples, and the next
+//! pass is queued with that `mask` (the pixels its lease renders), or the tile is finished
+//! when none does. The decisions depend on the passes' sums only, so the CLI, rendering tile by
+//! tile pass after pass, takes the same ones. A pass's sums of pixels outside its mask are not
+//! added (a worker that ignores the mask renders them to no effect).
 
 use anyhow::{Context, Result, anyhow};
 use rusqlite::{OptionalExtension, Transaction, params};
-use tessera::passes::{PIXEL_SUM_BYTES, PixelSum, decode_sums, encode_sums, needs_more, tile_error};
+use tessera::passes::{
+    PIXEL_SUM_BYTES, PixelSum, active_pixels, decode_counts, decode_mask, decode_sums, encode_counts,
+    encode_mask, encode_sums, tile_error_of,
+};
 use tessera::protocol::{Rect, encode_tile};
 
 use super::{Cached, Event, log_event};
@@ -62,19 +70,24 @@ pub(super) fn absorb(
         tx.query_row_cached("SELECT noise_target, denoise FROM jobs WHERE id = ?1", [job], |r| {
             Ok((r.get(0)?, r.get(1)?))
         })?;
-    let (mut passes_done, mut samples_done, sums, film, pass_samples): (
-        u32,
-        u32,
-        Option<Vec<u8>>,
-        Option<Vec<u8>>,
-        u32,
-    ) = tx.query_row_cached(
-        "SELECT passes_done, samples_done, sums, pixels, end_sample FROM tiles
+    type TileState = (u32, u32, Option<Vec<u8>>, Option<Vec<u8>>, u32, Option<Vec<u8>>);
+    let (mut passes_done, mut samples_done, sums, film, pass_samples, counts): TileState = tx
+        .query_row_cached(
+            "SELECT passes_done, samples_done, sums, pixels, end_sample, pixel_samples FROM tiles
              WHERE job_id = ?1 AND frame = ?2 AND tile = ?3 AND pass = 0",
-        params![job, frame, tile],
-        |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?)),
-    )?;
-    let samples_before = samples_done;
+            params![job, frame, tile],
+            |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?, r.get(5)?)),
+        )?;
+    let mut counts = match counts {
+        Some(b) => {
+            decode_counts(&b, px).ok_or_else(|| anyhow!("tile {tile}'s stored sample counts are damaged"))?
+        }
+        None => vec![samples_done; px],
+    };
+    let counts_before: u64 = counts.iter().map(|&c| u64::from(c)).sum();
+    // The pixels that were still sampling before these passes (the last one added rendered
+    // them): those that stop now skip the samples they will never take.
+    let mut sampling: Vec<bool> = counts.iter().map(|&c| c == samples_done).collect();
     let mut acc = match sums {
         Some(b) => decode_sums(&b)
             .filter(|s| s.len() == px)
@@ -86,23 +99,36 @@ pub(super) fn absorb(
         film.filter(|_| passes_done > 0 && denoise).map(|f| f.get(px * 12..).unwrap_or_default().to_vec());
     let mut added = false;
     loop {
-        let next: Option<(String, Option<Vec<u8>>, u32)> = tx
+        let next: Option<(String, Option<Vec<u8>>, u32, Option<Vec<u8>>)> = tx
             .query_row_cached(
-                "SELECT state, pixels, end_sample FROM tiles WHERE job_id = ?1 AND frame = ?2 AND tile = ?3 AND pass = ?4",
+                "SELECT state, pixels, end_sample, mask FROM tiles WHERE job_id = ?1 AND frame = ?2 AND tile = ?3 AND pass = ?4",
                 params![job, frame, tile, passes_done],
-                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
+                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?)),
             )
             .optional()?;
-        let Some((state, Some(bytes), end)) = next else { break };
+        let Some((state, Some(bytes), end, mask)) = next else { break };
         if state != "done" {
             break;
         }
+        let mask = match mask {
+            Some(m) => Some(
+                decode_mask(&m, px)
+                    .ok_or_else(|| anyhow!("pass {passes_done} of tile {tile} has a damaged mask"))?,
+            ),
+            None => None,
+        };
         let (sum_bytes, rest) = bytes.split_at((px * PIXEL_SUM_BYTES).min(bytes.len()));
         let pass = decode_sums(sum_bytes)
             .filter(|s| s.len() == px)
             .with_context(|| format!("pass {passes_done} of tile {tile} holds damaged sums"))?;
-        for (a, p) in acc.iter_mut().zip(&pass) {
-            a.add(p);
+        for (i, (a, p)) in acc.iter_mut().zip(&pass).enumerate() {
+            if mask.as_ref().is_none_or(|m| m[i]) {
+                a.add(p);
+                counts[i] = end;
+            }
+        }
+        if let Some(m) = &mask {
+            sampling = m.clone();
         }
         if passes_done == 0 && denoise {
             aux = Some(rest.to_vec());
@@ -120,28 +146,41 @@ pub(super) fn absorb(
     if !added {
         return Ok(None);
     }
-    let error = tile_error(&acc, samples_done);
-    let more = needs_more(samples, pass_samples, samples_done, error, target);
-    let film: Vec<[f32; 3]> = acc.iter().map(|s| s.film(samples_done)).collect();
+    let error = tile_error_of(&acc, &counts);
+    let active = active_pixels(&acc, &counts, rect.width, samples, pass_samples, target);
+    let more = active.contains(&true);
+    let film: Vec<[f32; 3]> = acc.iter().zip(&counts).map(|(s, &c)| s.film(c)).collect();
     let mut film = encode_tile(&film);
     film.extend_from_slice(aux.as_deref().unwrap_or_default());
+    let uneven = counts.iter().any(|&c| c != samples_done);
     tx.execute_cached(
-        "UPDATE tiles SET pixels = ?4, sums = ?5, passes_done = ?6, samples_done = ?7, error = ?8, finished = ?9
+        "UPDATE tiles SET pixels = ?4, sums = ?5, passes_done = ?6, samples_done = ?7, error = ?8, finished = ?9,
+                pixel_samples = ?10
          WHERE job_id = ?1 AND frame = ?2 AND tile = ?3 AND pass = 0",
-        params![job, frame, tile, film, encode_sums(&acc), passes_done, samples_done, error, !more],
-    )?;
-    // The frame's progress counters: the samples now in the tile's film, and once the tile
-    // stops short of the frame's samples (the noise target), those it will never take.
-    let skipped = if more { 0 } else { samples.saturating_sub(samples_done) };
-    tx.execute_cached(
-        "UPDATE frames SET samples_done = samples_done + ?3, samples_skipped = samples_skipped + ?4
-         WHERE job_id = ?1 AND idx = ?2",
         params![
             job,
             frame,
-            px as i64 * i64::from(samples_done.saturating_sub(samples_before)),
-            px as i64 * i64::from(skipped)
+            tile,
+            film,
+            encode_sums(&acc),
+            passes_done,
+            samples_done,
+            error,
+            !more,
+            uneven.then(|| encode_counts(&counts))
         ],
+    )?;
+    // The frame's progress counters: the samples now in the tile's film, and for each pixel
+    // that stops short of the frame's samples (the noise target), those it will never take.
+    let counts_after: u64 = counts.iter().map(|&c| u64::from(c)).sum();
+    let skipped: u64 = (0..px)
+        .filter(|&i| sampling[i] && !active[i])
+        .map(|i| u64::from(samples.saturating_sub(counts[i])))
+        .sum();
+    tx.execute_cached(
+        "UPDATE frames SET samples_done = samples_done + ?3, samples_skipped = samples_skipped + ?4
+         WHERE job_id = ?1 AND idx = ?2",
+        params![job, frame, (counts_after - counts_before) as i64, skipped as i64],
     )?;
     if !more {
         tx.execute_cached(
@@ -153,14 +192,23 @@ pub(super) fn absorb(
             params![job, frame],
         )?;
         let noise = error.map(|e| format!("{e:.4}")).unwrap_or_else(|| "not estimated".into());
+        let spp = if uneven {
+            format!(
+                "{:.1} samples per pixel on average (at most {samples_done}; {counts_after} over its {px} pixels)",
+                counts_after as f64 / px as f64
+            )
+        } else {
+            format!("{samples_done} samples per pixel")
+        };
         let message = format!(
-            "tile {tile} of frame {frame} finished after {passes_done} of {passes_total} pass(es): {samples_done} samples per pixel, noise {noise}"
+            "tile {tile} of frame {frame} finished after {passes_done} of {passes_total} pass(es): {spp}, noise {noise}"
         );
         log_event(tx, job, Event { seconds: None, ..Event::new("tile_done", &message).tile(frame, tile) })?;
     } else if target.is_some() {
+        let mask = active.contains(&false).then(|| encode_mask(&active));
         tx.execute_cached(
-            "UPDATE tiles SET state = 'queued' WHERE job_id = ?1 AND frame = ?2 AND tile = ?3 AND pass = ?4 AND state = 'waiting'",
-            params![job, frame, tile, passes_done],
+            "UPDATE tiles SET state = 'queued', mask = ?5 WHERE job_id = ?1 AND frame = ?2 AND tile = ?3 AND pass = ?4 AND state = 'waiting'",
+            params![job, frame, tile, passes_done, mask],
         )?;
     }
     let reached: Option<i64> = tx.query_row_cached(

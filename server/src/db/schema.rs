@@ -261,5 +261,15 @@ pub(super) fn migrate(conn: &Connection) -> Result<()> {
         // Jobs from before tags ask for none: any worker renders them.
         conn.execute("ALTER TABLE jobs ADD COLUMN worker_tags TEXT", [])?;
     }
+    if !has_column("tiles", "mask")? {
+        // Per-pixel noise targets: a pass row's `mask`, the pixels it renders (NULL: every
+        // one), and the row of pass 0's `pixel_samples`, each pixel's samples so far (NULL:
+        // `samples_done` for every pixel). Tiles stored before them have NULL in both, which
+        // means what they meant: whole tiles.
+        conn.execute_batch(
+            "ALTER TABLE tiles ADD COLUMN mask BLOB;
+             ALTER TABLE tiles ADD COLUMN pixel_samples BLOB;",
+        )?;
+    }
     Ok(())
 }
