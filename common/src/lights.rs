@@ -911,20 +911,31 @@ impl EnvDistribution {
             }
         };
         let mut weight = vec![0.0; width * height];
+        // For lat-long maps, the luminance of each texel of rows y and y + 1, each computed once
+        // (every texel is a corner of four cells).
+        let texel_row = |ty: usize, row: &mut Vec<f64>| {
+            row.clear();
+            row.extend((0..width).map(|tx| luminance(image.texel(tx as i64, ty as i64).map(f64::from))));
+        };
+        let (mut upper, mut lower) = (Vec::new(), Vec::new());
+        if mapping == EnvMapping::LatLong {
+            texel_row(0, &mut lower);
+        }
         for y in 0..height {
             let v = (y as f64 + 0.5) / height as f64;
             let sin = sincos_turns(0.5 * v).0;
+            if mapping == EnvMapping::LatLong {
+                std::mem::swap(&mut upper, &mut lower);
+                texel_row(y + 1, &mut lower);
+            }
             for x in 0..width {
                 let lum = match mapping {
                     // The lookup in this cell blends texels x, x + 1 (wrapped) and rows y, y + 1:
                     // their mean is the cell's exact average, so the pdf follows what is looked up
                     // (the sun's neighbours included) and no cell is undersampled.
                     EnvMapping::LatLong => {
-                        let l = |tx: usize, ty: i64| {
-                            luminance(image.texel((tx % width) as i64, ty).map(f64::from))
-                        };
-                        let y = y as i64;
-                        (l(x, y) + l(x + 1, y) + l(x, y + 1) + l(x + 1, y + 1)) / 4.0
+                        let x1 = if x + 1 == width { 0 } else { x + 1 };
+                        (upper[x] + upper[x1] + lower[x] + lower[x1]) / 4.0
                     }
                     EnvMapping::Probe => {
                         let d = latlong_direction((x as f64 + 0.5) / width as f64, v);

@@ -378,15 +378,28 @@ fn render_tile_into(
             // divisions are one chain each, and with nothing else in between the processor
             // overlaps the eight chains.
             // The current lane's pixel and its sampler, made once per pixel of the group.
-            let mut keyed: Option<(u32, u32, Sampler)> = None;
-            for (i, (sampler, lane)) in cg.samplers.iter_mut().zip(lanes.iter_mut()).enumerate().take(group) {
-                let (lx, ly, ls) = if across_pixels { at(next + i as u64) } else { (x, y, s + i as u32) };
-                let pixel_sampler = match &keyed {
-                    Some((kx, ky, k)) if (*kx, *ky) == (lx, ly) => k,
-                    _ => &keyed.insert((lx, ly, Sampler::new(seed, lx, ly, 0))).2,
-                };
-                *sampler = pixel_sampler.with_sample(ls);
-                *lane = (lx, ly, ls);
+            if across_pixels {
+                let mut keyed: Option<(u32, u32, Sampler)> = None;
+                for (i, (sampler, lane)) in
+                    cg.samplers.iter_mut().zip(lanes.iter_mut()).enumerate().take(group)
+                {
+                    let (lx, ly, ls) = at(next + i as u64);
+                    let pixel_sampler = match &keyed {
+                        Some((kx, ky, k)) if (*kx, *ky) == (lx, ly) => k,
+                        _ => &keyed.insert((lx, ly, Sampler::new(seed, lx, ly, 0))).2,
+                    };
+                    *sampler = pixel_sampler.with_sample(ls);
+                    *lane = (lx, ly, ls);
+                }
+            } else {
+                // Samples s.. of one pixel: the lanes differ by their sample index alone.
+                let pixel_sampler = Sampler::new(seed, x, y, 0);
+                for (i, (sampler, lane)) in
+                    cg.samplers.iter_mut().zip(lanes.iter_mut()).enumerate().take(group)
+                {
+                    *sampler = pixel_sampler.with_sample(s + i as u32);
+                    *lane = (x, y, s + i as u32);
+                }
             }
             let samplers_in_use = &mut cg.samplers[..group];
             // Dimensions in a fixed order: pixel position, lens, time, then shading; the group
@@ -413,8 +426,14 @@ fn render_tile_into(
             // All eight lanes, used or not: loops of fixed length the compiler vectorises.
             let pinhole = cam.lens.is_none();
             if pinhole {
-                let px: [f64; GROUP] = std::array::from_fn(|i| f64::from(lanes[i.min(group - 1)].0));
-                let py: [f64; GROUP] = std::array::from_fn(|i| f64::from(lanes[i.min(group - 1)].1));
+                let (px, py): ([f64; GROUP], [f64; GROUP]) = if across_pixels {
+                    (
+                        std::array::from_fn(|i| f64::from(lanes[i.min(group - 1)].0)),
+                        std::array::from_fn(|i| f64::from(lanes[i.min(group - 1)].1)),
+                    )
+                } else {
+                    ([f64::from(x); GROUP], [f64::from(y); GROUP])
+                };
                 wide.refill_dirs(group, |d| cam.ray_dirs8(&px, &py, &film[0], &film[1], d));
             }
             cg.rays = std::array::from_fn(|i| {
@@ -445,6 +464,26 @@ fn render_tile_into(
             tracer.trace_path_groups(&mut groups[..made], &mut radiance[..made]);
         }
         for ((cg, lanes), radiance) in groups.iter().zip(&lanes).zip(&radiance).take(made) {
+            if !across_pixels && aux.is_none() {
+                // The group's samples are consecutive samples of one pixel within one block
+                // (eight divides the block and a range starts at a whole block): summed in
+                // their order as below, the block's and the pixel's ends checked once.
+                match cam.clamp_samples {
+                    None => radiance[..cg.n].iter().for_each(|r| sum += *r),
+                    Some(c) => radiance[..cg.n].iter().for_each(|r| sum += r.min(glam::DVec3::splat(c))),
+                }
+                let ls = lanes[cg.n - 1].2;
+                let done = ls + 1;
+                if done.is_multiple_of(BLOCK) || done == range.end {
+                    pixel.add_block(ls / BLOCK, sum);
+                    sum = glam::DVec3::ZERO;
+                }
+                if done == range.end {
+                    out.push(pixel);
+                    pixel = PixelSum::default();
+                }
+                continue;
+            }
             for i in 0..cg.n {
                 let (lx, ly, ls) = lanes[i];
                 if aux.is_some() && ls < aux_samples {

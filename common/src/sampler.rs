@@ -186,12 +186,23 @@ impl Sampler {
         }
         let first = &samplers[mask.trailing_zeros() as usize];
         let (key, dim) = (first.key, first.dim);
-        let (mut off_dim, mut off_key) = (0u32, 0u32);
-        for (l, s) in samplers.iter().enumerate() {
-            off_dim |= u32::from(s.dim != dim) << l;
-            off_key |= u32::from(s.key != key) << l;
-        }
-        if off_dim & mask != 0 {
+        // Whether the drawing samplers stand at other dimensions than the first, or belong to
+        // other pixels: one test a lane, and the masks of which lanes only when some lanes
+        // do not draw and some differ.
+        let all = u32::MAX >> (32 - samplers.len());
+        let (same_dim, same_key) =
+            samplers.iter().fold((true, true), |(d, k), s| (d & (s.dim == dim), k & (s.key == key)));
+        let (dim_differs, key_differs) = if mask == all || (same_dim && same_key) {
+            (!same_dim, !same_key)
+        } else {
+            let (mut off_dim, mut off_key) = (0u32, 0u32);
+            for (l, s) in samplers.iter().enumerate() {
+                off_dim |= u32::from(s.dim != dim) << l;
+                off_key |= u32::from(s.key != key) << l;
+            }
+            (off_dim & mask != 0, off_key & mask != 0)
+        };
+        if dim_differs {
             // Each sampler's requests in its own order.
             let mut rest = mask;
             while rest != 0 {
@@ -206,7 +217,7 @@ impl Sampler {
         let index: [u32; GROUP_LANES] = std::array::from_fn(|l| samplers.get(l).map_or(0, |s| s.index));
         let mut a = [[0u32; GROUP_LANES]; M];
         let mut b = [[0u32; GROUP_LANES]; M];
-        if off_key & mask == 0 {
+        if !key_differs {
             // Samples of one pixel: the dimension's seeds hashed once.
             let seeds: [DimSeeds; M] = std::array::from_fn(|m| DimSeeds::of(key, dim + 1 + m as u64));
             for m in 0..M {
@@ -224,8 +235,14 @@ impl Sampler {
                 }
             }
         }
-        for (l, s) in samplers.iter_mut().enumerate() {
-            s.dim = if mask >> l & 1 != 0 { dim + M as u64 } else { s.dim };
+        if mask == all {
+            for s in samplers.iter_mut() {
+                s.dim = dim + M as u64;
+            }
+        } else {
+            for (l, s) in samplers.iter_mut().enumerate() {
+                s.dim = if mask >> l & 1 != 0 { dim + M as u64 } else { s.dim };
+            }
         }
         for m in 0..M {
             for l in 0..GROUP_LANES {
@@ -233,7 +250,8 @@ impl Sampler {
                 out[m][1][l] = unit(b[m][l]);
             }
         }
-        let mut outside = !mask & ((1 << GROUP_LANES) - 1);
+        let mut outside =
+            if mask == all && samplers.len() == GROUP_LANES { 0 } else { !mask & ((1 << GROUP_LANES) - 1) };
         while outside != 0 {
             let l = outside.trailing_zeros() as usize;
             outside &= outside - 1;
