@@ -474,12 +474,22 @@ fn render_tile_into(
                 }
                 let ls = lanes[cg.n - 1].2;
                 let done = ls + 1;
+                let mut block_sum = glam::DVec3::ZERO;
                 if done.is_multiple_of(BLOCK) || done == range.end {
-                    pixel.add_block(ls / BLOCK, sum);
+                    if let TileOut::Sums(_) = out {
+                        pixel.add_block(ls / BLOCK, sum);
+                    }
+                    block_sum = sum;
                     sum = glam::DVec3::ZERO;
                 }
                 if done == range.end {
-                    out.push(pixel);
+                    let (lx, ly, _) = lanes[0];
+                    let p = ((ly - rect.y0) * rect.width + (lx - rect.x0)) as usize;
+                    match out {
+                        TileOut::Sums(v) => v[p] = pixel,
+                        // One sample a pixel (a scene with a background image): its only block.
+                        TileOut::Film(v) => v[p] = PixelSum::film_of_one(block_sum),
+                    }
                     pixel = PixelSum::default();
                 }
                 continue;
