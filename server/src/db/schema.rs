@@ -60,6 +60,8 @@ CREATE TABLE IF NOT EXISTS tiles(
     worker_id INTEGER,
     deadline REAL,
     pixels BLOB,
+    -- A large result's file in results/ instead of `pixels` (db/results.rs).
+    pixels_file TEXT,
     render_seconds REAL,
     pass INTEGER NOT NULL DEFAULT 0,
     first_sample INTEGER,
@@ -260,6 +262,10 @@ pub(super) fn migrate(conn: &Connection) -> Result<()> {
     if !has_column("jobs", "worker_tags")? {
         // Jobs from before tags ask for none: any worker renders them.
         conn.execute("ALTER TABLE jobs ADD COLUMN worker_tags TEXT", [])?;
+    }
+    if !has_column("tiles", "pixels_file")? {
+        // Results from before result files are all in their rows (`pixels`).
+        conn.execute("ALTER TABLE tiles ADD COLUMN pixels_file TEXT", [])?;
     }
     Ok(())
 }
