@@ -928,10 +928,7 @@ fn upload(client: &Client, worker_id: u64, lease: u64, body: &[u8], seconds: f64
                 return;
             }
             Err(ureq::Error::Status(code, r)) if code < 500 => {
-                say!(
-                    "the server refused tile of lease {lease}: {}",
-                    describe(ureq::Error::Status(code, r))
-                );
+                say!("the server refused tile of lease {lease}: {}", describe(ureq::Error::Status(code, r)));
                 return;
             }
             Err(e) => {
