@@ -4,7 +4,7 @@
 //!
 //! The data directory holds:
 //! - `tessera.db` (and SQLite's `-wal` and `-shm` beside it): the job store;
-//! - `results/LEASE.f32`: large tile results (a whole frame's floats), each named by its tile's
+//! - `results/LEASE-PID-K.f32`: large tile results (a whole frame's floats), each named by its tile's
 //!   row until the frame is merged (`db::results`);
 //! - `blobs/HASH.tar`: the uploaded bundles;
 //! - `uploads/`: submissions being read (removed at start);

@@ -1,10 +1,9 @@
 //! Large tile results as files of their own: a tile of at least [`FILE_RESULT_BYTES`] (a
 //! sequence's whole-frame unit is 7.7 MB of floats at 800x800) is written to
-//! `results/LEASE.f32` in the data directory (atomically, synced) before its row, which names
-//! the file (`tiles.pixels_file`), commits. Kept in the database, such a result was written
+//! `results/LEASE-PID-K.f32` in the data directory (atomically, synced) before its row, which
+//! names the file (`tiles.pixels_file`), commits. Kept in the database, such a result was written
 //! into the write-ahead log, copied into the database file by the next checkpoint, read back
-//! page by page by the merge and its pages freed: several copies of every frame. Lease ids
-//! never repeat, so a file's name is its lease's.
+//! page by page by the merge and its pages freed: several copies of every frame.
 //!
 //! A file is removed when its row lets go of it (the frame merged, the tile's rows purged or
 //! queued again); a file no row names (a stop between the two) is removed by [`Store::sweep_results`]
@@ -45,14 +44,19 @@ impl ResultBody<'_> {
     }
 }
 
-/// The result file of lease `lease`.
+/// A new name for a result file of lease `lease`: `LEASE-PID-K.f32`, a name of each upload's own,
+/// so that an upload refused (a worker's retry of a result accepted meanwhile) removes its own
+/// file and never the one the accepted result's row names.
 pub fn result_file_name(lease: u64) -> String {
-    format!("{lease}.f32")
+    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let k = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    format!("{lease}-{}-{k}.f32", std::process::id())
 }
 
 /// The lease a result file's name is for (`None`: not such a name).
 fn lease_of(name: &str) -> Option<i64> {
-    name.strip_suffix(".f32")?.parse::<u64>().ok().and_then(|l| i64::try_from(l).ok())
+    let (lease, _) = name.strip_suffix(".f32")?.split_once('-')?;
+    lease.parse::<u64>().ok().and_then(|l| i64::try_from(l).ok())
 }
 
 impl Store {
