@@ -692,12 +692,10 @@ impl Store {
             let mut stmt = conn.prepare_cached(
                 "SELECT x0, y0, w, h, pixels, pixels_file FROM tiles WHERE job_id = ?1 AND frame = ?2 AND pass = 0 AND state = 'done' AND (pixels IS NOT NULL OR pixels_file IS NOT NULL)",
             )?;
-            let rows = stmt
-                .query_map(params![job as i64, frame], |r| {
-                    Ok::<Row, _>((rect_at(r, 0)?, r.get(4)?, r.get(5)?))
-                })?
-                .collect::<rusqlite::Result<Vec<_>>>()?;
-            rows
+            stmt.query_map(params![job as i64, frame], |r| {
+                Ok::<Row, _>((rect_at(r, 0)?, r.get(4)?, r.get(5)?))
+            })?
+            .collect::<rusqlite::Result<Vec<_>>>()?
         };
         // Result files are read outside the store's lock.
         rows.into_iter().map(|(rect, bytes, file)| Ok((rect, self.read_result(bytes, file)?))).collect()
@@ -726,9 +724,7 @@ impl Store {
             let mut stmt = tx.prepare_cached(
                 "SELECT pixels_file FROM tiles WHERE job_id = ?1 AND frame = ?2 AND pixels_file IS NOT NULL",
             )?;
-            let files =
-                stmt.query_map(params![job as i64, frame], |r| r.get(0))?.collect::<rusqlite::Result<_>>()?;
-            files
+            stmt.query_map(params![job as i64, frame], |r| r.get(0))?.collect::<rusqlite::Result<_>>()?
         };
         tx.execute_cached(
             "UPDATE tiles SET pixels = NULL, sums = NULL, pixels_file = NULL WHERE job_id = ?1 AND frame = ?2

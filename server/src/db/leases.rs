@@ -387,7 +387,7 @@ impl Store {
         } else {
             tessera::protocol::tile_bytes(px, denoise)
         };
-        if pixels.len() != expected {
+        if pixels.size() != expected {
             return Ok(ResultOutcome::WrongSize { expected });
         }
         let (bytes, file) = match pixels {

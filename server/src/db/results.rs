@@ -36,7 +36,8 @@ pub enum ResultBody<'a> {
 }
 
 impl ResultBody<'_> {
-    pub fn len(&self) -> usize {
+    /// The result's size in bytes.
+    pub fn size(&self) -> usize {
         match self {
             ResultBody::Bytes(b) => b.len(),
             ResultBody::File { len, .. } => *len,
