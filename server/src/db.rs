@@ -1,6 +1,7 @@
 //! The job store: one SQLite database in WAL mode (`tessera.db` in the data directory).
 //!
-//! SQLite is the single source of truth for jobs, frames, tiles (with their rendered pixels),
+//! SQLite is the single source of truth for jobs, frames, tiles (with their rendered pixels;
+//! a large tile's are a file of its own that its row names: `results.rs`),
 //! leases and workers, so a server killed at any instant restarts with everything it had
 //! accepted: a tile result is acknowledged only after its transaction commits. Leases do not
 //! survive a restart (their workers may be gone): [`Store::open`] puts every leased tile back in
@@ -25,6 +26,7 @@ mod jobs;
 mod leases;
 mod notify;
 mod passes;
+mod results;
 mod schema;
 mod upkeep;
 mod video;
@@ -35,6 +37,7 @@ pub use files::Deleted;
 pub use jobs::{NewFrame, NewJob};
 pub use notify::{DueNotification, Notified};
 pub use passes::ResultShape;
+pub use results::{FILE_RESULT_BYTES, RESULT_GRACE, RESULTS_DIR, ResultBody};
 pub use video::VideoRow;
 pub use workers::{NewWorker, ServingWorker};
 
@@ -260,6 +263,8 @@ pub struct Store {
     /// Jobs whose frames are being queued again in steps (`control.rs`): not purged nor deleted
     /// meanwhile.
     requeueing: Mutex<std::collections::HashSet<u64>>,
+    /// The folder of large tile results, beside the database (`results.rs`).
+    results_dir: std::path::PathBuf,
 }
 
 #[derive(Clone, Debug)]
@@ -596,6 +601,7 @@ impl Store {
             min_job_id: std::sync::atomic::AtomicU64::new(highest_deleted.saturating_add(1)),
             checkpointer: Mutex::new(checkpointer),
             requeueing: Mutex::default(),
+            results_dir: path.parent().unwrap_or(Path::new("")).join(results::RESULTS_DIR),
         })
     }
 
@@ -656,7 +662,7 @@ impl Store {
     pub fn done_tile_rects(&self, job: u64, frame: u32) -> Result<Vec<(u32, Rect)>> {
         let conn = self.conn();
         let mut stmt = conn.prepare_cached(
-            "SELECT tile, x0, y0, w, h FROM tiles WHERE job_id = ?1 AND frame = ?2 AND pass = 0 AND state = 'done' AND pixels IS NOT NULL ORDER BY tile",
+            "SELECT tile, x0, y0, w, h FROM tiles WHERE job_id = ?1 AND frame = ?2 AND pass = 0 AND state = 'done' AND (pixels IS NOT NULL OR pixels_file IS NOT NULL) ORDER BY tile",
         )?;
         let rows = stmt
             .query_map(params![job as i64, frame], |r| Ok((r.get::<_, i64>(0)? as u32, rect_at(r, 1)?)))?
@@ -666,26 +672,33 @@ impl Store {
 
     /// One rendered tile's pixels (`None` once the finished job dropped them).
     pub fn tile_pixels(&self, job: u64, frame: u32, tile: u32) -> Result<Option<Vec<u8>>> {
-        let conn = self.conn();
-        Ok(conn
+        let row = self
+            .conn()
             .query_row_cached(
-                "SELECT pixels FROM tiles WHERE job_id = ?1 AND frame = ?2 AND tile = ?3 AND pass = 0 AND state = 'done' AND pixels IS NOT NULL",
+                "SELECT pixels, pixels_file FROM tiles WHERE job_id = ?1 AND frame = ?2 AND tile = ?3 AND pass = 0 AND state = 'done' AND (pixels IS NOT NULL OR pixels_file IS NOT NULL)",
                 params![job as i64, frame, tile],
-                |r| r.get(0),
+                |r| Ok((r.get(0)?, r.get(1)?)),
             )
-            .optional()?)
+            .optional()?;
+        // A result file is read outside the store's lock.
+        row.map(|(bytes, file)| self.read_result(bytes, file)).transpose()
     }
 
     /// The rendered tiles of a frame: (rect, pixels bytes).
     pub fn frame_tiles(&self, job: u64, frame: u32) -> Result<Vec<(Rect, Vec<u8>)>> {
-        let conn = self.conn();
-        let mut stmt = conn.prepare_cached(
-            "SELECT x0, y0, w, h, pixels FROM tiles WHERE job_id = ?1 AND frame = ?2 AND pass = 0 AND state = 'done' AND pixels IS NOT NULL",
-        )?;
-        let rows = stmt
-            .query_map(params![job as i64, frame], |r| Ok((rect_at(r, 0)?, r.get::<_, Vec<u8>>(4)?)))?
-            .collect::<rusqlite::Result<Vec<_>>>()?;
-        Ok(rows)
+        type Row = (Rect, Option<Vec<u8>>, Option<String>);
+        let rows: Vec<Row> = {
+            let conn = self.conn();
+            let mut stmt = conn.prepare_cached(
+                "SELECT x0, y0, w, h, pixels, pixels_file FROM tiles WHERE job_id = ?1 AND frame = ?2 AND pass = 0 AND state = 'done' AND (pixels IS NOT NULL OR pixels_file IS NOT NULL)",
+            )?;
+            stmt.query_map(params![job as i64, frame], |r| {
+                Ok::<Row, _>((rect_at(r, 0)?, r.get(4)?, r.get(5)?))
+            })?
+            .collect::<rusqlite::Result<Vec<_>>>()?
+        };
+        // Result files are read outside the store's lock.
+        rows.into_iter().map(|(rect, bytes, file)| Ok((rect, self.read_result(bytes, file)?))).collect()
     }
 
     /// Records a merged frame's outputs (and in the job's log, how long merging and tone
@@ -706,8 +719,16 @@ impl Store {
         )?;
         // The frame's pixels live on in its outputs, which previews and re-tone-mapping read
         // from now on (a merge writes the preview too): keep the database small.
+        // Its result files go once this commits.
+        let files: Vec<String> = {
+            let mut stmt = tx.prepare_cached(
+                "SELECT pixels_file FROM tiles WHERE job_id = ?1 AND frame = ?2 AND pixels_file IS NOT NULL",
+            )?;
+            stmt.query_map(params![job as i64, frame], |r| r.get(0))?.collect::<rusqlite::Result<_>>()?
+        };
         tx.execute_cached(
-            "UPDATE tiles SET pixels = NULL, sums = NULL WHERE job_id = ?1 AND frame = ?2 AND (pixels IS NOT NULL OR sums IS NOT NULL)",
+            "UPDATE tiles SET pixels = NULL, sums = NULL, pixels_file = NULL WHERE job_id = ?1 AND frame = ?2
+               AND (pixels IS NOT NULL OR sums IS NOT NULL OR pixels_file IS NOT NULL)",
             params![job as i64, frame],
         )?;
         let merged = format!("frame {frame} merged and written: {}", outputs.join(", "));
@@ -748,6 +769,7 @@ impl Store {
             }
         }
         tx.commit()?;
+        self.remove_result_files(&files);
         Ok(done)
     }
 

@@ -72,6 +72,17 @@ async fn collect_garbage(state: &AppState) {
 
 /// Applies the retention policy (`--keep-finished-days`, `--disk-budget-mb`;
 /// [`crate::retention::apply`], which logs each removal).
+/// Removes the tile result files no row names any more (a job deleted or a frame queued again
+/// while its file was being written), once older than [`crate::db::RESULT_GRACE`].
+async fn sweep_results(state: &AppState) {
+    let store = state.store.clone();
+    match blocking(move || store.sweep_results(crate::db::RESULT_GRACE)).await {
+        Ok(0) => {}
+        Ok(n) => tracing::info!("removed {n} tile result file(s) that no tile names any more"),
+        Err(e) => tracing::error!("removing tile result files no tile names: {e:#}"),
+    }
+}
+
 async fn retain(state: &AppState) {
     if state.settings.retention.is_off() {
         return;
@@ -121,6 +132,7 @@ pub fn spawn(state: AppState, forget_after: f64) -> tokio::task::JoinHandle<()> 
                         Err(e) => tracing::error!("forgetting stale workers: {e:#}"),
                     }
                     collect_garbage(&state).await;
+                    sweep_results(&state).await;
                     retain(&state).await;
                 }
             }

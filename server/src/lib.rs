@@ -381,6 +381,11 @@ pub async fn serve(
             swept.old_pass_files
         );
     }
+    // Result files whose rows never committed (or let go of them just before a stop).
+    let unnamed = store.sweep_results(std::time::Duration::ZERO)?;
+    if unnamed > 0 {
+        tracing::info!("removed {unnamed} tile result file(s) that no tile names any more");
+    }
     // Uploads to the file store that a stop cut off.
     let cut = files::FileStore::new(&config.data_dir)?.remove_temporaries();
     if cut > 0 {

@@ -48,7 +48,12 @@ pub fn assemble_with_aux(
         let decode =
             |b: &[u8]| decode_tile(b, n).with_context(|| format!("tile {r:?}: a plane of the wrong size"));
         let rect = TileRect::from(*r);
-        img.put_tile(rect, &decode(colour)?);
+        if (r.x0, r.y0, r.width, r.height) == (0, 0, width, height) {
+            // A frame rendered as one tile (a sequence's small frames): its pixels are the image.
+            img.pixels = decode(colour)?;
+        } else {
+            img.put_tile(rect, &decode(colour)?);
+        }
         if let Some(f) = features.as_mut() {
             let (albedo, normal) = planes.with_context(|| format!("tile {r:?} has no denoising features"))?;
             f.albedo.put_tile(rect, &decode(albedo)?);

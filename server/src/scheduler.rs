@@ -302,10 +302,10 @@ impl Scheduler {
         &self,
         lease: u64,
         worker: u64,
-        pixels: &[u8],
+        pixels: crate::db::ResultBody<'_>,
         render_seconds: Option<f64>,
     ) -> Result<ResultOutcome> {
-        let outcome = self.store.submit_result(lease, worker, pixels, render_seconds)?;
+        let outcome = self.store.submit_result_as(lease, worker, pixels, render_seconds)?;
         match &outcome {
             ResultOutcome::Accepted { job_id, frame, tile, rect, tiles_done, tiles_total, .. } => {
                 self.emit(ServerEvent::Tile {

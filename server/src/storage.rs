@@ -4,6 +4,8 @@
 //!
 //! The data directory holds:
 //! - `tessera.db` (and SQLite's `-wal` and `-shm` beside it): the job store;
+//! - `results/LEASE-PID-K.f32`: large tile results (a whole frame's floats), each named by its tile's
+//!   row until the frame is merged (`db::results`);
 //! - `blobs/HASH.tar`: the uploaded bundles;
 //! - `uploads/`: submissions being read (removed at start);
 //! - `outputs/JOB/FRAME/`: a merged frame's outputs and nothing else (their names come from the
@@ -134,8 +136,10 @@ pub fn check_data_dir(data_dir: &Path) -> Result<()> {
     let db = data_dir.join(DB_FILE);
     let holds_files =
         |sub: &str| std::fs::read_dir(data_dir.join(sub)).is_ok_and(|mut entries| entries.next().is_some());
-    let work: Vec<&str> =
-        [OUTPUTS_DIR, FRAMES_DIR, "blobs", "files"].into_iter().filter(|s| holds_files(s)).collect();
+    let work: Vec<&str> = [OUTPUTS_DIR, FRAMES_DIR, "blobs", "files", crate::db::RESULTS_DIR]
+        .into_iter()
+        .filter(|s| holds_files(s))
+        .collect();
     if work.is_empty() {
         return Ok(());
     }

@@ -7,7 +7,8 @@ process (its caches shared), the CLI as one process per scene file, and the farm
     python3 tests/bench/sequence_bench.py --bin target/release \
         --dir ../shared/scenes/sequences/camera_around_david --glob 'davids_camera_*.json'
 
-Prints one line per mode (wall seconds), the farm's bytes uploaded and kept, whether every farm
+Prints one line per mode (wall seconds; CPU milliseconds a frame of the CLI's one process, and of
+the farm's server and its worker apart), the farm's bytes uploaded and kept, whether every farm
 frame has the CLI's bytes, and, when ffmpeg is on PATH and the folder has `reference.mp4`, the
 PSNR of the farm's video against it after a 4x4 box (both decoded to RGB and averaged over 4x4
 blocks by ffmpeg's `area` scaling) over every frame. `--frames N` takes the first N files only.
@@ -18,6 +19,7 @@ import glob
 import json
 import os
 import re
+import resource
 import shutil
 import socket
 import subprocess
@@ -36,6 +38,29 @@ def dir_bytes(path):
             except OSError:
                 pass
     return total
+
+
+def cpu_seconds(pid):
+    """User + system CPU seconds of process `pid` so far (every thread; from /proc)."""
+    fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def child_pids(pid):
+    """The processes `pid` started (its local worker), from /proc."""
+    out = []
+    for task in os.listdir(f"/proc/{pid}/task"):
+        try:
+            out += [int(c) for c in open(f"/proc/{pid}/task/{task}/children").read().split()]
+        except OSError:
+            pass
+    return out
+
+
+def children_cpu():
+    """CPU seconds of this script's finished child processes."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
 
 
 def free_port():
@@ -97,12 +122,18 @@ def main():
     n = len(scenes)
     try:
         # 1. One process, every scene file.
+        cpu_before = children_cpu()
         t_one, proc = timed(
             [worker, "render", *scenes, "--out", os.path.join(work, "cli"), "--quiet", "--timings-json"]
         )
         if proc.returncode != 0:
             sys.exit("tessera-worker render failed:\n" + proc.stderr)
-        print(f"frames {n}: CLI, one process: {t_one:.2f} s ({t_one / n * 1000:.0f} ms a frame)", flush=True)
+        cpu_one = children_cpu() - cpu_before
+        print(
+            f"frames {n}: CLI, one process: {t_one:.2f} s ({t_one / n * 1000:.0f} ms a frame; "
+            f"CPU {cpu_one / n * 1000:.0f} ms a frame)",
+            flush=True,
+        )
         print(f"  per frame (median of frames 2-{n}): {split(proc.stdout)}")
 
         # 2. One process a scene file.
@@ -141,7 +172,18 @@ def main():
                     time.sleep(0.1)
             env = dict(os.environ, TESSERA_SERVER=url)
             out = os.path.join(work, "farm")
+            # CPU of the server and of its local worker, from /proc (ffmpeg's is the server's
+            # children's, not counted here).
+            workers = []
+            for _ in range(100):
+                workers = child_pids(srv.pid)
+                if workers:
+                    break
+                time.sleep(0.1)
+            cpu_at = lambda: [cpu_seconds(p) for p in [srv.pid, *workers]]
+            cpu_start = cpu_at()
             t_farm, proc = timed([client, "submit", *scenes, "--wait", "--out", out, "--verbose"], env=env)
+            cpu_farm = [b - a for a, b in zip(cpu_start, cpu_at())]
             if proc.returncode != 0:
                 sys.exit("tessera submit failed:\n" + proc.stdout + proc.stderr)
             uploaded = re.findall(r"uploaded \d+ of \d+ files[^\n]*", proc.stderr + proc.stdout)
@@ -150,6 +192,10 @@ def main():
                 print(f"  farm / CLI one process: {t_farm / t_one:.2f}; farm / CLI a process a frame: {t_farm / t_sep:.2f}")
             else:
                 print(f"  farm / CLI one process: {t_farm / t_one:.2f}")
+            print(
+                f"  CPU a frame: server {cpu_farm[0] / n * 1000:.0f} ms, its worker "
+                f"{sum(cpu_farm[1:]) / n * 1000:.0f} ms (the CLI's one process: {cpu_one / n * 1000:.0f} ms)"
+            )
             for line in uploaded[:3]:
                 print(f"  client: {line.strip()}")
             built = [l for l in open(os.path.join(work, "server.log")).read().splitlines() if " built in " in l]

@@ -9,7 +9,7 @@ use axum::response::{IntoResponse, Response};
 use tessera::protocol::*;
 
 use super::{ApiResult, AppError, AppState, off_thread};
-use crate::db::{FailOutcome, ResultOutcome};
+use crate::db::{FailOutcome, ResultBody, ResultOutcome};
 use crate::merge::merge_frame;
 use crate::scheduler::LeaseWait;
 
@@ -343,8 +343,10 @@ pub(super) async fn result(
             }
         }
     };
-    let px = decode_tile(floats, floats.len() / 12).ok_or_else(|| wrong_size(body.len().to_string()))?;
-    if let Err((i, c, v)) = check_tile_values(&px) {
+    if floats.len() % 12 != 0 {
+        return Err(wrong_size(body.len().to_string()));
+    }
+    if let Some((i, c, v)) = first_not_finite(floats) {
         return Err(AppError::bad_request(format!(
             "the tile's pixel {i} (row-major), channel {c}, is {v}: tile values must be finite numbers; nothing was stored"
         )));
@@ -354,9 +356,30 @@ pub(super) async fn result(
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.trim().parse::<f64>().ok())
         .filter(|s| s.is_finite() && *s >= 0.0);
+    // A large tile's pixels (a whole frame) go to a file of their own before its row commits
+    // (`db::results`); a pass's sums always to the row, which adds them up at once.
+    let as_file = shape.blocks.is_none() && body.len() >= crate::db::FILE_RESULT_BYTES;
     let outcome = {
         let state = state.clone();
-        off_thread(move || Ok(state.scheduler.result(lease, worker, &body, render_seconds)?)).await?
+        off_thread(move || {
+            if !as_file {
+                return Ok(state.scheduler.result(
+                    lease,
+                    worker,
+                    ResultBody::Bytes(&body),
+                    render_seconds,
+                )?);
+            }
+            let name = state.store.write_result_file(lease, &body)?;
+            let file = ResultBody::File { name: &name, len: body.len() };
+            let outcome = state.scheduler.result(lease, worker, file, render_seconds);
+            // Not taken (the lease is gone, or the store failed): its row does not name it.
+            if !matches!(outcome, Ok(ResultOutcome::Accepted { .. })) {
+                state.store.remove_result_files(std::slice::from_ref(&name));
+            }
+            Ok(outcome?)
+        })
+        .await?
     };
     match outcome {
         ResultOutcome::Accepted { job_id, frame, frame_complete, pass_published, .. } => {
@@ -374,6 +397,16 @@ pub(super) async fn result(
             "the tile's lease needs {expected} bytes (width x height x 3 little-endian f32, three times that for a denoised job; 64 bytes a pixel for a pass's sums)"
         ))),
     }
+}
+
+/// The first value of a tile's little-endian f32s that is not a finite number, as (pixel,
+/// channel, value): read off the bytes, without decoding the tile (a whole frame is 7.7 MB).
+fn first_not_finite(floats: &[u8]) -> Option<(usize, usize, f32)> {
+    let word = |w: &[u8]| u32::from_le_bytes([w[0], w[1], w[2], w[3]]);
+    // An exponent of all ones: an infinity or a NaN.
+    let bad = |w: &[u8]| word(w) & 0x7f80_0000 == 0x7f80_0000;
+    let k = floats.chunks_exact(4).position(bad)?;
+    Some((k / 3, k % 3, f32::from_bits(word(&floats[k * 4..]))))
 }
 
 fn lease_gone(lease: u64) -> AppError {
@@ -512,4 +545,22 @@ pub(super) async fn get_file(
     let file = file.ok_or_else(|| AppError::not_found(format!("no file {sha256}")))?;
     Ok(file
         .into_response_with(&[(header::CONTENT_TYPE, HeaderValue::from_static("application/octet-stream"))]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::first_not_finite;
+
+    #[test]
+    fn the_first_value_that_is_not_a_finite_number_is_found_in_the_bytes() {
+        let px = [[0.0f32, 1.5, -2.0], [f32::MAX, f32::MIN_POSITIVE, 1e-45]];
+        assert_eq!(first_not_finite(&tessera::protocol::encode_tile(&px)), None);
+        for (bad, at) in [(f32::INFINITY, (1, 1)), (f32::NEG_INFINITY, (0, 2)), (f32::NAN, (1, 0))] {
+            let mut p = px;
+            p[at.0][at.1] = bad;
+            let (i, c, v) = first_not_finite(&tessera::protocol::encode_tile(&p)).unwrap();
+            assert_eq!((i, c), at);
+            assert_eq!(v.to_bits(), bad.to_bits());
+        }
+    }
 }

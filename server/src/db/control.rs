@@ -237,10 +237,17 @@ impl Store {
         let mut units = 0u64;
         for f in plan {
             loop {
-                let gone = self.conn().execute_cached(
-                    "DELETE FROM tiles WHERE rowid IN (SELECT rowid FROM tiles WHERE job_id = ?1 AND frame = ?2 LIMIT ?3)",
-                    params![id, f.frame, ROWS_PER_STEP as i64],
-                )?;
+                // Each deleted row's result file, if it has one, goes too.
+                let files: Vec<Option<String>> = self
+                    .conn()
+                    .prepare_cached(
+                        "DELETE FROM tiles WHERE rowid IN (SELECT rowid FROM tiles WHERE job_id = ?1 AND frame = ?2 LIMIT ?3)
+                         RETURNING pixels_file",
+                    )?
+                    .query_map(params![id, f.frame, ROWS_PER_STEP as i64], |r| r.get(0))?
+                    .collect::<rusqlite::Result<_>>()?;
+                let gone = files.len();
+                self.remove_result_files(&files.into_iter().flatten().collect::<Vec<_>>());
                 if gone < ROWS_PER_STEP {
                     break;
                 }

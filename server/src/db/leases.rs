@@ -345,6 +345,18 @@ impl Store {
         pixels: &[u8],
         render_seconds: Option<f64>,
     ) -> Result<ResultOutcome> {
+        self.submit_result_as(lease, worker, ResultBody::Bytes(pixels), render_seconds)
+    }
+
+    /// [`Store::submit_result`] of a result kept in its row or written as a result file
+    /// (`results.rs`) already.
+    pub fn submit_result_as(
+        &self,
+        lease: u64,
+        worker: u64,
+        pixels: ResultBody<'_>,
+        render_seconds: Option<f64>,
+    ) -> Result<ResultOutcome> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         let row = tx
@@ -377,12 +389,18 @@ impl Store {
         } else {
             tessera::protocol::tile_bytes(px, denoise)
         };
-        if pixels.len() != expected {
+        if pixels.size() != expected {
             return Ok(ResultOutcome::WrongSize { expected });
         }
+        let (bytes, file) = match pixels {
+            // A pass's sums are added into its tile at once (`passes::absorb`): always a row's.
+            ResultBody::File { name, .. } if !in_passes => (None, Some(name)),
+            ResultBody::File { .. } => anyhow::bail!("a pass's result must be stored in its row"),
+            ResultBody::Bytes(b) => (Some(b), None),
+        };
         tx.execute_cached(
-            "UPDATE tiles SET state = 'done', pixels = ?2, deadline = NULL, render_seconds = ?3 WHERE lease_id = ?1",
-            params![lease as i64, pixels, render_seconds],
+            "UPDATE tiles SET state = 'done', pixels = ?2, pixels_file = ?4, deadline = NULL, render_seconds = ?3 WHERE lease_id = ?1",
+            params![lease as i64, bytes, render_seconds, file],
         )?;
         tx.execute_cached(
             "UPDATE counters SET tiles_done = tiles_done + 1, render_seconds_sum = render_seconds_sum + coalesce(?1, 0.0),

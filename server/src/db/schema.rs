@@ -60,6 +60,8 @@ CREATE TABLE IF NOT EXISTS tiles(
     worker_id INTEGER,
     deadline REAL,
     pixels BLOB,
+    -- A large result's file in results/ instead of `pixels` (db/results.rs).
+    pixels_file TEXT,
     render_seconds REAL,
     pass INTEGER NOT NULL DEFAULT 0,
     first_sample INTEGER,
@@ -69,6 +71,10 @@ CREATE TABLE IF NOT EXISTS tiles(
     samples_done INTEGER NOT NULL DEFAULT 0,
     error REAL,
     finished INTEGER NOT NULL DEFAULT 0,
+    -- A pass's pixels under a per-pixel noise target (NULL: every pixel), and on pass 0's row
+    -- each pixel's samples so far (NULL: `samples_done` for every pixel).
+    mask BLOB,
+    pixel_samples BLOB,
     PRIMARY KEY(job_id, frame, tile, pass)
 );
 CREATE INDEX IF NOT EXISTS tiles_by_state ON tiles(state, job_id);
@@ -270,6 +276,10 @@ pub(super) fn migrate(conn: &Connection) -> Result<()> {
             "ALTER TABLE tiles ADD COLUMN mask BLOB;
              ALTER TABLE tiles ADD COLUMN pixel_samples BLOB;",
         )?;
+    }
+    if !has_column("tiles", "pixels_file")? {
+        // Results from before result files are all in their rows (`pixels`).
+        conn.execute("ALTER TABLE tiles ADD COLUMN pixels_file TEXT", [])?;
     }
     Ok(())
 }

@@ -34,19 +34,26 @@ impl Store {
             .optional()?;
         let Some(state) = state.filter(|s| s == "canceled" || s == "failed") else { return Ok(0) };
         let limit = limit as i64;
-        let tiles = tx.execute_cached(
-            "DELETE FROM tiles WHERE rowid IN (
-               SELECT rowid FROM tiles WHERE job_id = ?1 AND frame IN (
-                 SELECT idx FROM frames WHERE job_id = ?1
-                   AND (?3 = 'canceled' OR outputs IS NOT NULL OR tiles_done < tiles_total))
-               LIMIT ?2)",
-            params![job as i64, limit, state],
-        )?;
+        // Each deleted row's result file, if it has one: removed once this commits.
+        let files: Vec<Option<String>> = tx
+            .prepare_cached(
+                "DELETE FROM tiles WHERE rowid IN (
+                   SELECT rowid FROM tiles WHERE job_id = ?1 AND frame IN (
+                     SELECT idx FROM frames WHERE job_id = ?1
+                       AND (?3 = 'canceled' OR outputs IS NOT NULL OR tiles_done < tiles_total))
+                   LIMIT ?2)
+                 RETURNING pixels_file",
+            )?
+            .query_map(params![job as i64, limit, state], |r| r.get(0))?
+            .collect::<rusqlite::Result<_>>()?;
+        let tiles = files.len();
         let failures = tx.execute_cached(
             "DELETE FROM tile_failures WHERE rowid IN (SELECT rowid FROM tile_failures WHERE job_id = ?1 LIMIT ?2)",
             params![job as i64, limit - tiles as i64],
         )?;
         tx.commit()?;
+        drop(conn);
+        self.remove_result_files(&files.into_iter().flatten().collect::<Vec<_>>());
         Ok(tiles + failures)
     }
 
