@@ -29,6 +29,9 @@ use tessera::protocol::{Rect, encode_tile};
 
 use super::{Cached, Event, log_event};
 
+/// A pass's row as the merge reads it: its state, its sums, its last sample and its mask.
+type PassRow = (String, Option<Vec<u8>>, u32, Option<Vec<u8>>);
+
 /// What a lease's result must hold.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ResultShape {
@@ -99,7 +102,7 @@ pub(super) fn absorb(
         film.filter(|_| passes_done > 0 && denoise).map(|f| f.get(px * 12..).unwrap_or_default().to_vec());
     let mut added = false;
     loop {
-        let next: Option<(String, Option<Vec<u8>>, u32, Option<Vec<u8>>)> = tx
+        let next: Option<PassRow> = tx
             .query_row_cached(
                 "SELECT state, pixels, end_sample, mask FROM tiles WHERE job_id = ?1 AND frame = ?2 AND tile = ?3 AND pass = ?4",
                 params![job, frame, tile, passes_done],
