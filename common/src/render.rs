@@ -238,6 +238,47 @@ enum TileOut {
     Film(Vec<[f32; 3]>),
 }
 
+impl TileOut {
+    /// After sample `ls` of pixel (`x`, `y`) is added to `sum`: closes the block it ends, if
+    /// it ends one (into `pixel`'s sums, or for one-sample pixels straight to the film), and
+    /// when it is the last sample of the range (`end`) writes the pixel at its place in the
+    /// tile and starts the next one. The pixel's index in the tile when it ended.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn close_sample(
+        &mut self,
+        pixel: &mut PixelSum,
+        sum: &mut glam::DVec3,
+        ls: u32,
+        end: u32,
+        rect: TileRect,
+        x: u32,
+        y: u32,
+    ) -> Option<usize> {
+        let done = ls + 1;
+        // The sum of the block this sample ends, if it ends one.
+        let mut block_sum = glam::DVec3::ZERO;
+        if done.is_multiple_of(BLOCK) || done == end {
+            if let TileOut::Sums(_) = self {
+                pixel.add_block(ls / BLOCK, *sum);
+            }
+            block_sum = *sum;
+            *sum = glam::DVec3::ZERO;
+        }
+        if done != end {
+            return None;
+        }
+        let p = ((y - rect.y0) * rect.width + (x - rect.x0)) as usize;
+        match self {
+            TileOut::Sums(v) => v[p] = *pixel,
+            // One sample a pixel: its only block.
+            TileOut::Film(v) => v[p] = PixelSum::film_of_one(block_sum),
+        }
+        *pixel = PixelSum::default();
+        Some(p)
+    }
+}
+
 /// [`render_tile_sums_until`] into `out`, which holds an entry for every pixel of the tile.
 #[allow(clippy::too_many_arguments)]
 fn render_tile_into(
@@ -472,26 +513,8 @@ fn render_tile_into(
                     None => radiance[..cg.n].iter().for_each(|r| sum += *r),
                     Some(c) => radiance[..cg.n].iter().for_each(|r| sum += r.min(glam::DVec3::splat(c))),
                 }
-                let ls = lanes[cg.n - 1].2;
-                let done = ls + 1;
-                let mut block_sum = glam::DVec3::ZERO;
-                if done.is_multiple_of(BLOCK) || done == range.end {
-                    if let TileOut::Sums(_) = out {
-                        pixel.add_block(ls / BLOCK, sum);
-                    }
-                    block_sum = sum;
-                    sum = glam::DVec3::ZERO;
-                }
-                if done == range.end {
-                    let (lx, ly, _) = lanes[0];
-                    let p = ((ly - rect.y0) * rect.width + (lx - rect.x0)) as usize;
-                    match out {
-                        TileOut::Sums(v) => v[p] = pixel,
-                        // One sample a pixel (a scene with a background image): its only block.
-                        TileOut::Film(v) => v[p] = PixelSum::film_of_one(block_sum),
-                    }
-                    pixel = PixelSum::default();
-                }
+                let (lx, ly, ls) = lanes[cg.n - 1];
+                out.close_sample(&mut pixel, &mut sum, ls, range.end, rect, lx, ly);
                 continue;
             }
             for i in 0..cg.n {
@@ -506,24 +529,7 @@ fn render_tile_into(
                     // 2019 `ClampSamples`: each sample's radiance clamped before the average.
                     Some(c) => radiance[i].min(glam::DVec3::splat(c)),
                 };
-                let done = ls + 1;
-                // The sum of the block this sample ends, if it ends one.
-                let mut block_sum = glam::DVec3::ZERO;
-                if done.is_multiple_of(BLOCK) || done == range.end {
-                    if let TileOut::Sums(_) = out {
-                        pixel.add_block(ls / BLOCK, sum);
-                    }
-                    block_sum = sum;
-                    sum = glam::DVec3::ZERO;
-                }
-                if done == range.end {
-                    let p = ((ly - rect.y0) * rect.width + (lx - rect.x0)) as usize;
-                    match out {
-                        TileOut::Sums(v) => v[p] = pixel,
-                        // One sample a pixel: its only block.
-                        TileOut::Film(v) => v[p] = PixelSum::film_of_one(block_sum),
-                    }
-                    pixel = PixelSum::default();
+                if let Some(p) = out.close_sample(&mut pixel, &mut sum, ls, range.end, rect, lx, ly) {
                     if let Some(a) = aux.as_deref_mut() {
                         a.albedo[p] = film_value(albedo / f64::from(aux_samples));
                         a.normal[p] = film_value(normal / f64::from(aux_samples));

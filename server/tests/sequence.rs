@@ -339,59 +339,25 @@ fn bad_sequences_are_refused_naming_the_frame_and_scene_and_nothing_is_stored() 
     assert_eq!(fetch("..%2F..%2Ftessera.db", Some("wtok")).0, 404);
 }
 
-#[test]
-fn killing_the_server_mid_sequence_loses_no_finished_frame() {
-    let _s = serial();
-    let dir = TempDir::new("seq-kill");
-    let n = 30;
-    let files = sequence(&dir, n, 40, 16);
-    let data = TempDir::new("seq-kill-data");
-    let args = ["--local-workers", "1", "--local-worker-threads", "1"];
+/// A sequence of `n` frames of `size` px at `spp` submitted (with `extra` fields) to a server
+/// with one local worker of `threads` threads, the server killed with kill -9 once two frames
+/// are done and started again on the same data and port: no frame finished before the kill is
+/// lost, and the job ends with every frame the CLI's bytes. The data directory and the second
+/// server, for more checks.
+fn sequence_survives_the_server_killed(
+    name: &str,
+    (n, size, spp): (usize, u32, u32),
+    threads: &str,
+    extra: &[(&str, &str)],
+) -> (TempDir, Server) {
+    let dir = TempDir::new(name);
+    let files = sequence(&dir, n, size, spp);
+    let data = TempDir::new(&format!("{name}-data"));
+    let args = ["--local-workers", "1", "--local-worker-threads", threads];
     let mut server = Server::start(&data, &args);
     let port = server.url.rsplit(':').next().unwrap().to_string();
-    let (code, job) = submit_sequence(&server, &files, &[]);
+    let (code, job) = submit_sequence(&server, &files, extra);
     assert_eq!(code, 201, "{job}");
-    let id = job["id"].as_u64().unwrap();
-    let before = wait_job(&server, id, 120, |j| j["frame_counts"]["done"].as_u64().unwrap() >= 3);
-    server.kill9();
-    let done_before: Vec<usize> = before["frames"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .enumerate()
-        .filter(|(_, f)| !f["outputs"].as_array().unwrap().is_empty())
-        .map(|(k, _)| k)
-        .collect();
-    assert!(done_before.len() < n, "the job ended before the server was killed; make its frames slower");
-    let bind = format!("127.0.0.1:{port}");
-    let mut args2 = args.to_vec();
-    args2.extend(["--bind", &bind]);
-    let server = Server::start(&data, &args2);
-    let after = get_json(&server.url, &format!("/api/v1/jobs/{id}"));
-    for &k in &done_before {
-        assert!(!after["frames"][k]["outputs"].as_array().unwrap().is_empty(), "frame {k} was lost: {after}");
-    }
-    let job = wait_job(&server, id, 180, |j| j["state"] == "done");
-    let cli = cli_render_all(&dir, n);
-    assert_job_outputs_equal_cli(&server, &job, &cli);
-}
-
-/// Frames of 300x300 send results of more than 1 MiB, which the server keeps as files in
-/// `results/` until their frame is merged (server/src/db/results.rs): a server killed while
-/// some are stored and not merged loses none, and leaves no file behind once the job is done.
-#[test]
-fn killing_the_server_while_results_are_files_loses_no_frame_and_leaves_no_file() {
-    let _s = serial();
-    let dir = TempDir::new("seq-kill-files");
-    let n = 16;
-    let files = sequence(&dir, n, 300, 1);
-    let data = TempDir::new("seq-kill-files-data");
-    let args = ["--local-workers", "1", "--local-worker-threads", "2"];
-    let mut server = Server::start(&data, &args);
-    let port = server.url.rsplit(':').next().unwrap().to_string();
-    let (code, job) = submit_sequence(&server, &files, &[("video", "none")]);
-    assert_eq!(code, 201, "{job}");
-    assert!(job["frames"].as_array().unwrap().iter().all(|f| f["tiles_total"] == 1), "{job}");
     let id = job["id"].as_u64().unwrap();
     let before = wait_job(&server, id, 120, |j| j["frame_counts"]["done"].as_u64().unwrap() >= 2);
     server.kill9();
@@ -415,14 +381,28 @@ fn killing_the_server_while_results_are_files_loses_no_frame_and_leaves_no_file(
     let job = wait_job(&server, id, 180, |j| j["state"] == "done");
     let cli = cli_render_all(&dir, n);
     assert_job_outputs_equal_cli(&server, &job, &cli);
+    (data, server)
+}
+
+#[test]
+fn killing_the_server_mid_sequence_loses_no_finished_frame() {
+    let _s = serial();
+    sequence_survives_the_server_killed("seq-kill", (30, 40, 16), "1", &[]);
+}
+
+/// Frames of 300x300 send results of more than 1 MiB, which the server keeps as files in
+/// `results/` until their frame is merged (server/src/db/results.rs): a server killed while
+/// some are stored and not merged loses none, and leaves no file behind once the job is done.
+#[test]
+fn killing_the_server_while_results_are_files_loses_no_frame_and_leaves_no_file() {
+    let _s = serial();
+    let (data, server) =
+        sequence_survives_the_server_killed("seq-kill-files", (16, 300, 1), "2", &[("video", "none")]);
     // Every result file went with the merge of its frame (or with the sweep of those a kill
     // left unnamed).
     let results = data.path().join("results");
     assert!(results.is_dir(), "no result was stored as a file: the test's frames are too small");
-    let left: Vec<_> = match std::fs::read_dir(&results) {
-        Ok(rd) => rd.map(|e| e.unwrap().path()).filter(|p| p.is_file()).collect(),
-        Err(_) => Vec::new(),
-    };
+    let left: Vec<_> = std::fs::read_dir(&results).unwrap().map(|e| e.unwrap().path()).collect();
     assert!(left.is_empty(), "result files left after the job: {left:?}\n{}", server.log());
 }
 
