@@ -71,8 +71,8 @@ CREATE TABLE IF NOT EXISTS tiles(
     samples_done INTEGER NOT NULL DEFAULT 0,
     error REAL,
     finished INTEGER NOT NULL DEFAULT 0,
-    -- A pass's pixels under a per-pixel noise target (NULL: every pixel), and on pass 0's row
-    -- each pixel's samples so far (NULL: `samples_done` for every pixel).
+    -- Under a per-pixel noise target: the pixels this unit renders (NULL: every pixel), and on
+    -- the tile's first unit each pixel's samples so far (NULL: `samples_done` for every pixel).
     mask BLOB,
     pixel_samples BLOB,
     PRIMARY KEY(job_id, frame, tile, pass)
