@@ -222,3 +222,68 @@ fn unknown_workers_and_bad_bodies_are_refused() {
     );
     assert_eq!(code, 404);
 }
+
+/// A worker killed just after sending a result (its whole body out, its connection closed
+/// before the answer, after a delay anywhere from none to a few milliseconds) never leaves a
+/// frame stored and unmerged: each result is either taken whole (the frame merges) or not at all
+/// (its lease expires and another worker renders the tile). An honest worker then finishes what
+/// is left, and every job ends.
+#[test]
+fn results_whose_senders_hang_up_at_once_never_leave_a_frame_unmerged() {
+    use std::io::Write;
+    let _s = serial();
+    let server = start();
+    let url = &server.url;
+    let addr = url.trim_start_matches("http://");
+    let w = register(url, "hangs-up");
+    // Hang-ups after no delay, then every 20 us up to 1 ms, then 10 % later each up to 20 ms:
+    // the moment the handler stores the result is somewhere among them on any machine.
+    let mut delays: Vec<u64> = (0..50).map(|k| k * 20).collect();
+    while *delays.last().unwrap() < 20_000 {
+        let next = delays.last().unwrap() * 11 / 10;
+        delays.push(next);
+    }
+    let max_delay = std::time::Duration::from_micros(*delays.last().unwrap());
+    let jobs: Vec<u64> = delays
+        .iter()
+        .map(|&micros| {
+            let job = submit_tiny(url, 8, 8, 8, 0); // one tile
+            let l = lease(url, w).unwrap();
+            assert_eq!(l["job_id"], job);
+            let body = encode_tile(&pixels_for(&l));
+            let id = l["lease_id"].as_u64().unwrap();
+            let mut conn = std::net::TcpStream::connect(addr).unwrap();
+            let head = format!(
+                "PUT /api/v1/worker/leases/{id}/result HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer {TOKEN}\r\n\
+                 x-tessera-worker: {w}\r\nx-tessera-worker-secret: {}\r\nx-tessera-checksum: {}\r\n\
+                 Content-Type: application/octet-stream\r\nContent-Length: {}\r\n\r\n",
+                worker_secret(url, w).unwrap_or_default(),
+                checksum(&body),
+                body.len()
+            );
+            conn.write_all(head.as_bytes()).unwrap();
+            conn.write_all(&body).unwrap();
+            std::thread::sleep(std::time::Duration::from_micros(micros));
+            drop(conn);
+            job
+        })
+        .collect();
+    // The later hang-ups came after the answer was ready: those results were taken (so the
+    // delays do reach past the window where a hang-up could cut the handler short).
+    let taken =
+        jobs.iter().filter(|j| get_json(url, &format!("/api/v1/jobs/{j}"))["state"] == "done").count();
+    assert!(taken > 0, "no result was taken although some senders waited {max_delay:?}\n{}", server.log());
+    // The hung-up leases expire (1 s); an honest worker renders whatever went back to the queue.
+    let honest = register(url, "honest");
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
+    let mut left = jobs.clone();
+    while !left.is_empty() {
+        assert!(std::time::Instant::now() < deadline, "jobs never ended: {left:?}\n{}", server.log());
+        while let Some(l) = lease(url, honest) {
+            let (code, v) = upload(url, honest, &l, &pixels_for(&l), None);
+            assert_eq!(code, 204, "{v}");
+        }
+        left.retain(|&j| get_json(url, &format!("/api/v1/jobs/{j}"))["state"] != "done");
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+}

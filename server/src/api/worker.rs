@@ -359,39 +359,39 @@ pub(super) async fn result(
     // A large tile's pixels (a whole frame) go to a file of their own before its row commits
     // (`db::results`); a pass's sums always to the row, which adds them up at once.
     let as_file = shape.blocks.is_none() && body.len() >= crate::db::FILE_RESULT_BYTES;
+    // The result is stored, and what its storing starts (the frame's merge, a pass's picture) is
+    // started, in one blocking task: that runs to its end even when the worker hangs up meanwhile
+    // (a killed worker; the server then drops this handler), so a frame is never left stored
+    // whole and unmerged.
+    let runtime = tokio::runtime::Handle::current();
     let outcome = {
         let state = state.clone();
         off_thread(move || {
-            if !as_file {
-                return Ok(state.scheduler.result(
-                    lease,
-                    worker,
-                    ResultBody::Bytes(&body),
-                    render_seconds,
-                )?);
+            let outcome = if as_file {
+                let name = state.store.write_result_file(lease, &body)?;
+                let file = ResultBody::File { name: &name, len: body.len() };
+                let outcome = state.scheduler.result(lease, worker, file, render_seconds);
+                // Not taken (the lease is gone, or the store failed): its row does not name it.
+                if !matches!(outcome, Ok(ResultOutcome::Accepted { .. })) {
+                    state.store.remove_result_files(std::slice::from_ref(&name));
+                }
+                outcome?
+            } else {
+                state.scheduler.result(lease, worker, ResultBody::Bytes(&body), render_seconds)?
+            };
+            if let ResultOutcome::Accepted { job_id, frame, frame_complete, pass_published, .. } = outcome {
+                if frame_complete {
+                    runtime.spawn(merge_frame(state, job_id, frame));
+                } else if pass_published.is_some() {
+                    runtime.spawn(crate::merge::publish_pass(state, job_id, frame));
+                }
             }
-            let name = state.store.write_result_file(lease, &body)?;
-            let file = ResultBody::File { name: &name, len: body.len() };
-            let outcome = state.scheduler.result(lease, worker, file, render_seconds);
-            // Not taken (the lease is gone, or the store failed): its row does not name it.
-            if !matches!(outcome, Ok(ResultOutcome::Accepted { .. })) {
-                state.store.remove_result_files(std::slice::from_ref(&name));
-            }
-            Ok(outcome?)
+            Ok(outcome)
         })
         .await?
     };
     match outcome {
-        ResultOutcome::Accepted { job_id, frame, frame_complete, pass_published, .. } => {
-            if frame_complete {
-                let state = state.clone();
-                tokio::spawn(async move { merge_frame(state, job_id, frame).await });
-            } else if pass_published.is_some() {
-                let state = state.clone();
-                tokio::spawn(async move { crate::merge::publish_pass(state, job_id, frame).await });
-            }
-            Ok(StatusCode::NO_CONTENT)
-        }
+        ResultOutcome::Accepted { .. } => Ok(StatusCode::NO_CONTENT),
         ResultOutcome::Conflict => Err(lease_gone(lease)),
         ResultOutcome::WrongSize { expected } => Err(AppError::bad_request(format!(
             "the tile's lease needs {expected} bytes (width x height x 3 little-endian f32, three times that for a denoised job; 64 bytes a pixel for a pass's sums)"
