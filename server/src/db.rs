@@ -298,6 +298,20 @@ pub struct JobRow {
     pub worker_tags: Vec<String>,
 }
 
+/// A frame in passes at one moment ([`Store::pass_snapshot`]).
+#[derive(Debug, Clone, Copy)]
+pub struct PassSnapshot {
+    /// Passes every tile has finished.
+    pub passes: u32,
+    /// The fewest samples any tile's pixels have.
+    pub least: i64,
+    /// Tiles that need no more passes (the noise target stopped them, or their last is in).
+    pub finished: i64,
+    pub tiles: i64,
+    /// Every tile is in: the frame's merge is due, and supersedes any pass picture.
+    pub complete: bool,
+}
+
 #[derive(Clone, Debug)]
 pub struct FrameRow {
     pub job_id: u64,
@@ -797,27 +811,40 @@ impl Store {
         Ok(rows)
     }
 
-    /// Logs that a frame was published after `passes` of its `passes_total` passes, with the
-    /// fewest samples per pixel any of its tiles has.
+    /// Where a frame in passes stands, read at one moment (under one lock, so a pass absorbed
+    /// meanwhile cannot make the count of passes and the samples disagree): a pass's picture is
+    /// published as of this, and tiles only gain samples after it.
+    pub fn pass_snapshot(&self, job: u64, frame: u32) -> Result<PassSnapshot> {
+        let conn = self.conn();
+        let (passes, complete): (i64, bool) = conn.query_row_cached(
+            "SELECT passes_published, tiles_done >= tiles_total FROM frames WHERE job_id = ?1 AND idx = ?2",
+            params![job as i64, frame],
+            |r| Ok((r.get(0)?, r.get(1)?)),
+        )?;
+        let (least, finished, tiles): (Option<i64>, i64, i64) = conn.query_row_cached(
+            "SELECT min(samples_done), sum(finished), count(*) FROM tiles WHERE job_id = ?1 AND frame = ?2 AND pass = 0",
+            params![job as i64, frame],
+            |r| Ok((r.get(0)?, r.get::<_, Option<i64>>(1)?.unwrap_or(0), r.get(2)?)),
+        )?;
+        Ok(PassSnapshot { passes: passes as u32, least: least.unwrap_or(0), finished, tiles, complete })
+    }
+
+    /// Logs that a frame was published as it stood at `at` (after `at.passes` of its
+    /// `passes_total` passes, with the fewest samples per pixel any of its tiles had).
     pub fn frame_passed(
         &self,
         job: u64,
         frame: u32,
-        passes: u32,
+        at: &PassSnapshot,
         passes_total: u32,
         seconds: f64,
         denoised: Option<&Result<f64, String>>,
     ) -> Result<()> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
-        let (least, finished, tiles): (Option<i64>, i64, i64) = tx.query_row_cached(
-            "SELECT min(samples_done), sum(finished), count(*) FROM tiles WHERE job_id = ?1 AND frame = ?2 AND pass = 0",
-            params![job as i64, frame],
-            |r| Ok((r.get(0)?, r.get::<_, Option<i64>>(1)?.unwrap_or(0), r.get(2)?)),
-        )?;
+        let PassSnapshot { passes, least, finished, tiles, .. } = *at;
         let message = format!(
-            "frame {frame} after pass {passes} of {passes_total}: at least {} samples per pixel, {finished} of {tiles} tiles finished; pass.exr and pass.png written{}",
-            least.unwrap_or(0),
+            "frame {frame} after pass {passes} of {passes_total}: at least {least} samples per pixel, {finished} of {tiles} tiles finished; pass.exr and pass.png written{}",
             match denoised {
                 None => String::new(),
                 Some(Ok(s)) => format!(", and pass_denoised.png (denoised in {s:.3} s)"),
@@ -1022,11 +1049,18 @@ mod tests {
         let film = tessera::protocol::decode_tile(&s.frame_tiles(id, 0).unwrap()[0].1, 2).unwrap();
         assert_eq!(film, [[1.0; 3]; 2]);
         assert_eq!(progress(), (32, 96));
+        // Its picture is published as after pass 1, of 16 samples, the frame not complete.
+        let at = s.pass_snapshot(id, 0).unwrap();
+        assert_eq!((at.passes, at.least, at.finished, at.tiles, at.complete), (1, 16, 0, 1, false));
         // Pass 1 brings pass 2 in with it: the frame is complete, averaged over 48 samples.
         assert!(matches!(submit(1), ResultOutcome::Accepted { frame_complete: true, .. }));
         let film = tessera::protocol::decode_tile(&s.frame_tiles(id, 0).unwrap()[0].1, 2).unwrap();
         assert_eq!(film, [[2.0; 3]; 2], "(1 + 2 + 3) / 3");
         assert_eq!(progress(), (96, 96));
+        // A publication of pass 1 that runs only now finds the frame complete (its merge is
+        // due): the finished frame is not shown as a pass.
+        let at = s.pass_snapshot(id, 0).unwrap();
+        assert_eq!((at.least, at.finished, at.complete), (48, 1, true));
     }
 
     #[test]

@@ -518,6 +518,13 @@ pub async fn publish_pass(state: AppState, job_id: u64, frame: u32) {
         if f.outputs.is_some() || job.state.is_final() {
             return Ok(false);
         }
+        // Read before the tiles are (which only gain samples after it), so that the pass
+        // named is one the picture has. A frame whose every tile is in is left to its merge:
+        // a pass picture of it would be the finished frame under the name of a pass.
+        let at = st.store.pass_snapshot(job_id, frame)?;
+        if at.complete {
+            return Ok(false);
+        }
         let cam = frame_camera(&st, &job, f)?;
         let started = Instant::now();
         let (img, aux) = assemble_frame(&st, &job, f)?;
@@ -534,7 +541,7 @@ pub async fn publish_pass(state: AppState, job_id: u64, frame: u32) {
         st.store.frame_passed(
             job_id,
             frame,
-            f.passes_published,
+            &at,
             f.passes_total,
             started.elapsed().as_secs_f64(),
             denoised.as_ref(),

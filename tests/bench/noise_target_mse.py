@@ -11,7 +11,10 @@ Renders one camera of a scene with `tessera-worker render` (linear EXR), all at 
   - for each target, a uniform render of the target's mean samples per pixel, rounded.
 Relative MSE: the mean over pixels and channels of (x - ref)^2 / (ref^2 + 0.01). A few fireflies
 (a rare caustic path through glass) dominate it, and whether a render caught one is luck, so
-it is also given trimmed: without the 0.1 % of pixels with the largest error.
+it is also given trimmed: without the 0.1 % of pixels with the largest error. With --seeds K
+every render but the reference is made K times, with Tessera's own seed and then seeds 1 to K-1,
+and each figure is the mean over them (the expected error, which one seed's firefly luck does
+not decide); the range over the seeds follows in brackets.
 For each target it prints its mean samples, its relative MSE, the uniform render's at the same
 samples and the ratio (below 1: the target is better), and whether it reaches the --samples
 uniform render's error and with what share of its samples.
@@ -73,6 +76,7 @@ def main():
     ap.add_argument("--tile-size", type=int, default=32)
     ap.add_argument("--bin", default=os.path.join(os.path.dirname(__file__), "../../target/release/tessera-worker"))
     ap.add_argument("--threads", default=None)
+    ap.add_argument("--seeds", type=int, default=1, help="renders of each kind, with as many seeds (the mean is given)")
     ap.add_argument("--keep", default=None, help="keep the renders in this folder (and reuse them)")
     args = ap.parse_args()
     root = args.keep or tempfile.mkdtemp(prefix="tessera-noise-mse-")
@@ -80,32 +84,52 @@ def main():
     ref, _ = render(args, os.path.join(root, f"reference{args.reference_samples}"), args.reference_samples,
                     ["--seed", args.seed])
     uniform_cache = {}
+    seeds = [[]] + [["--seed", str(k)] for k in range(1, args.seeds)]
 
     def errors(img):
         return rel_mse(img, ref), trimmed_rel_mse(img, ref)
 
+    def seeded(name, k):
+        return os.path.join(root, name if k == 0 else f"{name}_seed{k}")
+
     def uniform(n):
         if n not in uniform_cache:
-            img, _ = render(args, os.path.join(root, f"uniform{n}"), n)
-            uniform_cache[n] = errors(img)
+            uniform_cache[n] = [errors(render(args, seeded(f"uniform{n}", k), n, seeds[k])[0])
+                                for k in range(args.seeds)]
         return uniform_cache[n]
 
+    def mean(runs, i):
+        return sum(r[i] for r in runs) / len(runs)
+
+    def spread(runs, i):
+        if len(runs) == 1:
+            return ""
+        return f" [{min(r[i] for r in runs):.5f}-{max(r[i] for r in runs):.5f}]"
+
     goal = uniform(args.samples)
+    goal_mean = (mean(goal, 0), mean(goal, 1))
     print(f"{os.path.basename(args.scene)} camera {args.camera} at scale {args.scale}: reference "
           f"{args.reference_samples} spp (seed {args.seed}); uniform {args.samples} spp: relative MSE "
-          f"{goal[0]:.5f}, trimmed {goal[1]:.5f}")
+          f"{goal_mean[0]:.5f}{spread(goal, 0)}, trimmed {goal_mean[1]:.5f}{spread(goal, 1)}"
+          f"{f' (means over {args.seeds} seeds)' if args.seeds > 1 else ''}")
     print(f"| render | samples per pixel (mean) | relative MSE (trimmed) | uniform at the same samples | ratio "
           f"(trimmed) | reaches uniform {args.samples} spp (trimmed)? |")
     print("|---|---|---|---|---|---|")
     for t in args.targets:
-        img, spp = render(args, os.path.join(root, f"target{t}_cap{args.cap}_pass{args.pass_samples}"), args.cap,
-                          ["--noise-target", str(t), "--pass-samples", str(args.pass_samples)])
-        e = errors(img)
-        same = uniform(max(1, round(spp)))
-        reach = ["yes" if e[i] <= goal[i] else "no" for i in range(2)]
-        print(f"| target {t} (cap {args.cap}) | {spp:.2f} ({spp / args.samples:.3f}x) | {e[0]:.5f} ({e[1]:.5f}) | "
-              f"{same[0]:.5f} ({same[1]:.5f}) | {e[0] / same[0]:.3f} ({e[1] / same[1]:.3f}) | "
-              f"{reach[0]} ({reach[1]}) |", flush=True)
+        runs, spps = [], []
+        for k in range(args.seeds):
+            img, spp = render(args, seeded(f"target{t}_cap{args.cap}_pass{args.pass_samples}", k), args.cap,
+                              ["--noise-target", str(t), "--pass-samples", str(args.pass_samples)] + seeds[k])
+            runs.append(errors(img))
+            spps.append(spp)
+        spp = sum(spps) / len(spps)
+        e = (mean(runs, 0), mean(runs, 1))
+        same_runs = uniform(max(1, round(spp)))
+        same = (mean(same_runs, 0), mean(same_runs, 1))
+        reach = ["yes" if e[i] <= goal_mean[i] else "no" for i in range(2)]
+        print(f"| target {t} (cap {args.cap}) | {spp:.2f} ({spp / args.samples:.3f}x) | {e[0]:.5f}{spread(runs, 0)} "
+              f"({e[1]:.5f}) | {same[0]:.5f}{spread(same_runs, 0)} ({same[1]:.5f}) | {e[0] / same[0]:.3f} "
+              f"({e[1] / same[1]:.3f}) | {reach[0]} ({reach[1]}) |", flush=True)
     print(f"renders in {root}")
 
 
