@@ -232,7 +232,21 @@ fn unknown_workers_and_bad_bodies_are_refused() {
 fn results_whose_senders_hang_up_at_once_never_leave_a_frame_unmerged() {
     use std::io::Write;
     let _s = serial();
-    let server = start();
+    // Leases of 5 s: none expires while the hang-ups are sent, however slow the machine, so
+    // each lease below is the new job's only tile.
+    let server = Server::start_temp(
+        "farm-proto-hang-ups",
+        &[
+            "--local-workers",
+            "0",
+            "--worker-token",
+            TOKEN,
+            "--lease-seconds",
+            "5",
+            "--heartbeat-seconds",
+            "1",
+        ],
+    );
     let url = &server.url;
     let addr = url.trim_start_matches("http://");
     let w = register(url, "hangs-up");
@@ -273,9 +287,9 @@ fn results_whose_senders_hang_up_at_once_never_leave_a_frame_unmerged() {
     let taken =
         jobs.iter().filter(|j| get_json(url, &format!("/api/v1/jobs/{j}"))["state"] == "done").count();
     assert!(taken > 0, "no result was taken although some senders waited {max_delay:?}\n{}", server.log());
-    // The hung-up leases expire (1 s); an honest worker renders whatever went back to the queue.
+    // The hung-up leases expire (5 s); an honest worker renders whatever went back to the queue.
     let honest = register(url, "honest");
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
     let mut left = jobs.clone();
     while !left.is_empty() {
         assert!(std::time::Instant::now() < deadline, "jobs never ended: {left:?}\n{}", server.log());
