@@ -265,6 +265,9 @@ pub struct Store {
     requeueing: Mutex<std::collections::HashSet<u64>>,
     /// The folder of large tile results, beside the database (`results.rs`).
     results_dir: std::path::PathBuf,
+    /// Seconds a worker is kept off a tile it failed (the bits of an `f64`;
+    /// [`failures::RETRY_FAILED_AFTER`] unless [`Store::set_retry_failed_after`]).
+    retry_failed_after: std::sync::atomic::AtomicU64,
 }
 
 #[derive(Clone, Debug)]
@@ -616,6 +619,7 @@ impl Store {
             checkpointer: Mutex::new(checkpointer),
             requeueing: Mutex::default(),
             results_dir: path.parent().unwrap_or(Path::new("")).join(results::RESULTS_DIR),
+            retry_failed_after: std::sync::atomic::AtomicU64::new(failures::RETRY_FAILED_AFTER.to_bits()),
         })
     }
 
@@ -623,6 +627,16 @@ impl Store {
     /// the store holds: a job never takes the folder of one it does not know.
     pub fn keep_job_ids_above(&self, id: u64) {
         self.min_job_id.fetch_max(id.saturating_add(1), std::sync::atomic::Ordering::SeqCst);
+    }
+
+    /// Keeps a worker off a tile it failed (and off a job it failed [`failures::WORKER_FAILURES_PER_JOB`]
+    /// tiles of) for `seconds` after its latest failure there (`--retry-failed-after-seconds`).
+    pub fn set_retry_failed_after(&self, seconds: f64) {
+        self.retry_failed_after.store(seconds.to_bits(), std::sync::atomic::Ordering::Relaxed);
+    }
+
+    fn retry_failed_after(&self) -> f64 {
+        f64::from_bits(self.retry_failed_after.load(std::sync::atomic::Ordering::Relaxed))
     }
 
     fn conn(&self) -> std::sync::MutexGuard<'_, Connection> {
@@ -1262,6 +1276,23 @@ mod tests {
             }
         }
         assert_eq!(state(&s, j), JobState::Failed);
+    }
+
+    #[test]
+    fn the_retry_window_is_the_servers_setting() {
+        // --retry-failed-after-seconds 10: a failure 9 s old keeps the worker off its tile, one
+        // 11 s old no longer does.
+        let (_d, s) = store("retry-window");
+        s.set_retry_failed_after(10.0);
+        let j = job(&s, 0, 1);
+        let w = worker(&s);
+        let l = lease(&s, w);
+        assert_eq!(s.fail_tile(l.lease_id, w, "boom", false).unwrap(), FailOutcome::Requeued);
+        age_failures(&s, 9.0);
+        assert!(s.lease(w, LONG).unwrap() == Leased::NoWork, "inside the 10 s window");
+        age_failures(&s, 2.0);
+        let again = lease(&s, w);
+        assert_eq!((again.job_id, again.tile), (j, 0));
     }
 
     #[test]

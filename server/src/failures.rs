@@ -15,7 +15,8 @@ pub const WORKER_FAILURES_PER_JOB: i64 = 3;
 /// [`WORKER_FAILURES_PER_JOB`] times, counted from its latest failure there. Long enough for
 /// another worker to take the tile on a farm that has one; finite, so that on a farm of one or
 /// two workers the tile is tried again until [`TILE_FAILURE_TOTAL`] fails its job, instead of
-/// staying queued for ever with nobody allowed to take it.
+/// staying queued for ever with nobody allowed to take it. The default of
+/// `--retry-failed-after-seconds`.
 pub const RETRY_FAILED_AFTER: f64 = 30.0;
 
 /// A tile's failures so far, the latest included, as the store counts them.

@@ -104,6 +104,8 @@ pub struct Config {
     pub insecure: bool,
     pub lease_seconds: f64,
     pub heartbeat_seconds: f64,
+    /// How long a worker is kept off a tile it failed (`failures::RETRY_FAILED_AFTER` by default).
+    pub retry_failed_after_seconds: f64,
     pub max_upload_mb: usize,
     /// Caps on what one upload unpacks to (total, per file, file count).
     pub max_unpacked_mb: u64,
@@ -290,6 +292,12 @@ pub fn check_config(config: &Config) -> Result<()> {
             config.lease_seconds
         );
     }
+    if !(0.0..=1e9).contains(&config.retry_failed_after_seconds) {
+        bail!(
+            "--retry-failed-after-seconds must be from 0 to 1e9 seconds, found {}",
+            config.retry_failed_after_seconds
+        );
+    }
     if !(config.max_tile_seconds > 0.0 && config.max_tile_seconds.is_finite()) {
         bail!("--max-tile-seconds must be a positive number of seconds, found {}", config.max_tile_seconds);
     }
@@ -369,6 +377,7 @@ pub async fn serve(
         .with_context(|| format!("cannot create the data directory {}", config.data_dir.display()))?;
     // A lost job store beside earlier jobs' files is a refusal, never an empty farm.
     let store = Arc::new(storage::open_store(&config.data_dir)?);
+    store.set_retry_failed_after(config.retry_failed_after_seconds);
     let blobs = bundle::BlobStore::new(&config.data_dir)?;
     // Uploads spooled by requests that were cut off by a crash, and the temporary files of
     // merges and passes a kill cut off.
@@ -521,6 +530,7 @@ mod tests {
             insecure: false,
             lease_seconds: 30.0,
             heartbeat_seconds: 5.0,
+            retry_failed_after_seconds: 30.0,
             max_upload_mb: 16,
             max_unpacked_mb: 16,
             max_file_mb: 16,
@@ -634,6 +644,9 @@ mod tests {
             (Config { forget_workers_after: 0.0, ..config(&dir) }, "--forget-workers-after"),
             (Config { forget_workers_after: f64::NAN, ..config(&dir) }, "--forget-workers-after"),
             (Config { forget_workers_after: 1e10, ..config(&dir) }, "--forget-workers-after"),
+            (Config { retry_failed_after_seconds: -1.0, ..config(&dir) }, "--retry-failed-after-seconds"),
+            (Config { retry_failed_after_seconds: f64::NAN, ..config(&dir) }, "--retry-failed-after-seconds"),
+            (Config { retry_failed_after_seconds: 1e10, ..config(&dir) }, "--retry-failed-after-seconds"),
         ] {
             let e = check_config(&bad).unwrap_err().to_string();
             assert!(e.contains(flag), "{e}");

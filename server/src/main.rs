@@ -54,6 +54,11 @@ struct Cli {
     /// How often workers send heartbeats, in seconds (0.001 to 1e9).
     #[arg(long, default_value_t = 5.0, env = "TESSERA_HEARTBEAT_SECONDS", value_name = "S")]
     heartbeat_seconds: f64,
+    /// Seconds a worker is kept off a tile it failed or crashed on (and off a job it failed
+    /// three tiles of), from its latest failure there, so that another worker takes the tile
+    /// first (0 to 1e9).
+    #[arg(long, default_value_t = 30.0, env = "TESSERA_RETRY_FAILED_AFTER_SECONDS", value_name = "S")]
+    retry_failed_after_seconds: f64,
     /// Largest accepted upload in MiB.
     #[arg(long, default_value_t = 1024, env = "TESSERA_MAX_UPLOAD_MB", value_name = "MIB")]
     max_upload_mb: usize,
@@ -237,6 +242,7 @@ fn main() -> ExitCode {
         insecure: cli.insecure,
         lease_seconds: cli.lease_seconds,
         heartbeat_seconds: cli.heartbeat_seconds,
+        retry_failed_after_seconds: cli.retry_failed_after_seconds,
         max_upload_mb: cli.max_upload_mb,
         max_unpacked_mb: cli.max_unpacked_mb,
         max_file_mb: cli.max_file_mb,

@@ -161,13 +161,15 @@ fn a_tile_that_keeps_crashing_its_workers_fails_its_job_and_restarts_back_off() 
             "2",
             "--heartbeat-seconds",
             "0.5",
+            "--retry-failed-after-seconds",
+            "3",
         ],
     );
     // One pass a tile: a tile too heavy to finish, not 16 passes that each finish in a moment;
     // one tile (the whole frame), so that each death is one lease of that tile.
     let doomed = submit_environment_with(&server, "100000", "512", &[("pass_samples", "100000")]);
-    // One worker: after each death the tile waits out the 30 s a worker is kept off a tile it
-    // failed (failures::RETRY_FAILED_AFTER), four times.
+    // One worker: after each death the tile waits out the 3 s a worker is kept off a tile it
+    // failed (--retry-failed-after-seconds; 30 s by default), four times.
     let deadline = Instant::now() + Duration::from_secs(300);
     let mut killed: Vec<u32> = Vec::new();
     let job = loop {

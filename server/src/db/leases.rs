@@ -56,7 +56,8 @@ impl Store {
     /// Hands the next tile to `worker`: highest job priority first, then submission order, then
     /// pass, frame and tile order (a sequence's: frame, pass and tile); not a tile of a job the worker has failed
     /// [`failures::WORKER_FAILURES_PER_JOB`] tiles of, nor a tile it failed, until
-    /// [`failures::RETRY_FAILED_AFTER`] has passed since its latest failure there.
+    /// [`failures::RETRY_FAILED_AFTER`] (or `--retry-failed-after-seconds`) has passed since its
+    /// latest failure there.
     ///
     /// A worker holds at most its threads plus two (the lease it fetches ahead, a tile uploading) live leases
     /// ([`max_live_leases`]): past that it gets [`Leased::Full`], whatever is queued.
@@ -79,7 +80,7 @@ impl Store {
             return Ok(Leased::Full { held: held as u32, allowed });
         }
         // Failures since this moment keep the worker off their tile (and job).
-        let recent = now() - failures::RETRY_FAILED_AFTER;
+        let recent = now() - self.retry_failed_after();
         // Two indexed steps instead of one join sorted over every queued tile: the live jobs in
         // priority order (a short list), then the first queued tile of each (an index seek on
         // `tiles_queue`), so a lease costs the same behind a million queued tiles as behind ten.
