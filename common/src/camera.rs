@@ -150,6 +150,81 @@ impl Camera {
         }
     }
 
+    /// [`Camera::lens_ray`] of eight lanes side by side: lane `k` through image position
+    /// (`x[k]` + `dx[k]`, `y[k]` + `dy[k]`) and lens point (`xi1[k]`, `xi2[k]`), its origin
+    /// written into `o` and its direction into `d`, by axis then lane. Each lane's operations
+    /// are `lens_ray`'s in their order (no fused multiply-adds), so the bits are the same; with
+    /// AVX four lanes go to an instruction. A pinhole camera's rays ([`Camera::ray`]) start at
+    /// its position.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    pub fn lens_rays8(
+        &self,
+        (x, y): (&[f64; 8], &[f64; 8]),
+        (dx, dy): (&[f64; 8], &[f64; 8]),
+        (xi1, xi2): (&[f64; 8], &[f64; 8]),
+        o: &mut [[f64; 8]; 3],
+        d: &mut [[f64; 8]; 3],
+    ) {
+        let Some(lens) = self.lens else {
+            *o = self.position.to_array().map(|c| [c; 8]);
+            return self.ray_dirs8(x, y, dx, dy, d);
+        };
+        #[cfg(all(target_arch = "x86_64", target_feature = "avx"))]
+        {
+            use std::arch::x86_64::*;
+            let (c, u, v, p) =
+                (self.corner.to_array(), self.u.to_array(), self.v.to_array(), self.position.to_array());
+            let nw = (-self.w).to_array();
+            // SAFETY: the target has AVX (cfg above); the loads and stores read and write four
+            // elements of eight-element arrays at offsets 0 and 4.
+            unsafe {
+                let all = _mm256_set1_pd;
+                let load = |a: &[f64; 8], h: usize| _mm256_loadu_pd(a[h..].as_ptr());
+                let (half, size) = (all(0.5), all(lens.aperture_size));
+                for h in [0, 4] {
+                    // The image point less the position (`lens_ray`'s `s`), as `ray_dirs8`.
+                    let a = _mm256_mul_pd(_mm256_add_pd(load(x, h), load(dx, h)), all(self.pixel_w));
+                    let b = _mm256_mul_pd(_mm256_add_pd(load(y, h), load(dy, h)), all(self.pixel_h));
+                    let s: [__m256d; 3] = std::array::from_fn(|i| {
+                        let q = _mm256_add_pd(all(c[i]), _mm256_mul_pd(a, all(u[i])));
+                        _mm256_sub_pd(_mm256_sub_pd(q, _mm256_mul_pd(b, all(v[i]))), all(p[i]))
+                    });
+                    let dot = _mm256_add_pd(
+                        _mm256_add_pd(_mm256_mul_pd(s[0], all(nw[0])), _mm256_mul_pd(s[1], all(nw[1]))),
+                        _mm256_mul_pd(s[2], all(nw[2])),
+                    );
+                    let k = _mm256_div_pd(all(lens.focus_distance), dot);
+                    let su = _mm256_mul_pd(size, _mm256_sub_pd(load(xi1, h), half));
+                    let sv = _mm256_mul_pd(size, _mm256_sub_pd(load(xi2, h), half));
+                    let mut t = [_mm256_setzero_pd(); 3];
+                    for i in 0..3 {
+                        let focus = _mm256_add_pd(all(p[i]), _mm256_mul_pd(k, s[i]));
+                        let origin = _mm256_add_pd(
+                            _mm256_add_pd(all(p[i]), _mm256_mul_pd(su, all(u[i]))),
+                            _mm256_mul_pd(sv, all(v[i])),
+                        );
+                        _mm256_storeu_pd(o[i][h..].as_mut_ptr(), origin);
+                        t[i] = _mm256_sub_pd(focus, origin);
+                    }
+                    let sq = |x: __m256d| _mm256_mul_pd(x, x);
+                    let len2 = _mm256_add_pd(_mm256_add_pd(sq(t[0]), sq(t[1])), sq(t[2]));
+                    let recip = _mm256_div_pd(all(1.0), _mm256_sqrt_pd(len2));
+                    for (row, ti) in d.iter_mut().zip(t) {
+                        _mm256_storeu_pd(row[h..].as_mut_ptr(), _mm256_mul_pd(ti, recip));
+                    }
+                }
+            }
+        }
+        #[cfg(not(all(target_arch = "x86_64", target_feature = "avx")))]
+        for k in 0..8 {
+            let r = self.lens_ray(x[k] as u32, y[k] as u32, dx[k], dy[k], xi1[k], xi2[k]);
+            for a in 0..3 {
+                (o[a][k], d[a][k]) = (r.origin[a], r.dir[a]);
+            }
+        }
+    }
+
     /// The point of the image plane at image position (x + dx, y + dy).
     #[inline]
     fn image_point(&self, x: u32, y: u32, dx: f64, dy: f64) -> DVec3 {
@@ -316,6 +391,39 @@ mod tests {
                     [d[0][k], d[1][k], d[2][k]].map(f64::to_bits),
                     single.to_array().map(f64::to_bits)
                 );
+            }
+        }
+    }
+
+    #[test]
+    fn lens_lanes_are_the_single_lens_rays_bit_for_bit() {
+        let mut r = rec(Projection::FovY(41.0), Handedness::Right);
+        r.position = [1.3, 4.7, -2.9];
+        r.gaze = [-0.3, -0.2, -1.0];
+        r.up = [0.05, 1.0, 0.2];
+        r.width = 640;
+        r.height = 397;
+        let mut bits = 0x9e37_79b9_7f4a_7c15u64;
+        let mut unit = || {
+            bits ^= bits << 13;
+            bits ^= bits >> 7;
+            bits ^= bits << 17;
+            (bits >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for (focus, size) in [(21.0, 1.5), (0.37, 0.01), (1e4, 40.0)] {
+            r.lens = Some(LensRec { focus_distance: focus, aperture_size: size });
+            let c = Camera::from_record(&r).unwrap();
+            for (x, y) in [(0u32, 0u32), (639, 396), (320, 11), (17, 300)] {
+                let lanes: [[f64; 8]; 4] = std::array::from_fn(|_| std::array::from_fn(|_| unit()));
+                let (mut o, mut d) = ([[f64::NAN; 8]; 3], [[f64::NAN; 8]; 3]);
+                let (xs, ys) = ([f64::from(x); 8], [f64::from(y); 8]);
+                c.lens_rays8((&xs, &ys), (&lanes[0], &lanes[1]), (&lanes[2], &lanes[3]), &mut o, &mut d);
+                for k in 0..8 {
+                    let single = c.lens_ray(x, y, lanes[0][k], lanes[1][k], lanes[2][k], lanes[3][k]);
+                    let bits = |v: [f64; 3]| v.map(f64::to_bits);
+                    assert_eq!(bits([o[0][k], o[1][k], o[2][k]]), bits(single.origin.to_array()));
+                    assert_eq!(bits([d[0][k], d[1][k], d[2][k]]), bits(single.dir.to_array()));
+                }
             }
         }
     }

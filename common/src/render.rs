@@ -435,11 +435,17 @@ fn render_tile_into(
             } else {
                 // Samples s.. of one pixel: the lanes differ by their sample index alone.
                 let pixel_sampler = Sampler::new(seed, x, y, 0);
-                for (i, (sampler, lane)) in
-                    cg.samplers.iter_mut().zip(lanes.iter_mut()).enumerate().take(group)
-                {
+                for (i, sampler) in cg.samplers.iter_mut().enumerate().take(group) {
                     *sampler = pixel_sampler.with_sample(s + i as u32);
-                    *lane = (x, y, s + i as u32);
+                }
+                // Each lane's pixel and sample when the features read them lane by lane; else
+                // the last lane's alone, which closes the group's samples below.
+                if aux.is_some() {
+                    for (i, lane) in lanes.iter_mut().enumerate().take(group) {
+                        *lane = (x, y, s + i as u32);
+                    }
+                } else {
+                    lanes[group - 1] = (x, y, s + group as u32 - 1);
                 }
             }
             let samplers_in_use = &mut cg.samplers[..group];
@@ -465,34 +471,24 @@ fn render_tile_into(
             let lens = take(cam.lens.is_some(), 0.5);
             let time = take(moving, 0.0)[0];
             // All eight lanes, used or not: loops of fixed length the compiler vectorises.
-            let pinhole = cam.lens.is_none();
-            if pinhole {
-                let (px, py): ([f64; GROUP], [f64; GROUP]) = if across_pixels {
-                    (
-                        std::array::from_fn(|i| f64::from(lanes[i.min(group - 1)].0)),
-                        std::array::from_fn(|i| f64::from(lanes[i.min(group - 1)].1)),
-                    )
-                } else {
-                    ([f64::from(x); GROUP], [f64::from(y); GROUP])
-                };
-                wide.refill_dirs(group, |d| cam.ray_dirs8(&px, &py, &film[0], &film[1], d));
-            }
-            cg.rays = std::array::from_fn(|i| {
-                let mut ray = if pinhole {
-                    Ray::new(cam.position, wide.dir(i))
-                } else {
-                    let (lx, ly, _) = lanes[i.min(group - 1)];
-                    cam.lens_ray(lx, ly, film[0][i], film[1][i], lens[0][i], lens[1][i])
-                };
-                // A 1-D request is the first coordinate of the 2-D one.
-                ray.time = time[i];
-                ray
-            });
-            if pinhole {
-                tracer.camera_hits_lanes(&cg.rays[..group], &wide, &mut cg.hits[..group]);
+            let (px, py): ([f64; GROUP], [f64; GROUP]) = if across_pixels {
+                (
+                    std::array::from_fn(|i| f64::from(lanes[i.min(group - 1)].0)),
+                    std::array::from_fn(|i| f64::from(lanes[i.min(group - 1)].1)),
+                )
             } else {
-                tracer.camera_hits(&cg.rays[..group], &mut cg.hits[..group]);
+                ([f64::from(x); GROUP], [f64::from(y); GROUP])
+            };
+            if cam.lens.is_none() {
+                wide.refill_dirs(group, |d| cam.ray_dirs8(&px, &py, &film[0], &film[1], d));
+            } else {
+                let (pixel, film, lens) = ((&px, &py), (&film[0], &film[1]), (&lens[0], &lens[1]));
+                wide.refill(group, |o, d| cam.lens_rays8(pixel, film, lens, o, d));
             }
+            // A 1-D request is the first coordinate of the 2-D one.
+            cg.rays =
+                std::array::from_fn(|i| Ray { origin: wide.origin(i), dir: wide.dir(i), time: time[i] });
+            tracer.camera_hits_lanes(&cg.rays[..group], &wide, &mut cg.hits[..group]);
             if !pooled {
                 radiance[made] =
                     tracer.trace_primary_group(&cg.rays, &cg.hits[..group], &mut cg.samplers[..group]);

@@ -57,6 +57,27 @@ impl RayLanes {
         }
     }
 
+    /// New origins and directions for these rays: `fill` writes both (by axis, then lane)
+    /// where they are kept, the first `len` (one to eight) in use.
+    #[inline(always)]
+    pub fn refill(&mut self, len: usize, fill: impl FnOnce(&mut [[f64; 8]; 3], &mut [[f64; 8]; 3])) {
+        assert!((1..=8).contains(&len), "one to eight rays");
+        fill(&mut self.o, &mut self.d);
+        self.len = len;
+        for a in 0..3 {
+            for lane in len..8 {
+                self.o[a][lane] = self.o[a][0];
+                self.d[a][lane] = self.d[a][0];
+            }
+        }
+    }
+
+    /// Lane `k`'s origin.
+    #[inline(always)]
+    pub fn origin(&self, k: usize) -> DVec3 {
+        DVec3::new(self.o[0][k], self.o[1][k], self.o[2][k])
+    }
+
     /// Lane `k`'s direction.
     #[inline(always)]
     pub fn dir(&self, k: usize) -> DVec3 {

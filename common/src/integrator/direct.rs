@@ -137,10 +137,15 @@ impl<const N: usize> Views<N> {
     }
 }
 
-/// Of a kind of lights numbered from `base`, the one `only` names, or all of them.
+/// Of a kind of lights numbered from `base`, the one `only` names, or all of them. A slice,
+/// so that the usual case (every light) loops over the lights alone: a filter tested at every
+/// light of every kind cost the classic renderer 2 % of its instructions on spheres_dof.
 #[inline(always)]
-fn chosen<I: Iterator>(lights: I, only: Option<usize>, base: usize) -> impl Iterator<Item = I::Item> {
-    lights.enumerate().filter(move |&(i, _)| only.is_none_or(|o| o == base + i)).map(|(_, l)| l)
+fn chosen<T>(lights: &[T], only: Option<usize>, base: usize) -> &[T] {
+    match only {
+        None => lights,
+        Some(o) => o.checked_sub(base).and_then(|i| lights.get(i..=i)).unwrap_or(&[]),
+    }
 }
 
 /// Shadow rays of a group, lane by lane: origin, unit direction, far bound.
@@ -305,14 +310,14 @@ impl Lighting<'_> {
         let spot_base = directional_base + scene.directional_lights.len();
         let object_base = scene.first_object_light();
         let env_base = object_base + scene.object_lights.len();
-        for light in chosen(scene.point_lights.iter(), only, 0) {
+        for light in chosen(&scene.point_lights, only, 0) {
             let (wis, d2, shadows) = towards_lanes(pts, &origin, &[light.position; N], live);
             let clear = self.clear_lanes(pts, &shadows, true);
             // Every lane (a loop of fixed length: the divisions overlap); unlit ones unused.
             let e: [DVec3; N] = std::array::from_fn(|k| light.intensity / d2[k]);
             reflect_lanes(pts, &views, clear, &wis, &e, &mut l);
         }
-        for light in chosen(scene.area_lights.iter(), only, area_base) {
+        for light in chosen(&scene.area_lights, only, area_base) {
             // One point of the square per shading event; the pixel's samples average them.
             let uv = draw_2d::<N>(rngs, live);
             let mut q = [DVec3::ZERO; N];
@@ -326,7 +331,7 @@ impl Lighting<'_> {
             });
             reflect_lanes(pts, &views, clear, &wis, &e, &mut l);
         }
-        for light in chosen(scene.directional_lights.iter(), only, directional_base) {
+        for light in chosen(&scene.directional_lights, only, directional_base) {
             let mut shadows = Shadows::new(origin);
             for k in lanes(live) {
                 // Only a light below the surface is skipped (a NaN cosine still traces its ray).
@@ -338,7 +343,7 @@ impl Lighting<'_> {
             let clear = self.clear_lanes(pts, &shadows, true);
             reflect_lanes(pts, &views, clear, &[light.to_light; N], &[light.radiance; N], &mut l);
         }
-        for light in chosen(scene.spot_lights.iter(), only, spot_base) {
+        for light in chosen(&scene.spot_lights, only, spot_base) {
             let mut factor = [0.0; N];
             let mut inside = 0u32;
             for k in lanes(live) {
@@ -352,7 +357,7 @@ impl Lighting<'_> {
             let e: [DVec3; N] = std::array::from_fn(|k| light.intensity * (factor[k] / d2[k]));
             reflect_lanes(pts, &views, clear, &wis, &e, &mut l);
         }
-        for light in chosen(scene.object_lights.iter(), only, object_base) {
+        for light in chosen(&scene.object_lights, only, object_base) {
             // One point per shading event (§13.3); the random numbers are drawn whatever the
             // outcome, so later dimensions keep their places.
             let mut u = [0.0; N];
@@ -393,7 +398,8 @@ impl Lighting<'_> {
         // the traversal, and a blocked ray needs no lookup.
         // Every environment light, the first (the one rays that miss see) first: each draws its
         // own directions.
-        let envs = chosen(scene.env_light.iter().chain(&scene.extra_env_lights), only, env_base);
+        let envs = scene.env_light.iter().chain(&scene.extra_env_lights).enumerate();
+        let envs = envs.filter(|&(i, _)| only.is_none_or(|o| o == env_base + i)).map(|(_, l)| l);
         for light in envs.filter(|_| env) {
             let xi = draw_env::<N>(rngs, live, EnvLight::requests(self.env_sampler));
             let mut dirs = EnvDirections::NONE;
