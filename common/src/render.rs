@@ -479,15 +479,19 @@ fn render_tile_into(
             } else {
                 ([f64::from(x); GROUP], [f64::from(y); GROUP])
             };
-            if cam.lens.is_none() {
+            let pinhole = cam.lens.is_none();
+            if pinhole {
                 wide.refill_dirs(group, |d| cam.ray_dirs8(&px, &py, &film[0], &film[1], d));
             } else {
                 let (pixel, film, lens) = ((&px, &py), (&film[0], &film[1]), (&lens[0], &lens[1]));
                 wide.refill(group, |o, d| cam.lens_rays8(pixel, film, lens, o, d));
             }
-            // A 1-D request is the first coordinate of the 2-D one.
-            cg.rays =
-                std::array::from_fn(|i| Ray { origin: wide.origin(i), dir: wide.dir(i), time: time[i] });
+            cg.rays = std::array::from_fn(|i| {
+                let mut ray = Ray::new(if pinhole { cam.position } else { wide.origin(i) }, wide.dir(i));
+                // A 1-D request is the first coordinate of the 2-D one.
+                ray.time = time[i];
+                ray
+            });
             tracer.camera_hits_lanes(&cg.rays[..group], &wide, &mut cg.hits[..group]);
             if !pooled {
                 radiance[made] =
