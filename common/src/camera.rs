@@ -156,7 +156,6 @@ impl Camera {
     /// are `lens_ray`'s in their order (no fused multiply-adds), so the bits are the same; with
     /// AVX four lanes go to an instruction. A pinhole camera's rays ([`Camera::ray`]) start at
     /// its position.
-    #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     pub fn lens_rays8(
         &self,
@@ -218,6 +217,8 @@ impl Camera {
         }
         #[cfg(not(all(target_arch = "x86_64", target_feature = "avx")))]
         for k in 0..8 {
+            // `lens_ray` finds the lens itself.
+            let _ = lens;
             let r = self.lens_ray(x[k] as u32, y[k] as u32, dx[k], dy[k], xi1[k], xi2[k]);
             for a in 0..3 {
                 (o[a][k], d[a][k]) = (r.origin[a], r.dir[a]);
