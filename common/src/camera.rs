@@ -1,5 +1,8 @@
 //! Cameras: the course's image-plane construction (scene-format.md §4.2-4.3).
 
+#[cfg(all(target_arch = "x86_64", target_feature = "avx"))]
+use std::arch::x86_64::*;
+
 use glam::DVec3;
 
 use crate::math::{Ray, v3};
@@ -112,7 +115,7 @@ impl Camera {
     pub fn ray_dirs8(&self, x: &[f64; 8], y: &[f64; 8], dx: &[f64; 8], dy: &[f64; 8], d: &mut [[f64; 8]; 3]) {
         #[cfg(all(target_arch = "x86_64", target_feature = "avx"))]
         for h in [0, 4] {
-            avx::store_unit(avx::image_offsets(self, (x, y), (dx, dy), h), d, h);
+            avx_store_unit(avx_image_offsets(self, (x, y), (dx, dy), h), d, h);
         }
         #[cfg(not(all(target_arch = "x86_64", target_feature = "avx")))]
         for k in 0..8 {
@@ -144,7 +147,6 @@ impl Camera {
         };
         #[cfg(all(target_arch = "x86_64", target_feature = "avx"))]
         {
-            use std::arch::x86_64::*;
             let (u, v, p, nw) =
                 (self.u.to_array(), self.v.to_array(), self.position.to_array(), (-self.w).to_array());
             // SAFETY: the target has AVX (cfg above); these intrinsics touch no memory.
@@ -153,24 +155,24 @@ impl Camera {
                 let (half, size) = (all(0.5), all(lens.aperture_size));
                 for h in [0, 4] {
                     // `lens_ray`'s `s`, its focus point and its lens point, then the unit direction.
-                    let s = avx::image_offsets(self, (x, y), (dx, dy), h);
+                    let s = avx_image_offsets(self, (x, y), (dx, dy), h);
                     let dot = _mm256_add_pd(
                         _mm256_add_pd(_mm256_mul_pd(s[0], all(nw[0])), _mm256_mul_pd(s[1], all(nw[1]))),
                         _mm256_mul_pd(s[2], all(nw[2])),
                     );
                     let k = _mm256_div_pd(all(lens.focus_distance), dot);
-                    let su = _mm256_mul_pd(size, _mm256_sub_pd(avx::load(xi1, h), half));
-                    let sv = _mm256_mul_pd(size, _mm256_sub_pd(avx::load(xi2, h), half));
+                    let su = _mm256_mul_pd(size, _mm256_sub_pd(avx_load(xi1, h), half));
+                    let sv = _mm256_mul_pd(size, _mm256_sub_pd(avx_load(xi2, h), half));
                     let t: [__m256d; 3] = std::array::from_fn(|i| {
                         let focus = _mm256_add_pd(all(p[i]), _mm256_mul_pd(k, s[i]));
                         let origin = _mm256_add_pd(
                             _mm256_add_pd(all(p[i]), _mm256_mul_pd(su, all(u[i]))),
                             _mm256_mul_pd(sv, all(v[i])),
                         );
-                        avx::store(origin, &mut o[i], h);
+                        avx_store(origin, &mut o[i], h);
                         _mm256_sub_pd(focus, origin)
                     });
-                    avx::store_unit(t, d, h);
+                    avx_store_unit(t, d, h);
                 }
             }
         }
@@ -207,64 +209,62 @@ impl Camera {
     }
 }
 
-/// Four lanes of the camera's eight-lane ray making with AVX, each lane's operations those of
-/// the one-ray functions in their order (no fused multiply-adds), so the bits are the same.
+// Four lanes of the camera's eight-lane ray making with AVX (`avx_*`), each lane's operations
+// those of the one-ray functions in their order (no fused multiply-adds), so the bits are the
+// same.
+
+/// Lanes `h..h + 4` of `a` (`h` is 0 or 4).
 #[cfg(all(target_arch = "x86_64", target_feature = "avx"))]
-mod avx {
-    use std::arch::x86_64::*;
+#[inline(always)]
+fn avx_load(a: &[f64; 8], h: usize) -> __m256d {
+    let lanes = &a[h..h + 4];
+    // SAFETY: the target has AVX (cfg above); `lanes` holds the four elements read.
+    unsafe { _mm256_loadu_pd(lanes.as_ptr()) }
+}
 
-    use super::Camera;
+/// `v` into lanes `h..h + 4` of `a`.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx"))]
+#[inline(always)]
+fn avx_store(v: __m256d, a: &mut [f64; 8], h: usize) {
+    let lanes = &mut a[h..h + 4];
+    // SAFETY: the target has AVX (cfg above); `lanes` holds the four elements written.
+    unsafe { _mm256_storeu_pd(lanes.as_mut_ptr(), v) }
+}
 
-    /// Lanes `h..h + 4` of `a` (`h` is 0 or 4).
-    #[inline(always)]
-    pub(super) fn load(a: &[f64; 8], h: usize) -> __m256d {
-        let lanes = &a[h..h + 4];
-        // SAFETY: the target has AVX (cfg above); `lanes` holds the four elements read.
-        unsafe { _mm256_loadu_pd(lanes.as_ptr()) }
+/// `image_point(x, y, dx, dy) - position` of lanes `h..h + 4`, by axis.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx"))]
+#[inline(always)]
+fn avx_image_offsets(
+    cam: &Camera,
+    (x, y): (&[f64; 8], &[f64; 8]),
+    (dx, dy): (&[f64; 8], &[f64; 8]),
+    h: usize,
+) -> [__m256d; 3] {
+    let (c, u, v, o) = (cam.corner.to_array(), cam.u.to_array(), cam.v.to_array(), cam.position.to_array());
+    // SAFETY: the target has AVX (cfg above); these intrinsics touch no memory.
+    unsafe {
+        let all = _mm256_set1_pd;
+        let a = _mm256_mul_pd(_mm256_add_pd(avx_load(x, h), avx_load(dx, h)), all(cam.pixel_w));
+        let b = _mm256_mul_pd(_mm256_add_pd(avx_load(y, h), avx_load(dy, h)), all(cam.pixel_h));
+        std::array::from_fn(|i| {
+            let p = _mm256_add_pd(all(c[i]), _mm256_mul_pd(a, all(u[i])));
+            _mm256_sub_pd(_mm256_sub_pd(p, _mm256_mul_pd(b, all(v[i]))), all(o[i]))
+        })
     }
+}
 
-    /// `v` into lanes `h..h + 4` of `a`.
-    #[inline(always)]
-    pub(super) fn store(v: __m256d, a: &mut [f64; 8], h: usize) {
-        let lanes = &mut a[h..h + 4];
-        // SAFETY: the target has AVX (cfg above); `lanes` holds the four elements written.
-        unsafe { _mm256_storeu_pd(lanes.as_mut_ptr(), v) }
-    }
-
-    /// `image_point(x, y, dx, dy) - position` of lanes `h..h + 4`, by axis.
-    #[inline(always)]
-    pub(super) fn image_offsets(
-        cam: &Camera,
-        (x, y): (&[f64; 8], &[f64; 8]),
-        (dx, dy): (&[f64; 8], &[f64; 8]),
-        h: usize,
-    ) -> [__m256d; 3] {
-        let (c, u, v, o) =
-            (cam.corner.to_array(), cam.u.to_array(), cam.v.to_array(), cam.position.to_array());
-        // SAFETY: the target has AVX (cfg above); these intrinsics touch no memory.
-        unsafe {
-            let all = _mm256_set1_pd;
-            let a = _mm256_mul_pd(_mm256_add_pd(load(x, h), load(dx, h)), all(cam.pixel_w));
-            let b = _mm256_mul_pd(_mm256_add_pd(load(y, h), load(dy, h)), all(cam.pixel_h));
-            std::array::from_fn(|i| {
-                let p = _mm256_add_pd(all(c[i]), _mm256_mul_pd(a, all(u[i])));
-                _mm256_sub_pd(_mm256_sub_pd(p, _mm256_mul_pd(b, all(v[i]))), all(o[i]))
-            })
-        }
-    }
-
-    /// `t` normalised as glam's `normalize` does (times `1 / sqrt(dot)`), into lanes `h..h + 4`
-    /// of `d`, by axis.
-    #[inline(always)]
-    pub(super) fn store_unit(t: [__m256d; 3], d: &mut [[f64; 8]; 3], h: usize) {
-        // SAFETY: the target has AVX (cfg above); these intrinsics touch no memory.
-        unsafe {
-            let sq = |x: __m256d| _mm256_mul_pd(x, x);
-            let len2 = _mm256_add_pd(_mm256_add_pd(sq(t[0]), sq(t[1])), sq(t[2]));
-            let recip = _mm256_div_pd(_mm256_set1_pd(1.0), _mm256_sqrt_pd(len2));
-            for (row, ti) in d.iter_mut().zip(t) {
-                store(_mm256_mul_pd(ti, recip), row, h);
-            }
+/// `t` normalised as glam's `normalize` does (times `1 / sqrt(dot)`), into lanes `h..h + 4`
+/// of `d`, by axis.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx"))]
+#[inline(always)]
+fn avx_store_unit(t: [__m256d; 3], d: &mut [[f64; 8]; 3], h: usize) {
+    // SAFETY: the target has AVX (cfg above); these intrinsics touch no memory.
+    unsafe {
+        let sq = |x: __m256d| _mm256_mul_pd(x, x);
+        let len2 = _mm256_add_pd(_mm256_add_pd(sq(t[0]), sq(t[1])), sq(t[2]));
+        let recip = _mm256_div_pd(_mm256_set1_pd(1.0), _mm256_sqrt_pd(len2));
+        for (row, ti) in d.iter_mut().zip(t) {
+            avx_store(_mm256_mul_pd(ti, recip), row, h);
         }
     }
 }
