@@ -703,6 +703,7 @@ impl Accel {
     /// [`Self::intersect_packet`] of `rays` given side by side as well (`wide` holds the same
     /// rays, as [`RayLanes::new`] would make them: checked in debug builds), so that a caller
     /// that made them that way saves the gathering.
+    #[inline(always)]
     pub fn intersect_lanes(&self, rays: &[Ray], wide: &RayLanes, tmin: f64, out: &mut [Option<SurfaceHit>]) {
         assert!(
             (1..=8).contains(&rays.len()) && out.len() == rays.len() && wide.len == rays.len(),

@@ -277,6 +277,7 @@ impl Lighting<'_> {
     /// to eight points with their samplers. Lights in the scene's order: point, area,
     /// directional, spot, object lights, then (when `env`) one direction of the environment
     /// light.
+    #[inline(always)]
     pub fn reflected<const N: usize>(
         &mut self,
         pts: &[LitPoint<'_>],
@@ -431,6 +432,7 @@ impl Lighting<'_> {
     /// Rays towards one light point (or one direction) are traced as a packet; the environment
     /// light's directions are random, and such rays go one by one (a packet of them visits the
     /// union of their nodes).
+    #[inline(always)]
     fn clear_lanes<const N: usize>(
         &mut self,
         pts: &[LitPoint<'_>],
