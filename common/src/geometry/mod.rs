@@ -176,6 +176,9 @@ pub struct Accel {
     /// tree takes its distance, point and normal from it, with no ray transform,
     /// re-intersection or normalisation.
     planes: Arc<Vec<WorldPlane>>,
+    /// Whether some instance is a world-space, untextured mesh shaded smooth: the only kind
+    /// [`Self::smooth_mesh_hits`] completes, so without one a packet skips it.
+    smooth_world_meshes: bool,
 }
 
 /// A triangle's plane in world space, in `f64`: a vertex and the unit geometric normal (what
@@ -541,6 +544,11 @@ impl Accel {
             build_cwbvh(&bounds, BvhBuildParams::medium_build(), &mut Duration::default())
         };
         let tlas_order = tlas.primitive_indices.iter().map(|&k| bounded[k as usize]).collect();
+        let smooth_world_meshes = instances.iter().any(|i| {
+            matches!(i.shape, Shape::Mesh { smooth: true, .. })
+                && i.is_world_space()
+                && i.textures == ObjectTextures::default()
+        });
         Accel {
             meshes,
             instances,
@@ -554,6 +562,7 @@ impl Accel {
             merged_set,
             lone,
             planes,
+            smooth_world_meshes,
         }
     }
 
@@ -731,7 +740,7 @@ impl Accel {
         }
         if self.bounded.is_empty() && self.unbounded.is_empty() {
             // Everything was in the world tree.
-            if !self.smooth_mesh_hits(rays, wide, &best, out) {
+            if !(self.smooth_world_meshes && self.smooth_mesh_hits(rays, wide, &best, out)) {
                 for lane in 0..n {
                     self.found_into(&rays[lane], best[lane], &mut out[lane]);
                 }
@@ -775,7 +784,7 @@ impl Accel {
                     boxes.tmax[lane] = boxes.tmax[lane].min(t);
                 }
             }
-            if !self.smooth_mesh_hits(rays, wide, &best, out) {
+            if !(self.smooth_world_meshes && self.smooth_mesh_hits(rays, wide, &best, out)) {
                 for lane in 0..n {
                     self.found_into(&rays[lane], best[lane], &mut out[lane]);
                 }
