@@ -177,7 +177,8 @@ pub struct Accel {
     /// re-intersection or normalisation.
     planes: Arc<Vec<WorldPlane>>,
     /// Whether some instance is a world-space, untextured mesh shaded smooth: the only kind
-    /// [`Self::smooth_mesh_hits`] completes, so without one a packet skips it.
+    /// [`Self::smooth_mesh_hits`] completes, so without one it returns at once. (Tested at its
+    /// call sites instead, it made direct lighting under an environment 1.7 % slower.)
     smooth_world_meshes: bool,
 }
 
@@ -740,7 +741,7 @@ impl Accel {
         }
         if self.bounded.is_empty() && self.unbounded.is_empty() {
             // Everything was in the world tree.
-            if !(self.smooth_world_meshes && self.smooth_mesh_hits(rays, wide, &best, out)) {
+            if !self.smooth_mesh_hits(rays, wide, &best, out) {
                 for lane in 0..n {
                     self.found_into(&rays[lane], best[lane], &mut out[lane]);
                 }
@@ -784,7 +785,7 @@ impl Accel {
                     boxes.tmax[lane] = boxes.tmax[lane].min(t);
                 }
             }
-            if !(self.smooth_world_meshes && self.smooth_mesh_hits(rays, wide, &best, out)) {
+            if !self.smooth_mesh_hits(rays, wide, &best, out) {
                 for lane in 0..n {
                     self.found_into(&rays[lane], best[lane], &mut out[lane]);
                 }
@@ -1053,6 +1054,9 @@ impl Accel {
         best: &[Candidate; 8],
         out: &mut [Option<SurfaceHit>],
     ) -> bool {
+        if !self.smooth_world_meshes {
+            return false;
+        }
         let hits = (0..rays.len()).filter(|&k| best[k].instance != u32::MAX).fold(0u32, |m, k| m | 1 << k);
         if hits.count_ones() < 2 {
             // None, or one: the single path does as well.
