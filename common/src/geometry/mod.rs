@@ -13,9 +13,11 @@
 //! ray at a time.
 
 pub mod bvh8;
+mod instance;
 pub mod mesh;
 mod rays;
 mod shapes;
+mod world;
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -25,94 +27,13 @@ use obvhs::{BvhBuildParams, aabb::Aabb, cwbvh::CwBvh, cwbvh::builder::build_cwbv
 
 use crate::math::{Ray, Transform, pick, word};
 use bvh8::{BoxRays8, Bvh8, Lanes8, Packet8, Ray8};
+pub use instance::{Instance, ObjectTextures, Shape};
 pub use mesh::MeshGeom;
 pub use rays::{Axes, HitLanes, RayLanes};
 use rays::{enters, pad, refined_t, side_of, to_f32_ray};
 use shapes::{plane_t, plane_uv_frame, sphere_lanes, sphere_may_block, sphere_t, sphere_uv_frame};
-
-/// What an instance is made of.
-#[derive(Clone, Debug)]
-pub enum Shape {
-    /// Index into [`Accel::meshes`].
-    Mesh { mesh: u32, smooth: bool },
-    /// Object-space sphere (an ellipsoid once transformed).
-    Sphere { center: DVec3, radius: f64 },
-    /// Infinite object-space plane through `point` with unit `normal` (2025 scenes, §9.8).
-    /// Unbounded, so it never enters the top-level BVH: [`Accel`] tests planes one by one.
-    Plane { point: DVec3, normal: DVec3 },
-}
-
-/// One placed object of the scene.
-#[derive(Clone, Debug)]
-pub struct Instance {
-    pub shape: Shape,
-    pub material: u32,
-    /// `None` means object space is world space (saves two matrix products per ray).
-    pub transform: Option<Transform>,
-    /// Motion blur: the object is translated by `time * motion` in world space after its
-    /// transform (scene-format.md §10.5).
-    pub motion: Option<DVec3>,
-    /// Texture maps applied to this object (indices into the scene's texture maps).
-    pub textures: ObjectTextures,
-}
-
-/// The texture maps of an object (§11.1): those that change its coefficients (wood_box pairs a
-/// replace_kd map with a replace_ks map), applied in order — the first two here, any further
-/// ones in the scene's `more_colour_maps` list `more_colour` — and the one that changes its
-/// normal (the last such map the object names).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct ObjectTextures {
-    pub colour: [Option<u32>; 2],
-    pub more_colour: Option<u32>,
-    pub normal: Option<u32>,
-}
-
-impl Instance {
-    /// Object space is world space at every time (no transform, no motion).
-    #[inline]
-    fn is_world_space(&self) -> bool {
-        self.transform.is_none() && self.motion.is_none()
-    }
-
-    /// A world-space point of this instance at `time`, in its object space: before its
-    /// transformation and motion (for a MeshInstance, its base mesh's vertex space). Solid
-    /// textures are evaluated there (scene-format.md §11.10).
-    #[inline]
-    pub fn object_point(&self, p: DVec3, time: f64) -> DVec3 {
-        let p = match self.motion {
-            Some(v) => p - time * v,
-            None => p,
-        };
-        match &self.transform {
-            Some(xf) => xf.to_object.transform_point3(p),
-            None => p,
-        }
-    }
-
-    /// [`Self::local_ray`] without a copy for an instance whose object space is world space:
-    /// `ray` itself then, else the carried ray, kept in `slot`.
-    #[inline(always)]
-    fn ray_here<'r>(&self, ray: &'r Ray, slot: &'r mut Option<Ray>) -> &'r Ray {
-        if self.is_world_space() { ray } else { slot.insert(self.local_ray(ray)) }
-    }
-
-    /// The ray in this instance's object space at the ray's time.
-    #[inline]
-    fn local_ray(&self, ray: &Ray) -> Ray {
-        let moved;
-        let r = match self.motion {
-            Some(v) => {
-                moved = Ray { origin: ray.origin - ray.time * v, ..*ray };
-                &moved
-            }
-            None => ray,
-        };
-        match &self.transform {
-            Some(xf) => xf.ray_to_object(r),
-            None => *r,
-        }
-    }
-}
+pub use world::WorldTree;
+use world::{LoneMesh, WorldPlane, merge_static_meshes};
 
 /// A surface point found by a ray, everything in world space.
 #[derive(Clone, Copy, Debug, Default)]
@@ -179,34 +100,6 @@ pub struct Accel {
     /// Whether some instance is a world-space, untextured smooth mesh, the only kind
     /// [`Self::smooth_mesh_hits`] completes: without one, it returns at once.
     smooth_world_meshes: bool,
-}
-
-/// A triangle's plane in world space, in `f64`: a vertex and the unit geometric normal (what
-/// the triangle's own face normal becomes through its instance's normal transform).
-#[derive(Clone, Copy, Debug)]
-struct WorldPlane {
-    p0: DVec3,
-    n: DVec3,
-}
-
-impl WorldPlane {
-    /// The exact distance along the ray (`origin`, `dir`) to this plane, `n·(p0−o)/n·d`; the
-    /// traversal's `f32` distance `t32` where the ray runs along the plane.
-    #[inline(always)]
-    fn distance(&self, origin: DVec3, dir: DVec3, t32: f64) -> f64 {
-        refined_t(self.n.dot(self.p0 - origin) / self.n.dot(dir), t32)
-    }
-}
-
-/// Most world-tree triangles (merged, or of the lone mesh) that get a [`WorldPlane`] (48 bytes
-/// each, so 96 MB at most): beyond it, hits take the general path.
-const PLANES_MAX: usize = 1 << 21;
-
-/// See [`Accel::lone`].
-#[derive(Clone, Copy, Debug)]
-struct LoneMesh {
-    instance: u32,
-    mesh: u32,
 }
 
 /// Up to this many instances a linear loop over their boxes beats traversing the top level.
@@ -387,119 +280,6 @@ fn instance_bounds(inst: &Instance, meshes: &[Arc<MeshGeom>]) -> Option<Aabb> {
         }
         None => pad(world),
     })
-}
-
-/// Most triangles [`merge_static_meshes`] copies into the merged tree: instancing a large mesh
-/// many times must not multiply the scene's memory; instances beyond it keep the two levels.
-const MERGED_TRIANGLES_MAX: usize = 1 << 22;
-
-/// The world-space tree of a scene's static mesh instances: see `Accel::merged` and
-/// `Accel::lone`. Cheap to clone (its parts are shared), so that scenes whose static mesh
-/// instances are the same (an animation whose camera moves) can share one
-/// ([`Accel::with_world_tree`]).
-#[derive(Clone, Default)]
-pub struct WorldTree {
-    merged: Arc<Bvh8>,
-    prims: Arc<Vec<(u32, u32)>>,
-    /// Which instances it holds (empty: none).
-    members: Arc<Vec<bool>>,
-    lone: Option<LoneMesh>,
-    planes: Arc<Vec<WorldPlane>>,
-}
-
-impl WorldTree {
-    /// An estimate of the bytes it holds, for memory-bounded caches.
-    pub fn heap_bytes(&self) -> usize {
-        self.merged.heap_bytes()
-            + self.prims.capacity() * std::mem::size_of::<(u32, u32)>()
-            + self.members.capacity()
-            + self.planes.capacity() * std::mem::size_of::<WorldPlane>()
-    }
-}
-
-/// The merged BVH of the static mesh instances (see `Accel::merged`): their triangles carried
-/// to world space, its triangle table, and which instances it holds. Empty when no instance
-/// qualifies, or one untransformed one (a single mesh is already a single tree: it is returned
-/// as the [`LoneMesh`] instead).
-fn merge_static_meshes(meshes: &[Arc<MeshGeom>], instances: &[Instance]) -> WorldTree {
-    let mut set = vec![false; instances.len()];
-    let mut total = 0usize;
-    for (i, inst) in instances.iter().enumerate() {
-        if let Shape::Mesh { mesh, .. } = inst.shape {
-            let m = &meshes[mesh as usize];
-            if inst.motion.is_none()
-                && !m.is_empty()
-                && mesh::is_sane(&m.bounds)
-                && total + m.triangle_count() <= MERGED_TRIANGLES_MAX
-            {
-                set[i] = true;
-                total += m.triangle_count();
-            }
-        }
-    }
-    // One untransformed mesh is already a single world-space tree; one transformed mesh is
-    // worth carrying to world space (no ray transform per query).
-    let count = set.iter().filter(|&&q| q).count();
-    let one_transformed = count == 1 && set.iter().zip(instances).any(|(&q, i)| q && i.transform.is_some());
-    if count < 2 && !one_transformed {
-        let lone = set.iter().position(|&q| q).and_then(|i| match instances[i].shape {
-            Shape::Mesh { mesh, .. } => Some(LoneMesh { instance: i as u32, mesh }),
-            _ => None,
-        });
-        // A flat, untextured lone mesh gets its planes too (indexed by triangle, which is what
-        // its own tree reports): the only hits that would read them.
-        let planes = match lone {
-            Some(LoneMesh { instance, mesh }) => {
-                let (inst, m) = (&instances[instance as usize], &meshes[mesh as usize]);
-                let flat = matches!(inst.shape, Shape::Mesh { smooth: false, .. });
-                if flat && inst.textures == ObjectTextures::default() && m.triangle_count() <= PLANES_MAX {
-                    (0..m.triangle_count() as u32)
-                        .map(|k| WorldPlane {
-                            p0: m.positions[m.indices[k as usize][0] as usize],
-                            n: m.face_normal(k),
-                        })
-                        .collect()
-                } else {
-                    Vec::new()
-                }
-            }
-            None => Vec::new(),
-        };
-        return WorldTree { members: Arc::new(set), lone, planes: Arc::new(planes), ..WorldTree::default() };
-    }
-    let (mut tris, mut aabbs, mut prims) =
-        (Vec::with_capacity(total), Vec::with_capacity(total), Vec::with_capacity(total));
-    let with_planes = total <= PLANES_MAX;
-    let mut planes = Vec::with_capacity(if with_planes { total } else { 0 });
-    for (i, inst) in instances.iter().enumerate() {
-        let Shape::Mesh { mesh, .. } = inst.shape else { continue };
-        if !set[i] {
-            continue;
-        }
-        let m = &meshes[mesh as usize];
-        let to_world = inst.transform.as_ref().map(|xf| &xf.to_world);
-        for (k, t) in m.bvh_triangles(to_world) {
-            aabbs.push(Aabb::from_points(&[t[0], t[0] + t[1], t[0] + t[2]]));
-            tris.push(t);
-            prims.push((i as u32, k));
-            if with_planes {
-                let p0 = m.positions[m.indices[k as usize][0] as usize];
-                let n = m.face_normal(k);
-                planes.push(match &inst.transform {
-                    Some(xf) => WorldPlane { p0: xf.to_world.transform_point3(p0), n: xf.normal_to_world(n) },
-                    None => WorldPlane { p0, n },
-                });
-            }
-        }
-    }
-    let ids: Vec<u32> = (0..tris.len() as u32).collect();
-    WorldTree {
-        merged: Arc::new(Bvh8::build(&tris, &aabbs, &ids)),
-        prims: Arc::new(prims),
-        members: Arc::new(set),
-        lone: None,
-        planes: Arc::new(planes),
-    }
 }
 
 impl Accel {
