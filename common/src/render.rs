@@ -14,7 +14,7 @@ use crate::image::{Image, TileRect};
 use crate::integrator::{CameraGroup, RayStats, Tracer};
 use crate::math::Ray;
 use crate::passes::{BLOCK, PixelSum, SampleRange};
-use crate::sampler::{Sampler, frame_seed};
+use crate::sampler::{PixelSeeds, Sampler, frame_seed};
 use crate::scene::Scene;
 use crate::scene::records::EnvSampler;
 
@@ -391,6 +391,9 @@ fn render_tile_into(
         let s = range.start + (i % u64::from(per_pixel)) as u32;
         (rect.x0 + p % rect.width, rect.y0 + p / rect.width, s)
     };
+    // The pixel whose sampler and first requests' seeds the groups of one pixel use.
+    let unseeded = Sampler::new(seed, 0, 0, 0);
+    let mut seeded = (u32::MAX, u32::MAX, PixelSeeds::of(&unseeded), unseeded);
     let mut since_check = STOP_CHECK_EVERY;
     let mut next = 0u64;
     while next < total {
@@ -433,10 +436,15 @@ fn render_tile_into(
                     *lane = (lx, ly, ls);
                 }
             } else {
-                // Samples s.. of one pixel: the lanes differ by their sample index alone.
-                let pixel_sampler = Sampler::new(seed, x, y, 0);
+                // Samples s.. of one pixel: the lanes differ by their sample index alone. The
+                // pixel's sampler and the seeds of its first requests are made once for all
+                // its groups.
+                if (seeded.0, seeded.1) != (x, y) {
+                    let pixel_sampler = Sampler::new(seed, x, y, 0);
+                    seeded = (x, y, PixelSeeds::of(&pixel_sampler), pixel_sampler);
+                }
                 for (i, sampler) in cg.samplers.iter_mut().enumerate().take(group) {
-                    *sampler = pixel_sampler.with_sample(s + i as u32);
+                    *sampler = seeded.3.with_sample(s + i as u32);
                 }
                 // Each lane's pixel and sample when the features read them lane by lane; else
                 // the last lane's alone, which closes the group's samples below.
@@ -455,11 +463,23 @@ fn render_tile_into(
             // sampler, like every other dimension. The requests in use are drawn together
             // (their scrambles overlap), each as two coordinates of eight lanes.
             let count = usize::from(n > 1) + usize::from(cam.lens.is_some()) + usize::from(moving);
-            match count {
-                3 => drawn = Sampler::next_2d_groups::<3>(samplers_in_use),
-                2 => drawn[..2].copy_from_slice(&Sampler::next_2d_groups::<2>(samplers_in_use)),
-                1 => drawn[..1].copy_from_slice(&Sampler::next_2d_groups::<1>(samplers_in_use)),
-                _ => {}
+            if across_pixels {
+                match count {
+                    3 => drawn = Sampler::next_2d_groups::<3>(samplers_in_use),
+                    2 => drawn[..2].copy_from_slice(&Sampler::next_2d_groups::<2>(samplers_in_use)),
+                    1 => drawn[..1].copy_from_slice(&Sampler::next_2d_groups::<1>(samplers_in_use)),
+                    _ => {}
+                }
+            } else {
+                // The same values from the pixel's seeds.
+                let seeds = &seeded.2;
+                match count {
+                    3 => drawn = seeds.draw::<3>(s),
+                    2 => drawn[..2].copy_from_slice(&seeds.draw::<2>(s)),
+                    1 => drawn[..1].copy_from_slice(&seeds.draw::<1>(s)),
+                    _ => {}
+                }
+                samplers_in_use.iter_mut().for_each(|r| r.skip_to(count as u64));
             }
             let mut drawn_next = drawn.iter();
             // The next drawn request if this one is wanted, else the fixed value.

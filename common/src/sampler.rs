@@ -263,6 +263,43 @@ impl Sampler {
     }
 }
 
+/// The seeds of a pixel's first [`PixelSeeds::REQUESTS`] requests (its position, lens and
+/// time), hashed once for all its camera samples: a group of a pixel's samples draws them with
+/// [`PixelSeeds::draw`] and no sampler's hashing or checks, as [`Sampler::next_2d_groups`]
+/// draws them.
+#[derive(Clone, Copy, Debug)]
+pub struct PixelSeeds {
+    seeds: [DimSeeds; PixelSeeds::REQUESTS],
+}
+
+impl PixelSeeds {
+    /// How many requests the seeds serve.
+    pub const REQUESTS: usize = 3;
+
+    /// The seeds of the pixel whose samplers are `pixel`'s (at any sample and dimension).
+    pub fn of(pixel: &Sampler) -> Self {
+        PixelSeeds { seeds: std::array::from_fn(|m| DimSeeds::of(pixel.key, 1 + m as u64)) }
+    }
+
+    /// Requests 1 to `M` of the pixel's samples `first` to `first + 7`, by request, coordinate
+    /// and lane: what [`Sampler::next_2d_groups::<M>`] draws for their samplers standing at
+    /// dimension 0 (the samplers then move on with [`Sampler::skip_to`]`(M)`). A group of fewer
+    /// samples reads its lanes and leaves the others.
+    #[inline(always)]
+    pub fn draw<const M: usize>(&self, first: u32) -> [[[f64; GROUP_LANES]; 2]; M] {
+        const { assert!(M <= PixelSeeds::REQUESTS, "at most the seeded requests") };
+        std::array::from_fn(|m| {
+            let seeds = self.seeds[m];
+            let mut a = [0u32; GROUP_LANES];
+            let mut b = [0u32; GROUP_LANES];
+            for l in 0..GROUP_LANES {
+                (a[l], b[l]) = point(first.wrapping_add(l as u32), seeds);
+            }
+            [a.map(unit), b.map(unit)]
+        })
+    }
+}
+
 /// How many samplers [`Sampler::next_2d_group`] serves at once.
 pub const GROUP_LANES: usize = 8;
 
@@ -380,7 +417,7 @@ impl SamplerLanes {
 }
 
 /// The scrambling seeds of one dimension of one pixel (the same for all its samples).
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, Debug)]
 struct DimSeeds {
     /// Seed of the Owen scramble of the sample index.
     index: u32,
@@ -546,6 +583,26 @@ mod tests {
             let (first, second) = ((got[0][0][l], got[0][1][l]), (got[1][0][l], got[1][1][l]));
             assert_eq!((first, second), (s.next_2d(), s.next_2d()), "mixed lane {l}");
         }
+    }
+
+    #[test]
+    fn a_pixels_seeds_draw_what_its_samplers_draw() {
+        let pixel = Sampler::new(0x5eed, 12, 34, 9);
+        let seeds = PixelSeeds::of(&pixel);
+        for first in [0u32, 8, 96, u32::MAX - 3] {
+            let got = seeds.draw::<3>(first);
+            for l in 0..GROUP_LANES {
+                let mut s = pixel.with_sample(first.wrapping_add(l as u32));
+                for (m, req) in got.iter().enumerate() {
+                    assert_eq!((req[0][l], req[1][l]), s.next_2d(), "sample {first}+{l}, request {m}");
+                }
+            }
+            // Fewer requests are the first of them.
+            assert_eq!(seeds.draw::<1>(first)[0], got[0]);
+            assert_eq!(seeds.draw::<2>(first)[1], got[1]);
+        }
+        // Another pixel's seeds draw other values.
+        assert_ne!(PixelSeeds::of(&Sampler::new(0x5eed, 13, 34, 0)).draw::<1>(0), seeds.draw::<1>(0));
     }
 
     #[test]
