@@ -26,7 +26,8 @@
 //! centre (`../shared/bench/head_primary.xml`), no lights and no bounces. Tessera's render
 //! phase on one thread against Embree 4 (`embree_primary.py`: embreex, one ray a call, one
 //! thread) in alternating rounds, then Tessera on two threads against Mitsuba's first-hit render
-//! (`tests/bench/mitsuba_head_first_hit.py`, the `aov` integrator, one thread per core).
+//! (`tests/bench/mitsuba_head_first_hit.py`, the `aov` integrator, one thread per core;
+//! `--mitsuba-avx2` sets its width as for the path workload).
 //!
 //! The Python anchors run with `$TESSERA_ANCHORS_PY` (default `~/.cache/anchors/bin/python`; see
 //! ../shared/bench/README.md); Mitsuba's llvm variant needs `DRJIT_LIBLLVM_PATH`.
@@ -296,7 +297,15 @@ fn primary_figures(args: &Args, out: &Path) -> Result<()> {
         },
     )?;
     need_llvm()?;
-    let script = tessera_tests::repo_root().join("tests/bench/mitsuba_head_first_hit.py");
+    // The anchor's script with the lines that print (and with `--mitsuba-avx2`, set) its
+    // kernels' width.
+    let source = tessera_tests::repo_root().join("tests/bench/mitsuba_head_first_hit.py");
+    let text = std::fs::read_to_string(&source).with_context(|| format!("reading {}", source.display()))?;
+    let script = out.join("mitsuba_head_first_hit.py");
+    std::fs::write(
+        &script,
+        with_llvm_target(&text, args.mitsuba_avx2).context("mitsuba_head_first_hit.py")?,
+    )?;
     let mitsuba_args = [ply.display().to_string(), w.to_string(), h.to_string(), "llvm_ad_rgb".into()];
     alternate(
         args.rounds,
@@ -309,7 +318,11 @@ fn primary_figures(args: &Args, out: &Path) -> Result<()> {
         |round| {
             let text = anchor(&script, &mitsuba_args)?;
             if round == 0 {
-                println!("  Mitsuba first hit: {:.4} of the rays hit the head", json_number(&text, "hit")?);
+                println!(
+                    "  Mitsuba first hit: {:.4} of the rays hit the head, {} lanes an instruction",
+                    json_number(&text, "hit")?,
+                    vector_width(&text).unwrap_or("unknown")
+                );
             }
             json_number(&text, "mrays_per_s")
         },
@@ -321,8 +334,8 @@ fn main() -> Result<()> {
     let args = parse_args()?;
     let out: PathBuf = tessera_tests::repo_root().join("target/pathbench");
     std::fs::create_dir_all(&out)?;
-    if args.primary && (args.mitsuba_avx2 || args.one_light || args.mis) {
-        bail!("--mitsuba-avx2, --one-light and --mis apply to the path-tracing workload, not --primary");
+    if args.primary && (args.one_light || args.mis) {
+        bail!("--one-light and --mis apply to the path-tracing workload, not --primary");
     }
     if args.primary { primary_figures(&args, &out) } else { path_figures(&args, &out) }
 }
