@@ -421,8 +421,14 @@ fn render_tile_into(
             // The group's sample values first, then its rays: the rays' square roots and
             // divisions are one chain each, and with nothing else in between the processor
             // overlaps the eight chains.
-            // The current lane's pixel and its sampler, made once per pixel of the group.
+            // Dimensions in a fixed order: pixel position, lens, time, then shading; the group
+            // draws each of the first ones for its eight samples at once. One sample goes
+            // through the pixel centre (§4.5); several are stratified over the pixel by the
+            // sampler, like every other dimension. The requests in use are drawn together
+            // (their scrambles overlap), each as two coordinates of eight lanes.
+            let count = usize::from(n > 1) + usize::from(cam.lens.is_some()) + usize::from(moving);
             if across_pixels {
+                // The current lane's pixel and its sampler, made once per pixel of the group.
                 let mut keyed: Option<(u32, u32, Sampler)> = None;
                 for (i, (sampler, lane)) in
                     cg.samplers.iter_mut().zip(lanes.iter_mut()).enumerate().take(group)
@@ -435,16 +441,31 @@ fn render_tile_into(
                     *sampler = pixel_sampler.with_sample(ls);
                     *lane = (lx, ly, ls);
                 }
+                let samplers_in_use = &mut cg.samplers[..group];
+                match count {
+                    3 => drawn = Sampler::next_2d_groups::<3>(samplers_in_use),
+                    2 => drawn[..2].copy_from_slice(&Sampler::next_2d_groups::<2>(samplers_in_use)),
+                    1 => drawn[..1].copy_from_slice(&Sampler::next_2d_groups::<1>(samplers_in_use)),
+                    _ => {}
+                }
             } else {
                 // Samples s.. of one pixel: the lanes differ by their sample index alone. The
                 // pixel's sampler and the seeds of its first requests are made once for all
-                // its groups.
+                // its groups, and the group's values come from the seeds (the same values).
                 if (seeded.0, seeded.1) != (x, y) {
                     let pixel_sampler = Sampler::new(seed, x, y, 0);
                     seeded = (x, y, PixelSeeds::of(&pixel_sampler), pixel_sampler);
                 }
                 for (i, sampler) in cg.samplers.iter_mut().enumerate().take(group) {
                     *sampler = seeded.3.with_sample(s + i as u32);
+                    sampler.skip_to(count as u64);
+                }
+                let seeds = &seeded.2;
+                match count {
+                    3 => drawn = seeds.draw::<3>(s),
+                    2 => drawn[..2].copy_from_slice(&seeds.draw::<2>(s)),
+                    1 => drawn[..1].copy_from_slice(&seeds.draw::<1>(s)),
+                    _ => {}
                 }
                 // Each lane's pixel and sample when the features read them lane by lane; else
                 // the last lane's alone, which closes the group's samples below.
@@ -455,31 +476,6 @@ fn render_tile_into(
                 } else {
                     lanes[group - 1] = (x, y, s + group as u32 - 1);
                 }
-            }
-            let samplers_in_use = &mut cg.samplers[..group];
-            // Dimensions in a fixed order: pixel position, lens, time, then shading; the group
-            // draws each of the first ones for its eight samples at once. One sample goes
-            // through the pixel centre (§4.5); several are stratified over the pixel by the
-            // sampler, like every other dimension. The requests in use are drawn together
-            // (their scrambles overlap), each as two coordinates of eight lanes.
-            let count = usize::from(n > 1) + usize::from(cam.lens.is_some()) + usize::from(moving);
-            if across_pixels {
-                match count {
-                    3 => drawn = Sampler::next_2d_groups::<3>(samplers_in_use),
-                    2 => drawn[..2].copy_from_slice(&Sampler::next_2d_groups::<2>(samplers_in_use)),
-                    1 => drawn[..1].copy_from_slice(&Sampler::next_2d_groups::<1>(samplers_in_use)),
-                    _ => {}
-                }
-            } else {
-                // The same values from the pixel's seeds.
-                let seeds = &seeded.2;
-                match count {
-                    3 => drawn = seeds.draw::<3>(s),
-                    2 => drawn[..2].copy_from_slice(&seeds.draw::<2>(s)),
-                    1 => drawn[..1].copy_from_slice(&seeds.draw::<1>(s)),
-                    _ => {}
-                }
-                samplers_in_use.iter_mut().for_each(|r| r.skip_to(count as u64));
             }
             let mut drawn_next = drawn.iter();
             // The next drawn request if this one is wanted, else the fixed value.
