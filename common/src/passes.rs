@@ -247,7 +247,9 @@ pub fn pixel_errors(sums: &[PixelSum], counts: &[u32]) -> Option<Vec<f64>> {
 /// [`min_adaptive_samples`] or its pooled noise is above the target. A pixel's own noise
 /// ([`pixel_errors`]) is one draw of a noisy estimate, so it is pooled: the mean over the 3x3
 /// pixels around it (those inside the tile), and a pixel goes on while any pooled value of its
-/// 3x3 neighbourhood is above the target (edges of noisy regions are not cut short).
+/// 3x3 neighbourhood is above the target (edges of noisy regions are not cut short), or while
+/// its own distance measured against its neighbours' median estimate is above three times the
+/// target (a firefly, which the pooling hides, keeps sampling until it is diluted).
 pub fn active_pixels(
     sums: &[PixelSum],
     counts: &[u32],
@@ -287,6 +289,17 @@ pub fn active_pixels(
             pooled[y * w + x] = sum / n;
         }
     }
+    // Each pixel's own distance against its neighbourhood's level, uncapped: a firefly in a
+    // dark region inflates its own estimate (its term's denominator), its term is capped at 1
+    // and the pooling divides it by nine, so the pooled rule alone lets it stop with the
+    // firefly weighing 1/n of its value. Measured against the median of the 3x3 pixels'
+    // estimates (which a lone firefly does not move), it goes on while that distance is
+    // above three times the target (one pixel's distance spreads about three times as widely
+    // as the mean of nine).
+    let own: Vec<(f64, f64)> =
+        sums.iter().zip(counts).map(|(s, &n)| s.estimates(n, odd_samples(n))).collect();
+    let mean = own.iter().map(|(all, _)| all.max(0.0)).sum::<f64>() / own.len() as f64;
+    let floor = (0.05 * mean).max(1e-12);
     let mut out = live;
     for y in 0..h {
         for x in 0..w {
@@ -294,7 +307,17 @@ pub fn active_pixels(
             if out[i] {
                 let mut worst = 0.0f64;
                 window(&pooled, x, y, &mut |e| worst = worst.max(e));
-                out[i] = worst > t;
+                let (mut around, mut k) = ([0.0f64; 9], 0);
+                for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                    for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                        around[k] = own[yy * w + xx].0;
+                        k += 1;
+                    }
+                }
+                around[..k].sort_by(f64::total_cmp);
+                let level = around[k / 2].max(floor);
+                let (all, odd) = own[i];
+                out[i] = worst > t || (odd - all).abs() / level > 3.0 * t;
             }
         }
     }
@@ -852,6 +875,38 @@ mod tests {
         assert_eq!(mask, active_pixels(&loud, &counts, w as u32, 256, 16, Some(0.02)));
         // The tile's noise with each pixel's own samples.
         assert!(tile_error_of(&loud, &counts).unwrap() > 0.4);
+    }
+
+    #[test]
+    fn a_firefly_in_a_dark_region_keeps_sampling() {
+        // 6 x 6 dark pixels (0.01, noise 0.0005) and one firefly at (2, 3): its odd blocks
+        // hold a sample a thousand times brighter than the rest. Its own term is capped at 1
+        // and the pooled mean around it stays below 0.3, so the pooled rule alone stops it.
+        let (w, h) = (6usize, 6usize);
+        let firefly = 3 * w + 2;
+        let mut sums: Vec<PixelSum> = (0..w * h).map(|_| tile(1, 4, 0.01, 0.0005)[0]).collect();
+        let mut s = PixelSum::default();
+        for b in 0..4 {
+            let v = if b == 1 { 10.0 } else { 0.01 };
+            s.add_block(b, DVec3::splat(v * f64::from(BLOCK)));
+        }
+        sums[firefly] = s;
+        let counts = vec![64; w * h];
+        let pooled_only = {
+            let errors = pixel_errors(&sums, &counts).unwrap();
+            let near: Vec<f64> = (0..w * h)
+                .filter(|i| (i % w).abs_diff(2) <= 1 && (i / w).abs_diff(3) <= 1)
+                .map(|i| errors[i])
+                .collect();
+            near.iter().sum::<f64>() / near.len() as f64
+        };
+        assert!(pooled_only < 0.3, "{pooled_only}");
+        let mask = active_pixels(&sums, &counts, w as u32, 1024, 16, Some(0.3));
+        assert!(mask[firefly], "the firefly goes on");
+        assert_eq!(mask.iter().filter(|&&a| a).count(), 1, "the quiet dark pixels stop: {mask:?}");
+        // A target above its distance lets it stop too.
+        let mask = active_pixels(&sums, &counts, w as u32, 1024, 16, Some(1e6));
+        assert!(mask.iter().all(|&a| !a));
     }
 
     #[test]
