@@ -221,6 +221,14 @@ pub fn tile_error_of(sums: &[PixelSum], counts: &[u32]) -> Option<f64> {
 /// its odd blocks' estimate, at most 1, measured against at least a twentieth of the tile's mean.
 /// `None` when a pixel has no samples in one of the halves.
 pub fn pixel_errors(sums: &[PixelSum], counts: &[u32]) -> Option<Vec<f64>> {
+    let (est, floor) = pixel_estimates(sums, counts)?;
+    Some(errors_of(&est, floor))
+}
+
+/// Each pixel's (whole, odd blocks') luminance estimates, and the level darker pixels are
+/// measured against (a twentieth of the tile's mean): what [`pixel_errors`] compares. `None`
+/// when a pixel has no samples in one of the halves.
+fn pixel_estimates(sums: &[PixelSum], counts: &[u32]) -> Option<(Vec<(f64, f64)>, f64)> {
     if sums.is_empty() || sums.len() != counts.len() {
         return None;
     }
@@ -233,8 +241,12 @@ pub fn pixel_errors(sums: &[PixelSum], counts: &[u32]) -> Option<Vec<f64>> {
         est.push(s.estimates(n, odd));
     }
     let mean = est.iter().map(|(all, _)| all.max(0.0)).sum::<f64>() / est.len() as f64;
-    let floor = (0.05 * mean).max(1e-12);
-    Some(est.iter().map(|(all, odd)| ((odd - all).abs() / all.max(floor)).min(1.0)).collect())
+    Some((est, (0.05 * mean).max(1e-12)))
+}
+
+/// [`pixel_errors`] of the estimates.
+fn errors_of(est: &[(f64, f64)], floor: f64) -> Vec<f64> {
+    est.iter().map(|(all, odd)| ((odd - all).abs() / all.max(floor)).min(1.0)).collect()
 }
 
 /// The pixels of a `width`-wide tile that render the next pass, when pixel `i` has its first
@@ -264,7 +276,8 @@ pub fn active_pixels(
     if done < min_adaptive_samples(samples, pass_samples) {
         return live;
     }
-    let Some(errors) = pixel_errors(sums, counts) else { return live };
+    let Some((own, floor)) = pixel_estimates(sums, counts) else { return live };
+    let errors = errors_of(&own, floor);
     let w = width.max(1) as usize;
     let h = errors.len() / w;
     if w * h != errors.len() {
@@ -296,10 +309,7 @@ pub fn active_pixels(
     // estimates (which a lone firefly does not move), it goes on while that distance is
     // above three times the target (one pixel's distance spreads about three times as widely
     // as the mean of nine).
-    let own: Vec<(f64, f64)> =
-        sums.iter().zip(counts).map(|(s, &n)| s.estimates(n, odd_samples(n))).collect();
-    let mean = own.iter().map(|(all, _)| all.max(0.0)).sum::<f64>() / own.len() as f64;
-    let floor = (0.05 * mean).max(1e-12);
+    let whole: Vec<f64> = own.iter().map(|&(all, _)| all).collect();
     let mut out = live;
     for y in 0..h {
         for x in 0..w {
@@ -308,12 +318,10 @@ pub fn active_pixels(
                 let mut worst = 0.0f64;
                 window(&pooled, x, y, &mut |e| worst = worst.max(e));
                 let (mut around, mut k) = ([0.0f64; 9], 0);
-                for yy in y.saturating_sub(1)..(y + 2).min(h) {
-                    for xx in x.saturating_sub(1)..(x + 2).min(w) {
-                        around[k] = own[yy * w + xx].0;
-                        k += 1;
-                    }
-                }
+                window(&whole, x, y, &mut |a| {
+                    around[k] = a;
+                    k += 1;
+                });
                 around[..k].sort_by(f64::total_cmp);
                 let level = around[k / 2].max(floor);
                 let (all, odd) = own[i];
