@@ -232,7 +232,7 @@ fn unknown_workers_and_bad_bodies_are_refused() {
 fn results_whose_senders_hang_up_at_once_never_leave_a_frame_unmerged() {
     use std::io::Write;
     let _s = serial();
-    // Leases of 5 s: none expires while the hang-ups are sent, however slow the machine, so
+    // Leases of 10 s: none expires while the hang-ups are sent, however slow the machine, so
     // each lease below is the new job's only tile.
     let server = Server::start_temp(
         "farm-proto-hang-ups",
@@ -242,14 +242,13 @@ fn results_whose_senders_hang_up_at_once_never_leave_a_frame_unmerged() {
             "--worker-token",
             TOKEN,
             "--lease-seconds",
-            "5",
+            "10",
             "--heartbeat-seconds",
             "1",
         ],
     );
     let url = &server.url;
     let addr = url.trim_start_matches("http://");
-    let w = register(url, "hangs-up");
     // Hang-ups after no delay, then every 20 us up to 1 ms, then 10 % later each up to 20 ms:
     // the moment the handler stores the result is somewhere among them on any machine.
     let mut delays: Vec<u64> = (0..50).map(|k| k * 20).collect();
@@ -258,9 +257,17 @@ fn results_whose_senders_hang_up_at_once_never_leave_a_frame_unmerged() {
         delays.push(next);
     }
     let max_delay = std::time::Duration::from_micros(*delays.last().unwrap());
+    // A hang-up before the result is stored leaves its lease live until it expires, and a worker
+    // may hold at most threads + 2 = 18: a new worker takes over every 16 delays, so the cap
+    // is never what refuses a lease however many hang-ups land early on a slow machine.
+    let mut w = 0;
     let jobs: Vec<u64> = delays
         .iter()
-        .map(|&micros| {
+        .enumerate()
+        .map(|(k, &micros)| {
+            if k % 16 == 0 {
+                w = register(url, &format!("hangs-up-{}", k / 16));
+            }
             let job = submit_tiny(url, 8, 8, 8, 0); // one tile
             let l = lease(url, w).unwrap();
             assert_eq!(l["job_id"], job);
@@ -287,7 +294,7 @@ fn results_whose_senders_hang_up_at_once_never_leave_a_frame_unmerged() {
     let taken =
         jobs.iter().filter(|j| get_json(url, &format!("/api/v1/jobs/{j}"))["state"] == "done").count();
     assert!(taken > 0, "no result was taken although some senders waited {max_delay:?}\n{}", server.log());
-    // The hung-up leases expire (5 s); an honest worker renders whatever went back to the queue.
+    // The hung-up leases expire (10 s); an honest worker renders whatever went back to the queue.
     let honest = register(url, "honest");
     let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
     let mut left = jobs.clone();
