@@ -232,6 +232,13 @@ impl<'a> Tracer<'a> {
     pub fn camera_hits_lanes(&self, rays: &[Ray], wide: &RayLanes, out: &mut [Option<SurfaceHit>]) {
         let scene = self.scene;
         scene.accel.intersect_lanes(rays, wide, scene.intersection_test_epsilon, out);
+        self.look_past_culled(rays, out);
+    }
+
+    /// Camera hits `out` of `rays` on back faces the scene culls, looked past ray by ray.
+    #[inline(always)]
+    fn look_past_culled(&self, rays: &[Ray], out: &mut [Option<SurfaceHit>]) {
+        let scene = self.scene;
         if scene.cull_camera_back_faces {
             for (o, ray) in out.iter_mut().zip(rays) {
                 if o.is_some_and(|h| ray.dir.dot(h.geo_normal) > 0.0 && scene.accel.is_triangle(h.instance)) {
@@ -239,6 +246,28 @@ impl<'a> Tracer<'a> {
                 }
             }
         }
+    }
+
+    /// [`Self::camera_hits_lanes`] of two groups at once, each group's hits what that call
+    /// finds: their rays walk the world tree together
+    /// ([`Accel::intersect_lanes_pair`](crate::geometry::Accel::intersect_lanes_pair)).
+    #[inline(always)]
+    pub fn camera_hits_pair(
+        &self,
+        rays: [&[Ray]; 2],
+        wide: [&RayLanes; 2],
+        out: [&mut [Option<SurfaceHit>]; 2],
+    ) {
+        let scene = self.scene;
+        let [out0, out1] = out;
+        scene.accel.intersect_lanes_pair(
+            rays,
+            wide,
+            scene.intersection_test_epsilon,
+            [&mut *out0, &mut *out1],
+        );
+        self.look_past_culled(rays[0], out0);
+        self.look_past_culled(rays[1], out1);
     }
 
     /// [`Self::trace_primary`] of a pixel's group of camera rays (`hits.len()` of the eight in

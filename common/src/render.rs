@@ -289,6 +289,33 @@ fn render_tile_into(
     range: SampleRange,
     mask: Option<&[bool]>,
     stop: Stop<'_>,
+    aux: Option<&mut AuxTile>,
+    out: &mut TileOut,
+) -> Result<RayStats, Stopped> {
+    // Where the world tree is walked sixteen lanes at a time (hosts with AVX-512), the groups
+    // go in pairs: both groups' camera rays are made, then walk the tree together
+    // ([`Tracer::camera_hits_pair`]), then each group is shaded in turn. Each ray's hit is its
+    // own, so this changes no bit. (A background image is looked up per group: its scenes
+    // trace one group at a time.) The loop is compiled for each way, so that the other keeps
+    // its own layout.
+    if crate::geometry::bvh8::pair_walks_at_once() && scene.background_texture.is_none() {
+        render_tile_groups::<true>(scene, camera, rect, settings, range, mask, stop, aux, out)
+    } else {
+        render_tile_groups::<false>(scene, camera, rect, settings, range, mask, stop, aux, out)
+    }
+}
+
+/// [`render_tile_into`], the groups' camera rays walked in pairs (`PAIRED`) or one group at a
+/// time.
+#[allow(clippy::too_many_arguments)]
+fn render_tile_groups<const PAIRED: bool>(
+    scene: &Scene,
+    camera: usize,
+    rect: TileRect,
+    settings: &RenderSettings,
+    range: SampleRange,
+    mask: Option<&[bool]>,
+    stop: Stop<'_>,
     mut aux: Option<&mut AuxTile>,
     out: &mut TileOut,
 ) -> Result<RayStats, Stopped> {
@@ -353,7 +380,14 @@ fn render_tile_into(
     // changes no bit either. A background image is looked up per group, so its scenes trace
     // one group at a time.
     let pooled = tracer.pools_paths() && scene.background_texture.is_none();
-    let batch = if pooled { POOL_GROUPS } else { 1 };
+    let paired = PAIRED;
+    let batch = if pooled {
+        POOL_GROUPS
+    } else if paired {
+        2
+    } else {
+        1
+    };
     // The groups' rays, camera hits and samplers, each lane's pixel and sample index, and
     // their radiance, made once per tile: every group writes the entries it reads
     // (`camera_hits` writes a hit or `None` to each of its slots), and a group's arrays zeroed
@@ -368,17 +402,20 @@ fn render_tile_into(
     let mut lanes = vec![[(0u32, 0u32, 0u32); GROUP]; batch];
     let mut radiance = vec![[glam::DVec3::ZERO; GROUP]; batch];
     let mut drawn = [[[0.0; GROUP]; 2]; 3];
-    // A pinhole group's camera rays side by side, their directions made in place.
-    let mut wide = RayLanes::from_origin(cam.position, &[[0.0; GROUP]; 3], GROUP);
+    // The group's camera rays side by side (a pinhole's directions made in place); paired,
+    // each group's.
+    let mut wide_one = RayLanes::from_origin(cam.position, &[[0.0; GROUP]; 3], GROUP);
+    let mut wides = if paired { vec![wide_one.clone(); batch] } else { Vec::new() };
     // The pixel being summed: its position, samples so far, and features.
     let mut pixel = PixelSum::default();
     let mut sum = glam::DVec3::ZERO;
     let (mut albedo, mut normal) = (glam::DVec3::ZERO, glam::DVec3::ZERO);
     // The order the tile's pixels are rendered in (their indices, row by row): only those of
     // the mask when there is one; at one sample a pixel, when a group takes eight pixels,
-    // blocks of 4x2 pixels, so that the group is a compact bundle of rays (which share more of
-    // their nodes than a row of eight). With two or four samples a group's pixels are row
-    // neighbours either way. Every pixel's value is its own, so the order changes no bit.
+    // blocks of 4x4 pixels, so that a group is a compact bundle of rays (a 4x2 half, whose rays
+    // share more of their nodes than a row of eight), and so is a pair of groups. With two or
+    // four samples a group's pixels are row neighbours either way. Every pixel's value is its
+    // own, so the order changes no bit.
     let order: Vec<u32> = match mask {
         Some(m) => (0..pixels as u32).filter(|&i| m[i as usize]).collect(),
         None if across_pixels && per_pixel == 1 => block_order(rect.width, rect.height),
@@ -496,6 +533,7 @@ fn render_tile_into(
                 ([f64::from(x); GROUP], [f64::from(y); GROUP])
             };
             let pinhole = cam.lens.is_none();
+            let wide = if paired { &mut wides[made] } else { &mut wide_one };
             if pinhole {
                 wide.refill_dirs(group, |d| cam.ray_dirs8(&px, &py, &film[0], &film[1], d));
             } else {
@@ -508,14 +546,35 @@ fn render_tile_into(
                 ray.time = time[i];
                 ray
             });
-            tracer.camera_hits_lanes(&cg.rays[..group], &wide, &mut cg.hits[..group]);
-            if !pooled {
-                radiance[made] =
-                    tracer.trace_primary_group(&cg.rays, &cg.hits[..group], &mut cg.samplers[..group]);
+            if !paired {
+                tracer.camera_hits_lanes(&cg.rays[..group], wide, &mut cg.hits[..group]);
+                if !pooled {
+                    radiance[made] =
+                        tracer.trace_primary_group(&cg.rays, &cg.hits[..group], &mut cg.samplers[..group]);
+                }
             }
             since_check += group as u32;
             next += group as u64;
             made += 1;
+        }
+        if paired {
+            for (pair, wides) in groups[..made].chunks_mut(2).zip(wides.chunks(2)) {
+                match pair {
+                    [a, b] => tracer.camera_hits_pair(
+                        [&a.rays[..a.n], &b.rays[..b.n]],
+                        [&wides[0], &wides[1]],
+                        [&mut a.hits[..a.n], &mut b.hits[..b.n]],
+                    ),
+                    [a] => tracer.camera_hits_lanes(&a.rays[..a.n], &wides[0], &mut a.hits[..a.n]),
+                    _ => unreachable!("chunks of one or two"),
+                }
+            }
+            if !pooled {
+                for (cg, radiance) in groups.iter_mut().zip(radiance.iter_mut()).take(made) {
+                    *radiance =
+                        tracer.trace_primary_group(&cg.rays, &cg.hits[..cg.n], &mut cg.samplers[..cg.n]);
+                }
+            }
         }
         if pooled {
             tracer.trace_path_groups(&mut groups[..made], &mut radiance[..made]);
@@ -558,13 +617,13 @@ fn render_tile_into(
     Ok(tracer.stats)
 }
 
-/// The pixels of a `width` x `height` tile (indices row by row) in blocks of 4x2: the blocks
+/// The pixels of a `width` x `height` tile (indices row by row) in blocks of 4x4: the blocks
 /// row by row, each block's pixels row by row (blocks at the right and bottom edges are cut).
 fn block_order(width: u32, height: u32) -> Vec<u32> {
     let mut order = Vec::with_capacity((width * height) as usize);
-    for by in (0..height).step_by(2) {
+    for by in (0..height).step_by(4) {
         for bx in (0..width).step_by(4) {
-            for y in by..(by + 2).min(height) {
+            for y in by..(by + 4).min(height) {
                 for x in bx..(bx + 4).min(width) {
                     order.push(y * width + x);
                 }
@@ -1017,14 +1076,14 @@ mod tests {
 
     #[test]
     fn the_block_order_takes_every_pixel_of_a_tile_once() {
-        for (w, h) in [(32, 32), (17, 5), (1, 1), (3, 7), (8, 2)] {
+        for (w, h) in [(32, 32), (17, 5), (1, 1), (3, 7), (8, 2), (8, 4)] {
             let order = block_order(w, h);
             let mut seen = order.clone();
             seen.sort_unstable();
             assert_eq!(seen, (0..w * h).collect::<Vec<_>>(), "{w}x{h}");
         }
-        // Full blocks: eight pixels in two rows of four.
-        assert_eq!(block_order(8, 2)[..8], [0, 1, 2, 3, 8, 9, 10, 11]);
+        // Full blocks: sixteen pixels in four rows of four, so each half of eight is two rows.
+        assert_eq!(block_order(8, 4)[..16], [0, 1, 2, 3, 8, 9, 10, 11, 16, 17, 18, 19, 24, 25, 26, 27]);
     }
 
     #[test]

@@ -28,11 +28,23 @@ use obvhs::bvh2::{Bvh2, reinsertion::ReinsertionOptimizer};
 use obvhs::ploc::{PlocBuilder, PlocSearchDistance, SortPrecision};
 
 mod kernels;
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+mod wide;
 
 pub use kernels::Ray8;
 use kernels::{Node, SLACK, Tri4, node_hits, safe_inv, tri4_closest, tri8_any, tri8_closest};
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
 use kernels::{below, lane_mask, mt8};
+
+/// Whether [`Bvh8::intersect_packet_pair`] walks its two packets at once (sixteen lanes an
+/// instruction, on a host with AVX-512) rather than one after the other: callers with two
+/// packets' rays at hand pair them only then.
+pub fn pair_walks_at_once() -> bool {
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+    return wide::available();
+    #[allow(unreachable_code)]
+    false
+}
 
 /// Subtrees of at most this many triangles become one leaf.
 /// (Measured with the rays bench: 8, two packets, traces faster than 2, 4 or 6 on both meshes;
@@ -406,7 +418,8 @@ impl Packet8 {
     }
 
     /// The packet of `lanes`, all with `tmin`: what [`Self::new`] makes of the same rays.
-    #[inline]
+    /// (Always inlined: a caller that makes two, for a pair walk, got a call to each.)
+    #[inline(always)]
     pub fn from_lanes(lanes: &Lanes8, tmin: f32) -> Self {
         Self::from_axes(lanes.o, lanes.d, lanes.len, tmin)
     }
@@ -458,6 +471,62 @@ impl Bvh8 {
     pub fn occluded_packet(&self, p: &Packet8, tmax: &[f32; 8]) -> u32 {
         let mut tmax = *tmax;
         self.walk_packet::<true>(p, &mut tmax, &mut [u32::MAX; 8])
+    }
+
+    /// The closest hits of two packets, `p` and `q`: what [`Self::intersect_packet`] of each
+    /// finds, bit for bit (`tmax[0]`, `id[0]` and the first mask are `p`'s). On a host with
+    /// AVX-512 the two go through one walk, sixteen lanes an instruction (see [`wide`]);
+    /// elsewhere one after the other.
+    pub fn intersect_packet_pair(
+        &self,
+        p: &Packet8,
+        q: &Packet8,
+        tmax: &mut [[f32; 8]; 2],
+        id: &mut [[u32; 8]; 2],
+    ) -> [u32; 2] {
+        #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+        if wide::available() {
+            return self.walk_pair(p, q, tmax, id);
+        }
+        [
+            self.intersect_packet(p, &mut tmax[0], &mut id[0]),
+            self.intersect_packet(q, &mut tmax[1], &mut id[1]),
+        ]
+    }
+
+    /// The sixteen-lane walk of a pair of packets (the processor has AVX-512: [`wide::detected`]).
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+    fn walk_pair(
+        &self,
+        p: &Packet8,
+        q: &Packet8,
+        tmax: &mut [[f32; 8]; 2],
+        id: &mut [[u32; 8]; 2],
+    ) -> [u32; 2] {
+        debug_assert!(wide::detected());
+        if self.nodes.is_empty() || (p.active | q.active) == 0 {
+            return [0, 0];
+        }
+        // The halves side by side: `[[T; 8]; 2]` is laid out as `[T; 16]`.
+        let (t16, i16): (&mut [f32; 16], &mut [u32; 16]) =
+            (tmax.as_flattened_mut().try_into().unwrap(), id.as_flattened_mut().try_into().unwrap());
+        let need = self.depth * 7 + 1;
+        // SAFETY: the caller checked AVX-512 (`wide::available`); the stacks hold `need`
+        // entries.
+        let hit = unsafe {
+            if need <= STACK {
+                let mut stack = [const { MaybeUninit::<(u32, u32, f32)>::uninit() }; STACK];
+                if self.nodes.len() == 1 {
+                    wide::walk16::<true>(self, p, q, t16, i16, &mut stack)
+                } else {
+                    wide::walk16::<false>(self, p, q, t16, i16, &mut stack)
+                }
+            } else {
+                let mut stack = vec![MaybeUninit::<(u32, u32, f32)>::uninit(); need];
+                wide::walk16::<false>(self, p, q, t16, i16, &mut stack)
+            }
+        };
+        [hit & 0xff, hit >> 8]
     }
 
     /// The packet walk: closest hits, or (`ANY`) whether there is any hit.
@@ -1144,6 +1213,27 @@ mod tests {
                 assert_eq!(got.map(f32::to_bits), single.map(|s| s.0.to_bits()), "packet {k} lane {lane}");
                 lanes_hit += usize::from(got.is_some());
             }
+            // Paired with a packet of clean rays (the NaN lane's replaced), either way round,
+            // both find what they find alone.
+            let clean_rays: Vec<_> = (0..8).map(|l| rays[if l == bad { (bad + 1) % 8 } else { l }]).collect();
+            let clean = Packet8::new(&clean_rays, 0.0);
+            let (mut clean_tmax, mut clean_id) = ([f32::INFINITY; 8], [u32::MAX; 8]);
+            let clean_hit = bvh.intersect_packet(&clean, &mut clean_tmax, &mut clean_id);
+            let alone = [(hit, tmax, id), (clean_hit, clean_tmax, clean_id)];
+            for order in [[0, 1], [1, 0]] {
+                let packets = [&packet, &clean];
+                let (mut t, mut i) = ([limits, [f32::INFINITY; 8]], [[u32::MAX; 8]; 2]);
+                (t, i) = ([t[order[0]], t[order[1]]], [i[order[0]], i[order[1]]]);
+                let h = bvh.intersect_packet_pair(packets[order[0]], packets[order[1]], &mut t, &mut i);
+                for g in 0..2 {
+                    let (ah, at, ai) = alone[order[g]];
+                    assert_eq!(
+                        (h[g], t[g].map(f32::to_bits), i[g]),
+                        (ah, at.map(f32::to_bits), ai),
+                        "pair {k}"
+                    );
+                }
+            }
         }
         assert!(lanes_hit > 1000, "{lanes_hit} lanes hit");
     }
@@ -1196,6 +1286,78 @@ mod tests {
             }
         }
         assert!(lanes_hit > lanes / 5, "{lanes_hit} of {lanes} lanes hit");
+    }
+
+    /// Two packets walked as a pair find, lane by lane and bit for bit, what each finds walked
+    /// alone: in big trees and in a tree of one node, with partly filled packets, far bounds
+    /// short of some hits, and NaN rays among them. Both ways a pair can go are checked where
+    /// the host has them: the public call (whichever walk this process takes) and, on a host
+    /// with AVX-512, the sixteen-lane walk itself.
+    #[test]
+    fn pairs_of_packets_find_what_each_packet_finds_alone() {
+        let mut r = xorshift(31337);
+        let (_, big) = soup(&mut r, 5000);
+        let (_, small) = soup(&mut r, 20);
+        assert_eq!(small.nodes.len(), 1, "a soup of 20 triangles is one node");
+        let make = |k: usize, r: &mut dyn FnMut() -> f32| {
+            let n = 1 + (k * 7 + 3) % 8;
+            let o = Vec3A::new(r(), r(), r()) * 14.0 - 2.0;
+            let d = Vec3A::new(r() - 0.5, r() - 0.5, r() - 0.5).normalize();
+            let spread = [0.002, 0.05, 1.0][k % 3];
+            let rays: Vec<(Vec3A, Vec3A)> = (0..n)
+                .map(|lane| {
+                    let jitter = Vec3A::new(r() - 0.5, r() - 0.5, r() - 0.5) * spread;
+                    let dir =
+                        if k.is_multiple_of(29) && lane == 1 { Vec3A::NAN } else { (d + jitter).normalize() };
+                    (o + jitter * 0.1, dir)
+                })
+                .collect();
+            let mut packet = Packet8::new(&rays, 0.0);
+            if k.is_multiple_of(11) {
+                packet.set_active(0b1010_1101);
+            }
+            let tmax: [f32; 8] = std::array::from_fn(|lane| {
+                if (k + lane).is_multiple_of(4) { 3.0 + lane as f32 } else { f32::INFINITY }
+            });
+            (packet, tmax)
+        };
+        let (mut lanes_hit, mut paired_wide) = (0, 0);
+        for k in 0..3000 {
+            let bvh = if k % 5 == 4 { &small } else { &big };
+            let (p, q) = (make(2 * k, &mut r), make(2 * k + 1, &mut r));
+            let mut alone = [(p.1, [u32::MAX; 8], 0), (q.1, [u32::MAX; 8], 0)];
+            for (g, packet) in [&p.0, &q.0].into_iter().enumerate() {
+                let (tmax, id, hit) = &mut alone[g];
+                *hit = bvh.intersect_packet(packet, tmax, id);
+                lanes_hit += hit.count_ones();
+            }
+            let mut walks = vec![("intersect_packet_pair", {
+                let (mut tmax, mut id) = ([p.1, q.1], [[u32::MAX; 8]; 2]);
+                let hit = bvh.intersect_packet_pair(&p.0, &q.0, &mut tmax, &mut id);
+                (tmax, id, hit)
+            })];
+            #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+            if wide::detected() {
+                let (mut tmax, mut id) = ([p.1, q.1], [[u32::MAX; 8]; 2]);
+                let hit = bvh.walk_pair(&p.0, &q.0, &mut tmax, &mut id);
+                walks.push(("walk_pair", (tmax, id, hit)));
+                paired_wide += 1;
+            }
+            for (name, (tmax, id, hit)) in walks {
+                for g in 0..2 {
+                    assert_eq!(hit[g], alone[g].2, "{name}: pair {k}, packet {g}: the lanes that hit");
+                    assert_eq!(
+                        tmax[g].map(f32::to_bits),
+                        alone[g].0.map(f32::to_bits),
+                        "{name}: pair {k}, packet {g}"
+                    );
+                    assert_eq!(id[g], alone[g].1, "{name}: pair {k}, packet {g}");
+                }
+            }
+        }
+        assert!(lanes_hit > 5000, "only {lanes_hit} lanes hit");
+        #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+        assert_eq!(paired_wide > 0, wide::detected(), "the sixteen-lane walk ran where the host has it");
     }
 
     /// Any-hit packets answer as each lane's single query does where it matters most: far
@@ -1385,12 +1547,26 @@ mod tests {
             let packet = Packet8::new(&rays, 0.0);
             let (mut tmax, mut id) = ([f32::INFINITY; 8], [u32::MAX; 8]);
             let hit = bvh.intersect_packet(&packet, &mut tmax, &mut id);
+            // The same rays as the second packet of a pair (the first: the rays reversed).
+            let reversed: Vec<_> = rays.iter().rev().copied().collect();
+            let (mut pair_tmax, mut pair_id) = ([[f32::INFINITY; 8]; 2], [[u32::MAX; 8]; 2]);
+            let pair_hit = bvh.intersect_packet_pair(
+                &Packet8::new(&reversed, 0.0),
+                &packet,
+                &mut pair_tmax,
+                &mut pair_id,
+            );
             for (lane, &(o, d)) in rays.iter().enumerate() {
                 let ray = Ray8::new(o, d, 0.0, f32::INFINITY);
                 let expect = brute(&ray);
                 assert_eq!(bvh.intersect(&ray), expect, "rays {k}, lane {lane}: single walk");
                 let got = (hit & (1 << lane) != 0).then_some((tmax[lane], id[lane]));
                 assert_eq!(got, expect, "rays {k}, lane {lane}: packet walk");
+                let paired = |g: usize, l: usize| {
+                    (pair_hit[g] & (1 << l) != 0).then_some((pair_tmax[g][l], pair_id[g][l]))
+                };
+                assert_eq!(paired(1, lane), expect, "rays {k}, lane {lane}: pair walk");
+                assert_eq!(paired(0, 7 - lane), expect, "rays {k}, lane {lane}: pair walk, reversed");
                 // Rays whose hit another triangle also takes at the same distance.
                 ties += usize::from(expect.is_some_and(|(t, id)| {
                     tris.iter().zip(&ids).filter(|&(_, &other)| other != id).any(|(tri, &other)| {

@@ -8,6 +8,7 @@ use crate::math::Ray;
 
 /// Up to eight `f64` rays side by side (unused lanes repeat the first ray): what a group's
 /// `f32` lanes ([`super::bvh8::Lanes8`]) are converted from, and what eight-lane tests in `f64` (spheres) read.
+#[derive(Clone)]
 pub struct RayLanes {
     /// Origins and directions, by axis then lane.
     pub(crate) o: [[f64; 8]; 3],
