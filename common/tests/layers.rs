@@ -37,6 +37,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "geometry::bvh8::kernels",
         ],
     ),
+    ("BVH walks", &["geometry::bvh8::wide"]),
     ("BVH", &["geometry::bvh8"]),
     ("pixels and records", &["image", "scene::records", "texture::mip", "lights::object"]),
     ("element tree", &["scene::tree"]),

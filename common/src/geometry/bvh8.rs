@@ -31,8 +31,11 @@ mod kernels;
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
 mod wide;
 
-pub use kernels::Ray8;
-use kernels::{Node, SLACK, Tri4, node_hits, safe_inv, tri4_closest, tri8_any, tri8_closest};
+use kernels::{
+    COUNT_SHIFT, FIRST_MASK, LEAF, Node, SLACK, Tri4, node_hits, safe_inv, tri4_closest, tri8_any,
+    tri8_closest,
+};
+pub use kernels::{Packet8, Ray8};
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
 use kernels::{below, lane_mask, mt8};
 
@@ -51,10 +54,6 @@ pub fn pair_walks_at_once() -> bool {
 /// with two packets tested per pass, 12 and 16 take 3 % and 5 % more instructions on
 /// head_env_light.)
 const LEAF_MAX: u32 = 8;
-/// A child reference with this bit set is a leaf: packets `first .. first + count`.
-const LEAF: u32 = 1 << 31;
-const COUNT_SHIFT: u32 = 28;
-const FIRST_MASK: u32 = (1 << COUNT_SHIFT) - 1;
 /// Stack entries on the machine stack; deeper trees use a heap stack.
 const STACK: usize = 256;
 
@@ -378,22 +377,6 @@ impl Lanes8 {
     }
 }
 
-/// Up to eight rays traced together through one traversal (structure of arrays): coherent rays,
-/// such as the camera rays of one pixel, share their node visits and test every triangle of a
-/// leaf eight at a time. Each lane gets the hit its own [`Ray8`] query would find, ties of `t`
-/// between triangles included (both go to the lowest id, [`kernels::nearer`]).
-pub struct Packet8 {
-    o: [[f32; 8]; 3],
-    d: [[f32; 8]; 3],
-    inv: [[f32; 8]; 3],
-    /// Each lane's `o · inv`, nudged as a single ray's ([`kernels::o_inv_bounds`]).
-    o_inv_near: [[f32; 8]; 3],
-    o_inv_far: [[f32; 8]; 3],
-    tmin: [f32; 8],
-    /// Lanes that hold a ray.
-    active: u32,
-}
-
 impl Packet8 {
     /// The packet of `rays` (origin, direction; at most eight), all with `tmin`.
     pub fn new(rays: &[(Vec3A, Vec3A)], tmin: f32) -> Self {
@@ -517,13 +500,13 @@ impl Bvh8 {
             if need <= STACK {
                 let mut stack = [const { MaybeUninit::<(u32, u32, f32)>::uninit() }; STACK];
                 if self.nodes.len() == 1 {
-                    wide::walk16::<true>(self, p, q, t16, i16, &mut stack)
+                    wide::walk16::<true>(&self.nodes, &self.tris, &self.bounds, p, q, t16, i16, &mut stack)
                 } else {
-                    wide::walk16::<false>(self, p, q, t16, i16, &mut stack)
+                    wide::walk16::<false>(&self.nodes, &self.tris, &self.bounds, p, q, t16, i16, &mut stack)
                 }
             } else {
                 let mut stack = vec![MaybeUninit::<(u32, u32, f32)>::uninit(); need];
-                wide::walk16::<false>(self, p, q, t16, i16, &mut stack)
+                wide::walk16::<false>(&self.nodes, &self.tris, &self.bounds, p, q, t16, i16, &mut stack)
             }
         };
         [hit & 0xff, hit >> 8]

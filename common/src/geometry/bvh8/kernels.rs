@@ -27,6 +27,27 @@ pub(super) struct Tri4 {
     pub(super) id: [u32; 4],
 }
 
+/// A child reference with this bit set is a leaf: packets `first .. first + count`.
+pub(super) const LEAF: u32 = 1 << 31;
+pub(super) const COUNT_SHIFT: u32 = 28;
+pub(super) const FIRST_MASK: u32 = (1 << COUNT_SHIFT) - 1;
+
+/// Up to eight rays traced together through one traversal (structure of arrays): coherent rays,
+/// such as the camera rays of one pixel, share their node visits and test every triangle of a
+/// leaf eight at a time. Each lane gets the hit its own [`Ray8`] query would find, ties of `t`
+/// between triangles included (both go to the lowest id, [`nearer`]).
+pub struct Packet8 {
+    pub(super) o: [[f32; 8]; 3],
+    pub(super) d: [[f32; 8]; 3],
+    pub(super) inv: [[f32; 8]; 3],
+    /// Each lane's `o · inv`, nudged as a single ray's ([`o_inv_bounds`]).
+    pub(super) o_inv_near: [[f32; 8]; 3],
+    pub(super) o_inv_far: [[f32; 8]; 3],
+    pub(super) tmin: [f32; 8],
+    /// Lanes that hold a ray.
+    pub(super) active: u32,
+}
+
 /// A ray prepared for the box test: direction components too close to zero are replaced by
 /// ±1e-18 (as Embree does) so that `1/d` is finite and `0 * inf` never makes a NaN.
 pub struct Ray8 {

@@ -1,14 +1,16 @@
 //! Two packets through one walk, sixteen lanes an instruction, on hosts with AVX-512.
 //!
 //! The binaries are built for `x86-64-v3` (AVX2), so an AVX-512 host runs the eight-lane walk
-//! of [`Bvh8::intersect_packet`] unless a caller hands it two packets at once
-//! ([`Bvh8::intersect_packet_pair`]): then, when the processor has AVX-512 (checked once, at
-//! run time), both go through [`walk16`], which is the eight-lane walk with every box and
-//! triangle test made for sixteen lanes. Each lane still makes its own query's tests in the
-//! same operations (fused multiply-subtract, min, max, division, comparison, each rounded once
-//! per lane as in eight lanes), so each lane's hit is the one its single-ray query finds, bit
-//! for bit, on any host; only the walk's order and the slots it may skip differ, and neither
-//! changes a result (the closest hit wins, ties go to the lowest id).
+//! of [`Bvh8::intersect_packet`](super::Bvh8::intersect_packet) unless a caller hands it two
+//! packets at once ([`Bvh8::intersect_packet_pair`](super::Bvh8::intersect_packet_pair)):
+//! then, when the processor has AVX-512 (checked once, at run time), both go through
+//! [`walk16`], which is the eight-lane walk with every box and triangle test made for sixteen
+//! lanes. Each lane still makes its own query's tests in the same operations (fused
+//! multiply-subtract, min, max, division, comparison, each rounded once per lane as in eight
+//! lanes), so each lane's hit is the one its single-ray query finds, bit for bit, on any host;
+//! only the walk's order and the slots it may skip differ, and neither changes a result (the
+//! closest hit wins, ties go to the lowest id). The tree comes as its parts (nodes, triangle
+//! packets, the root's box), so this module imports only the layouts of [`super::kernels`].
 //!
 //! `TESSERA_SIMD=avx2` in the environment keeps the eight-lane walks on an AVX-512 host (to
 //! time one against the other in one build).
@@ -16,8 +18,7 @@
 use std::mem::MaybeUninit;
 use std::sync::OnceLock;
 
-use super::kernels::{Node, SLACK};
-use super::{Bvh8, COUNT_SHIFT, FIRST_MASK, LEAF, Packet8};
+use super::kernels::{COUNT_SHIFT, FIRST_MASK, LEAF, Node, Packet8, SLACK, Tri4};
 
 /// Whether this process walks pairs of packets sixteen lanes at a time: the processor has
 /// AVX-512 (F and DQ) and the environment does not ask for eight lanes.
@@ -34,16 +35,20 @@ pub(super) fn detected() -> bool {
     std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("avx512dq")
 }
 
-/// The closest hits of the active lanes of `p` (lanes 0-7) and `q` (lanes 8-15) in one walk:
-/// what [`Bvh8::intersect_packet`] of each finds, `tmax` and `id` by lane (lane `8 + k` is lane
+/// The closest hits of the active lanes of `p` (lanes 0-7) and `q` (lanes 8-15) in one walk of
+/// the tree of `nodes` (root first), `tris` and the root's box `bounds` (minima, then maxima):
+/// what [`Bvh8::intersect_packet`](super::Bvh8::intersect_packet) of each finds, `tmax` and `id` by lane (lane `8 + k` is lane
 /// `k` of `q`). Returns the mask of lanes that hit (sixteen bits).
 ///
 /// # Safety
 /// The processor has AVX-512 F and DQ ([`detected`]); `stack` holds at least `depth * 7 + 1`
 /// entries for the tree's depth.
 #[target_feature(enable = "avx512f,avx512dq,avx2,fma")]
+#[allow(clippy::too_many_arguments)]
 pub(super) unsafe fn walk16<const ONE_NODE: bool>(
-    bvh: &Bvh8,
+    nodes: &[Node],
+    tris: &[Tri4],
+    bounds: &[f32; 6],
     p: &Packet8,
     q: &Packet8,
     tmax_out: &mut [f32; 16],
@@ -102,7 +107,7 @@ pub(super) unsafe fn walk16<const ONE_NODE: bool>(
             );
             (tn, u32::from(_mm512_cmp_ps_mask::<_CMP_LE_OQ>(tn, _mm512_mul_ps(tf, grow))))
         };
-        let (_, in_root) = enter(std::array::from_fn(|k| _mm512_set1_ps(bvh.bounds[k])), tmax);
+        let (_, in_root) = enter(std::array::from_fn(|k| _mm512_set1_ps(bounds[k])), tmax);
         let root = in_root & active;
         if root == 0 {
             return 0;
@@ -167,7 +172,7 @@ pub(super) unsafe fn walk16<const ONE_NODE: bool>(
         loop {
             let (node_ref, mask) = cur;
             if node_ref & LEAF == 0 {
-                let node = &bvh.nodes[node_ref as usize];
+                let node = &nodes[node_ref as usize];
                 let filled = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(
                     _mm256_load_ps(node.b[0].as_ptr()),
                     _mm256_load_ps(node.b[3].as_ptr()),
@@ -207,7 +212,7 @@ pub(super) unsafe fn walk16<const ONE_NODE: bool>(
                 let count = ((node_ref & !LEAF) >> COUNT_SHIFT) as usize;
                 let zero = _mm512_setzero_ps();
                 let signbit = _mm512_set1_ps(-0.0);
-                for tri in &bvh.tris[first..first + count] {
+                for tri in &tris[first..first + count] {
                     for l in 0..4 {
                         if tri.id[l] == u32::MAX {
                             break;
