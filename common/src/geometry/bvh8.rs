@@ -458,7 +458,7 @@ impl Bvh8 {
 
     /// The closest hits of two packets, `p` and `q`: what [`Self::intersect_packet`] of each
     /// finds, bit for bit (`tmax[0]`, `id[0]` and the first mask are `p`'s). On a host with
-    /// AVX-512 the two go through one walk, sixteen lanes an instruction (see [`wide`]);
+    /// AVX-512 the two go through one walk, sixteen lanes an instruction (see `bvh8/wide.rs`);
     /// elsewhere one after the other.
     pub fn intersect_packet_pair(
         &self,
