@@ -35,9 +35,9 @@ use kernels::{
     COUNT_SHIFT, FIRST_MASK, LEAF, Node, SLACK, Tri4, node_hits, safe_inv, tri4_closest, tri8_any,
     tri8_closest,
 };
-pub use kernels::{Packet8, Ray8};
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
-use kernels::{below, lane_mask, mt8};
+use kernels::{Intervals, below, filled_slots, hmax8, hmin8, insert_by_entry, lane_mask, mt8};
+pub use kernels::{Packet8, Ray8};
 
 /// Whether [`Bvh8::intersect_packet_pair`] walks its two packets at once (sixteen lanes an
 /// instruction, on a host with AVX-512) rather than one after the other: callers with two
@@ -493,20 +493,24 @@ impl Bvh8 {
         // The halves side by side: `[[T; 8]; 2]` is laid out as `[T; 16]`.
         let (t16, i16): (&mut [f32; 16], &mut [u32; 16]) =
             (tmax.as_flattened_mut().try_into().unwrap(), id.as_flattened_mut().try_into().unwrap());
+        // The stack as `walk_packet` chooses it. (That choice shared as a function taking the
+        // walk as a closure made the eight-lane walks of one-node trees do 0.96 % more
+        // instructions on jaroslav_path_nee.)
         let need = self.depth * 7 + 1;
-        // SAFETY: the caller checked AVX-512 (`wide::available`); the stacks hold `need`
-        // entries.
+        let (nodes, tris, bounds) = (&self.nodes, &self.tris, &self.bounds);
+        // SAFETY: the callers check AVX-512 (`wide::available`, `wide::detected`); the stacks
+        // hold `need` entries.
         let hit = unsafe {
             if need <= STACK {
                 let mut stack = [const { MaybeUninit::<(u32, u32, f32)>::uninit() }; STACK];
                 if self.nodes.len() == 1 {
-                    wide::walk16::<true>(&self.nodes, &self.tris, &self.bounds, p, q, t16, i16, &mut stack)
+                    wide::walk16::<true>(nodes, tris, bounds, p, q, t16, i16, &mut stack)
                 } else {
-                    wide::walk16::<false>(&self.nodes, &self.tris, &self.bounds, p, q, t16, i16, &mut stack)
+                    wide::walk16::<false>(nodes, tris, bounds, p, q, t16, i16, &mut stack)
                 }
             } else {
                 let mut stack = vec![MaybeUninit::<(u32, u32, f32)>::uninit(); need];
-                wide::walk16::<false>(&self.nodes, &self.tris, &self.bounds, p, q, t16, i16, &mut stack)
+                wide::walk16::<false>(nodes, tris, bounds, p, q, t16, i16, &mut stack)
             }
         };
         [hit & 0xff, hit >> 8]
@@ -565,7 +569,7 @@ impl Bvh8 {
     ///
     /// `ONE_NODE`: the tree is one node of leaves (a scene of a few dozen triangles). Its
     /// packets enter the root anyway, and testing each of its slots exactly costs less than
-    /// reducing the packet's intervals for that one node (`maybe` below): 0.955x the time on
+    /// reducing the packet's intervals for that one node (`Intervals::slots`): 0.955x the time on
     /// the path-traced Cornell box, whose tree is one node of eight leaves.
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
     fn closest_packet<const ANY: bool, const ONE_NODE: bool>(
@@ -635,21 +639,11 @@ impl Bvh8 {
             // The packet as intervals: the least and greatest inverse direction and scaled
             // origin of its lanes, per axis. A box tested with them gives, per slot, a lower
             // bound of every lane's entry distance and an upper bound of every lane's exit
-            // distance (see `maybe` below).
+            // distance (see `Intervals::slots`).
             let act = lane_mask(p.active);
             let neg_inf = _mm256_set1_ps(f32::NEG_INFINITY);
-            let hmin = |v: __m256| {
-                let v = _mm256_blendv_ps(inf, v, act);
-                let v = _mm256_min_ps(v, _mm256_permute2f128_ps(v, v, 1));
-                let v = _mm256_min_ps(v, _mm256_shuffle_ps(v, v, 0b01_00_11_10));
-                _mm256_min_ps(v, _mm256_shuffle_ps(v, v, 0b10_11_00_01))
-            };
-            let hmax = |v: __m256| {
-                let v = _mm256_blendv_ps(neg_inf, v, act);
-                let v = _mm256_max_ps(v, _mm256_permute2f128_ps(v, v, 1));
-                let v = _mm256_max_ps(v, _mm256_shuffle_ps(v, v, 0b01_00_11_10));
-                _mm256_max_ps(v, _mm256_shuffle_ps(v, v, 0b10_11_00_01))
-            };
+            let hmin = |v: __m256| hmin8(_mm256_blendv_ps(inf, v, act));
+            let hmax = |v: __m256| hmax8(_mm256_blendv_ps(neg_inf, v, act));
             // A lane with a NaN inverse, scaled origin or far bound (a NaN ray) has no
             // interval; the min and max instructions would drop it in some lanes of a reduction
             // and not in others, and a bound reduced that way can miss a valid lane's value.
@@ -660,46 +654,14 @@ impl Bvh8 {
             let sum = _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(oix, oiy), oiz), tmax);
             let nan_lanes = _mm256_movemask_ps(_mm256_cmp_ps(sum, sum, _CMP_UNORD_Q)) as u32 & p.active;
             let keep_all = if nan_lanes == 0 { 0 } else { 0xff };
-            let inv_lo = [hmin(ix), hmin(iy), hmin(iz)];
-            let inv_hi = [hmax(ix), hmax(iy), hmax(iz)];
             // The least of the far terms and the greatest of the near ones: the intervals
             // bound the nudged distances, so they stay conservative. (`ONE_NODE` walks never
             // read them: nothing of theirs depends on these values.)
-            let oinv_lo = [hmin(ofx), hmin(ofy), hmin(ofz)];
-            let oinv_hi = [hmax(oix), hmax(oiy), hmax(oiz)];
-            // The slots of `node` that some lane of the packet may enter before `far` (the
-            // greatest far bound of its lanes). Per lane the exact test computes each plane's
-            // distance as round(b·inv − o), o the lane's nudged near or far term, which is
-            // monotonic in the exact value; the
-            // exact value is least at an end of the inverse's interval and at the greatest
-            // scaled origin, greatest at an end and at the least origin, so one rounded
-            // product per end bounds every lane's. Mins, maxes and the product by `grow` keep
-            // the order, so a slot is dropped only when every lane's own test would drop it.
-            // A NaN bound keeps the slot.
-            let maybe = |node: &Node, far: __m256| {
-                let plane = |k: usize| _mm256_load_ps(node.b[k].as_ptr());
-                let lo = |b: __m256, a: usize| {
-                    _mm256_min_ps(
-                        _mm256_fmsub_ps(b, inv_lo[a], oinv_hi[a]),
-                        _mm256_fmsub_ps(b, inv_hi[a], oinv_hi[a]),
-                    )
-                };
-                let hi = |b: __m256, a: usize| {
-                    _mm256_max_ps(
-                        _mm256_fmsub_ps(b, inv_lo[a], oinv_lo[a]),
-                        _mm256_fmsub_ps(b, inv_hi[a], oinv_lo[a]),
-                    )
-                };
-                let (b0, b1, b2, b3, b4, b5) = (plane(0), plane(1), plane(2), plane(3), plane(4), plane(5));
-                let tn = _mm256_max_ps(
-                    _mm256_max_ps(_mm256_min_ps(lo(b0, 0), lo(b3, 0)), _mm256_min_ps(lo(b1, 1), lo(b4, 1))),
-                    _mm256_max_ps(_mm256_min_ps(lo(b2, 2), lo(b5, 2)), tmin),
-                );
-                let tf = _mm256_min_ps(
-                    _mm256_min_ps(_mm256_max_ps(hi(b0, 0), hi(b3, 0)), _mm256_max_ps(hi(b1, 1), hi(b4, 1))),
-                    _mm256_min_ps(_mm256_max_ps(hi(b2, 2), hi(b5, 2)), far),
-                );
-                _mm256_movemask_ps(_mm256_cmp_ps(tn, _mm256_mul_ps(tf, grow), _CMP_NGT_UQ)) as u32
+            let intervals = Intervals {
+                inv_lo: [hmin(ix), hmin(iy), hmin(iz)],
+                inv_hi: [hmax(ix), hmax(iy), hmax(iz)],
+                oinv_lo: [hmin(ofx), hmin(ofy), hmin(ofz)],
+                oinv_hi: [hmax(oix), hmax(oiy), hmax(oiz)],
             };
             let mut sp = 0usize;
             let mut cur = (0u32, root);
@@ -707,17 +669,15 @@ impl Bvh8 {
                 let (node_ref, mask) = cur;
                 if node_ref & LEAF == 0 {
                     let node = &self.nodes[node_ref as usize];
-                    // Slots with a box (empty ones have min > max) that the packet's intervals
-                    // may enter.
-                    let filled = _mm256_movemask_ps(_mm256_cmp_ps(
-                        _mm256_load_ps(node.b[0].as_ptr()),
-                        _mm256_load_ps(node.b[3].as_ptr()),
-                        _CMP_LE_OQ,
-                    )) as u32;
+                    // Slots with a box that the packet's intervals may enter.
+                    let filled = filled_slots(node);
                     let mut kids = [(0u32, 0u32, 0f32); 8];
                     let mut n = 0;
-                    let mut slots =
-                        if ONE_NODE { filled } else { filled & (maybe(node, hmax(tmax)) | keep_all) };
+                    let mut slots = if ONE_NODE {
+                        filled
+                    } else {
+                        filled & (intervals.slots(node, tmin, hmax(tmax)) | keep_all)
+                    };
                     while slots != 0 {
                         let i = slots.trailing_zeros() as usize;
                         slots &= slots - 1;
@@ -725,19 +685,8 @@ impl Bvh8 {
                         let lanes = _mm256_movemask_ps(in_box) as u32 & mask;
                         if lanes != 0 {
                             // The nearest entry among the lanes that enter orders the children.
-                            let e = _mm256_blendv_ps(inf, tn, in_box);
-                            let e = _mm256_min_ps(e, _mm256_permute2f128_ps(e, e, 1));
-                            let e = _mm256_min_ps(e, _mm256_shuffle_ps(e, e, 0b01_00_11_10));
-                            let e = _mm256_min_ps(e, _mm256_shuffle_ps(e, e, 0b10_11_00_01));
-                            let entry = _mm256_cvtss_f32(e);
-                            let k = (node.child[i], lanes, entry);
-                            // Insertion sort, descending entry distance.
-                            let mut j = n;
-                            while j > 0 && kids[j - 1].2 < entry {
-                                kids[j] = kids[j - 1];
-                                j -= 1;
-                            }
-                            kids[j] = k;
+                            let entry = _mm256_cvtss_f32(hmin8(_mm256_blendv_ps(inf, tn, in_box)));
+                            insert_by_entry(&mut kids, n, (node.child[i], lanes, entry));
                             n += 1;
                         }
                     }

@@ -247,6 +247,17 @@ impl Accel {
     }
 }
 
+/// The lane queries' contract: one to eight rays, as many lanes in `wide` (holding the same
+/// rays, checked in debug builds) and `out` results.
+#[inline(always)]
+fn check_lanes(rays: &[Ray], wide: &RayLanes, out: usize) {
+    assert!(
+        (1..=8).contains(&rays.len()) && out == rays.len() && wide.len == rays.len(),
+        "one to eight rays, as many lanes and results"
+    );
+    debug_assert!(rays.iter().enumerate().all(|(k, r)| wide.holds(k, r)), "the lanes hold the rays");
+}
+
 /// World bounds of a bounded instance; `None` for planes.
 fn instance_bounds(inst: &Instance, meshes: &[Arc<MeshGeom>]) -> Option<Aabb> {
     let local = match &inst.shape {
@@ -494,11 +505,7 @@ impl Accel {
     /// that made them that way saves the gathering.
     #[inline(always)]
     pub fn intersect_lanes(&self, rays: &[Ray], wide: &RayLanes, tmin: f64, out: &mut [Option<SurfaceHit>]) {
-        assert!(
-            (1..=8).contains(&rays.len()) && out.len() == rays.len() && wide.len == rays.len(),
-            "one to eight rays, as many lanes and results"
-        );
-        debug_assert!(rays.iter().enumerate().all(|(k, r)| wide.holds(k, r)), "the lanes hold the rays");
+        check_lanes(rays, wide, out.len());
         let mut best = [Candidate::none(f64::INFINITY); 8];
         let mut lanes = Lanes8::new(&wide.o, &wide.d, wide.len);
         // Each lane's closest hit so far in f32; a lane's obvhs ray is made only where an
@@ -531,16 +538,7 @@ impl Accel {
             return;
         };
         for g in 0..2 {
-            assert!(
-                (1..=8).contains(&rays[g].len())
-                    && out[g].len() == rays[g].len()
-                    && wide[g].len == rays[g].len(),
-                "one to eight rays, as many lanes and results"
-            );
-            debug_assert!(
-                rays[g].iter().enumerate().all(|(k, r)| wide[g].holds(k, r)),
-                "the lanes hold the rays"
-            );
+            check_lanes(rays[g], wide[g], out[g].len());
         }
         let mut lanes = wide.map(|w| Lanes8::new(&w.o, &w.d, w.len));
         let packets =

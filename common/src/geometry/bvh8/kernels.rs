@@ -128,6 +128,123 @@ impl Ray8 {
     }
 }
 
+/// The least (`hmin8`) or greatest (`hmax8`) of the eight lanes of `v`, in every lane: the
+/// reductions of a packet walk (its intervals, a child's nearest entry).
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+#[inline(always)]
+pub(super) fn hmin8(v: std::arch::x86_64::__m256) -> std::arch::x86_64::__m256 {
+    use std::arch::x86_64::*;
+    // SAFETY: the target has AVX (cfg above); register operations only.
+    unsafe {
+        let v = _mm256_min_ps(v, _mm256_permute2f128_ps(v, v, 1));
+        let v = _mm256_min_ps(v, _mm256_shuffle_ps(v, v, 0b01_00_11_10));
+        _mm256_min_ps(v, _mm256_shuffle_ps(v, v, 0b10_11_00_01))
+    }
+}
+
+/// See [`hmin8`].
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+#[inline(always)]
+pub(super) fn hmax8(v: std::arch::x86_64::__m256) -> std::arch::x86_64::__m256 {
+    use std::arch::x86_64::*;
+    // SAFETY: the target has AVX (cfg above); register operations only.
+    unsafe {
+        let v = _mm256_max_ps(v, _mm256_permute2f128_ps(v, v, 1));
+        let v = _mm256_max_ps(v, _mm256_shuffle_ps(v, v, 0b01_00_11_10));
+        _mm256_max_ps(v, _mm256_shuffle_ps(v, v, 0b10_11_00_01))
+    }
+}
+
+/// A packet's lanes as intervals, per axis (each value broadcast to every lane): the least and
+/// greatest inverse direction, the least far term and the greatest near term of its scaled
+/// origins (see [`o_inv_bounds`]). The packet walks of eight and sixteen lanes make them once a
+/// walk and test every node's eight boxes with them first ([`Intervals::slots`]).
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+pub(super) struct Intervals {
+    pub(super) inv_lo: [std::arch::x86_64::__m256; 3],
+    pub(super) inv_hi: [std::arch::x86_64::__m256; 3],
+    pub(super) oinv_lo: [std::arch::x86_64::__m256; 3],
+    pub(super) oinv_hi: [std::arch::x86_64::__m256; 3],
+}
+
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+impl Intervals {
+    /// The filled slots of `node` that some lane of the packet may enter between `tmin` and
+    /// `far` (the greatest far bound of its lanes). Per lane the exact test computes each
+    /// plane's distance as round(b·inv − o), o the lane's nudged near or far term, which is
+    /// monotonic in the exact value; the exact value is least at an end of the inverse's
+    /// interval and at the greatest scaled origin, greatest at an end and at the least origin,
+    /// so one rounded product per end bounds every lane's. Mins, maxes and the product by
+    /// [`SLACK`] keep the order, so a slot is dropped only when every lane's own test would
+    /// drop it. A NaN bound keeps the slot.
+    #[inline(always)]
+    pub(super) fn slots(
+        &self,
+        node: &Node,
+        tmin: std::arch::x86_64::__m256,
+        far: std::arch::x86_64::__m256,
+    ) -> u32 {
+        use std::arch::x86_64::*;
+        let Intervals { inv_lo, inv_hi, oinv_lo, oinv_hi } = self;
+        // SAFETY: the target has AVX2 and FMA (cfg above); `Node` is 32-byte aligned and its
+        // planes are 32 bytes each.
+        unsafe {
+            let plane = |k: usize| _mm256_load_ps(node.b[k].as_ptr());
+            let lo = |b: __m256, a: usize| {
+                _mm256_min_ps(
+                    _mm256_fmsub_ps(b, inv_lo[a], oinv_hi[a]),
+                    _mm256_fmsub_ps(b, inv_hi[a], oinv_hi[a]),
+                )
+            };
+            let hi = |b: __m256, a: usize| {
+                _mm256_max_ps(
+                    _mm256_fmsub_ps(b, inv_lo[a], oinv_lo[a]),
+                    _mm256_fmsub_ps(b, inv_hi[a], oinv_lo[a]),
+                )
+            };
+            let (b0, b1, b2, b3, b4, b5) = (plane(0), plane(1), plane(2), plane(3), plane(4), plane(5));
+            let tn = _mm256_max_ps(
+                _mm256_max_ps(_mm256_min_ps(lo(b0, 0), lo(b3, 0)), _mm256_min_ps(lo(b1, 1), lo(b4, 1))),
+                _mm256_max_ps(_mm256_min_ps(lo(b2, 2), lo(b5, 2)), tmin),
+            );
+            let tf = _mm256_min_ps(
+                _mm256_min_ps(_mm256_max_ps(hi(b0, 0), hi(b3, 0)), _mm256_max_ps(hi(b1, 1), hi(b4, 1))),
+                _mm256_min_ps(_mm256_max_ps(hi(b2, 2), hi(b5, 2)), far),
+            );
+            _mm256_movemask_ps(_mm256_cmp_ps(tn, _mm256_mul_ps(tf, _mm256_set1_ps(SLACK)), _CMP_NGT_UQ))
+                as u32
+        }
+    }
+}
+
+/// The slots of `node` that hold a box (empty ones have min > max).
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+#[inline(always)]
+pub(super) fn filled_slots(node: &Node) -> u32 {
+    use std::arch::x86_64::*;
+    // SAFETY: the target has AVX (cfg above); `Node` is 32-byte aligned, its planes 32 bytes.
+    unsafe {
+        _mm256_movemask_ps(_mm256_cmp_ps(
+            _mm256_load_ps(node.b[0].as_ptr()),
+            _mm256_load_ps(node.b[3].as_ptr()),
+            _CMP_LE_OQ,
+        )) as u32
+    }
+}
+
+/// A packet walk's child `k` (node reference, lanes, nearest entry) put among the first `n` of
+/// `kids`, which are in descending entry distance (the nearest last, to be walked first).
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+#[inline(always)]
+pub(super) fn insert_by_entry(kids: &mut [(u32, u32, f32); 8], n: usize, k: (u32, u32, f32)) {
+    let mut j = n;
+    while j > 0 && kids[j - 1].2 < k.2 {
+        kids[j] = kids[j - 1];
+        j -= 1;
+    }
+    kids[j] = k;
+}
+
 /// The lanes of `mask` as an all-ones / all-zeros vector.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
 #[inline(always)]

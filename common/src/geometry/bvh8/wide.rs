@@ -18,7 +18,10 @@
 use std::mem::MaybeUninit;
 use std::sync::OnceLock;
 
-use super::kernels::{COUNT_SHIFT, FIRST_MASK, LEAF, Node, Packet8, SLACK, Tri4};
+use super::kernels::{
+    COUNT_SHIFT, FIRST_MASK, Intervals, LEAF, Node, Packet8, SLACK, Tri4, filled_slots, hmax8, hmin8,
+    insert_by_entry,
+};
 
 /// Whether this process walks pairs of packets sixteen lanes at a time: the processor has
 /// AVX-512 (F and DQ) and the environment does not ask for eight lanes.
@@ -113,22 +116,16 @@ pub(super) unsafe fn walk16<const ONE_NODE: bool>(
             return 0;
         }
         // The least (greatest) of the sixteen lanes that `keep` marks, the others taken as +inf
-        // (-inf), in every lane of an eight-lane register: the eight-lane walk's reductions
-        // after one step that folds the halves.
+        // (-inf), in every lane of an eight-lane register: the halves folded, then the
+        // eight-lane walk's reduction.
         let hmin = |v: __m512, keep: u32| {
             let v = _mm512_mask_blend_ps(keep as u16, inf, v);
-            let v = _mm256_min_ps(_mm512_castps512_ps256(v), _mm512_extractf32x8_ps::<1>(v));
-            let v = _mm256_min_ps(v, _mm256_permute2f128_ps(v, v, 1));
-            let v = _mm256_min_ps(v, _mm256_shuffle_ps(v, v, 0b01_00_11_10));
-            _mm256_min_ps(v, _mm256_shuffle_ps(v, v, 0b10_11_00_01))
+            hmin8(_mm256_min_ps(_mm512_castps512_ps256(v), _mm512_extractf32x8_ps::<1>(v)))
         };
         let neg_inf = _mm512_set1_ps(f32::NEG_INFINITY);
         let hmax = |v: __m512, keep: u32| {
             let v = _mm512_mask_blend_ps(keep as u16, neg_inf, v);
-            let v = _mm256_max_ps(_mm512_castps512_ps256(v), _mm512_extractf32x8_ps::<1>(v));
-            let v = _mm256_max_ps(v, _mm256_permute2f128_ps(v, v, 1));
-            let v = _mm256_max_ps(v, _mm256_shuffle_ps(v, v, 0b01_00_11_10));
-            _mm256_max_ps(v, _mm256_shuffle_ps(v, v, 0b10_11_00_01))
+            hmax8(_mm256_max_ps(_mm512_castps512_ps256(v), _mm512_extractf32x8_ps::<1>(v)))
         };
         // The packet as intervals, and the slots some lane may enter: as in the eight-lane
         // walk (whose comments give the reasoning), over sixteen lanes. A NaN in any lane keeps
@@ -136,51 +133,27 @@ pub(super) unsafe fn walk16<const ONE_NODE: bool>(
         let sum = _mm512_add_ps(_mm512_add_ps(_mm512_add_ps(oix, oiy), oiz), tmax);
         let nan_lanes = u32::from(_mm512_cmp_ps_mask::<_CMP_UNORD_Q>(sum, sum)) & active;
         let keep_all = if nan_lanes == 0 { 0 } else { 0xff };
-        let inv_lo = [hmin(ix, active), hmin(iy, active), hmin(iz, active)];
-        let inv_hi = [hmax(ix, active), hmax(iy, active), hmax(iz, active)];
-        let oinv_lo = [hmin(ofx, active), hmin(ofy, active), hmin(ofz, active)];
-        let oinv_hi = [hmax(oix, active), hmax(oiy, active), hmax(oiz, active)];
-        let tmin8 = hmin(tmin, active);
-        let grow8 = _mm256_set1_ps(SLACK);
-        let maybe = |node: &Node, far: __m256| {
-            let plane = |k: usize| _mm256_load_ps(node.b[k].as_ptr());
-            let lo = |b: __m256, a: usize| {
-                _mm256_min_ps(
-                    _mm256_fmsub_ps(b, inv_lo[a], oinv_hi[a]),
-                    _mm256_fmsub_ps(b, inv_hi[a], oinv_hi[a]),
-                )
-            };
-            let hi = |b: __m256, a: usize| {
-                _mm256_max_ps(
-                    _mm256_fmsub_ps(b, inv_lo[a], oinv_lo[a]),
-                    _mm256_fmsub_ps(b, inv_hi[a], oinv_lo[a]),
-                )
-            };
-            let (b0, b1, b2, b3, b4, b5) = (plane(0), plane(1), plane(2), plane(3), plane(4), plane(5));
-            let tn = _mm256_max_ps(
-                _mm256_max_ps(_mm256_min_ps(lo(b0, 0), lo(b3, 0)), _mm256_min_ps(lo(b1, 1), lo(b4, 1))),
-                _mm256_max_ps(_mm256_min_ps(lo(b2, 2), lo(b5, 2)), tmin8),
-            );
-            let tf = _mm256_min_ps(
-                _mm256_min_ps(_mm256_max_ps(hi(b0, 0), hi(b3, 0)), _mm256_max_ps(hi(b1, 1), hi(b4, 1))),
-                _mm256_min_ps(_mm256_max_ps(hi(b2, 2), hi(b5, 2)), far),
-            );
-            _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_NGT_UQ>(tn, _mm256_mul_ps(tf, grow8))) as u32
+        let intervals = Intervals {
+            inv_lo: [hmin(ix, active), hmin(iy, active), hmin(iz, active)],
+            inv_hi: [hmax(ix, active), hmax(iy, active), hmax(iz, active)],
+            oinv_lo: [hmin(ofx, active), hmin(ofy, active), hmin(ofz, active)],
+            oinv_hi: [hmax(oix, active), hmax(oiy, active), hmax(oiz, active)],
         };
+        let tmin8 = hmin(tmin, active);
         let mut sp = 0usize;
         let mut cur = (0u32, root);
         loop {
             let (node_ref, mask) = cur;
             if node_ref & LEAF == 0 {
                 let node = &nodes[node_ref as usize];
-                let filled = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(
-                    _mm256_load_ps(node.b[0].as_ptr()),
-                    _mm256_load_ps(node.b[3].as_ptr()),
-                )) as u32;
+                let filled = filled_slots(node);
                 let mut kids = [(0u32, 0u32, 0f32); 8];
                 let mut n = 0;
-                let mut slots =
-                    if ONE_NODE { filled } else { filled & (maybe(node, hmax(tmax, active)) | keep_all) };
+                let mut slots = if ONE_NODE {
+                    filled
+                } else {
+                    filled & (intervals.slots(node, tmin8, hmax(tmax, active)) | keep_all)
+                };
                 while slots != 0 {
                     let i = slots.trailing_zeros() as usize;
                     slots &= slots - 1;
@@ -189,13 +162,7 @@ pub(super) unsafe fn walk16<const ONE_NODE: bool>(
                     if lanes != 0 {
                         // The nearest entry among the lanes that enter orders the children.
                         let entry = _mm256_cvtss_f32(hmin(tn, in_box));
-                        let k = (node.child[i], lanes, entry);
-                        let mut j = n;
-                        while j > 0 && kids[j - 1].2 < entry {
-                            kids[j] = kids[j - 1];
-                            j -= 1;
-                        }
-                        kids[j] = k;
+                        insert_by_entry(&mut kids, n, (node.child[i], lanes, entry));
                         n += 1;
                     }
                 }
