@@ -15,7 +15,7 @@ use crate::image::{Image, TileRect};
 use crate::integrator::{CameraGroup, RayStats, Tracer};
 use crate::math::Ray;
 use crate::passes::{BLOCK, PixelSum, SampleRange};
-use crate::sampler::{PixelSeeds, Sampler, frame_seed};
+use crate::sampler::{FrameKey, PixelSeeds, Sampler, frame_seed};
 use crate::scene::Scene;
 use crate::scene::records::EnvSampler;
 
@@ -411,24 +411,34 @@ fn render_tile_groups<const PAIRED: bool>(
     let mut pixel = PixelSum::default();
     let mut sum = glam::DVec3::ZERO;
     let (mut albedo, mut normal) = (glam::DVec3::ZERO, glam::DVec3::ZERO);
-    // The order the tile's pixels are rendered in (their indices, row by row): only those of
-    // the mask when there is one; at one sample a pixel, when a group takes eight pixels,
+    // The order the tile's pixels are rendered in, as their positions in the frame: only those
+    // of the mask when there is one; at one sample a pixel, when a group takes eight pixels,
     // blocks of 4x4 pixels, so that a group is a compact bundle of rays (a 4x2 half, whose rays
-    // share more of their nodes than a row of eight), and so is a pair of groups. With two or
-    // four samples a group's pixels are row neighbours either way. Every pixel's value is its
-    // own, so the order changes no bit.
-    let order: Vec<u32> = match mask {
-        Some(m) => (0..pixels as u32).filter(|&i| m[i as usize]).collect(),
-        None if across_pixels && per_pixel == 1 => block_order(rect.width, rect.height),
-        None => (0..pixels as u32).collect(),
+    // share more of their nodes than a row of eight), and so is a pair of groups; else row by
+    // row. With two or four samples a group's pixels are row neighbours either way. Every
+    // pixel's value is its own, so the order changes no bit.
+    let in_frame = |(x, y): (u32, u32)| (rect.x0 + x, rect.y0 + y);
+    let order: Vec<(u32, u32)> = match mask {
+        Some(m) => (0..pixels as u32)
+            .filter(|&i| m[i as usize])
+            .map(|i| in_frame((i % rect.width, i / rect.width)))
+            .collect(),
+        None if across_pixels && per_pixel == 1 => {
+            block_order(rect.width, rect.height).into_iter().map(in_frame).collect()
+        }
+        None => (0..rect.height).flat_map(|y| (0..rect.width).map(move |x| in_frame((x, y)))).collect(),
     };
-    // The (pixel, sample) pairs of the tile in order: pixel by pixel, a pixel's samples in turn.
+    // The (pixel, sample) pairs of the tile in order: pixel by pixel, a pixel's samples in turn
+    // (one sample a pixel is the common case, and needs no division).
     let total = order.len() as u64 * u64::from(per_pixel);
     let at = |i: u64| {
-        let p = order[(i / u64::from(per_pixel)) as usize];
-        let s = range.start + (i % u64::from(per_pixel)) as u32;
-        (rect.x0 + p % rect.width, rect.y0 + p / rect.width, s)
+        let (p, s) =
+            if per_pixel == 1 { (i, 0) } else { (i / u64::from(per_pixel), i % u64::from(per_pixel)) };
+        let (x, y) = order[p as usize];
+        (x, y, range.start + s as u32)
     };
+    // The frame's part of the pixels' sampler keys, hashed once a tile.
+    let frame_key = FrameKey::new(seed);
     // The pixel whose sampler and first requests' seeds the groups of one pixel use.
     let unseeded = Sampler::new(seed, 0, 0, 0);
     let mut seeded = (u32::MAX, u32::MAX, PixelSeeds::of(&unseeded), unseeded);
@@ -474,7 +484,7 @@ fn render_tile_groups<const PAIRED: bool>(
                     let (lx, ly, ls) = at(next + i as u64);
                     let pixel_sampler = match &keyed {
                         Some((kx, ky, k)) if (*kx, *ky) == (lx, ly) => k,
-                        _ => &keyed.insert((lx, ly, Sampler::new(seed, lx, ly, 0))).2,
+                        _ => &keyed.insert((lx, ly, frame_key.sampler(lx, ly, 0))).2,
                     };
                     *sampler = pixel_sampler.with_sample(ls);
                     *lane = (lx, ly, ls);
@@ -491,7 +501,7 @@ fn render_tile_groups<const PAIRED: bool>(
                 // pixel's sampler and the seeds of its first requests are made once for all
                 // its groups, and the group's values come from the seeds (the same values).
                 if (seeded.0, seeded.1) != (x, y) {
-                    let pixel_sampler = Sampler::new(seed, x, y, 0);
+                    let pixel_sampler = frame_key.sampler(x, y, 0);
                     seeded = (x, y, PixelSeeds::of(&pixel_sampler), pixel_sampler);
                 }
                 for (i, sampler) in cg.samplers.iter_mut().enumerate().take(group) {
@@ -618,15 +628,16 @@ fn render_tile_groups<const PAIRED: bool>(
     Ok(tracer.stats)
 }
 
-/// The pixels of a `width` x `height` tile (indices row by row) in blocks of 4x4: the blocks
-/// row by row, each block's pixels row by row (blocks at the right and bottom edges are cut).
-fn block_order(width: u32, height: u32) -> Vec<u32> {
+/// The pixels of a `width` x `height` tile, as (x, y) from its corner, in blocks of 4x4: the
+/// blocks row by row, each block's pixels row by row (blocks at the right and bottom edges are
+/// cut).
+fn block_order(width: u32, height: u32) -> Vec<(u32, u32)> {
     let mut order = Vec::with_capacity((width * height) as usize);
     for by in (0..height).step_by(4) {
         for bx in (0..width).step_by(4) {
             for y in by..(by + 4).min(height) {
                 for x in bx..(bx + 4).min(width) {
-                    order.push(y * width + x);
+                    order.push((x, y));
                 }
             }
         }
@@ -1119,12 +1130,14 @@ mod tests {
     fn the_block_order_takes_every_pixel_of_a_tile_once() {
         for (w, h) in [(32, 32), (17, 5), (1, 1), (3, 7), (8, 2), (8, 4)] {
             let order = block_order(w, h);
-            let mut seen = order.clone();
+            assert!(order.iter().all(|&(x, y)| x < w && y < h));
+            let mut seen: Vec<u32> = order.iter().map(|&(x, y)| y * w + x).collect();
             seen.sort_unstable();
             assert_eq!(seen, (0..w * h).collect::<Vec<_>>(), "{w}x{h}");
         }
         // Full blocks: sixteen pixels in four rows of four, so each half of eight is two rows.
-        assert_eq!(block_order(8, 4)[..16], [0, 1, 2, 3, 8, 9, 10, 11, 16, 17, 18, 19, 24, 25, 26, 27]);
+        let first: Vec<u32> = block_order(8, 4)[..16].iter().map(|&(x, y)| y * 8 + x).collect();
+        assert_eq!(first, [0, 1, 2, 3, 8, 9, 10, 11, 16, 17, 18, 19, 24, 25, 26, 27]);
     }
 
     #[test]

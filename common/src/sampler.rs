@@ -96,11 +96,26 @@ pub struct Sampler {
     dim: u64,
 }
 
+/// The frame's part of every pixel's sampler key, hashed once for all the pixels of a tile:
+/// `FrameKey::new(seed).sampler(x, y, s)` is `Sampler::new(seed, x, y, s)`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrameKey(u64);
+
+impl FrameKey {
+    pub fn new(frame_seed: u64) -> Self {
+        FrameKey(fmix64(frame_seed ^ GOLDEN))
+    }
+
+    /// The sampler of camera sample `sample` of pixel (x, y).
+    #[inline]
+    pub fn sampler(self, x: u32, y: u32, sample: u32) -> Sampler {
+        Sampler { key: fmix64(self.0 ^ ((x as u64) << 32 | y as u64)), index: sample, dim: 0 }
+    }
+}
+
 impl Sampler {
     pub fn new(frame_seed: u64, x: u32, y: u32, sample: u32) -> Self {
-        let mut k = fmix64(frame_seed ^ GOLDEN);
-        k = fmix64(k ^ ((x as u64) << 32 | y as u64));
-        Sampler { key: k, index: sample, dim: 0 }
+        FrameKey::new(frame_seed).sampler(x, y, sample)
     }
 
     /// The sampler of camera sample `sample` of the same pixel: `Sampler::new(seed, x, y,
@@ -456,6 +471,15 @@ pub fn frame_seed(base: u64, camera: usize) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_frame_key_makes_the_pixels_samplers() {
+        for (seed, x, y, s) in [(0, 0, 0, 0), (0x5eed, 12, 34, 5), (u64::MAX, u32::MAX, 7, u32::MAX)] {
+            let (mut a, mut b) = (Sampler::new(seed, x, y, s), FrameKey::new(seed).sampler(x, y, s));
+            assert_eq!((a.next_2d(), a.next_2d()), (b.next_2d(), b.next_2d()));
+        }
+        assert_ne!(FrameKey::new(1).sampler(2, 3, 0).next_2d(), FrameKey::new(1).sampler(3, 2, 0).next_2d());
+    }
 
     /// The points of request `dim` (counted from 1) over samples 0..n of pixel (x, y).
     fn points(x: u32, y: u32, n: u32, dim: usize) -> Vec<(f64, f64)> {
