@@ -309,6 +309,11 @@ impl From<EnvSampling> for EnvSampler {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    // A misspelt width setting would otherwise go unnoticed: the walks ignore it.
+    let simd = std::env::var_os(tessera::geometry::bvh8::SIMD_VARIABLE);
+    if let Err(e) = tessera::geometry::bvh8::narrow_walks_asked(simd.as_deref()) {
+        say!("warning: {e}");
+    }
     let result = match cli.command {
         Command::Render(args) => render(&args),
         Command::Work {

@@ -541,3 +541,29 @@ fn the_sixteen_lane_walk_changes_no_byte() {
         assert!(a.1 == b.1, "{} differs between the two walks", a.0);
     }
 }
+
+/// A value of `TESSERA_SIMD` other than `avx2` is a warning that names the variable and its one
+/// value, and the render goes on as if it were unset; `avx2` and unset print nothing of it.
+#[test]
+fn an_unknown_simd_value_is_named_and_ignored() {
+    let tmp = TempDir::new("cli-simd-value");
+    let scene = tmp.write("small.xml", small_scene(TRIANGLE, ""));
+    let mut images = Vec::new();
+    for (simd, warned) in [("", false), ("avx2", false), ("avx512", true)] {
+        let out = tmp.path().join(format!("out-{simd}"));
+        let args =
+            ["render".as_ref(), "--quiet".as_ref(), "--out".as_ref(), out.as_os_str(), scene.as_os_str()];
+        let r = run_with_env(&args, &[("TESSERA_SIMD", simd)]);
+        assert_eq!(r.code, Some(0), "TESSERA_SIMD={simd}: {}", r.describe());
+        assert_eq!(r.stderr.contains("TESSERA_SIMD"), warned, "TESSERA_SIMD={simd}: {}", r.describe());
+        if warned {
+            assert!(
+                r.stderr.contains("warning: TESSERA_SIMD=avx512 ") && r.stderr.contains("'avx2'"),
+                "{}",
+                r.describe()
+            );
+        }
+        images.push(std::fs::read(out.join("small.png")).expect("the image"));
+    }
+    assert!(images.iter().all(|i| *i == images[0]), "the same image whatever the value");
+}

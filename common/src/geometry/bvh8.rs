@@ -49,6 +49,28 @@ pub fn pair_walks_at_once() -> bool {
     false
 }
 
+/// The environment variable that keeps the world-tree walks eight lanes wide on an AVX-512
+/// host (to time one width against the other with one build).
+pub const SIMD_VARIABLE: &str = "TESSERA_SIMD";
+
+/// What a value of [`SIMD_VARIABLE`] asks for: `Ok(true)` for eight-lane walks (`avx2`, in any
+/// case), `Ok(false)` when it is unset or empty (the widest walk the processor runs), and an
+/// error that names the variable and its one accepted value for anything else (which the
+/// walks then ignore).
+pub fn narrow_walks_asked(value: Option<&std::ffi::OsStr>) -> Result<bool, String> {
+    let Some(value) = value else { return Ok(false) };
+    match value.to_str() {
+        Some("") => Ok(false),
+        Some(v) if v.eq_ignore_ascii_case("avx2") => Ok(true),
+        _ => Err(format!(
+            "{SIMD_VARIABLE}={} is not understood and is ignored: its one value is 'avx2' (keep \
+             the world-tree walks eight lanes wide on an AVX-512 processor); unset it to use the \
+             widest walk the processor runs",
+            value.to_string_lossy()
+        )),
+    }
+}
+
 /// Subtrees of at most this many triangles become one leaf.
 /// (Measured with the rays bench: 8, two packets, traces faster than 2, 4 or 6 on both meshes;
 /// with two packets tested per pass, 12 and 16 take 3 % and 5 % more instructions on
@@ -997,6 +1019,19 @@ impl Builder<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_simd_variable_takes_avx2_or_nothing_and_names_itself_otherwise() {
+        let ask = |v: &str| narrow_walks_asked(Some(std::ffi::OsStr::new(v)));
+        assert_eq!(narrow_walks_asked(None), Ok(false));
+        assert_eq!(ask(""), Ok(false));
+        assert_eq!(ask("avx2"), Ok(true));
+        assert_eq!(ask("AVX2"), Ok(true));
+        for bad in ["avx512", "avx-2", " avx2", "1"] {
+            let e = ask(bad).unwrap_err();
+            assert!(e.starts_with(&format!("TESSERA_SIMD={bad} ")) && e.contains("'avx2'"), "{e}");
+        }
+    }
 
     /// Every lane of a packet finds what its own single-ray query finds: coherent packets (the
     /// rays of one small cone), scattered ones, partial ones, and lanes with their own tmax.

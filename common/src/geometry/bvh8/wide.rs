@@ -28,7 +28,8 @@ use super::kernels::{
 pub(super) fn available() -> bool {
     static WIDE: OnceLock<bool> = OnceLock::new();
     *WIDE.get_or_init(|| {
-        let asked_narrow = std::env::var("TESSERA_SIMD").is_ok_and(|v| v.eq_ignore_ascii_case("avx2"));
+        let asked_narrow =
+            super::narrow_walks_asked(std::env::var_os(super::SIMD_VARIABLE).as_deref()).unwrap_or(false);
         !asked_narrow && detected()
     })
 }
