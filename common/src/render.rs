@@ -819,10 +819,10 @@ fn render_camera_inner(
     let done = AtomicUsize::new(0);
     let total = rects.len();
     // Each tile goes into the frame as soon as it is rendered and its buffers are freed, so
-    // the allocator hands the same memory to the next tile: kept until every tile was done,
-    // the tiles' buffers (a 3840x2160 frame's 100 MB) were new pages, each a page fault, and
-    // a one-sample frame spent about a fifth of its render in the kernel. The lock is held
-    // for one tile's copy; the tiles are disjoint, so the order they land in changes no bit.
+    // the allocator hands the same memory to the next tile. Kept to the end, every tile's
+    // buffers would be fresh pages (100 MB at 3840x2160), each page a fault into the kernel:
+    // about a fifth of a one-sample render. The lock is held for one tile's copy; the tiles
+    // are disjoint, so the order they land in changes no bit.
     let frame = Mutex::new((
         Image::new(cam.width, cam.height),
         with_aux.then(|| AuxImages {
