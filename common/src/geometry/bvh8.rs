@@ -44,9 +44,21 @@ pub use kernels::{Packet8, Ray8};
 /// packets' rays at hand pair them only then.
 pub fn pair_walks_at_once() -> bool {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
-    return wide::available();
+    return wide_walks();
     #[allow(unreachable_code)]
     false
+}
+
+/// Whether this process walks pairs of packets sixteen lanes at a time: the processor has
+/// AVX-512 (F and DQ, [`wide::detected`]) and [`SIMD_VARIABLE`] does not ask for eight lanes.
+/// Decided once a process.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+fn wide_walks() -> bool {
+    static WIDE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *WIDE.get_or_init(|| {
+        let narrow = narrow_walks_asked(std::env::var_os(SIMD_VARIABLE).as_deref()).unwrap_or(false);
+        !narrow && wide::detected()
+    })
 }
 
 /// The environment variable that keeps the world-tree walks eight lanes wide on an AVX-512
@@ -490,7 +502,7 @@ impl Bvh8 {
         id: &mut [[u32; 8]; 2],
     ) -> [u32; 2] {
         #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
-        if wide::available() {
+        if wide_walks() {
             return self.walk_pair(p, q, tmax, id);
         }
         [
@@ -520,7 +532,7 @@ impl Bvh8 {
         // instructions on jaroslav_path_nee.)
         let need = self.depth * 7 + 1;
         let (nodes, tris, bounds) = (&self.nodes, &self.tris, &self.bounds);
-        // SAFETY: the callers check AVX-512 (`wide::available`, `wide::detected`); the stacks
+        // SAFETY: the callers check AVX-512 (`wide_walks`, `wide::detected`); the stacks
         // hold `need` entries.
         let hit = unsafe {
             if need <= STACK {

@@ -13,28 +13,17 @@
 //! packets, the root's box), so this module imports only the layouts of [`super::kernels`].
 //!
 //! `TESSERA_SIMD=avx2` in the environment keeps the eight-lane walks on an AVX-512 host (to
-//! time one against the other in one build).
+//! time one against the other in one build); the parent module reads it.
 
 use std::mem::MaybeUninit;
-use std::sync::OnceLock;
 
 use super::kernels::{
     COUNT_SHIFT, FIRST_MASK, Intervals, LEAF, Node, Packet8, SLACK, Tri4, filled_slots, hmax8, hmin8,
     insert_by_entry,
 };
 
-/// Whether this process walks pairs of packets sixteen lanes at a time: the processor has
-/// AVX-512 (F and DQ) and the environment does not ask for eight lanes.
-pub(super) fn available() -> bool {
-    static WIDE: OnceLock<bool> = OnceLock::new();
-    *WIDE.get_or_init(|| {
-        let asked_narrow =
-            super::narrow_walks_asked(std::env::var_os(super::SIMD_VARIABLE).as_deref()).unwrap_or(false);
-        !asked_narrow && detected()
-    })
-}
-
-/// Whether the processor runs the sixteen-lane walk (whatever the environment says).
+/// Whether the processor runs the sixteen-lane walk (whatever the environment says: the choice
+/// is [`super::pair_walks_at_once`]'s).
 pub(super) fn detected() -> bool {
     std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("avx512dq")
 }
