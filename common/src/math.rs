@@ -408,6 +408,27 @@ pub fn pick(word: u64, a: f64, b: f64) -> f64 {
     f64::from_bits((a.to_bits() & word) | (b.to_bits() & !word))
 }
 
+/// The bit mask of eight lanes' flags (bit `k` for lane `k`): the inverse of [`lane_words`].
+/// Folded bit by bit, flags made by vector comparisons compile to a chain of packs, shuffles
+/// and a horizontal OR (about twenty instructions, one long dependency); here each lane's flag
+/// is a sign bit read by two `movmskpd`.
+#[inline(always)]
+pub fn lane_bits(flags: [bool; 8]) -> u32 {
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx"))]
+    {
+        use std::arch::x86_64::{_mm256_loadu_pd, _mm256_movemask_pd};
+        let words = flags.map(word);
+        // SAFETY: AVX is enabled at compile time; the loads read the eight words of `words`.
+        unsafe {
+            let lo = _mm256_movemask_pd(_mm256_loadu_pd(words.as_ptr().cast()));
+            let hi = _mm256_movemask_pd(_mm256_loadu_pd(words.as_ptr().add(4).cast()));
+            (lo | hi << 4) as u32
+        }
+    }
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx")))]
+    flags.iter().enumerate().fold(0, |m, (k, &f)| m | u32::from(f) << k)
+}
+
 /// Converts a `[f64; 3]` record value into a vector.
 #[inline]
 pub fn v3(a: [f64; 3]) -> DVec3 {
@@ -417,6 +438,17 @@ pub fn v3(a: [f64; 3]) -> DVec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn lane_bits_inverts_lane_words() {
+        for mask in [0u32, 1, 0x80, 0xff, 0x5a, 0xa5, 0x3c, 0x81] {
+            assert_eq!(lane_bits(lane_words(mask).map(|w| w != 0)), mask);
+        }
+        for k in 0..8 {
+            let flags: [bool; 8] = std::array::from_fn(|i| i == k);
+            assert_eq!(lane_bits(flags), 1 << k);
+        }
+    }
 
     /// A prefetch of any index, in bounds or not, of any slice (empty too) is harmless and
     /// changes nothing.

@@ -238,10 +238,7 @@ impl Accel {
                 continue;
             }
             let ts = sphere_lanes(center, radius, None, o, d, tmin, far);
-            for (k, t) in ts.iter().enumerate() {
-                blocked |= u32::from(*t < f64::INFINITY) << k;
-            }
-            blocked &= mask;
+            blocked = (blocked | crate::math::lane_bits(ts.map(|t| t < f64::INFINITY))) & mask;
         }
         blocked
     }

@@ -116,7 +116,7 @@ pub(super) fn sphere_may_block(
         // Kept unless clearly outside; NaN keeps it.
         near[lane] = (dist2 <= bound) | dist2.is_nan() | bound.is_nan();
     }
-    (0..8).fold(0, |m, k| m | u32::from(near[k]) << k)
+    crate::math::lane_bits(near)
 }
 
 /// Distance in (tmin, tmax) to the plane through `point` with normal `normal`, in the ray's own

@@ -825,7 +825,7 @@ fn point_shadows(light: &crate::lights::PointLight, at: &Vertices<'_, '_>, live:
         }
         s.far[k] = if on { len } else { s.far[k] };
     }
-    let lit = (0..N).fold(0u32, |m, k| m | u32::from(cos[k] > 0.0) << k);
+    let lit = crate::math::lane_bits(cos.map(|c| c > 0.0));
     s.mask = (s.mask & !live) | (lit & live);
 }
 
@@ -1031,7 +1031,7 @@ fn light_samples(light: &ObjectLight, x: &Axes, u: &Drawn<2>, mask: u32) -> Opti
             out.wi[a][k] = wi[a];
         }
     }
-    out.ok = (0..N).fold(0u32, |m, k| m | u32::from(ok[k]) << k) & mask;
+    out.ok = crate::math::lane_bits(ok) & mask;
     Some(out)
 }
 
