@@ -4,7 +4,6 @@
 //! mutable, samples draw from a [`Sampler`] keyed by pixel and sample index, and samples are
 //! summed in a fixed order, so any tile size and any thread count give identical bits.
 
-use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::Instant;
 
@@ -53,6 +52,55 @@ pub fn tiles(width: u32, height: u32, tile: u32) -> Vec<TileRect> {
         y0 += h;
     }
     out
+}
+
+/// A frame being filled by its tiles from several threads at once, with no lock: the tiles are
+/// the grid [`tiles`] cuts (which partition the frame, so no two share a pixel), and each is
+/// put once, claimed through its own flag. Each thread writes, and first touches, only its own
+/// tile's pixels, so none waits for another's page faults.
+struct FrameTiles<'a> {
+    pixels: *mut [f32; 3],
+    width: usize,
+    rects: Vec<TileRect>,
+    put: Vec<AtomicBool>,
+    _frame: std::marker::PhantomData<&'a mut Image>,
+}
+
+// SAFETY: the threads write through `pixels` only in `put`, each to the pixels of one tile of
+// the grid, claimed once; the grid's tiles are disjoint, and the image is borrowed mutably for
+// the sink's life, so nothing else reads or writes it meanwhile.
+unsafe impl Sync for FrameTiles<'_> {}
+
+impl<'a> FrameTiles<'a> {
+    /// The grid of `tile`-pixel tiles over `image`.
+    fn new(image: &'a mut Image, tile: u32) -> Self {
+        let rects = tiles(image.width, image.height, tile);
+        assert_eq!(image.pixels.len(), image.width as usize * image.height as usize, "an entry a pixel");
+        let put = rects.iter().map(|_| AtomicBool::new(false)).collect();
+        FrameTiles {
+            pixels: image.pixels.as_mut_ptr(),
+            width: image.width as usize,
+            rects,
+            put,
+            _frame: std::marker::PhantomData,
+        }
+    }
+
+    /// Copies tile `index`'s pixels (row by row) into place. Panics when the tile was put
+    /// before or `px` is not its size.
+    fn put(&self, index: usize, px: &[[f32; 3]]) {
+        let r = self.rects[index];
+        let w = r.width as usize;
+        assert_eq!(px.len(), w * r.height as usize, "a value a pixel of the tile");
+        assert!(!self.put[index].swap(true, Ordering::AcqRel), "tile {index} put twice");
+        for (row, src) in px.chunks_exact(w).enumerate() {
+            let start = (r.y0 as usize + row) * self.width + r.x0 as usize;
+            // SAFETY: the tile lies inside the frame (`tiles` cuts within it), so the row's `w`
+            // pixels from `start` are in the image; no other tile covers them and this one is
+            // put once (the flag above), so no other write or read overlaps this one.
+            unsafe { std::ptr::copy_nonoverlapping(src.as_ptr(), self.pixels.add(start), w) };
+        }
+    }
 }
 
 /// When a render in progress must give up: a flag someone else raises (a cancelled job, a
@@ -815,40 +863,39 @@ fn render_camera_inner(
     // A single pass of every sample unless asked otherwise.
     let plan =
         plan.unwrap_or(PassPlan { pass_samples: crate::passes::round_to_blocks(n), noise_target: None });
-    let rects = tiles(cam.width, cam.height, tile_size);
-    let done = AtomicUsize::new(0);
-    let total = rects.len();
+    let mut image = Image::new(cam.width, cam.height);
+    let mut aux = with_aux.then(|| AuxImages {
+        albedo: Image::new(cam.width, cam.height),
+        normal: Image::new(cam.width, cam.height),
+    });
     // Each tile goes into the frame as soon as it is rendered and its buffers are freed, so
     // the allocator hands the same memory to the next tile. Kept to the end, every tile's
     // buffers would be fresh pages (100 MB at 3840x2160), each page a fault into the kernel:
-    // about a fifth of a one-sample render. The lock is held for one tile's copy; the tiles
-    // are disjoint, so the order they land in changes no bit.
-    let frame = Mutex::new((
-        Image::new(cam.width, cam.height),
-        with_aux.then(|| AuxImages {
-            albedo: Image::new(cam.width, cam.height),
-            normal: Image::new(cam.width, cam.height),
-        }),
-    ));
-    let results: Vec<(Option<TileOutcome>, RayStats)> = rects
-        .par_iter()
-        .map(|&r| {
+    // about a fifth of a one-sample render. The threads put their tiles with no lock (a lock
+    // would be held through the first touches of the frame's pages, and the other thread
+    // would wait out those faults); the tiles are disjoint, so the order changes no bit.
+    let frame = FrameTiles::new(&mut image, tile_size);
+    let features = aux
+        .as_mut()
+        .map(|a| (FrameTiles::new(&mut a.albedo, tile_size), FrameTiles::new(&mut a.normal, tile_size)));
+    let done = AtomicUsize::new(0);
+    let total = frame.rects.len();
+    let results: Vec<(Option<TileOutcome>, RayStats)> = (0..total)
+        .into_par_iter()
+        .map(|i| {
+            let r = frame.rects[i];
             let mut tile_aux = with_aux.then(AuxTile::default);
             let (px, outcome, st) = render_tile_passes(scene, camera, r, settings, plan, tile_aux.as_mut());
-            {
-                let mut frame = frame.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-                let (image, aux) = &mut *frame;
-                image.put_tile(r, &px);
-                if let (Some(a), Some(t)) = (aux.as_mut(), &tile_aux) {
-                    a.albedo.put_tile(r, &t.albedo);
-                    a.normal.put_tile(r, &t.normal);
-                }
+            frame.put(i, &px);
+            if let (Some((albedo, normal)), Some(t)) = (&features, &tile_aux) {
+                albedo.put(i, &t.albedo);
+                normal.put(i, &t.normal);
             }
             progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
             (keep_tiles.then_some(outcome), st)
         })
         .collect();
-    let (image, aux) = frame.into_inner().unwrap_or_else(|poisoned| poisoned.into_inner());
+    drop((frame, features));
     let mut stats = RayStats::default();
     let mut outcomes = Vec::with_capacity(if keep_tiles { results.len() } else { 0 });
     for (outcome, st) in results {
@@ -1103,6 +1150,49 @@ mod tests {
                 (whole_aux.albedo.pixels[x0 as usize], whole_aux.normal.pixels[x0 as usize])
             );
         }
+    }
+
+    /// Tiles put from two threads in any order give what `Image::put_tile` gives.
+    #[test]
+    fn frame_tiles_put_every_tile_in_its_place() {
+        let (w, h) = (37, 23);
+        let value = |x: u32, y: u32| [x as f32, y as f32, (x * y) as f32];
+        let mut expected = Image::new(w, h);
+        for r in tiles(w, h, 8) {
+            let px: Vec<[f32; 3]> =
+                (0..r.height).flat_map(|y| (0..r.width).map(move |x| value(r.x0 + x, r.y0 + y))).collect();
+            expected.put_tile(r, &px);
+        }
+        let mut image = Image::new(w, h);
+        let frame = FrameTiles::new(&mut image, 8);
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+        pool.install(|| {
+            (0..frame.rects.len()).into_par_iter().rev().for_each(|i| {
+                let r = frame.rects[i];
+                let px: Vec<[f32; 3]> = (0..r.height)
+                    .flat_map(|y| (0..r.width).map(move |x| value(r.x0 + x, r.y0 + y)))
+                    .collect();
+                frame.put(i, &px);
+            })
+        });
+        drop(frame);
+        assert_eq!(image, expected);
+    }
+
+    #[test]
+    #[should_panic(expected = "tile 1 put twice")]
+    fn frame_tiles_refuse_a_tile_put_twice() {
+        let mut image = Image::new(4, 2);
+        let frame = FrameTiles::new(&mut image, 2);
+        frame.put(1, &[[1.0; 3]; 4]);
+        frame.put(1, &[[2.0; 3]; 4]);
+    }
+
+    #[test]
+    #[should_panic(expected = "a value a pixel of the tile")]
+    fn frame_tiles_refuse_a_tile_of_the_wrong_size() {
+        let mut image = Image::new(4, 2);
+        FrameTiles::new(&mut image, 2).put(0, &[[1.0; 3]; 5]);
     }
 
     /// A one-sample tile's film comes straight from its samples: the same bits as its sums'.
