@@ -13,6 +13,15 @@ pub struct TileRect {
     pub height: u32,
 }
 
+impl TileRect {
+    /// The index in a row-major frame `frame_width` pixels wide of the first pixel of each of
+    /// the rectangle's rows, top to bottom.
+    pub fn row_starts(self, frame_width: u32) -> impl Iterator<Item = usize> {
+        (self.y0 as usize..(self.y0 + self.height) as usize)
+            .map(move |y| y * frame_width as usize + self.x0 as usize)
+    }
+}
+
 impl From<Rect> for TileRect {
     fn from(r: Rect) -> Self {
         TileRect { x0: r.x0, y0: r.y0, width: r.width, height: r.height }
@@ -41,10 +50,8 @@ impl Image {
     /// Copies a rendered tile into place.
     pub fn put_tile(&mut self, r: TileRect, px: &[[f32; 3]]) {
         let w = r.width as usize;
-        for row in 0..r.height as usize {
-            let src = &px[row * w..(row + 1) * w];
-            let start = (r.y0 as usize + row) * self.width as usize + r.x0 as usize;
-            self.pixels[start..start + w].copy_from_slice(src);
+        for (row, start) in r.row_starts(self.width).enumerate() {
+            self.pixels[start..start + w].copy_from_slice(&px[row * w..(row + 1) * w]);
         }
     }
 

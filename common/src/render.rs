@@ -60,7 +60,7 @@ pub fn tiles(width: u32, height: u32, tile: u32) -> Vec<TileRect> {
 /// tile's pixels, so none waits for another's page faults.
 struct FrameTiles<'a> {
     pixels: *mut [f32; 3],
-    width: usize,
+    width: u32,
     rects: Vec<TileRect>,
     put: Vec<AtomicBool>,
     _frame: std::marker::PhantomData<&'a mut Image>,
@@ -79,7 +79,7 @@ impl<'a> FrameTiles<'a> {
         let put = rects.iter().map(|_| AtomicBool::new(false)).collect();
         FrameTiles {
             pixels: image.pixels.as_mut_ptr(),
-            width: image.width as usize,
+            width: image.width,
             rects,
             put,
             _frame: std::marker::PhantomData,
@@ -93,8 +93,8 @@ impl<'a> FrameTiles<'a> {
         let w = r.width as usize;
         assert_eq!(px.len(), w * r.height as usize, "a value a pixel of the tile");
         assert!(!self.put[index].swap(true, Ordering::AcqRel), "tile {index} put twice");
-        for (row, src) in px.chunks_exact(w).enumerate() {
-            let start = (r.y0 as usize + row) * self.width + r.x0 as usize;
+        for (row, start) in r.row_starts(self.width).enumerate() {
+            let src = &px[row * w..(row + 1) * w];
             // SAFETY: the tile lies inside the frame (`tiles` cuts within it), so the row's `w`
             // pixels from `start` are in the image; no other tile covers them and this one is
             // put once (the flag above), so no other write or read overlaps this one.
