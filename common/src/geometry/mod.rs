@@ -1150,6 +1150,42 @@ mod tests {
         assert!(!accel.occluded(&Ray { time: 0.0, ..shadow }, 1e-6, 11.5));
     }
 
+    /// A mesh instance moved beyond `f32`'s range (a motion blur of 1e39, as a fuzzer wrote) sees
+    /// the world's rays from past that range: their `f32` form is an empty ray, finite, which
+    /// obvhs accepts (its `Ray::new` asserts finite values where assertions are on), and the
+    /// instance is simply not hit, while a mesh beside it still is.
+    #[test]
+    fn a_mesh_moved_beyond_f32s_range_is_not_hit_and_its_rays_stay_finite() {
+        let far = Ray { origin: DVec3::new(-1e39, 0.5, 10.0), dir: DVec3::NEG_Z, time: 1.0 };
+        let fr = rays::to_f32_ray(&far, 1e-6, f64::INFINITY);
+        assert!(fr.origin.is_finite() && fr.direction.is_finite() && fr.inv_direction.is_finite());
+        assert!(fr.tmin > fr.tmax, "an empty interval: {} > {}", fr.tmin, fr.tmax);
+        let near = rays::to_f32_ray(&Ray { origin: DVec3::new(0.5, 0.5, 10.0), ..far }, 1e-6, 20.0);
+        assert_eq!((near.origin, near.tmin, near.tmax), (Vec3A::new(0.5, 0.5, 10.0), 1e-6, 20.0));
+        let quad = |material: u32, motion: f64| Instance {
+            shape: Shape::Mesh { mesh: 0, smooth: false },
+            material,
+            transform: Some(Transform::new(DAffine3::from_translation(DVec3::new(0.0, 0.0, -5.0))).unwrap()),
+            motion: Some(DVec3::new(motion, 0.0, 0.0)),
+            textures: ObjectTextures::default(),
+        };
+        let accel = Accel::new(vec![unit_quad()], vec![quad(0, 1e39), quad(1, 0.0)]);
+        for time in [0.0, 0.5, 1.0] {
+            let r = Ray { origin: DVec3::new(0.5, 0.5, 10.0), dir: DVec3::NEG_Z, time };
+            let hit = accel.intersect(&r, 1e-6, f64::INFINITY).map(|h| (h.material, h.t));
+            // At time 0 the far quad has not moved yet and lies where the near one does: either
+            // may be found (the same distance); later only the near one is there to find.
+            match hit {
+                Some((m, t)) => assert!((t - 15.0).abs() < 1e-9 && (time == 0.0 || m == 1), "{m} {t}"),
+                None => panic!("the unmoved quad is missed at time {time}"),
+            }
+            assert!(accel.occluded(&r, 1e-6, 20.0));
+        }
+        let beside = Ray { origin: DVec3::new(5.0, 0.5, 10.0), dir: DVec3::NEG_Z, time: 1.0 };
+        assert!(accel.intersect(&beside, 1e-6, f64::INFINITY).is_none());
+        assert!(!accel.occluded(&beside, 1e-6, f64::INFINITY));
+    }
+
     /// The top-level BVH (used above LINEAR_MAX instances) and the merged tree of the static
     /// meshes (here the transformed quads without motion) find the same closest hits and
     /// occlusions as testing every instance on its own.

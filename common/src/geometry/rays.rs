@@ -114,9 +114,21 @@ pub struct HitLanes {
 
 // ---- Single rays: the conversions and small rules the queries share ----
 
+/// `r` between `tmin` and `tmax` in `f32`, for obvhs's box tests and the meshes' `f32` walks.
+/// A ray whose origin or direction is not finite in `f32` (an `f64` value beyond its range: a
+/// mesh instance moved or shrunk by an enormous transformation or motion blur sees the world's
+/// rays from that far) becomes a ray with an empty interval at the origin, which every box and
+/// triangle test misses. Its own values would miss as well (their tests compare infinities and
+/// NaNs), but obvhs's rays require finite origins and directions (`Ray::new` asserts it where
+/// assertions are on, as in the fuzzers' builds).
 #[inline]
 pub(super) fn to_f32_ray(r: &Ray, tmin: f64, tmax: f64) -> obvhs::ray::Ray {
-    obvhs::ray::Ray::new(r.origin.as_vec3a(), r.dir.as_vec3a(), tmin as f32, tmax as f32)
+    let (o, d) = (r.origin.as_vec3a(), r.dir.as_vec3a());
+    if o.is_finite() && d.is_finite() {
+        obvhs::ray::Ray::new(o, d, tmin as f32, tmax as f32)
+    } else {
+        obvhs::ray::Ray::new(Vec3A::ZERO, Vec3A::X, f32::INFINITY, f32::NEG_INFINITY)
+    }
 }
 
 /// Whether `fr` enters box `b` before `fr.tmax`. obvhs's `intersect_ray` answers a miss with
