@@ -117,10 +117,12 @@ pub struct HitLanes {
 /// `r` between `tmin` and `tmax` in `f32`, for obvhs's box tests and the meshes' `f32` walks.
 /// A ray whose origin or direction is not finite in `f32` (an `f64` value beyond its range: a
 /// mesh instance moved or shrunk by an enormous transformation or motion blur sees the world's
-/// rays from that far) becomes a ray with an empty interval at the origin, which every box and
-/// triangle test misses. Its own values would miss as well (their tests compare infinities and
-/// NaNs), but obvhs's rays require finite origins and directions (`Ray::new` asserts it where
-/// assertions are on, as in the fuzzers' builds).
+/// rays from that far) becomes a ray at the origin with an empty interval (from +inf to -inf):
+/// a mesh's walk misses it whatever far bound a caller sets, and a box test that lets an
+/// instance through only leads to that instance's own test of the real ray, so no
+/// surface is found that the ray does not meet. Its own values would have missed as well (their
+/// tests compare infinities and NaNs), but obvhs's rays must be finite (`Ray::new` asserts it
+/// where assertions are on, as in the fuzzers' builds).
 #[inline]
 pub(super) fn to_f32_ray(r: &Ray, tmin: f64, tmax: f64) -> obvhs::ray::Ray {
     let (o, d) = (r.origin.as_vec3a(), r.dir.as_vec3a());
