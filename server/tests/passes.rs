@@ -27,7 +27,7 @@ fn a_frame_in_passes_with_a_worker_killed_mid_pass_is_the_clis_bytes_and_is_publ
     let data = TempDir::new("passes-farm-data");
     let server = Server::start(&data, &SHORT_LEASES);
     // Worker a renders alone until it is killed, then b joins: with two workers from the
-    // start, the whole job (0.19 s in one CI run) could end before the test saw a
+    // start, the whole job (0.19 s in one CI run) could end before the test saw worker a
     // holding a lease.
     let mut a = Worker::start(&server.url, "wtok", "a");
     // 9 tiles of 32 px, 128 samples in passes of 32: 36 units of work.
