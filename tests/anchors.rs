@@ -89,9 +89,54 @@ pub fn vector_width(text: &str) -> Option<&str> {
     text.lines().find_map(|l| l.strip_prefix(WIDTH_TAG).map(str::trim))
 }
 
+/// The three summaries of alternating rounds of throughputs (higher is faster), ours and the
+/// anchor's, one line each: the best of each side, the median of each side, and the median of
+/// the rounds' own ratios. The last pairs each of our renders with the anchor's run just before
+/// or after it, so a slow stretch of the shared machine that lasts a round or more falls on both
+/// sides of a ratio; the medians of each side do not pair.
+pub fn round_summaries(ours: &[f64], theirs: &[f64], theirs_name: &str, unit: &str) -> [String; 3] {
+    assert!(!ours.is_empty() && ours.len() == theirs.len(), "as many rounds of each, at least one");
+    let sorted = |v: &[f64]| {
+        let mut s = v.to_vec();
+        s.sort_by(f64::total_cmp);
+        s
+    };
+    let (a, b) = (sorted(ours), sorted(theirs));
+    let ratios = sorted(&ours.iter().zip(theirs).map(|(o, t)| o / t).collect::<Vec<_>>());
+    let (best_o, best_t) = (a[a.len() - 1], b[b.len() - 1]);
+    let (med_o, med_t) = (a[a.len() / 2], b[b.len() / 2]);
+    [
+        format!(
+            "  best:   Tessera {best_o:.3}, {theirs_name} {best_t:.3} {unit}, ratio {:.3}",
+            best_o / best_t
+        ),
+        format!("  median: Tessera {med_o:.3}, {theirs_name} {med_t:.3} {unit}, ratio {:.3}", med_o / med_t),
+        format!(
+            "  paired: median of the {} rounds' ratios {:.3} (lowest {:.3}, highest {:.3})",
+            ratios.len(),
+            ratios[ratios.len() / 2],
+            ratios[0],
+            ratios[ratios.len() - 1]
+        ),
+    ]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn round_summaries_pair_each_round_and_take_middles_and_maxima() {
+        // Round 2 is slow for both sides: the medians of each side move, the paired ratio not.
+        let ours = [10.0, 12.0, 5.0];
+        let theirs = [8.0, 10.0, 4.0];
+        let [best, median, paired] = round_summaries(&ours, &theirs, "Mitsuba", "Msamples/s");
+        assert_eq!(best, "  best:   Tessera 12.000, Mitsuba 10.000 Msamples/s, ratio 1.200");
+        assert_eq!(median, "  median: Tessera 10.000, Mitsuba 8.000 Msamples/s, ratio 1.250");
+        assert_eq!(paired, "  paired: median of the 3 rounds' ratios 1.250 (lowest 1.200, highest 1.250)");
+        let [_, _, even] = round_summaries(&[1.0, 3.0], &[2.0, 2.0], "Embree", "Mrays/s");
+        assert!(even.contains("ratios 1.500 (lowest 0.500, highest 1.500)"), "{even}");
+    }
 
     #[test]
     fn figures_are_read_from_the_last_line_and_json_lines() {

@@ -12,7 +12,8 @@
 //! environment, one shadow ray per hit) rendered by Tessera in this process and by Mitsuba 3
 //! (`mitsuba_head_env.py` beside it, run with `$TESSERA_ANCHORS_PY`, default
 //! `~/.cache/anchors/bin/python`), alternately, `--rounds` times; prints Msamples/s of each
-//! round, the best and the median of each, and their ratios. Both time the render only (not
+//! round, the best and the median of each, their ratios, and the median of the rounds' own
+//! ratios (each round's two renders run back to back). Both time the render only (not
 //! loading, not writing). The script's `dr.set_thread_count` hangs with drjit 1.5.0 (and so
 //! does the llvm variant pinned to one core with `taskset -c 0`), so the bench runs a copy of the
 //! script without that call: Mitsuba uses one thread per core, and `--threads` should match it
@@ -389,12 +390,8 @@ fn mitsuba_figures(args: &Args, out: &std::path::Path) -> Result<()> {
             ours[round] / m
         );
     }
-    let stats = |v: &mut Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        (v[v.len() - 1], v[v.len() / 2])
-    };
-    let ((ob, om), (tb, tm)) = (stats(&mut ours), stats(&mut theirs));
-    println!("  best:   Tessera {ob:.3}, Mitsuba {tb:.3} Msamples/s, ratio {:.3}", ob / tb);
-    println!("  median: Tessera {om:.3}, Mitsuba {tm:.3} Msamples/s, ratio {:.3}", om / tm);
+    for line in tessera_tests::anchors::round_summaries(&ours, &theirs, "Mitsuba", "Msamples/s") {
+        println!("{line}");
+    }
     Ok(())
 }

@@ -11,9 +11,10 @@
 //! Mitsuba 3 (`mitsuba_jaroslav_path.py` beside it: `path`, max_depth 5, no roulette, the same
 //! geometry, lights and diffuse reflectances) alternately, `--rounds` times, both on
 //! `--threads` threads (default 1: the per-core figure). Both time the render only. It prints
-//! each round's Msamples/s and the medians' ratio, and how far apart the two images' means over
-//! a 4x4 grid of regions are (the last round's images, at `--samples`, default 16: a check that
-//! both render the same picture, looser at few samples). `--one-light` adds Tessera's
+//! each round's Msamples/s, the best and the median of each side with their ratios, the median
+//! of the rounds' own ratios (each round's two renders run back to back), and how far apart
+//! the two images' means over a 4x4 grid of regions are (the last round's images, at
+//! `--samples`, default 16: a check that both render the same picture, looser at few samples). `--one-light` adds Tessera's
 //! `SampleOneLight` to the camera's `RendererParams`: one light a vertex, chosen by power, as
 //! Mitsuba samples one emitter a vertex (the course's estimator, the default, samples both).
 //! `--mis` adds `MultipleImportanceSampling`: the light box's light weighed between its sampled
@@ -42,7 +43,9 @@ use tessera::integrator::RayStats;
 use tessera::render::{RenderSettings, render_camera};
 use tessera::scene::Scene;
 use tessera::scene::load::load_scene_file;
-use tessera_tests::anchors::{json_number, last_figure, run as anchor, vector_width, with_llvm_target};
+use tessera_tests::anchors::{
+    json_number, last_figure, round_summaries, run as anchor, vector_width, with_llvm_target,
+};
 
 struct Args {
     primary: bool,
@@ -130,15 +133,10 @@ fn alternate(
         a.push(o);
         b.push(t);
     }
-    let (om, tm) = (median(&a), median(&b));
-    println!("  median: Tessera {om:.3}, {theirs_name} {tm:.3} {unit}, ratio {:.3}", om / tm);
+    for line in round_summaries(&a, &b, theirs_name, unit) {
+        println!("{line}");
+    }
     Ok(())
-}
-
-fn median(v: &[f64]) -> f64 {
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    s[s.len() / 2]
 }
 
 fn need_llvm() -> Result<()> {
