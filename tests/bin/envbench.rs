@@ -131,7 +131,12 @@ fn parse_args() -> Result<Args> {
             "--threads" => a.threads = Some(value("--threads")?.parse().context("--threads: a number")?),
             "--noise-only" => a.scenes = false,
             "--mitsuba" => a.mitsuba = true,
-            "--rounds" => a.rounds = value("--rounds")?.parse().context("--rounds: a number")?,
+            "--rounds" => {
+                a.rounds = value("--rounds")?.parse().context("--rounds: a number")?;
+                if a.rounds == 0 {
+                    bail!("--rounds: at least 1");
+                }
+            }
             "--variant" => a.variant = value("--variant")?,
             "--mitsuba-avx2" => a.mitsuba_avx2 = true,
             "--view" => a.view = View::parse(&value("--view")?)?,
