@@ -127,7 +127,7 @@ mod tests {
 
     #[test]
     fn round_summaries_pair_each_round_and_take_middles_and_maxima() {
-        // Round 2 is slow for both sides: the medians of each side move, the paired ratio not.
+        // The last round ran slow on both sides; its ratio is still the others' (1.25).
         let ours = [10.0, 12.0, 5.0];
         let theirs = [8.0, 10.0, 4.0];
         let [best, median, paired] = round_summaries(&ours, &theirs, "Mitsuba", "Msamples/s");
