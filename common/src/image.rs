@@ -34,6 +34,13 @@ impl From<TileRect> for Rect {
     }
 }
 
+/// Whether all three channels of a pixel are finite (not NaN, not infinite). The tests joined
+/// with `&`, not `all`'s early exit, so that a loop of them over an image vectorises.
+#[inline]
+pub fn is_finite_pixel(p: &[f32; 3]) -> bool {
+    p[0].is_finite() & p[1].is_finite() & p[2].is_finite()
+}
+
 /// A linear float RGB image, row-major from the top-left pixel.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Image {

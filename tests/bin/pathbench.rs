@@ -14,9 +14,10 @@
 //! each round's Msamples/s, the best and the median of each side with their ratios, the median
 //! of the rounds' own ratios (each round's two renders run back to back), and how far apart
 //! the two images' means over a 4x4 grid of regions are (the last round's images, at
-//! `--samples`, default 16: a check that both render the same picture, looser at few samples). `--one-light` adds Tessera's
-//! `SampleOneLight` to the camera's `RendererParams`: one light a vertex, chosen by power, as
-//! Mitsuba samples one emitter a vertex (the course's estimator, the default, samples both).
+//! `--samples`, default 16: a check that both render the same picture, looser at few samples).
+//! `--one-light` adds Tessera's `SampleOneLight` to the camera's `RendererParams`: one light a
+//! vertex, chosen by power, as Mitsuba samples one emitter a vertex (the course's estimator,
+//! the default, samples both).
 //! `--mis` adds `MultipleImportanceSampling`: the light box's light weighed between its sampled
 //! points and the bounces that find it, as Mitsuba's `path` integrator weighs them (with both
 //! flags, Tessera's estimator is Mitsuba's). Mitsuba's LLVM variant compiles its kernels for

@@ -30,6 +30,7 @@ use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use tessera::assets::FsResolver;
 use tessera::hdr_io::{read_float_image, write_png_rgb8};
+use tessera::image::is_finite_pixel;
 use tessera::output;
 use tessera::render::{
     PassPlan, RenderSettings, render_camera, render_camera_passes, render_camera_with_aux,
@@ -692,9 +693,7 @@ fn render_scene(
                 );
             }
         }
-        // `&` on the three tests, not `any`'s early exit: a loop the compiler vectorises.
-        let non_finite =
-            img.pixels.iter().filter(|p| !(p[0].is_finite() & p[1].is_finite() & p[2].is_finite())).count();
+        let non_finite = img.pixels.iter().filter(|p| !is_finite_pixel(p)).count();
         if non_finite > 0 {
             say!(
                 "warning: {}: {non_finite} pixel(s) came out NaN or infinite; they are kept in HDR files, left out of tone-mapping statistics and written black (NaN) or white (+inf) in PNGs",

@@ -80,7 +80,7 @@
 
 use rayon::prelude::*;
 
-use crate::image::Image;
+use crate::image::{Image, is_finite_pixel};
 
 pub mod params;
 
@@ -134,7 +134,7 @@ pub fn white_index(n: usize, burn_percent: f64) -> usize {
 /// A finite pixel's luminance for the statistics, negative counted as 0; `None` if non-finite.
 #[inline]
 fn stat_luminance(p: [f32; 3]) -> Option<f64> {
-    if p.iter().all(|c| c.is_finite()) {
+    if is_finite_pixel(&p) {
         let y = luminance(p.map(f64::from));
         Some(if y > 0.0 { y } else { 0.0 })
     } else {
@@ -199,7 +199,7 @@ pub fn tonemap_with(img: &Image, operator: Operator, op: &Photographic) -> (Vec<
 
     let bytes = ByteCurve::new(op.gamma);
     out.par_chunks_mut(3).zip(img.pixels.par_iter()).for_each(|(o, p)| {
-        if !p.iter().all(|c| c.is_finite()) {
+        if !is_finite_pixel(p) {
             write_non_finite(o, *p);
             return;
         }
