@@ -33,6 +33,9 @@ pub struct MeshGeom {
     /// The 8-wide BVH over the `f32` triangles (vertex 0 and edges, in packets of four).
     bvh: Bvh8,
     pub bounds: Aabb,
+    /// How many triangles the BVH leaves out: those with a vertex beyond [`MAX_COORDINATE`] (see
+    /// [`MeshGeom::with_uvs`]), which no ray can hit.
+    unplaced: usize,
 }
 
 /// `x` limited to [lo, hi]: `f64::clamp` for bounds in order (the same result, NaN `x`
@@ -99,13 +102,20 @@ impl MeshGeom {
                 kept.push(i as u32);
             }
         }
+        let unplaced = tris.len() - kept.len();
         let kept_tris: Vec<Tri> = kept.iter().map(|&i| tris[i as usize]).collect();
         let bvh = Bvh8::build(&kept_tris, &aabbs, &kept);
         let mut bounds = Aabb::empty();
         for b in &aabbs {
             bounds = bounds.union(b);
         }
-        MeshGeom { positions, indices, vertex_normals, uvs, bvh, bounds }
+        MeshGeom { positions, indices, vertex_normals, uvs, bvh, bounds, unplaced }
+    }
+
+    /// How many of its triangles its BVH leaves out, having a vertex beyond
+    /// [`MAX_COORDINATE`]: they can never be hit (the scene build warns about them).
+    pub fn unplaced(&self) -> usize {
+        self.unplaced
     }
 
     /// The triangles its BVH holds (the ones whose box the builder can take, see `with_uvs`)

@@ -97,6 +97,8 @@ pub struct Accel {
     /// tree takes its distance, point and normal from it, with no ray transform,
     /// re-intersection or normalisation.
     planes: Arc<Vec<WorldPlane>>,
+    /// See [`Accel::unplaced_world_triangles`].
+    unplaced: Arc<Vec<(u32, u32)>>,
     /// Whether some instance is a world-space, untextured smooth mesh, the only kind
     /// [`Self::smooth_mesh_hits`] completes: without one, it returns at once.
     smooth_world_meshes: bool,
@@ -307,7 +309,7 @@ impl Accel {
         world: Option<WorldTree>,
     ) -> Self {
         let (mut bounds, mut bounded, mut unbounded) = (Vec::new(), Vec::new(), Vec::new());
-        let WorldTree { merged, prims: merged_prims, members: merged_set, lone, planes } =
+        let WorldTree { merged, prims: merged_prims, members: merged_set, lone, planes, unplaced } =
             world.unwrap_or_else(|| merge_static_meshes(&meshes, &instances));
         for (i, inst) in instances.iter().enumerate() {
             if merged_set.get(i).copied().unwrap_or(false) {
@@ -350,6 +352,7 @@ impl Accel {
             merged_set,
             lone,
             planes,
+            unplaced,
             smooth_world_meshes,
         }
     }
@@ -363,7 +366,16 @@ impl Accel {
             members: self.merged_set.clone(),
             lone: self.lone,
             planes: self.planes.clone(),
+            unplaced: self.unplaced.clone(),
         }
+    }
+
+    /// (instance, count) of each instance in the world-space tree whose transform carries some
+    /// triangles beyond [`mesh::MAX_COORDINATE`]: those are left out and can never be hit (the
+    /// scene build warns about them). Triangles beyond it in the mesh's own coordinates are
+    /// [`MeshGeom::unplaced`] and not counted here.
+    pub fn unplaced_world_triangles(&self) -> &[(u32, u32)] {
+        &self.unplaced
     }
 
     /// The length of the diagonal of the box around every bounded object (planes left out), in

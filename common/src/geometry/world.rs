@@ -57,6 +57,9 @@ pub struct WorldTree {
     pub(super) members: Arc<Vec<bool>>,
     pub(super) lone: Option<LoneMesh>,
     pub(super) planes: Arc<Vec<WorldPlane>>,
+    /// (instance, count) of each member whose transform carries some of its mesh's triangles
+    /// beyond [`mesh::MAX_COORDINATE`]: those triangles are left out of `merged`.
+    pub(super) unplaced: Arc<Vec<(u32, u32)>>,
 }
 
 impl WorldTree {
@@ -66,6 +69,7 @@ impl WorldTree {
             + self.prims.capacity() * std::mem::size_of::<(u32, u32)>()
             + self.members.capacity()
             + self.planes.capacity() * std::mem::size_of::<WorldPlane>()
+            + self.unplaced.capacity() * std::mem::size_of::<(u32, u32)>()
     }
 }
 
@@ -123,6 +127,7 @@ pub(super) fn merge_static_meshes(meshes: &[Arc<MeshGeom>], instances: &[Instanc
         (Vec::with_capacity(total), Vec::with_capacity(total), Vec::with_capacity(total));
     let with_planes = total <= PLANES_MAX;
     let mut planes = Vec::with_capacity(if with_planes { total } else { 0 });
+    let mut unplaced = Vec::new();
     for (i, inst) in instances.iter().enumerate() {
         let Shape::Mesh { mesh, .. } = inst.shape else { continue };
         if !set[i] {
@@ -130,6 +135,7 @@ pub(super) fn merge_static_meshes(meshes: &[Arc<MeshGeom>], instances: &[Instanc
         }
         let m = &meshes[mesh as usize];
         let to_world = inst.transform.as_ref().map(|xf| &xf.to_world);
+        let before = tris.len();
         for (k, t) in m.bvh_triangles(to_world) {
             aabbs.push(Aabb::from_points(&[t[0], t[0] + t[1], t[0] + t[2]]));
             tris.push(t);
@@ -143,6 +149,10 @@ pub(super) fn merge_static_meshes(meshes: &[Arc<MeshGeom>], instances: &[Instanc
                 });
             }
         }
+        let left_out = m.triangle_count() - m.unplaced() - (tris.len() - before);
+        if left_out > 0 {
+            unplaced.push((i as u32, left_out as u32));
+        }
     }
     let ids: Vec<u32> = (0..tris.len() as u32).collect();
     WorldTree {
@@ -151,5 +161,6 @@ pub(super) fn merge_static_meshes(meshes: &[Arc<MeshGeom>], instances: &[Instanc
         members: Arc::new(set),
         lone: None,
         planes: Arc::new(planes),
+        unplaced: Arc::new(unplaced),
     }
 }

@@ -26,6 +26,27 @@ pub(super) fn degamma_exponent(rec: &SceneRecords) -> f64 {
         .unwrap_or(2.2)
 }
 
+/// The warning about `n` of an object's `total` triangles that lie beyond
+/// [`MAX_COORDINATE`](crate::geometry::mesh::MAX_COORDINATE) and are left out of the picture:
+/// in the mesh's own coordinates, or `carried` there by the object's transformations.
+pub(super) fn unplaced_message(n: usize, total: usize, carried: bool) -> String {
+    let limit = crate::geometry::mesh::MAX_COORDINATE;
+    let (which, what) = if carried {
+        ("its transformations carry", "scale them (or the whole scene) down")
+    } else {
+        ("its vertex data puts", "scale the vertex data down")
+    };
+    let (count, left) = if total == 1 {
+        ("its triangle".to_string(), "it is left out and will not be seen")
+    } else {
+        (format!("{n} of its {total} triangles"), "they are left out and will not be seen")
+    };
+    format!(
+        "{which} {count} beyond ±{limit:e}, farther from the origin than the single-precision ray \
+         tests can place: {left}; {what}"
+    )
+}
+
 pub(super) struct Ctx<'a> {
     pub(super) rec: &'a SceneRecords,
     pub(super) resolver: &'a dyn AssetResolver,

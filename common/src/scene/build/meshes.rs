@@ -9,7 +9,7 @@ use glam::{DAffine3, DVec2, DVec3};
 use rayon::prelude::*;
 use sha2::{Digest, Sha256};
 
-use super::context::Ctx;
+use super::context::{Ctx, unplaced_message};
 use crate::error::{Loc, SceneError, Warning};
 use crate::geometry::mesh::{MeshGeom, area_weighted_normals, drop_degenerate, grouped_normals};
 use crate::geometry::{Instance, ObjectTextures, Shape};
@@ -370,6 +370,9 @@ pub(super) fn build_meshes(
         }
         if geom.triangle_count() == 0 {
             ctx.warn(warnings, &m.loc, "mesh has no triangles");
+        }
+        if geom.unplaced() > 0 {
+            ctx.warn(warnings, &m.faces_loc, unplaced_message(geom.unplaced(), geom.triangle_count(), false));
         }
         geoms.push(geom);
     }

@@ -25,9 +25,9 @@ use crate::scene::records::*;
 use crate::scene::tree::json_words;
 use crate::scene::{Scene, SceneStats};
 
-use context::{Ctx, degamma_exponent, placed_normal, placed_point, placed_vector};
+use context::{Ctx, degamma_exponent, placed_normal, placed_point, placed_vector, unplaced_message};
 use meshes::{build_meshes, world_tree_key};
-use objects::{Objects, object_lights};
+use objects::{Objects, Placed, object_lights};
 use textures::build_textures;
 
 pub use context::op_matrix;
@@ -68,7 +68,7 @@ pub fn build_cameras(rec: &SceneRecords) -> Result<Vec<Camera>, SceneError> {
     let no_assets = crate::assets::MemResolver { files: HashMap::new(), base: String::new() };
     let ctx = Ctx { rec, resolver: &no_assets, cache: None };
     let transforms = transform_table(rec);
-    placed_cameras(&ctx, &transforms)
+    placed_cameras(&ctx, &transforms, &mut Vec::new())
 }
 
 /// The `<Transformations>` block by (letter, id).
@@ -77,10 +77,12 @@ fn transform_table(rec: &SceneRecords) -> HashMap<(char, &str), TransformOp> {
 }
 
 /// Step 2 (and all of [`build_cameras`]): the cameras, placed by their `Transformations`
-/// (§10.4) and checked: an image size within the limits, a valid camera frame.
+/// (§10.4) and checked: an image size within the limits, a valid camera frame, and (a
+/// warning) a position not so far out that its pixels' directions are lost to rounding.
 fn placed_cameras(
     ctx: &Ctx,
     transforms: &HashMap<(char, &str), TransformOp>,
+    warnings: &mut Vec<Warning>,
 ) -> Result<Vec<Camera>, SceneError> {
     let rec = ctx.rec;
     let mut cameras = Vec::with_capacity(rec.cameras.len());
@@ -107,6 +109,21 @@ fn placed_cameras(
         let cam = Camera::from_record(&placed).ok_or_else(|| {
             ctx.err(&c.loc, "Gaze and Up are zero or parallel, so they do not define a camera frame; give an Up that is not parallel to the viewing direction")
         })?;
+        // A ray's direction is its image-plane point less the position: both as far out as
+        // the position, so rounded to its spacing of doubles, which must stay well below a
+        // pixel.
+        let far = cam.position.abs().max_element();
+        let spacing = far * f64::EPSILON;
+        let pixel = cam.pixel_w.abs().min(cam.pixel_h.abs());
+        if spacing > pixel / 16.0 {
+            ctx.warn(
+                warnings,
+                &c.loc,
+                format!(
+                    "the camera is {far:.1e} from the origin, where doubles lie {spacing:.1e} apart: more than a sixteenth of a pixel on its near plane ({pixel:.1e} wide), so its rays' directions are rounded and the picture will be wrong; move the scene and the camera closer to the origin"
+                ),
+            );
+        }
         cameras.push(cam);
     }
     Ok(cameras)
@@ -146,7 +163,7 @@ fn build_scene_with(
 
     let (materials, mat_ids) = build_materials(&ctx, &mut warnings)?;
     let transforms = transform_table(rec);
-    let cameras = placed_cameras(&ctx, &transforms)?;
+    let cameras = placed_cameras(&ctx, &transforms, &mut warnings)?;
     if cameras.is_empty() {
         ctx.warn(&mut warnings, &Loc::default(), "the scene has no <Camera>; nothing will be rendered");
     }
@@ -158,7 +175,7 @@ fn build_scene_with(
     let meshes_cached = meshes.cached;
     let identity = std::mem::take(&mut meshes.identity);
     let objects = Objects { ctx: &ctx, transforms: &transforms, mat_ids: &mat_ids, textures: &textures };
-    let (geoms, instances, emitters) = objects.place(meshes, &mut warnings)?;
+    let Placed { geoms, instances, locs, emitters } = objects.place(meshes, &mut warnings)?;
 
     // The top level; with a cache, the world-space tree of the static mesh instances is
     // shared with an earlier scene that placed the same meshes the same way.
@@ -178,6 +195,13 @@ fn build_scene_with(
         None => (Accel::new(geoms, instances), false),
     };
     let accel_seconds = accel_started.elapsed().as_secs_f64();
+    for &(i, n) in accel.unplaced_world_triangles() {
+        let total = match accel.instances[i as usize].shape {
+            crate::geometry::Shape::Mesh { mesh, .. } => accel.meshes[mesh as usize].triangle_count(),
+            _ => 0,
+        };
+        ctx.warn(&mut warnings, &locs[i as usize], unplaced_message(n as usize, total, true));
+    }
     epsilons(&ctx, accel.extent(), &mut warnings);
     let (object_lights, instance_emission, instance_light) =
         object_lights(&ctx, &accel, &emitters, &mut warnings);
@@ -463,6 +487,82 @@ mod tests {
         let (red, blue) = (DVec3::X, DVec3::Z);
         // The mesh, the instance without textures, the one with its own, and its instance.
         assert_eq!([colour(0), colour(1), colour(2), colour(3)], [red, red, blue, blue]);
+    }
+
+    /// Triangles beyond `MAX_COORDINATE`, in a mesh's own coordinates or carried there by an
+    /// instance's transformations, are left out of the picture with a warning at the object
+    /// that names how many; the rest of the scene is still hit, and a scene within range warns
+    /// of nothing.
+    #[test]
+    fn triangles_beyond_the_range_are_named() {
+        let scene = build(
+            r#"<Scene>
+      <Materials><Material id="1"/></Materials>
+      <Transformations><Scaling id="1">1e19 1e19 1e19</Scaling></Transformations>
+      <VertexData>-1 -1 0  1 -1 0  0 1 0  1 1 0  3e18 0 0</VertexData>
+      <Objects>
+        <Mesh id="1"><Material>1</Material><Faces>1 2 3  2 4 3</Faces></Mesh>
+        <Mesh id="2"><Material>1</Material><Faces>1 2 3  2 5 3</Faces></Mesh>
+        <MeshInstance id="3" baseMeshId="1"><Transformations>s1</Transformations></MeshInstance>
+        <Triangle id="4"><Material>1</Material><Indices>1 5 3</Indices></Triangle>
+      </Objects></Scene>"#,
+        )
+        .unwrap();
+        let about = |element: &str| -> Vec<&str> {
+            scene
+                .warnings
+                .iter()
+                .filter(|w| w.loc.element.as_deref().is_some_and(|e| e.starts_with(element)))
+                .map(|w| w.message.as_str())
+                .collect()
+        };
+        assert!(about(r#"Mesh id="1""#).is_empty(), "{:?}", scene.warnings);
+        let own = about(r#"Mesh id="2""#);
+        assert!(
+            own.len() == 1 && own[0].starts_with("its vertex data puts 1 of its 2 triangles beyond ±1e18"),
+            "{own:?}"
+        );
+        let carried = about(r#"MeshInstance id="3""#);
+        assert!(
+            carried.len() == 1
+                && carried[0].starts_with("its transformations carry 2 of its 2 triangles beyond ±1e18"),
+            "{carried:?}"
+        );
+        let single = about(r#"Triangle id="4""#);
+        assert!(single.len() == 1 && single[0].contains("puts its triangle beyond"), "{single:?}");
+        assert!(single[0].contains("it is left out and will not be seen"), "{single:?}");
+        // The meshes' triangles within range are still there, in front of the camera's way.
+        let hit =
+            scene.accel.intersect(&Ray::new(DVec3::new(0.0, 0.0, 5.0), DVec3::NEG_Z), 1e-6, f64::INFINITY);
+        assert!(hit.is_some_and(|h| (h.t - 5.0).abs() < 1e-9), "{hit:?}");
+        let plain = build(CHAIN).unwrap();
+        assert!(plain.warnings.iter().all(|w| !w.message.contains("beyond ±")), "{:?}", plain.warnings);
+    }
+
+    /// A camera so far out that doubles cannot tell its pixels' directions apart is warned
+    /// about (at the camera); the same camera nearer the origin is not.
+    #[test]
+    fn a_camera_beyond_double_precision_is_named() {
+        let scene = |position: &str| {
+            build(&format!(
+                r#"<Scene><Cameras><Camera id="7"><Position>{position}</Position><Gaze>0 0 -1</Gaze><Up>0 1 0</Up>
+                <NearPlane>-1 1 -1 1</NearPlane><NearDistance>1</NearDistance><ImageResolution>64 64</ImageResolution>
+                <ImageName>a.png</ImageName></Camera></Cameras></Scene>"#
+            ))
+            .unwrap()
+        };
+        let far = scene("0 0 1e16");
+        let warned: Vec<_> = far.warnings.iter().filter(|w| w.message.contains("from the origin")).collect();
+        assert_eq!(warned.len(), 1, "{:?}", far.warnings);
+        assert_eq!(warned[0].loc.element.as_deref(), Some(r#"Camera id="7""#));
+        assert!(
+            warned[0].message.starts_with("the camera is 1.0e16 from the origin"),
+            "{}",
+            warned[0].message
+        );
+        // 1e12 out, doubles lie 1.1e-4 apart: well within a sixteenth of a 1/32-wide pixel.
+        let near = scene("5e11 -3 1e12");
+        assert!(near.warnings.iter().all(|w| !w.message.contains("from the origin")), "{:?}", near.warnings);
     }
 
     /// A material's BRDF must exist; a LightMesh and a LightSphere become object lights with

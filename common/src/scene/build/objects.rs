@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use glam::{DAffine3, DVec2, DVec3};
 
-use super::context::Ctx;
+use super::context::{Ctx, unplaced_message};
 use super::meshes::Meshes;
 use super::textures::{BuiltTextures, uses_image};
 use crate::error::{Loc, SceneError, Warning};
@@ -15,6 +15,15 @@ use crate::geometry::{Accel, Instance, ObjectTextures, Shape};
 use crate::lights::ObjectLight;
 use crate::math::v3;
 use crate::scene::records::*;
+
+/// What step 6 makes: all the mesh geometry, the instances with the location of each one's
+/// record, and the emitting instances.
+pub(super) struct Placed {
+    pub(super) geoms: Vec<Arc<MeshGeom>>,
+    pub(super) instances: Vec<Instance>,
+    pub(super) locs: Vec<Loc>,
+    pub(super) emitters: Vec<Emitter>,
+}
 
 /// What step 6 reads: the id tables and the built texture maps.
 pub(super) struct Objects<'c, 'a> {
@@ -30,15 +39,11 @@ impl Objects<'_, '_> {
     /// own, added to `meshes.geoms`), spheres and planes, in that order. Returns all the mesh
     /// geometry, the instances, and which of them emit (LightMesh, LightSphere) with their
     /// radiance and the record's location.
-    #[allow(clippy::type_complexity)]
-    pub(super) fn place(
-        &self,
-        meshes: Meshes,
-        warnings: &mut Vec<Warning>,
-    ) -> Result<(Vec<Arc<MeshGeom>>, Vec<Instance>, Vec<Emitter>), SceneError> {
+    pub(super) fn place(&self, meshes: Meshes, warnings: &mut Vec<Warning>) -> Result<Placed, SceneError> {
         let (ctx, rec) = (self.ctx, self.ctx.rec);
         let Meshes { mut geoms, world, instances: resolved, .. } = meshes;
         let mut instances = Vec::new();
+        let mut locs = Vec::new();
         let mut emitters = Vec::new();
         let mut mesh_textures = Vec::with_capacity(rec.meshes.len());
         for m in &rec.meshes {
@@ -63,6 +68,7 @@ impl Objects<'_, '_> {
                 motion: motion(m.motion_blur),
                 textures: mesh_textures[i],
             });
+            locs.push(m.loc.clone());
         }
         for (r, inst) in resolved.iter().zip(&rec.instances) {
             // An instance's own `Textures` replace its base mesh's.
@@ -84,11 +90,13 @@ impl Objects<'_, '_> {
                 motion: motion(inst.motion_blur),
                 textures,
             });
+            locs.push(inst.loc.clone());
         }
         for t in &rec.triangles {
             if let Some((geom, instance)) = self.triangle(t, geoms.len() as u32, warnings)? {
                 geoms.push(geom);
                 instances.push(instance);
+                locs.push(t.loc.clone());
             }
         }
         for s in &rec.spheres {
@@ -100,11 +108,13 @@ impl Objects<'_, '_> {
                 });
             }
             instances.push(self.sphere(s, warnings)?);
+            locs.push(s.loc.clone());
         }
         for p in &rec.planes {
             instances.push(self.plane(p, warnings)?);
+            locs.push(p.loc.clone());
         }
-        Ok((geoms, instances, emitters))
+        Ok(Placed { geoms, instances, locs, emitters })
     }
 
     /// A `<Triangle>` as a one-triangle mesh (the mesh index `mesh` in the scene) and its
@@ -138,6 +148,9 @@ impl Objects<'_, '_> {
             ctx.warn(warnings, &t.loc, "an image texture is applied but <TexCoordData> has no entry for its vertices; it is sampled at the barycentric coordinates");
         }
         let geom = Arc::new(MeshGeom::with_uvs(positions, indices, None, uvs));
+        if geom.unplaced() > 0 {
+            ctx.warn(warnings, &t.loc, unplaced_message(1, 1, false));
+        }
         let instance = Instance {
             shape: Shape::Mesh { mesh, smooth: false },
             material,
