@@ -74,22 +74,30 @@ fn parse_args() -> Result<Args> {
     };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
+        // Every count and size is at least 1: a 0 is refused, not quietly raised.
         let mut number = |name: &str| -> Result<u64> {
-            it.next()
+            let n: u64 = it
+                .next()
                 .with_context(|| format!("{name} needs a value"))?
                 .parse()
-                .with_context(|| format!("{name}: a number"))
+                .with_context(|| format!("{name}: a number"))?;
+            if n == 0 {
+                bail!("{name}: at least 1");
+            }
+            Ok(n)
         };
         match arg.as_str() {
             "--primary" => a.primary = true,
             "--one-light" => a.one_light = true,
             "--mis" => a.mis = true,
             "--mitsuba-avx2" => a.mitsuba_avx2 = true,
-            "--rounds" => a.rounds = number("--rounds")?.max(1) as usize,
-            "--samples" => a.samples = number("--samples")?.max(1) as u32,
-            "--threads" => a.threads = number("--threads")?.max(1) as usize,
-            "--width" => a.width = number("--width")?.max(1) as u32,
-            "--height" => a.height = number("--height")?.max(1) as u32,
+            "--rounds" => a.rounds = usize::try_from(number("--rounds")?).context("--rounds: too large")?,
+            "--samples" => a.samples = u32::try_from(number("--samples")?).context("--samples: too large")?,
+            "--threads" => {
+                a.threads = usize::try_from(number("--threads")?).context("--threads: too large")?
+            }
+            "--width" => a.width = u32::try_from(number("--width")?).context("--width: too large")?,
+            "--height" => a.height = u32::try_from(number("--height")?).context("--height: too large")?,
             "-h" | "--help" => {
                 println!(
                     "{}",
