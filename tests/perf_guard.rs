@@ -47,21 +47,48 @@ pub const UPDATE_COMMAND: &str = "cargo test -p tessera-tests --test perf_guard 
 /// The longest one workload may run under Valgrind (a few seconds normally): a hang fails by name.
 pub const RUN_LIMIT: Duration = Duration::from_secs(600);
 
-/// One fixed workload: a scene made from the corpus and the `render` options that go with it.
+/// One fixed workload: the scene files one `render` process is given and the options that go
+/// with them.
 pub struct Workload {
     pub name: &'static str,
     /// What it exercises, for the guard's table and the docs.
     pub what: &'static str,
-    /// Options of `tessera-worker render` besides the scene, `--out`, `--threads 1`, `--quiet`.
+    /// Options of `tessera-worker render` besides the scenes, `--out`, `--threads 1`, `--quiet`.
     pub args: &'static [&'static str],
-    /// The scene file's text, from the corpus at the given path.
-    scene: fn(&Path) -> Result<String>,
+    input: Input,
+}
+
+/// Where a workload's scene files come from.
+enum Input {
+    /// One scene file made from the corpus at the given path (its text).
+    Scene(fn(&Path) -> Result<String>),
+    /// Frames of a corpus sequence, as they are: the directory under `../shared/scenes` and the
+    /// files, in the order the process renders them.
+    Frames { dir: &'static str, files: &'static [&'static str] },
 }
 
 impl Workload {
-    /// The scene's text, made from the corpus `scenes` (`../shared/scenes`).
-    pub fn scene_text(&self, scenes: &Path) -> Result<String> {
-        (self.scene)(scenes).with_context(|| format!("making the scene of workload {}", self.name))
+    /// The scene files of the workload in render order: a made scene written into `dir` as
+    /// `NAME.xml`, or the sequence's frames in the corpus `scenes` (`../shared/scenes`).
+    pub fn scene_files(&self, scenes: &Path, dir: &Path) -> Result<Vec<PathBuf>> {
+        let made = || -> Result<Vec<PathBuf>> {
+            match &self.input {
+                Input::Scene(text) => {
+                    let path = dir.join(format!("{}.xml", self.name));
+                    std::fs::write(&path, text(scenes)?)?;
+                    Ok(vec![path])
+                }
+                Input::Frames { dir: seq, files } => files
+                    .iter()
+                    .map(|f| {
+                        let path = scenes.join(seq).join(f);
+                        ensure!(path.is_file(), "{} is missing", path.display());
+                        Ok(path)
+                    })
+                    .collect(),
+            }
+        };
+        made().with_context(|| format!("making the scenes of workload {}", self.name))
     }
 }
 
@@ -72,27 +99,46 @@ pub const WORKLOADS: &[Workload] = &[
         what: "head_env_light (head.ply, 17,674 triangles, no texture) lit by hdri/park.exr, \
                importance-sampled environment, direct lighting, 200x112, 16 spp",
         args: &["--samples", "16", "--env-sampling", "importance"],
-        scene: head_env_direct,
+        input: Input::Scene(head_env_direct),
     },
     Workload {
         name: "jaroslav_path_nee",
         what: "cornellbox_jaroslav_path_diffuse camera 3 (path tracing, next-event estimation, cosine \
                importance sampling, depth 3), 128x128, 8 spp",
         args: &["--camera", "3", "--samples", "8"],
-        scene: jaroslav_path_nee,
+        input: Input::Scene(jaroslav_path_nee),
     },
     Workload {
         name: "head_primary",
         what: "primary rays only at head.ply (tests/perf-guard/head_primary.xml), 640x360, 1 spp",
         args: &[],
-        scene: head_primary,
+        input: Input::Scene(head_primary),
     },
     Workload {
         name: "cornellbox_area",
         what: "cornellbox_area (the classic tracer: an area light, a mirror and a glossy sphere), 200x200, 4 spp",
         args: &["--samples", "4"],
-        scene: cornellbox_area,
+        input: Input::Scene(cornellbox_area),
     },
+    Workload {
+        name: "david_cached_frames",
+        what: "frames 0-7 of the camera_around_david sequence in one process, 80x80: the first builds \
+               the two statues' meshes and world tree, the seven after take them from the caches",
+        args: &["--scale", "0.1"],
+        input: Input::Frames { dir: "sequences/camera_around_david", files: DAVID_FRAMES },
+    },
+];
+
+/// The frames of [`WORKLOADS`]' sequence workload, in `sequences/camera_around_david`.
+const DAVID_FRAMES: &[&str] = &[
+    "davids_camera_000.json",
+    "davids_camera_001.json",
+    "davids_camera_002.json",
+    "davids_camera_003.json",
+    "davids_camera_004.json",
+    "davids_camera_005.json",
+    "davids_camera_006.json",
+    "davids_camera_007.json",
 ];
 
 /// The corpus files the workloads read, relative to `../shared/scenes`.
@@ -102,6 +148,8 @@ pub const CORPUS_FILES: &[&str] = &[
     "hdri/park.exr",
     "xml/cornellbox_jaroslav_path_diffuse.xml",
     "xml/cornellbox_area.xml",
+    "sequences/camera_around_david/davids_camera_000.json",
+    "sequences/camera_around_david/david_ply/mesh_1.ply",
 ];
 
 /// `text` with each of the `count` occurrences of `from` replaced by `to`; an error when `from`
@@ -243,10 +291,10 @@ pub fn version_of(program: &str) -> Option<String> {
         .then(|| String::from_utf8_lossy(&out.stdout).lines().next().unwrap_or("").trim().to_string())
 }
 
-/// The instructions one `tessera-worker render` process executes (every thread, start-up, scene
-/// load, BVH build, render and image writing), counted by cachegrind without its cache
+/// The instructions one `tessera-worker render` process of `scenes` executes (every thread,
+/// start-up, scene loads, BVH builds, renders and image writing), counted by cachegrind without its cache
 /// simulation, with the C library's CPU-dependent choices pinned ([`PINNED_LIBC`]). `dir` receives the images and Valgrind's files.
-pub fn count_instructions(worker: &Path, scene: &Path, args: &[&str], dir: &Path) -> Result<u64> {
+pub fn count_instructions(worker: &Path, scenes: &[PathBuf], args: &[&str], dir: &Path) -> Result<u64> {
     std::fs::create_dir_all(dir)?;
     let counts = dir.join("cachegrind.out");
     let log = dir.join("valgrind.log");
@@ -256,7 +304,7 @@ pub fn count_instructions(worker: &Path, scene: &Path, args: &[&str], dir: &Path
         .arg(format!("--cachegrind-out-file={}", counts.display()))
         .arg(worker)
         .arg("render")
-        .arg(scene)
+        .args(scenes)
         .arg("--out")
         .arg(dir.join("out"))
         .args(["--threads", "1", "--quiet"])

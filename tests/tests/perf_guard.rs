@@ -71,7 +71,7 @@ fn required() -> bool {
 /// The median of each workload's counts over the runs, and the spread (max - min).
 fn measure(
     worker: &std::path::Path,
-    scenes: &[PathBuf],
+    scenes: &[Vec<PathBuf>],
     dir: &std::path::Path,
     runs: usize,
 ) -> Result<Vec<Vec<u64>>> {
@@ -147,9 +147,7 @@ fn run(o: &Options) -> Result<Outcome> {
     };
     let mut scene_paths = Vec::new();
     for w in WORKLOADS {
-        let path = dir.join(format!("{}.xml", w.name));
-        std::fs::write(&path, w.scene_text(&scenes_dir)?)?;
-        scene_paths.push(path);
+        scene_paths.push(w.scene_files(&scenes_dir, &dir)?);
     }
 
     println!("perf guard: building the release binaries (as deploy/build-image.sh does)");
@@ -160,8 +158,12 @@ fn run(o: &Options) -> Result<Outcome> {
          {} run(s) each; {valgrind}, {rustc}",
         o.runs
     );
-    for (w, path) in WORKLOADS.iter().zip(&scene_paths) {
-        println!("  {:<18} {} [{} {}]", w.name, w.what, path.display(), w.args.join(" "));
+    for (w, paths) in WORKLOADS.iter().zip(&scene_paths) {
+        let more = match paths.len() {
+            1 => String::new(),
+            n => format!(" and {} more", n - 1),
+        };
+        println!("  {:<19} {} [{}{more} {}]", w.name, w.what, paths[0].display(), w.args.join(" "));
     }
     let counts = measure(&worker, &scene_paths, &dir, o.runs)?;
     let mut measured = Vec::new();
@@ -172,7 +174,7 @@ fn run(o: &Options) -> Result<Outcome> {
         let spread = sorted[sorted.len() - 1] - sorted[0];
         if o.runs > 1 {
             println!(
-                "  {:<18} runs {}: spread {} instructions ({:.5} % of the median)",
+                "  {:<19} runs {}: spread {} instructions ({:.5} % of the median)",
                 w.name,
                 runs.iter().map(|&n| perf_guard::grouped(n)).collect::<Vec<_>>().join(" "),
                 perf_guard::grouped(spread),
@@ -202,14 +204,14 @@ fn run(o: &Options) -> Result<Outcome> {
         for e in &new.workloads {
             match old.as_ref().and_then(|b| b.entry(&e.name)) {
                 Some(was) => println!(
-                    "  {:<18} {} instructions (was {}: {:+.2} %)",
+                    "  {:<19} {} instructions (was {}: {:+.2} %)",
                     e.name,
                     perf_guard::grouped(e.instructions),
                     perf_guard::grouped(was.instructions),
                     100.0 * (e.instructions as f64 / was.instructions as f64 - 1.0)
                 ),
                 None => {
-                    println!("  {:<18} {} instructions (new)", e.name, perf_guard::grouped(e.instructions))
+                    println!("  {:<19} {} instructions (new)", e.name, perf_guard::grouped(e.instructions))
                 }
             }
         }
