@@ -24,6 +24,15 @@ pub trait AssetResolver: Sync {
     fn content_id(&self, _rel: &str) -> Option<[u8; 32]> {
         None
     }
+
+    /// The file of this machine's file system that [`AssetResolver::read`] would read `rel`
+    /// from, when assets are such files (`None`, the default: they are not). A
+    /// [`crate::scene::cache::MeshCache`] remembers the SHA-256 of such a file with its
+    /// `stat` identity, and does not read an unchanged file again to find its cached mesh or
+    /// image.
+    fn local_file(&self, _rel: &str) -> Option<PathBuf> {
+        None
+    }
 }
 
 /// Resolves assets on the file system relative to the scene file's directory.
@@ -84,6 +93,10 @@ impl AssetResolver for FsResolver {
 
     fn display_path(&self, rel: &str) -> PathBuf {
         self.base_dir.join(rel)
+    }
+
+    fn local_file(&self, rel: &str) -> Option<PathBuf> {
+        self.locate(rel)
     }
 }
 

@@ -19,13 +19,17 @@
 //!   whose camera alone moves share it; frames whose objects move build their own.
 //!
 //! The content key comes from [`AssetResolver::content_id`] when the resolver knows it (a
-//! farm worker's files are named by their SHA-256: a hit then reads nothing), else from
-//! hashing the bytes read (a hit then reads the file but does not parse it). Entries are
+//! farm worker's files are named by their SHA-256: a hit then reads nothing); for a file of the
+//! local file system (the CLI's), from the hash this cache remembers with the file's `stat`
+//! identity, if the file had settled when it was hashed and has not changed since (a hit then
+//! reads nothing either); else from hashing the bytes read (a hit then reads the file but does
+//! not parse it). Entries are
 //! bounded by an estimate of their bytes; the least recently used go first. Errors are never
 //! cached: they name the scene that met them. Thread-safe; entries come out as `Arc`s, so an
 //! entry evicted while a scene uses it lives until that scene is dropped.
 
 use std::collections::HashMap;
+use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 
 use sha2::{Digest, Sha256};
@@ -112,6 +116,9 @@ pub struct CacheStats {
 pub struct MeshCache {
     inner: Mutex<Inner>,
     limit: u64,
+    /// The SHA-256 of each local file hashed here, with its `stat` identity then
+    /// ([`MeshCache::content_key`]).
+    files: Mutex<HashMap<PathBuf, (FileStamp, [u8; 32])>>,
 }
 
 impl Default for MeshCache {
@@ -130,7 +137,7 @@ impl MeshCache {
     /// A cache that keeps at most about `limit_bytes` (by [`MeshGeom::heap_bytes`] and the
     /// images' texels). An entry larger than the whole bound is not kept.
     pub fn new(limit_bytes: u64) -> Self {
-        MeshCache { inner: Mutex::default(), limit: limit_bytes }
+        MeshCache { inner: Mutex::default(), limit: limit_bytes, files: Mutex::default() }
     }
 
     /// The bound it was made with.
@@ -254,17 +261,103 @@ impl MeshCache {
 /// An asset's bytes and the path they were found at, as [`AssetResolver::read`] returns them.
 pub(crate) type Read = (Vec<u8>, std::path::PathBuf);
 
-/// An asset's content key and, when they had to be read to find it, its bytes and where they
-/// were found: from [`AssetResolver::content_id`] without reading, else by hashing the bytes.
-pub(crate) fn content_key(
-    resolver: &dyn AssetResolver,
-    rel: &str,
-) -> std::io::Result<([u8; 32], Option<Read>)> {
-    if let Some(id) = resolver.content_id(rel) {
-        return Ok((id, None));
+/// How long before its hashing a file must have last changed for [`MeshCache`] to remember its
+/// hash: a write after the hashing then gives it a later change time, whatever the clock's
+/// granularity (a write within the same tick as the hashing could leave the times as they were).
+const SETTLED: std::time::Duration = std::time::Duration::from_secs(1);
+
+/// The most files whose hashes a [`MeshCache`] remembers; past it they are forgotten together.
+const REMEMBERED_FILES: usize = 65_536;
+
+/// A file's identity as `stat` gives it: a write changes its size or its modification and
+/// change times (the change time cannot be set back).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct FileStamp {
+    dev: u64,
+    ino: u64,
+    len: u64,
+    modified: (i64, i64),
+    changed: (i64, i64),
+}
+
+impl FileStamp {
+    #[cfg(unix)]
+    fn of(meta: &std::fs::Metadata) -> Option<FileStamp> {
+        use std::os::unix::fs::MetadataExt;
+        Some(FileStamp {
+            dev: meta.dev(),
+            ino: meta.ino(),
+            len: meta.len(),
+            modified: (meta.mtime(), meta.mtime_nsec()),
+            changed: (meta.ctime(), meta.ctime_nsec()),
+        })
     }
-    let (bytes, found) = resolver.read(rel)?;
-    Ok((sha256(&bytes), Some((bytes, found))))
+
+    /// Without `stat`'s change time, nothing is remembered.
+    #[cfg(not(unix))]
+    fn of(_meta: &std::fs::Metadata) -> Option<FileStamp> {
+        None
+    }
+
+    /// Whether the file had last changed at least [`SETTLED`] before `t`.
+    fn settled_before(&self, t: std::time::SystemTime) -> bool {
+        let Ok(since) = t.duration_since(std::time::UNIX_EPOCH) else { return false };
+        let limit = since.saturating_sub(SETTLED);
+        let time = |(secs, nanos): (i64, i64)| {
+            u64::try_from(secs).ok().map(|s| std::time::Duration::new(s, nanos.clamp(0, 999_999_999) as u32))
+        };
+        [self.modified, self.changed].into_iter().all(|t| time(t).is_some_and(|t| t <= limit))
+    }
+}
+
+impl MeshCache {
+    /// An asset's content key and, when they had to be read to find it, its bytes and where
+    /// they were found: from [`AssetResolver::content_id`] without reading; for a local file
+    /// ([`AssetResolver::local_file`]) whose `stat` identity is the one it had when this cache
+    /// last hashed it, the hash remembered then, without reading; else by hashing the bytes.
+    /// A caller that reads the bytes after a key found without reading must key what it builds
+    /// from them by their own hash ([`sha256`]), which a change in between would have moved.
+    pub(crate) fn content_key(
+        &self,
+        resolver: &dyn AssetResolver,
+        rel: &str,
+    ) -> std::io::Result<([u8; 32], Option<Read>)> {
+        if let Some(id) = resolver.content_id(rel) {
+            return Ok((id, None));
+        }
+        if let Some(path) = resolver.local_file(rel)
+            && let Some(found) = self.local_content_key(path)
+        {
+            return Ok(found);
+        }
+        let (bytes, found) = resolver.read(rel)?;
+        Ok((sha256(&bytes), Some((bytes, found))))
+    }
+
+    /// [`Self::content_key`] of the local file `path`; `None` when it cannot be read (the
+    /// resolver's read then reports it as it would have).
+    fn local_content_key(&self, path: PathBuf) -> Option<([u8; 32], Option<Read>)> {
+        let stamp = FileStamp::of(&std::fs::metadata(&path).ok()?)?;
+        let lock = || self.files.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(&(known, id)) = lock().get(&path)
+            && known == stamp
+        {
+            return Some((id, None));
+        }
+        let started = std::time::SystemTime::now();
+        let bytes = std::fs::read(&path).ok()?;
+        let id = sha256(&bytes);
+        // Remembered only if nothing changed while it was read, and it had settled before.
+        let after = std::fs::metadata(&path).ok().and_then(|m| FileStamp::of(&m));
+        if after == Some(stamp) && stamp.settled_before(started) {
+            let mut files = lock();
+            if files.len() >= REMEMBERED_FILES {
+                files.clear();
+            }
+            files.insert(path.clone(), (stamp, id));
+        }
+        Some((id, Some((bytes, path))))
+    }
 }
 
 #[cfg(test)]
@@ -450,6 +543,55 @@ mod tests {
         let back = build_scene_cached(&rec, &fs, &cache).unwrap();
         assert!(back.stats.world_tree_cached);
         assert_eq!(render_bits(&back), want);
+    }
+
+    /// A local file that had settled is hashed from its bytes once, then found by its `stat`
+    /// identity without reading, until a write changes it; one written just now is read every
+    /// time. A build whose cache lost the mesh reads the file again and keys it by its bytes.
+    #[test]
+    fn a_settled_local_file_is_hashed_once_until_it_changes() {
+        use crate::assets::FsResolver;
+        let dir = tessera_testkit::TempDir::new("mesh-cache-files");
+        std::fs::write(dir.join("settled.ply"), b"first content").unwrap();
+        std::fs::write(dir.join("grid.ply"), grid_ply()).unwrap();
+        std::thread::sleep(SETTLED + std::time::Duration::from_millis(200));
+        std::fs::write(dir.join("fresh.ply"), b"fresh").unwrap();
+        let fs = FsResolver { base_dir: dir.to_path_buf() };
+        let cache = MeshCache::default();
+        let key = |rel: &str| cache.content_key(&fs, rel).unwrap();
+
+        let (id, read) = key("settled.ply");
+        assert_eq!(id, sha256(b"first content"));
+        assert!(read.is_some_and(|(bytes, at)| bytes == b"first content" && at == dir.join("settled.ply")));
+        let (again, read) = key("settled.ply");
+        assert_eq!(again, id);
+        assert!(read.is_none(), "an unchanged settled file is not read again");
+        for _ in 0..2 {
+            let (id, read) = key("fresh.ply");
+            assert_eq!(id, sha256(b"fresh"));
+            assert!(read.is_some(), "a file written just now is read every time");
+        }
+        // Other bytes of the same length: its change time moved, so it is read and hashed.
+        std::fs::write(dir.join("settled.ply"), b"other content").unwrap();
+        let (changed, read) = key("settled.ply");
+        assert_eq!(changed, sha256(b"other content"));
+        assert!(read.is_some());
+        // Another file renamed over it: another inode.
+        std::fs::write(dir.join("new.ply"), b"third content").unwrap();
+        std::fs::rename(dir.join("new.ply"), dir.join("settled.ply")).unwrap();
+        assert_eq!(key("settled.ply").0, sha256(b"third content"));
+
+        // A cache that keeps nothing: the second build's key comes without reading, the mesh
+        // is not there, and the file is read, keyed by its bytes and parsed again.
+        let text = r#"<Scene><Materials><Material id="1"/></Materials><Objects>
+            <Mesh id="1"><Material>1</Material><Faces plyFile="grid.ply"/></Mesh></Objects></Scene>"#;
+        let rec = crate::scene::xml::parse_xml(text, &dir.join("s.xml")).unwrap();
+        let keeps_nothing = MeshCache::new(0);
+        let first = crate::scene::build::build_scene_cached(&rec, &fs, &keeps_nothing).unwrap();
+        assert!(keeps_nothing.content_key(&fs, "grid.ply").unwrap().1.is_none(), "remembered");
+        let second = crate::scene::build::build_scene_cached(&rec, &fs, &keeps_nothing).unwrap();
+        assert_eq!(keeps_nothing.stats().ply_parses, 2);
+        assert_eq!(second.stats.triangles, first.stats.triangles);
     }
 
     #[test]

@@ -14,7 +14,7 @@ use crate::error::{Loc, SceneError, Warning};
 use crate::geometry::mesh::{MeshGeom, area_weighted_normals, drop_degenerate, grouped_normals};
 use crate::geometry::{Instance, ObjectTextures, Shape};
 use crate::math::v3;
-use crate::scene::cache::{CachedMesh, content_key};
+use crate::scene::cache::{CachedMesh, sha256};
 use crate::scene::records::*;
 
 /// A MeshInstance with its chain of bases followed down to a Mesh.
@@ -243,7 +243,8 @@ pub(super) fn load_ply_cached(
         let data = load_ply(ctx, path, loc, None)?;
         return Ok(PlyLoaded { content: None, cached: [None, None], data: Some(data) });
     };
-    let (content, read) = content_key(ctx.resolver, path).map_err(|e| ply_read_error(ctx, path, loc, e))?;
+    let (mut content, read) =
+        cache.content_key(ctx.resolver, path).map_err(|e| ply_read_error(ctx, path, loc, e))?;
     let mut cached = [None, None];
     for (k, slot) in cached.iter_mut().enumerate() {
         if wanted[k] {
@@ -251,7 +252,20 @@ pub(super) fn load_ply_cached(
         }
     }
     let missing = (0..2).any(|k| wanted[k] && cached[k].is_none());
-    let data = if missing { Some(load_ply(ctx, path, loc, read)?) } else { None };
+    let data = if missing {
+        // Bytes read after their key was found without reading are keyed by their own hash.
+        let read = match read {
+            Some(r) => r,
+            None => {
+                let r = ctx.resolver.read(path).map_err(|e| ply_read_error(ctx, path, loc, e))?;
+                content = sha256(&r.0);
+                r
+            }
+        };
+        Some(load_ply(ctx, path, loc, Some(read))?)
+    } else {
+        None
+    };
     Ok(PlyLoaded { content: Some(content), cached, data })
 }
 

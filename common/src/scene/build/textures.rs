@@ -11,7 +11,7 @@ use crate::error::{Loc, SceneError, Warning};
 use crate::geometry::ObjectTextures;
 use crate::lights::EnvLight;
 use crate::math::v3;
-use crate::scene::cache::content_key;
+use crate::scene::cache::sha256;
 use crate::scene::records::*;
 use crate::texture::image::TextureImage;
 use crate::texture::maps::{Source, TextureMap};
@@ -89,9 +89,9 @@ pub(super) fn build_textures<'a>(
                 )
             };
             // With a cache: the decoded image of the same content, if it has it.
-            let (content, read) = match ctx.cache {
+            let (mut content, read) = match ctx.cache {
                 Some(cache) => {
-                    let (content, read) = content_key(ctx.resolver, &img.path).map_err(unreadable)?;
+                    let (content, read) = cache.content_key(ctx.resolver, &img.path).map_err(unreadable)?;
                     if let Some(image) = cache.image(&content) {
                         return Ok((img.path.clone(), image));
                     }
@@ -101,7 +101,14 @@ pub(super) fn build_textures<'a>(
             };
             let (bytes, found) = match read {
                 Some(r) => r,
-                None => ctx.resolver.read(&img.path).map_err(unreadable)?,
+                None => {
+                    let r = ctx.resolver.read(&img.path).map_err(unreadable)?;
+                    // Keyed by their own hash when read after a key found without reading.
+                    if let Some(c) = &mut content {
+                        *c = sha256(&r.0);
+                    }
+                    r
+                }
             };
             let decoded = TextureImage::decode(&bytes).map_err(|e| {
                 ctx.err(
