@@ -262,9 +262,10 @@ impl MeshCache {
 pub(crate) type Read = (Vec<u8>, std::path::PathBuf);
 
 /// How long before its hashing a file must have last changed for [`MeshCache`] to remember its
-/// hash: a write after the hashing then gives it a later change time, whatever the clock's
-/// granularity (a write within the same tick as the hashing could leave the times as they were).
-const SETTLED: std::time::Duration = std::time::Duration::from_secs(1);
+/// hash: a write after the hashing then gives it a later time, whatever the granularity of the
+/// file system's times (two seconds on FAT; a write within the same tick as the hashing could
+/// leave them as they were).
+const SETTLED: std::time::Duration = std::time::Duration::from_secs(3);
 
 /// The most files whose hashes a [`MeshCache`] remembers; past it they are forgotten together.
 const REMEMBERED_FILES: usize = 65_536;
