@@ -149,7 +149,8 @@ pub const CORPUS_FILES: &[&str] = &[
     "xml/cornellbox_jaroslav_path_diffuse.xml",
     "xml/cornellbox_area.xml",
     "sequences/camera_around_david/davids_camera_000.json",
-    "sequences/camera_around_david/david_ply/mesh_1.ply",
+    "sequences/camera_around_david/david_ply/mesh_3.ply",
+    "sequences/camera_around_david/david_ply/mesh_4.ply",
 ];
 
 /// `text` with each of the `count` occurrences of `from` replaced by `to`; an error when `from`
@@ -292,8 +293,9 @@ pub fn version_of(program: &str) -> Option<String> {
 }
 
 /// The instructions one `tessera-worker render` process of `scenes` executes (every thread,
-/// start-up, scene loads, BVH builds, renders and image writing), counted by cachegrind without its cache
-/// simulation, with the C library's CPU-dependent choices pinned ([`PINNED_LIBC`]). `dir` receives the images and Valgrind's files.
+/// start-up, scene loads, BVH builds, renders and image writing), counted by cachegrind without
+/// its cache simulation, with the C library's CPU-dependent choices pinned ([`PINNED_LIBC`]).
+/// `dir` receives the images and Valgrind's files.
 pub fn count_instructions(worker: &Path, scenes: &[PathBuf], args: &[&str], dir: &Path) -> Result<u64> {
     std::fs::create_dir_all(dir)?;
     let counts = dir.join("cachegrind.out");

@@ -60,6 +60,19 @@ struct Args {
     height: u32,
 }
 
+/// The value `value` of option `name` as a count or size of type `T`: a number of at least 1
+/// that `T` holds (a 0 is refused, not quietly raised; a larger one is refused, not wrapped).
+fn count<T: TryFrom<u64>>(value: Option<String>, name: &str) -> Result<T> {
+    let n: u64 = value
+        .with_context(|| format!("{name} needs a value"))?
+        .parse()
+        .with_context(|| format!("{name}: a number"))?;
+    if n == 0 {
+        bail!("{name}: at least 1");
+    }
+    T::try_from(n).ok().with_context(|| format!("{name}: too large"))
+}
+
 fn parse_args() -> Result<Args> {
     let mut a = Args {
         primary: false,
@@ -74,30 +87,16 @@ fn parse_args() -> Result<Args> {
     };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
-        // Every count and size is at least 1: a 0 is refused, not quietly raised.
-        let mut number = |name: &str| -> Result<u64> {
-            let n: u64 = it
-                .next()
-                .with_context(|| format!("{name} needs a value"))?
-                .parse()
-                .with_context(|| format!("{name}: a number"))?;
-            if n == 0 {
-                bail!("{name}: at least 1");
-            }
-            Ok(n)
-        };
         match arg.as_str() {
             "--primary" => a.primary = true,
             "--one-light" => a.one_light = true,
             "--mis" => a.mis = true,
             "--mitsuba-avx2" => a.mitsuba_avx2 = true,
-            "--rounds" => a.rounds = usize::try_from(number("--rounds")?).context("--rounds: too large")?,
-            "--samples" => a.samples = u32::try_from(number("--samples")?).context("--samples: too large")?,
-            "--threads" => {
-                a.threads = usize::try_from(number("--threads")?).context("--threads: too large")?
-            }
-            "--width" => a.width = u32::try_from(number("--width")?).context("--width: too large")?,
-            "--height" => a.height = u32::try_from(number("--height")?).context("--height: too large")?,
+            "--rounds" => a.rounds = count(it.next(), "--rounds")?,
+            "--samples" => a.samples = count(it.next(), "--samples")?,
+            "--threads" => a.threads = count(it.next(), "--threads")?,
+            "--width" => a.width = count(it.next(), "--width")?,
+            "--height" => a.height = count(it.next(), "--height")?,
             "-h" | "--help" => {
                 println!(
                     "{}",

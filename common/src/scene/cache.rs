@@ -261,6 +261,19 @@ impl MeshCache {
 /// An asset's bytes and the path they were found at, as [`AssetResolver::read`] returns them.
 pub(crate) type Read = (Vec<u8>, std::path::PathBuf);
 
+/// The bytes of `rel` for a build whose key `content` [`MeshCache::content_key`] found without
+/// reading them: `content` becomes their own hash, which a change of the file in between would
+/// have moved, so nothing is kept under the key of other bytes.
+pub(crate) fn read_rekeyed(
+    resolver: &dyn AssetResolver,
+    rel: &str,
+    content: &mut [u8; 32],
+) -> std::io::Result<Read> {
+    let read = resolver.read(rel)?;
+    *content = sha256(&read.0);
+    Ok(read)
+}
+
 /// How long before its hashing a file must have last changed for [`MeshCache`] to remember its
 /// hash: a write after the hashing then gives it a later time, whatever the granularity of the
 /// file system's times (two seconds on FAT; a write within the same tick as the hashing could
@@ -273,7 +286,7 @@ const REMEMBERED_FILES: usize = 65_536;
 /// A file's identity as `stat` gives it: a write changes its size or its modification and
 /// change times (the change time cannot be set back).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) struct FileStamp {
+struct FileStamp {
     dev: u64,
     ino: u64,
     len: u64,
@@ -316,8 +329,8 @@ impl MeshCache {
     /// they were found: from [`AssetResolver::content_id`] without reading; for a local file
     /// ([`AssetResolver::local_file`]) whose `stat` identity is the one it had when this cache
     /// last hashed it, the hash remembered then, without reading; else by hashing the bytes.
-    /// A caller that reads the bytes after a key found without reading must key what it builds
-    /// from them by their own hash ([`sha256`]), which a change in between would have moved.
+    /// A caller that reads the bytes after a key found without reading reads them with
+    /// [`read_rekeyed`], which keys them by their own hash.
     pub(crate) fn content_key(
         &self,
         resolver: &dyn AssetResolver,

@@ -14,7 +14,7 @@ use crate::error::{Loc, SceneError, Warning};
 use crate::geometry::mesh::{MeshGeom, area_weighted_normals, drop_degenerate, grouped_normals};
 use crate::geometry::{Instance, ObjectTextures, Shape};
 use crate::math::v3;
-use crate::scene::cache::{CachedMesh, sha256};
+use crate::scene::cache::{CachedMesh, read_rekeyed};
 use crate::scene::records::*;
 
 /// A MeshInstance with its chain of bases followed down to a Mesh.
@@ -253,14 +253,10 @@ pub(super) fn load_ply_cached(
     }
     let missing = (0..2).any(|k| wanted[k] && cached[k].is_none());
     let data = if missing {
-        // Bytes read after their key was found without reading are keyed by their own hash.
         let read = match read {
             Some(r) => r,
-            None => {
-                let r = ctx.resolver.read(path).map_err(|e| ply_read_error(ctx, path, loc, e))?;
-                content = sha256(&r.0);
-                r
-            }
+            None => read_rekeyed(ctx.resolver, path, &mut content)
+                .map_err(|e| ply_read_error(ctx, path, loc, e))?,
         };
         Some(load_ply(ctx, path, loc, Some(read))?)
     } else {

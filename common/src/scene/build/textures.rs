@@ -11,7 +11,7 @@ use crate::error::{Loc, SceneError, Warning};
 use crate::geometry::ObjectTextures;
 use crate::lights::EnvLight;
 use crate::math::v3;
-use crate::scene::cache::sha256;
+use crate::scene::cache::read_rekeyed;
 use crate::scene::records::*;
 use crate::texture::image::TextureImage;
 use crate::texture::maps::{Source, TextureMap};
@@ -99,16 +99,10 @@ pub(super) fn build_textures<'a>(
                 }
                 None => (None, None),
             };
-            let (bytes, found) = match read {
-                Some(r) => r,
-                None => {
-                    let r = ctx.resolver.read(&img.path).map_err(unreadable)?;
-                    // Keyed by their own hash when read after a key found without reading.
-                    if let Some(c) = &mut content {
-                        *c = sha256(&r.0);
-                    }
-                    r
-                }
+            let (bytes, found) = match (read, &mut content) {
+                (Some(r), _) => r,
+                (None, Some(content)) => read_rekeyed(ctx.resolver, &img.path, content).map_err(unreadable)?,
+                (None, None) => ctx.resolver.read(&img.path).map_err(unreadable)?,
             };
             let decoded = TextureImage::decode(&bytes).map_err(|e| {
                 ctx.err(
