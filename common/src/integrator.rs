@@ -184,6 +184,10 @@ pub struct Tracer<'a> {
     pub renderer: Renderer,
     /// Where [`Self::trace_path_groups`] keeps its paths between calls.
     path_pool: pool::Pool,
+    /// The horizons environment shadow rays ask before they are traced
+    /// ([`crate::geometry::Horizons`]), when the render samples pixels often enough for them
+    /// to pay (see `render::HORIZON_SAMPLES`).
+    pub horizons: Option<&'a crate::geometry::Horizons>,
 }
 
 /// Most rays traced for one camera sample. Glass splits every ray in two, so the tree of a
@@ -213,6 +217,7 @@ impl<'a> Tracer<'a> {
             budget: 0,
             renderer: Renderer::Classic,
             path_pool: pool::Pool::default(),
+            horizons: None,
         }
     }
 
@@ -392,7 +397,13 @@ impl<'a> Tracer<'a> {
         let Some(first) = surfaced.iter().position(Option::is_some) else { return out };
         let point = |i: usize| {
             let (s, hit) = (surfaced[i].as_ref()?, hits[i].as_ref()?);
-            Some(LitPoint { ray: &rays[i], x: hit.point, n: s.lit_normal(false)?, mat: s.mat })
+            Some(LitPoint {
+                ray: &rays[i],
+                x: hit.point,
+                n: s.lit_normal(false)?,
+                mat: s.mat,
+                world: hit.world,
+            })
         };
         let Some(filler) = point(first) else { return out };
         let mut pts = [filler; GROUP_LANES];
@@ -569,7 +580,7 @@ impl<'a> Tracer<'a> {
                     let chance = if continues { brdf_chance(mat, d, n) } else { 0.0 };
                     LightWeights { bounce: BounceDensity { cosine: params.importance, chance }, pick: 1.0 }
                 });
-                let pt = LitPoint { ray: &ray, x: hit.point, n, mat };
+                let pt = LitPoint { ray: &ray, x: hit.point, n, mat, world: hit.world };
                 local += if params.one_light {
                     self.one_light(pt, weights, rng)
                 } else {
@@ -910,7 +921,7 @@ impl<'a> Tracer<'a> {
         env: bool,
         rng: &mut Sampler,
     ) -> DVec3 {
-        self.lit_point(LitPoint { ray, x, n, mat }, env, None, None, rng)
+        self.lit_point(LitPoint { ray, x, n, mat, world: u32::MAX }, env, None, None, rng)
     }
 
     /// [`Self::lights_of`] for one point with its sampler: every light or `only` one, object
@@ -969,8 +980,14 @@ impl<'a> Tracer<'a> {
         mis: Option<LightWeights>,
         rngs: &mut [Sampler],
     ) -> [DVec3; N] {
-        let mut lighting =
-            Lighting { scene: self.scene, env_sampler: self.env_sampler, shadow_rays: 0, only, mis };
+        let mut lighting = Lighting {
+            scene: self.scene,
+            env_sampler: self.env_sampler,
+            shadow_rays: 0,
+            only,
+            mis,
+            horizons: self.horizons,
+        };
         let l = lighting.reflected(pts, env, rngs);
         self.stats.shadow += lighting.shadow_rays;
         l
@@ -1142,6 +1159,7 @@ mod tests {
             dpdu: DVec3::new(su, 0.0, 0.0),
             dpdv: DVec3::new(0.0, sv, 0.0),
             bump_axis: DVec3::Z,
+            world: u32::MAX,
         }
     }
 

@@ -151,6 +151,11 @@ const POOL_GROUPS: usize = 32;
 
 pub use crate::passes::film_value;
 
+/// Samples per pixel from which environment shadow rays ask their triangle's horizon first
+/// ([`crate::geometry::Horizons`]): bounding a horizon costs about as much as a few hundred
+/// shadow rays, which fewer samples do not leave to save. The images are the same either way.
+pub const HORIZON_SAMPLES: u32 = 64;
+
 /// The samples per pixel a camera renders under `settings`.
 pub fn samples_per_pixel(scene: &Scene, camera: usize, settings: &RenderSettings) -> u32 {
     settings.samples.unwrap_or(scene.cameras[camera].num_samples).max(1)
@@ -393,6 +398,9 @@ fn render_tile_groups<const PAIRED: bool>(
     tracer.renderer = cam.renderer;
     if let Some(s) = settings.env_sampling {
         tracer.env_sampler = s;
+    }
+    if n >= HORIZON_SAMPLES {
+        tracer.horizons = scene.horizons();
     }
     // The ray cone (and the footprint computed from it at every textured hit) only matters to
     // trilinear maps.

@@ -228,3 +228,26 @@ fn groups_across_pixels_give_each_pixel_its_own_bits() {
         }
     }
 }
+
+/// Horizons let environment shadow rays above them skip their walk (`geometry::Horizons`, from
+/// `render::HORIZON_SAMPLES` samples a pixel): the walk would have found them unblocked, so
+/// the image is the same bits with and without them. torus_sky.xml's torus under its sky, a
+/// region on the torus at the samples that turn them on.
+#[test]
+fn horizons_do_not_change_the_image() {
+    let path = scenes_dir().join("torus_sky.xml");
+    let with = load(&path);
+    let without = load(&path);
+    without.horizons.set(None).ok().expect("no horizons made yet");
+    let settings =
+        RenderSettings { samples: Some(tessera::render::HORIZON_SAMPLES), ..RenderSettings::default() };
+    let rect = TileRect { x0: 150, y0: 60, width: 180, height: 120 };
+    let (a, stats_a) = pool(2).install(|| render_tile(&with, 0, rect, &settings));
+    let (b, stats_b) = pool(2).install(|| render_tile(&without, 0, rect, &settings));
+    assert_eq!(stats_a.shadow, stats_b.shadow, "the same shadow rays, walked or not");
+    let bounded = with.horizons().map_or(0, |h| h.bounded());
+    assert!(bounded > 100, "the region's triangles had their horizons bounded ({bounded})");
+    for (i, (pa, pb)) in a.iter().zip(&b).enumerate() {
+        assert_eq!(pa.map(f32::to_bits), pb.map(f32::to_bits), "pixel {i} of {rect:?} differs");
+    }
+}

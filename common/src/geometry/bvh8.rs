@@ -156,6 +156,107 @@ impl Bvh8 {
         self.nodes.is_empty()
     }
 
+    /// The root's box: minima (x, y, z), then maxima.
+    pub(super) fn bounds(&self) -> [f32; 6] {
+        self.bounds
+    }
+
+    /// Where each id's triangle is kept (`slot / 4` its packet, `slot % 4` its lane), indexed
+    /// by id; `u32::MAX` for ids the tree does not hold. `None` when an id exceeds `max_id`.
+    pub(super) fn triangle_slots(&self, max_id: u32) -> Option<Vec<u32>> {
+        let mut top = 0u32;
+        for p in &self.tris {
+            for &id in &p.id {
+                if id != u32::MAX {
+                    if id > max_id {
+                        return None;
+                    }
+                    top = top.max(id + 1);
+                }
+            }
+        }
+        let mut slots = vec![u32::MAX; top as usize];
+        for (k, p) in self.tris.iter().enumerate() {
+            for (lane, &id) in p.id.iter().enumerate() {
+                if id != u32::MAX {
+                    slots[id as usize] = (k * 4 + lane) as u32;
+                }
+            }
+        }
+        Some(slots)
+    }
+
+    /// The triangle at `slot` (see [`Self::triangle_slots`]) as the walks test it: vertex 0 and
+    /// its two edges, in the tree's own `f32` values.
+    #[inline(always)]
+    pub(super) fn triangle(&self, slot: u32) -> [[f32; 3]; 3] {
+        let p = &self.tris[slot as usize / 4];
+        let l = slot as usize % 4;
+        [
+            [p.v0[0][l], p.v0[1][l], p.v0[2][l]],
+            [p.e1[0][l], p.e1[1][l], p.e1[2][l]],
+            [p.e2[0][l], p.e2[1][l], p.e2[2][l]],
+        ]
+    }
+
+    /// The root's reference, for a walk of a query's own ([`Self::children`],
+    /// [`Self::leaf_triangles`]); `None` when the tree is empty.
+    pub(super) fn root(&self) -> Option<u32> {
+        (!self.nodes.is_empty()).then_some(0)
+    }
+
+    /// Each child of node reference `cur` (not a leaf: see [`Self::is_leaf`]) with its box
+    /// (minima, then maxima) and its slot's number among all nodes' (`8·node + slot`, below
+    /// [`Self::slot_count`]).
+    pub(super) fn children(&self, cur: u32, mut f: impl FnMut([f32; 3], [f32; 3], u32, usize)) {
+        let node = &self.nodes[cur as usize];
+        for slot in 0..8 {
+            let lo = [node.b[0][slot], node.b[1][slot], node.b[2][slot]];
+            let hi = [node.b[3][slot], node.b[4][slot], node.b[5][slot]];
+            // An empty slot's minima are above its maxima.
+            if lo[0] <= hi[0] {
+                f(lo, hi, node.child[slot], cur as usize * 8 + slot);
+            }
+        }
+    }
+
+    /// How many child slots the nodes have in all.
+    pub(super) fn slot_count(&self) -> usize {
+        self.nodes.len() * 8
+    }
+
+    /// Every triangle under child reference `cur`, as [`Self::triangle`] gives it.
+    pub(super) fn subtree_triangles(&self, cur: u32, f: &mut impl FnMut([[f32; 3]; 3])) {
+        if Self::is_leaf(cur) {
+            self.leaf_triangles(cur, f);
+        } else {
+            let node = &self.nodes[cur as usize];
+            for slot in 0..8 {
+                if node.b[0][slot] <= node.b[3][slot] {
+                    self.subtree_triangles(node.child[slot], f);
+                }
+            }
+        }
+    }
+
+    /// Whether child reference `cur` is a leaf.
+    pub(super) fn is_leaf(cur: u32) -> bool {
+        cur & LEAF != 0
+    }
+
+    /// Each triangle of leaf reference `cur` as [`Self::triangle`] gives it.
+    pub(super) fn leaf_triangles(&self, cur: u32, mut f: impl FnMut([[f32; 3]; 3])) {
+        let first = (cur & FIRST_MASK) as usize;
+        let n = ((cur & !LEAF) >> COUNT_SHIFT) as usize;
+        for k in first..first + n {
+            for lane in 0..4 {
+                if self.tris[k].id[lane] != u32::MAX {
+                    f(self.triangle((k * 4 + lane) as u32));
+                }
+            }
+        }
+    }
+
     /// Closest hit with t in (ray.tmin, ray.tmax): (t, id).
     #[inline]
     pub fn intersect(&self, ray: &Ray8) -> Option<(f32, u32)> {

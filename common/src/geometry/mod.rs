@@ -13,6 +13,7 @@
 //! ray at a time.
 
 pub mod bvh8;
+mod horizon;
 mod instance;
 pub mod mesh;
 mod rays;
@@ -27,6 +28,7 @@ use obvhs::{BvhBuildParams, aabb::Aabb, cwbvh::CwBvh, cwbvh::builder::build_cwbv
 
 use crate::math::{Ray, Transform, pick, word};
 use bvh8::{BoxRays8, Bvh8, Lanes8, Packet8, Ray8};
+pub use horizon::Horizons;
 pub use instance::{Instance, ObjectTextures, Shape};
 pub use mesh::MeshGeom;
 pub use rays::{Axes, HitLanes, RayLanes};
@@ -36,7 +38,7 @@ pub use world::WorldTree;
 use world::{LoneMesh, WorldPlane, merge_static_meshes};
 
 /// A surface point found by a ray, everything in world space.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug)]
 pub struct SurfaceHit {
     pub t: f64,
     pub point: DVec3,
@@ -59,6 +61,27 @@ pub struct SurfaceHit {
     /// ∂p/∂v do. Spheres: the unit world shading normal, whatever the transformation — the
     /// course references do it this way (see `perturbed_normal` for the figures).
     pub bump_axis: DVec3,
+    /// The hit triangle's id in the world tree when that tree found it, `u32::MAX` otherwise:
+    /// what [`Accel::horizon_clear`] asks about.
+    pub world: u32,
+}
+
+impl Default for SurfaceHit {
+    fn default() -> Self {
+        SurfaceHit {
+            t: 0.0,
+            point: DVec3::ZERO,
+            geo_normal: DVec3::ZERO,
+            shading_normal: DVec3::ZERO,
+            material: 0,
+            instance: 0,
+            uv: DVec2::ZERO,
+            dpdu: DVec3::ZERO,
+            dpdv: DVec3::ZERO,
+            bump_axis: DVec3::ZERO,
+            world: u32::MAX,
+        }
+    }
 }
 
 /// The whole scene's geometry, ready for ray queries.
@@ -410,6 +433,28 @@ impl Accel {
         match self.lone {
             Some(lone) => Some(self.meshes[lone.mesh as usize].tree()),
             None => (!self.merged.is_empty()).then_some(&*self.merged),
+        }
+    }
+
+    /// Horizons for the shadow rays of this scene's world-tree triangles ([`Horizons`]), whose
+    /// origins stand `epsilon` off their surface; `None` unless the world tree holds the whole
+    /// scene (every blocker must be in it) and is small enough.
+    pub fn horizons(&self, epsilon: f64) -> Option<Horizons> {
+        if !(self.bounded.is_empty() && self.unbounded.is_empty()) {
+            return None;
+        }
+        Horizons::new(self.world_tree()?, epsilon)
+    }
+
+    /// Whether a shadow ray in unit direction `d` from a point of world-tree triangle `world`
+    /// (a [`SurfaceHit::world`]), leaving it at the shadow-ray epsilon along the unit lit
+    /// normal `n`, certainly reaches infinity unblocked: [`Self::occluded`] would say false.
+    /// False when the horizon cannot tell; `horizons` must be this scene's.
+    #[inline(always)]
+    pub fn horizon_clear(&self, horizons: &Horizons, world: u32, n: DVec3, d: DVec3) -> bool {
+        match self.world_tree() {
+            Some(tree) => horizons.clear(tree, world, n, d),
+            None => false,
         }
     }
 
@@ -957,6 +1002,7 @@ impl Accel {
             hit.material = inst.material;
             hit.instance = instance;
             hit.bump_axis = side_of(n_shade, shading_normal);
+            hit.world = best[k].merged;
         }
         true
     }
@@ -986,6 +1032,7 @@ impl Accel {
                 dpdu: DVec3::ZERO,
                 dpdv: DVec3::ZERO,
                 bump_axis: if inst.transform.is_some() { DVec3::ZERO } else { n },
+                world: c.merged,
             };
             return;
         }
@@ -1055,6 +1102,7 @@ impl Accel {
             // Measured (bump_mapping_transformed): a transformed mesh's relief scales with the
             // object (axis M·n_obj), a transformed sphere's does not (the unit world normal).
             bump_axis: if sphere { shading_normal } else { side_of(bump_axis, shading_normal) },
+            world: c.merged,
         };
     }
 }

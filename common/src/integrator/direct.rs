@@ -30,6 +30,9 @@ pub struct LitPoint<'m> {
     pub x: DVec3,
     pub n: DVec3,
     pub mat: &'m Material,
+    /// The point's triangle in the world tree ([`crate::geometry::SurfaceHit::world`]), or
+    /// `u32::MAX`: lets its environment shadow rays ask the triangle's horizon first.
+    pub world: u32,
 }
 
 /// The requests a `SampleOneLight` vertex reserves for its light, after the one that picks it:
@@ -270,6 +273,8 @@ pub struct Lighting<'s> {
     /// With multiple importance sampling, how object lights' samples are weighed (`None`:
     /// each counts in full). Every lane shares it: the path tracer lights one point at a time.
     pub mis: Option<LightWeights>,
+    /// Horizons the environment lights' shadow rays ask first ([`Tracer::horizons`]).
+    pub horizons: Option<&'s crate::geometry::Horizons>,
 }
 
 impl Lighting<'_> {
@@ -401,21 +406,33 @@ impl Lighting<'_> {
         // own directions.
         let envs = scene.env_light.iter().chain(&scene.extra_env_lights).enumerate();
         let envs = envs.filter(|&(i, _)| only.is_none_or(|o| o == env_base + i)).map(|(_, l)| l);
+        let horizons = if env { self.horizons } else { None };
         for light in envs.filter(|_| env) {
             let xi = draw_env::<N>(rngs, live, EnvLight::requests(self.env_sampler));
             let mut dirs = EnvDirections::NONE;
             light.sample_directions(&views.n, self.env_sampler, &xi, live, &mut dirs);
             let mut shadows = Shadows::new(origin);
+            // Rays above their triangle's horizon are clear without a walk (the walk would say
+            // the same); they are counted as the shadow rays they are. Asked here, with the
+            // direction still in registers.
+            let mut above = 0u32;
             for k in lanes(dirs.mask) {
                 // Only a direction below the surface is skipped (a NaN cosine still traces its
                 // ray); a mask bit, not a branch per lane.
                 let wi = dirs.wi(k);
-                let cos = pts[k].n.dot(wi);
+                let p = &pts[k];
+                let cos = p.n.dot(wi);
                 shadows.dir[k] = wi;
                 shadows.far[k] = f64::INFINITY;
-                shadows.mask |= u32::from(cos > 0.0 || cos.is_nan()) << k;
+                let traced = cos > 0.0 || cos.is_nan();
+                let clear = traced
+                    && p.world != u32::MAX
+                    && horizons.is_some_and(|h| scene.accel.horizon_clear(h, p.world, p.n, wi));
+                shadows.mask |= u32::from(traced && !clear) << k;
+                above |= u32::from(clear) << k;
             }
-            let clear = self.clear_lanes(pts, &shadows, false);
+            self.shadow_rays += u64::from(above.count_ones());
+            let clear = self.clear_lanes(pts, &shadows, false) | above;
             if clear != 0 {
                 let (lit, w) = light.weights(&mut dirs, clear);
                 let mut weights = [DVec3::ZERO; N];

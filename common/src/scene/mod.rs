@@ -150,9 +150,24 @@ pub struct Scene {
     /// one by one: worked out by `integrator::paths::fits` on its first call, from the scene as
     /// it is then (a scene is not changed once built).
     pub path_lanes: std::sync::OnceLock<Option<Vec<crate::material::MatteSlot>>>,
+    /// The horizons of the world tree's triangles for the environment lights' shadow rays
+    /// ([`Scene::horizons`]), made on first use from the scene as it is then.
+    pub horizons: std::sync::OnceLock<Option<crate::geometry::Horizons>>,
 }
 
 impl Scene {
+    /// The horizons environment shadow rays ask before they are traced
+    /// ([`crate::geometry::Horizons`]): `None` without an environment light, or when the world
+    /// tree does not hold the whole scene.
+    pub fn horizons(&self) -> Option<&crate::geometry::Horizons> {
+        self.horizons
+            .get_or_init(|| {
+                let lit = self.env_light.is_some() || !self.extra_env_lights.is_empty();
+                lit.then(|| self.accel.horizons(self.shadow_ray_epsilon)).flatten()
+            })
+            .as_ref()
+    }
+
     /// The number of the first object light among all lights, as direct lighting and
     /// [`crate::lights::choice::LightChoice`] number them: point, area, directional and spot
     /// lights come before.

@@ -248,6 +248,7 @@ fn build_scene_with(
         stats,
         light_choice: Default::default(),
         path_lanes: Default::default(),
+        horizons: Default::default(),
     };
     scene.light_choice = crate::lights::choice::LightChoice::new(
         &scene.point_lights,
