@@ -68,6 +68,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "geometry::rays",
             "geometry::shapes",
             "geometry::instance",
+            "geometry::horizon",
             "tonemap",
             "hdr_io",
         ],

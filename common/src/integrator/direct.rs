@@ -412,26 +412,29 @@ impl Lighting<'_> {
             let mut dirs = EnvDirections::NONE;
             light.sample_directions(&views.n, self.env_sampler, &xi, live, &mut dirs);
             let mut shadows = Shadows::new(origin);
-            // Rays above their triangle's horizon are clear without a walk (the walk would say
-            // the same); they are counted as the shadow rays they are. Asked here, with the
-            // direction still in registers.
-            let mut above = 0u32;
             for k in lanes(dirs.mask) {
                 // Only a direction below the surface is skipped (a NaN cosine still traces its
                 // ray); a mask bit, not a branch per lane.
                 let wi = dirs.wi(k);
-                let p = &pts[k];
-                let cos = p.n.dot(wi);
+                let cos = pts[k].n.dot(wi);
                 shadows.dir[k] = wi;
                 shadows.far[k] = f64::INFINITY;
-                let traced = cos > 0.0 || cos.is_nan();
-                let clear = traced
-                    && p.world != u32::MAX
-                    && horizons.is_some_and(|h| scene.accel.horizon_clear(h, p.world, p.n, wi));
-                shadows.mask |= u32::from(traced && !clear) << k;
-                above |= u32::from(clear) << k;
+                shadows.mask |= u32::from(cos > 0.0 || cos.is_nan()) << k;
             }
-            self.shadow_rays += u64::from(above.count_ones());
+            // Rays above their triangle's horizon are clear without a walk (the walk would say
+            // the same); they are counted as the shadow rays they are. Without horizons (fewer
+            // samples a pixel) this is one branch.
+            let mut above = 0u32;
+            if let Some(h) = horizons {
+                for k in lanes(shadows.mask) {
+                    let p = &pts[k];
+                    if p.world != u32::MAX && scene.accel.horizon_clear(h, p.world, p.n, shadows.dir[k]) {
+                        above |= 1 << k;
+                    }
+                }
+                shadows.mask &= !above;
+                self.shadow_rays += u64::from(above.count_ones());
+            }
             let clear = self.clear_lanes(pts, &shadows, false) | above;
             if clear != 0 {
                 let (lit, w) = light.weights(&mut dirs, clear);
