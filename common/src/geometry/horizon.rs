@@ -46,8 +46,9 @@ use super::bvh8::Bvh8;
 /// moved off the surface) and its triangle's geometric normal on that side for a horizon to
 /// answer: steeper normals (a bump map's, a smooth normal far from its face) trace.
 const LEAST_COSINE: f64 = 0.9;
-/// Most triangle ids a world tree may have for its horizons to be kept (56 bytes each: the
-/// entries, the frame and the slot).
+/// Most triangle ids a world tree may have for its horizons to be kept: about 72 bytes a
+/// triangle (its two entries, frame and slot, 56, and the disks of its tree's slots), so 75 MB
+/// at most.
 const MAX_TRIANGLES: u32 = 1 << 20;
 /// A sector's byte `b` lets a direction through when its sine of elevation exceeds
 /// `b / STEPS`; [`NEVER`] lets nothing through.
