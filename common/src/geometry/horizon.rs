@@ -149,6 +149,14 @@ struct Frame {
     radius: f64,
 }
 
+impl Frame {
+    /// Point `p`'s coordinates in the triangle's plane (vertex 0 at the origin).
+    fn flat_of(&self, p: DVec3) -> DVec2 {
+        let w = p - self.a;
+        DVec2::new(w.dot(self.t1), w.dot(self.t2))
+    }
+}
+
 /// The frame of a tree triangle (see [`Horizons::frames`]), zero when it is degenerate.
 fn frame_of(t: &[[f32; 3]; 3]) -> [f32; 9] {
     let e1 = DVec3::new(t[1][0] as f64, t[1][1] as f64, t[1][2] as f64);
@@ -367,9 +375,7 @@ impl Horizons {
 
     /// The least horizontal distance between a ball (centre `c`, radius `r`) and any origin.
     fn gap(&self, f: &Frame, c: DVec3, r: f64) -> f64 {
-        let w = c - f.a;
-        let q = DVec2::new(w.dot(f.t1), w.dot(f.t2));
-        distance_to_triangle(q, &f.flat) - r - self.reach
+        distance_to_triangle(f.flat_of(c), &f.flat) - r - self.reach
     }
 
     /// What a ball (centre `c`, radius `r`) whose highest point is `top` above the plane can
@@ -388,9 +394,8 @@ impl Horizons {
         if !(top > self.floor) {
             return Bound::Below;
         }
-        let w = c - f.a;
-        let q = DVec2::new(w.dot(f.t1), w.dot(f.t2));
-        let mut gap = distance_to_triangle(q, &f.flat) - r - self.reach;
+        let q = f.flat_of(c);
+        let mut gap = self.gap(f, c, r);
         if let Some((half, disk)) = boxed
             && !(gap > 0.0)
         {
