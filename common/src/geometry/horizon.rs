@@ -24,7 +24,10 @@
 //! - every other piece of geometry: the world tree must hold the whole scene (checked by the
 //!   caller, [`super::Accel::horizons`]). The tree's boxes bound whole subtrees; a triangle
 //!   near the origin is split into up to 4^[`MAX_DEPTH`] pieces, so that the low parts of a
-//!   neighbour do not count as high;
+//!   neighbour do not count as high; and a triangle whose plane has every origin on one side
+//!   blocks, in each wedge, no ray climbing more steeply than that plane
+//!   ([`Horizons::plane_bound`]), so that a neighbour rising from the triangle's edge bounds
+//!   the horizon by its slope instead of closing it;
 //! - the precision of the walk: the triangles are the tree's own `f32` values, positions are
 //!   widened by a tolerance of `1e-6` of the scene's largest coordinate, azimuth sectors by
 //!   [`AZIMUTH_PAD`] radians, and sines by [`SINE_MARGIN`].
@@ -84,6 +87,10 @@ pub struct Horizons {
     floor: f64,
     /// How far beside its triangle an origin may stand, widened by two tolerances.
     reach: f64,
+    /// The greatest height above its triangle's plane an origin may have.
+    ceiling: f64,
+    /// The tolerance of positions: 1e-6 of the scene's largest coordinate.
+    tol: f64,
     /// Where each id's triangle is in the tree ([`Bvh8::triangle_slots`]).
     slots: Vec<u32>,
     /// Each id's frame: the unit geometric normal, the unit first edge and their cross
@@ -222,7 +229,8 @@ impl Horizons {
                 }
             });
         }
-        Some(Horizons { floor, reach: beside + 3.0 * tol, slots, frames, table, disks })
+        let ceiling = epsilon * (1.0 + 1e-9) + 3.0 * tol;
+        Some(Horizons { floor, reach: beside + 3.0 * tol, ceiling, tol, slots, frames, table, disks })
     }
 
     /// How many triangle sides have had their horizon bounded so far.
@@ -299,7 +307,7 @@ impl Horizons {
                     let p0 = DVec3::new(t[0][0] as f64, t[0][1] as f64, t[0][2] as f64);
                     let p1 = p0 + DVec3::new(t[1][0] as f64, t[1][1] as f64, t[1][2] as f64);
                     let p2 = p0 + DVec3::new(t[2][0] as f64, t[2][1] as f64, t[2][2] as f64);
-                    self.piece(&frame, [p0, p1, p2], 0, &mut tan, &mut blocked);
+                    self.piece(&frame, [p0, p1, p2], 0, None, &mut tan, &mut blocked);
                 });
                 if blocked || tan.iter().all(|&t| t >= TAN_USELESS) {
                     return ALL_NEVER;
@@ -312,7 +320,7 @@ impl Horizons {
                     let disk = &self.disks[index];
                     let top = ((c - frame.a).dot(frame.n) + half.abs().dot(frame.n.abs()))
                         .min((disk.c - frame.a).dot(frame.n) + disk.extent(frame.n));
-                    match self.bound(&frame, c, half.length().min(disk.r), Some((half, disk)), top, false) {
+                    match self.bound(&frame, c, half.length().min(disk.r), Some((half, disk)), top, &tan) {
                         Bound::Below => {}
                         Bound::Near => heap.push(Pending { key: f64::INFINITY, sectors: 0xFF, node: child }),
                         Bound::Rises(t, sectors) => {
@@ -335,7 +343,17 @@ impl Horizons {
     }
 
     /// Bounds a triangle piece, splitting it in four where that may lower what it raises.
-    fn piece(&self, f: &Frame, p: [DVec3; 3], depth: u32, tan: &mut [f64; 8], blocked: &mut bool) {
+    /// `plane`, when known, bounds in each wedge what the piece's whole plane can block
+    /// ([`Horizons::plane_bound`]).
+    fn piece(
+        &self,
+        f: &Frame,
+        p: [DVec3; 3],
+        depth: u32,
+        plane: Option<&[f64; 8]>,
+        tan: &mut [f64; 8],
+        blocked: &mut bool,
+    ) {
         if *blocked {
             return;
         }
@@ -346,31 +364,107 @@ impl Horizons {
         }
         let c = (p[0] + p[1] + p[2]) / 3.0;
         let r = p.iter().map(|&q| (q - c).length()).fold(0.0, f64::max);
+        let bound = self.bound(f, c, r, None, top, tan);
+        if let Bound::Below = bound {
+            return;
+        }
+        // A whole triangle that may raise something: its plane's bound, which its pieces share.
+        let own;
+        let plane = if depth == 0 {
+            own = self.plane_bound(f, p);
+            match &own {
+                Some(pt) if !raises_each(tan, pt, 0xFF) => return,
+                o => o.as_ref(),
+            }
+        } else {
+            plane
+        };
         let split = |tan: &mut [f64; 8], blocked: &mut bool| {
             let m = [(p[0] + p[1]) * 0.5, (p[1] + p[2]) * 0.5, (p[2] + p[0]) * 0.5];
             for q in [[p[0], m[0], m[2]], [m[0], p[1], m[1]], [m[2], m[1], p[2]], [m[0], m[1], m[2]]] {
-                self.piece(f, q, depth + 1, tan, blocked);
+                self.piece(f, q, depth + 1, plane, tan, blocked);
             }
         };
-        match self.bound(f, c, r, None, top, true) {
+        // What the piece raises each wedge to: `t` in `sectors`, no more than its plane allows.
+        let raise = |tan: &mut [f64; 8], t: f64, sectors: u8| {
+            for (k, v) in tan.iter_mut().enumerate() {
+                if sectors & (1 << k) != 0 {
+                    *v = v.max(plane.map_or(t, |pt| t.min(pt[k])));
+                }
+            }
+        };
+        match bound {
             Bound::Below => {}
             Bound::Near if depth < MAX_DEPTH => split(tan, blocked),
-            Bound::Near => *blocked = true,
+            Bound::Near => match plane {
+                Some(_) => raise(tan, f64::INFINITY, 0xFF),
+                None => *blocked = true,
+            },
             Bound::Rises(t, sectors) => {
-                if !raises(tan, t, sectors) {
+                let lowered = plane.map(|pt| pt.map(|v| v.min(t)));
+                if !raises_each(tan, lowered.as_ref().unwrap_or(&[t; 8]), sectors) {
                     return;
                 }
                 if depth < MAX_DEPTH && r > 0.2 * self.gap(f, c, r) {
                     split(tan, blocked);
                 } else {
-                    for (k, v) in tan.iter_mut().enumerate() {
-                        if sectors & (1 << k) != 0 {
-                            *v = v.max(t);
-                        }
-                    }
+                    raise(tan, t, sectors);
                 }
             }
         }
+    }
+
+    /// What the plane of a triangle `p` can block, in each wedge: when every origin stands on
+    /// one side of that plane, at least a few tolerances off it, a ray that does not turn
+    /// towards the plane never meets it. Along azimuth `φ`, with the side's unit normal `m`
+    /// (pointing at the origins) in the frame's coordinates, the ray of elevation `e` turns
+    /// away when `cos e·(m_x cos φ + m_y sin φ) + m_z sin e >= 0`, that is when `tan e >=
+    /// -(m_x cos φ + m_y sin φ) / m_z`; the wedge's bound is the greatest of that over its
+    /// azimuths, widened by [`AZIMUTH_PAD`]. `None` when the origins straddle the plane or it
+    /// is too steep to bound anything.
+    fn plane_bound(&self, f: &Frame, p: [DVec3; 3]) -> Option<[f64; 8]> {
+        let m = (p[1] - p[0]).cross(p[2] - p[0]);
+        let len = m.length();
+        if !(len > 0.0 && len.is_finite()) {
+            return None;
+        }
+        let m = m / len;
+        let (mx, my, mz) = (m.dot(f.t1), m.dot(f.t2), m.dot(f.n));
+        // The signed distance of an origin from the plane is linear over where origins may
+        // be: the triangle widened by `reach`, between `floor` and `ceiling` above it.
+        let base = (f.a - p[0]).dot(m);
+        let at = f.flat.map(|v| base + v.x * mx + v.y * my);
+        let beside = self.reach * mx.hypot(my);
+        let least = at.iter().fold(f64::INFINITY, |a, &b| a.min(b)) - beside;
+        let most = at.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b)) + beside;
+        let (h0, h1) = (self.floor * mz, self.ceiling * mz);
+        let margin = 4.0 * self.tol;
+        let s = if least + h0.min(h1) > margin {
+            1.0
+        } else if most + h0.max(h1) < -margin {
+            -1.0
+        } else {
+            return None;
+        };
+        let (sx, sy, sz) = (s * mx, s * my, s * mz);
+        if !(sz >= 0.05) {
+            return None;
+        }
+        let peak = angle(DVec2::new(-sx, -sy));
+        let most_tan = (sx * sx + sy * sy).sqrt() / sz;
+        // At the wedges' edges `k·45°`; the padding can raise a wedge's greatest value by at
+        // most the slope's bound times the pad.
+        const C: [f64; 9] = [1.0, R, 0.0, -R, -1.0, -R, 0.0, R, 1.0];
+        const S: [f64; 9] = [0.0, R, 1.0, R, 0.0, -R, -1.0, -R, 0.0];
+        const R: f64 = std::f64::consts::FRAC_1_SQRT_2;
+        let edge: [f64; 9] = std::array::from_fn(|k| -(sx * C[k] + sy * S[k]) / sz);
+        let pad = most_tan * AZIMUTH_PAD + 1e-9;
+        let half = 0.5 * std::f64::consts::FRAC_PI_4 + AZIMUTH_PAD;
+        Some(std::array::from_fn(|k| {
+            let mid = (k as f64 + 0.5) * std::f64::consts::FRAC_PI_4;
+            let inside = wrap(peak - mid).abs() <= half;
+            (if inside { most_tan } else { edge[k].max(edge[k + 1]) }) + pad
+        }))
     }
 
     /// The least horizontal distance between a ball (centre `c`, radius `r`) and any origin.
@@ -379,9 +473,10 @@ impl Horizons {
     }
 
     /// What a ball (centre `c`, radius `r`) whose highest point is `top` above the plane can
-    /// block: nothing, anything, or rays up to an elevation's tangent in some sectors. The
-    /// sectors are those seen from the triangle's three widened vertices when `precise`, else
-    /// from a disk around the whole triangle (one arc tangent, not three).
+    /// block: nothing above the wedges' horizons `tan`, anything, or rays up to an elevation's
+    /// tangent in some sectors. The sectors are those seen from the triangle's three widened
+    /// vertices for a piece of a triangle, and for a subtree (`boxed`: its box's half extents
+    /// and its disk) from a disk around the whole triangle (one arc tangent, not three).
     fn bound(
         &self,
         f: &Frame,
@@ -389,7 +484,7 @@ impl Horizons {
         r: f64,
         boxed: Option<(DVec3, &Disk)>,
         top: f64,
-        precise: bool,
+        tan: &[f64; 8],
     ) -> Bound {
         if !(top > self.floor) {
             return Bound::Below;
@@ -416,7 +511,11 @@ impl Horizons {
             return Bound::Near;
         }
         let t = (top - self.floor) / gap;
-        if !precise {
+        if !raises(tan, t, 0xFF) {
+            // Not even in every sector: its azimuths need not be found.
+            return Bound::Below;
+        }
+        if boxed.is_some() {
             let to = q - f.centre;
             let len = to.length();
             let widen = r + f.radius;
@@ -446,6 +545,7 @@ impl Horizons {
 
 /// See [`Horizons::bound`].
 enum Bound {
+    /// Nothing that would raise a wedge: below the lowest origin, or too low or far.
     Below,
     Near,
     /// The tangent of the highest elevation, and the sectors (by wedge) it applies in.
@@ -481,6 +581,11 @@ fn lifted(t: f64) -> f64 {
 /// Whether tangent `t` over wedges `sectors` would raise some wedge's stored horizon.
 fn raises(tan: &[f64; 8], t: f64, sectors: u8) -> bool {
     (0..8).any(|k| sectors & (1 << k) != 0 && t > lifted(tan[k]))
+}
+
+/// Whether raising wedges `sectors` to `t[k]` each would raise some wedge's stored horizon.
+fn raises_each(tan: &[f64; 8], t: &[f64; 8], sectors: u8) -> bool {
+    (0..8).any(|k| sectors & (1 << k) != 0 && t[k] > lifted(tan[k]))
 }
 
 /// A subtree still to be walked, with what it may raise: a key of infinity for the subtrees
@@ -644,6 +749,67 @@ mod tests {
             }
         }
         assert!(let_through * 4 > asked, "only {let_through} of {asked} rays let through");
+    }
+
+    /// A valley: a floor meeting a wall that rises at 35°. Seen from the floor beside the crease,
+    /// the wall's nearest pieces touch the origins, so no distance bounds them; their plane
+    /// does: a ray climbing more steeply than the wall, towards it, passes over it. Such rays
+    /// are let through, and no ray let through is blocked.
+    #[test]
+    fn a_valley_lets_through_what_climbs_over_its_wall() {
+        let slope = 35f64.to_radians().tan();
+        let (cells, mut positions, mut faces) = (8u32, Vec::new(), Vec::new());
+        // Rows of vertices along x from -1 to 1, the wall's height x·slope beyond the crease.
+        for i in 0..=cells {
+            let x = -1.0 + 2.0 * i as f64 / cells as f64;
+            for j in 0..=cells {
+                let y = -1.0 + 2.0 * j as f64 / cells as f64;
+                positions.push(DVec3::new(x, y, x.max(0.0) * slope));
+            }
+        }
+        for i in 0..cells {
+            for j in 0..cells {
+                let a = i * (cells + 1) + j;
+                let (b, c, d) = (a + 1, a + cells + 1, a + cells + 2);
+                faces.push([a, c, b]);
+                faces.push([b, c, d]);
+            }
+        }
+        let accel = Accel::new(vec![Arc::new(MeshGeom::new(positions, faces, None))], vec![mesh(0)]);
+        let eps = 1e-3;
+        let horizons = accel.horizons(eps).expect("the world tree holds the whole scene");
+        let up = DVec3::Z;
+        let (mut over, mut let_through) = (0, 0);
+        for p in [DVec3::new(-0.1, 0.05, 1.0), DVec3::new(-0.2, -0.3, 1.0), DVec3::new(-0.05, 0.6, 1.0)] {
+            let hit = accel.intersect(&Ray::new(p, -up), 1e-6, f64::INFINITY).expect("the floor");
+            assert_ne!(hit.world, u32::MAX);
+            let origin = hit.point + eps * up;
+            for _ in 0..QUERIES_BEFORE {
+                accel.horizon_clear(&horizons, hit.world, up, DVec3::new(0.6, 0.0, 0.8));
+            }
+            for step in 0..=90 {
+                for azimuth in [-20.0f64, 0.0, 15.0, 180.0] {
+                    let (e, a) = ((step as f64).to_radians(), azimuth.to_radians());
+                    let d = DVec3::new(e.cos() * a.cos(), e.cos() * a.sin(), e.sin());
+                    if !accel.horizon_clear(&horizons, hit.world, up, d) {
+                        continue;
+                    }
+                    let_through += 1;
+                    assert!(
+                        !accel.occluded(&Ray::new(origin, d), 1e-6, f64::INFINITY),
+                        "let through but blocked: from {origin:?} along {d:?}"
+                    );
+                    if azimuth == 0.0 {
+                        assert!(e.tan() > slope, "{step}° towards the wall is let through");
+                        over += 1;
+                    }
+                }
+            }
+        }
+        // Towards the wall (three azimuths), from about 50° up (its 35°, the margins, a byte's
+        // rounding); away from it, from about 10° up.
+        assert!(over >= 3 * 35, "only {over} rays over the wall let through");
+        assert!(let_through > 3 * (3 * 35 + 75), "only {let_through} rays let through");
     }
 
     /// The wedge mask of an azimuth range is every wedge the closed range meets.
