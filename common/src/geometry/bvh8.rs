@@ -230,12 +230,7 @@ impl Bvh8 {
         if Self::is_leaf(cur) {
             self.leaf_triangles(cur, f);
         } else {
-            let node = &self.nodes[cur as usize];
-            for slot in 0..8 {
-                if node.b[0][slot] <= node.b[3][slot] {
-                    self.subtree_triangles(node.child[slot], f);
-                }
-            }
+            self.children(cur, |_, _, child, _| self.subtree_triangles(child, f));
         }
     }
 

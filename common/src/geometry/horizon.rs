@@ -580,7 +580,7 @@ fn lifted(t: f64) -> f64 {
 
 /// Whether tangent `t` over wedges `sectors` would raise some wedge's stored horizon.
 fn raises(tan: &[f64; 8], t: f64, sectors: u8) -> bool {
-    (0..8).any(|k| sectors & (1 << k) != 0 && t > lifted(tan[k]))
+    raises_each(tan, &[t; 8], sectors)
 }
 
 /// Whether raising wedges `sectors` to `t[k]` each would raise some wedge's stored horizon.
